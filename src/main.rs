@@ -1,0 +1,2 @@
+//! The `pcimg` command line: argument parsing and dispatch only.
+fn main() {}

@@ -1,0 +1,171 @@
+//! Point columns: the in-memory form of a point cloud that flows from the input
+//! readers into the image store. Coordinates are `f64` (georeferenced inputs keep
+//! millimetres); every other attribute is an `f32` column plus an `f64` offset.
+
+/// One scalar attribute column (intensity, red, classification, gps_time...).
+///
+/// The true value of point `i` is `offset + values[i] as f64`. Readers use the offset
+/// for attributes whose magnitude would cost precision in `f32` (GPS time).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Attribute {
+    pub name: String,
+    pub offset: f64,
+    pub values: Vec<f32>,
+}
+
+impl Attribute {
+    pub fn new(name: impl Into<String>, values: Vec<f32>) -> Self {
+        Self {
+            name: name.into(),
+            offset: 0.0,
+            values,
+        }
+    }
+}
+
+/// A set of points as columns of equal length.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct PointColumns {
+    pub x: Vec<f64>,
+    pub y: Vec<f64>,
+    pub z: Vec<f64>,
+    pub attributes: Vec<Attribute>,
+}
+
+/// Axis-aligned bounds in source coordinates.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct Bounds {
+    pub min: [f64; 3],
+    pub max: [f64; 3],
+}
+
+impl Bounds {
+    /// The empty bounds: `min` is +inf and `max` is -inf, so any point extends it.
+    pub const EMPTY: Bounds = Bounds {
+        min: [f64::INFINITY; 3],
+        max: [f64::NEG_INFINITY; 3],
+    };
+
+    pub fn is_empty(&self) -> bool {
+        (0..3).any(|a| self.min[a] > self.max[a])
+    }
+
+    pub fn extend(&mut self, p: [f64; 3]) {
+        for a in 0..3 {
+            self.min[a] = self.min[a].min(p[a]);
+            self.max[a] = self.max[a].max(p[a]);
+        }
+    }
+
+    pub fn union(&self, o: &Bounds) -> Bounds {
+        let mut b = *self;
+        for a in 0..3 {
+            b.min[a] = b.min[a].min(o.min[a]);
+            b.max[a] = b.max[a].max(o.max[a]);
+        }
+        b
+    }
+
+    pub fn center(&self) -> [f64; 3] {
+        [0, 1, 2].map(|a| 0.5 * (self.min[a] + self.max[a]))
+    }
+
+    pub fn extent(&self) -> [f64; 3] {
+        [0, 1, 2].map(|a| (self.max[a] - self.min[a]).max(0.0))
+    }
+
+    pub fn contains(&self, o: &Bounds) -> bool {
+        (0..3).all(|a| self.min[a] <= o.min[a] && o.max[a] <= self.max[a])
+    }
+}
+
+impl PointColumns {
+    pub fn len(&self) -> usize {
+        self.x.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.x.is_empty()
+    }
+
+    /// An empty set with the same attribute names and offsets as `self`.
+    pub fn empty_like(&self) -> Self {
+        Self {
+            x: Vec::new(),
+            y: Vec::new(),
+            z: Vec::new(),
+            attributes: self
+                .attributes
+                .iter()
+                .map(|a| Attribute {
+                    name: a.name.clone(),
+                    offset: a.offset,
+                    values: Vec::new(),
+                })
+                .collect(),
+        }
+    }
+
+    /// Checks that every column has the same length; readers call this before
+    /// handing columns on.
+    pub fn check_lengths(&self) -> Result<(), String> {
+        let n = self.x.len();
+        if self.y.len() != n || self.z.len() != n {
+            return Err(format!(
+                "coordinate columns differ in length: x {} y {} z {}",
+                n,
+                self.y.len(),
+                self.z.len()
+            ));
+        }
+        for a in &self.attributes {
+            if a.values.len() != n {
+                return Err(format!(
+                    "attribute '{}' has {} values for {} points",
+                    a.name,
+                    a.values.len(),
+                    n
+                ));
+            }
+        }
+        Ok(())
+    }
+
+    /// The bounds of all points (`Bounds::EMPTY` when there are none).
+    pub fn bounds(&self) -> Bounds {
+        let mut b = Bounds::EMPTY;
+        for i in 0..self.len() {
+            b.extend([self.x[i], self.y[i], self.z[i]]);
+        }
+        b
+    }
+
+    /// Appends all points of `other`, whose attributes must match by name and order.
+    pub fn append(&mut self, other: &PointColumns) -> Result<(), String> {
+        if self.attributes.len() != other.attributes.len()
+            || self
+                .attributes
+                .iter()
+                .zip(&other.attributes)
+                .any(|(a, b)| a.name != b.name)
+        {
+            return Err("attribute columns differ between chunks".into());
+        }
+        self.x.extend_from_slice(&other.x);
+        self.y.extend_from_slice(&other.y);
+        self.z.extend_from_slice(&other.z);
+        for (a, b) in self.attributes.iter_mut().zip(&other.attributes) {
+            if a.values.is_empty() {
+                a.offset = b.offset;
+            }
+            if a.offset == b.offset {
+                a.values.extend_from_slice(&b.values);
+            } else {
+                let shift = b.offset - a.offset;
+                a.values
+                    .extend(b.values.iter().map(|&v| (v as f64 + shift) as f32));
+            }
+        }
+        Ok(())
+    }
+}
