@@ -4,6 +4,8 @@
 //! Data flows one way: [`ingest`] (input readers) → [`store`] (the image format) →
 //! level selection and loading → renderers → the terminal interface.
 
+pub mod cli;
 pub mod points;
 pub mod store;
+pub mod synth;
 pub mod text;

@@ -1,2 +1,21 @@
 //! The multi-band image store: the file format (see ARCHITECTURE.md), its writer and
 //! its reader. Everything above the input readers goes through this module.
+
+pub mod codec;
+pub mod error;
+pub mod layout;
+pub mod metadata;
+pub mod spec;
+pub mod writer;
+pub mod zorder;
+
+pub use codec::Compression;
+pub use error::StoreError;
+pub use layout::Layout;
+pub use writer::{PartSummary, WriteOptions, write_part};
+pub mod dataset;
+pub mod ifd;
+pub mod reader;
+
+pub use dataset::Dataset;
+pub use reader::{BandInfo, Level, Part, PartMeta, Points, TileInfo};

@@ -1,0 +1,272 @@
+//! `pcimg info`: a dataset's parts, bands, levels, bounds and metadata, for people
+//! or (with `--json`) as stable JSON for scripts.
+
+use crate::points::Bounds;
+use crate::store::codec::compression_name;
+use crate::store::{Dataset, Part};
+use crate::text::{bytes, count, sanitize};
+use serde::Serialize;
+use std::path::PathBuf;
+
+#[derive(Debug, clap::Args)]
+pub struct Args {
+    /// A part (.tif) or a directory of parts.
+    pub path: PathBuf,
+    /// Print JSON (stable field names) instead of text.
+    #[arg(long)]
+    pub json: bool,
+    /// Also list every tile of every level with its points and bounds.
+    #[arg(long)]
+    pub tiles: bool,
+}
+
+#[derive(Debug, Serialize)]
+pub struct DatasetReport {
+    pub path: String,
+    pub points: u64,
+    pub bytes: u64,
+    pub bounds: Bounds,
+    pub parts: Vec<PartReport>,
+}
+
+#[derive(Debug, Serialize)]
+pub struct PartReport {
+    pub path: String,
+    pub points: u64,
+    pub bytes: u64,
+    pub bigtiff: bool,
+    pub format_version: u32,
+    pub origin: [f64; 3],
+    pub bounds: Bounds,
+    pub layout: String,
+    pub source: Option<String>,
+    pub crs: Option<String>,
+    pub max_quantization_error: Option<f64>,
+    pub bands: Vec<BandReport>,
+    pub levels: Vec<LevelReport>,
+}
+
+#[derive(Debug, Serialize)]
+pub struct BandReport {
+    pub name: String,
+    pub data_type: &'static str,
+    pub offset: f64,
+}
+
+#[derive(Debug, Serialize)]
+pub struct LevelReport {
+    pub level: usize,
+    pub width: u32,
+    pub height: u32,
+    pub tile_width: u32,
+    pub tile_height: u32,
+    pub tiles: u32,
+    pub tiles_with_data: usize,
+    pub points: Option<u64>,
+    pub bytes: u64,
+    pub compression: String,
+    pub tile_index: bool,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub tile_list: Option<Vec<TileReport>>,
+}
+
+#[derive(Debug, Serialize)]
+pub struct TileReport {
+    pub index: u32,
+    pub points: Option<u32>,
+    pub bounds: Bounds,
+}
+
+fn part_report(p: &Part, tiles: bool) -> PartReport {
+    PartReport {
+        path: p.path.display().to_string(),
+        points: p.meta.point_count,
+        bytes: p.file_bytes,
+        bigtiff: p.bigtiff,
+        format_version: p.meta.format_version,
+        origin: p.meta.origin,
+        bounds: p.meta.bounds,
+        layout: p.meta.layout.clone(),
+        source: p.meta.source.clone(),
+        crs: p.meta.crs.clone(),
+        max_quantization_error: p.meta.max_quantization_error,
+        bands: p
+            .bands
+            .iter()
+            .map(|b| BandReport {
+                name: b.name.clone(),
+                data_type: "Float32",
+                offset: b.offset,
+            })
+            .collect(),
+        levels: p
+            .levels
+            .iter()
+            .map(|l| LevelReport {
+                level: l.index,
+                width: l.width,
+                height: l.height,
+                tile_width: l.tile_width,
+                tile_height: l.tile_height,
+                tiles: l.tiles_across * l.tiles_down,
+                tiles_with_data: l.tiles.len(),
+                points: l.points,
+                bytes: l.bytes,
+                compression: compression_name(l.compression),
+                tile_index: l.indexed,
+                tile_list: tiles.then(|| {
+                    l.tiles
+                        .iter()
+                        .map(|t| TileReport {
+                            index: t.index,
+                            points: t.points,
+                            bounds: t.bounds,
+                        })
+                        .collect()
+                }),
+            })
+            .collect(),
+    }
+}
+
+/// The report for a dataset.
+pub fn report(ds: &Dataset, tiles: bool) -> DatasetReport {
+    DatasetReport {
+        path: ds.path.display().to_string(),
+        points: ds.points(),
+        bytes: ds.bytes(),
+        bounds: ds.bounds(),
+        parts: ds.parts.iter().map(|p| part_report(p, tiles)).collect(),
+    }
+}
+
+fn xyz(v: [f64; 3]) -> String {
+    format!("({:.3}, {:.3}, {:.3})", v[0], v[1], v[2])
+}
+
+/// The report as text for a terminal (every string from the file sanitized).
+pub fn render_text(r: &DatasetReport) -> String {
+    use std::fmt::Write;
+    let mut o = String::new();
+    let _ = writeln!(
+        o,
+        "dataset  {}\n         {} part(s), {} points, {}",
+        sanitize(&r.path),
+        r.parts.len(),
+        count(r.points),
+        bytes(r.bytes)
+    );
+    let _ = writeln!(
+        o,
+        "bounds   min {}\n         max {}",
+        xyz(r.bounds.min),
+        xyz(r.bounds.max)
+    );
+    for (i, p) in r.parts.iter().enumerate() {
+        let _ = writeln!(
+            o,
+            "\npart {}/{}  {}",
+            i + 1,
+            r.parts.len(),
+            sanitize(&p.path)
+        );
+        let _ = writeln!(
+            o,
+            "  points   {}   file {} ({})   format v{}   layout {}",
+            count(p.points),
+            bytes(p.bytes),
+            if p.bigtiff { "BigTIFF" } else { "classic TIFF" },
+            p.format_version,
+            sanitize(&p.layout)
+        );
+        let _ = writeln!(o, "  origin   {}", xyz(p.origin));
+        let _ = writeln!(
+            o,
+            "  bounds   min {}\n           max {}",
+            xyz(p.bounds.min),
+            xyz(p.bounds.max)
+        );
+        if let Some(e) = p.max_quantization_error {
+            let _ = writeln!(
+                o,
+                "  stored coordinates within {:.3} mm of the source",
+                e * 1000.0
+            );
+        }
+        let _ = writeln!(
+            o,
+            "  source   {}",
+            p.source
+                .as_deref()
+                .map(sanitize)
+                .unwrap_or_else(|| "-".into())
+        );
+        let crs = p.crs.as_deref().map(sanitize).unwrap_or_else(|| "-".into());
+        let crs = if crs.chars().count() > 100 {
+            format!("{}…", crs.chars().take(100).collect::<String>())
+        } else {
+            crs
+        };
+        let _ = writeln!(o, "  crs      {crs}");
+        let _ = writeln!(o, "  bands    {}", p.bands.len());
+        for (b, band) in p.bands.iter().enumerate() {
+            let off = if band.offset != 0.0 {
+                format!("  offset {}", band.offset)
+            } else {
+                String::new()
+            };
+            let _ = writeln!(
+                o,
+                "    {:>2}  {:<18} {}{}",
+                b + 1,
+                sanitize(&band.name),
+                band.data_type,
+                off
+            );
+        }
+        let _ = writeln!(
+            o,
+            "  levels   {}\n    level  size          tiles        points        bytes        compression  tile index",
+            p.levels.len()
+        );
+        for l in &p.levels {
+            let _ = writeln!(
+                o,
+                "    {:<5}  {:<12}  {:<11}  {:>12}  {:>11}  {:<11}  {}",
+                l.level,
+                format!("{}×{}", l.width, l.height),
+                format!("{}/{}", l.tiles_with_data, l.tiles),
+                l.points.map(count).unwrap_or_else(|| "?".into()),
+                bytes(l.bytes),
+                l.compression,
+                if l.tile_index { "yes" } else { "no" }
+            );
+            if let Some(tiles) = &l.tile_list {
+                for t in tiles {
+                    let _ = writeln!(
+                        o,
+                        "           tile {:<6} {:>8} points  min {} max {}",
+                        t.index,
+                        t.points
+                            .map(|n| count(n as u64))
+                            .unwrap_or_else(|| "?".into()),
+                        xyz(t.bounds.min),
+                        xyz(t.bounds.max)
+                    );
+                }
+            }
+        }
+    }
+    o
+}
+
+pub fn run(a: Args) -> anyhow::Result<()> {
+    let ds = Dataset::open(&a.path)?;
+    let r = report(&ds, a.tiles);
+    if a.json {
+        println!("{}", serde_json::to_string_pretty(&r)?);
+    } else {
+        print!("{}", render_text(&r));
+    }
+    Ok(())
+}

@@ -1,0 +1,30 @@
+//! The command line: one file per command; `main.rs` only parses and dispatches.
+
+pub mod demo;
+pub mod info;
+
+use clap::{Parser, Subcommand};
+
+/// pcimg: massive point clouds as multi-band image pyramids, viewed from a terminal.
+#[derive(Debug, Parser)]
+#[command(name = "pcimg", version, about, long_about = None)]
+pub struct Cli {
+    #[command(subcommand)]
+    pub command: Command,
+}
+
+#[derive(Debug, Subcommand)]
+pub enum Command {
+    /// List a dataset's parts, bands, pyramid levels, bounds and metadata.
+    Info(info::Args),
+    /// Build a synthetic dataset in a temporary directory and show it.
+    Demo(demo::Args),
+}
+
+/// Runs the parsed command.
+pub fn run(cli: Cli) -> anyhow::Result<()> {
+    match cli.command {
+        Command::Info(a) => info::run(a),
+        Command::Demo(a) => demo::run(a),
+    }
+}

@@ -1,0 +1,698 @@
+//! Reading one part: headers only at open (levels, bands, metadata, tile index),
+//! then levels or chosen tiles for chosen bands into `f32` columns. Uncompressed
+//! tiles are read straight out of the memory map; compressed ones are decoded in
+//! parallel. Files rewritten by GDAL (pixel-interleaved, recompressed, overviews
+//! rebuilt by gdaladdo) read too.
+
+use super::codec::TileCodec;
+use super::error::{Result, StoreError};
+use super::ifd::{Ifd, Tiff};
+use super::metadata::{self, LevelIndex};
+use super::spec::{self, key, tag};
+use super::zorder::tile_z_to_raster;
+use crate::points::Bounds;
+use memmap2::Mmap;
+use rayon::prelude::*;
+use std::collections::BTreeMap;
+use std::fs::File;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+/// Dataset-level metadata of a part.
+#[derive(Debug, Clone)]
+pub struct PartMeta {
+    pub format_version: u32,
+    pub point_count: u64,
+    pub origin: [f64; 3],
+    pub bounds: Bounds,
+    pub level_points: Vec<u64>,
+    pub layout: String,
+    pub source: Option<String>,
+    pub crs: Option<String>,
+    pub max_quantization_error: Option<f64>,
+    /// Every default-domain item, as stored (unsanitized: sanitize before display).
+    pub items: BTreeMap<String, String>,
+}
+
+/// One band: its name and the offset added to every stored value.
+#[derive(Debug, Clone, PartialEq)]
+pub struct BandInfo {
+    pub name: String,
+    pub offset: f64,
+}
+
+/// One tile of a level that holds data.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct TileInfo {
+    /// Raster index (`row * tiles_across + col`).
+    pub index: u32,
+    /// Points in the tile, when the tile index knows them.
+    pub points: Option<u32>,
+    /// Bounds of the points the tile stands for (the part's bounds without an index).
+    pub bounds: Bounds,
+}
+
+/// One pyramid level (one IFD).
+#[derive(Debug, Clone)]
+pub struct Level {
+    pub index: usize,
+    pub width: u32,
+    pub height: u32,
+    pub tile_width: u32,
+    pub tile_height: u32,
+    pub tiles_across: u32,
+    pub tiles_down: u32,
+    pub compression: u16,
+    pub predictor: u16,
+    pub planar_separate: bool,
+    /// Points in the level, when known (pcimg's own levels).
+    pub points: Option<u64>,
+    /// Stored bytes of all tiles of all bands.
+    pub bytes: u64,
+    /// Whether tile points and bounds come from the pcimg tile index.
+    pub indexed: bool,
+    /// Tiles holding data, in reading order (Z-order where the grid allows).
+    pub tiles: Vec<TileInfo>,
+    offsets: Vec<u64>,
+    counts: Vec<u64>,
+    /// For square power-of-two tiles: raster offset of each Z-rank in a tile.
+    z_lut: Option<Arc<Vec<u32>>>,
+}
+
+impl Level {
+    fn codec(&self, little_endian: bool, samples: usize) -> TileCodec {
+        TileCodec {
+            compression: self.compression,
+            predictor: self.predictor,
+            little_endian,
+            width: self.tile_width as usize,
+            samples,
+        }
+    }
+}
+
+/// Points read from a part: columns in the order of the requested bands.
+#[derive(Debug, Clone, Default)]
+pub struct Points {
+    /// Names of the columns.
+    pub bands: Vec<String>,
+    /// Offset of each column: true value = offset + stored value.
+    pub offsets: Vec<f64>,
+    pub columns: Vec<Vec<f32>>,
+    /// Points per requested tile, in order.
+    pub tile_points: Vec<u32>,
+}
+
+impl Points {
+    pub fn len(&self) -> usize {
+        self.columns.first().map_or(0, Vec::len)
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    /// The column of band `name`, if it was read.
+    pub fn column(&self, name: &str) -> Option<&[f32]> {
+        let i = self.bands.iter().position(|b| b == name)?;
+        Some(&self.columns[i])
+    }
+}
+
+/// One part (one TIFF file), opened with headers only.
+pub struct Part {
+    pub path: PathBuf,
+    pub file_bytes: u64,
+    pub bigtiff: bool,
+    pub little_endian: bool,
+    pub meta: PartMeta,
+    pub bands: Vec<BandInfo>,
+    pub levels: Vec<Level>,
+    /// Samples per pixel of each level (the band count).
+    samples: usize,
+    map: Arc<Mmap>,
+}
+
+impl std::fmt::Debug for Part {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Part")
+            .field("path", &self.path)
+            .field("points", &self.meta.point_count)
+            .field("levels", &self.levels.len())
+            .finish()
+    }
+}
+
+fn parse_meta(items: &BTreeMap<String, String>) -> std::result::Result<PartMeta, String> {
+    let get = |k: &str| {
+        items
+            .get(k)
+            .ok_or_else(|| format!("metadata item {k} is missing"))
+    };
+    let format_version: u32 = get(key::FORMAT)?
+        .trim()
+        .parse()
+        .map_err(|_| format!("metadata {} is not a number", key::FORMAT))?;
+    if format_version > spec::FORMAT_VERSION {
+        return Err(format!(
+            "format version {format_version} is newer than this pcimg reads ({}); upgrade pcimg",
+            spec::FORMAT_VERSION
+        ));
+    }
+    let point_count: u64 = get(key::POINT_COUNT)?
+        .trim()
+        .parse()
+        .map_err(|_| format!("metadata {} is not a count", key::POINT_COUNT))?;
+    let v3 = |k: &str| -> std::result::Result<[f64; 3], String> {
+        let v = metadata::parse_f64s(get(k)?, 3, k)?;
+        Ok([v[0], v[1], v[2]])
+    };
+    let level_points: std::result::Result<Vec<u64>, _> = get(key::LEVEL_POINTS)?
+        .split_whitespace()
+        .map(str::parse)
+        .collect();
+    Ok(PartMeta {
+        format_version,
+        point_count,
+        origin: v3(key::ORIGIN)?,
+        bounds: Bounds {
+            min: v3(key::BOUNDS_MIN)?,
+            max: v3(key::BOUNDS_MAX)?,
+        },
+        level_points: level_points
+            .map_err(|_| format!("metadata {} is not a list of counts", key::LEVEL_POINTS))?,
+        layout: items.get(key::LAYOUT).cloned().unwrap_or_default(),
+        source: items.get(key::SOURCE).cloned(),
+        crs: items.get(key::CRS).cloned(),
+        max_quantization_error: items
+            .get(key::MAX_QUANTIZATION_ERROR)
+            .and_then(|s| s.trim().parse().ok()),
+        items: items.clone(),
+    })
+}
+
+impl Part {
+    /// Opens a part, reading headers only.
+    pub fn open(path: &Path) -> Result<Part> {
+        let err = |m: String| StoreError::new(path, m);
+        let file = File::open(path).map_err(|e| err(format!("cannot open: {e}")))?;
+        let file_bytes = file
+            .metadata()
+            .map_err(|e| err(format!("cannot stat: {e}")))?
+            .len();
+        if file_bytes == 0 {
+            return Err(err("file is empty".into()));
+        }
+        // SAFETY: the map is read-only; pcimg writes parts under a temporary name
+        // and renames them, so a part is never modified in place while mapped.
+        // A file truncated by someone else while mapped can fault; that is the
+        // documented limit of memory-mapped I/O.
+        let map = unsafe { Mmap::map(&file) }.map_err(|e| err(format!("cannot map: {e}")))?;
+        let data: &[u8] = &map;
+        let tiff = Tiff::parse(data).map_err(err)?;
+        let first = &tiff.ifds[0];
+        let xml = tiff
+            .ascii(data, first, tag::GDAL_METADATA)
+            .map_err(err)?
+            .ok_or_else(|| {
+                err("not a pcimg part: no GDAL_METADATA tag (is this a plain image?)".into())
+            })?;
+        let items = metadata::from_xml(&xml).map_err(err)?;
+        let ds_items = metadata::dataset_items(&items);
+        if !metadata::is_pcimg(&ds_items) {
+            return Err(err(format!(
+                "not a pcimg part: GDAL_METADATA has no {} item",
+                key::FORMAT
+            )));
+        }
+        let meta = parse_meta(&ds_items).map_err(|m| err(format!("bad metadata: {m}")))?;
+        let names = metadata::band_items(&items, "description");
+        let offsets = metadata::band_items(&items, "offset");
+        let samples = tiff
+            .uint(data, first, tag::SAMPLES_PER_PIXEL)
+            .map_err(err)?
+            .unwrap_or(1) as usize;
+        let listed: Vec<&str> = ds_items
+            .get(key::BANDS)
+            .map(|s| s.split_whitespace().collect())
+            .unwrap_or_default();
+        if samples < 3 {
+            return Err(err(format!(
+                "has {samples} band(s); a part needs at least x, y and z"
+            )));
+        }
+        if !listed.is_empty() && listed.len() != samples {
+            return Err(err(format!(
+                "metadata lists {} bands ({}) but the image has {samples}",
+                listed.len(),
+                listed.join(" ")
+            )));
+        }
+        let mut bands = Vec::with_capacity(samples);
+        for b in 0..samples {
+            let name = names
+                .get(&b)
+                .cloned()
+                .or_else(|| listed.get(b).map(|s| s.to_string()))
+                .unwrap_or_else(|| format!("band{}", b + 1));
+            let offset = match offsets.get(&b) {
+                Some(s) => s
+                    .trim()
+                    .parse()
+                    .map_err(|_| err(format!("band {} offset '{s}' is not a number", b + 1)))?,
+                None => 0.0,
+            };
+            bands.push(BandInfo { name, offset });
+        }
+        for (b, want) in spec::COORDINATE_BANDS.iter().enumerate() {
+            if bands[b].name != *want {
+                return Err(err(format!(
+                    "band {} is '{}', expected '{want}'",
+                    b + 1,
+                    crate::text::sanitize(&bands[b].name)
+                )));
+            }
+        }
+        let index: Option<Vec<LevelIndex>> = items
+            .iter()
+            .find(|i| {
+                i.name == key::TILE_INDEX && i.domain.as_deref() == Some(key::TILE_INDEX_DOMAIN)
+            })
+            .map(|i| metadata::decode_tile_index(&i.value))
+            .transpose()
+            .map_err(|m| err(format!("bad tile index: {m}")))?;
+
+        // Level 0, then reduced-resolution IFDs, largest first.
+        let mut ifds: Vec<&Ifd> = vec![first];
+        for ifd in &tiff.ifds[1..] {
+            let subfile = tiff
+                .uint(data, ifd, tag::NEW_SUBFILE_TYPE)
+                .map_err(err)?
+                .unwrap_or(0);
+            if subfile & 1 == 1 && subfile & 4 == 0 {
+                ifds.push(ifd);
+            }
+        }
+        let mut levels = Vec::with_capacity(ifds.len());
+        for ifd in &ifds {
+            levels.push(
+                Self::open_level(&tiff, data, ifd, samples, file_bytes)
+                    .map_err(|m| err(format!("IFD at byte {}: {m}", ifd.offset)))?,
+            );
+        }
+        levels.sort_by(|a, b| b.width.cmp(&a.width));
+        let mut lut_cache: BTreeMap<u32, Arc<Vec<u32>>> = BTreeMap::new();
+        for (k, level) in levels.iter_mut().enumerate() {
+            level.index = k;
+            let tw = level.tile_width;
+            let z_ok = tw == level.tile_height
+                && tw.is_power_of_two()
+                && level.width % tw == 0
+                && level.height % tw == 0
+                && level.tiles_across.is_power_of_two()
+                && level.tiles_across == level.tiles_down;
+            if z_ok {
+                level.z_lut = Some(
+                    lut_cache
+                        .entry(tw)
+                        .or_insert_with(|| Arc::new(tile_z_to_raster(tw.trailing_zeros())))
+                        .clone(),
+                );
+            }
+            let own = ifds_software(&tiff, data, &ifds, level.width);
+            Self::attach_index(level, index.as_deref(), k, own, &meta);
+        }
+        Ok(Part {
+            path: path.to_path_buf(),
+            file_bytes,
+            bigtiff: tiff.big,
+            little_endian: tiff.little_endian,
+            meta,
+            bands,
+            levels,
+            samples,
+            map: Arc::new(map),
+        })
+    }
+
+    fn open_level(
+        tiff: &Tiff,
+        data: &[u8],
+        ifd: &Ifd,
+        samples: usize,
+        file_bytes: u64,
+    ) -> std::result::Result<Level, String> {
+        let need = |t: u16, what: &str| -> std::result::Result<u64, String> {
+            tiff.uint(data, ifd, t)?
+                .ok_or_else(|| format!("{what} (tag {t}) is missing"))
+        };
+        let width = need(tag::IMAGE_WIDTH, "ImageWidth")? as u32;
+        let height = need(tag::IMAGE_LENGTH, "ImageLength")? as u32;
+        let spp = tiff.uint(data, ifd, tag::SAMPLES_PER_PIXEL)?.unwrap_or(1) as usize;
+        if spp != samples {
+            return Err(format!("has {spp} bands where level 0 has {samples}"));
+        }
+        let bits = tiff
+            .uints(data, ifd, tag::BITS_PER_SAMPLE)?
+            .unwrap_or(vec![1]);
+        let formats = tiff
+            .uints(data, ifd, tag::SAMPLE_FORMAT)?
+            .unwrap_or(vec![1]);
+        if bits.iter().any(|&b| b != 32) || formats.iter().any(|&f| f != 3) {
+            return Err(format!(
+                "bands are not Float32 (BitsPerSample {bits:?}, SampleFormat {formats:?})"
+            ));
+        }
+        let tile_width = tiff
+            .uint(data, ifd, tag::TILE_WIDTH)?
+            .ok_or("the image is stored in strips, not tiles (rewrite it with -co TILED=YES)")?
+            as u32;
+        let tile_height = need(tag::TILE_LENGTH, "TileLength")? as u32;
+        if tile_width == 0 || tile_height == 0 || tile_width > 1 << 14 || tile_height > 1 << 14 {
+            return Err(format!(
+                "tile size {tile_width}x{tile_height} is not usable"
+            ));
+        }
+        if width == 0 || height == 0 || width > 1 << 24 || height > 1 << 24 {
+            return Err(format!("image size {width}x{height} is not usable"));
+        }
+        let planar_separate = tiff
+            .uint(data, ifd, tag::PLANAR_CONFIGURATION)?
+            .unwrap_or(1)
+            == 2;
+        let tiles_across = width.div_ceil(tile_width);
+        let tiles_down = height.div_ceil(tile_height);
+        let per_band = tiles_across as usize * tiles_down as usize;
+        let chunks = if planar_separate {
+            per_band * samples
+        } else {
+            per_band
+        };
+        let offsets = tiff
+            .uints(data, ifd, tag::TILE_OFFSETS)?
+            .ok_or("TileOffsets (tag 324) is missing")?;
+        let counts = tiff
+            .uints(data, ifd, tag::TILE_BYTE_COUNTS)?
+            .ok_or("TileByteCounts (tag 325) is missing")?;
+        if offsets.len() != chunks || counts.len() != chunks {
+            return Err(format!(
+                "has {} tile offsets and {} byte counts, expected {chunks}",
+                offsets.len(),
+                counts.len()
+            ));
+        }
+        for (c, (&o, &n)) in offsets.iter().zip(&counts).enumerate() {
+            if n > 0 && o.checked_add(n).is_none_or(|end| end > file_bytes) {
+                return Err(format!(
+                    "tile {} of band {} lies at bytes {o}..{} past the end of the file ({file_bytes} bytes)",
+                    c % per_band,
+                    if planar_separate { c / per_band + 1 } else { 1 },
+                    o.saturating_add(n)
+                ));
+            }
+        }
+        let compression = tiff.uint(data, ifd, tag::COMPRESSION)?.unwrap_or(1) as u16;
+        let predictor = tiff.uint(data, ifd, tag::PREDICTOR)?.unwrap_or(1) as u16;
+        let level = Level {
+            index: 0,
+            width,
+            height,
+            tile_width,
+            tile_height,
+            tiles_across,
+            tiles_down,
+            compression,
+            predictor,
+            planar_separate,
+            points: None,
+            bytes: counts.iter().sum(),
+            indexed: false,
+            tiles: Vec::new(),
+            offsets,
+            counts,
+            z_lut: None,
+        };
+        level.codec(tiff.little_endian, 1).check()?;
+        Ok(level)
+    }
+
+    /// Fills the level's tile list: from the tile index where it matches this
+    /// level, otherwise every tile with data, with the part's bounds.
+    fn attach_index(
+        level: &mut Level,
+        index: Option<&[LevelIndex]>,
+        k: usize,
+        own: bool,
+        meta: &PartMeta,
+    ) {
+        let per_band = (level.tiles_across * level.tiles_down) as usize;
+        let has_data = |t: usize| level.counts[t] > 0;
+        if let Some(li) = index.and_then(|ix| ix.get(k)) {
+            // Level 0 pixels survive a GDAL rewrite unchanged; overviews must be ours.
+            let geometry_ok = li.size == level.width
+                && li.size == level.height
+                && li.tile_size == level.tile_width
+                && li.tile_size == level.tile_height;
+            let tiles_ok = li
+                .tiles
+                .iter()
+                .all(|t| (t.index as usize) < per_band && has_data(t.index as usize));
+            if geometry_ok && tiles_ok && (k == 0 || own) {
+                level.indexed = true;
+                level.points = meta.level_points.get(k).copied();
+                level.tiles = li
+                    .tiles
+                    .iter()
+                    .map(|t| TileInfo {
+                        index: t.index,
+                        points: Some(t.points),
+                        bounds: t.bounds,
+                    })
+                    .collect();
+                return;
+            }
+        }
+        let order: Vec<u32> = if level.z_lut.is_some() {
+            (0..per_band as u64)
+                .map(|z| {
+                    let (c, r) = super::zorder::z_pixel(z);
+                    r * level.tiles_across + c
+                })
+                .collect()
+        } else {
+            (0..per_band as u32).collect()
+        };
+        level.tiles = order
+            .into_iter()
+            .filter(|&t| has_data(t as usize))
+            .map(|t| TileInfo {
+                index: t,
+                points: None,
+                bounds: meta.bounds,
+            })
+            .collect();
+    }
+
+    /// Index of band `name`.
+    pub fn band_index(&self, name: &str) -> Option<usize> {
+        self.bands.iter().position(|b| b.name == name)
+    }
+
+    /// Indices of bands by name, with an error naming a missing one.
+    pub fn band_indices(&self, names: &[&str]) -> Result<Vec<usize>> {
+        names
+            .iter()
+            .map(|n| {
+                self.band_index(n)
+                    .ok_or_else(|| StoreError::new(&self.path, format!("has no band named '{n}'")))
+            })
+            .collect()
+    }
+
+    /// Reads every point of `level` for `bands`.
+    pub fn read_level(&self, level: usize, bands: &[usize]) -> Result<Points> {
+        let l = self.level(level)?;
+        let tiles: Vec<u32> = l.tiles.iter().map(|t| t.index).collect();
+        self.read_tiles(level, &tiles, bands)
+    }
+
+    fn level(&self, level: usize) -> Result<&Level> {
+        self.levels.get(level).ok_or_else(|| {
+            StoreError::new(
+                &self.path,
+                format!("has no level {level} (levels 0..{})", self.levels.len()),
+            )
+        })
+    }
+
+    /// Reads the points of the tiles `tiles` (raster indices) of `level` for `bands`,
+    /// tile after tile in the order given.
+    pub fn read_tiles(&self, level: usize, tiles: &[u32], bands: &[usize]) -> Result<Points> {
+        let l = self.level(level)?;
+        if let Some(&b) = bands.iter().find(|&&b| b >= self.bands.len()) {
+            return Err(StoreError::new(
+                &self.path,
+                format!("has no band {b} ({} bands)", self.bands.len()),
+            ));
+        }
+        let per_band = (l.tiles_across * l.tiles_down) as usize;
+        if let Some(&t) = tiles.iter().find(|&&t| t as usize >= per_band) {
+            return Err(StoreError::new(
+                &self.path,
+                format!("level {level} has no tile {t} ({per_band} tiles)"),
+            ));
+        }
+        let known: BTreeMap<u32, Option<u32>> =
+            l.tiles.iter().map(|t| (t.index, t.points)).collect();
+        let per_tile: Vec<Vec<Vec<f32>>> = tiles
+            .par_iter()
+            .map(|&t| self.read_tile(l, t, known.get(&t).copied().flatten(), bands))
+            .collect::<std::result::Result<_, String>>()
+            .map_err(|m| StoreError::new(&self.path, format!("level {level}: {m}")))?;
+        let total: usize = per_tile.iter().map(|c| c.first().map_or(0, Vec::len)).sum();
+        let mut columns: Vec<Vec<f32>> = bands.iter().map(|_| Vec::with_capacity(total)).collect();
+        let mut tile_points = Vec::with_capacity(tiles.len());
+        for t in &per_tile {
+            tile_points.push(t.first().map_or(0, Vec::len) as u32);
+            for (c, v) in columns.iter_mut().zip(t) {
+                c.extend_from_slice(v);
+            }
+        }
+        Ok(Points {
+            bands: bands.iter().map(|&b| self.bands[b].name.clone()).collect(),
+            offsets: bands.iter().map(|&b| self.bands[b].offset).collect(),
+            columns,
+            tile_points,
+        })
+    }
+
+    /// Decodes one tile: per requested band, the tile's points in reading order.
+    fn read_tile(
+        &self,
+        l: &Level,
+        t: u32,
+        points: Option<u32>,
+        bands: &[usize],
+    ) -> std::result::Result<Vec<Vec<f32>>, String> {
+        let data: &[u8] = &self.map;
+        let per_band = (l.tiles_across * l.tiles_down) as usize;
+        let pixels = (l.tile_width * l.tile_height) as usize;
+        // Pixels of this tile inside the image, in reading order.
+        let col = t % l.tiles_across;
+        let row = t / l.tiles_across;
+        let order: Vec<u32>;
+        let read_order: &[u32] = match &l.z_lut {
+            Some(lut) => lut,
+            None => {
+                let w = l.tile_width.min(l.width - col * l.tile_width);
+                let h = l.tile_height.min(l.height - row * l.tile_height);
+                order = (0..h)
+                    .flat_map(|y| (0..w).map(move |x| y * l.tile_width + x))
+                    .collect();
+                &order
+            }
+        };
+        let chunk = |b: usize| {
+            if l.planar_separate {
+                b * per_band + t as usize
+            } else {
+                t as usize
+            }
+        };
+        let stored = |c: usize| -> &[u8] {
+            let (o, n) = (l.offsets[c], l.counts[c]);
+            if n == 0 {
+                &[]
+            } else {
+                &data[o as usize..(o + n) as usize]
+            }
+        };
+        // The bands to decode: the requested ones, plus x to find valid pixels
+        // when the tile index does not give the count.
+        let mut decode: Vec<usize> = bands.to_vec();
+        if points.is_none() && !decode.contains(&0) {
+            decode.push(0);
+        }
+        let raw_native = l.compression == spec::compression::NONE
+            && l.planar_separate
+            && self.little_endian == cfg!(target_endian = "little");
+        let mut planes: Vec<Vec<f32>> = Vec::with_capacity(decode.len());
+        if l.planar_separate {
+            for &b in &decode {
+                let bytes = stored(chunk(b));
+                if bytes.is_empty() {
+                    planes.push(vec![f32::NAN; pixels]);
+                } else if raw_native && bytes.len() >= pixels * 4 {
+                    planes.push(Vec::new()); // read straight from the map below
+                } else {
+                    let codec = l.codec(self.little_endian, 1);
+                    planes.push(
+                        codec
+                            .decode(bytes, pixels)
+                            .map_err(|m| format!("tile {t} band {}: {m}", b + 1))?,
+                    );
+                }
+            }
+        } else {
+            let bytes = stored(chunk(0));
+            let all = if bytes.is_empty() {
+                vec![f32::NAN; pixels * self.samples]
+            } else {
+                l.codec(self.little_endian, self.samples)
+                    .decode(bytes, pixels * self.samples)
+                    .map_err(|m| format!("tile {t}: {m}"))?
+            };
+            for &b in &decode {
+                planes.push(all.iter().skip(b).step_by(self.samples).copied().collect());
+            }
+        }
+        let sample = |k: usize, p: usize| -> f32 {
+            if planes[k].is_empty() {
+                let o = l.offsets[chunk(decode[k])] as usize + p * 4;
+                f32::from_le_bytes([data[o], data[o + 1], data[o + 2], data[o + 3]])
+            } else {
+                planes[k][p]
+            }
+        };
+        let selected: Vec<u32> = match points {
+            Some(n) => read_order[..(n as usize).min(read_order.len())].to_vec(),
+            None => {
+                let xk = decode.iter().position(|&b| b == 0).unwrap_or(0);
+                read_order
+                    .iter()
+                    .copied()
+                    .filter(|&p| !sample(xk, p as usize).is_nan())
+                    .collect()
+            }
+        };
+        Ok((0..bands.len())
+            .map(|k| {
+                if planes[k].is_empty() {
+                    let base = l.offsets[chunk(decode[k])] as usize;
+                    let bytes = &data[base..base + pixels * 4];
+                    selected
+                        .iter()
+                        .map(|&p| {
+                            let o = p as usize * 4;
+                            f32::from_le_bytes([bytes[o], bytes[o + 1], bytes[o + 2], bytes[o + 3]])
+                        })
+                        .collect()
+                } else {
+                    selected.iter().map(|&p| planes[k][p as usize]).collect()
+                }
+            })
+            .collect())
+    }
+}
+
+/// Whether the IFD of the level `width` wide was written by pcimg.
+fn ifds_software(tiff: &Tiff, data: &[u8], ifds: &[&Ifd], width: u32) -> bool {
+    ifds.iter().any(|ifd| {
+        tiff.uint(data, ifd, tag::IMAGE_WIDTH).ok().flatten() == Some(width as u64)
+            && tiff
+                .ascii(data, ifd, tag::SOFTWARE)
+                .ok()
+                .flatten()
+                .is_some_and(|s| s.starts_with(spec::SOFTWARE_PREFIX))
+    })
+}

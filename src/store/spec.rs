@@ -1,0 +1,77 @@
+//! The file format's constants in one place: tags, metadata keys, layout numbers.
+//! ARCHITECTURE.md is the prose version of this file; the writer and the reader
+//! both take every format decision from here.
+
+/// Format version written in `PCIMG_FORMAT`; a reader refuses newer major versions.
+pub const FORMAT_VERSION: u32 = 1;
+
+/// Tile edge in pixels (a power of two, so a tile holds one aligned Z-order block).
+pub const TILE_LOG2: u32 = 8;
+pub const TILE_SIZE: u32 = 1 << TILE_LOG2;
+pub const TILE_PIXELS: usize = (TILE_SIZE * TILE_SIZE) as usize;
+
+/// Bands every part starts with, in this order.
+pub const COORDINATE_BANDS: [&str; 3] = ["x", "y", "z"];
+
+/// `Software` tag written in every IFD; an overview without it was made by another
+/// tool (gdaladdo) and carries no pcimg tile index.
+pub const SOFTWARE_PREFIX: &str = "pcimg";
+
+/// TIFF tags used by the format (numbers from TIFF 6.0, BigTIFF and GDAL).
+pub mod tag {
+    pub const NEW_SUBFILE_TYPE: u16 = 254;
+    pub const IMAGE_WIDTH: u16 = 256;
+    pub const IMAGE_LENGTH: u16 = 257;
+    pub const BITS_PER_SAMPLE: u16 = 258;
+    pub const COMPRESSION: u16 = 259;
+    pub const PHOTOMETRIC: u16 = 262;
+    pub const SAMPLES_PER_PIXEL: u16 = 277;
+    pub const PLANAR_CONFIGURATION: u16 = 284;
+    pub const SOFTWARE: u16 = 305;
+    pub const PREDICTOR: u16 = 317;
+    pub const TILE_WIDTH: u16 = 322;
+    pub const TILE_LENGTH: u16 = 323;
+    pub const TILE_OFFSETS: u16 = 324;
+    pub const TILE_BYTE_COUNTS: u16 = 325;
+    pub const EXTRA_SAMPLES: u16 = 338;
+    pub const SAMPLE_FORMAT: u16 = 339;
+    pub const GDAL_METADATA: u16 = 42112;
+    pub const GDAL_NODATA: u16 = 42113;
+}
+
+/// TIFF compression codes.
+pub mod compression {
+    pub const NONE: u16 = 1;
+    pub const ADOBE_DEFLATE: u16 = 8;
+    pub const DEFLATE: u16 = 32946;
+    pub const ZSTD: u16 = 50000;
+}
+
+/// TIFF predictor codes.
+pub mod predictor {
+    pub const NONE: u16 = 1;
+    pub const HORIZONTAL: u16 = 2;
+    pub const FLOATING_POINT: u16 = 3;
+}
+
+/// GDAL_METADATA item names (default domain unless noted).
+pub mod key {
+    pub const FORMAT: &str = "PCIMG_FORMAT";
+    pub const POINT_COUNT: &str = "POINT_COUNT";
+    pub const ORIGIN: &str = "ORIGIN";
+    pub const BOUNDS_MIN: &str = "BOUNDS_MIN";
+    pub const BOUNDS_MAX: &str = "BOUNDS_MAX";
+    pub const LEVEL_POINTS: &str = "LEVEL_POINTS";
+    pub const LAYOUT: &str = "LAYOUT";
+    pub const BANDS: &str = "BANDS";
+    pub const SOURCE: &str = "SOURCE";
+    pub const CRS: &str = "CRS";
+    pub const MAX_QUANTIZATION_ERROR: &str = "MAX_QUANTIZATION_ERROR";
+    /// Per-level, per-tile bounds and counts (base64), in domain [`TILE_INDEX_DOMAIN`].
+    pub const TILE_INDEX: &str = "TILE_INDEX";
+    pub const TILE_INDEX_DOMAIN: &str = "pcimg";
+}
+
+/// Magic and version of the binary tile index blob.
+pub const TILE_INDEX_MAGIC: &[u8; 4] = b"PCTI";
+pub const TILE_INDEX_VERSION: u32 = 1;

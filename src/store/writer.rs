@@ -1,0 +1,433 @@
+//! Writing one part: order the points, lay them out along the image's Z-order curve,
+//! build the nearest-neighbour pyramid and write a tiled, band-separate Float32 TIFF
+//! with internal overviews, atomically (temporary name, then rename).
+
+use super::codec::{self, Compression};
+use super::error::{Result, StoreError};
+use super::layout::{self, Layout};
+use super::metadata::{self, Item, LevelIndex, TileEntry};
+use super::spec::{self, TILE_PIXELS, TILE_SIZE, key, tag};
+use super::zorder::{Geometry, tile_z_to_raster};
+use crate::points::{Bounds, PointColumns};
+use rayon::prelude::*;
+use std::fs::File;
+use std::io::{BufWriter, Seek, Write};
+use std::path::{Path, PathBuf};
+use tiff::encoder::{TiffEncoder, TiffKind, TiffKindBig, TiffKindStandard};
+use tiff::tags::Tag;
+
+/// How to write a part.
+#[derive(Debug, Clone, Default)]
+pub struct WriteOptions {
+    pub compression: Compression,
+    pub layout: Layout,
+    /// The input's file name, recorded in the metadata.
+    pub source: Option<String>,
+    /// Coordinate reference system (WKT or `EPSG:n`), recorded in the metadata.
+    pub crs: Option<String>,
+    /// Write BigTIFF even when classic TIFF would do.
+    pub force_bigtiff: bool,
+}
+
+/// What was written.
+#[derive(Debug, Clone)]
+pub struct PartSummary {
+    pub path: PathBuf,
+    pub points: u64,
+    pub level_points: Vec<u64>,
+    pub bytes: u64,
+    pub bounds: Bounds,
+    pub origin: [f64; 3],
+    /// Largest difference between a source coordinate and its stored value.
+    pub max_quantization_error: f64,
+    pub bigtiff: bool,
+}
+
+/// Columns of a part in image order, ready to be tiled.
+struct Arranged {
+    geometry: Geometry,
+    bands: Vec<Vec<f32>>,
+    names: Vec<String>,
+    offsets: Vec<f64>,
+    origin: [f64; 3],
+    bounds: Bounds,
+    max_error: f64,
+}
+
+fn band_name(raw: &str) -> String {
+    let s: String = raw
+        .trim()
+        .chars()
+        .map(|c| {
+            if c.is_whitespace() || c.is_control() {
+                '_'
+            } else {
+                c
+            }
+        })
+        .collect();
+    if s.is_empty() { "band".into() } else { s }
+}
+
+fn arrange(path: &Path, pts: &PointColumns, layout: Layout) -> Result<Arranged> {
+    pts.check_lengths().map_err(|m| StoreError::new(path, m))?;
+    let n = pts.len();
+    if n as u64 > u32::MAX as u64 {
+        return Err(StoreError::new(
+            path,
+            format!("{n} points are more than one part holds (4,294,967,295); split the input"),
+        ));
+    }
+    if let Some(i) =
+        (0..n).find(|&i| !(pts.x[i].is_finite() && pts.y[i].is_finite() && pts.z[i].is_finite()))
+    {
+        return Err(StoreError::new(
+            path,
+            format!(
+                "point {i} has a coordinate that is not a finite number ({}, {}, {})",
+                pts.x[i], pts.y[i], pts.z[i]
+            ),
+        ));
+    }
+    let mut names: Vec<String> = spec::COORDINATE_BANDS
+        .iter()
+        .map(|s| s.to_string())
+        .collect();
+    for a in &pts.attributes {
+        let name = band_name(&a.name);
+        if names.contains(&name) {
+            return Err(StoreError::new(
+                path,
+                format!("two bands are named '{name}'"),
+            ));
+        }
+        names.push(name);
+    }
+    let bounds = pts.bounds();
+    let origin = if n == 0 { [0.0; 3] } else { bounds.center() };
+    let pos: Vec<[f32; 3]> = (0..n)
+        .into_par_iter()
+        .with_min_len(1 << 14)
+        .map(|i| {
+            [
+                (pts.x[i] - origin[0]) as f32,
+                (pts.y[i] - origin[1]) as f32,
+                (pts.z[i] - origin[2]) as f32,
+            ]
+        })
+        .collect();
+    let max_error = (0..n)
+        .into_par_iter()
+        .with_min_len(1 << 14)
+        .map(|i| {
+            let src = [pts.x[i], pts.y[i], pts.z[i]];
+            (0..3)
+                .map(|a| ((origin[a] + pos[i][a] as f64) - src[a]).abs())
+                .fold(0.0, f64::max)
+        })
+        .reduce(|| 0.0, f64::max);
+    let geometry = Geometry::for_points(n as u64);
+    let order: Vec<u32> = match layout {
+        Layout::Hilbert => {
+            let keys = layout::keys(&pos);
+            let mut order = layout::sort_by_key(&keys);
+            drop(keys);
+            layout::choose_representatives(&mut order, &pos, geometry.levels());
+            order
+        }
+        Layout::Paper => (0..n as u32).collect(),
+    };
+    let mut bands: Vec<Vec<f32>> = (0..3)
+        .map(|a| order.par_iter().map(|&i| pos[i as usize][a]).collect())
+        .collect();
+    drop(pos);
+    for a in &pts.attributes {
+        bands.push(order.par_iter().map(|&i| a.values[i as usize]).collect());
+    }
+    let mut offsets = origin.to_vec();
+    offsets.extend(pts.attributes.iter().map(|a| a.offset));
+    Ok(Arranged {
+        geometry,
+        bands,
+        names,
+        offsets,
+        origin,
+        bounds,
+        max_error,
+    })
+}
+
+/// Bounds per tile for every level: level 0 from the stored coordinates, each
+/// coarser tile the union of the four tiles below it.
+fn tile_index(a: &Arranged) -> Vec<LevelIndex> {
+    let g = a.geometry;
+    let o = a.origin;
+    let mut levels: Vec<LevelIndex> = Vec::with_capacity(g.levels());
+    let level0: Vec<Bounds> = (0..g.filled_tiles(0) as usize)
+        .into_par_iter()
+        .map(|t| {
+            let s = t * TILE_PIXELS;
+            let e = (s + TILE_PIXELS).min(a.bands[0].len());
+            let mut lo = [f32::INFINITY; 3];
+            let mut hi = [f32::NEG_INFINITY; 3];
+            for ax in 0..3 {
+                for &v in &a.bands[ax][s..e] {
+                    lo[ax] = lo[ax].min(v);
+                    hi[ax] = hi[ax].max(v);
+                }
+            }
+            Bounds {
+                min: [0, 1, 2].map(|ax| o[ax] + lo[ax] as f64),
+                max: [0, 1, 2].map(|ax| o[ax] + hi[ax] as f64),
+            }
+        })
+        .collect();
+    let mut prev = level0;
+    for level in 0..g.levels() {
+        if level > 0 {
+            prev = (0..g.filled_tiles(level) as usize)
+                .map(|t| {
+                    prev[4 * t..(4 * t + 4).min(prev.len())]
+                        .iter()
+                        .fold(Bounds::EMPTY, |b, c| b.union(c))
+                })
+                .collect();
+        }
+        levels.push(LevelIndex {
+            size: g.size(level),
+            tile_size: TILE_SIZE,
+            tiles: prev
+                .iter()
+                .enumerate()
+                .map(|(t, b)| TileEntry {
+                    index: g.tile_raster_index(level, t as u64),
+                    points: g.tile_points(level, t as u64),
+                    bounds: *b,
+                })
+                .collect(),
+        });
+    }
+    levels
+}
+
+fn metadata_xml(a: &Arranged, opts: &WriteOptions, index: &[LevelIndex]) -> String {
+    let g = a.geometry;
+    let mut items = vec![
+        Item::dataset(key::FORMAT, spec::FORMAT_VERSION.to_string()),
+        Item::dataset(key::POINT_COUNT, g.points.to_string()),
+        Item::dataset(key::ORIGIN, metadata::f64s(&a.origin)),
+        Item::dataset(key::BOUNDS_MIN, metadata::f64s(&a.bounds.min)),
+        Item::dataset(key::BOUNDS_MAX, metadata::f64s(&a.bounds.max)),
+        Item::dataset(
+            key::LEVEL_POINTS,
+            (0..g.levels())
+                .map(|l| g.level_points(l).to_string())
+                .collect::<Vec<_>>()
+                .join(" "),
+        ),
+        Item::dataset(key::LAYOUT, opts.layout.name()),
+        Item::dataset(key::BANDS, a.names.join(" ")),
+        Item::dataset(key::MAX_QUANTIZATION_ERROR, format!("{:e}", a.max_error)),
+    ];
+    if let Some(s) = &opts.source {
+        items.push(Item::dataset(key::SOURCE, s.clone()));
+    }
+    if let Some(c) = &opts.crs {
+        items.push(Item::dataset(key::CRS, c.clone()));
+    }
+    for (b, name) in a.names.iter().enumerate() {
+        items.push(Item::band("DESCRIPTION", b, "description", name.clone()));
+        if a.offsets[b] != 0.0 {
+            items.push(Item::band(
+                "OFFSET",
+                b,
+                "offset",
+                format!("{:?}", a.offsets[b]),
+            ));
+            items.push(Item::band("SCALE", b, "scale", "1"));
+        }
+    }
+    items.push(Item {
+        domain: Some(key::TILE_INDEX_DOMAIN.into()),
+        ..Item::dataset(key::TILE_INDEX, metadata::encode_tile_index(index))
+    });
+    metadata::to_xml(&items)
+}
+
+/// Upper bound of the file size, to choose between classic TIFF and BigTIFF.
+fn size_estimate(a: &Arranged, xml: &str) -> u64 {
+    let g = a.geometry;
+    let per_tile = (TILE_PIXELS * 4) as u64 * a.bands.len() as u64;
+    // Compressed tiles can exceed raw size slightly: allow 1%.
+    let data: u64 = (0..g.levels())
+        .map(|l| g.filled_tiles(l) * per_tile)
+        .sum::<u64>()
+        * 101
+        / 100;
+    let tags: u64 = (0..g.levels())
+        .map(|l| (g.tiles_across(l) as u64).pow(2) * a.bands.len() as u64 * 16 + 4096)
+        .sum();
+    data + tags + xml.len() as u64
+}
+
+/// Removes the temporary file unless the write completed.
+struct TempFile {
+    path: PathBuf,
+    done: bool,
+}
+
+impl Drop for TempFile {
+    fn drop(&mut self) {
+        if !self.done {
+            let _ = std::fs::remove_file(&self.path);
+        }
+    }
+}
+
+/// Writes `pts` as one part at `path` (replacing an existing file atomically).
+pub fn write_part(path: &Path, pts: &PointColumns, opts: &WriteOptions) -> Result<PartSummary> {
+    let a = arrange(path, pts, opts.layout)?;
+    let index = tile_index(&a);
+    let xml = metadata_xml(&a, opts, &index);
+    let bigtiff = opts.force_bigtiff || size_estimate(&a, &xml) >= u32::MAX as u64 - (64 << 20);
+    let file_name = path
+        .file_name()
+        .ok_or_else(|| StoreError::new(path, "output path has no file name"))?;
+    let tmp_path = path.with_file_name(format!(
+        ".{}.{}.tmp",
+        file_name.to_string_lossy(),
+        std::process::id()
+    ));
+    let mut tmp = TempFile {
+        path: tmp_path.clone(),
+        done: false,
+    };
+    let file = File::create(&tmp_path)
+        .map_err(|e| StoreError::new(path, format!("cannot create {}: {e}", tmp_path.display())))?;
+    let mut w = BufWriter::with_capacity(8 << 20, file);
+    let io = |e: tiff::TiffError| StoreError::new(path, format!("write failed: {e}"));
+    if bigtiff {
+        encode::<_, TiffKindBig>(&mut w, &a, opts, &xml, true).map_err(io)?
+    } else {
+        encode::<_, TiffKindStandard>(&mut w, &a, opts, &xml, false).map_err(io)?
+    }
+    w.flush()
+        .map_err(|e| StoreError::new(path, format!("write failed: {e}")))?;
+    let bytes = w
+        .stream_position()
+        .map_err(|e| StoreError::new(path, format!("write failed: {e}")))?;
+    drop(w);
+    std::fs::rename(&tmp_path, path).map_err(|e| {
+        StoreError::new(
+            path,
+            format!("cannot rename the finished file into place: {e}"),
+        )
+    })?;
+    tmp.done = true;
+    let g = a.geometry;
+    Ok(PartSummary {
+        path: path.to_path_buf(),
+        points: g.points,
+        level_points: (0..g.levels()).map(|l| g.level_points(l)).collect(),
+        bytes,
+        bounds: a.bounds,
+        origin: a.origin,
+        max_quantization_error: a.max_error,
+        bigtiff,
+    })
+}
+
+/// Tiles encoded per parallel batch (bounds memory: batch × bands × 256 KiB).
+const BATCH_TILES: usize = 16;
+
+fn encode<W: Write + Seek, K: TiffKind>(
+    w: &mut W,
+    a: &Arranged,
+    opts: &WriteOptions,
+    xml: &str,
+    big: bool,
+) -> tiff::TiffResult<()> {
+    let g = a.geometry;
+    let nb = a.bands.len();
+    let lut = tile_z_to_raster(spec::TILE_LOG2);
+    let software = format!("{} {}", spec::SOFTWARE_PREFIX, env!("CARGO_PKG_VERSION"));
+    let mut enc = TiffEncoder::<&mut W, K>::new_generic(w)?;
+    for level in 0..g.levels() {
+        let across = g.tiles_across(level) as usize;
+        let per_band = across * across;
+        let mut offsets = vec![0u64; per_band * nb];
+        let mut counts = vec![0u64; per_band * nb];
+        let filled = g.filled_tiles(level) as usize;
+        let stride = 1usize << (2 * level);
+        let mut dir = enc.image_directory()?;
+        for batch_start in (0..filled).step_by(BATCH_TILES) {
+            let batch_end = (batch_start + BATCH_TILES).min(filled);
+            let jobs: Vec<(usize, usize)> = (batch_start..batch_end)
+                .flat_map(|t| (0..nb).map(move |b| (t, b)))
+                .collect();
+            let encoded: Vec<Vec<u8>> = jobs
+                .par_iter()
+                .map(|&(t, b)| {
+                    let mut buf = vec![f32::NAN; TILE_PIXELS];
+                    let count = g.tile_points(level, t as u64) as usize;
+                    let src = &a.bands[b];
+                    let base = t * TILE_PIXELS;
+                    if stride == 1 {
+                        for (i, &v) in src[base..base + count].iter().enumerate() {
+                            buf[lut[i] as usize] = v;
+                        }
+                    } else {
+                        for i in 0..count {
+                            buf[lut[i] as usize] = src[(base + i) * stride];
+                        }
+                    }
+                    codec::encode(&buf, TILE_SIZE as usize, opts.compression)
+                })
+                .collect();
+            for (&(t, b), bytes) in jobs.iter().zip(&encoded) {
+                let r = g.tile_raster_index(level, t as u64) as usize;
+                offsets[b * per_band + r] = dir.write_data(&bytes[..])?;
+                counts[b * per_band + r] = bytes.len() as u64;
+            }
+        }
+        if level > 0 {
+            dir.write_tag(Tag::NewSubfileType, 1u32)?;
+        }
+        let size = g.size(level);
+        dir.write_tag(Tag::ImageWidth, size)?;
+        dir.write_tag(Tag::ImageLength, size)?;
+        dir.write_tag(Tag::BitsPerSample, &vec![32u16; nb][..])?;
+        dir.write_tag(Tag::Compression, opts.compression.tiff_code())?;
+        dir.write_tag(Tag::PhotometricInterpretation, 1u16)?;
+        dir.write_tag(Tag::SamplesPerPixel, nb as u16)?;
+        dir.write_tag(Tag::PlanarConfiguration, 2u16)?;
+        dir.write_tag(Tag::Software, software.as_str())?;
+        if opts.compression != Compression::None {
+            dir.write_tag(Tag::Predictor, opts.compression.predictor())?;
+        }
+        dir.write_tag(Tag::TileWidth, TILE_SIZE)?;
+        dir.write_tag(Tag::TileLength, TILE_SIZE)?;
+        if big {
+            dir.write_tag(Tag::TileOffsets, &offsets[..])?;
+            dir.write_tag(Tag::TileByteCounts, &counts[..])?;
+        } else {
+            let o: Vec<u32> = offsets.iter().map(|&v| v as u32).collect();
+            let c: Vec<u32> = counts.iter().map(|&v| v as u32).collect();
+            if offsets.iter().any(|&v| v > u32::MAX as u64) {
+                return Err(tiff::TiffError::LimitsExceeded);
+            }
+            dir.write_tag(Tag::TileOffsets, &o[..])?;
+            dir.write_tag(Tag::TileByteCounts, &c[..])?;
+        }
+        if nb > 1 {
+            dir.write_tag(Tag::ExtraSamples, &vec![0u16; nb - 1][..])?;
+        }
+        dir.write_tag(Tag::SampleFormat, &vec![3u16; nb][..])?;
+        if level == 0 {
+            dir.write_tag(Tag::from_u16_exhaustive(tag::GDAL_METADATA), xml)?;
+        }
+        dir.write_tag(Tag::from_u16_exhaustive(tag::GDAL_NODATA), "nan")?;
+        dir.finish()?;
+    }
+    Ok(())
+}

@@ -1,0 +1,131 @@
+//! A deterministic synthetic scan (terrain, buildings, vegetation-like clutter,
+//! intensity) for demos, tests and benchmarks: the same `n` and `seed` always give
+//! the same points.
+
+use crate::points::{Attribute, PointColumns};
+use rayon::prelude::*;
+
+/// A small, fast, seedable generator (SplitMix64).
+#[derive(Debug, Clone)]
+pub struct Rng(u64);
+
+impl Rng {
+    pub fn new(seed: u64) -> Self {
+        Rng(seed)
+    }
+    pub fn next_u64(&mut self) -> u64 {
+        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
+        let mut z = self.0;
+        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+        z ^ (z >> 31)
+    }
+    /// Uniform in [0, 1).
+    pub fn f64(&mut self) -> f64 {
+        (self.next_u64() >> 11) as f64 / (1u64 << 53) as f64
+    }
+}
+
+/// Where the scene sits: a georeferenced origin, so precision handling is exercised.
+pub const SCENE_ORIGIN: [f64; 3] = [637_000.0, 6_010_900.0, 20.0];
+/// Edge of the square scene in metres.
+pub const SCENE_SIZE: f64 = 400.0;
+
+fn terrain(x: f64, y: f64) -> f64 {
+    3.0 * (x * 0.013).sin() * (y * 0.011).cos() + 1.5 * (x * 0.041 + y * 0.027).sin()
+}
+
+/// Buildings: (x0, y0, width, depth, height) on a regular block grid.
+fn building(cell_x: i64, cell_y: i64) -> Option<(f64, f64, f64, f64, f64)> {
+    let h = (cell_x.wrapping_mul(73_856_093) ^ cell_y.wrapping_mul(19_349_663)) as u64;
+    let mut r = Rng::new(h);
+    if r.f64() < 0.45 {
+        return None;
+    }
+    let (bx, by) = (cell_x as f64 * 50.0 + 8.0, cell_y as f64 * 50.0 + 8.0);
+    Some((
+        bx,
+        by,
+        15.0 + 20.0 * r.f64(),
+        15.0 + 20.0 * r.f64(),
+        6.0 + 30.0 * r.f64(),
+    ))
+}
+
+/// One point `i` of the scene generated with `seed`.
+fn point(seed: u64, i: u64) -> ([f64; 3], f32) {
+    let mut r = Rng::new(seed ^ i.wrapping_mul(0xD6E8_FEB8_6659_FD93));
+    let kind = r.f64();
+    let x = r.f64() * SCENE_SIZE;
+    let y = r.f64() * SCENE_SIZE;
+    let ground = terrain(x, y);
+    let cell = ((x / 50.0).floor() as i64, (y / 50.0).floor() as i64);
+    if kind < 0.25 {
+        if let Some((bx, by, w, d, h)) = building(cell.0, cell.1) {
+            // A point on the building: roof or one of four walls.
+            let face = r.f64();
+            let (u, v) = (r.f64(), r.f64());
+            let base = terrain(bx, by);
+            let p = if face < 0.5 {
+                [bx + u * w, by + v * d, base + h]
+            } else if face < 0.625 {
+                [bx, by + u * d, base + v * h]
+            } else if face < 0.75 {
+                [bx + w, by + u * d, base + v * h]
+            } else if face < 0.875 {
+                [bx + u * w, by, base + v * h]
+            } else {
+                [bx + u * w, by + d, base + v * h]
+            };
+            let intensity = if face < 0.5 { 180.0 } else { 120.0 } + 20.0 * r.f64();
+            return (p, intensity as f32);
+        }
+    }
+    if kind > 0.9 {
+        // Vegetation-like clutter: blobs of points above the ground.
+        let tx = (x / 7.0).floor() * 7.0 + 3.5;
+        let ty = (y / 7.0).floor() * 7.0 + 3.5;
+        let crown = 3.0 + 2.0 * r.f64();
+        let (a, b, c) = (r.f64() - 0.5, r.f64() - 0.5, r.f64() - 0.5);
+        let p = [
+            tx + a * crown,
+            ty + b * crown,
+            terrain(tx, ty) + 5.0 + c * crown,
+        ];
+        return (p, (40.0 + 60.0 * r.f64()) as f32);
+    }
+    let noise = (r.f64() - 0.5) * 0.05;
+    ([x, y, ground + noise], (70.0 + 40.0 * r.f64()) as f32)
+}
+
+/// `n` points of the synthetic scene with an `intensity` attribute.
+pub fn scene(n: u64, seed: u64) -> PointColumns {
+    let pts: Vec<([f64; 3], f32)> = (0..n).into_par_iter().map(|i| point(seed, i)).collect();
+    let mut c = PointColumns {
+        x: Vec::with_capacity(n as usize),
+        y: Vec::with_capacity(n as usize),
+        z: Vec::with_capacity(n as usize),
+        attributes: vec![Attribute::new("intensity", Vec::with_capacity(n as usize))],
+    };
+    for (p, i) in pts {
+        c.x.push(SCENE_ORIGIN[0] + p[0]);
+        c.y.push(SCENE_ORIGIN[1] + p[1]);
+        c.z.push(SCENE_ORIGIN[2] + p[2]);
+        c.attributes[0].values.push(i);
+    }
+    c
+}
+
+#[cfg(test)]
+mod tests {
+    #[test]
+    fn deterministic_and_in_scene() {
+        let a = super::scene(1000, 7);
+        assert_eq!(a, super::scene(1000, 7));
+        assert_ne!(a, super::scene(1000, 8));
+        let b = a.bounds();
+        assert!(
+            b.min[0] >= super::SCENE_ORIGIN[0] - 5.0 && b.max[0] <= super::SCENE_ORIGIN[0] + 405.0
+        );
+    }
+}
