@@ -130,7 +130,23 @@ pub struct Part {
     pub levels: Vec<Level>,
     /// Samples per pixel of each level (the band count).
     samples: usize,
-    map: Arc<Mmap>,
+    map: Arc<Bytes>,
+}
+
+/// The bytes of a part: a read-only memory map, or a buffer (tests, fuzzing).
+enum Bytes {
+    Map(Mmap),
+    Owned(Vec<u8>),
+}
+
+impl std::ops::Deref for Bytes {
+    type Target = [u8];
+    fn deref(&self) -> &[u8] {
+        match self {
+            Bytes::Map(m) => m,
+            Bytes::Owned(v) => v,
+        }
+    }
 }
 
 impl std::fmt::Debug for Part {
@@ -208,7 +224,21 @@ impl Part {
         // A file truncated by someone else while mapped can fault; that is the
         // documented limit of memory-mapped I/O.
         let map = unsafe { Mmap::map(&file) }.map_err(|e| err(format!("cannot map: {e}")))?;
+        Self::parse(path, Bytes::Map(map))
+    }
+
+    /// Opens a part held in memory; `name` stands for the file in messages.
+    pub fn from_bytes(name: &Path, bytes: Vec<u8>) -> Result<Part> {
+        if bytes.is_empty() {
+            return Err(StoreError::new(name, "file is empty"));
+        }
+        Self::parse(name, Bytes::Owned(bytes))
+    }
+
+    fn parse(path: &Path, map: Bytes) -> Result<Part> {
+        let err = |m: String| StoreError::new(path, m);
         let data: &[u8] = &map;
+        let file_bytes = data.len() as u64;
         let tiff = Tiff::parse(data).map_err(err)?;
         let first = &tiff.ifds[0];
         let xml = tiff
@@ -236,6 +266,9 @@ impl Part {
             .get(key::BANDS)
             .map(|s| s.split_whitespace().collect())
             .unwrap_or_default();
+        if samples > 256 {
+            return Err(err(format!("has {samples} bands; pcimg reads at most 256")));
+        }
         if samples < 3 {
             return Err(err(format!(
                 "has {samples} band(s); a part needs at least x, y and z"
@@ -368,7 +401,7 @@ impl Part {
             .ok_or("the image is stored in strips, not tiles (rewrite it with -co TILED=YES)")?
             as u32;
         let tile_height = need(tag::TILE_LENGTH, "TileLength")? as u32;
-        if tile_width == 0 || tile_height == 0 || tile_width > 1 << 14 || tile_height > 1 << 14 {
+        if tile_width == 0 || tile_height == 0 || tile_width as u64 * tile_height as u64 > 1 << 22 {
             return Err(format!(
                 "tile size {tile_width}x{tile_height} is not usable"
             ));

@@ -1,0 +1,65 @@
+//! Helpers shared by the integration tests.
+#![allow(dead_code)]
+
+use pcimg::points::{Attribute, PointColumns};
+use pcimg::synth::Rng;
+use std::process::Command;
+
+/// Whether an external tool runs. In CI (`CI=true`) a missing tool is a failure,
+/// never a skip; elsewhere the caller skips with a note.
+pub fn tool_available(program: &str, arg: &str) -> bool {
+    let ok = Command::new(program)
+        .arg(arg)
+        .output()
+        .is_ok_and(|o| o.status.success());
+    if !ok {
+        assert!(
+            std::env::var("CI").ok().as_deref() != Some("true"),
+            "{program} is required in CI (apt-get install gdal-bin)"
+        );
+        eprintln!("note: {program} not found, skipping this test outside CI");
+    }
+    ok
+}
+
+/// A random cloud near georeferenced coordinates, with duplicates.
+pub fn random_cloud(n: usize, seed: u64, dup_every: usize) -> PointColumns {
+    let mut r = Rng::new(seed);
+    let mut c = PointColumns {
+        attributes: vec![
+            Attribute::new("intensity", Vec::new()),
+            Attribute {
+                name: "gps_time".into(),
+                offset: 3.1e8,
+                values: Vec::new(),
+            },
+        ],
+        ..Default::default()
+    };
+    for i in 0..n {
+        if dup_every > 0 && i > 0 && i % dup_every == 0 {
+            let j = (r.next_u64() % i as u64) as usize;
+            c.x.push(c.x[j]);
+            c.y.push(c.y[j]);
+            c.z.push(c.z[j]);
+            for a in &mut c.attributes {
+                let v = a.values[j];
+                a.values.push(v);
+            }
+            continue;
+        }
+        c.x.push(637179.22 + r.f64() * 500.0);
+        c.y.push(6010946.56 + r.f64() * 300.0);
+        c.z.push(20.51 + r.f64() * 30.0);
+        c.attributes[0].values.push((r.f64() * 255.0) as f32);
+        c.attributes[1].values.push((r.f64() * 100.0) as f32);
+    }
+    c
+}
+
+/// Points as exact bit patterns of (f64 coordinates, f32 attributes), sorted.
+pub fn multiset(rows: Vec<Vec<u64>>) -> Vec<Vec<u64>> {
+    let mut rows = rows;
+    rows.sort();
+    rows
+}

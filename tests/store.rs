@@ -1,0 +1,347 @@
+//! The image store end to end: write → read round trips (property-based), the
+//! pyramid's invariants, the tile index, and bad files.
+
+mod common;
+
+use common::random_cloud;
+use pcimg::points::PointColumns;
+use pcimg::store::zorder::Geometry;
+use pcimg::store::{Compression, Dataset, Part, WriteOptions, write_part};
+use proptest::prelude::*;
+use std::collections::HashMap;
+use std::path::Path;
+
+/// What the writer promises to store for a source coordinate: `origin + f32(v - origin)`.
+fn stored(v: f64, origin: f64) -> f64 {
+    origin + (v - origin) as f32 as f64
+}
+
+/// Rows of (x, y, z as f64 bits, attributes as f32 bits) read from a level.
+fn read_rows(part: &Part, level: usize) -> Vec<Vec<u64>> {
+    let bands: Vec<usize> = (0..part.bands.len()).collect();
+    let p = part.read_level(level, &bands).unwrap();
+    (0..p.len())
+        .map(|i| {
+            (0..bands.len())
+                .map(|b| {
+                    if b < 3 {
+                        (p.offsets[b] + p.columns[b][i] as f64).to_bits()
+                    } else {
+                        p.columns[b][i].to_bits() as u64
+                    }
+                })
+                .collect()
+        })
+        .collect()
+}
+
+fn check_round_trip(pts: &PointColumns, compression: Compression) {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("part.tif");
+    let opts = WriteOptions {
+        compression,
+        source: Some("test.xyz".into()),
+        ..Default::default()
+    };
+    let summary = write_part(&path, pts, &opts).unwrap();
+    let part = Part::open(&path).unwrap();
+    let n = pts.len();
+    assert_eq!(part.meta.point_count, n as u64);
+    let origin = part.meta.origin;
+    assert_eq!(origin, summary.origin);
+
+    // Level 0 holds exactly the input points, each within the stated precision.
+    let mut expected: Vec<Vec<u64>> = (0..n)
+        .map(|i| {
+            let mut r = vec![
+                stored(pts.x[i], origin[0]).to_bits(),
+                stored(pts.y[i], origin[1]).to_bits(),
+                stored(pts.z[i], origin[2]).to_bits(),
+            ];
+            r.extend(pts.attributes.iter().map(|a| a.values[i].to_bits() as u64));
+            r
+        })
+        .collect();
+    expected.sort();
+    let got = common::multiset(read_rows(&part, 0));
+    assert_eq!(got.len(), n);
+    assert!(got == expected, "level 0 differs from the input");
+    // Precision bound: half an f32 ulp of the largest coordinate offset.
+    for i in 0..n {
+        for (a, v) in [pts.x[i], pts.y[i], pts.z[i]].into_iter().enumerate() {
+            let rel = (v - origin[a]).abs();
+            let bound = rel * f32::EPSILON as f64 / 2.0 + 1e-9;
+            assert!((stored(v, origin[a]) - v).abs() <= bound);
+            assert!((stored(v, origin[a]) - v).abs() <= summary.max_quantization_error + 1e-12);
+        }
+    }
+
+    // Each level holds the stated count and is a sub-multiset of the level below.
+    let g = Geometry::for_points(n as u64);
+    assert_eq!(part.levels.len(), g.levels());
+    let mut below: HashMap<Vec<u64>, usize> = HashMap::new();
+    for r in got {
+        *below.entry(r).or_default() += 1;
+    }
+    for k in 0..part.levels.len() {
+        let level = &part.levels[k];
+        assert_eq!(level.points, Some(g.level_points(k)));
+        assert!(level.indexed);
+        let rows = read_rows(&part, k);
+        assert_eq!(rows.len() as u64, g.level_points(k), "level {k}");
+        let mut this: HashMap<Vec<u64>, usize> = HashMap::new();
+        for r in rows {
+            *this.entry(r).or_default() += 1;
+        }
+        for (r, c) in &this {
+            assert!(below.get(r).copied().unwrap_or(0) >= *c, "level {k} is not a subset");
+        }
+        // Tile index: counts add up and every point lies within its tile's bounds.
+        let idx: u64 = level.tiles.iter().map(|t| t.points.unwrap() as u64).sum();
+        assert_eq!(idx, g.level_points(k));
+        for t in &level.tiles {
+            let p = part.read_tiles(k, &[t.index], &[0, 1, 2]).unwrap();
+            assert_eq!(p.len() as u32, t.points.unwrap());
+            for i in 0..p.len() {
+                for a in 0..3 {
+                    let v = p.offsets[a] + p.columns[a][i] as f64;
+                    assert!(v >= t.bounds.min[a] && v <= t.bounds.max[a]);
+                }
+            }
+        }
+        below = this;
+    }
+}
+
+#[test]
+fn round_trip_edge_sizes() {
+    for n in [0usize, 1, 2, 3, 4, 5, 65_535, 65_536, 65_537] {
+        check_round_trip(&random_cloud(n, n as u64, 7), Compression::None);
+    }
+}
+
+#[test]
+fn round_trip_compressed() {
+    check_round_trip(&random_cloud(70_000, 3, 5), Compression::Deflate);
+    check_round_trip(&random_cloud(70_000, 4, 0), Compression::Zstd);
+}
+
+#[test]
+fn round_trip_four_levels() {
+    // 4^8 * 17 points: a 2048 image with 4 levels, the last tile partial.
+    check_round_trip(&random_cloud(1_114_112 + 17, 11, 3), Compression::None);
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig { cases: 24, ..ProptestConfig::default() })]
+    #[test]
+    fn round_trip_random(
+        n in prop_oneof![0usize..300, 65_530usize..65_542, 130_000usize..140_000],
+        seed in any::<u64>(),
+        dup in prop_oneof![Just(0usize), 2usize..10],
+        comp in prop_oneof![Just(Compression::None), Just(Compression::Deflate), Just(Compression::Zstd)],
+    ) {
+        check_round_trip(&random_cloud(n, seed, dup), comp);
+    }
+}
+
+#[test]
+fn all_points_equal() {
+    let mut c = random_cloud(1000, 1, 0);
+    for i in 0..c.len() {
+        c.x[i] = 637179.22;
+        c.y[i] = 6010946.56;
+        c.z[i] = 20.51;
+    }
+    check_round_trip(&c, Compression::None);
+}
+
+#[test]
+fn levels_are_spatially_even() {
+    // Level k of a uniform grid keeps points spread over the whole extent: every
+    // 1/8 × 1/8 cell of the square has points at the coarsest level.
+    let n = 512 * 512;
+    let mut c = PointColumns::default();
+    for i in 0..n {
+        c.x.push((i % 512) as f64);
+        c.y.push((i / 512) as f64);
+        c.z.push(0.0);
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("grid.tif");
+    write_part(&path, &c, &WriteOptions::default()).unwrap();
+    let part = Part::open(&path).unwrap();
+    let last = part.levels.len() - 1;
+    let p = part.read_level(last, &[0, 1]).unwrap();
+    let mut cells = [[0u32; 8]; 8];
+    for i in 0..p.len() {
+        let x = p.offsets[0] + p.columns[0][i] as f64;
+        let y = p.offsets[1] + p.columns[1][i] as f64;
+        cells[(x / 64.0) as usize][(y / 64.0) as usize] += 1;
+    }
+    let expected = p.len() as f64 / 64.0;
+    for row in cells {
+        for c in row {
+            assert!((c as f64 - expected).abs() <= expected * 0.25, "{cells:?}");
+        }
+    }
+}
+
+#[test]
+fn metadata_survives_and_dataset_directory_opens() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut opts = WriteOptions {
+        source: Some("scan \u{1b}[31mred.las".into()),
+        crs: Some("EPSG:2992".into()),
+        ..Default::default()
+    };
+    write_part(&dir.path().join("a.tif"), &random_cloud(100, 1, 0), &opts).unwrap();
+    opts.source = Some("b.las".into());
+    write_part(&dir.path().join("b.tif"), &random_cloud(50, 2, 0), &opts).unwrap();
+    let ds = Dataset::open(dir.path()).unwrap();
+    assert_eq!(ds.parts.len(), 2);
+    assert_eq!(ds.points(), 150);
+    let p = &ds.parts[0];
+    assert_eq!(p.meta.source.as_deref(), Some("scan \u{1b}[31mred.las"));
+    assert_eq!(p.meta.crs.as_deref(), Some("EPSG:2992"));
+    let names: Vec<&str> = p.bands.iter().map(|b| b.name.as_str()).collect();
+    assert_eq!(names, ["x", "y", "z", "intensity", "gps_time"]);
+    assert_eq!(p.bands[4].offset, 3.1e8);
+    assert!(ds.bounds().contains(&p.meta.bounds));
+    // Text output never carries the escape character from the metadata.
+    let text = pcimg::cli::info::render_text(&pcimg::cli::info::report(&ds, true));
+    assert!(!text.contains('\u{1b}'));
+    assert!(text.contains("EPSG:2992"));
+}
+
+#[test]
+fn nan_coordinates_are_refused_and_nothing_is_left() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut c = random_cloud(10, 1, 0);
+    c.y[4] = f64::NAN;
+    let path = dir.path().join("bad.tif");
+    let e = write_part(&path, &c, &WriteOptions::default()).unwrap_err();
+    assert!(e.to_string().contains("point 4"), "{e}");
+    assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 0);
+}
+
+// ---- bad files -----------------------------------------------------------------
+
+fn good_file(dir: &Path) -> (std::path::PathBuf, Vec<u8>) {
+    let path = dir.join("good.tif");
+    write_part(&path, &random_cloud(70_000, 5, 0), &WriteOptions::default()).unwrap();
+    let bytes = std::fs::read(&path).unwrap();
+    (path, bytes)
+}
+
+fn open_err(dir: &Path, name: &str, bytes: &[u8]) -> String {
+    let p = dir.join(name);
+    std::fs::write(&p, bytes).unwrap();
+    let e = Part::open(&p).unwrap_err().to_string();
+    assert!(e.contains(name), "error does not name the file: {e}");
+    e
+}
+
+fn replace_once(bytes: &mut [u8], from: &[u8], to: &[u8]) {
+    assert_eq!(from.len(), to.len());
+    let at = bytes
+        .windows(from.len())
+        .position(|w| w == from)
+        .expect("pattern present");
+    bytes[at..at + to.len()].copy_from_slice(to);
+}
+
+#[test]
+fn truncated_files_are_errors() {
+    let dir = tempfile::tempdir().unwrap();
+    let (_, bytes) = good_file(dir.path());
+    for cut in [0usize, 1, 7, 8, 100, bytes.len() / 3, bytes.len() - 20, bytes.len() - 1] {
+        let e = open_err(dir.path(), "cut.tif", &bytes[..cut]);
+        assert!(
+            e.contains("truncated") || e.contains("empty") || e.contains("too short") || e.contains("past the end"),
+            "cut at {cut}: {e}"
+        );
+    }
+    // Every prefix fails cleanly (never panics), sampled.
+    for cut in (0..bytes.len()).step_by(9_973) {
+        assert!(Part::from_bytes(Path::new("x.tif"), bytes[..cut].to_vec()).is_err());
+    }
+}
+
+#[test]
+fn plain_rgb_tiff_is_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut buf = std::io::Cursor::new(Vec::new());
+    let mut enc = tiff::encoder::TiffEncoder::new(&mut buf).unwrap();
+    enc.write_image::<tiff::encoder::colortype::RGB8>(4, 4, &[7u8; 48])
+        .unwrap();
+    let e = open_err(dir.path(), "photo.tif", buf.get_ref());
+    assert!(e.contains("no GDAL_METADATA"), "{e}");
+}
+
+#[test]
+fn missing_metadata_and_wrong_bands_are_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let (_, bytes) = good_file(dir.path());
+    let mut b = bytes.clone();
+    replace_once(&mut b, b"PCIMG_FORMAT", b"OTHER_FORMAT");
+    let e = open_err(dir.path(), "nometa.tif", &b);
+    assert!(e.contains("PCIMG_FORMAT"), "{e}");
+
+    let mut b = bytes.clone();
+    replace_once(&mut b, b"\"POINT_COUNT\"", b"\"POINT_COUNX\"");
+    let e = open_err(dir.path(), "nocount.tif", &b);
+    assert!(e.contains("POINT_COUNT is missing"), "{e}");
+
+    let mut b = bytes.clone();
+    replace_once(&mut b, b">x y z intensity gps_time<", b">x y z intensity_gps_time<");
+    let e = open_err(dir.path(), "bands.tif", &b);
+    assert!(e.contains("lists 4 bands") && e.contains("has 5"), "{e}");
+
+    let mut b = bytes.clone();
+    replace_once(&mut b, b"role=\"description\">x<", b"role=\"description\">q<");
+    let e = open_err(dir.path(), "names.tif", &b);
+    assert!(e.contains("expected 'x'"), "{e}");
+}
+
+#[test]
+fn tile_offset_past_the_end_is_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let (_, mut bytes) = good_file(dir.path());
+    let t = pcimg::store::ifd::Tiff::parse(&bytes).unwrap();
+    let entry = t.ifds[0].entries[&324];
+    let at = entry.at as usize;
+    let past = (bytes.len() as u32 + 100).to_le_bytes();
+    bytes[at..at + 4].copy_from_slice(&past);
+    let e = open_err(dir.path(), "offset.tif", &bytes);
+    assert!(e.contains("past the end of the file"), "{e}");
+}
+
+#[test]
+fn corrupt_compressed_tile_is_an_error_at_read() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("z.tif");
+    let opts = WriteOptions {
+        compression: Compression::Deflate,
+        ..Default::default()
+    };
+    write_part(&path, &random_cloud(1000, 5, 0), &opts).unwrap();
+    let mut bytes = std::fs::read(&path).unwrap();
+    let t = pcimg::store::ifd::Tiff::parse(&bytes).unwrap();
+    let off = t.uints(&bytes, &t.ifds[0], 324).unwrap().unwrap()[0] as usize;
+    for b in &mut bytes[off..off + 16] {
+        *b ^= 0x5a;
+    }
+    let part = Part::from_bytes(Path::new("z.tif"), bytes).unwrap();
+    let e = part.read_level(0, &[0]).unwrap_err().to_string();
+    assert!(e.contains("z.tif") && e.contains("corrupt"), "{e}");
+}
+
+#[test]
+fn empty_directory_and_missing_path() {
+    let dir = tempfile::tempdir().unwrap();
+    let e = Dataset::open(dir.path()).unwrap_err().to_string();
+    assert!(e.contains("no .tif parts"), "{e}");
+    let e = Dataset::open(&dir.path().join("nope.tif")).unwrap_err().to_string();
+    assert!(e.contains("nope.tif") && e.contains("cannot open"), "{e}");
+}
