@@ -1,0 +1,180 @@
+//! GDAL as an independent reader of what pcimg writes, and pcimg as a reader of what
+//! GDAL rewrites. Needs gdal-bin (installed by .ci/run; a failure in CI if missing).
+
+mod common;
+
+use pcimg::store::zorder::z_pixel;
+use pcimg::store::{Compression, Part, WriteOptions, write_part};
+use std::path::Path;
+use std::process::Command;
+
+fn gdal() -> bool {
+    common::tool_available("gdalinfo", "--version")
+}
+
+fn run(cmd: &str, args: &[&str]) -> String {
+    let out = Command::new(cmd).args(args).output().unwrap();
+    assert!(
+        out.status.success(),
+        "{cmd} {args:?} failed: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    String::from_utf8_lossy(&out.stdout).into_owned()
+}
+
+fn write(dir: &Path, name: &str, n: usize, c: Compression) -> std::path::PathBuf {
+    let path = dir.join(name);
+    let opts = WriteOptions {
+        compression: c,
+        source: Some("cloud.las".into()),
+        crs: Some("EPSG:32633".into()),
+        ..Default::default()
+    };
+    write_part(&path, &common::random_cloud(n, 42, 0), &opts).unwrap();
+    path
+}
+
+#[test]
+fn gdalinfo_sees_bands_overviews_and_metadata() {
+    if !gdal() {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    for c in [Compression::None, Compression::Deflate, Compression::Zstd] {
+        let path = write(dir.path(), &format!("{}.tif", c.name()), 300_000, c);
+        let info: serde_json::Value =
+            serde_json::from_str(&run("gdalinfo", &["-json", path.to_str().unwrap()])).unwrap();
+        assert_eq!(info["size"], serde_json::json!([1024, 1024]));
+        let bands = info["bands"].as_array().unwrap();
+        let names: Vec<&str> = bands.iter().map(|b| b["description"].as_str().unwrap()).collect();
+        assert_eq!(names, ["x", "y", "z", "intensity", "gps_time"]);
+        for b in bands {
+            assert_eq!(b["type"], "Float32");
+            assert_eq!(b["block"], serde_json::json!([256, 256]));
+            let ovr: Vec<&serde_json::Value> = b["overviews"]
+                .as_array()
+                .unwrap()
+                .iter()
+                .map(|o| &o["size"])
+                .collect();
+            assert_eq!(ovr, [&serde_json::json!([512, 512]), &serde_json::json!([256, 256])]);
+            assert!(b["noDataValue"].as_str().is_some_and(|s| s.eq_ignore_ascii_case("nan")));
+        }
+        let part = Part::open(&path).unwrap();
+        let x_offset = bands[0]["offset"].as_f64().unwrap();
+        assert!((x_offset - part.meta.origin[0]).abs() < 1e-6);
+        let md = &info["metadata"][""];
+        assert_eq!(md["POINT_COUNT"], "300000");
+        assert_eq!(md["PCIMG_FORMAT"], "1");
+        assert_eq!(md["LEVEL_POINTS"], "300000 75000 18750");
+        assert_eq!(md["SOURCE"], "cloud.las");
+        assert_eq!(md["CRS"], "EPSG:32633");
+        assert!(md["BOUNDS_MIN"].as_str().unwrap().starts_with("637179.2"));
+        assert_eq!(
+            info["metadata"]["IMAGE_STRUCTURE"]["INTERLEAVE"], "BAND",
+            "bands are separate planes"
+        );
+        if c != Compression::None {
+            let comp = info["metadata"]["IMAGE_STRUCTURE"]["COMPRESSION"].as_str().unwrap();
+            assert_eq!(comp, if c == Compression::Deflate { "DEFLATE" } else { "ZSTD" });
+        }
+    }
+}
+
+/// `gdallocationinfo` returns our value at pixel of rank `r` of `level`.
+fn check_pixels(path: &Path, level: usize, ranks: &[usize]) {
+    let part = Part::open(path).unwrap();
+    let p = part.read_level(level, &[0, 1, 2, 3]).unwrap();
+    for &r in ranks {
+        let (px, py) = z_pixel(r as u64);
+        // gdallocationinfo takes base-level pixel coordinates even with -overview.
+        let (px, py) = (px << level, py << level);
+        for band in 1..=4usize {
+            let mut args = vec!["-valonly".to_string(), "-b".into(), band.to_string()];
+            if level > 0 {
+                args.extend(["-overview".into(), level.to_string()]);
+            }
+            args.extend([path.to_str().unwrap().into(), px.to_string(), py.to_string()]);
+            let out = run("gdallocationinfo", &args.iter().map(String::as_str).collect::<Vec<_>>());
+            let v: f64 = out.trim().parse().unwrap_or_else(|_| panic!("value '{out}'"));
+            let ours = p.columns[band - 1][r] as f64;
+            assert!(
+                (v - ours).abs() <= ours.abs() * 1e-6 + 1e-6,
+                "level {level} rank {r} band {band}: gdal {v} pcimg {ours}"
+            );
+        }
+    }
+}
+
+#[test]
+fn gdallocationinfo_reads_our_values() {
+    if !gdal() {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let path = write(dir.path(), "loc.tif", 300_000, Compression::None);
+    check_pixels(&path, 0, &[0, 1, 77, 65_535, 65_536, 299_999]);
+    check_pixels(&path, 1, &[0, 3, 74_999]);
+    let path = write(dir.path(), "locz.tif", 100_000, Compression::Deflate);
+    check_pixels(&path, 0, &[5, 99_999]);
+    check_pixels(&path, 1, &[24_999]);
+    // Beyond the last point the pixel is nodata.
+    let (px, py) = z_pixel(300_000);
+    let out = run(
+        "gdallocationinfo",
+        &["-valonly", "-b", "1", dir.path().join("loc.tif").to_str().unwrap(), &px.to_string(), &py.to_string()],
+    );
+    assert!(out.trim().eq_ignore_ascii_case("nan"), "{out}");
+}
+
+#[test]
+fn gdal_rewritten_file_still_opens_with_the_same_points() {
+    if !gdal() {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let src = write(dir.path(), "src.tif", 200_000, Compression::None);
+    let dst = dir.path().join("rewritten.tif");
+    run(
+        "gdal_translate",
+        &[
+            "-q", "-co", "TILED=YES", "-co", "COMPRESS=DEFLATE", "-co", "PREDICTOR=3",
+            src.to_str().unwrap(), dst.to_str().unwrap(),
+        ],
+    );
+    run("gdaladdo", &["-q", "-r", "nearest", dst.to_str().unwrap(), "2", "4"]);
+    let a = Part::open(&src).unwrap();
+    let b = Part::open(&dst).unwrap();
+    assert_eq!(b.bands, a.bands);
+    assert_eq!(b.levels.len(), 3);
+    let all: Vec<usize> = (0..a.bands.len()).collect();
+    let rows = |p: &Part, level| {
+        let pts = p.read_level(level, &all).unwrap();
+        let mut rows: Vec<Vec<u32>> = (0..pts.len())
+            .map(|i| pts.columns.iter().map(|c| c[i].to_bits()).collect())
+            .collect();
+        rows.sort();
+        rows
+    };
+    assert_eq!(rows(&b, 0), rows(&a, 0), "level 0 differs after GDAL's rewrite");
+    // GDAL's overviews are nearest-neighbour samples too: every point is real.
+    let level0 = rows(&a, 0);
+    for r in rows(&b, 1) {
+        assert!(level0.binary_search(&r).is_ok());
+    }
+    assert!(!b.levels[1].indexed, "gdaladdo's overviews carry no pcimg index");
+}
+
+#[test]
+fn fewer_bands_are_refused() {
+    if !gdal() {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let src = write(dir.path(), "src.tif", 1000, Compression::None);
+    let dst = dir.path().join("two.tif");
+    run("gdal_translate", &["-q", "-b", "1", "-b", "2", src.to_str().unwrap(), dst.to_str().unwrap()]);
+    let e = Part::open(&dst).unwrap_err().to_string();
+    assert!(e.contains("two.tif"), "{e}");
+    assert!(e.contains("2 band") || e.contains("lists 5 bands"), "{e}");
+}
