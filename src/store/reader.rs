@@ -577,11 +577,42 @@ impl Part {
         }
         let known: BTreeMap<u32, Option<u32>> =
             l.tiles.iter().map(|t| (t.index, t.points)).collect();
+        let counts: Option<Vec<usize>> = tiles
+            .iter()
+            .map(|t| known.get(t).copied().flatten().map(|c| c as usize))
+            .collect();
+        let fail = |m: String| StoreError::new(&self.path, format!("level {level}: {m}"));
+        if let Some(counts) = counts {
+            // Every count is known: fill disjoint slices of the output in parallel.
+            let total: usize = counts.iter().sum();
+            let mut columns: Vec<Vec<f32>> = bands.iter().map(|_| vec![0f32; total]).collect();
+            let mut outs: Vec<Vec<&mut [f32]>> = (0..tiles.len())
+                .map(|_| Vec::with_capacity(bands.len()))
+                .collect();
+            for col in columns.iter_mut() {
+                let mut rest = col.as_mut_slice();
+                for (k, &c) in counts.iter().enumerate() {
+                    let (head, tail) = rest.split_at_mut(c);
+                    outs[k].push(head);
+                    rest = tail;
+                }
+            }
+            outs.into_par_iter()
+                .zip(tiles.par_iter())
+                .try_for_each(|(o, &t)| self.fill_tile(l, t, bands, o))
+                .map_err(fail)?;
+            return Ok(Points {
+                bands: bands.iter().map(|&b| self.bands[b].name.clone()).collect(),
+                offsets: bands.iter().map(|&b| self.bands[b].offset).collect(),
+                columns,
+                tile_points: counts.iter().map(|&c| c as u32).collect(),
+            });
+        }
         let per_tile: Vec<Vec<Vec<f32>>> = tiles
             .par_iter()
             .map(|&t| self.read_tile(l, t, known.get(&t).copied().flatten(), bands))
             .collect::<std::result::Result<_, String>>()
-            .map_err(|m| StoreError::new(&self.path, format!("level {level}: {m}")))?;
+            .map_err(fail)?;
         let total: usize = per_tile.iter().map(|c| c.first().map_or(0, Vec::len)).sum();
         let mut columns: Vec<Vec<f32>> = bands.iter().map(|_| Vec::with_capacity(total)).collect();
         let mut tile_points = Vec::with_capacity(tiles.len());
@@ -597,6 +628,69 @@ impl Part {
             columns,
             tile_points,
         })
+    }
+
+    /// Fills `outs` (one slice per requested band, all of the tile's point count)
+    /// with the tile's first points in reading order. Uncompressed native-order
+    /// planes are gathered straight from the memory map.
+    fn fill_tile(
+        &self,
+        l: &Level,
+        t: u32,
+        bands: &[usize],
+        outs: Vec<&mut [f32]>,
+    ) -> std::result::Result<(), String> {
+        let n = outs.first().map_or(0, |o| o.len());
+        let per_band = (l.tiles_across * l.tiles_down) as usize;
+        let pixels = (l.tile_width * l.tile_height) as usize;
+        let Some(lut) = l.z_lut.as_deref().filter(|lut| lut.len() >= n) else {
+            // No Z-order tiles: take the general path.
+            let cols = self.read_tile(l, t, Some(n as u32), bands)?;
+            for (o, c) in outs.into_iter().zip(cols) {
+                if c.len() != o.len() {
+                    return Err(format!("tile {t} holds fewer points than its index says"));
+                }
+                o.copy_from_slice(&c);
+            }
+            return Ok(());
+        };
+        let data: &[u8] = &self.map;
+        let native = self.little_endian == cfg!(target_endian = "little");
+        if !l.planar_separate {
+            let cols = self.read_tile(l, t, Some(n as u32), bands)?;
+            for (o, c) in outs.into_iter().zip(cols) {
+                o.copy_from_slice(&c[..o.len()]);
+            }
+            return Ok(());
+        }
+        for (o, &b) in outs.into_iter().zip(bands) {
+            let c = b * per_band + t as usize;
+            let (off, len) = (l.offsets[c] as usize, l.counts[c] as usize);
+            if len == 0 {
+                return Err(format!("tile {t} band {} is empty but its index says {n} points", b + 1));
+            }
+            let stored = &data[off..off + len];
+            let raw = (l.compression == spec::compression::NONE && native && len >= pixels * 4)
+                .then(|| bytemuck::try_cast_slice::<u8, f32>(&stored[..pixels * 4]).ok())
+                .flatten();
+            match raw {
+                Some(plane) => {
+                    for (v, &p) in o.iter_mut().zip(&lut[..n]) {
+                        *v = plane[p as usize];
+                    }
+                }
+                None => {
+                    let plane = l
+                        .codec(self.little_endian, 1)
+                        .decode(stored, pixels)
+                        .map_err(|m| format!("tile {t} band {}: {m}", b + 1))?;
+                    for (v, &p) in o.iter_mut().zip(&lut[..n]) {
+                        *v = plane[p as usize];
+                    }
+                }
+            }
+        }
+        Ok(())
     }
 
     /// Decodes one tile: per requested band, the tile's points in reading order.

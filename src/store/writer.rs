@@ -41,6 +41,28 @@ pub struct PartSummary {
     /// Largest difference between a source coordinate and its stored value.
     pub max_quantization_error: f64,
     pub bigtiff: bool,
+    /// Wall time of each phase of the write, in order.
+    pub phases: Vec<(&'static str, std::time::Duration)>,
+}
+
+/// Records the wall time of consecutive phases.
+struct Phases {
+    last: std::time::Instant,
+    list: Vec<(&'static str, std::time::Duration)>,
+}
+
+impl Phases {
+    fn new() -> Self {
+        Phases {
+            last: std::time::Instant::now(),
+            list: Vec::new(),
+        }
+    }
+    fn mark(&mut self, name: &'static str) {
+        let now = std::time::Instant::now();
+        self.list.push((name, now - self.last));
+        self.last = now;
+    }
 }
 
 /// Columns of a part in image order, ready to be tiled.
@@ -69,24 +91,13 @@ fn band_name(raw: &str) -> String {
     if s.is_empty() { "band".into() } else { s }
 }
 
-fn arrange(path: &Path, pts: &PointColumns, layout: Layout) -> Result<Arranged> {
+fn arrange(path: &Path, pts: &PointColumns, layout: Layout, ph: &mut Phases) -> Result<Arranged> {
     pts.check_lengths().map_err(|m| StoreError::new(path, m))?;
     let n = pts.len();
     if n as u64 > u32::MAX as u64 {
         return Err(StoreError::new(
             path,
             format!("{n} points are more than one part holds (4,294,967,295); split the input"),
-        ));
-    }
-    if let Some(i) =
-        (0..n).find(|&i| !(pts.x[i].is_finite() && pts.y[i].is_finite() && pts.z[i].is_finite()))
-    {
-        return Err(StoreError::new(
-            path,
-            format!(
-                "point {i} has a coordinate that is not a finite number ({}, {}, {})",
-                pts.x[i], pts.y[i], pts.z[i]
-            ),
         ));
     }
     let mut names: Vec<String> = spec::COORDINATE_BANDS
@@ -103,49 +114,85 @@ fn arrange(path: &Path, pts: &PointColumns, layout: Layout) -> Result<Arranged> 
         }
         names.push(name);
     }
-    let bounds = pts.bounds();
+    // One parallel pass: bounds, and the first point that is not finite.
+    let (bounds, bad) = (0..n)
+        .into_par_iter()
+        .with_min_len(1 << 16)
+        .fold(
+            || (Bounds::EMPTY, usize::MAX),
+            |(mut b, bad), i| {
+                let p = [pts.x[i], pts.y[i], pts.z[i]];
+                if p.iter().all(|v| v.is_finite()) {
+                    b.extend(p);
+                    (b, bad)
+                } else {
+                    (b, bad.min(i))
+                }
+            },
+        )
+        .reduce(
+            || (Bounds::EMPTY, usize::MAX),
+            |a, b| (a.0.union(&b.0), a.1.min(b.1)),
+        );
+    if bad != usize::MAX {
+        return Err(StoreError::new(
+            path,
+            format!(
+                "point {bad} has a coordinate that is not a finite number ({}, {}, {})",
+                pts.x[bad], pts.y[bad], pts.z[bad]
+            ),
+        ));
+    }
     let origin = if n == 0 { [0.0; 3] } else { bounds.center() };
-    let pos: Vec<[f32; 3]> = (0..n)
-        .into_par_iter()
-        .with_min_len(1 << 14)
-        .map(|i| {
-            [
-                (pts.x[i] - origin[0]) as f32,
-                (pts.y[i] - origin[1]) as f32,
-                (pts.z[i] - origin[2]) as f32,
-            ]
-        })
-        .collect();
-    let max_error = (0..n)
-        .into_par_iter()
-        .with_min_len(1 << 14)
-        .map(|i| {
-            let src = [pts.x[i], pts.y[i], pts.z[i]];
-            (0..3)
-                .map(|a| ((origin[a] + pos[i][a] as f64) - src[a]).abs())
-                .fold(0.0, f64::max)
+    // Coordinates relative to the origin, and the worst rounding to f32.
+    let mut pos = vec![[0f32; 3]; n];
+    let max_error = pos
+        .par_chunks_mut(1 << 16)
+        .enumerate()
+        .map(|(c, chunk)| {
+            let mut err = 0f64;
+            for (k, p) in chunk.iter_mut().enumerate() {
+                let i = (c << 16) + k;
+                let src = [pts.x[i], pts.y[i], pts.z[i]];
+                for a in 0..3 {
+                    p[a] = (src[a] - origin[a]) as f32;
+                    err = err.max(((origin[a] + p[a] as f64) - src[a]).abs());
+                }
+            }
+            err
         })
         .reduce(|| 0.0, f64::max);
     let geometry = Geometry::for_points(n as u64);
-    let order: Vec<u32> = match layout {
+    ph.mark("validate+origin");
+    // Points in image order: positions (sorted) and their source indices.
+    let (pos, perm): (Vec<[f32; 3]>, Vec<u32>) = match layout {
         Layout::Hilbert => {
-            let keys = layout::keys(&pos);
-            let mut order = layout::sort_by_key(&keys);
-            drop(keys);
-            layout::choose_representatives(&mut order, &pos, geometry.levels());
-            order
+            let perm = layout::hilbert_order(&pos);
+            ph.mark("hilbert sort");
+            let mut sorted: Vec<[f32; 3]> = perm.par_iter().map(|&i| pos[i as usize]).collect();
+            drop(pos);
+            let mut perm = perm;
+            layout::choose_representatives(&mut sorted, &mut perm, geometry.levels());
+            ph.mark("representatives");
+            (sorted, perm)
         }
-        Layout::Paper => (0..n as u32).collect(),
+        Layout::Paper => (pos, (0..n as u32).collect()),
     };
     let mut bands: Vec<Vec<f32>> = (0..3)
-        .map(|a| order.par_iter().map(|&i| pos[i as usize][a]).collect())
+        .map(|a| pos.par_iter().map(|p| p[a]).collect())
         .collect();
     drop(pos);
+    let identity = layout == Layout::Paper;
     for a in &pts.attributes {
-        bands.push(order.par_iter().map(|&i| a.values[i as usize]).collect());
+        bands.push(if identity {
+            a.values.clone()
+        } else {
+            perm.par_iter().map(|&i| a.values[i as usize]).collect()
+        });
     }
     let mut offsets = origin.to_vec();
     offsets.extend(pts.attributes.iter().map(|a| a.offset));
+    ph.mark("gather bands");
     Ok(Arranged {
         geometry,
         bands,
@@ -286,9 +333,11 @@ impl Drop for TempFile {
 
 /// Writes `pts` as one part at `path` (replacing an existing file atomically).
 pub fn write_part(path: &Path, pts: &PointColumns, opts: &WriteOptions) -> Result<PartSummary> {
-    let a = arrange(path, pts, opts.layout)?;
+    let mut ph = Phases::new();
+    let a = arrange(path, pts, opts.layout, &mut ph)?;
     let index = tile_index(&a);
     let xml = metadata_xml(&a, opts, &index);
+    ph.mark("tile index");
     let bigtiff = opts.force_bigtiff || size_estimate(&a, &xml) >= u32::MAX as u64 - (64 << 20);
     let file_name = path
         .file_name()
@@ -304,7 +353,8 @@ pub fn write_part(path: &Path, pts: &PointColumns, opts: &WriteOptions) -> Resul
     };
     let file = File::create(&tmp_path)
         .map_err(|e| StoreError::new(path, format!("cannot create {}: {e}", tmp_path.display())))?;
-    let mut w = BufWriter::with_capacity(8 << 20, file);
+    // Small buffer: tile writes (256 KiB) pass straight through, tags are batched.
+    let mut w = BufWriter::with_capacity(64 << 10, file);
     let io = |e: tiff::TiffError| StoreError::new(path, format!("write failed: {e}"));
     if bigtiff {
         encode::<_, TiffKindBig>(&mut w, &a, opts, &xml, true).map_err(io)?
@@ -317,6 +367,7 @@ pub fn write_part(path: &Path, pts: &PointColumns, opts: &WriteOptions) -> Resul
         .stream_position()
         .map_err(|e| StoreError::new(path, format!("write failed: {e}")))?;
     drop(w);
+    ph.mark("tiles+write");
     std::fs::rename(&tmp_path, path).map_err(|e| {
         StoreError::new(
             path,
@@ -334,7 +385,14 @@ pub fn write_part(path: &Path, pts: &PointColumns, opts: &WriteOptions) -> Resul
         origin: a.origin,
         max_quantization_error: a.max_error,
         bigtiff,
+        phases: ph.list,
     })
+}
+
+/// A tile ready to be written: raw samples (native order) or encoded bytes.
+enum Encoded {
+    Raw(Vec<f32>),
+    Bytes(Vec<u8>),
 }
 
 /// Tiles encoded per parallel batch (bounds memory: batch × bands × 256 KiB).
@@ -360,12 +418,17 @@ fn encode<W: Write + Seek, K: TiffKind>(
         let filled = g.filled_tiles(level) as usize;
         let stride = 1usize << (2 * level);
         let mut dir = enc.image_directory()?;
+        // Align tile data to 8 bytes so readers can view planes in place.
+        let at = dir.write_data(&[0u8; 0][..])?;
+        if at % 8 != 0 {
+            dir.write_data(&[0u8; 8][..(8 - at % 8) as usize])?;
+        }
         for batch_start in (0..filled).step_by(BATCH_TILES) {
             let batch_end = (batch_start + BATCH_TILES).min(filled);
             let jobs: Vec<(usize, usize)> = (batch_start..batch_end)
                 .flat_map(|t| (0..nb).map(move |b| (t, b)))
                 .collect();
-            let encoded: Vec<Vec<u8>> = jobs
+            let encoded: Vec<Encoded> = jobs
                 .par_iter()
                 .map(|&(t, b)| {
                     let mut buf = vec![f32::NAN; TILE_PIXELS];
@@ -381,10 +444,17 @@ fn encode<W: Write + Seek, K: TiffKind>(
                             buf[lut[i] as usize] = src[(base + i) * stride];
                         }
                     }
-                    codec::encode(&buf, TILE_SIZE as usize, opts.compression)
+                    match opts.compression {
+                        Compression::None => Encoded::Raw(buf),
+                        c => Encoded::Bytes(codec::encode(&buf, TILE_SIZE as usize, c)),
+                    }
                 })
                 .collect();
-            for (&(t, b), bytes) in jobs.iter().zip(&encoded) {
+            for (&(t, b), e) in jobs.iter().zip(&encoded) {
+                let bytes: &[u8] = match e {
+                    Encoded::Raw(v) => bytemuck::cast_slice(v),
+                    Encoded::Bytes(v) => v,
+                };
                 let r = g.tile_raster_index(level, t as u64) as usize;
                 offsets[b * per_band + r] = dir.write_data(&bytes[..])?;
                 counts[b * per_band + r] = bytes.len() as u64;
