@@ -1,0 +1,493 @@
+//! The conversion pipeline (the paper's storage phase, out of core): input readers
+//! deliver windows of points; the memory budget decides how many points make one
+//! image; spatial partitioning (default) or the paper's single stream pass groups
+//! them into parts, each written through the image store.
+
+pub mod budget;
+pub mod partition;
+pub mod spill;
+
+use crate::ingest::{self, PointReader, ReadOptions};
+use crate::points::{Bounds, PointColumns};
+use crate::store::{self, Compression, Layout, PartSummary, WriteOptions};
+use partition::{CountGrid, Region};
+use rayon::prelude::*;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::{Duration, Instant};
+
+/// How points are grouped into parts.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum Partition {
+    /// Bounds and a count grid first, then non-overlapping spatial regions.
+    #[default]
+    Spatial,
+    /// The paper's single pass: parts in file order.
+    Stream,
+}
+
+/// Everything a conversion needs to know.
+#[derive(Debug, Clone)]
+pub struct ConvertOptions {
+    pub output: PathBuf,
+    pub force: bool,
+    /// Resident memory budget in bytes.
+    pub memory: u64,
+    pub partition: Partition,
+    pub compression: Compression,
+    pub layout: Layout,
+    pub read: ReadOptions,
+    /// Accept parts where f32 cannot keep 1 mm.
+    pub allow_lossy: bool,
+    /// Set to stop the conversion (Ctrl-C); it then cleans up and fails.
+    pub cancel: Arc<AtomicBool>,
+}
+
+/// Receives progress; the command line draws bars from it.
+pub trait Progress: Sync {
+    /// A new phase over `total` units (`bytes` or `points`).
+    fn phase(&self, name: &str, total: u64, unit: &'static str);
+    /// Units done so far in the phase, and points seen.
+    fn advance(&self, done: u64, points: u64);
+    /// A line of information.
+    fn note(&self, msg: &str);
+}
+
+/// A sink that shows nothing.
+pub struct Quiet;
+impl Progress for Quiet {
+    fn phase(&self, _: &str, _: u64, _: &'static str) {}
+    fn advance(&self, _: u64, _: u64) {}
+    fn note(&self, _: &str) {}
+}
+
+/// What a conversion did.
+#[derive(Debug, Clone)]
+pub struct ConvertSummary {
+    pub input: PathBuf,
+    pub output: PathBuf,
+    pub format: String,
+    pub input_bytes: u64,
+    pub points: u64,
+    pub skipped: u64,
+    pub parts: Vec<PartSummary>,
+    pub points_per_part: u64,
+    pub elapsed: Duration,
+    pub max_quantization_error: f64,
+}
+
+impl ConvertSummary {
+    pub fn bytes(&self) -> u64 {
+        self.parts.iter().map(|p| p.bytes).sum()
+    }
+}
+
+/// Errors say which file and what went wrong.
+pub type Result<T> = anyhow::Result<T>;
+
+/// f32 keeps 1 mm up to this distance from a part's origin (half-ulp ≤ 1 mm).
+pub const F32_MM_RADIUS: f64 = 0.001 * (1u64 << 24) as f64;
+
+fn check_cancel(o: &ConvertOptions) -> Result<()> {
+    if o.cancel.load(Ordering::Relaxed) {
+        anyhow::bail!("interrupted: nothing was written");
+    }
+    Ok(())
+}
+
+/// Where the dataset goes: one `.tif` file, or a directory of parts.
+fn output_is_file(p: &Path) -> bool {
+    p.extension()
+        .and_then(|e| e.to_str())
+        .is_some_and(|e| matches!(e.to_ascii_lowercase().as_str(), "tif" | "tiff"))
+}
+
+/// Brings a chunk's attribute offsets to those of `like` (readers may change them).
+fn normalize(chunk: &mut PointColumns, like: &PointColumns) {
+    for (a, r) in chunk.attributes.iter_mut().zip(&like.attributes) {
+        if a.offset != r.offset {
+            let shift = a.offset - r.offset;
+            a.values
+                .par_iter_mut()
+                .for_each(|v| *v = (*v as f64 + shift) as f32);
+            a.offset = r.offset;
+        }
+    }
+}
+
+/// A fixed-memory sample of a stream: keeps every `stride`-th point, halving
+/// itself and doubling the stride when full.
+struct Sample {
+    pts: Vec<[f64; 3]>,
+    stride: u64,
+    seen: u64,
+    cap: usize,
+}
+
+impl Sample {
+    fn new(cap: usize) -> Self {
+        Sample {
+            pts: Vec::new(),
+            stride: 1,
+            seen: 0,
+            cap,
+        }
+    }
+    fn add(&mut self, c: &PointColumns) {
+        for i in 0..c.len() {
+            if self.seen % self.stride == 0 {
+                self.pts.push([c.x[i], c.y[i], c.z[i]]);
+                if self.pts.len() >= self.cap {
+                    let mut k = 0;
+                    self.pts.retain(|_| {
+                        k += 1;
+                        k % 2 == 1
+                    });
+                    self.stride *= 2;
+                }
+            }
+            self.seen += 1;
+        }
+    }
+}
+
+/// Converts one input file into a dataset.
+pub fn convert(input: &Path, o: &ConvertOptions, progress: &dyn Progress) -> Result<ConvertSummary> {
+    let start = Instant::now();
+    if o.output.exists() && !o.force {
+        anyhow::bail!(
+            "{}: already exists (use --force to replace it)",
+            o.output.display()
+        );
+    }
+    let mut read = o.read.clone();
+    let opened = ingest::open(input, &read)?;
+    let info = opened.info().clone();
+    let per_part = budget::points_per_part(o.memory, info.attribute_names.len());
+    // Reader windows are a small share of the budget.
+    read.chunk_points = read.chunk_points.min((per_part / 8).max(1 << 16) as usize);
+    drop(opened);
+    let mut reader = ingest::open(input, &read)?;
+    let as_file = output_is_file(&o.output);
+    let write_opts = WriteOptions {
+        compression: o.compression,
+        layout: o.layout,
+        source: input.file_name().map(|n| n.to_string_lossy().into_owned()),
+        crs: info.crs_wkt.clone(),
+        force_bigtiff: false,
+    };
+    progress.phase("read", info.file_bytes, "bytes");
+
+    // Parts go into a temporary directory renamed into place at the end (for a
+    // single-file output the store's own temporary file does this).
+    let staging = if as_file {
+        None
+    } else {
+        Some(spill::TempDir::beside(&o.output, "pcimg-out")?)
+    };
+    let part_path = |k: usize| match &staging {
+        Some(d) => d.path.join(format!("part-{k:05}.tif")),
+        None => o.output.clone(),
+    };
+    let mut parts: Vec<PartSummary> = Vec::new();
+    let mut write = |pts: &PointColumns, parts: &mut Vec<PartSummary>| -> Result<()> {
+        check_cancel(o)?;
+        check_precision(&pts.bounds(), parts.len(), o.allow_lossy)?;
+        let s = store::write_part(&part_path(parts.len()), pts, &write_opts)?;
+        progress.note(&format!(
+            "part {} written: {} points, {}",
+            parts.len() + 1,
+            crate::text::count(s.points),
+            crate::text::bytes(s.bytes)
+        ));
+        parts.push(s);
+        Ok(())
+    };
+
+    let mut total = 0u64;
+    match o.partition {
+        Partition::Stream => {
+            let mut acc: Option<PointColumns> = None;
+            while let Some(mut chunk) = reader.next_chunk()? {
+                check_cancel(o)?;
+                total += chunk.len() as u64;
+                progress.advance(reader.bytes_done(), total);
+                let a = acc.get_or_insert_with(|| chunk.empty_like());
+                normalize(&mut chunk, a);
+                // Fill the current part up to the budget; the rest starts the next.
+                let mut from = 0;
+                while from < chunk.len() {
+                    let take = ((per_part as usize) - a.len()).min(chunk.len() - from);
+                    append_range(a, &chunk, from, from + take);
+                    from += take;
+                    if a.len() as u64 >= per_part {
+                        if as_file {
+                            anyhow::bail!(too_many_parts(&o.output, per_part, o.memory));
+                        }
+                        let full = std::mem::replace(a, chunk.empty_like());
+                        write(&full, &mut parts)?;
+                    }
+                }
+            }
+            if let Some(a) = acc.filter(|a| !a.is_empty()) {
+                write(&a, &mut parts)?;
+            }
+        }
+        Partition::Spatial => {
+            // Pass 1: bounds and a sample; points kept while they fit one part.
+            let mut bounds = Bounds::EMPTY;
+            let mut held: Option<PointColumns> = None;
+            let mut overflow = false;
+            let mut sample = Sample::new(1 << 21);
+            let mut like: Option<PointColumns> = None;
+            while let Some(mut chunk) = reader.next_chunk()? {
+                check_cancel(o)?;
+                total += chunk.len() as u64;
+                progress.advance(reader.bytes_done(), total);
+                let l = like.get_or_insert_with(|| chunk.empty_like());
+                normalize(&mut chunk, l);
+                bounds = bounds.union(&chunk_bounds(&chunk));
+                sample.add(&chunk);
+                if !overflow {
+                    let h = held.get_or_insert_with(|| chunk.empty_like());
+                    if (h.len() + chunk.len()) as u64 <= per_part {
+                        h.append(&chunk).map_err(anyhow::Error::msg)?;
+                    } else {
+                        overflow = true;
+                        held = None;
+                    }
+                }
+            }
+            if !overflow {
+                if let Some(h) = held.filter(|h| !h.is_empty()) {
+                    write(&h, &mut parts)?;
+                }
+            } else {
+                if as_file {
+                    anyhow::bail!(too_many_parts(&o.output, per_part, o.memory));
+                }
+                let like = like.unwrap_or_default();
+                // Regions from the sample, with margin for its error.
+                let mut grid = CountGrid::new(bounds);
+                for p in &sample.pts {
+                    grid.add(*p);
+                }
+                let scale = total as f64 / sample.pts.len().max(1) as f64;
+                let target = ((per_part as f64 * 0.85) / scale).max(1.0) as u64;
+                let regions = partition::split(&grid, target);
+                let cell_region = partition::cell_regions(&grid, &regions);
+                progress.note(&format!(
+                    "{} points over {} spatial regions",
+                    crate::text::count(total),
+                    regions.len()
+                ));
+                // Pass 2: distribute points into one temporary file per region.
+                let tmp = spill::TempDir::beside(&o.output, "pcimg-spill")?;
+                let files = distribute(
+                    &mut reader, input, &read, o, progress, &grid, &regions, &cell_region, &like,
+                    &tmp.path,
+                )?;
+                // Pass 3: each region becomes one part (or several, if the sample
+                // underestimated it).
+                progress.phase("write", total, "points");
+                let mut done = 0u64;
+                for (path, n) in files {
+                    check_cancel(o)?;
+                    if n == 0 {
+                        continue;
+                    }
+                    let pts = spill::read_back(&path, &like)?;
+                    let _ = std::fs::remove_file(&path);
+                    let mut from = 0usize;
+                    while from < pts.len() {
+                        let to = (from + per_part as usize).min(pts.len());
+                        if from == 0 && to == pts.len() {
+                            write(&pts, &mut parts)?;
+                        } else {
+                            let mut piece = pts.empty_like();
+                            append_range(&mut piece, &pts, from, to);
+                            write(&piece, &mut parts)?;
+                        }
+                        from = to;
+                    }
+                    done += n;
+                    progress.advance(done, done);
+                }
+            }
+        }
+    }
+    if total == 0 {
+        anyhow::bail!("{}: no points in the input", input.display());
+    }
+    // Publish: move the staged parts into place.
+    if let Some(stage) = &staging {
+        if o.output.exists() {
+            if o.output.is_dir() {
+                std::fs::remove_dir_all(&o.output)?;
+            } else {
+                std::fs::remove_file(&o.output)?;
+            }
+        }
+        std::fs::rename(&stage.path, &o.output)?;
+        let moved: Vec<PartSummary> = parts
+            .into_iter()
+            .map(|mut p| {
+                if let Some(name) = p.path.file_name() {
+                    p.path = o.output.join(name);
+                }
+                p
+            })
+            .collect();
+        parts = moved;
+    }
+    let worst = parts
+        .iter()
+        .map(|p| p.max_quantization_error)
+        .fold(0.0, f64::max);
+    Ok(ConvertSummary {
+        input: input.to_path_buf(),
+        output: o.output.clone(),
+        format: info.format.clone(),
+        input_bytes: info.file_bytes,
+        points: total,
+        skipped: reader.skipped(),
+        parts,
+        points_per_part: per_part,
+        elapsed: start.elapsed(),
+        max_quantization_error: worst,
+    })
+}
+
+fn too_many_parts(out: &Path, per_part: u64, memory: u64) -> String {
+    format!(
+        "{}: the input needs more than one part at --memory {} ({} points per part); \
+         give a directory as output (e.g. -o {}/) or a larger --memory",
+        out.display(),
+        crate::text::bytes(memory),
+        crate::text::count(per_part),
+        out.with_extension("").display()
+    )
+}
+
+/// Refuses a part whose extent f32 cannot hold to 1 mm.
+fn check_precision(b: &Bounds, part: usize, allow_lossy: bool) -> Result<()> {
+    let half = b.extent().iter().fold(0f64, |m, &e| m.max(e)) / 2.0;
+    if half > F32_MM_RADIUS && !allow_lossy {
+        let err_mm = half * f32::EPSILON as f64 / 2.0 * 1000.0;
+        anyhow::bail!(
+            "part {} spans {:.1} km: stored as f32 relative to its centre, coordinates would \
+             lose up to {:.1} mm; use a smaller --memory (spatial parts are then smaller), or \
+             --allow-lossy to accept it",
+            part + 1,
+            half * 2.0 / 1000.0,
+            err_mm
+        );
+    }
+    Ok(())
+}
+
+fn chunk_bounds(c: &PointColumns) -> Bounds {
+    (0..c.len())
+        .into_par_iter()
+        .with_min_len(1 << 16)
+        .fold(
+            || Bounds::EMPTY,
+            |mut b, i| {
+                b.extend([c.x[i], c.y[i], c.z[i]]);
+                b
+            },
+        )
+        .reduce(|| Bounds::EMPTY, |a, b| a.union(&b))
+}
+
+fn append_range(dst: &mut PointColumns, src: &PointColumns, from: usize, to: usize) {
+    dst.x.extend_from_slice(&src.x[from..to]);
+    dst.y.extend_from_slice(&src.y[from..to]);
+    dst.z.extend_from_slice(&src.z[from..to]);
+    for (d, s) in dst.attributes.iter_mut().zip(&src.attributes) {
+        d.offset = s.offset;
+        d.values.extend_from_slice(&s.values[from..to]);
+    }
+}
+
+/// Pass 2 of spatial partitioning: re-reads the input and appends every point to
+/// its region's temporary file. Returns each region's file and point count.
+#[allow(clippy::too_many_arguments)]
+fn distribute(
+    reader: &mut Box<dyn PointReader>,
+    input: &Path,
+    read: &ReadOptions,
+    o: &ConvertOptions,
+    progress: &dyn Progress,
+    grid: &CountGrid,
+    regions: &[Region],
+    cell_region: &[u32],
+    like: &PointColumns,
+    dir: &Path,
+) -> Result<Vec<(PathBuf, u64)>> {
+    if like.attributes.len() > spill::MAX_ATTRIBUTES {
+        anyhow::bail!(
+            "{}: {} attributes; pcimg stores at most {}",
+            input.display(),
+            like.attributes.len(),
+            spill::MAX_ATTRIBUTES
+        );
+    }
+    *reader = ingest::open(input, read)?;
+    progress.phase("partition", reader.info().file_bytes, "bytes");
+    // A quarter of the budget for write buffers, shared by the regions.
+    let buffer = (o.memory / 4 / regions.len().max(1) as u64).clamp(64 << 10, 8 << 20) as usize;
+    let mut writers: Vec<spill::SpillWriter> = (0..regions.len())
+        .map(|r| spill::SpillWriter::create(dir.join(format!("region-{r:05}.bin")), buffer))
+        .collect::<std::io::Result<_>>()?;
+    let mut seen = 0u64;
+    while let Some(mut chunk) = reader.next_chunk()? {
+        check_cancel(o)?;
+        normalize(&mut chunk, like);
+        let ids: Vec<u32> = (0..chunk.len())
+            .into_par_iter()
+            .with_min_len(1 << 14)
+            .map(|i| {
+                let c = grid.cell([chunk.x[i], chunk.y[i], chunk.z[i]]);
+                cell_region[grid.index(c)]
+            })
+            .collect();
+        for (i, &r) in ids.iter().enumerate() {
+            // Cells the sample never saw belong to the nearest region by order;
+            // fall back to the last region so no point is lost.
+            let r = if r == u32::MAX {
+                nearest_region(regions, grid.cell([chunk.x[i], chunk.y[i], chunk.z[i]]))
+            } else {
+                r as usize
+            };
+            writers[r].push(&chunk, i)?;
+        }
+        seen += chunk.len() as u64;
+        progress.advance(reader.bytes_done(), seen);
+    }
+    writers
+        .into_iter()
+        .map(|w| w.finish().map_err(anyhow::Error::from))
+        .collect()
+}
+
+/// The region whose box is nearest to cell `c` (for cells the sample missed).
+fn nearest_region(regions: &[Region], c: [usize; 3]) -> usize {
+    let dist = |r: &Region| -> usize {
+        (0..3)
+            .map(|a| {
+                if c[a] < r.lo[a] {
+                    r.lo[a] - c[a]
+                } else if c[a] >= r.hi[a] {
+                    c[a] + 1 - r.hi[a]
+                } else {
+                    0
+                }
+            })
+            .sum()
+    };
+    (0..regions.len())
+        .min_by_key(|&i| dist(&regions[i]))
+        .unwrap_or(0)
+}

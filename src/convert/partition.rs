@@ -1,0 +1,230 @@
+//! Spatial partitioning out of core: a coarse 3D count grid from a first pass, then
+//! a k-d split of the grid into boxes that each fit the budget, so parts hold
+//! spatially compact, non-overlapping regions and a viewer can cull whole parts.
+
+use crate::points::Bounds;
+
+/// A grid of point counts over the input's bounds.
+#[derive(Debug, Clone)]
+pub struct CountGrid {
+    pub bounds: Bounds,
+    pub dims: [usize; 3],
+    pub counts: Vec<u64>,
+}
+
+/// Cells in the grid (about 2 M: 16 MiB of counts).
+const GRID_CELLS: f64 = (1u64 << 21) as f64;
+
+impl CountGrid {
+    /// A grid whose cells are about cubic and number about 2 M.
+    pub fn new(bounds: Bounds) -> CountGrid {
+        let e = bounds.extent();
+        let vol: f64 = e.iter().map(|v| v.max(1e-9)).product();
+        let cell = (vol / GRID_CELLS).cbrt();
+        let dims = [0, 1, 2].map(|a| ((e[a] / cell).ceil() as usize).clamp(1, 4096));
+        // Keep the total bounded whatever the shape.
+        let mut dims = dims;
+        while dims.iter().product::<usize>() > (GRID_CELLS as usize) * 4 {
+            let a = (0..3).max_by_key(|&a| dims[a]).unwrap_or(0);
+            dims[a] = dims[a].div_ceil(2);
+        }
+        CountGrid {
+            bounds,
+            dims,
+            counts: vec![0; dims.iter().product()],
+        }
+    }
+
+    /// Cell coordinates of a point.
+    #[inline]
+    pub fn cell(&self, p: [f64; 3]) -> [usize; 3] {
+        [0, 1, 2].map(|a| {
+            let e = self.bounds.max[a] - self.bounds.min[a];
+            if e <= 0.0 {
+                return 0;
+            }
+            let f = (p[a] - self.bounds.min[a]) / e;
+            ((f * self.dims[a] as f64) as usize).min(self.dims[a] - 1)
+        })
+    }
+
+    #[inline]
+    pub fn index(&self, c: [usize; 3]) -> usize {
+        (c[2] * self.dims[1] + c[1]) * self.dims[0] + c[0]
+    }
+
+    pub fn add(&mut self, p: [f64; 3]) {
+        let i = self.index(self.cell(p));
+        self.counts[i] += 1;
+    }
+
+    /// Adds another grid's counts (same bounds and dims).
+    pub fn merge(&mut self, o: &CountGrid) {
+        for (a, b) in self.counts.iter_mut().zip(&o.counts) {
+            *a += b;
+        }
+    }
+
+    fn count_box(&self, lo: [usize; 3], hi: [usize; 3]) -> u64 {
+        let mut n = 0;
+        for z in lo[2]..hi[2] {
+            for y in lo[1]..hi[1] {
+                let row = self.index([0, y, z]);
+                n += self.counts[row + lo[0]..row + hi[0]].iter().sum::<u64>();
+            }
+        }
+        n
+    }
+
+    /// Counts along axis `a` of a box, one per slab.
+    fn slabs(&self, lo: [usize; 3], hi: [usize; 3], a: usize) -> Vec<u64> {
+        let mut s = vec![0u64; hi[a] - lo[a]];
+        for z in lo[2]..hi[2] {
+            for y in lo[1]..hi[1] {
+                for x in lo[0]..hi[0] {
+                    let c = [x, y, z];
+                    s[c[a] - lo[a]] += self.counts[self.index(c)];
+                }
+            }
+        }
+        s
+    }
+}
+
+/// A region of the grid: cells `lo..hi` on each axis.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Region {
+    pub lo: [usize; 3],
+    pub hi: [usize; 3],
+    pub points: u64,
+}
+
+impl Region {
+    pub fn contains(&self, c: [usize; 3]) -> bool {
+        (0..3).all(|a| self.lo[a] <= c[a] && c[a] < self.hi[a])
+    }
+}
+
+/// Splits the grid into regions of at most `max_points` each (where cells allow):
+/// recursively at the median slab of the box's longest populated axis. Empty
+/// regions are dropped.
+pub fn split(grid: &CountGrid, max_points: u64) -> Vec<Region> {
+    let mut out = Vec::new();
+    let mut stack = vec![Region {
+        lo: [0; 3],
+        hi: grid.dims,
+        points: grid.counts.iter().sum(),
+    }];
+    while let Some(r) = stack.pop() {
+        if r.points == 0 {
+            continue;
+        }
+        if r.points <= max_points {
+            out.push(r);
+            continue;
+        }
+        // Longest axis in world units that is more than one cell thick.
+        let e = grid.bounds.extent();
+        let axis = (0..3)
+            .filter(|&a| r.hi[a] - r.lo[a] > 1)
+            .max_by(|&a, &b| {
+                let la = (r.hi[a] - r.lo[a]) as f64 * e[a] / grid.dims[a] as f64;
+                let lb = (r.hi[b] - r.lo[b]) as f64 * e[b] / grid.dims[b] as f64;
+                la.total_cmp(&lb)
+            });
+        let Some(a) = axis else {
+            // One cell holds more than the budget: it stays one region; the
+            // converter splits it by input order.
+            out.push(r);
+            continue;
+        };
+        let slabs = grid.slabs(r.lo, r.hi, a);
+        let half = r.points / 2;
+        let mut acc = 0;
+        let mut cut = 1;
+        for (i, s) in slabs.iter().enumerate() {
+            acc += s;
+            if acc >= half {
+                cut = (i + 1).clamp(1, slabs.len() - 1);
+                break;
+            }
+        }
+        let mut left = r;
+        let mut right = r;
+        left.hi[a] = r.lo[a] + cut;
+        right.lo[a] = r.lo[a] + cut;
+        left.points = grid.count_box(left.lo, left.hi);
+        right.points = r.points - left.points;
+        stack.push(right);
+        stack.push(left);
+    }
+    out.sort_by_key(|r| (r.lo[2], r.lo[1], r.lo[0]));
+    out
+}
+
+/// For each cell, the index of its region (`u32::MAX` for cells of no region).
+pub fn cell_regions(grid: &CountGrid, regions: &[Region]) -> Vec<u32> {
+    let mut map = vec![u32::MAX; grid.counts.len()];
+    for (i, r) in regions.iter().enumerate() {
+        for z in r.lo[2]..r.hi[2] {
+            for y in r.lo[1]..r.hi[1] {
+                for x in r.lo[0]..r.hi[0] {
+                    map[grid.index([x, y, z])] = i as u32;
+                }
+            }
+        }
+    }
+    map
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn regions_cover_all_points_within_budget() {
+        let b = Bounds {
+            min: [0.0; 3],
+            max: [100.0, 50.0, 10.0],
+        };
+        let mut g = CountGrid::new(b);
+        let mut r = crate::synth::Rng::new(1);
+        let n = 200_000;
+        for _ in 0..n {
+            // Clustered: most points in one corner.
+            let s = if r.f64() < 0.7 { 0.2 } else { 1.0 };
+            g.add([r.f64() * 100.0 * s, r.f64() * 50.0 * s, r.f64() * 10.0]);
+        }
+        let regions = split(&g, 30_000);
+        assert_eq!(regions.iter().map(|r| r.points).sum::<u64>(), n);
+        assert!(regions.iter().all(|r| r.points <= 30_000));
+        assert!(regions.len() >= 7 && regions.len() <= 32, "{}", regions.len());
+        let map = cell_regions(&g, &regions);
+        for (i, &c) in g.counts.iter().enumerate() {
+            if c > 0 {
+                assert_ne!(map[i], u32::MAX);
+            }
+        }
+        // Regions do not overlap.
+        for (i, a) in regions.iter().enumerate() {
+            for b in &regions[i + 1..] {
+                assert!((0..3).any(|k| a.hi[k] <= b.lo[k] || b.hi[k] <= a.lo[k]));
+            }
+        }
+    }
+
+    #[test]
+    fn flat_and_degenerate_bounds() {
+        let b = Bounds {
+            min: [5.0; 3],
+            max: [5.0; 3],
+        };
+        let mut g = CountGrid::new(b);
+        for _ in 0..10 {
+            g.add([5.0; 3]);
+        }
+        let regions = split(&g, 3);
+        assert_eq!(regions.len(), 1);
+        assert_eq!(regions[0].points, 10);
+    }
+}
