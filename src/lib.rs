@@ -4,6 +4,7 @@
 //! Data flows one way: [`ingest`] (input readers) → [`store`] (the image format) →
 //! level selection and loading → renderers → the terminal interface.
 
+pub mod ingest;
 pub mod points;
 pub mod store;
 pub mod text;

@@ -1,0 +1,391 @@
+//! LAS 1.0–1.4 and LAZ input through the `las` crate (with its `laz` feature).
+//!
+//! * Columns: x y z (scaled and offset to `f64`), `intensity`, `return_number`,
+//!   `number_of_returns`, `classification`, `gps_time` (formats with time; its
+//!   offset is the first point's time so `f32` keeps sub-millisecond steps),
+//!   `red` `green` `blue` (formats with colour; 0–255 by the rule in
+//!   [`super::color`]: 16-bit colour is divided by 257 unless every value of the
+//!   first chunk is ≤ 255, i.e. 8-bit values stored in 16-bit fields), `nir`.
+//! * CRS: the WKT VLR (`LASF_Projection` 2112) when present, otherwise
+//!   `EPSG:<code>` from the GeoTIFF keys (ProjectedCSTypeGeoKey 3072, else
+//!   GeographicTypeGeoKey 2048), otherwise a note that GeoTIFF keys are present.
+//! * Reading: `las::Reader` is not `Send`, so it lives on a decoder thread that
+//!   reads chunks with `fill_points` and converts them to columns one chunk ahead
+//!   of the consumer (a bounded channel of one chunk). A panic in the decoder is
+//!   caught and reported as an error.
+//! * Truncation: an uncompressed file shorter than its header declares is refused
+//!   at open; a LAZ file whose chunk table lies past the end of the file is
+//!   refused at open; any later read failure is an error naming the byte offset
+//!   the decoder had reached.
+
+use std::fs::File;
+use std::io::{BufReader, Read, Seek, SeekFrom};
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::mpsc::{Receiver, SyncSender, sync_channel};
+
+use super::color::ColorNormalizer;
+use super::error::IngestError;
+use super::{PointReader, ReadOptions, SourceInfo};
+use crate::points::{Attribute, PointColumns};
+
+/// A file that publishes its read position (for progress and error offsets).
+struct Tracked {
+    file: File,
+    pos: Arc<AtomicU64>,
+}
+
+impl Read for Tracked {
+    fn read(&mut self, buf: &mut [u8]) -> std::io::Result<usize> {
+        let n = self.file.read(buf)?;
+        self.pos.fetch_add(n as u64, Ordering::Relaxed);
+        Ok(n)
+    }
+}
+
+impl Seek for Tracked {
+    fn seek(&mut self, to: SeekFrom) -> std::io::Result<u64> {
+        let p = self.file.seek(to)?;
+        self.pos.store(p, Ordering::Relaxed);
+        Ok(p)
+    }
+}
+
+enum Msg {
+    Chunk(PointColumns),
+    Err(IngestError),
+}
+
+/// Reader for LAS and LAZ files.
+pub struct LasReader {
+    info: SourceInfo,
+    rx: Receiver<Msg>,
+    pos: Arc<AtomicU64>,
+    finished: bool,
+}
+
+/// The attribute names for a point format.
+fn attribute_names(f: &las::point::Format) -> Vec<String> {
+    let mut v: Vec<String> = [
+        "intensity",
+        "return_number",
+        "number_of_returns",
+        "classification",
+    ]
+    .map(String::from)
+    .to_vec();
+    if f.has_gps_time {
+        v.push("gps_time".into());
+    }
+    if f.has_color {
+        v.extend(["red", "green", "blue"].map(String::from));
+    }
+    if f.has_nir {
+        v.push("nir".into());
+    }
+    v
+}
+
+/// The CRS of a LAS header: WKT, else `EPSG:<code>` from GeoTIFF keys.
+fn crs_of(h: &las::Header) -> Option<String> {
+    if let Some(w) = h.get_wkt_crs_bytes() {
+        let s = String::from_utf8_lossy(w);
+        let s = s.trim_end_matches('\0').trim();
+        if !s.is_empty() {
+            return Some(s.to_string());
+        }
+    }
+    match h.get_geotiff_crs() {
+        Ok(Some(g)) => {
+            let code = g
+                .get_projected_crs_geo_key_value()
+                .filter(|&c| (1024..=32766).contains(&c))
+                .or_else(|| {
+                    g.get_geodetic_crs_geo_key_value()
+                        .filter(|&c| (1024..=32766).contains(&c))
+                });
+            Some(match code {
+                Some(c) => format!("EPSG:{c}"),
+                None => "GeoTIFF keys (user-defined CRS)".to_string(),
+            })
+        }
+        _ => None,
+    }
+}
+
+fn las_err(path: &Path, offset: u64, what: &str, e: impl std::fmt::Display) -> IngestError {
+    IngestError::binary(path, offset, format!("{what}: {e}"))
+}
+
+impl LasReader {
+    pub fn open(path: &Path, opts: &ReadOptions) -> Result<LasReader, IngestError> {
+        let mut file = File::open(path).map_err(|e| IngestError::io(path, "cannot open", e))?;
+        let file_len = file
+            .metadata()
+            .map_err(|e| IngestError::io(path, "cannot stat", e))?
+            .len();
+        if file_len == 0 {
+            return Err(IngestError::format(path, "the file is empty"));
+        }
+        let raw = las::raw::Header::read_from(&mut BufReader::new(&mut file))
+            .map_err(|e| las_err(path, 0, "cannot read the LAS header", e))?;
+        file.seek(SeekFrom::Start(0))
+            .map_err(|e| IngestError::io(path, "cannot seek", e))?;
+        let header = las::Header::new(&mut BufReader::new(&mut file))
+            .map_err(|e| las_err(path, 0, "cannot read the LAS header and VLRs", e))?;
+        let format = *header.point_format();
+        let version = header.version();
+        let n = header.number_of_points();
+        let start = u64::from(raw.offset_to_point_data);
+        if start > file_len {
+            return Err(IngestError::binary(
+                path,
+                file_len,
+                format!("truncated file: point data should start at byte {start}"),
+            ));
+        }
+        if format.is_compressed {
+            // LAZ point data starts with the offset of the chunk table (at the end).
+            let mut b = [0u8; 8];
+            file.seek(SeekFrom::Start(start))
+                .map_err(|e| IngestError::io(path, "cannot seek", e))?;
+            if n > 0 {
+                file.read_exact(&mut b).map_err(|_| {
+                    IngestError::binary(path, start, "truncated file: no LAZ point data")
+                })?;
+                let table = i64::from_le_bytes(b);
+                if table > 0 && table as u64 >= file_len {
+                    return Err(IngestError::binary(
+                        path,
+                        file_len,
+                        format!(
+                            "truncated LAZ file: its chunk table should be at byte {table} \
+                             but the file ends at byte {file_len}"
+                        ),
+                    ));
+                }
+            }
+        } else {
+            let rec = u64::from(format.len());
+            let need = n.checked_mul(rec).and_then(|b| b.checked_add(start));
+            match need {
+                Some(end) if end <= file_len => {}
+                _ => {
+                    let whole = (file_len - start) / rec.max(1);
+                    return Err(IngestError::binary(
+                        path,
+                        file_len,
+                        format!(
+                            "truncated file: the header declares {n} points of {rec} bytes from \
+                             byte {start}, but the file ends at byte {file_len} after {whole} \
+                             complete points"
+                        ),
+                    ));
+                }
+            }
+        }
+        file.seek(SeekFrom::Start(0))
+            .map_err(|e| IngestError::io(path, "cannot seek", e))?;
+        let info = SourceInfo {
+            path: path.to_path_buf(),
+            format: format!(
+                "{} {}.{}",
+                if format.is_compressed { "laz" } else { "las" },
+                version.major,
+                version.minor
+            ),
+            declared_points: Some(n),
+            crs_wkt: crs_of(&header),
+            attribute_names: attribute_names(&format),
+            file_bytes: file_len,
+        };
+        let pos = Arc::new(AtomicU64::new(0));
+        let tracked = Tracked {
+            file,
+            pos: pos.clone(),
+        };
+        let (tx, rx) = sync_channel(1);
+        let chunk = opts.chunk_points as u64;
+        let p = path.to_path_buf();
+        let pos2 = pos.clone();
+        std::thread::Builder::new()
+            .name("pcimg-las".into())
+            .spawn(move || {
+                let tx2 = tx.clone();
+                let r = std::panic::catch_unwind(std::panic::AssertUnwindSafe(move || {
+                    decode(p, tracked, chunk, n, tx2)
+                }));
+                if r.is_err() {
+                    let _ = tx.send(Msg::Err(IngestError::binary(
+                        &PathBuf::new(),
+                        pos2.load(Ordering::Relaxed),
+                        "the LAS/LAZ decoder failed on corrupt data",
+                    )));
+                }
+            })
+            .map_err(|e| IngestError::io(path, "cannot start the decoder thread", e))?;
+        Ok(LasReader {
+            info,
+            rx,
+            pos,
+            finished: false,
+        })
+    }
+}
+
+/// The decoder thread: reads chunks and sends them as columns.
+fn decode(path: PathBuf, file: Tracked, chunk: u64, total: u64, tx: SyncSender<Msg>) {
+    let pos = file.pos.clone();
+    let err_at = |what: &str, e: &dyn std::fmt::Display| {
+        Msg::Err(las_err(&path, pos.load(Ordering::Relaxed), what, e))
+    };
+    let mut reader = match las::Reader::new(BufReader::with_capacity(1 << 20, file)) {
+        Ok(r) => r,
+        Err(e) => {
+            let _ = tx.send(err_at("cannot open the LAS reader", &e));
+            return;
+        }
+    };
+    let mut pd = las::PointDataBuilder::new()
+        .for_header(reader.header())
+        .build();
+    let mut done = 0u64;
+    let mut gps_offset: Option<f64> = None;
+    let mut colors = ColorNormalizer::new(false);
+    while done < total {
+        let want = chunk.min(total - done);
+        let got = match reader.fill_points(want, &mut pd) {
+            Ok(g) => g,
+            Err(e) => {
+                let _ = tx.send(err_at(
+                    &format!("cannot read points {}..{}", done, done + want),
+                    &e,
+                ));
+                return;
+            }
+        };
+        if got == 0 {
+            let _ = tx.send(err_at(
+                "the file ends early",
+                &format!("{done} of {total} declared points read"),
+            ));
+            return;
+        }
+        done += got;
+        let mut cols = columns(&pd, &mut gps_offset);
+        colors.apply(&mut cols);
+        if tx.send(Msg::Chunk(cols)).is_err() {
+            return; // the consumer is gone
+        }
+    }
+}
+
+/// Converts decoded LAS records to columns.
+fn columns(pd: &las::PointData, gps_offset: &mut Option<f64>) -> PointColumns {
+    let f = pd.format();
+    let mut cols = PointColumns::default();
+    let mut attrs: Vec<Attribute> = Vec::new();
+    let ((x, y), (z, rest)) = rayon::join(
+        || rayon::join(|| pd.x().collect(), || pd.y().collect()),
+        || {
+            rayon::join(
+                || pd.z().collect(),
+                || {
+                    let mut a = vec![
+                        Attribute::new("intensity", pd.intensity().map(f32::from).collect()),
+                        Attribute::new(
+                            "return_number",
+                            pd.return_number().map(f32::from).collect(),
+                        ),
+                        Attribute::new(
+                            "number_of_returns",
+                            pd.number_of_returns().map(f32::from).collect(),
+                        ),
+                        Attribute::new(
+                            "classification",
+                            pd.classification().map(f32::from).collect(),
+                        ),
+                    ];
+                    if let Some(t) = pd.gps_time() {
+                        let t: Vec<f64> = t.collect();
+                        let off = *gps_offset.get_or_insert(t.first().copied().unwrap_or(0.0));
+                        a.push(Attribute {
+                            name: "gps_time".into(),
+                            offset: off,
+                            values: t.iter().map(|&v| (v - off) as f32).collect(),
+                        });
+                    }
+                    a
+                },
+            )
+        },
+    );
+    cols.x = x;
+    cols.y = y;
+    cols.z = z;
+    attrs.extend(rest);
+    if let Some(rgb) = pd.rgb() {
+        let n = pd.len();
+        let (mut r, mut g, mut b) = (
+            Vec::with_capacity(n),
+            Vec::with_capacity(n),
+            Vec::with_capacity(n),
+        );
+        for (cr, cg, cb) in rgb {
+            r.push(f32::from(cr));
+            g.push(f32::from(cg));
+            b.push(f32::from(cb));
+        }
+        attrs.push(Attribute::new("red", r));
+        attrs.push(Attribute::new("green", g));
+        attrs.push(Attribute::new("blue", b));
+    }
+    if let Some(nir) = pd.nir() {
+        attrs.push(Attribute::new("nir", nir.map(f32::from).collect()));
+    }
+    let _ = f;
+    cols.attributes = attrs;
+    cols
+}
+
+impl PointReader for LasReader {
+    fn info(&self) -> &SourceInfo {
+        &self.info
+    }
+
+    fn next_chunk(&mut self) -> Result<Option<PointColumns>, IngestError> {
+        if self.finished {
+            return Ok(None);
+        }
+        match self.rx.recv() {
+            Ok(Msg::Chunk(c)) => Ok(Some(c)),
+            Ok(Msg::Err(e)) => {
+                self.finished = true;
+                Err(match e {
+                    // The panic path has no path at hand: put it back.
+                    IngestError::Binary { path, offset, msg } if path.as_os_str().is_empty() => {
+                        IngestError::binary(&self.info.path, offset, msg)
+                    }
+                    e => e,
+                })
+            }
+            Err(_) => {
+                self.finished = true;
+                Ok(None)
+            }
+        }
+    }
+
+    fn bytes_done(&self) -> u64 {
+        if self.finished {
+            self.info.file_bytes
+        } else {
+            self.pos.load(Ordering::Relaxed).min(self.info.file_bytes)
+        }
+    }
+
+    fn skipped(&self) -> u64 {
+        0
+    }
+}

@@ -1,0 +1,661 @@
+//! Text point clouds (`.xyz .txt .csv .asc .pts`) and the parallel line engine that
+//! also reads ASCII PLY vertex lines.
+//!
+//! Format accepted:
+//! * one point per line; columns separated by runs of spaces, tabs, commas or
+//!   semicolons (so `1,,2` reads as two columns: an empty CSV field is not a value);
+//!   `\r\n` line endings and a UTF-8 byte-order mark are accepted;
+//! * comment lines start with `#` or `//` (after optional blanks); blank lines are
+//!   ignored; a comment just before the data whose names include x, y and z (as
+//!   CloudCompare writes `//X,Y,Z,R,G,B`) is used as the header;
+//! * an optional header line: the first non-comment line when it holds a
+//!   non-numeric token; its names label the columns (`x y z intensity r g b`,
+//!   `red green blue`, ...). Without x/y/z among the names the first three columns
+//!   are the coordinates;
+//! * PTS: a first line holding a single integer is the point count; later
+//!   single-integer lines (PTS files that concatenate scans) are skipped too;
+//! * column layout, unless given by [`ReadOptions::columns`]: 3 → x y z,
+//!   4 → x y z intensity, 6 → x y z r g b, 7 → x y z intensity r g b (the PTS
+//!   convention), otherwise x y z col3 col4 ... (0-based column index);
+//! * every data line must have exactly the detected number of columns; a line
+//!   that does not, a token that is not a number, or a NaN/infinite coordinate
+//!   makes the line invalid: an error naming the line, or skipped and counted with
+//!   [`ReadOptions::skip_invalid`].
+//!
+//! Speed: the file is memory-mapped; each chunk is a window of whole lines, cut
+//! into pieces at line boundaries that rayon parses in parallel with
+//! `fast_float2::parse_partial`, with no allocation per line. Each piece counts
+//! its lines, so error line numbers are exact.
+
+use std::path::{Path, PathBuf};
+
+use memmap2::Mmap;
+use rayon::prelude::*;
+
+use super::color::ColorNormalizer;
+use super::error::IngestError;
+use super::{PointReader, ReadOptions, SourceInfo, canonical_name};
+use crate::points::{Attribute, PointColumns};
+
+/// What one column of a line holds.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) enum Role {
+    X,
+    Y,
+    Z,
+    Attr(usize),
+    Skip,
+}
+
+/// The columns of a line.
+#[derive(Debug, Clone, PartialEq)]
+pub(crate) struct Layout {
+    pub roles: Vec<Role>,
+    pub attr_names: Vec<String>,
+}
+
+impl Layout {
+    /// Builds a layout from column names (already canonical, `_` = skip).
+    /// Errors (as a message) unless x, y and z each appear once.
+    pub(crate) fn from_names(names: &[String]) -> Result<Layout, String> {
+        let mut roles = Vec::with_capacity(names.len());
+        let mut attr_names: Vec<String> = Vec::new();
+        let mut seen = [false; 3];
+        for n in names {
+            let role = match n.as_str() {
+                "x" | "y" | "z" => {
+                    let a = (n.as_bytes()[0] - b'x') as usize;
+                    if seen[a] {
+                        return Err(format!("column '{n}' appears twice"));
+                    }
+                    seen[a] = true;
+                    [Role::X, Role::Y, Role::Z][a]
+                }
+                "_" | "" => Role::Skip,
+                other => {
+                    if attr_names.iter().any(|a| a == other) {
+                        return Err(format!(
+                            "column '{}' appears twice",
+                            crate::text::sanitize(other)
+                        ));
+                    }
+                    attr_names.push(other.to_string());
+                    Role::Attr(attr_names.len() - 1)
+                }
+            };
+            roles.push(role);
+        }
+        if !seen.iter().all(|&s| s) {
+            return Err("the columns must include x, y and z".into());
+        }
+        Ok(Layout { roles, attr_names })
+    }
+
+    /// The default layout for `n` columns (n ≥ 3).
+    pub(crate) fn positional(n: usize) -> Layout {
+        let names: Vec<String> = match n {
+            3 => vec!["x", "y", "z"].into_iter().map(String::from).collect(),
+            4 => ["x", "y", "z", "intensity"].map(String::from).to_vec(),
+            6 => ["x", "y", "z", "red", "green", "blue"]
+                .map(String::from)
+                .to_vec(),
+            7 => ["x", "y", "z", "intensity", "red", "green", "blue"]
+                .map(String::from)
+                .to_vec(),
+            _ => (0..n)
+                .map(|i| match i {
+                    0 => "x".to_string(),
+                    1 => "y".to_string(),
+                    2 => "z".to_string(),
+                    i => format!("col{i}"),
+                })
+                .collect(),
+        };
+        // Positional names are distinct and contain x y z.
+        Layout::from_names(&names).unwrap_or(Layout {
+            roles: vec![Role::X, Role::Y, Role::Z],
+            attr_names: Vec::new(),
+        })
+    }
+
+    fn ncols(&self) -> usize {
+        self.roles.len()
+    }
+}
+
+#[inline(always)]
+fn is_sep(c: u8) -> bool {
+    matches!(c, b' ' | b'\t' | b',' | b';' | b'\r')
+}
+
+/// Splits a line into tokens (separators as in the data).
+fn tokens(line: &[u8]) -> impl Iterator<Item = &[u8]> {
+    line.split(|&c| is_sep(c) || c == b'\n')
+        .filter(|t| !t.is_empty())
+}
+
+/// Parses a whole token as a number.
+fn token_number(t: &[u8]) -> Option<f64> {
+    match fast_float2::parse_partial::<f64, _>(t) {
+        Ok((v, used)) if used == t.len() => Some(v),
+        _ => None,
+    }
+}
+
+/// How a line failed.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum LineFault {
+    NotANumber,
+    Columns(usize),
+    NonFinite,
+}
+
+impl LineFault {
+    fn message(self, ncols: usize) -> String {
+        match self {
+            LineFault::NotANumber => "not a number".into(),
+            LineFault::Columns(found) => format!("expected {ncols} columns, found {found}"),
+            LineFault::NonFinite => "coordinate is not finite (NaN or infinity)".into(),
+        }
+    }
+}
+
+/// The result of parsing one piece of a window.
+#[derive(Default)]
+struct Piece {
+    x: Vec<f64>,
+    y: Vec<f64>,
+    z: Vec<f64>,
+    attrs: Vec<Vec<f32>>,
+    /// Lines consumed (complete or not) up to the end of the piece or the error.
+    lines: u64,
+    skipped: u64,
+    /// First invalid line when not skipping: (0-based line index within the piece,
+    /// fault, byte range of the line within the piece).
+    error: Option<(u64, LineFault, usize, usize)>,
+}
+
+/// Parses the lines of `buf` (which ends at a line boundary or at the end of data).
+fn parse_piece(
+    buf: &[u8],
+    layout: &Layout,
+    skip_invalid: bool,
+    allow_count_lines: bool,
+    est_points: usize,
+) -> Piece {
+    let ncols = layout.ncols();
+    let nattr = layout.attr_names.len();
+    let mut p = Piece {
+        x: Vec::with_capacity(est_points),
+        y: Vec::with_capacity(est_points),
+        z: Vec::with_capacity(est_points),
+        attrs: (0..nattr).map(|_| Vec::with_capacity(est_points)).collect(),
+        ..Default::default()
+    };
+    let mut vals = vec![0f64; ncols];
+    let n = buf.len();
+    let mut i = 0usize;
+    while i < n {
+        let line_start = i;
+        while i < n && matches!(buf[i], b' ' | b'\t' | b'\r') {
+            i += 1;
+        }
+        if i >= n {
+            break;
+        }
+        let c = buf[i];
+        if c == b'\n' {
+            p.lines += 1;
+            i += 1;
+            continue;
+        }
+        if c == b'#' || (c == b'/' && i + 1 < n && buf[i + 1] == b'/') {
+            i = match memchr::memchr(b'\n', &buf[i..]) {
+                Some(k) => i + k + 1,
+                None => n,
+            };
+            p.lines += 1;
+            continue;
+        }
+        // Parse the tokens of the line.
+        let mut col = 0usize;
+        let mut fault = None;
+        loop {
+            match fast_float2::parse_partial::<f64, _>(&buf[i..]) {
+                Ok((v, used)) => {
+                    if col < ncols {
+                        vals[col] = v;
+                    }
+                    col += 1;
+                    i += used;
+                }
+                Err(_) => {
+                    fault = Some(LineFault::NotANumber);
+                    break;
+                }
+            }
+            let before = i;
+            while i < n && is_sep(buf[i]) {
+                i += 1;
+            }
+            if i >= n || buf[i] == b'\n' {
+                break;
+            }
+            if i == before {
+                // Garbage glued to a number ("1.5abc").
+                fault = Some(LineFault::NotANumber);
+                break;
+            }
+        }
+        if fault.is_none() && col != ncols {
+            if allow_count_lines && col == 1 && vals[0].fract() == 0.0 && vals[0] >= 0.0 {
+                // A PTS scan's point-count line.
+                if i < n {
+                    i += 1;
+                }
+                p.lines += 1;
+                continue;
+            }
+            fault = Some(LineFault::Columns(col));
+        }
+        if fault.is_none() {
+            let mut xyz = [0f64; 3];
+            for (c, role) in layout.roles.iter().enumerate() {
+                match *role {
+                    Role::X => xyz[0] = vals[c],
+                    Role::Y => xyz[1] = vals[c],
+                    Role::Z => xyz[2] = vals[c],
+                    Role::Attr(a) => p.attrs[a].push(vals[c] as f32),
+                    Role::Skip => {}
+                }
+            }
+            if xyz.iter().all(|v| v.is_finite()) {
+                p.x.push(xyz[0]);
+                p.y.push(xyz[1]);
+                p.z.push(xyz[2]);
+                if i < n {
+                    i += 1; // the newline
+                }
+                p.lines += 1;
+                continue;
+            }
+            // Undo the attributes pushed for this line.
+            for a in &mut p.attrs {
+                a.truncate(p.x.len());
+            }
+            fault = Some(LineFault::NonFinite);
+        }
+        // Invalid line.
+        let line_end = match memchr::memchr(b'\n', &buf[line_start..]) {
+            Some(k) => line_start + k,
+            None => n,
+        };
+        if skip_invalid {
+            p.skipped += 1;
+            p.lines += 1;
+            i = (line_end + 1).min(n);
+            continue;
+        }
+        if let Some(f) = fault {
+            p.error = Some((p.lines, f, line_start, line_end));
+        }
+        return p;
+    }
+    p
+}
+
+/// Smallest piece worth a rayon task, in bytes.
+const MIN_PIECE_BYTES: usize = 256 << 10;
+
+/// Reads lines of a memory-mapped region in windows, parsing each window in
+/// parallel. Shared by the text reader and the ASCII PLY reader.
+pub(crate) struct LineEngine {
+    pub path: PathBuf,
+    pub layout: Layout,
+    /// Next byte to read.
+    pub pos: usize,
+    /// End of the data.
+    pub end: usize,
+    /// 1-based number of the line that starts at `pos`.
+    pub line: u64,
+    /// For ASCII PLY: vertex lines still to read.
+    pub lines_left: Option<u64>,
+    pub skip_invalid: bool,
+    pub allow_count_lines: bool,
+    pub chunk_points: usize,
+    /// Estimated bytes per line, refined after each window.
+    pub bytes_per_line: f64,
+    pub skipped: u64,
+    pub colors: ColorNormalizer,
+}
+
+impl LineEngine {
+    pub(crate) fn next_chunk(&mut self, data: &[u8]) -> Result<Option<PointColumns>, IngestError> {
+        let end = self.end.min(data.len());
+        loop {
+            if self.lines_left == Some(0) {
+                return Ok(None);
+            }
+            if self.pos >= end {
+                if let Some(left) = self.lines_left {
+                    return Err(IngestError::line(
+                        &self.path,
+                        self.line,
+                        format!("the file ends {left} vertex line(s) early (truncated?)"),
+                        b"",
+                    ));
+                }
+                return Ok(None);
+            }
+            let target =
+                ((self.chunk_points as f64) * self.bytes_per_line).clamp(1.0, 1e15) as usize;
+            let mut win_end = self.pos.saturating_add(target).min(end);
+            if win_end < end {
+                win_end = match memchr::memchr(b'\n', &data[win_end..end]) {
+                    Some(k) => win_end + k + 1,
+                    None => end,
+                };
+            }
+            if let Some(left) = self.lines_left {
+                let w = &data[self.pos..win_end];
+                if let Some(k) =
+                    memchr::memchr_iter(b'\n', w).nth((left - 1).min(usize::MAX as u64) as usize)
+                {
+                    win_end = self.pos + k + 1;
+                }
+            }
+            let win_len = win_end - self.pos;
+            let (cols, lines, skipped) = self.parse_window(&data[self.pos..win_end])?;
+            self.pos = win_end;
+            self.line += lines;
+            self.skipped += skipped;
+            if let Some(left) = self.lines_left.as_mut() {
+                *left = left.saturating_sub(lines);
+            }
+            if lines > 0 {
+                self.bytes_per_line = (win_len as f64 / lines as f64).max(1.0);
+            }
+            if let Some(mut cols) = cols {
+                self.colors.apply(&mut cols);
+                return Ok(Some(cols));
+            }
+        }
+    }
+
+    /// Parses one window of whole lines: (points or None if the window had none,
+    /// lines consumed, lines skipped).
+    fn parse_window(&self, w: &[u8]) -> Result<(Option<PointColumns>, u64, u64), IngestError> {
+        // Cut the window into pieces at line boundaries.
+        let threads = rayon::current_num_threads().max(1);
+        let npieces = (w.len() / MIN_PIECE_BYTES).clamp(1, threads * 4);
+        let mut bounds = Vec::with_capacity(npieces + 1);
+        bounds.push(0usize);
+        for k in 1..npieces {
+            let guess = w.len() * k / npieces;
+            let prev = *bounds.last().unwrap_or(&0);
+            if guess <= prev {
+                continue;
+            }
+            let b = match memchr::memchr(b'\n', &w[guess..]) {
+                Some(j) => guess + j + 1,
+                None => w.len(),
+            };
+            if b < w.len() && b > prev {
+                bounds.push(b);
+            }
+        }
+        bounds.push(w.len());
+        let est = |len: usize| ((len as f64 / self.bytes_per_line) * 1.05) as usize + 16;
+        let layout = &self.layout;
+        let (skip, count) = (self.skip_invalid, self.allow_count_lines);
+        let pieces: Vec<Piece> = bounds
+            .par_windows(2)
+            .map(|b| parse_piece(&w[b[0]..b[1]], layout, skip, count, est(b[1] - b[0])))
+            .collect();
+        let mut lines = 0u64;
+        let mut skipped = 0u64;
+        for (k, p) in pieces.iter().enumerate() {
+            if let Some((idx, fault, s, e)) = p.error {
+                let base = bounds[k];
+                return Err(IngestError::line(
+                    &self.path,
+                    self.line + lines + idx,
+                    fault.message(layout.ncols()),
+                    &w[base + s..base + e],
+                ));
+            }
+            lines += p.lines;
+            skipped += p.skipped;
+        }
+        let total: usize = pieces.iter().map(|p| p.x.len()).sum();
+        if total == 0 {
+            return Ok((None, lines, skipped));
+        }
+        let mut cols = PointColumns {
+            x: Vec::with_capacity(total),
+            y: Vec::with_capacity(total),
+            z: Vec::with_capacity(total),
+            attributes: layout
+                .attr_names
+                .iter()
+                .map(|n| Attribute::new(n.clone(), Vec::with_capacity(total)))
+                .collect(),
+        };
+        for p in &pieces {
+            cols.x.extend_from_slice(&p.x);
+            cols.y.extend_from_slice(&p.y);
+            cols.z.extend_from_slice(&p.z);
+            for (a, v) in cols.attributes.iter_mut().zip(&p.attrs) {
+                a.values.extend_from_slice(v);
+            }
+        }
+        Ok((Some(cols), lines, skipped))
+    }
+}
+
+/// What the first lines of a text file say.
+#[derive(Debug, Default)]
+struct Preamble {
+    /// Byte where the engine starts (after a header or count line).
+    data_start: usize,
+    /// 1-based line number at `data_start`.
+    data_line: u64,
+    header: Option<Vec<String>>,
+    count: Option<u64>,
+    /// Token count, 1-based line number and bytes of the first data line.
+    first_data: Option<(usize, u64, (usize, usize))>,
+}
+
+fn strip_comment_marker(line: &[u8]) -> &[u8] {
+    let t = line.trim_ascii_start();
+    if let Some(r) = t.strip_prefix(b"//") {
+        r
+    } else if let Some(r) = t.strip_prefix(b"#") {
+        r
+    } else {
+        t
+    }
+}
+
+fn header_names(line: &[u8]) -> Vec<String> {
+    tokens(strip_comment_marker(line))
+        .map(|t| {
+            let s = String::from_utf8_lossy(t);
+            let s = s.trim_matches(|c| c == '"' || c == '\'' || c == '/' || c == '#');
+            canonical_name(s)
+        })
+        .collect()
+}
+
+fn has_xyz(names: &[String]) -> bool {
+    ["x", "y", "z"].iter().all(|c| names.iter().any(|n| n == c))
+}
+
+/// Scans the first lines: header, PTS count line, first data line.
+fn scan_preamble(data: &[u8], start: usize) -> Preamble {
+    let mut pre = Preamble {
+        data_start: start,
+        data_line: 1,
+        ..Default::default()
+    };
+    let mut pos = start;
+    let mut line_no = 1u64;
+    let mut seen_content = false;
+    let mut last_comment: Option<Vec<String>> = None;
+    while pos < data.len() {
+        let end = memchr::memchr(b'\n', &data[pos..]).map_or(data.len(), |k| pos + k);
+        let line = &data[pos..end];
+        let next = (end + 1).min(data.len());
+        let t = line.trim_ascii();
+        if t.is_empty() {
+        } else if t.starts_with(b"#") || t.starts_with(b"//") {
+            let names = header_names(t);
+            last_comment = if has_xyz(&names) { Some(names) } else { None };
+        } else {
+            let toks: Vec<&[u8]> = tokens(t).collect();
+            let numeric = toks.iter().all(|t| token_number(t).is_some());
+            if !numeric {
+                if !seen_content {
+                    pre.header = Some(header_names(t));
+                    pre.data_start = next;
+                    pre.data_line = line_no + 1;
+                    seen_content = true;
+                } else {
+                    // A bad first data line: the engine reports it.
+                    pre.first_data = Some((toks.len(), line_no, (pos, end)));
+                    break;
+                }
+            } else if toks.len() == 1
+                && !seen_content
+                && token_number(toks[0]).is_some_and(|v| v >= 0.0 && v.fract() == 0.0)
+            {
+                pre.count = token_number(toks[0]).map(|v| v as u64);
+                pre.data_start = next;
+                pre.data_line = line_no + 1;
+                seen_content = true;
+            } else {
+                pre.first_data = Some((toks.len(), line_no, (pos, end)));
+                if pre.header.is_none() {
+                    pre.header = last_comment.take();
+                }
+                break;
+            }
+        }
+        pos = next;
+        line_no += 1;
+    }
+    pre
+}
+
+/// Reader for text point clouds.
+pub struct TextReader {
+    info: SourceInfo,
+    map: Mmap,
+    engine: LineEngine,
+}
+
+impl TextReader {
+    pub fn open(path: &Path, opts: &ReadOptions) -> Result<TextReader, IngestError> {
+        let map = super::map_file(path)?;
+        let data: &[u8] = &map;
+        let start = if data.starts_with(b"\xEF\xBB\xBF") {
+            3
+        } else {
+            0
+        };
+        let pre = scan_preamble(data, start);
+        let Some((ncols, first_line, (fs, fe))) = pre.first_data else {
+            return Err(IngestError::format(
+                path,
+                "no point lines found (the file holds only comments, a header or blank lines)",
+            ));
+        };
+        let first_text = &data[fs..fe];
+        let layout = if let Some(spec) = &opts.columns {
+            let names: Vec<String> = tokens(spec.as_bytes())
+                .map(|t| canonical_name(&String::from_utf8_lossy(t)))
+                .collect();
+            let layout = Layout::from_names(&names).map_err(|m| {
+                IngestError::format(path, format!("bad column layout '{}': {m}", spec))
+            })?;
+            if layout.ncols() != ncols {
+                return Err(IngestError::line(
+                    path,
+                    first_line,
+                    format!(
+                        "the column layout names {} columns but the first point line has {ncols}",
+                        layout.ncols()
+                    ),
+                    first_text,
+                ));
+            }
+            layout
+        } else {
+            if ncols < 3 {
+                return Err(IngestError::line(
+                    path,
+                    first_line,
+                    format!("a point line needs at least 3 columns (x y z), found {ncols}"),
+                    first_text,
+                ));
+            }
+            match &pre.header {
+                Some(h) if h.len() == ncols && has_xyz(h) => {
+                    Layout::from_names(h).unwrap_or_else(|_| Layout::positional(ncols))
+                }
+                Some(h) if h.len() == ncols => {
+                    let mut names: Vec<String> = vec!["x".into(), "y".into(), "z".into()];
+                    names.extend(h[3..].iter().cloned());
+                    Layout::from_names(&names).unwrap_or_else(|_| Layout::positional(ncols))
+                }
+                _ => Layout::positional(ncols),
+            }
+        };
+        let ext_pts = path
+            .extension()
+            .and_then(|e| e.to_str())
+            .is_some_and(|e| e.eq_ignore_ascii_case("pts"));
+        let sample_len = fe.saturating_sub(fs) + 1;
+        let engine = LineEngine {
+            path: path.to_path_buf(),
+            layout: layout.clone(),
+            pos: pre.data_start,
+            end: data.len(),
+            line: pre.data_line,
+            lines_left: None,
+            skip_invalid: opts.skip_invalid,
+            allow_count_lines: ext_pts || pre.count.is_some(),
+            chunk_points: opts.chunk_points,
+            bytes_per_line: sample_len as f64,
+            skipped: 0,
+            colors: ColorNormalizer::new(false),
+        };
+        let info = SourceInfo {
+            path: path.to_path_buf(),
+            format: "text".into(),
+            declared_points: pre.count,
+            crs_wkt: None,
+            attribute_names: layout.attr_names.clone(),
+            file_bytes: data.len() as u64,
+        };
+        Ok(TextReader { info, map, engine })
+    }
+}
+
+impl PointReader for TextReader {
+    fn info(&self) -> &SourceInfo {
+        &self.info
+    }
+
+    fn next_chunk(&mut self) -> Result<Option<PointColumns>, IngestError> {
+        self.engine.next_chunk(&self.map)
+    }
+
+    fn bytes_done(&self) -> u64 {
+        self.engine.pos as u64
+    }
+
+    fn skipped(&self) -> u64 {
+        self.engine.skipped
+    }
+}
