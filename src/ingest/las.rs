@@ -389,3 +389,149 @@ impl PointReader for LasReader {
         0
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::super::{ReadOptions, open, read_all};
+    use std::path::Path;
+
+    /// Writes `n` points of format 3 (RGB + GPS time); `color16` picks 16-bit
+    /// colour values, otherwise 8-bit values in the 16-bit fields.
+    fn write_las(path: &Path, n: usize, color16: bool, wkt: bool) {
+        let mut b = las::Builder::default();
+        b.version = las::Version::new(1, if wkt { 4 } else { 2 });
+        b.point_format = las::point::Format::new(3).unwrap();
+        let t = |o| las::Transform {
+            scale: 0.01,
+            offset: o,
+        };
+        b.transforms = las::Vector {
+            x: t(600000.0),
+            y: t(800000.0),
+            z: t(0.0),
+        };
+        if wkt {
+            b.vlrs.push(las::Vlr {
+                user_id: "LASF_Projection".into(),
+                record_id: 2112,
+                description: String::new(),
+                data: b"PROJCS[\"test\"]\0".to_vec(),
+            });
+            b.has_wkt_crs = true;
+        }
+        let header = b.into_header().unwrap();
+        let mut w = las::Writer::from_path(path, header).unwrap();
+        for i in 0..n {
+            let c = (i % 200) as u16 + 10;
+            let c = if color16 { c * 257 } else { c };
+            w.write_point(las::Point {
+                x: 600000.0 + i as f64 * 0.01,
+                y: 800000.0 + i as f64 * 0.02,
+                z: (i % 1000) as f64 * 0.01,
+                intensity: (i % 65536) as u16,
+                return_number: 1 + (i % 3) as u8,
+                number_of_returns: 3,
+                classification: las::point::Classification::new((i % 10) as u8).unwrap(),
+                gps_time: Some(300_000_000.0 + i as f64 * 1e-5),
+                color: Some(las::Color::new(c, c / 2, c / 3)),
+                ..Default::default()
+            })
+            .unwrap();
+        }
+        w.close().unwrap();
+    }
+
+    fn values<'a>(c: &'a crate::points::PointColumns, n: &str) -> &'a crate::points::Attribute {
+        c.attributes.iter().find(|a| a.name == n).unwrap()
+    }
+
+    fn check_file(path: &Path, n: usize, color16: bool) {
+        let (info, c, _) = read_all(path, &ReadOptions::default()).unwrap();
+        assert_eq!(info.declared_points, Some(n as u64));
+        assert_eq!(c.len(), n);
+        for i in [0, n / 2, n - 1] {
+            assert!((c.x[i] - (600000.0 + i as f64 * 0.01)).abs() < 1e-6);
+            assert!((c.y[i] - (800000.0 + i as f64 * 0.02)).abs() < 1e-6);
+            assert_eq!(values(&c, "red").values[i], ((i % 200) + 10) as f32);
+            assert_eq!(values(&c, "return_number").values[i], (1 + i % 3) as f32);
+            assert_eq!(values(&c, "classification").values[i], (i % 10) as f32);
+            let t = values(&c, "gps_time");
+            let got = t.offset + t.values[i] as f64;
+            assert!(
+                (got - (300_000_000.0 + i as f64 * 1e-5)).abs() < 1e-7,
+                "{got}"
+            );
+        }
+        let _ = color16;
+        // Tiny chunks: same points.
+        let opts = ReadOptions {
+            chunk_points: 999,
+            ..Default::default()
+        };
+        let mut r = open(path, &opts).unwrap();
+        let mut all = c.empty_like();
+        while let Some(ch) = r.next_chunk().unwrap() {
+            assert!(ch.len() <= 999);
+            all.append(&ch).unwrap();
+        }
+        assert_eq!(all, c);
+        assert_eq!(r.bytes_done(), info.file_bytes);
+    }
+
+    #[test]
+    fn las_and_laz_round_trip() {
+        let d = tempfile::tempdir().unwrap();
+        for (name, color16) in [
+            ("a.las", false),
+            ("b.las", true),
+            ("c.laz", true),
+            ("d.laz", false),
+        ] {
+            let p = d.path().join(name);
+            write_las(&p, 10_000, color16, false);
+            check_file(&p, 10_000, color16);
+            let r = open(&p, &ReadOptions::default()).unwrap();
+            let fmt = if name.ends_with("laz") {
+                "laz 1.2"
+            } else {
+                "las 1.2"
+            };
+            assert_eq!(r.info().format, fmt);
+            assert!(r.info().crs_wkt.is_none());
+        }
+    }
+
+    #[test]
+    fn wkt_crs_is_read() {
+        let d = tempfile::tempdir().unwrap();
+        let p = d.path().join("w.las");
+        write_las(&p, 10, false, true);
+        let r = open(&p, &ReadOptions::default()).unwrap();
+        assert_eq!(r.info().format, "las 1.4");
+        assert_eq!(r.info().crs_wkt.as_deref(), Some("PROJCS[\"test\"]"));
+    }
+
+    #[test]
+    fn truncated_las_is_an_error() {
+        let d = tempfile::tempdir().unwrap();
+        let p = d.path().join("full.las");
+        write_las(&p, 1000, false, false);
+        let data = std::fs::read(&p).unwrap();
+        for keep in [3usize, 50, 230, 300, data.len() - 1] {
+            let q = d.path().join("cut.las");
+            std::fs::write(&q, &data[..keep]).unwrap();
+            let e = read_all(&q, &ReadOptions::default()).unwrap_err();
+            let s = e.to_string();
+            assert!(
+                s.contains("cut.las") && s.contains("byte offset"),
+                "{keep}: {s}"
+            );
+        }
+        let q = d.path().join("empty.las");
+        std::fs::write(&q, b"").unwrap();
+        assert!(read_all(&q, &ReadOptions::default()).is_err());
+        let q = d.path().join("junk.las");
+        std::fs::write(&q, b"this is not a las file at all, no sir").unwrap();
+        assert!(read_all(&q, &ReadOptions::default()).is_err());
+    }
+}

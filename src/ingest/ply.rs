@@ -363,6 +363,7 @@ pub fn open(path: &Path, opts: &ReadOptions) -> Result<Box<dyn PointReader>, Ing
             bytes_per_line: 32.0,
             skipped: 0,
             colors: ColorNormalizer::new(plan.float_color),
+            pending: None,
         };
         return Ok(Box::new(AsciiPly { info, map, engine }));
     }
@@ -644,5 +645,215 @@ impl PointReader for BinaryPly {
 impl BinaryPly {
     fn path_ref(&self) -> &Path {
         &self.info.path
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::super::{ReadOptions, open, read_all};
+    use crate::points::PointColumns;
+    use std::path::PathBuf;
+
+    /// Test points: (x, y, z, red, intensity-as-u16, label-as-i32).
+    fn points(n: usize) -> Vec<(f64, f64, f64, u8, u16, i32)> {
+        (0..n)
+            .map(|i| {
+                (
+                    i as f64 * 0.5,
+                    -(i as f64) * 0.25,
+                    1000.0 + i as f64,
+                    (i % 256) as u8,
+                    (i * 7 % 65536) as u16,
+                    i as i32 - 50,
+                )
+            })
+            .collect()
+    }
+
+    /// Writes a PLY with a face element before the vertex element (1 face) and
+    /// another after it; `double` picks the coordinate type.
+    fn write_ply(
+        dir: &tempfile::TempDir,
+        name: &str,
+        enc: &str,
+        double: bool,
+        n: usize,
+    ) -> PathBuf {
+        let t = if double { "double" } else { "float" };
+        let mut out = format!(
+            "ply\nformat {enc} 1.0\ncomment test\nelement face 1\nproperty list uchar int vertex_indices\n\
+             element vertex {n}\nproperty {t} x\nproperty {t} y\nproperty {t} z\nproperty uchar red\n\
+             property ushort Intensity\nproperty int label\nelement edge 2\nproperty int a\nproperty int b\nend_header\n"
+        )
+        .into_bytes();
+        let pts = points(n);
+        let be = enc == "binary_big_endian";
+        macro_rules! put {
+            ($v:expr) => {
+                if be {
+                    out.extend_from_slice(&$v.to_be_bytes())
+                } else {
+                    out.extend_from_slice(&$v.to_le_bytes())
+                }
+            };
+        }
+        if enc == "ascii" {
+            out.extend_from_slice(b"3 0 1 2\n");
+            for p in &pts {
+                out.extend_from_slice(
+                    format!("{} {} {} {} {} {}\n", p.0, p.1, p.2, p.3, p.4, p.5).as_bytes(),
+                );
+            }
+            out.extend_from_slice(b"0 1\n1 2\n");
+        } else {
+            out.push(3);
+            for k in 0..3i32 {
+                put!(k);
+            }
+            for p in &pts {
+                if double {
+                    put!(p.0);
+                    put!(p.1);
+                    put!(p.2);
+                } else {
+                    put!(p.0 as f32);
+                    put!(p.1 as f32);
+                    put!(p.2 as f32);
+                }
+                out.push(p.3);
+                put!(p.4);
+                put!(p.5);
+            }
+            for k in 0..4i32 {
+                put!(k);
+            }
+        }
+        let p = dir.path().join(name);
+        std::fs::write(&p, out).unwrap();
+        p
+    }
+
+    fn check(c: &PointColumns, n: usize) {
+        let pts = points(n);
+        assert_eq!(c.len(), n);
+        for (i, p) in pts.iter().enumerate() {
+            assert_eq!((c.x[i], c.y[i], c.z[i]), (p.0, p.1, p.2), "point {i}");
+            assert_eq!(c.attributes[0].values[i], p.3 as f32);
+            assert_eq!(c.attributes[1].values[i], p.4 as f32);
+            assert_eq!(c.attributes[2].values[i], p.5 as f32);
+        }
+    }
+
+    #[test]
+    fn all_encodings_and_types() {
+        let d = tempfile::tempdir().unwrap();
+        let n = 5000;
+        for (enc, fmt) in [
+            ("ascii", "ply-ascii"),
+            ("binary_little_endian", "ply-binary-le"),
+            ("binary_big_endian", "ply-binary-be"),
+        ] {
+            for double in [false, true] {
+                let p = write_ply(&d, &format!("{enc}{double}.ply"), enc, double, n);
+                let (info, c, _) = read_all(&p, &ReadOptions::default()).unwrap();
+                assert_eq!(info.format, fmt);
+                assert_eq!(info.declared_points, Some(n as u64));
+                assert_eq!(info.attribute_names, ["red", "intensity", "label"]);
+                check(&c, n);
+                // Tiny chunks give the same points.
+                let opts = ReadOptions {
+                    chunk_points: 97,
+                    ..Default::default()
+                };
+                let mut r = open(&p, &opts).unwrap();
+                let mut all = c.empty_like();
+                while let Some(ch) = r.next_chunk().unwrap() {
+                    assert!(ch.len() <= 97);
+                    all.append(&ch).unwrap();
+                }
+                assert_eq!(all, c, "{enc} double={double}");
+            }
+        }
+    }
+
+    #[test]
+    fn truncated_binary_names_byte_offset() {
+        let d = tempfile::tempdir().unwrap();
+        let p = write_ply(&d, "t.ply", "binary_little_endian", false, 100);
+        let data = std::fs::read(&p).unwrap();
+        let header_len = data.windows(11).position(|w| w == b"end_header\n").unwrap() + 11;
+        for keep in [header_len + 5, header_len + 13 + 21 * 50 + 3] {
+            let q = d.path().join("cut.ply");
+            std::fs::write(&q, &data[..keep]).unwrap();
+            let e = read_all(&q, &ReadOptions::default()).unwrap_err();
+            assert_eq!(e.byte_offset(), Some(keep as u64));
+            let s = e.to_string();
+            assert!(s.contains("cut.ply") && s.contains("truncated"), "{s}");
+        }
+        // Truncated ASCII: fewer vertex lines than declared.
+        let p = write_ply(&d, "a.ply", "ascii", false, 100);
+        let text = std::fs::read_to_string(&p).unwrap();
+        let cut = text.find("\n10 ").unwrap() + 1;
+        let q = d.path().join("acut.ply");
+        std::fs::write(&q, &text[..cut]).unwrap();
+        let s = read_all(&q, &ReadOptions::default())
+            .unwrap_err()
+            .to_string();
+        assert!(s.contains("acut.ply") && s.contains("line"), "{s}");
+    }
+
+    #[test]
+    fn bad_headers_and_lines() {
+        let d = tempfile::tempdir().unwrap();
+        let cases: &[(&str, &[u8])] = &[
+            ("nomagic.ply", b"plx\nformat ascii 1.0\nend_header\n"),
+            ("noend.ply", b"ply\nformat ascii 1.0\nelement vertex 1\n"),
+            ("noformat.ply", b"ply\nelement vertex 0\nproperty float x\nend_header\n"),
+            ("badtype.ply", b"ply\nformat ascii 1.0\nelement vertex 1\nproperty quad x\nend_header\n1\n"),
+            ("novertex.ply", b"ply\nformat ascii 1.0\nelement face 0\nend_header\n"),
+            ("noz.ply", b"ply\nformat ascii 1.0\nelement vertex 1\nproperty float x\nproperty float y\nend_header\n1 2\n"),
+            ("count.ply", b"ply\nformat ascii 1.0\nelement vertex -1\nend_header\n"),
+            ("listv.ply", b"ply\nformat binary_little_endian 1.0\nelement vertex 1\nproperty float x\nproperty float y\nproperty float z\nproperty list uchar int f\nend_header\n"),
+            ("huge.ply", b"ply\nformat binary_little_endian 1.0\nelement vertex 18446744073709551615\nproperty double x\nproperty double y\nproperty double z\nend_header\n"),
+            ("empty.ply", b""),
+        ];
+        for (name, body) in cases {
+            let p = d.path().join(name);
+            std::fs::write(&p, body).unwrap();
+            let e = read_all(&p, &ReadOptions::default())
+                .unwrap_err()
+                .to_string();
+            assert!(e.contains(name), "{e}");
+        }
+        let p = d.path().join("badline.ply");
+        std::fs::write(
+            &p,
+            "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\nend_header\n1 2 3\n4 five 6\n7 8 9\n",
+        )
+        .unwrap();
+        let e = read_all(&p, &ReadOptions::default()).unwrap_err();
+        assert_eq!(e.line_number(), Some(9), "{e}");
+        let opts = ReadOptions {
+            skip_invalid: true,
+            ..Default::default()
+        };
+        let (_, c, skipped) = read_all(&p, &opts).unwrap();
+        assert_eq!((c.len(), skipped), (2, 1));
+    }
+
+    #[test]
+    fn float_colour_is_scaled() {
+        let d = tempfile::tempdir().unwrap();
+        let p = d.path().join("fc.ply");
+        std::fs::write(
+            &p,
+            "ply\nformat ascii 1.0\nelement vertex 2\nproperty float x\nproperty float y\nproperty float z\n\
+             property float r\nproperty float g\nproperty float b\nend_header\n0 0 0 1 0.5 0\n1 1 1 0 0 1\n",
+        )
+        .unwrap();
+        let (info, c, _) = read_all(&p, &ReadOptions::default()).unwrap();
+        assert_eq!(info.attribute_names, ["red", "green", "blue"]);
+        assert_eq!(c.attributes[0].values, [255.0, 0.0]);
+        assert_eq!(c.attributes[1].values, [127.5, 0.0]);
     }
 }

@@ -327,11 +327,40 @@ pub(crate) struct LineEngine {
     pub bytes_per_line: f64,
     pub skipped: u64,
     pub colors: ColorNormalizer,
+    /// Points parsed beyond `chunk_points` in the last window, delivered next.
+    pub pending: Option<PointColumns>,
+}
+
+/// Splits `cols` after `n` points: returns the first `n`, leaves the rest.
+fn split_front(cols: &mut PointColumns, n: usize) -> PointColumns {
+    let rest = PointColumns {
+        x: cols.x.split_off(n),
+        y: cols.y.split_off(n),
+        z: cols.z.split_off(n),
+        attributes: cols
+            .attributes
+            .iter_mut()
+            .map(|a| Attribute {
+                name: a.name.clone(),
+                offset: a.offset,
+                values: a.values.split_off(n),
+            })
+            .collect(),
+    };
+    std::mem::replace(cols, rest)
 }
 
 impl LineEngine {
     pub(crate) fn next_chunk(&mut self, data: &[u8]) -> Result<Option<PointColumns>, IngestError> {
         let end = self.end.min(data.len());
+        if let Some(mut p) = self.pending.take() {
+            if p.len() > self.chunk_points {
+                let front = split_front(&mut p, self.chunk_points);
+                self.pending = Some(p);
+                return Ok(Some(front));
+            }
+            return Ok(Some(p));
+        }
         loop {
             if self.lines_left == Some(0) {
                 return Ok(None);
@@ -377,6 +406,11 @@ impl LineEngine {
             }
             if let Some(mut cols) = cols {
                 self.colors.apply(&mut cols);
+                if cols.len() > self.chunk_points {
+                    let front = split_front(&mut cols, self.chunk_points);
+                    self.pending = Some(cols);
+                    return Ok(Some(front));
+                }
                 return Ok(Some(cols));
             }
         }
@@ -629,6 +663,7 @@ impl TextReader {
             bytes_per_line: sample_len as f64,
             skipped: 0,
             colors: ColorNormalizer::new(false),
+            pending: None,
         };
         let info = SourceInfo {
             path: path.to_path_buf(),
@@ -657,5 +692,259 @@ impl PointReader for TextReader {
 
     fn skipped(&self) -> u64 {
         self.engine.skipped
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::super::{IngestError, ReadOptions, open, read_all};
+    use crate::points::PointColumns;
+    use std::path::PathBuf;
+
+    fn write(dir: &tempfile::TempDir, name: &str, body: &str) -> PathBuf {
+        let p = dir.path().join(name);
+        std::fs::write(&p, body).unwrap();
+        p
+    }
+
+    fn read(
+        p: &std::path::Path,
+        opts: &ReadOptions,
+    ) -> Result<(PointColumns, Vec<String>, u64), IngestError> {
+        read_all(p, opts).map(|(i, c, s)| (c, i.attribute_names, s))
+    }
+
+    fn attr<'a>(c: &'a PointColumns, n: &str) -> &'a [f32] {
+        &c.attributes.iter().find(|a| a.name == n).unwrap().values
+    }
+
+    #[test]
+    fn plain_xyz() {
+        let d = tempfile::tempdir().unwrap();
+        let p = write(&d, "a.xyz", "1 2 3\n4.5 -5e1 6\n\n7\t8\t9");
+        let (c, names, _) = read(&p, &ReadOptions::default()).unwrap();
+        assert_eq!(c.x, vec![1.0, 4.5, 7.0]);
+        assert_eq!(c.y, vec![2.0, -50.0, 8.0]);
+        assert_eq!(c.z, vec![3.0, 6.0, 9.0]);
+        assert!(names.is_empty());
+    }
+
+    #[test]
+    fn layouts_by_column_count() {
+        let d = tempfile::tempdir().unwrap();
+        let p = write(&d, "a.txt", "1 2 3 10\n4 5 6 20\n");
+        let (c, names, _) = read(&p, &ReadOptions::default()).unwrap();
+        assert_eq!(names, ["intensity"]);
+        assert_eq!(attr(&c, "intensity"), [10.0, 20.0]);
+        let p = write(&d, "b.txt", "1 2 3 10 20 30\n");
+        assert_eq!(
+            read(&p, &ReadOptions::default()).unwrap().1,
+            ["red", "green", "blue"]
+        );
+        let p = write(&d, "c.pts", "2\n1 2 3 -5 10 20 30\n1 2 3 -6 40 50 60\r\n");
+        let r = open(&p, &ReadOptions::default()).unwrap();
+        assert_eq!(r.info().declared_points, Some(2));
+        let (c, names, _) = read(&p, &ReadOptions::default()).unwrap();
+        assert_eq!(names, ["intensity", "red", "green", "blue"]);
+        assert_eq!(attr(&c, "intensity"), [-5.0, -6.0]);
+        assert_eq!(attr(&c, "blue"), [30.0, 60.0]);
+        let p = write(&d, "d.xyz", "1 2 3 4 5\n");
+        assert_eq!(
+            read(&p, &ReadOptions::default()).unwrap().1,
+            ["col3", "col4"]
+        );
+    }
+
+    #[test]
+    fn header_comments_and_csv() {
+        let d = tempfile::tempdir().unwrap();
+        let p = write(
+            &d,
+            "a.csv",
+            "# exported\n// by hand\nX,Y,Z,Intensity,R,G,B\n1,2,3,4,5,6,7\n# mid comment\n  \n8,9,10,11,12,13,14\n",
+        );
+        let (c, names, _) = read(&p, &ReadOptions::default()).unwrap();
+        assert_eq!(names, ["intensity", "red", "green", "blue"]);
+        assert_eq!(c.x, vec![1.0, 8.0]);
+        assert_eq!(attr(&c, "green"), [6.0, 13.0]);
+        // Header with another column order.
+        let p = write(&d, "b.csv", "intensity;z;y;x\n1;2;3;4\n");
+        let (c, names, _) = read(&p, &ReadOptions::default()).unwrap();
+        assert_eq!(names, ["intensity"]);
+        assert_eq!((c.x[0], c.y[0], c.z[0]), (4.0, 3.0, 2.0));
+        // CloudCompare-style commented header.
+        let p = write(&d, "c.txt", "//X,Y,Z,R,G,B\n1,2,3,4,5,6\n");
+        let (c, names, _) = read(&p, &ReadOptions::default()).unwrap();
+        assert_eq!(names, ["red", "green", "blue"]);
+        assert_eq!(attr(&c, "red"), [4.0]);
+        // Header without x y z names: first three are coordinates.
+        let p = write(&d, "e.txt", "east north up amp\n1 2 3 4\n");
+        assert_eq!(read(&p, &ReadOptions::default()).unwrap().1, ["amp"]);
+    }
+
+    #[test]
+    fn columns_option_with_skip() {
+        let d = tempfile::tempdir().unwrap();
+        let p = write(&d, "a.txt", "h1 h2 h3 h4 h5\n9 1 2 3 77\n9 4 5 6 88\n");
+        let opts = ReadOptions {
+            columns: Some("_ x y z Classification".into()),
+            ..Default::default()
+        };
+        let (c, names, _) = read(&p, &opts).unwrap();
+        assert_eq!(names, ["classification"]);
+        assert_eq!(c.x, vec![1.0, 4.0]);
+        assert_eq!(attr(&c, "classification"), [77.0, 88.0]);
+        let bad = ReadOptions {
+            columns: Some("x y q".into()),
+            ..Default::default()
+        };
+        let e = read(&p, &bad).unwrap_err().to_string();
+        assert!(e.contains("x, y and z"), "{e}");
+        let wrong = ReadOptions {
+            columns: Some("x y z".into()),
+            ..Default::default()
+        };
+        let e = read(&p, &wrong).unwrap_err().to_string();
+        assert!(e.contains("line 2"), "{e}");
+    }
+
+    #[test]
+    fn malformed_line_names_file_line_and_text() {
+        let d = tempfile::tempdir().unwrap();
+        let p = write(&d, "bad.xyz", "# c\n1 2 3\n4 5 6\n7 8 oops\n10 11 12\n");
+        let e = read(&p, &ReadOptions::default()).unwrap_err();
+        assert_eq!(e.line_number(), Some(4));
+        let s = e.to_string();
+        assert!(
+            s.contains("bad.xyz") && s.contains("line 4") && s.contains("7 8 oops"),
+            "{s}"
+        );
+        let p = write(&d, "cols.xyz", "1 2 3\n4 5\n");
+        let s = read(&p, &ReadOptions::default()).unwrap_err().to_string();
+        assert!(
+            s.contains("line 2") && s.contains("expected 3 columns, found 2"),
+            "{s}"
+        );
+        let p = write(&d, "glued.xyz", "1 2 3\n4 5 6abc\n");
+        assert_eq!(
+            read(&p, &ReadOptions::default()).unwrap_err().line_number(),
+            Some(2)
+        );
+        let p = write(&d, "ctl.xyz", "1 2 3\n4 5 \x1b[2J\n");
+        let s = read(&p, &ReadOptions::default()).unwrap_err().to_string();
+        assert!(!s.chars().any(|c| c.is_control()), "{s:?}");
+    }
+
+    #[test]
+    fn non_finite_coordinates_are_invalid() {
+        let d = tempfile::tempdir().unwrap();
+        for (i, bad) in ["nan 1 2", "1 inf 2", "1 2 -infinity", "1 2 1e400"]
+            .iter()
+            .enumerate()
+        {
+            let p = write(&d, &format!("n{i}.xyz"), &format!("1 2 3\n{bad}\n4 5 6\n"));
+            let e = read(&p, &ReadOptions::default()).unwrap_err();
+            assert_eq!(e.line_number(), Some(2), "{bad}");
+            assert!(e.to_string().contains("not finite"));
+            let opts = ReadOptions {
+                skip_invalid: true,
+                ..Default::default()
+            };
+            let (c, _, skipped) = read(&p, &opts).unwrap();
+            assert_eq!((c.len(), skipped), (2, 1));
+        }
+        // NaN in an attribute is a value, not an invalid line.
+        let p = write(&d, "attr.xyz", "1 2 3 nan\n");
+        assert!(attr(&read(&p, &ReadOptions::default()).unwrap().0, "intensity")[0].is_nan());
+    }
+
+    #[test]
+    fn skip_invalid_counts() {
+        let d = tempfile::tempdir().unwrap();
+        let p = write(
+            &d,
+            "s.xyz",
+            "1 2 3 4\nx y z w\n5 6 7 8\n1 2\n9 10 11 12\n1 2 3 4 5\n",
+        );
+        let opts = ReadOptions {
+            skip_invalid: true,
+            ..Default::default()
+        };
+        let (c, _, skipped) = read(&p, &opts).unwrap();
+        assert_eq!(c.x, vec![1.0, 5.0, 9.0]);
+        assert_eq!(attr(&c, "intensity"), [4.0, 8.0, 12.0]);
+        assert_eq!(skipped, 3);
+    }
+
+    #[test]
+    fn empty_and_pointless_files() {
+        let d = tempfile::tempdir().unwrap();
+        for (name, body) in [
+            ("e.xyz", ""),
+            ("h.xyz", "x y z\n"),
+            ("c.xyz", "# nothing\n\n"),
+            ("two.xyz", "1 2\n3 4\n"),
+        ] {
+            let p = write(&d, name, body);
+            let e = read(&p, &ReadOptions::default()).unwrap_err().to_string();
+            assert!(e.contains(name), "{e}");
+        }
+    }
+
+    #[test]
+    fn chunks_match_whole_and_line_numbers_stay_exact() {
+        let d = tempfile::tempdir().unwrap();
+        let mut body = String::from("x y z intensity\n");
+        for i in 0..20_000 {
+            if i % 997 == 0 {
+                body.push_str("# comment\n");
+            }
+            body.push_str(&format!("{}.25 {} {} {}\n", i, i * 2, -i, i % 256));
+        }
+        let p = write(&d, "big.xyz", &body);
+        let (whole, _, _) = read(&p, &ReadOptions::default()).unwrap();
+        assert_eq!(whole.len(), 20_000);
+        let opts = ReadOptions {
+            chunk_points: 777,
+            ..Default::default()
+        };
+        let mut r = open(&p, &opts).unwrap();
+        let mut all = whole.empty_like();
+        let mut chunks = 0;
+        while let Some(c) = r.next_chunk().unwrap() {
+            assert!(!c.is_empty() && c.len() <= 777);
+            all.append(&c).unwrap();
+            chunks += 1;
+        }
+        assert!(chunks >= 20_000 / 777);
+        assert_eq!(all, whole);
+        assert_eq!(r.bytes_done(), body.len() as u64);
+        // An error deep in a multi-piece window still gets its exact line number.
+        let lines: Vec<&str> = body.lines().collect();
+        let target = 15_000;
+        let mut bad = lines.clone();
+        bad[target - 1] = "1 2 three 4";
+        let p = write(&d, "bad.xyz", &(bad.join("\n") + "\n"));
+        for chunk in [usize::MAX / 2, 1000, 3] {
+            let opts = ReadOptions {
+                chunk_points: chunk,
+                ..Default::default()
+            };
+            let e = read(&p, &opts).unwrap_err();
+            assert_eq!(e.line_number(), Some(target as u64), "chunk {chunk}: {e}");
+        }
+    }
+
+    #[test]
+    fn text_colour_scaling() {
+        let d = tempfile::tempdir().unwrap();
+        let p = write(&d, "c16.xyz", "1 2 3 65535 0 257\n");
+        let (c, _, _) = read(&p, &ReadOptions::default()).unwrap();
+        assert_eq!(attr(&c, "red"), [255.0]);
+        assert_eq!(attr(&c, "blue"), [1.0]);
+        let p = write(&d, "cu.xyz", "1 2 3 1.0 0.5 0\n");
+        let (c, _, _) = read(&p, &ReadOptions::default()).unwrap();
+        assert_eq!(attr(&c, "red"), [255.0]);
+        assert_eq!(attr(&c, "green"), [127.5]);
     }
 }
