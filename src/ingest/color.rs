@@ -29,18 +29,21 @@ impl ColorScale {
     /// Decides the scale from sample values. `float_source` says whether the
     /// source stores colour as floating point (which makes the 0–1 rule apply).
     pub fn detect<'a>(samples: impl IntoIterator<Item = &'a [f32]>, float_source: bool) -> Self {
+        let cols: Vec<&[f32]> = samples.into_iter().collect();
         let mut max = f32::NEG_INFINITY;
-        let mut fractional = false;
-        let mut any = false;
-        for col in samples {
-            for &v in col {
-                if v.is_finite() {
-                    any = true;
-                    max = max.max(v);
-                    fractional |= v.fract() != 0.0;
-                }
-            }
+        for col in &cols {
+            max = col
+                .iter()
+                .filter(|v| v.is_finite())
+                .fold(max, |m, &v| m.max(v));
         }
+        let any = max > f32::NEG_INFINITY;
+        // Only a 0–1 sample needs the (slower) fractional test.
+        let fractional = any
+            && max <= 1.0
+            && cols
+                .iter()
+                .any(|c| c.iter().any(|v| v.is_finite() && v.fract() != 0.0));
         if !any {
             ColorScale::Identity
         } else if max > 255.0 {
@@ -59,9 +62,12 @@ impl ColorScale {
             ColorScale::From16Bit => 1.0 / 257.0,
             ColorScale::FromUnit => 255.0,
         };
-        for v in values {
-            *v = (*v * f).clamp(0.0, 255.0);
-        }
+        use rayon::prelude::*;
+        values.par_chunks_mut(1 << 16).for_each(|c| {
+            for v in c {
+                *v = (*v * f).clamp(0.0, 255.0);
+            }
+        });
     }
 }
 

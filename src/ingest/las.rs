@@ -250,30 +250,49 @@ fn decode(path: PathBuf, file: Tracked, chunk: u64, total: u64, tx: SyncSender<M
     let mut pd = las::PointDataBuilder::new()
         .for_header(reader.header())
         .build();
+    let names = attribute_names(pd.format());
     let mut done = 0u64;
     let mut gps_offset: Option<f64> = None;
     let mut colors = ColorNormalizer::new(false);
     while done < total {
         let want = chunk.min(total - done);
-        let got = match reader.fill_points(want, &mut pd) {
-            Ok(g) => g,
-            Err(e) => {
+        let cap = want as usize;
+        let mut cols = PointColumns {
+            x: Vec::with_capacity(cap),
+            y: Vec::with_capacity(cap),
+            z: Vec::with_capacity(cap),
+            attributes: names
+                .iter()
+                .map(|n| Attribute::new(n.clone(), Vec::with_capacity(cap)))
+                .collect(),
+        };
+        // Decode in small batches so the raw records stay in cache and the raw
+        // buffer is reused.
+        let mut got_total = 0u64;
+        while got_total < want {
+            let batch = BATCH_POINTS.min(want - got_total);
+            let got = match reader.fill_points(batch, &mut pd) {
+                Ok(g) => g,
+                Err(e) => {
+                    let at = done + got_total;
+                    let _ = tx.send(err_at(
+                        &format!("cannot read points {}..{}", at, at + batch),
+                        &e,
+                    ));
+                    return;
+                }
+            };
+            if got == 0 {
                 let _ = tx.send(err_at(
-                    &format!("cannot read points {}..{}", done, done + want),
-                    &e,
+                    "the file ends early",
+                    &format!("{} of {total} declared points read", done + got_total),
                 ));
                 return;
             }
-        };
-        if got == 0 {
-            let _ = tx.send(err_at(
-                "the file ends early",
-                &format!("{done} of {total} declared points read"),
-            ));
-            return;
+            append_columns(&pd, &mut cols, &mut gps_offset);
+            got_total += got;
         }
-        done += got;
-        let mut cols = columns(&pd, &mut gps_offset);
+        done += got_total;
         colors.apply(&mut cols);
         if tx.send(Msg::Chunk(cols)).is_err() {
             return; // the consumer is gone
@@ -281,72 +300,53 @@ fn decode(path: PathBuf, file: Tracked, chunk: u64, total: u64, tx: SyncSender<M
     }
 }
 
-/// Converts decoded LAS records to columns.
-fn columns(pd: &las::PointData, gps_offset: &mut Option<f64>) -> PointColumns {
-    let f = pd.format();
-    let mut cols = PointColumns::default();
-    let mut attrs: Vec<Attribute> = Vec::new();
-    let ((x, y), (z, rest)) = rayon::join(
-        || rayon::join(|| pd.x().collect(), || pd.y().collect()),
-        || {
-            rayon::join(
-                || pd.z().collect(),
-                || {
-                    let mut a = vec![
-                        Attribute::new("intensity", pd.intensity().map(f32::from).collect()),
-                        Attribute::new(
-                            "return_number",
-                            pd.return_number().map(f32::from).collect(),
-                        ),
-                        Attribute::new(
-                            "number_of_returns",
-                            pd.number_of_returns().map(f32::from).collect(),
-                        ),
-                        Attribute::new(
-                            "classification",
-                            pd.classification().map(f32::from).collect(),
-                        ),
-                    ];
-                    if let Some(t) = pd.gps_time() {
-                        let t: Vec<f64> = t.collect();
-                        let off = *gps_offset.get_or_insert(t.first().copied().unwrap_or(0.0));
-                        a.push(Attribute {
-                            name: "gps_time".into(),
-                            offset: off,
-                            values: t.iter().map(|&v| (v - off) as f32).collect(),
-                        });
-                    }
-                    a
-                },
-            )
-        },
-    );
-    cols.x = x;
-    cols.y = y;
-    cols.z = z;
-    attrs.extend(rest);
-    if let Some(rgb) = pd.rgb() {
-        let n = pd.len();
-        let (mut r, mut g, mut b) = (
-            Vec::with_capacity(n),
-            Vec::with_capacity(n),
-            Vec::with_capacity(n),
-        );
-        for (cr, cg, cb) in rgb {
-            r.push(f32::from(cr));
-            g.push(f32::from(cg));
-            b.push(f32::from(cb));
+/// Points decoded per `fill_points` call.
+const BATCH_POINTS: u64 = 32 * 1024;
+
+/// Appends decoded LAS records to columns laid out by [`attribute_names`].
+fn append_columns(pd: &las::PointData, cols: &mut PointColumns, gps_offset: &mut Option<f64>) {
+    cols.x.extend(pd.x());
+    cols.y.extend(pd.y());
+    cols.z.extend(pd.z());
+    let mut it = cols.attributes.iter_mut();
+    let mut next = || it.next();
+    if let Some(a) = next() {
+        a.values.extend(pd.intensity().map(f32::from));
+    }
+    if let Some(a) = next() {
+        a.values.extend(pd.return_number().map(f32::from));
+    }
+    if let Some(a) = next() {
+        a.values.extend(pd.number_of_returns().map(f32::from));
+    }
+    if let Some(a) = next() {
+        a.values.extend(pd.classification().map(f32::from));
+    }
+    if let Some(t) = pd.gps_time() {
+        let mut t = t.peekable();
+        let off = match gps_offset {
+            Some(o) => *o,
+            None => *gps_offset.insert(t.peek().copied().unwrap_or(0.0)),
+        };
+        if let Some(a) = next() {
+            a.offset = off;
+            a.values.extend(t.map(|x| (x - off) as f32));
         }
-        attrs.push(Attribute::new("red", r));
-        attrs.push(Attribute::new("green", g));
-        attrs.push(Attribute::new("blue", b));
     }
-    if let Some(nir) = pd.nir() {
-        attrs.push(Attribute::new("nir", nir.map(f32::from).collect()));
+    if let Some(rgb) = pd.rgb() {
+        if let (Some(r), Some(g), Some(b)) = (next(), next(), next()) {
+            for (cr, cg, cb) in rgb {
+                r.values.push(f32::from(cr));
+                g.values.push(f32::from(cg));
+                b.values.push(f32::from(cb));
+            }
+        }
     }
-    let _ = f;
-    cols.attributes = attrs;
-    cols
+    if let Some(nir) = pd.nir()
+        && let Some(a) = next()
+    {
+        a.values.extend(nir.map(f32::from));
+    }
 }
 
 impl PointReader for LasReader {

@@ -57,8 +57,11 @@ pub struct ReadOptions {
     pub chunk_points: usize,
 }
 
-/// Default target points per chunk.
-pub const DEFAULT_CHUNK_POINTS: usize = 4 << 20;
+/// Default target points per chunk. Kept just under 2^22 so that an `f64` column
+/// (32,000,000 bytes) stays below glibc's largest dynamic mmap threshold (32 MiB):
+/// chunk buffers are then recycled by the allocator instead of being mapped and
+/// zeroed afresh by the kernel for every chunk.
+pub const DEFAULT_CHUNK_POINTS: usize = 4_000_000;
 
 impl Default for ReadOptions {
     fn default() -> Self {

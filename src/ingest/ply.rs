@@ -259,6 +259,8 @@ struct VertexPlan {
     fields: Vec<(usize, Scalar, Role)>,
     stride: usize,
     float_color: bool,
+    /// Every colour property is `uchar`: already 0–255, nothing to normalize.
+    u8_color: bool,
 }
 
 fn plan_vertex(path: &Path, h: &Header) -> Result<VertexPlan, IngestError> {
@@ -273,6 +275,7 @@ fn plan_vertex(path: &Path, h: &Header) -> Result<VertexPlan, IngestError> {
     let mut fields = Vec::new();
     let mut off = 0usize;
     let mut float_color = false;
+    let mut u8_color = true;
     for p in &el.props {
         let PropKind::Scalar(s) = p.kind else {
             return Err(IngestError::format(
@@ -287,8 +290,9 @@ fn plan_vertex(path: &Path, h: &Header) -> Result<VertexPlan, IngestError> {
         if names.contains(&name) {
             name = p.name.to_ascii_lowercase();
         }
-        if is_color(&name) && s.is_float() {
-            float_color = true;
+        if is_color(&name) {
+            float_color |= s.is_float();
+            u8_color &= s == Scalar::U8;
         }
         names.push(name);
         fields.push((off, s, Role::Skip));
@@ -305,6 +309,7 @@ fn plan_vertex(path: &Path, h: &Header) -> Result<VertexPlan, IngestError> {
         fields,
         stride: off,
         float_color,
+        u8_color,
     })
 }
 
@@ -506,6 +511,62 @@ struct Task<'a> {
     attrs: Vec<&'a mut [f32]>,
 }
 
+/// A destination column type.
+trait OutValue: Copy + Send {
+    fn from_f64(v: f64) -> Self;
+}
+
+impl OutValue for f64 {
+    #[inline(always)]
+    fn from_f64(v: f64) -> Self {
+        v
+    }
+}
+
+impl OutValue for f32 {
+    #[inline(always)]
+    fn from_f64(v: f64) -> Self {
+        v as f32
+    }
+}
+
+/// Decodes one property of consecutive records into `out`: one tight loop per
+/// (type, endianness), so the type dispatch happens once per column and task.
+fn decode_column<const BE: bool, O: OutValue>(
+    recs: &[u8],
+    stride: usize,
+    off: usize,
+    s: Scalar,
+    out: &mut [O],
+) {
+    macro_rules! col {
+        ($t:ty, $n:expr) => {
+            for (rec, o) in recs.chunks_exact(stride).zip(out.iter_mut()) {
+                if let Some(b) = rec.get(off..off + $n) {
+                    let mut a = [0u8; $n];
+                    a.copy_from_slice(b);
+                    let v = if BE {
+                        <$t>::from_be_bytes(a)
+                    } else {
+                        <$t>::from_le_bytes(a)
+                    };
+                    *o = O::from_f64(v as f64);
+                }
+            }
+        };
+    }
+    match s {
+        Scalar::I8 => col!(i8, 1),
+        Scalar::U8 => col!(u8, 1),
+        Scalar::I16 => col!(i16, 2),
+        Scalar::U16 => col!(u16, 2),
+        Scalar::I32 => col!(i32, 4),
+        Scalar::U32 => col!(u32, 4),
+        Scalar::F32 => col!(f32, 4),
+        Scalar::F64 => col!(f64, 8),
+    }
+}
+
 fn decode_task<const BE: bool>(
     data: &[u8],
     stride: usize,
@@ -519,24 +580,20 @@ fn decode_task<const BE: bool>(
         z,
         mut attrs,
     } = t;
-    for i in 0..x.len() {
-        let base = (first + i) * stride;
-        let Some(rec) = data.get(base..base + stride) else {
-            return;
-        };
-        for &(off, s, role) in fields {
-            let v = s.decode::<BE>(&rec[off..]);
-            match role {
-                Role::X => x[i] = v,
-                Role::Y => y[i] = v,
-                Role::Z => z[i] = v,
-                Role::Attr(a) => {
-                    if let Some(col) = attrs.get_mut(a) {
-                        col[i] = v as f32;
-                    }
+    let Some(recs) = data.get(first * stride..(first + x.len()) * stride) else {
+        return;
+    };
+    for &(off, s, role) in fields {
+        match role {
+            Role::X => decode_column::<BE, f64>(recs, stride, off, s, x),
+            Role::Y => decode_column::<BE, f64>(recs, stride, off, s, y),
+            Role::Z => decode_column::<BE, f64>(recs, stride, off, s, z),
+            Role::Attr(a) => {
+                if let Some(col) = attrs.get_mut(a) {
+                    decode_column::<BE, f32>(recs, stride, off, s, col);
                 }
-                Role::Skip => {}
             }
+            Role::Skip => {}
         }
     }
 }
@@ -621,6 +678,9 @@ impl PointReader for BinaryPly {
                     self.done - n as u64 + i as u64
                 ),
             ));
+        }
+        if self.plan.u8_color {
+            return Ok(Some(cols));
         }
         let float_color = self.plan.float_color;
         self.colors

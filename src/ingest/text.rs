@@ -142,6 +142,97 @@ fn token_number(t: &[u8]) -> Option<f64> {
     }
 }
 
+/// Powers of ten that are exact in `f64`.
+const POW10: [f64; 16] = [
+    1e0, 1e1, 1e2, 1e3, 1e4, 1e5, 1e6, 1e7, 1e8, 1e9, 1e10, 1e11, 1e12, 1e13, 1e14, 1e15,
+];
+
+const POW10_INT: [u64; 16] = [
+    1,
+    10,
+    100,
+    1_000,
+    10_000,
+    100_000,
+    1_000_000,
+    10_000_000,
+    100_000_000,
+    1_000_000_000,
+    10_000_000_000,
+    100_000_000_000,
+    1_000_000_000_000,
+    10_000_000_000_000,
+    100_000_000_000_000,
+    1_000_000_000_000_000,
+];
+
+/// Parses a number at the start of `s`: returns the value and the bytes used.
+///
+/// Fast path for plain decimals (`-12.345`, at most 15 significant digits, no
+/// exponent): the digits form an exact integer `m < 2^53` and the value is
+/// `m / 10^k` with `10^k` exact, which IEEE division rounds correctly (Clinger's
+/// fast path), so the result equals a full parser's. Everything else (exponents,
+/// long mantissas, `nan`, `inf`) goes to `fast_float2::parse_partial`.
+#[inline(always)]
+fn parse_number(s: &[u8]) -> Option<(f64, usize)> {
+    let mut i = 0;
+    let neg = match s.first() {
+        Some(b'-') => {
+            i = 1;
+            true
+        }
+        Some(b'+') => {
+            i = 1;
+            false
+        }
+        _ => false,
+    };
+    // Integer and fraction digits accumulate separately (two short independent
+    // dependency chains instead of one long one).
+    let mut mi: u64 = 0;
+    let int_start = i;
+    while let Some(&c) = s.get(i) {
+        let d = c.wrapping_sub(b'0');
+        if d > 9 {
+            break;
+        }
+        mi = mi.wrapping_mul(10).wrapping_add(d as u64);
+        i += 1;
+    }
+    let mut digits = i - int_start;
+    let mut frac = 0;
+    let mut mf: u64 = 0;
+    if s.get(i) == Some(&b'.') {
+        i += 1;
+        let fs = i;
+        while let Some(&c) = s.get(i) {
+            let d = c.wrapping_sub(b'0');
+            if d > 9 {
+                break;
+            }
+            mf = mf.wrapping_mul(10).wrapping_add(d as u64);
+            i += 1;
+        }
+        frac = i - fs;
+        digits += frac;
+    }
+    let exp_follows = matches!(s.get(i), Some(b'e' | b'E'));
+    if digits == 0 || digits > 15 || exp_follows {
+        return match fast_float2::parse_partial::<f64, _>(s) {
+            Ok((v, used)) => Some((v, used)),
+            Err(_) => None,
+        };
+    }
+    // m < 10^15 fits in i64, whose conversion to f64 is one instruction.
+    let v = if frac == 0 {
+        mi as i64 as f64
+    } else {
+        let m = mi.wrapping_mul(POW10_INT[frac]).wrapping_add(mf);
+        m as i64 as f64 / POW10[frac]
+    };
+    Some((if neg { -v } else { v }, i))
+}
+
 /// How a line failed.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 enum LineFault {
@@ -221,15 +312,15 @@ fn parse_piece(
         let mut col = 0usize;
         let mut fault = None;
         loop {
-            match fast_float2::parse_partial::<f64, _>(&buf[i..]) {
-                Ok((v, used)) => {
+            match parse_number(&buf[i..]) {
+                Some((v, used)) => {
                     if col < ncols {
                         vals[col] = v;
                     }
                     col += 1;
                     i += used;
                 }
-                Err(_) => {
+                None => {
                     fault = Some(LineFault::NotANumber);
                     break;
                 }
@@ -302,6 +393,27 @@ fn parse_piece(
         return p;
     }
     p
+}
+
+/// Concatenates slices, copying them in parallel into their places.
+fn concat_par<T: Copy + Default + Send + Sync>(parts: &[&[T]]) -> Vec<T> {
+    if parts.len() == 1 {
+        return parts[0].to_vec();
+    }
+    let total = parts.iter().map(|p| p.len()).sum();
+    let mut out = vec![T::default(); total];
+    let mut dests = Vec::with_capacity(parts.len());
+    let mut rest = &mut out[..];
+    for p in parts {
+        let (a, b) = rest.split_at_mut(p.len());
+        dests.push(a);
+        rest = b;
+    }
+    dests
+        .into_par_iter()
+        .zip(parts.par_iter())
+        .for_each(|(d, s)| d.copy_from_slice(s));
+    out
 }
 
 /// Smallest piece worth a rayon task, in bytes.
@@ -465,24 +577,31 @@ impl LineEngine {
         if total == 0 {
             return Ok((None, lines, skipped));
         }
-        let mut cols = PointColumns {
-            x: Vec::with_capacity(total),
-            y: Vec::with_capacity(total),
-            z: Vec::with_capacity(total),
-            attributes: layout
-                .attr_names
-                .iter()
-                .map(|n| Attribute::new(n.clone(), Vec::with_capacity(total)))
-                .collect(),
+        let part = |f: fn(&Piece) -> &[f64]| -> Vec<&[f64]> { pieces.iter().map(f).collect() };
+        let (x, (y, z)) = rayon::join(
+            || concat_par(&part(|p| &p.x)),
+            || {
+                rayon::join(
+                    || concat_par(&part(|p| &p.y)),
+                    || concat_par(&part(|p| &p.z)),
+                )
+            },
+        );
+        let attributes = layout
+            .attr_names
+            .par_iter()
+            .enumerate()
+            .map(|(k, n)| {
+                let parts: Vec<&[f32]> = pieces.iter().map(|p| &p.attrs[k][..]).collect();
+                Attribute::new(n.clone(), concat_par(&parts))
+            })
+            .collect();
+        let cols = PointColumns {
+            x,
+            y,
+            z,
+            attributes,
         };
-        for p in &pieces {
-            cols.x.extend_from_slice(&p.x);
-            cols.y.extend_from_slice(&p.y);
-            cols.z.extend_from_slice(&p.z);
-            for (a, v) in cols.attributes.iter_mut().zip(&p.attrs) {
-                a.values.extend_from_slice(v);
-            }
-        }
         Ok((Some(cols), lines, skipped))
     }
 }
