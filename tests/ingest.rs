@@ -149,3 +149,64 @@ fn truncated_laz_is_an_error() {
         assert!(s.contains(&format!("cut{keep}.laz")), "{s}");
     }
 }
+
+/// Damaged copies of every sample (truncated, bytes overwritten in the header and
+/// in the body) must give `Ok` or `Err`, never a panic or a hang.
+#[test]
+fn damaged_inputs_never_panic() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut seed = 0x9E3779B97F4A7C15u64;
+    let mut rnd = move || {
+        seed ^= seed << 13;
+        seed ^= seed >> 7;
+        seed ^= seed << 17;
+        seed
+    };
+    let text: Vec<u8> = (0..2000)
+        .flat_map(|i| format!("{i}.5 {} {} {}\n", i * 2, i % 7, i % 255).into_bytes())
+        .collect();
+    let samples: Vec<(&str, Vec<u8>)> = vec![
+        ("laz", std::fs::read(sample("autzen_trim.laz")).unwrap()),
+        ("ply", std::fs::read(sample("bun_zipper.ply")).unwrap()),
+        (
+            "ply",
+            std::fs::read(sample("cgal_b9_training.ply")).unwrap(),
+        ),
+        ("xyz", text),
+    ];
+    let opts = ReadOptions {
+        chunk_points: 50_000,
+        ..Default::default()
+    };
+    let mut n = 0;
+    for (ext, data) in &samples {
+        for k in 0..24 {
+            let mut d = data.clone();
+            match k % 3 {
+                0 => d.truncate(rnd() as usize % d.len()),
+                1 => {
+                    // Overwrite bytes in the first 400 (header).
+                    for _ in 0..1 + k % 4 {
+                        let i = rnd() as usize % d.len().min(400);
+                        d[i] = rnd() as u8;
+                    }
+                }
+                _ => {
+                    for _ in 0..1 + k % 8 {
+                        let i = rnd() as usize % d.len();
+                        d[i] = rnd() as u8;
+                    }
+                }
+            }
+            let p = dir.path().join(format!("damaged{n}.{ext}"));
+            n += 1;
+            std::fs::write(&p, &d).unwrap();
+            let r = std::panic::catch_unwind(|| ingest::read_all(&p, &opts).map(|r| r.1.len()));
+            match r {
+                Ok(Ok(_)) => {}
+                Ok(Err(e)) => assert!(e.to_string().contains(&format!("damaged{}", n - 1))),
+                Err(_) => panic!("reading {} panicked", p.display()),
+            }
+        }
+    }
+}

@@ -11,8 +11,12 @@
 //!   GeographicTypeGeoKey 2048), otherwise a note that GeoTIFF keys are present.
 //! * Reading: `las::Reader` is not `Send`, so it lives on a decoder thread that
 //!   reads chunks with `fill_points` and converts them to columns one chunk ahead
-//!   of the consumer (a bounded channel of one chunk). A panic in the decoder is
-//!   caught and reported as an error.
+//!   of the consumer (a bounded channel of one chunk). LAS records are decoded in
+//!   small batches that stay in cache; LAZ uses the `laz-parallel` decompressor
+//!   (chunks decompressed with rayon) in large batches, falling back to the
+//!   sequential one when the file has no chunk table. A panic in the decoder (the
+//!   `laz` crate can panic on corrupt data) is caught and reported as an error;
+//!   the default panic hook still prints its message to stderr.
 //! * Truncation: an uncompressed file shorter than its header declares is refused
 //!   at open; a LAZ file whose chunk table lies past the end of the file is
 //!   refused at open; any later read failure is an error naming the byte offset
@@ -132,8 +136,12 @@ impl LasReader {
             .map_err(|e| las_err(path, 0, "cannot read the LAS header", e))?;
         file.seek(SeekFrom::Start(0))
             .map_err(|e| IngestError::io(path, "cannot seek", e))?;
-        let header = las::Header::new(&mut BufReader::new(&mut file))
-            .map_err(|e| las_err(path, 0, "cannot read the LAS header and VLRs", e))?;
+        // The header parser runs on corrupt input: contain a panic in it as well.
+        let header = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+            las::Header::new(&mut BufReader::new(&mut file))
+        }))
+        .map_err(|_| IngestError::binary(path, 0, "the LAS header is corrupt"))?
+        .map_err(|e| las_err(path, 0, "cannot read the LAS header and VLRs", e))?;
         let format = *header.point_format();
         let version = header.version();
         let n = header.number_of_points();
@@ -240,7 +248,27 @@ fn decode(path: PathBuf, file: Tracked, chunk: u64, total: u64, tx: SyncSender<M
     let err_at = |what: &str, e: &dyn std::fmt::Display| {
         Msg::Err(las_err(&path, pos.load(Ordering::Relaxed), what, e))
     };
-    let mut reader = match las::Reader::new(BufReader::with_capacity(1 << 20, file)) {
+    let parallel = las::ReaderOptions::default();
+    let reader = match las::Reader::with_options(BufReader::with_capacity(1 << 20, file), parallel)
+    {
+        Ok(r) => Ok(r),
+        // The parallel LAZ decompressor needs the chunk table; without one, fall
+        // back to the sequential decompressor on a fresh handle.
+        Err(first) => match File::open(&path) {
+            Ok(f) => {
+                let tracked = Tracked {
+                    file: f,
+                    pos: pos.clone(),
+                };
+                let seq =
+                    las::ReaderOptions::default().with_laz_parallelism(las::LazParallelism::No);
+                las::Reader::with_options(BufReader::with_capacity(1 << 20, tracked), seq)
+                    .map_err(|_| first)
+            }
+            Err(_) => Err(first),
+        },
+    };
+    let mut reader = match reader {
         Ok(r) => r,
         Err(e) => {
             let _ = tx.send(err_at("cannot open the LAS reader", &e));
@@ -251,6 +279,13 @@ fn decode(path: PathBuf, file: Tracked, chunk: u64, total: u64, tx: SyncSender<M
         .for_header(reader.header())
         .build();
     let names = attribute_names(pd.format());
+    // LAZ decompresses in parallel over its chunks (50,000 points each by
+    // default), so it gets large batches; LAS uses small ones that stay in cache.
+    let batch_points = if pd.format().is_compressed {
+        LAZ_BATCH_POINTS
+    } else {
+        BATCH_POINTS
+    };
     let mut done = 0u64;
     let mut gps_offset: Option<f64> = None;
     let mut colors = ColorNormalizer::new(false);
@@ -270,7 +305,7 @@ fn decode(path: PathBuf, file: Tracked, chunk: u64, total: u64, tx: SyncSender<M
         // buffer is reused.
         let mut got_total = 0u64;
         while got_total < want {
-            let batch = BATCH_POINTS.min(want - got_total);
+            let batch = batch_points.min(want - got_total);
             let got = match reader.fill_points(batch, &mut pd) {
                 Ok(g) => g,
                 Err(e) => {
@@ -300,8 +335,10 @@ fn decode(path: PathBuf, file: Tracked, chunk: u64, total: u64, tx: SyncSender<M
     }
 }
 
-/// Points decoded per `fill_points` call.
+/// Points decoded per `fill_points` call (LAS).
 const BATCH_POINTS: u64 = 32 * 1024;
+/// Points decoded per `fill_points` call (LAZ).
+const LAZ_BATCH_POINTS: u64 = 1 << 20;
 
 /// Appends decoded LAS records to columns laid out by [`attribute_names`].
 fn append_columns(pd: &las::PointData, cols: &mut PointColumns, gps_offset: &mut Option<f64>) {

@@ -405,6 +405,8 @@ pub fn open(path: &Path, opts: &ReadOptions) -> Result<Box<dyn PointReader>, Ing
         plan,
         chunk_points: opts.chunk_points,
         colors: None,
+        skip_invalid: opts.skip_invalid,
+        skipped: 0,
     }))
 }
 
@@ -500,6 +502,30 @@ struct BinaryPly {
     plan: VertexPlan,
     chunk_points: usize,
     colors: Option<ColorNormalizer>,
+    skip_invalid: bool,
+    skipped: u64,
+}
+
+/// Whether point `i` has finite coordinates.
+fn finite_at(c: &PointColumns, i: usize) -> bool {
+    c.x[i].is_finite() && c.y[i].is_finite() && c.z[i].is_finite()
+}
+
+/// Drops the points with a non-finite coordinate; returns how many were dropped.
+fn drop_non_finite(c: &mut PointColumns) -> u64 {
+    let keep: Vec<bool> = (0..c.len()).map(|i| finite_at(c, i)).collect();
+    let dropped = keep.iter().filter(|k| !**k).count() as u64;
+    fn retain<T: Copy>(v: &mut Vec<T>, keep: &[bool]) {
+        let mut k = keep.iter();
+        v.retain(|_| k.next().copied().unwrap_or(false));
+    }
+    retain(&mut c.x, &keep);
+    retain(&mut c.y, &keep);
+    retain(&mut c.z, &keep);
+    for a in &mut c.attributes {
+        retain(&mut a.values, &keep);
+    }
+    dropped
 }
 
 /// Output slices for a run of records.
@@ -598,12 +624,9 @@ fn decode_task<const BE: bool>(
     }
 }
 
-impl PointReader for BinaryPly {
-    fn info(&self) -> &SourceInfo {
-        &self.info
-    }
-
-    fn next_chunk(&mut self) -> Result<Option<PointColumns>, IngestError> {
+impl BinaryPly {
+    /// Reads the next window; `Some(empty)` when every point of it was skipped.
+    fn next_window(&mut self) -> Result<Option<PointColumns>, IngestError> {
         if self.done >= self.count {
             return Ok(None);
         }
@@ -666,18 +689,27 @@ impl PointReader for BinaryPly {
                 .for_each(|t| decode_task::<false>(data, stride, fields, t));
         }
         self.done += n as u64;
-        // Non-finite coordinates cannot be stored: report the first one.
-        if let Some(i) = (0..n)
-            .find(|&i| !(cols.x[i].is_finite() && cols.y[i].is_finite() && cols.z[i].is_finite()))
-        {
-            return Err(IngestError::binary(
-                &self.info.path,
-                (from + i * stride) as u64,
-                format!(
-                    "vertex {} has a non-finite coordinate (NaN or infinity)",
-                    self.done - n as u64 + i as u64
-                ),
-            ));
+        // Non-finite coordinates cannot be stored: skip them or report the first.
+        let all_finite = cols
+            .x
+            .par_iter()
+            .zip(cols.y.par_iter())
+            .zip(cols.z.par_iter())
+            .all(|((x, y), z)| x.is_finite() && y.is_finite() && z.is_finite());
+        if !all_finite {
+            if self.skip_invalid {
+                self.skipped += drop_non_finite(&mut cols);
+                if cols.is_empty() {
+                    return Ok(Some(cols));
+                }
+            } else if let Some(i) = (0..n).find(|&i| !finite_at(&cols, i)) {
+                let vertex = self.done - n as u64 + i as u64;
+                return Err(IngestError::binary(
+                    &self.info.path,
+                    (from + i * stride) as u64,
+                    format!("vertex {vertex} has a non-finite coordinate (NaN or infinity)"),
+                ));
+            }
         }
         if self.plan.u8_color {
             return Ok(Some(cols));
@@ -687,6 +719,21 @@ impl PointReader for BinaryPly {
             .get_or_insert_with(|| ColorNormalizer::new(float_color))
             .apply(&mut cols);
         Ok(Some(cols))
+    }
+}
+
+impl PointReader for BinaryPly {
+    fn info(&self) -> &SourceInfo {
+        &self.info
+    }
+
+    fn next_chunk(&mut self) -> Result<Option<PointColumns>, IngestError> {
+        loop {
+            match self.next_window()? {
+                Some(c) if c.is_empty() => continue,
+                other => return Ok(other),
+            }
+        }
     }
 
     fn bytes_done(&self) -> u64 {
@@ -698,7 +745,7 @@ impl PointReader for BinaryPly {
     }
 
     fn skipped(&self) -> u64 {
-        0
+        self.skipped
     }
 }
 
@@ -899,6 +946,37 @@ mod tests {
         };
         let (_, c, skipped) = read_all(&p, &opts).unwrap();
         assert_eq!((c.len(), skipped), (2, 1));
+    }
+
+    #[test]
+    fn binary_non_finite_vertices() {
+        let d = tempfile::tempdir().unwrap();
+        let p = d.path().join("nan.ply");
+        let mut body = b"ply\nformat binary_little_endian 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\nend_header\n".to_vec();
+        let hl = body.len();
+        for v in [
+            1.0f32,
+            2.0,
+            3.0,
+            f32::NAN,
+            5.0,
+            6.0,
+            7.0,
+            8.0,
+            f32::INFINITY,
+        ] {
+            body.extend_from_slice(&v.to_le_bytes());
+        }
+        std::fs::write(&p, &body).unwrap();
+        let e = read_all(&p, &ReadOptions::default()).unwrap_err();
+        assert_eq!(e.byte_offset(), Some(hl as u64 + 12));
+        assert!(e.to_string().contains("vertex 1"), "{e}");
+        let opts = ReadOptions {
+            skip_invalid: true,
+            ..Default::default()
+        };
+        let (_, c, skipped) = read_all(&p, &opts).unwrap();
+        assert_eq!((c.x.clone(), skipped), (vec![1.0], 2));
     }
 
     #[test]

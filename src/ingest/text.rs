@@ -838,6 +838,74 @@ mod tests {
     }
 
     #[test]
+    fn fast_decimal_path_matches_fast_float() {
+        use super::parse_number;
+        let mut seed = 0x2545F4914F6CDD1Du64;
+        let mut next = || {
+            seed ^= seed << 13;
+            seed ^= seed >> 7;
+            seed ^= seed << 17;
+            seed
+        };
+        let mut cases: Vec<String> = [
+            "0",
+            "-0",
+            "+1",
+            "1.",
+            ".5",
+            "-.5",
+            "123456789012345",
+            "1234567890123456",
+            "0.000000000000001",
+            "9007199254740993",
+            "1e5",
+            "-2.5E-3",
+            "nan",
+            "inf",
+            "-infinity",
+            "636123.456",
+            "00000000000000000012.5",
+            "99999999999999999999999",
+        ]
+        .iter()
+        .map(|s| s.to_string())
+        .collect();
+        for _ in 0..20_000 {
+            let r = next();
+            let int = r % 10_000_000;
+            let frac_digits = (r >> 40) % 12;
+            let frac = (r >> 20) % 10u64.pow(frac_digits as u32).max(1);
+            let sign = if r & 1 == 1 { "-" } else { "" };
+            cases.push(if frac_digits == 0 {
+                format!("{sign}{int}")
+            } else {
+                format!("{sign}{int}.{frac:0w$}", w = frac_digits as usize)
+            });
+        }
+        for c in &cases {
+            for tail in ["", " 7", ",8", "\n"] {
+                let s = format!("{c}{tail}");
+                let got = parse_number(s.as_bytes());
+                let want = fast_float2::parse_partial::<f64, _>(s.as_bytes()).ok();
+                match (got, want) {
+                    (Some((a, n)), Some((b, m))) => {
+                        assert_eq!(n, m, "{s:?}");
+                        assert!(
+                            a.to_bits() == b.to_bits() || (a.is_nan() && b.is_nan()),
+                            "{s:?}: {a} vs {b}"
+                        );
+                    }
+                    (None, None) => {}
+                    (g, w) => panic!("{s:?}: {g:?} vs {w:?}"),
+                }
+            }
+        }
+        for bad in ["", "-", "+", ".", "x", "-.", "e5"] {
+            assert!(parse_number(bad.as_bytes()).is_none(), "{bad:?}");
+        }
+    }
+
+    #[test]
     fn plain_xyz() {
         let d = tempfile::tempdir().unwrap();
         let p = write(&d, "a.xyz", "1 2 3\n4.5 -5e1 6\n\n7\t8\t9");
