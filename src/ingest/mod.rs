@@ -214,6 +214,31 @@ pub(crate) fn map_file(path: &Path) -> Result<memmap2::Mmap, IngestError> {
     Ok(map)
 }
 
+/// Drops the page mappings of the consumed bytes `map[*released..upto]`, so that
+/// the resident size of a reader stays about one window even on an input larger
+/// than memory (the pages stay in the page cache; the kernel reclaims them).
+pub(crate) fn release_consumed(map: &memmap2::Mmap, released: &mut usize, upto: usize) {
+    const STEP: usize = 64 << 20;
+    let upto = upto.min(map.len());
+    if upto < *released + STEP && upto < map.len() {
+        return;
+    }
+    #[cfg(unix)]
+    {
+        // SAFETY: `map` is a read-only shared file mapping. MADV_DONTNEED only drops
+        // page-table entries; a later access would fault the same file contents back
+        // in, so no reference ever sees different data.
+        let _ = unsafe {
+            map.unchecked_advise_range(
+                memmap2::UncheckedAdvice::DontNeed,
+                *released,
+                upto - *released,
+            )
+        };
+    }
+    *released = upto;
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

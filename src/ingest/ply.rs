@@ -370,7 +370,12 @@ pub fn open(path: &Path, opts: &ReadOptions) -> Result<Box<dyn PointReader>, Ing
             colors: ColorNormalizer::new(plan.float_color),
             pending: None,
         };
-        return Ok(Box::new(AsciiPly { info, map, engine }));
+        return Ok(Box::new(AsciiPly {
+            info,
+            map,
+            engine,
+            released: 0,
+        }));
     }
     let be = header.encoding == Encoding::BinaryBe;
     // Skip the elements before the vertex element.
@@ -407,6 +412,7 @@ pub fn open(path: &Path, opts: &ReadOptions) -> Result<Box<dyn PointReader>, Ing
         colors: None,
         skip_invalid: opts.skip_invalid,
         skipped: 0,
+        released: 0,
     }))
 }
 
@@ -474,6 +480,7 @@ struct AsciiPly {
     info: SourceInfo,
     map: Mmap,
     engine: LineEngine,
+    released: usize,
 }
 
 impl PointReader for AsciiPly {
@@ -481,7 +488,9 @@ impl PointReader for AsciiPly {
         &self.info
     }
     fn next_chunk(&mut self) -> Result<Option<PointColumns>, IngestError> {
-        self.engine.next_chunk(&self.map)
+        let r = self.engine.next_chunk(&self.map);
+        super::release_consumed(&self.map, &mut self.released, self.engine.pos);
+        r
     }
     fn bytes_done(&self) -> u64 {
         self.engine.pos as u64
@@ -504,6 +513,7 @@ struct BinaryPly {
     colors: Option<ColorNormalizer>,
     skip_invalid: bool,
     skipped: u64,
+    released: usize,
 }
 
 /// Whether point `i` has finite coordinates.
@@ -689,6 +699,8 @@ impl BinaryPly {
                 .for_each(|t| decode_task::<false>(data, stride, fields, t));
         }
         self.done += n as u64;
+        let consumed = from + n * stride;
+        super::release_consumed(&self.map, &mut self.released, consumed);
         // Non-finite coordinates cannot be stored: skip them or report the first.
         let all_finite = cols
             .x

@@ -705,6 +705,7 @@ pub struct TextReader {
     info: SourceInfo,
     map: Mmap,
     engine: LineEngine,
+    released: usize,
 }
 
 impl TextReader {
@@ -792,7 +793,12 @@ impl TextReader {
             attribute_names: layout.attr_names.clone(),
             file_bytes: data.len() as u64,
         };
-        Ok(TextReader { info, map, engine })
+        Ok(TextReader {
+            info,
+            map,
+            engine,
+            released: 0,
+        })
     }
 }
 
@@ -802,7 +808,9 @@ impl PointReader for TextReader {
     }
 
     fn next_chunk(&mut self) -> Result<Option<PointColumns>, IngestError> {
-        self.engine.next_chunk(&self.map)
+        let r = self.engine.next_chunk(&self.map);
+        super::release_consumed(&self.map, &mut self.released, self.engine.pos);
+        r
     }
 
     fn bytes_done(&self) -> u64 {
