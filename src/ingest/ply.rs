@@ -365,10 +365,10 @@ pub fn open(path: &Path, opts: &ReadOptions) -> Result<Box<dyn PointReader>, Ing
             skip_invalid: opts.skip_invalid,
             allow_count_lines: false,
             chunk_points: opts.chunk_points,
-            bytes_per_line: 32.0,
+            bytes_per_line: super::text::sample_bytes_per_line(&map, pos),
             skipped: 0,
             colors: ColorNormalizer::new(plan.float_color),
-            pending: None,
+            pending: Default::default(),
         };
         return Ok(Box::new(AsciiPly {
             info,

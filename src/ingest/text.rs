@@ -416,6 +416,15 @@ fn concat_par<T: Copy + Default + Send + Sync>(parts: &[&[T]]) -> Vec<T> {
     out
 }
 
+/// Average bytes per line over the first 64 KiB from `start` (at least 1): the
+/// first window's size estimate.
+pub(crate) fn sample_bytes_per_line(data: &[u8], start: usize) -> f64 {
+    let start = start.min(data.len());
+    let sample = &data[start..data.len().min(start + (64 << 10))];
+    let lines = memchr::memchr_iter(b'\n', sample).count().max(1);
+    (sample.len() as f64 / lines as f64).max(1.0)
+}
+
 /// Smallest piece worth a rayon task, in bytes.
 const MIN_PIECE_BYTES: usize = 256 << 10;
 
@@ -439,38 +448,41 @@ pub(crate) struct LineEngine {
     pub bytes_per_line: f64,
     pub skipped: u64,
     pub colors: ColorNormalizer,
-    /// Points parsed beyond `chunk_points` in the last window, delivered next.
-    pub pending: Option<PointColumns>,
+    /// Points parsed beyond `chunk_points` in the last window, as chunks of
+    /// `chunk_points`, delivered next.
+    pub pending: std::collections::VecDeque<PointColumns>,
 }
 
-/// Splits `cols` after `n` points: returns the first `n`, leaves the rest.
-fn split_front(cols: &mut PointColumns, n: usize) -> PointColumns {
-    let rest = PointColumns {
-        x: cols.x.split_off(n),
-        y: cols.y.split_off(n),
-        z: cols.z.split_off(n),
-        attributes: cols
-            .attributes
-            .iter_mut()
-            .map(|a| Attribute {
-                name: a.name.clone(),
-                offset: a.offset,
-                values: a.values.split_off(n),
-            })
-            .collect(),
-    };
-    std::mem::replace(cols, rest)
+/// Cuts `cols` into chunks of at most `n` points (`n` ≥ 1), in order, copying
+/// each point at most once.
+fn cut_chunks(mut cols: PointColumns, n: usize) -> Vec<PointColumns> {
+    let mut tails = Vec::new();
+    while cols.len() > n {
+        let at = (cols.len() - 1) / n * n;
+        tails.push(PointColumns {
+            x: cols.x.split_off(at),
+            y: cols.y.split_off(at),
+            z: cols.z.split_off(at),
+            attributes: cols
+                .attributes
+                .iter_mut()
+                .map(|a| Attribute {
+                    name: a.name.clone(),
+                    offset: a.offset,
+                    values: a.values.split_off(at),
+                })
+                .collect(),
+        });
+    }
+    tails.push(cols);
+    tails.reverse();
+    tails
 }
 
 impl LineEngine {
     pub(crate) fn next_chunk(&mut self, data: &[u8]) -> Result<Option<PointColumns>, IngestError> {
         let end = self.end.min(data.len());
-        if let Some(mut p) = self.pending.take() {
-            if p.len() > self.chunk_points {
-                let front = split_front(&mut p, self.chunk_points);
-                self.pending = Some(p);
-                return Ok(Some(front));
-            }
+        if let Some(p) = self.pending.pop_front() {
             return Ok(Some(p));
         }
         loop {
@@ -519,9 +531,8 @@ impl LineEngine {
             if let Some(mut cols) = cols {
                 self.colors.apply(&mut cols);
                 if cols.len() > self.chunk_points {
-                    let front = split_front(&mut cols, self.chunk_points);
-                    self.pending = Some(cols);
-                    return Ok(Some(front));
+                    self.pending.extend(cut_chunks(cols, self.chunk_points));
+                    return Ok(self.pending.pop_front());
                 }
                 return Ok(Some(cols));
             }
@@ -769,7 +780,6 @@ impl TextReader {
             .extension()
             .and_then(|e| e.to_str())
             .is_some_and(|e| e.eq_ignore_ascii_case("pts"));
-        let sample_len = fe.saturating_sub(fs) + 1;
         let engine = LineEngine {
             path: path.to_path_buf(),
             layout: layout.clone(),
@@ -780,10 +790,10 @@ impl TextReader {
             skip_invalid: opts.skip_invalid,
             allow_count_lines: ext_pts || pre.count.is_some(),
             chunk_points: opts.chunk_points,
-            bytes_per_line: sample_len as f64,
+            bytes_per_line: sample_bytes_per_line(data, pre.data_start),
             skipped: 0,
             colors: ColorNormalizer::new(false),
-            pending: None,
+            pending: Default::default(),
         };
         let info = SourceInfo {
             path: path.to_path_buf(),
@@ -1128,6 +1138,32 @@ mod tests {
             let e = read(&p, &opts).unwrap_err();
             assert_eq!(e.line_number(), Some(target as u64), "chunk {chunk}: {e}");
         }
+    }
+
+    #[test]
+    fn uneven_lines_still_give_bounded_chunks() {
+        let d = tempfile::tempdir().unwrap();
+        let mut body = String::new();
+        for i in 0..2000 {
+            body.push_str(&format!("{i}.000000000000 2.000000000000 3.000000000000\n"));
+        }
+        for i in 0..30_000 {
+            body.push_str(&format!("{} 2 3\n", i % 10));
+        }
+        let p = write(&d, "uneven.xyz", &body);
+        let (whole, _, _) = read(&p, &ReadOptions::default()).unwrap();
+        assert_eq!(whole.len(), 32_000);
+        let opts = ReadOptions {
+            chunk_points: 100,
+            ..Default::default()
+        };
+        let mut r = open(&p, &opts).unwrap();
+        let mut all = whole.empty_like();
+        while let Some(c) = r.next_chunk().unwrap() {
+            assert!(!c.is_empty() && c.len() <= 100);
+            all.append(&c).unwrap();
+        }
+        assert_eq!(all, whole);
     }
 
     #[test]
