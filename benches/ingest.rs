@@ -140,6 +140,16 @@ fn bench(c: &mut Criterion) {
         assert_eq!(read_points(path), points);
         g.throughput(Throughput::Bytes(bytes));
         g.bench_function(*name, |b| b.iter(|| read_points(path)));
+        if *name == "text_xyzi" {
+            // The same on one rayon thread: the per-thread parsing rate.
+            let one = rayon::ThreadPoolBuilder::new()
+                .num_threads(1)
+                .build()
+                .expect("pool");
+            g.bench_function("text_xyzi_1thread", |b| {
+                b.iter(|| one.install(|| read_points(path)))
+            });
+        }
     }
     g.finish();
 }

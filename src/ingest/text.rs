@@ -544,7 +544,8 @@ impl LineEngine {
     fn parse_window(&self, w: &[u8]) -> Result<(Option<PointColumns>, u64, u64), IngestError> {
         // Cut the window into pieces at line boundaries.
         let threads = rayon::current_num_threads().max(1);
-        let npieces = (w.len() / MIN_PIECE_BYTES).clamp(1, threads * 4);
+        let max_pieces = if threads == 1 { 1 } else { threads * 4 };
+        let npieces = (w.len() / MIN_PIECE_BYTES).clamp(1, max_pieces);
         let mut bounds = Vec::with_capacity(npieces + 1);
         bounds.push(0usize);
         for k in 1..npieces {
@@ -565,7 +566,7 @@ impl LineEngine {
         let est = |len: usize| ((len as f64 / self.bytes_per_line) * 1.05) as usize + 16;
         let layout = &self.layout;
         let (skip, count) = (self.skip_invalid, self.allow_count_lines);
-        let pieces: Vec<Piece> = bounds
+        let mut pieces: Vec<Piece> = bounds
             .par_windows(2)
             .map(|b| parse_piece(&w[b[0]..b[1]], layout, skip, count, est(b[1] - b[0])))
             .collect();
@@ -587,6 +588,23 @@ impl LineEngine {
         let total: usize = pieces.iter().map(|p| p.x.len()).sum();
         if total == 0 {
             return Ok((None, lines, skipped));
+        }
+        if pieces.len() == 1
+            && let Some(p) = pieces.pop()
+        {
+            // One piece: its columns are the chunk, no copy.
+            let cols = PointColumns {
+                x: p.x,
+                y: p.y,
+                z: p.z,
+                attributes: layout
+                    .attr_names
+                    .iter()
+                    .zip(p.attrs)
+                    .map(|(n, v)| Attribute::new(n.clone(), v))
+                    .collect(),
+            };
+            return Ok((Some(cols), lines, skipped));
         }
         let part = |f: fn(&Piece) -> &[f64]| -> Vec<&[f64]> { pieces.iter().map(f).collect() };
         let (x, (y, z)) = rayon::join(
