@@ -293,12 +293,12 @@ fn decode(path: PathBuf, file: Tracked, chunk: u64, total: u64, tx: SyncSender<M
         let want = chunk.min(total - done);
         let cap = want as usize;
         let mut cols = PointColumns {
-            x: Vec::with_capacity(cap),
-            y: Vec::with_capacity(cap),
-            z: Vec::with_capacity(cap),
+            x: super::column_with_capacity(cap),
+            y: super::column_with_capacity(cap),
+            z: super::column_with_capacity(cap),
             attributes: names
                 .iter()
-                .map(|n| Attribute::new(n.clone(), Vec::with_capacity(cap)))
+                .map(|n| Attribute::new(n.clone(), super::column_with_capacity(cap)))
                 .collect(),
         };
         // Decode in small batches so the raw records stay in cache and the raw

@@ -651,15 +651,15 @@ impl BinaryPly {
             ));
         };
         let mut cols = PointColumns {
-            x: vec![0.0; n],
-            y: vec![0.0; n],
-            z: vec![0.0; n],
+            x: super::zeroed_column(n),
+            y: super::zeroed_column(n),
+            z: super::zeroed_column(n),
             attributes: self
                 .plan
                 .layout
                 .attr_names
                 .iter()
-                .map(|a| Attribute::new(a.clone(), vec![0.0; n]))
+                .map(|a| Attribute::new(a.clone(), super::zeroed_column(n)))
                 .collect(),
         };
         let threads = rayon::current_num_threads().max(1);

@@ -277,10 +277,12 @@ fn parse_piece(
     let ncols = layout.ncols();
     let nattr = layout.attr_names.len();
     let mut p = Piece {
-        x: Vec::with_capacity(est_points),
-        y: Vec::with_capacity(est_points),
-        z: Vec::with_capacity(est_points),
-        attrs: (0..nattr).map(|_| Vec::with_capacity(est_points)).collect(),
+        x: super::column_with_capacity(est_points),
+        y: super::column_with_capacity(est_points),
+        z: super::column_with_capacity(est_points),
+        attrs: (0..nattr)
+            .map(|_| super::column_with_capacity(est_points))
+            .collect(),
         ..Default::default()
     };
     let mut vals = vec![0f64; ncols];
@@ -401,7 +403,7 @@ fn concat_par<T: Copy + Default + Send + Sync>(parts: &[&[T]]) -> Vec<T> {
         return parts[0].to_vec();
     }
     let total = parts.iter().map(|p| p.len()).sum();
-    let mut out = vec![T::default(); total];
+    let mut out = super::zeroed_column(total);
     let mut dests = Vec::with_capacity(parts.len());
     let mut rest = &mut out[..];
     for p in parts {
