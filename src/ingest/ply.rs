@@ -603,12 +603,14 @@ fn decode_column<const BE: bool, O: OutValue>(
     }
 }
 
+/// Decodes a run of records; returns whether every coordinate is finite
+/// (checked while the run is still in cache).
 fn decode_task<const BE: bool>(
     data: &[u8],
     stride: usize,
     fields: &[(usize, Scalar, Role)],
     t: Task<'_>,
-) {
+) -> bool {
     let Task {
         first,
         x,
@@ -617,7 +619,7 @@ fn decode_task<const BE: bool>(
         mut attrs,
     } = t;
     let Some(recs) = data.get(first * stride..(first + x.len()) * stride) else {
-        return;
+        return true;
     };
     for &(off, s, role) in fields {
         match role {
@@ -632,6 +634,10 @@ fn decode_task<const BE: bool>(
             Role::Skip => {}
         }
     }
+    x.iter()
+        .zip(y.iter())
+        .zip(z.iter())
+        .all(|((x, y), z)| x.is_finite() && y.is_finite() && z.is_finite())
 }
 
 impl BinaryPly {
@@ -689,25 +695,22 @@ impl BinaryPly {
             }
         }
         let fields = &self.plan.fields;
-        if self.be {
+        // Every task runs (no short-circuit): `all_finite` is a reduction.
+        let all_finite = if self.be {
             tasks
                 .into_par_iter()
-                .for_each(|t| decode_task::<true>(data, stride, fields, t));
+                .map(|t| decode_task::<true>(data, stride, fields, t))
+                .reduce(|| true, |a, b| a && b)
         } else {
             tasks
                 .into_par_iter()
-                .for_each(|t| decode_task::<false>(data, stride, fields, t));
-        }
+                .map(|t| decode_task::<false>(data, stride, fields, t))
+                .reduce(|| true, |a, b| a && b)
+        };
         self.done += n as u64;
         let consumed = from + n * stride;
         super::release_consumed(&self.map, &mut self.released, consumed);
         // Non-finite coordinates cannot be stored: skip them or report the first.
-        let all_finite = cols
-            .x
-            .par_iter()
-            .zip(cols.y.par_iter())
-            .zip(cols.z.par_iter())
-            .all(|((x, y), z)| x.is_finite() && y.is_finite() && z.is_finite());
         if !all_finite {
             if self.skip_invalid {
                 self.skipped += drop_non_finite(&mut cols);
