@@ -2,9 +2,12 @@
 //! viewed from the terminal.
 //!
 //! Data flows one way: [`ingest`] (input readers) → [`store`] (the image format) →
-//! level selection and loading → renderers → the terminal interface.
+//! level selection and loading → renderers → the terminal interface. [`convert`]
+//! drives readers into the store.
 
 pub mod cli;
+pub mod convert;
+pub mod ingest;
 pub mod points;
 pub mod store;
 pub mod synth;

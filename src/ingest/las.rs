@@ -1,0 +1,574 @@
+//! LAS 1.0–1.4 and LAZ input through the `las` crate (with its `laz` feature).
+//!
+//! * Columns: x y z (scaled and offset to `f64`), `intensity`, `return_number`,
+//!   `number_of_returns`, `classification`, `gps_time` (formats with time; its
+//!   offset is the first point's time so `f32` keeps sub-millisecond steps),
+//!   `red` `green` `blue` (formats with colour; 0–255 by the rule in
+//!   [`super::color`]: 16-bit colour is divided by 257 unless every value of the
+//!   first chunk is ≤ 255, i.e. 8-bit values stored in 16-bit fields), `nir`.
+//! * CRS: the WKT VLR (`LASF_Projection` 2112) when present, otherwise
+//!   `EPSG:<code>` from the GeoTIFF keys (ProjectedCSTypeGeoKey 3072, else
+//!   GeographicTypeGeoKey 2048), otherwise a note that GeoTIFF keys are present.
+//! * Reading: `las::Reader` is not `Send`, so it lives on a decoder thread that
+//!   reads chunks with `fill_points` and converts them to columns one chunk ahead
+//!   of the consumer (a bounded channel of one chunk). LAS records are decoded in
+//!   small batches that stay in cache; LAZ uses the `laz-parallel` decompressor
+//!   (chunks decompressed with rayon) in large batches, falling back to the
+//!   sequential one when the file has no chunk table. A panic in the decoder (the
+//!   `laz` crate can panic on corrupt data) is caught and reported as an error;
+//!   the default panic hook still prints its message to stderr.
+//! * Truncation: an uncompressed file shorter than its header declares is refused
+//!   at open; a LAZ file whose chunk table lies past the end of the file is
+//!   refused at open; any later read failure is an error naming the byte offset
+//!   the decoder had reached.
+
+use std::fs::File;
+use std::io::{BufReader, Read, Seek, SeekFrom};
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::mpsc::{Receiver, SyncSender, sync_channel};
+
+use super::color::ColorNormalizer;
+use super::error::IngestError;
+use super::{PointReader, ReadOptions, SourceInfo};
+use crate::points::{Attribute, PointColumns};
+
+/// A file that publishes its read position (for progress and error offsets).
+struct Tracked {
+    file: File,
+    pos: Arc<AtomicU64>,
+}
+
+impl Read for Tracked {
+    fn read(&mut self, buf: &mut [u8]) -> std::io::Result<usize> {
+        let n = self.file.read(buf)?;
+        self.pos.fetch_add(n as u64, Ordering::Relaxed);
+        Ok(n)
+    }
+}
+
+impl Seek for Tracked {
+    fn seek(&mut self, to: SeekFrom) -> std::io::Result<u64> {
+        let p = self.file.seek(to)?;
+        self.pos.store(p, Ordering::Relaxed);
+        Ok(p)
+    }
+}
+
+enum Msg {
+    Chunk(PointColumns),
+    Err(IngestError),
+}
+
+/// Reader for LAS and LAZ files.
+pub struct LasReader {
+    info: SourceInfo,
+    rx: Receiver<Msg>,
+    pos: Arc<AtomicU64>,
+    finished: bool,
+}
+
+/// The attribute names for a point format.
+fn attribute_names(f: &las::point::Format) -> Vec<String> {
+    let mut v: Vec<String> = [
+        "intensity",
+        "return_number",
+        "number_of_returns",
+        "classification",
+    ]
+    .map(String::from)
+    .to_vec();
+    if f.has_gps_time {
+        v.push("gps_time".into());
+    }
+    if f.has_color {
+        v.extend(["red", "green", "blue"].map(String::from));
+    }
+    if f.has_nir {
+        v.push("nir".into());
+    }
+    v
+}
+
+/// The CRS of a LAS header: WKT, else `EPSG:<code>` from GeoTIFF keys.
+fn crs_of(h: &las::Header) -> Option<String> {
+    if let Some(w) = h.get_wkt_crs_bytes() {
+        let s = String::from_utf8_lossy(w);
+        let s = s.trim_end_matches('\0').trim();
+        if !s.is_empty() {
+            return Some(s.to_string());
+        }
+    }
+    match h.get_geotiff_crs() {
+        Ok(Some(g)) => {
+            let code = g
+                .get_projected_crs_geo_key_value()
+                .filter(|&c| (1024..=32766).contains(&c))
+                .or_else(|| {
+                    g.get_geodetic_crs_geo_key_value()
+                        .filter(|&c| (1024..=32766).contains(&c))
+                });
+            Some(match code {
+                Some(c) => format!("EPSG:{c}"),
+                None => "GeoTIFF keys (user-defined CRS)".to_string(),
+            })
+        }
+        _ => None,
+    }
+}
+
+fn las_err(path: &Path, offset: u64, what: &str, e: impl std::fmt::Display) -> IngestError {
+    IngestError::binary(path, offset, format!("{what}: {e}"))
+}
+
+impl LasReader {
+    pub fn open(path: &Path, opts: &ReadOptions) -> Result<LasReader, IngestError> {
+        let mut file = File::open(path).map_err(|e| IngestError::io(path, "cannot open", e))?;
+        let file_len = file
+            .metadata()
+            .map_err(|e| IngestError::io(path, "cannot stat", e))?
+            .len();
+        if file_len == 0 {
+            return Err(IngestError::format(path, "the file is empty"));
+        }
+        let raw = las::raw::Header::read_from(&mut BufReader::new(&mut file))
+            .map_err(|e| las_err(path, 0, "cannot read the LAS header", e))?;
+        file.seek(SeekFrom::Start(0))
+            .map_err(|e| IngestError::io(path, "cannot seek", e))?;
+        // The header parser runs on corrupt input: contain a panic in it as well.
+        let header = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+            las::Header::new(&mut BufReader::new(&mut file))
+        }))
+        .map_err(|_| IngestError::binary(path, 0, "the LAS header is corrupt"))?
+        .map_err(|e| las_err(path, 0, "cannot read the LAS header and VLRs", e))?;
+        let format = *header.point_format();
+        let version = header.version();
+        let n = header.number_of_points();
+        let start = u64::from(raw.offset_to_point_data);
+        if start > file_len {
+            return Err(IngestError::binary(
+                path,
+                file_len,
+                format!("truncated file: point data should start at byte {start}"),
+            ));
+        }
+        if format.is_compressed {
+            // LAZ point data starts with the offset of the chunk table (at the end).
+            let mut b = [0u8; 8];
+            file.seek(SeekFrom::Start(start))
+                .map_err(|e| IngestError::io(path, "cannot seek", e))?;
+            if n > 0 {
+                file.read_exact(&mut b).map_err(|_| {
+                    IngestError::binary(path, start, "truncated file: no LAZ point data")
+                })?;
+                let table = i64::from_le_bytes(b);
+                if table > 0 && table as u64 >= file_len {
+                    return Err(IngestError::binary(
+                        path,
+                        file_len,
+                        format!(
+                            "truncated LAZ file: its chunk table should be at byte {table} \
+                             but the file ends at byte {file_len}"
+                        ),
+                    ));
+                }
+            }
+        } else {
+            let rec = u64::from(format.len());
+            let need = n.checked_mul(rec).and_then(|b| b.checked_add(start));
+            match need {
+                Some(end) if end <= file_len => {}
+                _ => {
+                    let whole = (file_len - start) / rec.max(1);
+                    return Err(IngestError::binary(
+                        path,
+                        file_len,
+                        format!(
+                            "truncated file: the header declares {n} points of {rec} bytes from \
+                             byte {start}, but the file ends at byte {file_len} after {whole} \
+                             complete points"
+                        ),
+                    ));
+                }
+            }
+        }
+        file.seek(SeekFrom::Start(0))
+            .map_err(|e| IngestError::io(path, "cannot seek", e))?;
+        let info = SourceInfo {
+            path: path.to_path_buf(),
+            format: format!(
+                "{} {}.{}",
+                if format.is_compressed { "laz" } else { "las" },
+                version.major,
+                version.minor
+            ),
+            declared_points: Some(n),
+            crs_wkt: crs_of(&header),
+            attribute_names: attribute_names(&format),
+            file_bytes: file_len,
+        };
+        let pos = Arc::new(AtomicU64::new(0));
+        let tracked = Tracked {
+            file,
+            pos: pos.clone(),
+        };
+        let (tx, rx) = sync_channel(1);
+        let chunk = opts.chunk_points as u64;
+        let p = path.to_path_buf();
+        let pos2 = pos.clone();
+        std::thread::Builder::new()
+            .name("pcimg-las".into())
+            .spawn(move || {
+                let tx2 = tx.clone();
+                let r = std::panic::catch_unwind(std::panic::AssertUnwindSafe(move || {
+                    decode(p, tracked, chunk, n, tx2)
+                }));
+                if r.is_err() {
+                    let _ = tx.send(Msg::Err(IngestError::binary(
+                        &PathBuf::new(),
+                        pos2.load(Ordering::Relaxed),
+                        "the LAS/LAZ decoder failed on corrupt data",
+                    )));
+                }
+            })
+            .map_err(|e| IngestError::io(path, "cannot start the decoder thread", e))?;
+        Ok(LasReader {
+            info,
+            rx,
+            pos,
+            finished: false,
+        })
+    }
+}
+
+/// The decoder thread: reads chunks and sends them as columns.
+fn decode(path: PathBuf, file: Tracked, chunk: u64, total: u64, tx: SyncSender<Msg>) {
+    let pos = file.pos.clone();
+    let err_at = |what: &str, e: &dyn std::fmt::Display| {
+        Msg::Err(las_err(&path, pos.load(Ordering::Relaxed), what, e))
+    };
+    let parallel = las::ReaderOptions::default();
+    let reader = match las::Reader::with_options(BufReader::with_capacity(1 << 20, file), parallel)
+    {
+        Ok(r) => Ok(r),
+        // The parallel LAZ decompressor needs the chunk table; without one, fall
+        // back to the sequential decompressor on a fresh handle.
+        Err(first) => match File::open(&path) {
+            Ok(f) => {
+                let tracked = Tracked {
+                    file: f,
+                    pos: pos.clone(),
+                };
+                let seq =
+                    las::ReaderOptions::default().with_laz_parallelism(las::LazParallelism::No);
+                las::Reader::with_options(BufReader::with_capacity(1 << 20, tracked), seq)
+                    .map_err(|_| first)
+            }
+            Err(_) => Err(first),
+        },
+    };
+    let mut reader = match reader {
+        Ok(r) => r,
+        Err(e) => {
+            let _ = tx.send(err_at("cannot open the LAS reader", &e));
+            return;
+        }
+    };
+    let mut pd = las::PointDataBuilder::new()
+        .for_header(reader.header())
+        .build();
+    let names = attribute_names(pd.format());
+    // LAZ decompresses in parallel over its chunks (50,000 points each by
+    // default), so it gets large batches; LAS uses small ones that stay in cache.
+    let batch_points = if pd.format().is_compressed {
+        LAZ_BATCH_POINTS
+    } else {
+        BATCH_POINTS
+    };
+    let mut done = 0u64;
+    let mut gps_offset: Option<f64> = None;
+    let mut colors = ColorNormalizer::new(false);
+    while done < total {
+        let want = chunk.min(total - done);
+        let cap = want as usize;
+        let mut cols = PointColumns {
+            x: super::column_with_capacity(cap),
+            y: super::column_with_capacity(cap),
+            z: super::column_with_capacity(cap),
+            attributes: names
+                .iter()
+                .map(|n| Attribute::new(n.clone(), super::column_with_capacity(cap)))
+                .collect(),
+        };
+        // Decode in small batches so the raw records stay in cache and the raw
+        // buffer is reused.
+        let mut got_total = 0u64;
+        while got_total < want {
+            let batch = batch_points.min(want - got_total);
+            let got = match reader.fill_points(batch, &mut pd) {
+                Ok(g) => g,
+                Err(e) => {
+                    let at = done + got_total;
+                    let _ = tx.send(err_at(
+                        &format!("cannot read points {}..{}", at, at + batch),
+                        &e,
+                    ));
+                    return;
+                }
+            };
+            if got == 0 {
+                let _ = tx.send(err_at(
+                    "the file ends early",
+                    &format!("{} of {total} declared points read", done + got_total),
+                ));
+                return;
+            }
+            append_columns(&pd, &mut cols, &mut gps_offset);
+            got_total += got;
+        }
+        done += got_total;
+        colors.apply(&mut cols);
+        if tx.send(Msg::Chunk(cols)).is_err() {
+            return; // the consumer is gone
+        }
+    }
+}
+
+/// Points decoded per `fill_points` call (LAS).
+const BATCH_POINTS: u64 = 32 * 1024;
+/// Points decoded per `fill_points` call (LAZ).
+const LAZ_BATCH_POINTS: u64 = 1 << 20;
+
+/// Appends decoded LAS records to columns laid out by [`attribute_names`].
+fn append_columns(pd: &las::PointData, cols: &mut PointColumns, gps_offset: &mut Option<f64>) {
+    cols.x.extend(pd.x());
+    cols.y.extend(pd.y());
+    cols.z.extend(pd.z());
+    let mut it = cols.attributes.iter_mut();
+    let mut next = || it.next();
+    if let Some(a) = next() {
+        a.values.extend(pd.intensity().map(f32::from));
+    }
+    if let Some(a) = next() {
+        a.values.extend(pd.return_number().map(f32::from));
+    }
+    if let Some(a) = next() {
+        a.values.extend(pd.number_of_returns().map(f32::from));
+    }
+    if let Some(a) = next() {
+        a.values.extend(pd.classification().map(f32::from));
+    }
+    if let Some(t) = pd.gps_time() {
+        let mut t = t.peekable();
+        let off = match gps_offset {
+            Some(o) => *o,
+            None => *gps_offset.insert(t.peek().copied().unwrap_or(0.0)),
+        };
+        if let Some(a) = next() {
+            a.offset = off;
+            a.values.extend(t.map(|x| (x - off) as f32));
+        }
+    }
+    if let Some(rgb) = pd.rgb() {
+        if let (Some(r), Some(g), Some(b)) = (next(), next(), next()) {
+            for (cr, cg, cb) in rgb {
+                r.values.push(f32::from(cr));
+                g.values.push(f32::from(cg));
+                b.values.push(f32::from(cb));
+            }
+        }
+    }
+    if let Some(nir) = pd.nir()
+        && let Some(a) = next()
+    {
+        a.values.extend(nir.map(f32::from));
+    }
+}
+
+impl PointReader for LasReader {
+    fn info(&self) -> &SourceInfo {
+        &self.info
+    }
+
+    fn next_chunk(&mut self) -> Result<Option<PointColumns>, IngestError> {
+        if self.finished {
+            return Ok(None);
+        }
+        match self.rx.recv() {
+            Ok(Msg::Chunk(c)) => Ok(Some(c)),
+            Ok(Msg::Err(e)) => {
+                self.finished = true;
+                Err(match e {
+                    // The panic path has no path at hand: put it back.
+                    IngestError::Binary { path, offset, msg } if path.as_os_str().is_empty() => {
+                        IngestError::binary(&self.info.path, offset, msg)
+                    }
+                    e => e,
+                })
+            }
+            Err(_) => {
+                self.finished = true;
+                Ok(None)
+            }
+        }
+    }
+
+    fn bytes_done(&self) -> u64 {
+        if self.finished {
+            self.info.file_bytes
+        } else {
+            self.pos.load(Ordering::Relaxed).min(self.info.file_bytes)
+        }
+    }
+
+    fn skipped(&self) -> u64 {
+        0
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::super::{ReadOptions, open, read_all};
+    use std::path::Path;
+
+    /// Writes `n` points of format 3 (RGB + GPS time); `color16` picks 16-bit
+    /// colour values, otherwise 8-bit values in the 16-bit fields.
+    fn write_las(path: &Path, n: usize, color16: bool, wkt: bool) {
+        let mut b = las::Builder::default();
+        b.version = las::Version::new(1, if wkt { 4 } else { 2 });
+        b.point_format = las::point::Format::new(3).unwrap();
+        let t = |o| las::Transform {
+            scale: 0.01,
+            offset: o,
+        };
+        b.transforms = las::Vector {
+            x: t(600000.0),
+            y: t(800000.0),
+            z: t(0.0),
+        };
+        if wkt {
+            b.vlrs.push(las::Vlr {
+                user_id: "LASF_Projection".into(),
+                record_id: 2112,
+                description: String::new(),
+                data: b"PROJCS[\"test\"]\0".to_vec(),
+            });
+            b.has_wkt_crs = true;
+        }
+        let header = b.into_header().unwrap();
+        let mut w = las::Writer::from_path(path, header).unwrap();
+        for i in 0..n {
+            let c = (i % 200) as u16 + 10;
+            let c = if color16 { c * 257 } else { c };
+            w.write_point(las::Point {
+                x: 600000.0 + i as f64 * 0.01,
+                y: 800000.0 + i as f64 * 0.02,
+                z: (i % 1000) as f64 * 0.01,
+                intensity: (i % 65536) as u16,
+                return_number: 1 + (i % 3) as u8,
+                number_of_returns: 3,
+                classification: las::point::Classification::new((i % 10) as u8).unwrap(),
+                gps_time: Some(300_000_000.0 + i as f64 * 1e-5),
+                color: Some(las::Color::new(c, c / 2, c / 3)),
+                ..Default::default()
+            })
+            .unwrap();
+        }
+        w.close().unwrap();
+    }
+
+    fn values<'a>(c: &'a crate::points::PointColumns, n: &str) -> &'a crate::points::Attribute {
+        c.attributes.iter().find(|a| a.name == n).unwrap()
+    }
+
+    fn check_file(path: &Path, n: usize, color16: bool) {
+        let (info, c, _) = read_all(path, &ReadOptions::default()).unwrap();
+        assert_eq!(info.declared_points, Some(n as u64));
+        assert_eq!(c.len(), n);
+        for i in [0, n / 2, n - 1] {
+            assert!((c.x[i] - (600000.0 + i as f64 * 0.01)).abs() < 1e-6);
+            assert!((c.y[i] - (800000.0 + i as f64 * 0.02)).abs() < 1e-6);
+            assert_eq!(values(&c, "red").values[i], ((i % 200) + 10) as f32);
+            assert_eq!(values(&c, "return_number").values[i], (1 + i % 3) as f32);
+            assert_eq!(values(&c, "classification").values[i], (i % 10) as f32);
+            let t = values(&c, "gps_time");
+            let got = t.offset + t.values[i] as f64;
+            assert!(
+                (got - (300_000_000.0 + i as f64 * 1e-5)).abs() < 1e-7,
+                "{got}"
+            );
+        }
+        let _ = color16;
+        // Tiny chunks: same points.
+        let opts = ReadOptions {
+            chunk_points: 999,
+            ..Default::default()
+        };
+        let mut r = open(path, &opts).unwrap();
+        let mut all = c.empty_like();
+        while let Some(ch) = r.next_chunk().unwrap() {
+            assert!(ch.len() <= 999);
+            all.append(&ch).unwrap();
+        }
+        assert_eq!(all, c);
+        assert_eq!(r.bytes_done(), info.file_bytes);
+    }
+
+    #[test]
+    fn las_and_laz_round_trip() {
+        let d = tempfile::tempdir().unwrap();
+        for (name, color16) in [
+            ("a.las", false),
+            ("b.las", true),
+            ("c.laz", true),
+            ("d.laz", false),
+        ] {
+            let p = d.path().join(name);
+            write_las(&p, 10_000, color16, false);
+            check_file(&p, 10_000, color16);
+            let r = open(&p, &ReadOptions::default()).unwrap();
+            let fmt = if name.ends_with("laz") {
+                "laz 1.2"
+            } else {
+                "las 1.2"
+            };
+            assert_eq!(r.info().format, fmt);
+            assert!(r.info().crs_wkt.is_none());
+        }
+    }
+
+    #[test]
+    fn wkt_crs_is_read() {
+        let d = tempfile::tempdir().unwrap();
+        let p = d.path().join("w.las");
+        write_las(&p, 10, false, true);
+        let r = open(&p, &ReadOptions::default()).unwrap();
+        assert_eq!(r.info().format, "las 1.4");
+        assert_eq!(r.info().crs_wkt.as_deref(), Some("PROJCS[\"test\"]"));
+    }
+
+    #[test]
+    fn truncated_las_is_an_error() {
+        let d = tempfile::tempdir().unwrap();
+        let p = d.path().join("full.las");
+        write_las(&p, 1000, false, false);
+        let data = std::fs::read(&p).unwrap();
+        for keep in [3usize, 50, 230, 300, data.len() - 1] {
+            let q = d.path().join("cut.las");
+            std::fs::write(&q, &data[..keep]).unwrap();
+            let e = read_all(&q, &ReadOptions::default()).unwrap_err();
+            let s = e.to_string();
+            assert!(
+                s.contains("cut.las") && s.contains("byte offset"),
+                "{keep}: {s}"
+            );
+        }
+        let q = d.path().join("empty.las");
+        std::fs::write(&q, b"").unwrap();
+        assert!(read_all(&q, &ReadOptions::default()).is_err());
+        let q = d.path().join("junk.las");
+        std::fs::write(&q, b"this is not a las file at all, no sir").unwrap();
+        assert!(read_all(&q, &ReadOptions::default()).is_err());
+    }
+}

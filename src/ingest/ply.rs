@@ -1,0 +1,1012 @@
+//! PLY point clouds: the header parser, the fixed-stride binary vertex reader
+//! (little- and big-endian) and the ASCII vertex reader.
+//!
+//! * The `vertex` element (or, failing that, a `point` element) gives the points:
+//!   it must have scalar `x`, `y`, `z` properties of any type; every other scalar
+//!   property becomes an attribute named by [`canonical_name`] (so `red`,
+//!   `diffuse_red` → `red`, `scalar_intensity` → `intensity`, others lower-cased).
+//! * Other elements (faces, edges...) are skipped: in binary files those before
+//!   the vertex element are skipped by size (item by item when they have list
+//!   properties); those after it are never read. In ASCII files the lines of the
+//!   elements before the vertex element are skipped and only the vertex lines are
+//!   parsed, with the parallel line engine of [`super::text`].
+//! * Binary vertices are read by a fixed-stride decoder over the memory map with a
+//!   precomputed byte offset per property, byte-swapped for big-endian, in
+//!   parallel over each window with rayon.
+//! * A file shorter than its header declares is an error naming the byte offset
+//!   (binary) or the line (ASCII).
+
+use std::path::Path;
+
+use memmap2::Mmap;
+use rayon::prelude::*;
+
+use super::color::{ColorNormalizer, is_color};
+use super::error::IngestError;
+use super::text::{Layout, LineEngine, Role};
+use super::{PointReader, ReadOptions, SourceInfo, canonical_name};
+use crate::points::{Attribute, PointColumns};
+
+/// A PLY scalar type.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Scalar {
+    I8,
+    U8,
+    I16,
+    U16,
+    I32,
+    U32,
+    F32,
+    F64,
+}
+
+impl Scalar {
+    pub fn parse(s: &str) -> Option<Scalar> {
+        Some(match s {
+            "char" | "int8" => Scalar::I8,
+            "uchar" | "uint8" => Scalar::U8,
+            "short" | "int16" => Scalar::I16,
+            "ushort" | "uint16" => Scalar::U16,
+            "int" | "int32" => Scalar::I32,
+            "uint" | "uint32" => Scalar::U32,
+            "float" | "float32" => Scalar::F32,
+            "double" | "float64" => Scalar::F64,
+            _ => return None,
+        })
+    }
+
+    pub fn size(self) -> usize {
+        match self {
+            Scalar::I8 | Scalar::U8 => 1,
+            Scalar::I16 | Scalar::U16 => 2,
+            Scalar::I32 | Scalar::U32 | Scalar::F32 => 4,
+            Scalar::F64 => 8,
+        }
+    }
+
+    pub fn is_float(self) -> bool {
+        matches!(self, Scalar::F32 | Scalar::F64)
+    }
+
+    /// Decodes the value at the start of `b` (which must hold `size()` bytes;
+    /// shorter input reads as 0).
+    #[inline(always)]
+    fn decode<const BE: bool>(self, b: &[u8]) -> f64 {
+        macro_rules! rd {
+            ($t:ty, $n:expr) => {{
+                let a: [u8; $n] = match b.get(..$n) {
+                    Some(s) => s.try_into().unwrap_or([0; $n]),
+                    None => [0; $n],
+                };
+                if BE {
+                    <$t>::from_be_bytes(a) as f64
+                } else {
+                    <$t>::from_le_bytes(a) as f64
+                }
+            }};
+        }
+        match self {
+            Scalar::I8 => b.first().map_or(0.0, |&v| v as i8 as f64),
+            Scalar::U8 => b.first().map_or(0.0, |&v| v as f64),
+            Scalar::I16 => rd!(i16, 2),
+            Scalar::U16 => rd!(u16, 2),
+            Scalar::I32 => rd!(i32, 4),
+            Scalar::U32 => rd!(u32, 4),
+            Scalar::F32 => rd!(f32, 4),
+            Scalar::F64 => rd!(f64, 8),
+        }
+    }
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum PropKind {
+    Scalar(Scalar),
+    List { count: Scalar, item: Scalar },
+}
+
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Property {
+    pub name: String,
+    pub kind: PropKind,
+}
+
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Element {
+    pub name: String,
+    pub count: u64,
+    pub props: Vec<Property>,
+}
+
+impl Element {
+    /// The record size when every property is scalar.
+    fn fixed_size(&self) -> Option<usize> {
+        self.props
+            .iter()
+            .map(|p| match p.kind {
+                PropKind::Scalar(s) => Some(s.size()),
+                PropKind::List { .. } => None,
+            })
+            .sum()
+    }
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Encoding {
+    Ascii,
+    BinaryLe,
+    BinaryBe,
+}
+
+#[derive(Debug, Clone, PartialEq)]
+pub struct Header {
+    pub encoding: Encoding,
+    pub elements: Vec<Element>,
+    /// Bytes up to and including the `end_header` line.
+    pub len: usize,
+    /// Lines in the header.
+    pub lines: u64,
+}
+
+/// Longest header accepted.
+const MAX_HEADER: usize = 16 << 20;
+
+/// Parses a PLY header at the start of `data`.
+pub fn parse_header(path: &Path, data: &[u8]) -> Result<Header, IngestError> {
+    let mut pos = 0usize;
+    let mut line_no = 0u64;
+    let mut encoding = None;
+    let mut elements: Vec<Element> = Vec::new();
+    let limit = data.len().min(MAX_HEADER);
+    loop {
+        if pos >= limit {
+            return Err(IngestError::format(
+                path,
+                format!(
+                    "PLY header has no 'end_header' line within the first {} bytes",
+                    limit
+                ),
+            ));
+        }
+        let end = memchr::memchr(b'\n', &data[pos..limit]).map_or(limit, |k| pos + k);
+        let raw = &data[pos..end];
+        line_no += 1;
+        pos = (end + 1).min(data.len());
+        let line = String::from_utf8_lossy(raw);
+        let words: Vec<&str> = line.split_ascii_whitespace().collect();
+        let bad = |msg: &str| IngestError::line(path, line_no, msg.to_string(), raw);
+        if line_no == 1 {
+            if words.first() != Some(&"ply") {
+                return Err(bad("not a PLY file (first line must be 'ply')"));
+            }
+            continue;
+        }
+        match words.first().copied() {
+            None | Some("comment") | Some("obj_info") => {}
+            Some("format") => {
+                encoding = Some(match words.get(1).copied() {
+                    Some("ascii") => Encoding::Ascii,
+                    Some("binary_little_endian") => Encoding::BinaryLe,
+                    Some("binary_big_endian") => Encoding::BinaryBe,
+                    _ => return Err(bad("unknown PLY format")),
+                });
+            }
+            Some("element") => {
+                let (Some(name), Some(count)) = (words.get(1), words.get(2)) else {
+                    return Err(bad("element line needs a name and a count"));
+                };
+                let count: u64 = count
+                    .parse()
+                    .map_err(|_| bad("element count is not a non-negative integer"))?;
+                elements.push(Element {
+                    name: name.to_string(),
+                    count,
+                    props: Vec::new(),
+                });
+            }
+            Some("property") => {
+                let Some(el) = elements.last_mut() else {
+                    return Err(bad("property before any element"));
+                };
+                let prop = if words.get(1) == Some(&"list") {
+                    let (Some(c), Some(i), Some(n)) = (
+                        words.get(2).and_then(|s| Scalar::parse(s)),
+                        words.get(3).and_then(|s| Scalar::parse(s)),
+                        words.get(4),
+                    ) else {
+                        return Err(bad("bad list property"));
+                    };
+                    if c.is_float() {
+                        return Err(bad("list count type must be an integer type"));
+                    }
+                    Property {
+                        name: n.to_string(),
+                        kind: PropKind::List { count: c, item: i },
+                    }
+                } else {
+                    let (Some(t), Some(n)) =
+                        (words.get(1).and_then(|s| Scalar::parse(s)), words.get(2))
+                    else {
+                        return Err(bad("bad property (unknown type or missing name)"));
+                    };
+                    Property {
+                        name: n.to_string(),
+                        kind: PropKind::Scalar(t),
+                    }
+                };
+                el.props.push(prop);
+            }
+            Some("end_header") => break,
+            Some(_) => return Err(bad("unexpected line in PLY header")),
+        }
+    }
+    let Some(encoding) = encoding else {
+        return Err(IngestError::format(path, "PLY header has no 'format' line"));
+    };
+    Ok(Header {
+        encoding,
+        elements,
+        len: pos,
+        lines: line_no,
+    })
+}
+
+/// Where each vertex property goes.
+#[derive(Debug, Clone)]
+struct VertexPlan {
+    element: usize,
+    layout: Layout,
+    /// Per property: byte offset in the record, type, destination.
+    fields: Vec<(usize, Scalar, Role)>,
+    stride: usize,
+    float_color: bool,
+    /// Every colour property is `uchar`: already 0–255, nothing to normalize.
+    u8_color: bool,
+}
+
+fn plan_vertex(path: &Path, h: &Header) -> Result<VertexPlan, IngestError> {
+    let element = h
+        .elements
+        .iter()
+        .position(|e| e.name == "vertex")
+        .or_else(|| h.elements.iter().position(|e| e.name == "point"))
+        .ok_or_else(|| IngestError::format(path, "PLY file has no 'vertex' element"))?;
+    let el = &h.elements[element];
+    let mut names = Vec::new();
+    let mut fields = Vec::new();
+    let mut off = 0usize;
+    let mut float_color = false;
+    let mut u8_color = true;
+    for p in &el.props {
+        let PropKind::Scalar(s) = p.kind else {
+            return Err(IngestError::format(
+                path,
+                format!(
+                    "list property '{}' in the vertex element is not supported",
+                    crate::text::sanitize(&p.name)
+                ),
+            ));
+        };
+        let mut name = canonical_name(&p.name);
+        if names.contains(&name) {
+            name = p.name.to_ascii_lowercase();
+        }
+        if is_color(&name) {
+            float_color |= s.is_float();
+            u8_color &= s == Scalar::U8;
+        }
+        names.push(name);
+        fields.push((off, s, Role::Skip));
+        off += s.size();
+    }
+    let layout = Layout::from_names(&names)
+        .map_err(|m| IngestError::format(path, format!("PLY vertex element: {m}")))?;
+    for (f, r) in fields.iter_mut().zip(&layout.roles) {
+        f.2 = *r;
+    }
+    Ok(VertexPlan {
+        element,
+        layout,
+        fields,
+        stride: off,
+        float_color,
+        u8_color,
+    })
+}
+
+/// Opens a PLY file (ASCII or binary).
+pub fn open(path: &Path, opts: &ReadOptions) -> Result<Box<dyn PointReader>, IngestError> {
+    let map = super::map_file(path)?;
+    let header = parse_header(path, &map)?;
+    let plan = plan_vertex(path, &header)?;
+    let count = header.elements[plan.element].count;
+    let format = match header.encoding {
+        Encoding::Ascii => "ply-ascii",
+        Encoding::BinaryLe => "ply-binary-le",
+        Encoding::BinaryBe => "ply-binary-be",
+    };
+    let info = SourceInfo {
+        path: path.to_path_buf(),
+        format: format.into(),
+        declared_points: Some(count),
+        crs_wkt: None,
+        attribute_names: plan.layout.attr_names.clone(),
+        file_bytes: map.len() as u64,
+    };
+    if header.encoding == Encoding::Ascii {
+        // Skip the lines of the elements before the vertex element.
+        let mut pos = header.len;
+        let mut line = header.lines + 1;
+        for el in &header.elements[..plan.element] {
+            for _ in 0..el.count {
+                match memchr::memchr(b'\n', &map[pos.min(map.len())..]) {
+                    Some(k) => pos += k + 1,
+                    None => {
+                        return Err(IngestError::line(
+                            path,
+                            line,
+                            format!(
+                                "the file ends inside element '{}'",
+                                crate::text::sanitize(&el.name)
+                            ),
+                            b"",
+                        ));
+                    }
+                }
+                line += 1;
+            }
+        }
+        let engine = LineEngine {
+            path: path.to_path_buf(),
+            layout: plan.layout.clone(),
+            pos,
+            end: map.len(),
+            line,
+            lines_left: Some(count),
+            skip_invalid: opts.skip_invalid,
+            allow_count_lines: false,
+            chunk_points: opts.chunk_points,
+            bytes_per_line: super::text::sample_bytes_per_line(&map, pos),
+            skipped: 0,
+            colors: ColorNormalizer::new(plan.float_color),
+            pending: Default::default(),
+        };
+        return Ok(Box::new(AsciiPly {
+            info,
+            map,
+            engine,
+            released: 0,
+        }));
+    }
+    let be = header.encoding == Encoding::BinaryBe;
+    // Skip the elements before the vertex element.
+    let mut pos = header.len as u64;
+    for el in &header.elements[..plan.element] {
+        pos = skip_binary_element(path, &map, pos, el, be)?;
+    }
+    let needed = count
+        .checked_mul(plan.stride as u64)
+        .and_then(|b| b.checked_add(pos))
+        .ok_or_else(|| IngestError::binary(path, pos, "vertex count is too large"))?;
+    if needed > map.len() as u64 {
+        let whole = (map.len() as u64).saturating_sub(pos) / (plan.stride.max(1) as u64);
+        return Err(IngestError::binary(
+            path,
+            map.len() as u64,
+            format!(
+                "truncated file: the header declares {count} vertices of {} bytes from byte {pos} \
+                 (ending at byte {needed}), but the file ends at byte {} after {whole} complete vertices",
+                plan.stride,
+                map.len()
+            ),
+        ));
+    }
+    Ok(Box::new(BinaryPly {
+        info,
+        map,
+        start: pos as usize,
+        count,
+        done: 0,
+        be,
+        plan,
+        chunk_points: opts.chunk_points,
+        colors: None,
+        skip_invalid: opts.skip_invalid,
+        skipped: 0,
+        released: 0,
+    }))
+}
+
+/// Skips one binary element starting at byte `pos`; returns the byte after it.
+fn skip_binary_element(
+    path: &Path,
+    data: &[u8],
+    pos: u64,
+    el: &Element,
+    be: bool,
+) -> Result<u64, IngestError> {
+    let name = crate::text::sanitize(&el.name);
+    let trunc = |at: u64| {
+        IngestError::binary(
+            path,
+            at,
+            format!("truncated file: the file ends inside element '{name}'"),
+        )
+    };
+    if let Some(size) = el.fixed_size() {
+        let end = el
+            .count
+            .checked_mul(size as u64)
+            .and_then(|b| b.checked_add(pos))
+            .ok_or_else(|| trunc(pos))?;
+        if end > data.len() as u64 {
+            return Err(trunc(data.len() as u64));
+        }
+        return Ok(end);
+    }
+    let mut p = pos as usize;
+    for _ in 0..el.count {
+        for prop in &el.props {
+            match prop.kind {
+                PropKind::Scalar(s) => p += s.size(),
+                PropKind::List { count, item } => {
+                    let b = data
+                        .get(p..p + count.size())
+                        .ok_or_else(|| trunc(p as u64))?;
+                    let n = if be {
+                        count.decode::<true>(b)
+                    } else {
+                        count.decode::<false>(b)
+                    };
+                    if n < 0.0 {
+                        return Err(IngestError::binary(
+                            path,
+                            p as u64,
+                            format!("negative list length in element '{name}'"),
+                        ));
+                    }
+                    p += count.size() + n as usize * item.size();
+                }
+            }
+            if p > data.len() {
+                return Err(trunc(data.len() as u64));
+            }
+        }
+    }
+    Ok(p as u64)
+}
+
+/// ASCII PLY: the vertex lines through the text line engine.
+struct AsciiPly {
+    info: SourceInfo,
+    map: Mmap,
+    engine: LineEngine,
+    released: usize,
+}
+
+impl PointReader for AsciiPly {
+    fn info(&self) -> &SourceInfo {
+        &self.info
+    }
+    fn next_chunk(&mut self) -> Result<Option<PointColumns>, IngestError> {
+        let r = self.engine.next_chunk(&self.map);
+        super::release_consumed(&self.map, &mut self.released, self.engine.pos);
+        r
+    }
+    fn bytes_done(&self) -> u64 {
+        self.engine.pos as u64
+    }
+    fn skipped(&self) -> u64 {
+        self.engine.skipped
+    }
+}
+
+/// Binary PLY: fixed-stride records.
+struct BinaryPly {
+    info: SourceInfo,
+    map: Mmap,
+    start: usize,
+    count: u64,
+    done: u64,
+    be: bool,
+    plan: VertexPlan,
+    chunk_points: usize,
+    colors: Option<ColorNormalizer>,
+    skip_invalid: bool,
+    skipped: u64,
+    released: usize,
+}
+
+/// Whether point `i` has finite coordinates.
+fn finite_at(c: &PointColumns, i: usize) -> bool {
+    c.x[i].is_finite() && c.y[i].is_finite() && c.z[i].is_finite()
+}
+
+/// Drops the points with a non-finite coordinate; returns how many were dropped.
+fn drop_non_finite(c: &mut PointColumns) -> u64 {
+    let keep: Vec<bool> = (0..c.len()).map(|i| finite_at(c, i)).collect();
+    let dropped = keep.iter().filter(|k| !**k).count() as u64;
+    fn retain<T: Copy>(v: &mut Vec<T>, keep: &[bool]) {
+        let mut k = keep.iter();
+        v.retain(|_| k.next().copied().unwrap_or(false));
+    }
+    retain(&mut c.x, &keep);
+    retain(&mut c.y, &keep);
+    retain(&mut c.z, &keep);
+    for a in &mut c.attributes {
+        retain(&mut a.values, &keep);
+    }
+    dropped
+}
+
+/// Output slices for a run of records.
+struct Task<'a> {
+    first: usize,
+    x: &'a mut [f64],
+    y: &'a mut [f64],
+    z: &'a mut [f64],
+    attrs: Vec<&'a mut [f32]>,
+}
+
+/// A destination column type.
+trait OutValue: Copy + Send {
+    fn from_f64(v: f64) -> Self;
+}
+
+impl OutValue for f64 {
+    #[inline(always)]
+    fn from_f64(v: f64) -> Self {
+        v
+    }
+}
+
+impl OutValue for f32 {
+    #[inline(always)]
+    fn from_f64(v: f64) -> Self {
+        v as f32
+    }
+}
+
+/// Decodes one property of consecutive records into `out`: one tight loop per
+/// (type, endianness), so the type dispatch happens once per column and task.
+fn decode_column<const BE: bool, O: OutValue>(
+    recs: &[u8],
+    stride: usize,
+    off: usize,
+    s: Scalar,
+    out: &mut [O],
+) {
+    macro_rules! col {
+        ($t:ty, $n:expr) => {
+            for (rec, o) in recs.chunks_exact(stride).zip(out.iter_mut()) {
+                if let Some(b) = rec.get(off..off + $n) {
+                    let mut a = [0u8; $n];
+                    a.copy_from_slice(b);
+                    let v = if BE {
+                        <$t>::from_be_bytes(a)
+                    } else {
+                        <$t>::from_le_bytes(a)
+                    };
+                    *o = O::from_f64(v as f64);
+                }
+            }
+        };
+    }
+    match s {
+        Scalar::I8 => col!(i8, 1),
+        Scalar::U8 => col!(u8, 1),
+        Scalar::I16 => col!(i16, 2),
+        Scalar::U16 => col!(u16, 2),
+        Scalar::I32 => col!(i32, 4),
+        Scalar::U32 => col!(u32, 4),
+        Scalar::F32 => col!(f32, 4),
+        Scalar::F64 => col!(f64, 8),
+    }
+}
+
+/// Decodes a run of records; returns whether every coordinate is finite
+/// (checked while the run is still in cache).
+fn decode_task<const BE: bool>(
+    data: &[u8],
+    stride: usize,
+    fields: &[(usize, Scalar, Role)],
+    t: Task<'_>,
+) -> bool {
+    let Task {
+        first,
+        x,
+        y,
+        z,
+        mut attrs,
+    } = t;
+    let Some(recs) = data.get(first * stride..(first + x.len()) * stride) else {
+        return true;
+    };
+    for &(off, s, role) in fields {
+        match role {
+            Role::X => decode_column::<BE, f64>(recs, stride, off, s, x),
+            Role::Y => decode_column::<BE, f64>(recs, stride, off, s, y),
+            Role::Z => decode_column::<BE, f64>(recs, stride, off, s, z),
+            Role::Attr(a) => {
+                if let Some(col) = attrs.get_mut(a) {
+                    decode_column::<BE, f32>(recs, stride, off, s, col);
+                }
+            }
+            Role::Skip => {}
+        }
+    }
+    x.iter()
+        .zip(y.iter())
+        .zip(z.iter())
+        .all(|((x, y), z)| x.is_finite() && y.is_finite() && z.is_finite())
+}
+
+impl BinaryPly {
+    /// Reads the next window; `Some(empty)` when every point of it was skipped.
+    fn next_window(&mut self) -> Result<Option<PointColumns>, IngestError> {
+        if self.done >= self.count {
+            return Ok(None);
+        }
+        let n = (self.count - self.done).min(self.chunk_points as u64) as usize;
+        let stride = self.plan.stride;
+        let from = self.start + self.done as usize * stride;
+        let Some(data) = self.map.get(from..from + n * stride) else {
+            return Err(IngestError::binary(
+                self.path_ref(),
+                from as u64,
+                "truncated file: vertex data ends early",
+            ));
+        };
+        let mut cols = PointColumns {
+            x: super::zeroed_column(n),
+            y: super::zeroed_column(n),
+            z: super::zeroed_column(n),
+            attributes: self
+                .plan
+                .layout
+                .attr_names
+                .iter()
+                .map(|a| Attribute::new(a.clone(), super::zeroed_column(n)))
+                .collect(),
+        };
+        let threads = rayon::current_num_threads().max(1);
+        let m = (n / (threads * 4)).max(16 << 10);
+        let mut tasks = Vec::new();
+        {
+            let mut xs = cols.x.chunks_mut(m);
+            let mut ys = cols.y.chunks_mut(m);
+            let mut zs = cols.z.chunks_mut(m);
+            let mut ats: Vec<_> = cols
+                .attributes
+                .iter_mut()
+                .map(|a| a.values.chunks_mut(m))
+                .collect();
+            let mut first = 0;
+            while let (Some(x), Some(y), Some(z)) = (xs.next(), ys.next(), zs.next()) {
+                let len = x.len();
+                let attrs: Vec<&mut [f32]> = ats.iter_mut().filter_map(|it| it.next()).collect();
+                tasks.push(Task {
+                    first,
+                    x,
+                    y,
+                    z,
+                    attrs,
+                });
+                first += len;
+            }
+        }
+        let fields = &self.plan.fields;
+        // Every task runs (no short-circuit): `all_finite` is a reduction.
+        let all_finite = if self.be {
+            tasks
+                .into_par_iter()
+                .map(|t| decode_task::<true>(data, stride, fields, t))
+                .reduce(|| true, |a, b| a && b)
+        } else {
+            tasks
+                .into_par_iter()
+                .map(|t| decode_task::<false>(data, stride, fields, t))
+                .reduce(|| true, |a, b| a && b)
+        };
+        self.done += n as u64;
+        let consumed = from + n * stride;
+        super::release_consumed(&self.map, &mut self.released, consumed);
+        // Non-finite coordinates cannot be stored: skip them or report the first.
+        if !all_finite {
+            if self.skip_invalid {
+                self.skipped += drop_non_finite(&mut cols);
+                if cols.is_empty() {
+                    return Ok(Some(cols));
+                }
+            } else if let Some(i) = (0..n).find(|&i| !finite_at(&cols, i)) {
+                let vertex = self.done - n as u64 + i as u64;
+                return Err(IngestError::binary(
+                    &self.info.path,
+                    (from + i * stride) as u64,
+                    format!("vertex {vertex} has a non-finite coordinate (NaN or infinity)"),
+                ));
+            }
+        }
+        if self.plan.u8_color {
+            return Ok(Some(cols));
+        }
+        let float_color = self.plan.float_color;
+        self.colors
+            .get_or_insert_with(|| ColorNormalizer::new(float_color))
+            .apply(&mut cols);
+        Ok(Some(cols))
+    }
+}
+
+impl PointReader for BinaryPly {
+    fn info(&self) -> &SourceInfo {
+        &self.info
+    }
+
+    fn next_chunk(&mut self) -> Result<Option<PointColumns>, IngestError> {
+        loop {
+            match self.next_window()? {
+                Some(c) if c.is_empty() => continue,
+                other => return Ok(other),
+            }
+        }
+    }
+
+    fn bytes_done(&self) -> u64 {
+        if self.done >= self.count {
+            self.map.len() as u64
+        } else {
+            (self.start as u64 + self.done * self.plan.stride as u64).min(self.map.len() as u64)
+        }
+    }
+
+    fn skipped(&self) -> u64 {
+        self.skipped
+    }
+}
+
+impl BinaryPly {
+    fn path_ref(&self) -> &Path {
+        &self.info.path
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::super::{ReadOptions, open, read_all};
+    use crate::points::PointColumns;
+    use std::path::PathBuf;
+
+    /// Test points: (x, y, z, red, intensity-as-u16, label-as-i32).
+    fn points(n: usize) -> Vec<(f64, f64, f64, u8, u16, i32)> {
+        (0..n)
+            .map(|i| {
+                (
+                    i as f64 * 0.5,
+                    -(i as f64) * 0.25,
+                    1000.0 + i as f64,
+                    (i % 256) as u8,
+                    (i * 7 % 65536) as u16,
+                    i as i32 - 50,
+                )
+            })
+            .collect()
+    }
+
+    /// Writes a PLY with a face element before the vertex element (1 face) and
+    /// another after it; `double` picks the coordinate type.
+    fn write_ply(
+        dir: &tempfile::TempDir,
+        name: &str,
+        enc: &str,
+        double: bool,
+        n: usize,
+    ) -> PathBuf {
+        let t = if double { "double" } else { "float" };
+        let mut out = format!(
+            "ply\nformat {enc} 1.0\ncomment test\nelement face 1\nproperty list uchar int vertex_indices\n\
+             element vertex {n}\nproperty {t} x\nproperty {t} y\nproperty {t} z\nproperty uchar red\n\
+             property ushort Intensity\nproperty int label\nelement edge 2\nproperty int a\nproperty int b\nend_header\n"
+        )
+        .into_bytes();
+        let pts = points(n);
+        let be = enc == "binary_big_endian";
+        macro_rules! put {
+            ($v:expr) => {
+                if be {
+                    out.extend_from_slice(&$v.to_be_bytes())
+                } else {
+                    out.extend_from_slice(&$v.to_le_bytes())
+                }
+            };
+        }
+        if enc == "ascii" {
+            out.extend_from_slice(b"3 0 1 2\n");
+            for p in &pts {
+                out.extend_from_slice(
+                    format!("{} {} {} {} {} {}\n", p.0, p.1, p.2, p.3, p.4, p.5).as_bytes(),
+                );
+            }
+            out.extend_from_slice(b"0 1\n1 2\n");
+        } else {
+            out.push(3);
+            for k in 0..3i32 {
+                put!(k);
+            }
+            for p in &pts {
+                if double {
+                    put!(p.0);
+                    put!(p.1);
+                    put!(p.2);
+                } else {
+                    put!(p.0 as f32);
+                    put!(p.1 as f32);
+                    put!(p.2 as f32);
+                }
+                out.push(p.3);
+                put!(p.4);
+                put!(p.5);
+            }
+            for k in 0..4i32 {
+                put!(k);
+            }
+        }
+        let p = dir.path().join(name);
+        std::fs::write(&p, out).unwrap();
+        p
+    }
+
+    fn check(c: &PointColumns, n: usize) {
+        let pts = points(n);
+        assert_eq!(c.len(), n);
+        for (i, p) in pts.iter().enumerate() {
+            assert_eq!((c.x[i], c.y[i], c.z[i]), (p.0, p.1, p.2), "point {i}");
+            assert_eq!(c.attributes[0].values[i], p.3 as f32);
+            assert_eq!(c.attributes[1].values[i], p.4 as f32);
+            assert_eq!(c.attributes[2].values[i], p.5 as f32);
+        }
+    }
+
+    #[test]
+    fn all_encodings_and_types() {
+        let d = tempfile::tempdir().unwrap();
+        let n = 5000;
+        for (enc, fmt) in [
+            ("ascii", "ply-ascii"),
+            ("binary_little_endian", "ply-binary-le"),
+            ("binary_big_endian", "ply-binary-be"),
+        ] {
+            for double in [false, true] {
+                let p = write_ply(&d, &format!("{enc}{double}.ply"), enc, double, n);
+                let (info, c, _) = read_all(&p, &ReadOptions::default()).unwrap();
+                assert_eq!(info.format, fmt);
+                assert_eq!(info.declared_points, Some(n as u64));
+                assert_eq!(info.attribute_names, ["red", "intensity", "label"]);
+                check(&c, n);
+                // Tiny chunks give the same points.
+                let opts = ReadOptions {
+                    chunk_points: 97,
+                    ..Default::default()
+                };
+                let mut r = open(&p, &opts).unwrap();
+                let mut all = c.empty_like();
+                while let Some(ch) = r.next_chunk().unwrap() {
+                    assert!(ch.len() <= 97);
+                    all.append(&ch).unwrap();
+                }
+                assert_eq!(all, c, "{enc} double={double}");
+            }
+        }
+    }
+
+    #[test]
+    fn truncated_binary_names_byte_offset() {
+        let d = tempfile::tempdir().unwrap();
+        let p = write_ply(&d, "t.ply", "binary_little_endian", false, 100);
+        let data = std::fs::read(&p).unwrap();
+        let header_len = data.windows(11).position(|w| w == b"end_header\n").unwrap() + 11;
+        for keep in [header_len + 5, header_len + 13 + 21 * 50 + 3] {
+            let q = d.path().join("cut.ply");
+            std::fs::write(&q, &data[..keep]).unwrap();
+            let e = read_all(&q, &ReadOptions::default()).unwrap_err();
+            assert_eq!(e.byte_offset(), Some(keep as u64));
+            let s = e.to_string();
+            assert!(s.contains("cut.ply") && s.contains("truncated"), "{s}");
+        }
+        // Truncated ASCII: fewer vertex lines than declared.
+        let p = write_ply(&d, "a.ply", "ascii", false, 100);
+        let text = std::fs::read_to_string(&p).unwrap();
+        let cut = text.find("\n10 ").unwrap() + 1;
+        let q = d.path().join("acut.ply");
+        std::fs::write(&q, &text[..cut]).unwrap();
+        let s = read_all(&q, &ReadOptions::default())
+            .unwrap_err()
+            .to_string();
+        assert!(s.contains("acut.ply") && s.contains("line"), "{s}");
+    }
+
+    #[test]
+    fn bad_headers_and_lines() {
+        let d = tempfile::tempdir().unwrap();
+        let cases: &[(&str, &[u8])] = &[
+            ("nomagic.ply", b"plx\nformat ascii 1.0\nend_header\n"),
+            ("noend.ply", b"ply\nformat ascii 1.0\nelement vertex 1\n"),
+            ("noformat.ply", b"ply\nelement vertex 0\nproperty float x\nend_header\n"),
+            ("badtype.ply", b"ply\nformat ascii 1.0\nelement vertex 1\nproperty quad x\nend_header\n1\n"),
+            ("novertex.ply", b"ply\nformat ascii 1.0\nelement face 0\nend_header\n"),
+            ("noz.ply", b"ply\nformat ascii 1.0\nelement vertex 1\nproperty float x\nproperty float y\nend_header\n1 2\n"),
+            ("count.ply", b"ply\nformat ascii 1.0\nelement vertex -1\nend_header\n"),
+            ("listv.ply", b"ply\nformat binary_little_endian 1.0\nelement vertex 1\nproperty float x\nproperty float y\nproperty float z\nproperty list uchar int f\nend_header\n"),
+            ("huge.ply", b"ply\nformat binary_little_endian 1.0\nelement vertex 18446744073709551615\nproperty double x\nproperty double y\nproperty double z\nend_header\n"),
+            ("empty.ply", b""),
+        ];
+        for (name, body) in cases {
+            let p = d.path().join(name);
+            std::fs::write(&p, body).unwrap();
+            let e = read_all(&p, &ReadOptions::default())
+                .unwrap_err()
+                .to_string();
+            assert!(e.contains(name), "{e}");
+        }
+        let p = d.path().join("badline.ply");
+        std::fs::write(
+            &p,
+            "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\nend_header\n1 2 3\n4 five 6\n7 8 9\n",
+        )
+        .unwrap();
+        let e = read_all(&p, &ReadOptions::default()).unwrap_err();
+        assert_eq!(e.line_number(), Some(9), "{e}");
+        let opts = ReadOptions {
+            skip_invalid: true,
+            ..Default::default()
+        };
+        let (_, c, skipped) = read_all(&p, &opts).unwrap();
+        assert_eq!((c.len(), skipped), (2, 1));
+    }
+
+    #[test]
+    fn binary_non_finite_vertices() {
+        let d = tempfile::tempdir().unwrap();
+        let p = d.path().join("nan.ply");
+        let mut body = b"ply\nformat binary_little_endian 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\nend_header\n".to_vec();
+        let hl = body.len();
+        for v in [
+            1.0f32,
+            2.0,
+            3.0,
+            f32::NAN,
+            5.0,
+            6.0,
+            7.0,
+            8.0,
+            f32::INFINITY,
+        ] {
+            body.extend_from_slice(&v.to_le_bytes());
+        }
+        std::fs::write(&p, &body).unwrap();
+        let e = read_all(&p, &ReadOptions::default()).unwrap_err();
+        assert_eq!(e.byte_offset(), Some(hl as u64 + 12));
+        assert!(e.to_string().contains("vertex 1"), "{e}");
+        let opts = ReadOptions {
+            skip_invalid: true,
+            ..Default::default()
+        };
+        let (_, c, skipped) = read_all(&p, &opts).unwrap();
+        assert_eq!((c.x.clone(), skipped), (vec![1.0], 2));
+    }
+
+    #[test]
+    fn float_colour_is_scaled() {
+        let d = tempfile::tempdir().unwrap();
+        let p = d.path().join("fc.ply");
+        std::fs::write(
+            &p,
+            "ply\nformat ascii 1.0\nelement vertex 2\nproperty float x\nproperty float y\nproperty float z\n\
+             property float r\nproperty float g\nproperty float b\nend_header\n0 0 0 1 0.5 0\n1 1 1 0 0 1\n",
+        )
+        .unwrap();
+        let (info, c, _) = read_all(&p, &ReadOptions::default()).unwrap();
+        assert_eq!(info.attribute_names, ["red", "green", "blue"]);
+        assert_eq!(c.attributes[0].values, [255.0, 0.0]);
+        assert_eq!(c.attributes[1].values, [127.5, 0.0]);
+    }
+}
