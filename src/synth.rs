@@ -129,3 +129,144 @@ mod tests {
         );
     }
 }
+
+/// Appends `v` with exactly three decimals (`-12.345`), fast.
+fn push_fixed3(out: &mut Vec<u8>, v: f64) {
+    let m = (v * 1000.0).round() as i64;
+    if m < 0 {
+        out.push(b'-');
+    }
+    let m = m.unsigned_abs();
+    let (int, frac) = (m / 1000, m % 1000);
+    let mut buf = [0u8; 20];
+    let mut i = buf.len();
+    let mut n = int;
+    loop {
+        i -= 1;
+        buf[i] = b'0' + (n % 10) as u8;
+        n /= 10;
+        if n == 0 {
+            break;
+        }
+    }
+    out.extend_from_slice(&buf[i..]);
+    out.push(b'.');
+    out.push(b'0' + (frac / 100) as u8);
+    out.push(b'0' + (frac / 10 % 10) as u8);
+    out.push(b'0' + (frac % 10) as u8);
+}
+
+/// Points generated per block when writing files (bounds memory).
+const WRITE_BLOCK: u64 = 1 << 20;
+
+/// Writes `n` points of the scene as text, one `x y z intensity` line each (the
+/// paper's input), atomically. Generation and formatting run in parallel.
+pub fn write_text(path: &std::path::Path, n: u64, seed: u64) -> std::io::Result<u64> {
+    use std::io::Write;
+    let tmp = path.with_extension("partial");
+    let mut out = std::io::BufWriter::with_capacity(1 << 20, std::fs::File::create(&tmp)?);
+    let mut bytes = 0u64;
+    let res = (|| {
+        let mut start = 0;
+        while start < n {
+            let end = (start + WRITE_BLOCK).min(n);
+            let pieces: Vec<Vec<u8>> = (start..end)
+                .step_by(1 << 14)
+                .collect::<Vec<u64>>()
+                .into_par_iter()
+                .map(|s| {
+                    let e = (s + (1 << 14)).min(end);
+                    let mut b = Vec::with_capacity((e - s) as usize * 48);
+                    for i in s..e {
+                        let (p, inten) = point(seed, i);
+                        for (k, o) in SCENE_ORIGIN.iter().enumerate() {
+                            push_fixed3(&mut b, o + p[k]);
+                            b.push(b' ');
+                        }
+                        b.extend_from_slice((inten.round() as u32).to_string().as_bytes());
+                        b.push(b'\n');
+                    }
+                    b
+                })
+                .collect();
+            for p in pieces {
+                bytes += p.len() as u64;
+                out.write_all(&p)?;
+            }
+            start = end;
+        }
+        out.flush()
+    })();
+    if let Err(e) = res {
+        let _ = std::fs::remove_file(&tmp);
+        return Err(e);
+    }
+    drop(out);
+    std::fs::rename(&tmp, path)?;
+    Ok(bytes)
+}
+
+/// Writes `n` points of the scene as LAS 1.2 (point format 1: intensity, GPS time),
+/// scale 1 mm, atomically.
+pub fn write_las(path: &std::path::Path, n: u64, seed: u64) -> std::io::Result<u64> {
+    let err = |e: las::Error| std::io::Error::other(e.to_string());
+    let tmp = path.with_extension("partial");
+    let res = (|| -> std::io::Result<()> {
+        let mut b = las::Builder::from((1, 2));
+        b.point_format = las::point::Format::new(1).map_err(err)?;
+        let t = |o| las::Transform {
+            scale: 0.001,
+            offset: o,
+        };
+        b.transforms = las::Vector {
+            x: t(SCENE_ORIGIN[0]),
+            y: t(SCENE_ORIGIN[1]),
+            z: t(SCENE_ORIGIN[2]),
+        };
+        let header = b.into_header().map_err(err)?;
+        let mut w = las::Writer::from_path(&tmp, header).map_err(err)?;
+        let mut start = 0;
+        while start < n {
+            let end = (start + WRITE_BLOCK).min(n);
+            let pts: Vec<([f64; 3], f32)> = (start..end)
+                .into_par_iter()
+                .map(|i| point(seed, i))
+                .collect();
+            for (k, (p, inten)) in pts.into_iter().enumerate() {
+                w.write_point(las::Point {
+                    x: SCENE_ORIGIN[0] + p[0],
+                    y: SCENE_ORIGIN[1] + p[1],
+                    z: SCENE_ORIGIN[2] + p[2],
+                    intensity: inten.round() as u16,
+                    gps_time: Some(1.0e8 + (start + k as u64) as f64 * 1e-5),
+                    ..Default::default()
+                })
+                .map_err(err)?;
+            }
+            start = end;
+        }
+        w.close().map_err(err)
+    })();
+    if let Err(e) = res {
+        let _ = std::fs::remove_file(&tmp);
+        return Err(e);
+    }
+    std::fs::rename(&tmp, path)?;
+    Ok(std::fs::metadata(path)?.len())
+}
+
+#[cfg(test)]
+mod file_tests {
+    #[test]
+    fn fixed_point_text() {
+        let mut b = Vec::new();
+        for v in [0.0, -0.0004, 1.5, -12.3456, 637179.2204] {
+            super::push_fixed3(&mut b, v);
+            b.push(b' ');
+        }
+        assert_eq!(
+            String::from_utf8(b).unwrap(),
+            "0.000 0.000 1.500 -12.346 637179.220 "
+        );
+    }
+}

@@ -46,7 +46,10 @@ fn gdalinfo_sees_bands_overviews_and_metadata() {
             serde_json::from_str(&run("gdalinfo", &["-json", path.to_str().unwrap()])).unwrap();
         assert_eq!(info["size"], serde_json::json!([1024, 1024]));
         let bands = info["bands"].as_array().unwrap();
-        let names: Vec<&str> = bands.iter().map(|b| b["description"].as_str().unwrap()).collect();
+        let names: Vec<&str> = bands
+            .iter()
+            .map(|b| b["description"].as_str().unwrap())
+            .collect();
         assert_eq!(names, ["x", "y", "z", "intensity", "gps_time"]);
         for b in bands {
             assert_eq!(b["type"], "Float32");
@@ -57,8 +60,18 @@ fn gdalinfo_sees_bands_overviews_and_metadata() {
                 .iter()
                 .map(|o| &o["size"])
                 .collect();
-            assert_eq!(ovr, [&serde_json::json!([512, 512]), &serde_json::json!([256, 256])]);
-            assert!(b["noDataValue"].as_str().is_some_and(|s| s.eq_ignore_ascii_case("nan")));
+            assert_eq!(
+                ovr,
+                [
+                    &serde_json::json!([512, 512]),
+                    &serde_json::json!([256, 256])
+                ]
+            );
+            assert!(
+                b["noDataValue"]
+                    .as_str()
+                    .is_some_and(|s| s.eq_ignore_ascii_case("nan"))
+            );
         }
         let part = Part::open(&path).unwrap();
         let x_offset = bands[0]["offset"].as_f64().unwrap();
@@ -75,8 +88,17 @@ fn gdalinfo_sees_bands_overviews_and_metadata() {
             "bands are separate planes"
         );
         if c != Compression::None {
-            let comp = info["metadata"]["IMAGE_STRUCTURE"]["COMPRESSION"].as_str().unwrap();
-            assert_eq!(comp, if c == Compression::Deflate { "DEFLATE" } else { "ZSTD" });
+            let comp = info["metadata"]["IMAGE_STRUCTURE"]["COMPRESSION"]
+                .as_str()
+                .unwrap();
+            assert_eq!(
+                comp,
+                if c == Compression::Deflate {
+                    "DEFLATE"
+                } else {
+                    "ZSTD"
+                }
+            );
         }
     }
 }
@@ -94,9 +116,19 @@ fn check_pixels(path: &Path, level: usize, ranks: &[usize]) {
             if level > 0 {
                 args.extend(["-overview".into(), level.to_string()]);
             }
-            args.extend([path.to_str().unwrap().into(), px.to_string(), py.to_string()]);
-            let out = run("gdallocationinfo", &args.iter().map(String::as_str).collect::<Vec<_>>());
-            let v: f64 = out.trim().parse().unwrap_or_else(|_| panic!("value '{out}'"));
+            args.extend([
+                path.to_str().unwrap().into(),
+                px.to_string(),
+                py.to_string(),
+            ]);
+            let out = run(
+                "gdallocationinfo",
+                &args.iter().map(String::as_str).collect::<Vec<_>>(),
+            );
+            let v: f64 = out
+                .trim()
+                .parse()
+                .unwrap_or_else(|_| panic!("value '{out}'"));
             let ours = p.columns[band - 1][r] as f64;
             assert!(
                 (v - ours).abs() <= ours.abs() * 1e-6 + 1e-6,
@@ -122,7 +154,14 @@ fn gdallocationinfo_reads_our_values() {
     let (px, py) = z_pixel(300_000);
     let out = run(
         "gdallocationinfo",
-        &["-valonly", "-b", "1", dir.path().join("loc.tif").to_str().unwrap(), &px.to_string(), &py.to_string()],
+        &[
+            "-valonly",
+            "-b",
+            "1",
+            dir.path().join("loc.tif").to_str().unwrap(),
+            &px.to_string(),
+            &py.to_string(),
+        ],
     );
     assert!(out.trim().eq_ignore_ascii_case("nan"), "{out}");
 }
@@ -138,11 +177,21 @@ fn gdal_rewritten_file_still_opens_with_the_same_points() {
     run(
         "gdal_translate",
         &[
-            "-q", "-co", "TILED=YES", "-co", "COMPRESS=DEFLATE", "-co", "PREDICTOR=3",
-            src.to_str().unwrap(), dst.to_str().unwrap(),
+            "-q",
+            "-co",
+            "TILED=YES",
+            "-co",
+            "COMPRESS=DEFLATE",
+            "-co",
+            "PREDICTOR=3",
+            src.to_str().unwrap(),
+            dst.to_str().unwrap(),
         ],
     );
-    run("gdaladdo", &["-q", "-r", "nearest", dst.to_str().unwrap(), "2", "4"]);
+    run(
+        "gdaladdo",
+        &["-q", "-r", "nearest", dst.to_str().unwrap(), "2", "4"],
+    );
     let a = Part::open(&src).unwrap();
     let b = Part::open(&dst).unwrap();
     assert_eq!(b.bands, a.bands);
@@ -156,13 +205,20 @@ fn gdal_rewritten_file_still_opens_with_the_same_points() {
         rows.sort();
         rows
     };
-    assert_eq!(rows(&b, 0), rows(&a, 0), "level 0 differs after GDAL's rewrite");
+    assert_eq!(
+        rows(&b, 0),
+        rows(&a, 0),
+        "level 0 differs after GDAL's rewrite"
+    );
     // GDAL's overviews are nearest-neighbour samples too: every point is real.
     let level0 = rows(&a, 0);
     for r in rows(&b, 1) {
         assert!(level0.binary_search(&r).is_ok());
     }
-    assert!(!b.levels[1].indexed, "gdaladdo's overviews carry no pcimg index");
+    assert!(
+        !b.levels[1].indexed,
+        "gdaladdo's overviews carry no pcimg index"
+    );
 }
 
 #[test]
@@ -173,7 +229,18 @@ fn fewer_bands_are_refused() {
     let dir = tempfile::tempdir().unwrap();
     let src = write(dir.path(), "src.tif", 1000, Compression::None);
     let dst = dir.path().join("two.tif");
-    run("gdal_translate", &["-q", "-b", "1", "-b", "2", src.to_str().unwrap(), dst.to_str().unwrap()]);
+    run(
+        "gdal_translate",
+        &[
+            "-q",
+            "-b",
+            "1",
+            "-b",
+            "2",
+            src.to_str().unwrap(),
+            dst.to_str().unwrap(),
+        ],
+    );
     let e = Part::open(&dst).unwrap_err().to_string();
     assert!(e.contains("two.tif"), "{e}");
     assert!(e.contains("2 band") || e.contains("lists 5 bands"), "{e}");

@@ -94,7 +94,10 @@ fn check_round_trip(pts: &PointColumns, compression: Compression) {
             *this.entry(r).or_default() += 1;
         }
         for (r, c) in &this {
-            assert!(below.get(r).copied().unwrap_or(0) >= *c, "level {k} is not a subset");
+            assert!(
+                below.get(r).copied().unwrap_or(0) >= *c,
+                "level {k} is not a subset"
+            );
         }
         // Tile index: counts add up and every point lies within its tile's bounds.
         let idx: u64 = level.tiles.iter().map(|t| t.points.unwrap() as u64).sum();
@@ -255,10 +258,22 @@ fn replace_once(bytes: &mut [u8], from: &[u8], to: &[u8]) {
 fn truncated_files_are_errors() {
     let dir = tempfile::tempdir().unwrap();
     let (_, bytes) = good_file(dir.path());
-    for cut in [0usize, 1, 7, 8, 100, bytes.len() / 3, bytes.len() - 20, bytes.len() - 1] {
+    for cut in [
+        0usize,
+        1,
+        7,
+        8,
+        100,
+        bytes.len() / 3,
+        bytes.len() - 20,
+        bytes.len() - 1,
+    ] {
         let e = open_err(dir.path(), "cut.tif", &bytes[..cut]);
         assert!(
-            e.contains("truncated") || e.contains("empty") || e.contains("too short") || e.contains("past the end"),
+            e.contains("truncated")
+                || e.contains("empty")
+                || e.contains("too short")
+                || e.contains("past the end"),
             "cut at {cut}: {e}"
         );
     }
@@ -294,12 +309,20 @@ fn missing_metadata_and_wrong_bands_are_refused() {
     assert!(e.contains("POINT_COUNT is missing"), "{e}");
 
     let mut b = bytes.clone();
-    replace_once(&mut b, b">x y z intensity gps_time<", b">x y z intensity_gps_time<");
+    replace_once(
+        &mut b,
+        b">x y z intensity gps_time<",
+        b">x y z intensity_gps_time<",
+    );
     let e = open_err(dir.path(), "bands.tif", &b);
     assert!(e.contains("lists 4 bands") && e.contains("has 5"), "{e}");
 
     let mut b = bytes.clone();
-    replace_once(&mut b, b"role=\"description\">x<", b"role=\"description\">q<");
+    replace_once(
+        &mut b,
+        b"role=\"description\">x<",
+        b"role=\"description\">q<",
+    );
     let e = open_err(dir.path(), "names.tif", &b);
     assert!(e.contains("expected 'x'"), "{e}");
 }
@@ -342,6 +365,8 @@ fn empty_directory_and_missing_path() {
     let dir = tempfile::tempdir().unwrap();
     let e = Dataset::open(dir.path()).unwrap_err().to_string();
     assert!(e.contains("no .tif parts"), "{e}");
-    let e = Dataset::open(&dir.path().join("nope.tif")).unwrap_err().to_string();
+    let e = Dataset::open(&dir.path().join("nope.tif"))
+        .unwrap_err()
+        .to_string();
     assert!(e.contains("nope.tif") && e.contains("cannot open"), "{e}");
 }

@@ -1,7 +1,9 @@
 //! The command line: one file per command; `main.rs` only parses and dispatches.
 
+pub mod convert;
 pub mod demo;
 pub mod info;
+pub mod synth;
 
 use clap::{Parser, Subcommand};
 
@@ -17,14 +19,20 @@ pub struct Cli {
 pub enum Command {
     /// List a dataset's parts, bands, pyramid levels, bounds and metadata.
     Info(info::Args),
+    /// Convert a point cloud (text, PLY, LAS/LAZ) into an image dataset, out of core.
+    Convert(convert::Args),
     /// Build a synthetic dataset in a temporary directory and show it.
     Demo(demo::Args),
+    /// Write a deterministic synthetic scan as text or LAS.
+    Synth(synth::Args),
 }
 
 /// Runs the parsed command.
 pub fn run(cli: Cli) -> anyhow::Result<()> {
     match cli.command {
         Command::Info(a) => info::run(a),
+        Command::Convert(a) => convert::run(a),
         Command::Demo(a) => demo::run(a),
+        Command::Synth(a) => synth::run(a),
     }
 }

@@ -17,7 +17,11 @@ pub fn parse_size(s: &str) -> Result<u64, String> {
         "m" | "mb" | "mib" => 1024.0 * 1024.0,
         "g" | "gb" | "gib" => 1024.0 * 1024.0 * 1024.0,
         "t" | "tb" | "tib" => 1024.0f64.powi(4),
-        u => return Err(format!("unknown size unit '{u}' in '{s}' (use K, M, G or T)")),
+        u => {
+            return Err(format!(
+                "unknown size unit '{u}' in '{s}' (use K, M, G or T)"
+            ));
+        }
     };
     let bytes = v * mult;
     if !bytes.is_finite() || bytes < 1.0 {

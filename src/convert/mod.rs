@@ -153,7 +153,11 @@ impl Sample {
 }
 
 /// Converts one input file into a dataset.
-pub fn convert(input: &Path, o: &ConvertOptions, progress: &dyn Progress) -> Result<ConvertSummary> {
+pub fn convert(
+    input: &Path,
+    o: &ConvertOptions,
+    progress: &dyn Progress,
+) -> Result<ConvertSummary> {
     let start = Instant::now();
     if o.output.exists() && !o.force {
         anyhow::bail!(
@@ -191,7 +195,7 @@ pub fn convert(input: &Path, o: &ConvertOptions, progress: &dyn Progress) -> Res
         None => o.output.clone(),
     };
     let mut parts: Vec<PartSummary> = Vec::new();
-    let mut write = |pts: &PointColumns, parts: &mut Vec<PartSummary>| -> Result<()> {
+    let write = |pts: &PointColumns, parts: &mut Vec<PartSummary>| -> Result<()> {
         check_cancel(o)?;
         check_precision(&pts.bounds(), parts.len(), o.allow_lossy)?;
         let s = store::write_part(&part_path(parts.len()), pts, &write_opts)?;
@@ -285,7 +289,15 @@ pub fn convert(input: &Path, o: &ConvertOptions, progress: &dyn Progress) -> Res
                 // Pass 2: distribute points into one temporary file per region.
                 let tmp = spill::TempDir::beside(&o.output, "pcimg-spill")?;
                 let files = distribute(
-                    &mut reader, input, &read, o, progress, &grid, &regions, &cell_region, &like,
+                    &mut reader,
+                    input,
+                    &read,
+                    o,
+                    progress,
+                    &grid,
+                    &regions,
+                    &cell_region,
+                    &like,
                     &tmp.path,
                 )?;
                 // Pass 3: each region becomes one part (or several, if the sample

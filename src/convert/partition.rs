@@ -125,13 +125,11 @@ pub fn split(grid: &CountGrid, max_points: u64) -> Vec<Region> {
         }
         // Longest axis in world units that is more than one cell thick.
         let e = grid.bounds.extent();
-        let axis = (0..3)
-            .filter(|&a| r.hi[a] - r.lo[a] > 1)
-            .max_by(|&a, &b| {
-                let la = (r.hi[a] - r.lo[a]) as f64 * e[a] / grid.dims[a] as f64;
-                let lb = (r.hi[b] - r.lo[b]) as f64 * e[b] / grid.dims[b] as f64;
-                la.total_cmp(&lb)
-            });
+        let axis = (0..3).filter(|&a| r.hi[a] - r.lo[a] > 1).max_by(|&a, &b| {
+            let la = (r.hi[a] - r.lo[a]) as f64 * e[a] / grid.dims[a] as f64;
+            let lb = (r.hi[b] - r.lo[b]) as f64 * e[b] / grid.dims[b] as f64;
+            la.total_cmp(&lb)
+        });
         let Some(a) = axis else {
             // One cell holds more than the budget: it stays one region; the
             // converter splits it by input order.
@@ -198,7 +196,11 @@ mod tests {
         let regions = split(&g, 30_000);
         assert_eq!(regions.iter().map(|r| r.points).sum::<u64>(), n);
         assert!(regions.iter().all(|r| r.points <= 30_000));
-        assert!(regions.len() >= 7 && regions.len() <= 32, "{}", regions.len());
+        assert!(
+            regions.len() >= 7 && regions.len() <= 32,
+            "{}",
+            regions.len()
+        );
         let map = cell_regions(&g, &regions);
         for (i, &c) in g.counts.iter().enumerate() {
             if c > 0 {

@@ -99,7 +99,16 @@ pub fn read_back(path: &Path, like: &PointColumns) -> std::io::Result<PointColum
     }
     let n = bytes.len() / rs;
     let f64_at = |r: &[u8], o: usize| {
-        f64::from_le_bytes([r[o], r[o + 1], r[o + 2], r[o + 3], r[o + 4], r[o + 5], r[o + 6], r[o + 7]])
+        f64::from_le_bytes([
+            r[o],
+            r[o + 1],
+            r[o + 2],
+            r[o + 3],
+            r[o + 4],
+            r[o + 5],
+            r[o + 6],
+            r[o + 7],
+        ])
     };
     let recs = || bytes.par_chunks_exact(rs);
     let x = recs().map(|r| f64_at(r, 0)).collect();
@@ -120,7 +129,12 @@ pub fn read_back(path: &Path, like: &PointColumns) -> std::io::Result<PointColum
                 .collect(),
         })
         .collect();
-    let c = PointColumns { x, y, z, attributes };
+    let c = PointColumns {
+        x,
+        y,
+        z,
+        attributes,
+    };
     debug_assert_eq!(c.len(), n);
     Ok(c)
 }

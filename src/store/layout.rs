@@ -340,7 +340,8 @@ mod tests {
             let mut state = 0usize;
             let mut h = 0u64;
             for bit in (0..KEY_BITS).rev() {
-                let l = ((q[0] >> bit) & 1) | (((q[1] >> bit) & 1) << 1) | (((q[2] >> bit) & 1) << 2);
+                let l =
+                    ((q[0] >> bit) & 1) | (((q[1] >> bit) & 1) << 1) | (((q[2] >> bit) & 1) << 2);
                 let s = t[state][l as usize];
                 h = (h << 3) | s.digit as u64;
                 state = s.next as usize;
@@ -369,7 +370,13 @@ mod tests {
     fn hilbert_order_is_a_local_permutation() {
         let mut r = crate::synth::Rng::new(9);
         let pos: Vec<[f32; 3]> = (0..100_000)
-            .map(|_| [r.f64() as f32 * 100.0, r.f64() as f32 * 50.0, r.f64() as f32])
+            .map(|_| {
+                [
+                    r.f64() as f32 * 100.0,
+                    r.f64() as f32 * 50.0,
+                    r.f64() as f32,
+                ]
+            })
             .collect();
         let order = hilbert_order(&pos);
         let mut seen = vec![false; pos.len()];
@@ -382,7 +389,10 @@ mod tests {
             .windows(2)
             .map(|w| {
                 let (a, b) = (pos[w[0] as usize], pos[w[1] as usize]);
-                (0..3).map(|k| ((a[k] - b[k]) as f64).powi(2)).sum::<f64>().sqrt()
+                (0..3)
+                    .map(|k| ((a[k] - b[k]) as f64).powi(2))
+                    .sum::<f64>()
+                    .sqrt()
             })
             .sum::<f64>()
             / order.len() as f64;
@@ -392,7 +402,12 @@ mod tests {
     #[test]
     fn representative_is_nearest_centroid_and_prefix_kept() {
         // 4 points of a block: the one at the centroid moves to slot 0.
-        let mut pos = vec![[0.0, 0.0, 0.0], [10.0, 0.0, 0.0], [5.0, 0.1, 0.0], [5.0, 9.0, 0.0]];
+        let mut pos = vec![
+            [0.0, 0.0, 0.0],
+            [10.0, 0.0, 0.0],
+            [5.0, 0.1, 0.0],
+            [5.0, 9.0, 0.0],
+        ];
         let mut order = vec![0u32, 1, 2, 3];
         choose_representatives(&mut pos, &mut order, 2);
         assert_eq!(order[0], 2);

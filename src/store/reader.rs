@@ -667,7 +667,10 @@ impl Part {
             let c = b * per_band + t as usize;
             let (off, len) = (l.offsets[c] as usize, l.counts[c] as usize);
             if len == 0 {
-                return Err(format!("tile {t} band {} is empty but its index says {n} points", b + 1));
+                return Err(format!(
+                    "tile {t} band {} is empty but its index says {n} points",
+                    b + 1
+                ));
             }
             let stored = &data[off..off + len];
             let raw = (l.compression == spec::compression::NONE && native && len >= pixels * 4)

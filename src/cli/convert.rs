@@ -1,0 +1,175 @@
+//! `pcimg convert`: an input file into an image dataset, out of core, with progress
+//! bars and a summary.
+
+use crate::convert::{self, ConvertOptions, Partition, Progress, budget};
+use crate::ingest::ReadOptions;
+use crate::store::{Compression, Layout};
+use crate::text::{bytes, count, sanitize};
+use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
+use std::path::PathBuf;
+use std::sync::Arc;
+use std::sync::atomic::AtomicBool;
+
+#[derive(Debug, clap::Args)]
+pub struct Args {
+    /// Input point cloud: .xyz .txt .csv .asc .pts (text), .ply, .las, .laz.
+    pub input: PathBuf,
+    /// Output: a directory of parts (default: INPUT with extension .pcimg), or a
+    /// single .tif when the input fits one part.
+    #[arg(short, long)]
+    pub output: Option<PathBuf>,
+    /// Memory budget, e.g. 256MiB or 4G (default: half the available memory). It
+    /// bounds resident memory and decides how many points one part (image) holds.
+    #[arg(long, value_parser = budget::parse_size)]
+    pub memory: Option<u64>,
+    /// spatial: non-overlapping spatial parts (two passes over the input);
+    /// stream: the paper's single pass, parts in file order.
+    #[arg(long, default_value = "spatial", value_parser = ["spatial", "stream"])]
+    pub partition: String,
+    /// Tile compression: none (fastest to load), deflate or zstd.
+    #[arg(long, default_value = "none", value_parser = Compression::parse)]
+    pub compression: Compression,
+    /// Point layout: hilbert (Hilbert order, centroid representatives: even levels)
+    /// or paper (file order, as Du & Li 2009).
+    #[arg(long, default_value = "hilbert", value_parser = ["hilbert", "paper"])]
+    pub layout: String,
+    /// Text columns, e.g. "x y z intensity r g b"; "_" skips a column.
+    #[arg(long)]
+    pub columns: Option<String>,
+    /// Skip malformed lines (and report how many) instead of stopping.
+    #[arg(long)]
+    pub skip_invalid: bool,
+    /// Replace an existing output.
+    #[arg(long)]
+    pub force: bool,
+    /// Accept parts so large that f32 cannot keep 1 mm.
+    #[arg(long)]
+    pub allow_lossy: bool,
+    /// No progress bars or summary.
+    #[arg(short, long)]
+    pub quiet: bool,
+}
+
+/// Progress bars on stderr, one per phase.
+struct Bars {
+    bar: ProgressBar,
+    quiet: bool,
+}
+
+impl Progress for Bars {
+    fn phase(&self, name: &str, total: u64, unit: &'static str) {
+        self.bar.reset();
+        self.bar.set_length(total);
+        self.bar.set_position(0);
+        let style = if unit == "bytes" {
+            "{prefix:>9} [{bar:30}] {binary_bytes}/{binary_total_bytes} {msg} ({eta})"
+        } else {
+            "{prefix:>9} [{bar:30}] {pos}/{len} points {msg} ({eta})"
+        };
+        if let Ok(s) = ProgressStyle::with_template(style) {
+            self.bar.set_style(s.progress_chars("=> "));
+        }
+        self.bar.set_prefix(name.to_string());
+    }
+    fn advance(&self, done: u64, points: u64) {
+        self.bar.set_position(done);
+        let secs = self.bar.elapsed().as_secs_f64().max(1e-3);
+        self.bar.set_message(format!(
+            "{} points, {:.1} M points/s",
+            count(points),
+            points as f64 / secs / 1e6
+        ));
+    }
+    fn note(&self, msg: &str) {
+        if !self.quiet {
+            self.bar.println(msg);
+        }
+    }
+}
+
+pub fn run(a: Args) -> anyhow::Result<()> {
+    let output = a
+        .output
+        .clone()
+        .unwrap_or_else(|| a.input.with_extension("pcimg"));
+    let cancel = Arc::new(AtomicBool::new(false));
+    {
+        let c = cancel.clone();
+        // A second handler cannot be set (tests run several conversions): ignore.
+        let _ = ctrlc::set_handler(move || c.store(true, std::sync::atomic::Ordering::Relaxed));
+    }
+    let opts = ConvertOptions {
+        output,
+        force: a.force,
+        memory: a.memory.unwrap_or_else(budget::default_budget),
+        partition: if a.partition == "stream" {
+            Partition::Stream
+        } else {
+            Partition::Spatial
+        },
+        compression: a.compression,
+        layout: if a.layout == "paper" {
+            Layout::Paper
+        } else {
+            Layout::Hilbert
+        },
+        read: ReadOptions {
+            columns: a.columns.clone(),
+            skip_invalid: a.skip_invalid,
+            ..Default::default()
+        },
+        allow_lossy: a.allow_lossy,
+        cancel,
+    };
+    let bar = ProgressBar::with_draw_target(None, ProgressDrawTarget::stderr());
+    if a.quiet {
+        bar.set_draw_target(ProgressDrawTarget::hidden());
+    }
+    let bars = Bars {
+        bar,
+        quiet: a.quiet,
+    };
+    let result = convert::convert(&a.input, &opts, &bars);
+    bars.bar.finish_and_clear();
+    let s = result?;
+    if a.quiet {
+        return Ok(());
+    }
+    let secs = s.elapsed.as_secs_f64().max(1e-9);
+    let levels = s
+        .parts
+        .iter()
+        .map(|p| p.level_points.len())
+        .max()
+        .unwrap_or(0);
+    println!(
+        "converted {} ({}, {}) -> {}",
+        sanitize(&s.input.display().to_string()),
+        sanitize(&s.format),
+        bytes(s.input_bytes),
+        sanitize(&s.output.display().to_string())
+    );
+    println!(
+        "  {} points in {} part(s) of at most {} points (--memory {}), up to {} levels, {}",
+        count(s.points),
+        s.parts.len(),
+        count(s.points_per_part),
+        bytes(opts.memory),
+        levels,
+        bytes(s.bytes())
+    );
+    if s.skipped > 0 {
+        println!("  skipped {} malformed line(s)", count(s.skipped));
+    }
+    println!(
+        "  {:.2} s: {:.2} M points/s, {:.0} MB/s of input",
+        secs,
+        s.points as f64 / secs / 1e6,
+        s.input_bytes as f64 / secs / 1e6
+    );
+    println!(
+        "  stored coordinates within {:.4} mm of the source",
+        s.max_quantization_error * 1000.0
+    );
+    Ok(())
+}
