@@ -1,0 +1,302 @@
+//! `pcimg convert` end to end: every input format, the shared real samples, the
+//! memory budget, partition modes, bad inputs, interruption, and the command line.
+
+use pcimg::convert::{self, ConvertOptions, Partition, Progress, Quiet};
+use pcimg::ingest::ReadOptions;
+use pcimg::store::{Compression, Dataset, Layout};
+use std::path::{Path, PathBuf};
+use std::process::Command;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+
+fn shared(name: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../shared/data")
+        .join(name)
+}
+
+fn opts(output: PathBuf, memory: u64) -> ConvertOptions {
+    ConvertOptions {
+        output,
+        force: false,
+        memory,
+        partition: Partition::Spatial,
+        compression: Compression::None,
+        layout: Layout::Hilbert,
+        read: ReadOptions::default(),
+        allow_lossy: false,
+        cancel: Arc::new(AtomicBool::new(false)),
+    }
+}
+
+/// Level-0 points of a dataset as (x, y, z) rounded to 0.1 mm, sorted.
+fn dataset_points(path: &Path) -> Vec<[i64; 3]> {
+    let ds = Dataset::open(path).unwrap();
+    let mut all = Vec::new();
+    for p in &ds.parts {
+        let pts = p.read_level(0, &[0, 1, 2]).unwrap();
+        for i in 0..pts.len() {
+            all.push(
+                [0, 1, 2]
+                    .map(|a| ((pts.offsets[a] + pts.columns[a][i] as f64) * 1e4).round() as i64),
+            );
+        }
+    }
+    all.sort();
+    all
+}
+
+fn entries(dir: &Path) -> Vec<String> {
+    let mut v: Vec<String> = std::fs::read_dir(dir)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .collect();
+    v.sort();
+    v
+}
+
+#[test]
+fn real_samples_convert_with_reference_counts_and_bounds() {
+    let dir = tempfile::tempdir().unwrap();
+    let cases: [(&str, u64, Option<([f64; 3], [f64; 3])>); 3] = [
+        (
+            "autzen_trim.laz",
+            110_000,
+            Some((
+                [636001.76, 848935.20, 406.26],
+                [637179.22, 849497.90, 520.51],
+            )),
+        ),
+        ("bun_zipper.ply", 35_947, None),
+        ("cgal_b9_training.ply", 22_300, None),
+    ];
+    for (name, n, bounds) in cases {
+        let out = dir.path().join(format!("{name}.tif"));
+        let s = convert::convert(&shared(name), &opts(out.clone(), 1 << 30), &Quiet).unwrap();
+        assert_eq!(s.points, n, "{name}");
+        let ds = Dataset::open(&out).unwrap();
+        assert_eq!(ds.points(), n);
+        let p = &ds.parts[0];
+        assert_eq!(p.meta.source.as_deref(), Some(name));
+        if let Some((min, max)) = bounds {
+            for a in 0..3 {
+                assert!((p.meta.bounds.min[a] - min[a]).abs() < 1e-6, "{name} min");
+                assert!((p.meta.bounds.max[a] - max[a]).abs() < 1e-6, "{name} max");
+            }
+            assert!(p.meta.crs.as_deref().is_some_and(|c| !c.is_empty()));
+            let names: Vec<&str> = p.bands.iter().map(|b| b.name.as_str()).collect();
+            for want in [
+                "intensity",
+                "red",
+                "green",
+                "blue",
+                "classification",
+                "gps_time",
+            ] {
+                assert!(names.contains(&want), "{want} in {names:?}");
+            }
+            // 8-bit colour stored in 16-bit fields stays 0-255.
+            let red = p.band_index("red").unwrap();
+            let v = p.read_level(0, &[red]).unwrap();
+            let max = v.columns[0].iter().fold(0f32, |m, &x| m.max(x));
+            assert!(max > 1.0 && max <= 255.0, "{max}");
+        }
+        assert_eq!(p.meta.max_quantization_error.map(|e| e < 1e-3), Some(true));
+    }
+}
+
+#[test]
+fn budget_far_below_input_gives_spatial_parts_with_every_point() {
+    let dir = tempfile::tempdir().unwrap();
+    let input = dir.path().join("scan.xyz");
+    pcimg::synth::write_text(&input, 600_000, 3).unwrap();
+    let out = dir.path().join("scan.pcimg");
+    // 64 MiB: about 180 k points per part for 4 bands.
+    let s = convert::convert(&input, &opts(out.clone(), 64 << 20), &Quiet).unwrap();
+    assert_eq!(s.points, 600_000);
+    assert!(s.parts.len() as u64 >= 600_000u64.div_ceil(s.points_per_part));
+    assert!(s.parts.len() >= 3, "{} parts", s.parts.len());
+    assert!(s.parts.iter().all(|p| p.points <= s.points_per_part));
+    // Every point, exactly once.
+    let pts = pcimg::synth::scene(600_000, 3);
+    let mut want: Vec<[i64; 3]> = (0..pts.len())
+        .map(|i| {
+            [pts.x[i], pts.y[i], pts.z[i]]
+                .map(|v| ((v * 1000.0).round() / 1000.0 * 1e4).round() as i64)
+        })
+        .collect();
+    want.sort();
+    let got = dataset_points(&out);
+    assert_eq!(got.len(), want.len());
+    let off = got
+        .iter()
+        .zip(&want)
+        .filter(|(a, b)| (0..3).any(|k| (a[k] - b[k]).abs() > 1))
+        .count();
+    assert_eq!(off, 0, "points differ beyond 0.1 mm");
+    // Parts do not overlap: each pair is separated on some axis.
+    let ds = Dataset::open(&out).unwrap();
+    for (i, a) in ds.parts.iter().enumerate() {
+        for b in &ds.parts[i + 1..] {
+            let (a, b) = (a.meta.bounds, b.meta.bounds);
+            assert!(
+                (0..3).any(|k| a.max[k] <= b.min[k] || b.max[k] <= a.min[k]),
+                "parts overlap: {a:?} {b:?}"
+            );
+        }
+    }
+    // No temporary files left beside the output.
+    assert_eq!(entries(dir.path()), ["scan.pcimg", "scan.xyz"]);
+}
+
+#[test]
+fn stream_partition_keeps_file_order() {
+    let dir = tempfile::tempdir().unwrap();
+    let input = dir.path().join("scan.las");
+    pcimg::synth::write_las(&input, 300_000, 5).unwrap();
+    let out = dir.path().join("stream");
+    let mut o = opts(out.clone(), 56 << 20);
+    o.partition = Partition::Stream;
+    o.layout = Layout::Paper;
+    let s = convert::convert(&input, &o, &Quiet).unwrap();
+    assert_eq!(s.points, 300_000);
+    assert!(s.parts.len() >= 2);
+    // Part k holds points [k * per_part, ...) of the file, in file order (paper layout).
+    let ds = Dataset::open(&out).unwrap();
+    let pts = pcimg::synth::scene(300_000, 5);
+    let mut start = 0usize;
+    for p in &ds.parts {
+        let got = p.read_level(0, &[0]).unwrap();
+        for i in [0, got.len() / 2, got.len() - 1] {
+            let x = got.offsets[0] + got.columns[0][i] as f64;
+            assert!((x - pts.x[start + i]).abs() < 2e-3, "part point {i}");
+        }
+        start += got.len();
+    }
+    assert_eq!(start, 300_000);
+}
+
+#[test]
+fn precision_is_refused_unless_allowed() {
+    let dir = tempfile::tempdir().unwrap();
+    let input = dir.path().join("wide.xyz");
+    std::fs::write(&input, "0 0 0\n100000 5 1\n50000 2 3\n").unwrap();
+    let e = convert::convert(&input, &opts(dir.path().join("w.tif"), 1 << 30), &Quiet)
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("100.0 km") && e.contains("--allow-lossy"), "{e}");
+    let mut o = opts(dir.path().join("w.tif"), 1 << 30);
+    o.allow_lossy = true;
+    assert!(convert::convert(&input, &o, &Quiet).is_ok());
+}
+
+/// A progress sink that asks to stop after the first window, as Ctrl-C does.
+struct StopAfterFirst(Arc<AtomicBool>);
+impl Progress for StopAfterFirst {
+    fn phase(&self, _: &str, _: u64, _: &'static str) {}
+    fn advance(&self, _: u64, _: u64) {
+        self.0.store(true, Ordering::Relaxed);
+    }
+    fn note(&self, _: &str) {}
+}
+
+#[test]
+fn interrupted_conversion_leaves_nothing() {
+    let dir = tempfile::tempdir().unwrap();
+    let input = dir.path().join("scan.xyz");
+    pcimg::synth::write_text(&input, 400_000, 1).unwrap();
+    for partition in [Partition::Spatial, Partition::Stream] {
+        let mut o = opts(dir.path().join("out"), 64 << 20);
+        o.partition = partition;
+        o.read.chunk_points = 50_000;
+        let stop = StopAfterFirst(o.cancel.clone());
+        let e = convert::convert(&input, &o, &stop).unwrap_err().to_string();
+        assert!(e.contains("interrupted"), "{e}");
+        assert_eq!(entries(dir.path()), ["scan.xyz"]);
+    }
+}
+
+#[test]
+fn bad_inputs_are_clear_errors_and_leave_nothing() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let cases: Vec<(&str, Vec<u8>, &str)> = vec![
+        ("bad.xyz", b"1 2 3\n4 5 6\n7 oops 9\n".to_vec(), "line 3"),
+        ("nan.xyz", b"1 2 3\n4 nan 6\n".to_vec(), "line 2"),
+        ("empty.xyz", Vec::new(), "empty"),
+        ("points.unknown", b"1 2 3\n".to_vec(), "unknown input format"),
+        (
+            "short.ply",
+            b"ply\nformat binary_little_endian 1.0\nelement vertex 10\nproperty float x\nproperty float y\nproperty float z\nend_header\n\x00\x00\x80\x3f".to_vec(),
+            "",
+        ),
+        ("cut.laz", std::fs::read(shared("autzen_trim.laz")).unwrap()[..20_000].to_vec(), ""),
+    ];
+    for (name, bytes, want) in cases {
+        let input = d.join(name);
+        std::fs::write(&input, &bytes).unwrap();
+        let out = d.join(format!("{name}.out"));
+        let e = convert::convert(&input, &opts(out.clone(), 1 << 30), &Quiet)
+            .expect_err(name)
+            .to_string();
+        assert!(
+            e.contains(name),
+            "{name}: error does not name the file: {e}"
+        );
+        assert!(e.contains(want), "{name}: {e}");
+        assert!(!out.exists(), "{name}: output left behind");
+        std::fs::remove_file(&input).unwrap();
+        assert!(entries(d).is_empty(), "{name}: left {:?}", entries(d));
+    }
+    // skip_invalid skips and counts.
+    let input = d.join("bad.xyz");
+    std::fs::write(&input, b"1 2 3\n4 5 6\n7 oops 9\n10 11 12\n").unwrap();
+    let mut o = opts(d.join("ok.tif"), 1 << 30);
+    o.read.skip_invalid = true;
+    let s = convert::convert(&input, &o, &Quiet).unwrap();
+    assert_eq!((s.points, s.skipped), (3, 1));
+    // An existing output is not replaced without force.
+    let e = convert::convert(&input, &opts(d.join("ok.tif"), 1 << 30), &Quiet).unwrap_err();
+    assert!(e.to_string().contains("--force"), "{e}");
+}
+
+#[test]
+fn command_line_convert_and_info_json() {
+    let dir = tempfile::tempdir().unwrap();
+    let exe = env!("CARGO_BIN_EXE_pcimg");
+    let input = dir.path().join("s.las");
+    let st = Command::new(exe)
+        .args(["synth", "-n", "200000", "-o"])
+        .arg(&input)
+        .status()
+        .unwrap();
+    assert!(st.success());
+    let out = dir.path().join("s.pcimg");
+    let o = Command::new(exe)
+        .args(["convert", "--memory", "48MiB", "--compression", "zstd"])
+        .arg(&input)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let text = String::from_utf8_lossy(&o.stdout);
+    assert!(text.contains("200,000 points"), "{text}");
+    let o = Command::new(exe)
+        .args(["info", "--json"])
+        .arg(&out)
+        .output()
+        .unwrap();
+    assert!(o.status.success());
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert_eq!(v["points"], 200_000);
+    let parts = v["parts"].as_array().unwrap();
+    assert!(parts.len() >= 2);
+    assert_eq!(parts[0]["levels"][0]["compression"], "zstd");
+    assert_eq!(parts[0]["bands"][3]["name"], "intensity");
+    // A missing input is a clear error with a non-zero exit.
+    let o = Command::new(exe)
+        .args(["convert", "nope.las"])
+        .output()
+        .unwrap();
+    assert!(!o.status.success());
+    assert!(String::from_utf8_lossy(&o.stderr).contains("nope.las"));
+}
