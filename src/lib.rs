@@ -5,6 +5,9 @@
 //! level selection and loading → renderers → the terminal interface. [`convert`]
 //! drives readers into the store.
 
+// Loops over the three axes index several parallel arrays at once.
+#![allow(clippy::needless_range_loop)]
+
 pub mod cli;
 pub mod convert;
 pub mod ingest;

@@ -58,7 +58,8 @@ fn entries(dir: &Path) -> Vec<String> {
 #[test]
 fn real_samples_convert_with_reference_counts_and_bounds() {
     let dir = tempfile::tempdir().unwrap();
-    let cases: [(&str, u64, Option<([f64; 3], [f64; 3])>); 3] = [
+    type Case = (&'static str, u64, Option<([f64; 3], [f64; 3])>);
+    let cases: [Case; 3] = [
         (
             "autzen_trim.laz",
             110_000,

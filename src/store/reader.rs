@@ -333,7 +333,7 @@ impl Part {
                     .map_err(|m| err(format!("IFD at byte {}: {m}", ifd.offset)))?,
             );
         }
-        levels.sort_by(|a, b| b.width.cmp(&a.width));
+        levels.sort_by_key(|l| std::cmp::Reverse(l.width));
         let mut lut_cache: BTreeMap<u32, Arc<Vec<u32>>> = BTreeMap::new();
         for (k, level) in levels.iter_mut().enumerate() {
             level.index = k;

@@ -456,7 +456,7 @@ fn encode<W: Write + Seek, K: TiffKind>(
                     Encoded::Bytes(v) => v,
                 };
                 let r = g.tile_raster_index(level, t as u64) as usize;
-                offsets[b * per_band + r] = dir.write_data(&bytes[..])?;
+                offsets[b * per_band + r] = dir.write_data(bytes)?;
                 counts[b * per_band + r] = bytes.len() as u64;
             }
         }
