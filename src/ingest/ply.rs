@@ -995,6 +995,22 @@ mod tests {
     }
 
     #[test]
+    fn zero_vertices_is_an_empty_cloud() {
+        let d = tempfile::tempdir().unwrap();
+        for f in ["ascii", "binary_little_endian"] {
+            let p = d.path().join(format!("{f}.ply"));
+            std::fs::write(
+                &p,
+                format!("ply\nformat {f} 1.0\nelement vertex 0\nproperty float x\nproperty float y\nproperty float z\nend_header\n"),
+            )
+            .unwrap();
+            let mut r = open(&p, &ReadOptions::default()).unwrap();
+            assert_eq!(r.info().declared_points, Some(0));
+            assert!(r.next_chunk().unwrap().is_none());
+        }
+    }
+
+    #[test]
     fn float_colour_is_scaled() {
         let d = tempfile::tempdir().unwrap();
         let p = d.path().join("fc.ply");
