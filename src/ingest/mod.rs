@@ -18,6 +18,7 @@
 pub mod color;
 pub mod error;
 pub mod las;
+pub(crate) mod lines;
 pub mod ply;
 pub mod text;
 
