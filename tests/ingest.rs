@@ -210,3 +210,49 @@ fn damaged_inputs_never_panic() {
         }
     }
 }
+
+mod random_bytes {
+    use super::*;
+    use proptest::prelude::*;
+
+    fn read_bytes(name: &str, bytes: &[u8]) -> Result<usize, String> {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join(name);
+        std::fs::write(&p, bytes).unwrap();
+        let opts = ReadOptions {
+            chunk_points: 7,
+            skip_invalid: bytes.first().is_some_and(|b| b & 1 == 1),
+            ..Default::default()
+        };
+        ingest::read_all(&p, &opts)
+            .map(|r| r.1.len())
+            .map_err(|e| e.to_string())
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig { cases: 64, ..ProptestConfig::default() })]
+
+        /// Arbitrary bytes in text form: an answer, never a panic.
+        #[test]
+        fn text_never_panics(lines in proptest::collection::vec("[-+0-9eE.,;# \\t/xyzna]{0,30}", 0..40)) {
+            let body = lines.join("\n");
+            if let Err(e) = read_bytes("r.xyz", body.as_bytes()) {
+                prop_assert!(e.contains("r.xyz"));
+            }
+        }
+
+        /// Arbitrary bytes after a PLY header start.
+        #[test]
+        fn ply_never_panics(tail in proptest::collection::vec(any::<u8>(), 0..300), fmt in 0..3usize) {
+            let f = ["ascii", "binary_little_endian", "binary_big_endian"][fmt];
+            let mut b = format!(
+                "ply\nformat {f} 1.0\nelement vertex 3\nproperty float x\nproperty double y\nproperty short z\nproperty uchar red\nend_header\n"
+            )
+            .into_bytes();
+            b.extend_from_slice(&tail);
+            if let Err(e) = read_bytes("r.ply", &b) {
+                prop_assert!(e.contains("r.ply"));
+            }
+        }
+    }
+}

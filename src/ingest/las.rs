@@ -539,6 +539,56 @@ mod tests {
     }
 
     #[test]
+    fn las_1_4_format_8_with_nir() {
+        let d = tempfile::tempdir().unwrap();
+        let p = d.path().join("pf8.las");
+        let mut b = las::Builder::default();
+        b.version = las::Version::new(1, 4);
+        b.point_format = las::point::Format::new(8).unwrap();
+        let header = b.into_header().unwrap();
+        let mut w = las::Writer::from_path(&p, header).unwrap();
+        for i in 0..100u16 {
+            w.write_point(las::Point {
+                x: f64::from(i),
+                y: 1.0,
+                z: 2.0,
+                return_number: 2,
+                number_of_returns: 5,
+                classification: las::point::Classification::new(40).unwrap(),
+                gps_time: Some(10.0),
+                color: Some(las::Color::new(i * 600, 0, 65535)),
+                nir: Some(i),
+                ..Default::default()
+            })
+            .unwrap();
+        }
+        w.close().unwrap();
+        let (info, c, _) = read_all(&p, &ReadOptions::default()).unwrap();
+        assert_eq!(info.format, "las 1.4");
+        assert_eq!(
+            info.attribute_names,
+            [
+                "intensity",
+                "return_number",
+                "number_of_returns",
+                "classification",
+                "gps_time",
+                "red",
+                "green",
+                "blue",
+                "nir"
+            ]
+        );
+        assert_eq!(c.len(), 100);
+        let a = |n: &str| &values(&c, n).values;
+        assert_eq!(a("classification")[5], 40.0);
+        assert_eq!(a("number_of_returns")[5], 5.0);
+        assert_eq!(a("blue")[5], 255.0);
+        assert_eq!(a("red")[99], (99.0f32 * 600.0) / 257.0);
+        assert_eq!(a("nir")[99], 99.0);
+    }
+
+    #[test]
     fn wkt_crs_is_read() {
         let d = tempfile::tempdir().unwrap();
         let p = d.path().join("w.las");

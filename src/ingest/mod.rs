@@ -14,10 +14,15 @@
 //! * Colour is always delivered on a 0–255 scale: see [`color`] for the rule.
 //! * GPS time uses the attribute offset: the offset is the first point's time, so
 //!   `f32` values keep sub-millisecond precision.
+//! * Memory: a reader holds about one chunk of columns (~56 bytes per point with
+//!   x y z and eight attributes) plus its parse buffers; the LAS/LAZ reader decodes
+//!   one chunk ahead on its own thread. Pages of a memory map already consumed are
+//!   released as reading advances.
 
 pub mod color;
 pub mod error;
 pub mod las;
+pub(crate) mod lines;
 pub mod ply;
 pub mod text;
 

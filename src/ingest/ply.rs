@@ -9,7 +9,7 @@
 //!   the vertex element are skipped by size (item by item when they have list
 //!   properties); those after it are never read. In ASCII files the lines of the
 //!   elements before the vertex element are skipped and only the vertex lines are
-//!   parsed, with the parallel line engine of [`super::text`].
+//!   parsed, with the parallel line engine (`ingest::lines`) that the text reader uses.
 //! * Binary vertices are read by a fixed-stride decoder over the memory map with a
 //!   precomputed byte offset per property, byte-swapped for big-endian, in
 //!   parallel over each window with rayon.
@@ -23,7 +23,7 @@ use rayon::prelude::*;
 
 use super::color::{ColorNormalizer, is_color};
 use super::error::IngestError;
-use super::text::{Layout, LineEngine, Role};
+use super::lines::{Layout, LineEngine, Role};
 use super::{PointReader, ReadOptions, SourceInfo, canonical_name};
 use crate::points::{Attribute, PointColumns};
 
@@ -365,7 +365,7 @@ pub fn open(path: &Path, opts: &ReadOptions) -> Result<Box<dyn PointReader>, Ing
             skip_invalid: opts.skip_invalid,
             allow_count_lines: false,
             chunk_points: opts.chunk_points,
-            bytes_per_line: super::text::sample_bytes_per_line(&map, pos),
+            bytes_per_line: super::lines::sample_bytes_per_line(&map, pos),
             skipped: 0,
             colors: ColorNormalizer::new(plan.float_color),
             pending: Default::default(),
@@ -992,6 +992,22 @@ mod tests {
         };
         let (_, c, skipped) = read_all(&p, &opts).unwrap();
         assert_eq!((c.x.clone(), skipped), (vec![1.0], 2));
+    }
+
+    #[test]
+    fn zero_vertices_is_an_empty_cloud() {
+        let d = tempfile::tempdir().unwrap();
+        for f in ["ascii", "binary_little_endian"] {
+            let p = d.path().join(format!("{f}.ply"));
+            std::fs::write(
+                &p,
+                format!("ply\nformat {f} 1.0\nelement vertex 0\nproperty float x\nproperty float y\nproperty float z\nend_header\n"),
+            )
+            .unwrap();
+            let mut r = open(&p, &ReadOptions::default()).unwrap();
+            assert_eq!(r.info().declared_points, Some(0));
+            assert!(r.next_chunk().unwrap().is_none());
+        }
     }
 
     #[test]

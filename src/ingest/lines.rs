@@ -1,0 +1,681 @@
+//! The parallel line engine shared by the text reader and the ASCII PLY reader:
+//! column layouts, the number parser, windows of whole lines cut into pieces that
+//! rayon parses in parallel, and chunking.
+//!
+//! * Columns are separated by runs of spaces, tabs, commas or semicolons; `\r` is
+//!   a separator too, so `\r\n` line endings need no special case.
+//! * Lines starting with `#` or `//` (after optional blanks) and blank lines are
+//!   skipped (and counted, so line numbers stay exact).
+//! * Numbers: a fast path for plain decimals that gives the same bits as a full
+//!   parser (`parse_number`), `fast_float2::parse_partial` for the rest.
+//! * A window is about `chunk_points` lines (estimated from the bytes per line
+//!   seen so far), cut at line boundaries into pieces for rayon; each piece
+//!   counts its lines, so the line number of an invalid line is exact whatever
+//!   the piece it falls in. No allocation per line.
+//! * Chunks never exceed `chunk_points`: when a window holds more points, the
+//!   rest is cut into chunks delivered next.
+
+use std::path::PathBuf;
+
+use rayon::prelude::*;
+
+use super::color::ColorNormalizer;
+use super::error::IngestError;
+use crate::points::{Attribute, PointColumns};
+
+/// What one column of a line holds.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) enum Role {
+    X,
+    Y,
+    Z,
+    Attr(usize),
+    Skip,
+}
+
+/// The columns of a line.
+#[derive(Debug, Clone, PartialEq)]
+pub(crate) struct Layout {
+    pub roles: Vec<Role>,
+    pub attr_names: Vec<String>,
+}
+
+impl Layout {
+    /// Builds a layout from column names (already canonical, `_` = skip).
+    /// Errors (as a message) unless x, y and z each appear once.
+    pub(crate) fn from_names(names: &[String]) -> Result<Layout, String> {
+        let mut roles = Vec::with_capacity(names.len());
+        let mut attr_names: Vec<String> = Vec::new();
+        let mut seen = [false; 3];
+        for n in names {
+            let role = match n.as_str() {
+                "x" | "y" | "z" => {
+                    let a = (n.as_bytes()[0] - b'x') as usize;
+                    if seen[a] {
+                        return Err(format!("column '{n}' appears twice"));
+                    }
+                    seen[a] = true;
+                    [Role::X, Role::Y, Role::Z][a]
+                }
+                "_" | "" => Role::Skip,
+                other => {
+                    if attr_names.iter().any(|a| a == other) {
+                        return Err(format!(
+                            "column '{}' appears twice",
+                            crate::text::sanitize(other)
+                        ));
+                    }
+                    attr_names.push(other.to_string());
+                    Role::Attr(attr_names.len() - 1)
+                }
+            };
+            roles.push(role);
+        }
+        if !seen.iter().all(|&s| s) {
+            return Err("the columns must include x, y and z".into());
+        }
+        Ok(Layout { roles, attr_names })
+    }
+
+    /// The default layout for `n` columns (n ≥ 3).
+    pub(crate) fn positional(n: usize) -> Layout {
+        let names: Vec<String> = match n {
+            3 => vec!["x", "y", "z"].into_iter().map(String::from).collect(),
+            4 => ["x", "y", "z", "intensity"].map(String::from).to_vec(),
+            6 => ["x", "y", "z", "red", "green", "blue"]
+                .map(String::from)
+                .to_vec(),
+            7 => ["x", "y", "z", "intensity", "red", "green", "blue"]
+                .map(String::from)
+                .to_vec(),
+            _ => (0..n)
+                .map(|i| match i {
+                    0 => "x".to_string(),
+                    1 => "y".to_string(),
+                    2 => "z".to_string(),
+                    i => format!("col{i}"),
+                })
+                .collect(),
+        };
+        // Positional names are distinct and contain x y z.
+        Layout::from_names(&names).unwrap_or(Layout {
+            roles: vec![Role::X, Role::Y, Role::Z],
+            attr_names: Vec::new(),
+        })
+    }
+
+    pub(crate) fn ncols(&self) -> usize {
+        self.roles.len()
+    }
+}
+
+#[inline(always)]
+pub(crate) fn is_sep(c: u8) -> bool {
+    matches!(c, b' ' | b'\t' | b',' | b';' | b'\r')
+}
+
+/// Powers of ten that are exact in `f64`.
+const POW10: [f64; 16] = [
+    1e0, 1e1, 1e2, 1e3, 1e4, 1e5, 1e6, 1e7, 1e8, 1e9, 1e10, 1e11, 1e12, 1e13, 1e14, 1e15,
+];
+
+const POW10_INT: [u64; 16] = [
+    1,
+    10,
+    100,
+    1_000,
+    10_000,
+    100_000,
+    1_000_000,
+    10_000_000,
+    100_000_000,
+    1_000_000_000,
+    10_000_000_000,
+    100_000_000_000,
+    1_000_000_000_000,
+    10_000_000_000_000,
+    100_000_000_000_000,
+    1_000_000_000_000_000,
+];
+
+/// Parses a number at the start of `s`: returns the value and the bytes used.
+///
+/// Fast path for plain decimals (`-12.345`, at most 15 significant digits, no
+/// exponent): the digits form an exact integer `m < 2^53` and the value is
+/// `m / 10^k` with `10^k` exact, which IEEE division rounds correctly (Clinger's
+/// fast path), so the result equals a full parser's. Everything else (exponents,
+/// long mantissas, `nan`, `inf`) goes to `fast_float2::parse_partial`.
+#[inline(always)]
+pub(crate) fn parse_number(s: &[u8]) -> Option<(f64, usize)> {
+    let mut i = 0;
+    let neg = match s.first() {
+        Some(b'-') => {
+            i = 1;
+            true
+        }
+        Some(b'+') => {
+            i = 1;
+            false
+        }
+        _ => false,
+    };
+    // Integer and fraction digits accumulate separately (two short independent
+    // dependency chains instead of one long one).
+    let mut mi: u64 = 0;
+    let int_start = i;
+    while let Some(&c) = s.get(i) {
+        let d = c.wrapping_sub(b'0');
+        if d > 9 {
+            break;
+        }
+        mi = mi.wrapping_mul(10).wrapping_add(d as u64);
+        i += 1;
+    }
+    let mut digits = i - int_start;
+    let mut frac = 0;
+    let mut mf: u64 = 0;
+    if s.get(i) == Some(&b'.') {
+        i += 1;
+        let fs = i;
+        while let Some(&c) = s.get(i) {
+            let d = c.wrapping_sub(b'0');
+            if d > 9 {
+                break;
+            }
+            mf = mf.wrapping_mul(10).wrapping_add(d as u64);
+            i += 1;
+        }
+        frac = i - fs;
+        digits += frac;
+    }
+    let exp_follows = matches!(s.get(i), Some(b'e' | b'E'));
+    if digits == 0 || digits > 15 || exp_follows {
+        return match fast_float2::parse_partial::<f64, _>(s) {
+            Ok((v, used)) => Some((v, used)),
+            Err(_) => None,
+        };
+    }
+    // m < 10^15 fits in i64, whose conversion to f64 is one instruction.
+    let v = if frac == 0 {
+        mi as i64 as f64
+    } else {
+        let m = mi.wrapping_mul(POW10_INT[frac]).wrapping_add(mf);
+        m as i64 as f64 / POW10[frac]
+    };
+    Some((if neg { -v } else { v }, i))
+}
+
+/// How a line failed.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum LineFault {
+    NotANumber,
+    Columns(usize),
+    NonFinite,
+}
+
+impl LineFault {
+    fn message(self, ncols: usize) -> String {
+        match self {
+            LineFault::NotANumber => "not a number".into(),
+            LineFault::Columns(found) => format!("expected {ncols} columns, found {found}"),
+            LineFault::NonFinite => "coordinate is not finite (NaN or infinity)".into(),
+        }
+    }
+}
+
+/// The result of parsing one piece of a window.
+#[derive(Default)]
+struct Piece {
+    x: Vec<f64>,
+    y: Vec<f64>,
+    z: Vec<f64>,
+    attrs: Vec<Vec<f32>>,
+    /// Lines consumed (complete or not) up to the end of the piece or the error.
+    lines: u64,
+    skipped: u64,
+    /// First invalid line when not skipping: (0-based line index within the piece,
+    /// fault, byte range of the line within the piece).
+    error: Option<(u64, LineFault, usize, usize)>,
+}
+
+/// Parses the lines of `buf` (which ends at a line boundary or at the end of data).
+fn parse_piece(
+    buf: &[u8],
+    layout: &Layout,
+    skip_invalid: bool,
+    allow_count_lines: bool,
+    est_points: usize,
+) -> Piece {
+    let ncols = layout.ncols();
+    let nattr = layout.attr_names.len();
+    let mut p = Piece {
+        x: super::column_with_capacity(est_points),
+        y: super::column_with_capacity(est_points),
+        z: super::column_with_capacity(est_points),
+        attrs: (0..nattr)
+            .map(|_| super::column_with_capacity(est_points))
+            .collect(),
+        ..Default::default()
+    };
+    let mut vals = vec![0f64; ncols];
+    let n = buf.len();
+    let mut i = 0usize;
+    while i < n {
+        let line_start = i;
+        while i < n && matches!(buf[i], b' ' | b'\t' | b'\r') {
+            i += 1;
+        }
+        if i >= n {
+            break;
+        }
+        let c = buf[i];
+        if c == b'\n' {
+            p.lines += 1;
+            i += 1;
+            continue;
+        }
+        if c == b'#' || (c == b'/' && i + 1 < n && buf[i + 1] == b'/') {
+            i = match memchr::memchr(b'\n', &buf[i..]) {
+                Some(k) => i + k + 1,
+                None => n,
+            };
+            p.lines += 1;
+            continue;
+        }
+        // Parse the tokens of the line.
+        let mut col = 0usize;
+        let mut fault = None;
+        loop {
+            match parse_number(&buf[i..]) {
+                Some((v, used)) => {
+                    if col < ncols {
+                        vals[col] = v;
+                    }
+                    col += 1;
+                    i += used;
+                }
+                None => {
+                    fault = Some(LineFault::NotANumber);
+                    break;
+                }
+            }
+            let before = i;
+            while i < n && is_sep(buf[i]) {
+                i += 1;
+            }
+            if i >= n || buf[i] == b'\n' {
+                break;
+            }
+            if i == before {
+                // Garbage glued to a number ("1.5abc").
+                fault = Some(LineFault::NotANumber);
+                break;
+            }
+        }
+        if fault.is_none() && col != ncols {
+            if allow_count_lines && col == 1 && vals[0].fract() == 0.0 && vals[0] >= 0.0 {
+                // A PTS scan's point-count line.
+                if i < n {
+                    i += 1;
+                }
+                p.lines += 1;
+                continue;
+            }
+            fault = Some(LineFault::Columns(col));
+        }
+        if fault.is_none() {
+            let mut xyz = [0f64; 3];
+            for (c, role) in layout.roles.iter().enumerate() {
+                match *role {
+                    Role::X => xyz[0] = vals[c],
+                    Role::Y => xyz[1] = vals[c],
+                    Role::Z => xyz[2] = vals[c],
+                    Role::Attr(a) => p.attrs[a].push(vals[c] as f32),
+                    Role::Skip => {}
+                }
+            }
+            if xyz.iter().all(|v| v.is_finite()) {
+                p.x.push(xyz[0]);
+                p.y.push(xyz[1]);
+                p.z.push(xyz[2]);
+                if i < n {
+                    i += 1; // the newline
+                }
+                p.lines += 1;
+                continue;
+            }
+            // Undo the attributes pushed for this line.
+            for a in &mut p.attrs {
+                a.truncate(p.x.len());
+            }
+            fault = Some(LineFault::NonFinite);
+        }
+        // Invalid line.
+        let line_end = match memchr::memchr(b'\n', &buf[line_start..]) {
+            Some(k) => line_start + k,
+            None => n,
+        };
+        if skip_invalid {
+            p.skipped += 1;
+            p.lines += 1;
+            i = (line_end + 1).min(n);
+            continue;
+        }
+        if let Some(f) = fault {
+            p.error = Some((p.lines, f, line_start, line_end));
+        }
+        return p;
+    }
+    p
+}
+
+/// Concatenates slices, copying them in parallel into their places.
+fn concat_par<T: Copy + Default + Send + Sync>(parts: &[&[T]]) -> Vec<T> {
+    if parts.len() == 1 {
+        return parts[0].to_vec();
+    }
+    let total = parts.iter().map(|p| p.len()).sum();
+    let mut out = super::zeroed_column(total);
+    let mut dests = Vec::with_capacity(parts.len());
+    let mut rest = &mut out[..];
+    for p in parts {
+        let (a, b) = rest.split_at_mut(p.len());
+        dests.push(a);
+        rest = b;
+    }
+    dests
+        .into_par_iter()
+        .zip(parts.par_iter())
+        .for_each(|(d, s)| d.copy_from_slice(s));
+    out
+}
+
+/// Average bytes per line over the first 64 KiB from `start` (at least 1): the
+/// first window's size estimate.
+pub(crate) fn sample_bytes_per_line(data: &[u8], start: usize) -> f64 {
+    let start = start.min(data.len());
+    let sample = &data[start..data.len().min(start + (64 << 10))];
+    let lines = memchr::memchr_iter(b'\n', sample).count().max(1);
+    (sample.len() as f64 / lines as f64).max(1.0)
+}
+
+/// Smallest piece worth a rayon task, in bytes.
+const MIN_PIECE_BYTES: usize = 256 << 10;
+
+/// Reads lines of a memory-mapped region in windows, parsing each window in
+/// parallel. Shared by the text reader and the ASCII PLY reader.
+pub(crate) struct LineEngine {
+    pub path: PathBuf,
+    pub layout: Layout,
+    /// Next byte to read.
+    pub pos: usize,
+    /// End of the data.
+    pub end: usize,
+    /// 1-based number of the line that starts at `pos`.
+    pub line: u64,
+    /// For ASCII PLY: vertex lines still to read.
+    pub lines_left: Option<u64>,
+    pub skip_invalid: bool,
+    pub allow_count_lines: bool,
+    pub chunk_points: usize,
+    /// Estimated bytes per line, refined after each window.
+    pub bytes_per_line: f64,
+    pub skipped: u64,
+    pub colors: ColorNormalizer,
+    /// Points parsed beyond `chunk_points` in the last window, as chunks of
+    /// `chunk_points`, delivered next.
+    pub pending: std::collections::VecDeque<PointColumns>,
+}
+
+/// Cuts `cols` into chunks of at most `n` points (`n` ≥ 1), in order, copying
+/// each point at most once.
+fn cut_chunks(mut cols: PointColumns, n: usize) -> Vec<PointColumns> {
+    let mut tails = Vec::new();
+    while cols.len() > n {
+        let at = (cols.len() - 1) / n * n;
+        tails.push(PointColumns {
+            x: cols.x.split_off(at),
+            y: cols.y.split_off(at),
+            z: cols.z.split_off(at),
+            attributes: cols
+                .attributes
+                .iter_mut()
+                .map(|a| Attribute {
+                    name: a.name.clone(),
+                    offset: a.offset,
+                    values: a.values.split_off(at),
+                })
+                .collect(),
+        });
+    }
+    tails.push(cols);
+    tails.reverse();
+    tails
+}
+
+impl LineEngine {
+    pub(crate) fn next_chunk(&mut self, data: &[u8]) -> Result<Option<PointColumns>, IngestError> {
+        let end = self.end.min(data.len());
+        if let Some(p) = self.pending.pop_front() {
+            return Ok(Some(p));
+        }
+        loop {
+            if self.lines_left == Some(0) {
+                return Ok(None);
+            }
+            if self.pos >= end {
+                if let Some(left) = self.lines_left {
+                    return Err(IngestError::line(
+                        &self.path,
+                        self.line,
+                        format!("the file ends {left} vertex line(s) early (truncated?)"),
+                        b"",
+                    ));
+                }
+                return Ok(None);
+            }
+            let target =
+                ((self.chunk_points as f64) * self.bytes_per_line).clamp(1.0, 1e15) as usize;
+            let mut win_end = self.pos.saturating_add(target).min(end);
+            if win_end < end {
+                win_end = match memchr::memchr(b'\n', &data[win_end..end]) {
+                    Some(k) => win_end + k + 1,
+                    None => end,
+                };
+            }
+            if let Some(left) = self.lines_left {
+                let w = &data[self.pos..win_end];
+                if let Some(k) =
+                    memchr::memchr_iter(b'\n', w).nth((left - 1).min(usize::MAX as u64) as usize)
+                {
+                    win_end = self.pos + k + 1;
+                }
+            }
+            let win_len = win_end - self.pos;
+            let (cols, lines, skipped) = self.parse_window(&data[self.pos..win_end])?;
+            self.pos = win_end;
+            self.line += lines;
+            self.skipped += skipped;
+            if let Some(left) = self.lines_left.as_mut() {
+                *left = left.saturating_sub(lines);
+            }
+            if lines > 0 {
+                self.bytes_per_line = (win_len as f64 / lines as f64).max(1.0);
+            }
+            if let Some(mut cols) = cols {
+                self.colors.apply(&mut cols);
+                if cols.len() > self.chunk_points {
+                    self.pending.extend(cut_chunks(cols, self.chunk_points));
+                    return Ok(self.pending.pop_front());
+                }
+                return Ok(Some(cols));
+            }
+        }
+    }
+
+    /// Parses one window of whole lines: (points or None if the window had none,
+    /// lines consumed, lines skipped).
+    fn parse_window(&self, w: &[u8]) -> Result<(Option<PointColumns>, u64, u64), IngestError> {
+        // Cut the window into pieces at line boundaries.
+        let threads = rayon::current_num_threads().max(1);
+        let max_pieces = if threads == 1 { 1 } else { threads * 4 };
+        let npieces = (w.len() / MIN_PIECE_BYTES).clamp(1, max_pieces);
+        let mut bounds = Vec::with_capacity(npieces + 1);
+        bounds.push(0usize);
+        for k in 1..npieces {
+            let guess = w.len() * k / npieces;
+            let prev = *bounds.last().unwrap_or(&0);
+            if guess <= prev {
+                continue;
+            }
+            let b = match memchr::memchr(b'\n', &w[guess..]) {
+                Some(j) => guess + j + 1,
+                None => w.len(),
+            };
+            if b < w.len() && b > prev {
+                bounds.push(b);
+            }
+        }
+        bounds.push(w.len());
+        let est = |len: usize| ((len as f64 / self.bytes_per_line) * 1.05) as usize + 16;
+        let layout = &self.layout;
+        let (skip, count) = (self.skip_invalid, self.allow_count_lines);
+        let mut pieces: Vec<Piece> = bounds
+            .par_windows(2)
+            .map(|b| parse_piece(&w[b[0]..b[1]], layout, skip, count, est(b[1] - b[0])))
+            .collect();
+        let mut lines = 0u64;
+        let mut skipped = 0u64;
+        for (k, p) in pieces.iter().enumerate() {
+            if let Some((idx, fault, s, e)) = p.error {
+                let base = bounds[k];
+                return Err(IngestError::line(
+                    &self.path,
+                    self.line + lines + idx,
+                    fault.message(layout.ncols()),
+                    &w[base + s..base + e],
+                ));
+            }
+            lines += p.lines;
+            skipped += p.skipped;
+        }
+        let total: usize = pieces.iter().map(|p| p.x.len()).sum();
+        if total == 0 {
+            return Ok((None, lines, skipped));
+        }
+        if pieces.len() == 1
+            && let Some(p) = pieces.pop()
+        {
+            // One piece: its columns are the chunk, no copy.
+            let cols = PointColumns {
+                x: p.x,
+                y: p.y,
+                z: p.z,
+                attributes: layout
+                    .attr_names
+                    .iter()
+                    .zip(p.attrs)
+                    .map(|(n, v)| Attribute::new(n.clone(), v))
+                    .collect(),
+            };
+            return Ok((Some(cols), lines, skipped));
+        }
+        let part = |f: fn(&Piece) -> &[f64]| -> Vec<&[f64]> { pieces.iter().map(f).collect() };
+        let (x, (y, z)) = rayon::join(
+            || concat_par(&part(|p| &p.x)),
+            || {
+                rayon::join(
+                    || concat_par(&part(|p| &p.y)),
+                    || concat_par(&part(|p| &p.z)),
+                )
+            },
+        );
+        let attributes = layout
+            .attr_names
+            .par_iter()
+            .enumerate()
+            .map(|(k, n)| {
+                let parts: Vec<&[f32]> = pieces.iter().map(|p| &p.attrs[k][..]).collect();
+                Attribute::new(n.clone(), concat_par(&parts))
+            })
+            .collect();
+        let cols = PointColumns {
+            x,
+            y,
+            z,
+            attributes,
+        };
+        Ok((Some(cols), lines, skipped))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    #[test]
+    fn fast_decimal_path_matches_fast_float() {
+        use super::parse_number;
+        let mut seed = 0x2545F4914F6CDD1Du64;
+        let mut next = || {
+            seed ^= seed << 13;
+            seed ^= seed >> 7;
+            seed ^= seed << 17;
+            seed
+        };
+        let mut cases: Vec<String> = [
+            "0",
+            "-0",
+            "+1",
+            "1.",
+            ".5",
+            "-.5",
+            "123456789012345",
+            "1234567890123456",
+            "0.000000000000001",
+            "9007199254740993",
+            "1e5",
+            "-2.5E-3",
+            "nan",
+            "inf",
+            "-infinity",
+            "636123.456",
+            "00000000000000000012.5",
+            "99999999999999999999999",
+        ]
+        .iter()
+        .map(|s| s.to_string())
+        .collect();
+        for _ in 0..20_000 {
+            let r = next();
+            let int = r % 10_000_000;
+            let frac_digits = (r >> 40) % 12;
+            let frac = (r >> 20) % 10u64.pow(frac_digits as u32).max(1);
+            let sign = if r & 1 == 1 { "-" } else { "" };
+            cases.push(if frac_digits == 0 {
+                format!("{sign}{int}")
+            } else {
+                format!("{sign}{int}.{frac:0w$}", w = frac_digits as usize)
+            });
+        }
+        for c in &cases {
+            for tail in ["", " 7", ",8", "\n"] {
+                let s = format!("{c}{tail}");
+                let got = parse_number(s.as_bytes());
+                let want = fast_float2::parse_partial::<f64, _>(s.as_bytes()).ok();
+                match (got, want) {
+                    (Some((a, n)), Some((b, m))) => {
+                        assert_eq!(n, m, "{s:?}");
+                        assert!(
+                            a.to_bits() == b.to_bits() || (a.is_nan() && b.is_nan()),
+                            "{s:?}: {a} vs {b}"
+                        );
+                    }
+                    (None, None) => {}
+                    (g, w) => panic!("{s:?}: {g:?} vs {w:?}"),
+                }
+            }
+        }
+        for bad in ["", "-", "+", ".", "x", "-.", "e5"] {
+            assert!(parse_number(bad.as_bytes()).is_none(), "{bad:?}");
+        }
+    }
+}
