@@ -65,6 +65,27 @@ impl Phases {
     }
 }
 
+/// An upper bound of |stored - source| for any coordinate inside `bounds`: half an
+/// f32 ulp at the largest offset from the origin, plus the f64 rounding of the
+/// subtraction and of the reader's re-addition.
+pub fn quantization_bound(bounds: &Bounds, origin: [f64; 3]) -> f64 {
+    if bounds.is_empty() {
+        return 0.0;
+    }
+    (0..3)
+        .map(|a| {
+            let rel = (bounds.max[a] - origin[a]).abs().max((bounds.min[a] - origin[a]).abs());
+            let mag = bounds.max[a].abs().max(bounds.min[a].abs());
+            let half_ulp = if rel > 0.0 {
+                2f64.powi(rel.log2().floor() as i32 - 24)
+            } else {
+                0.0
+            };
+            half_ulp + 4.0 * f64::EPSILON * mag
+        })
+        .fold(0.0, f64::max)
+}
+
 /// Columns of a part in image order, ready to be tiled.
 struct Arranged {
     geometry: Geometry,
@@ -144,30 +165,29 @@ fn arrange(path: &Path, pts: &PointColumns, layout: Layout, ph: &mut Phases) -> 
         ));
     }
     let origin = if n == 0 { [0.0; 3] } else { bounds.center() };
-    // Coordinates relative to the origin, and the worst rounding to f32.
+    // Coordinates relative to the origin.
     let mut pos = vec![[0f32; 3]; n];
-    let max_error = pos
-        .par_chunks_mut(1 << 16)
+    pos.par_chunks_mut(1 << 16)
         .enumerate()
-        .map(|(c, chunk)| {
-            let mut err = 0f64;
+        .for_each(|(c, chunk)| {
             for (k, p) in chunk.iter_mut().enumerate() {
                 let i = (c << 16) + k;
-                let src = [pts.x[i], pts.y[i], pts.z[i]];
-                for a in 0..3 {
-                    p[a] = (src[a] - origin[a]) as f32;
-                    err = err.max(((origin[a] + p[a] as f64) - src[a]).abs());
-                }
+                *p = [
+                    (pts.x[i] - origin[0]) as f32,
+                    (pts.y[i] - origin[1]) as f32,
+                    (pts.z[i] - origin[2]) as f32,
+                ];
             }
-            err
-        })
-        .reduce(|| 0.0, f64::max);
+        });
+    let max_error = quantization_bound(&bounds, origin);
     let geometry = Geometry::for_points(n as u64);
     ph.mark("validate+origin");
     // Points in image order: positions (sorted) and their source indices.
     let (pos, perm): (Vec<[f32; 3]>, Vec<u32>) = match layout {
         Layout::Hilbert => {
-            let perm = layout::hilbert_order(&pos);
+            let lo = [0, 1, 2].map(|a| (bounds.min[a] - origin[a]) as f32);
+            let hi = [0, 1, 2].map(|a| (bounds.max[a] - origin[a]) as f32);
+            let perm = layout::hilbert_order(&pos, lo, hi);
             ph.mark("hilbert sort");
             let mut sorted: Vec<[f32; 3]> = perm.par_iter().map(|&i| pos[i as usize]).collect();
             drop(pos);

@@ -1,0 +1,50 @@
+#!/usr/bin/env bash
+# The paper's storage experiment (Du & Li 2009, Table 1) at full size:
+# 47,756,566 points of "x y z intensity" text, converted with 3 bands (x y z) and
+# with 4 bands, under --memory 256MiB and under the default budget; plus the same
+# points as LAS. Prints wall time, M points/s, MB/s of input and peak resident memory
+# (GNU time) for each run.
+#
+#   bash bench/convert.sh            # full size (needs ~5 GB in $DIR)
+#   N=5000000 bash bench/convert.sh  # a quick run
+set -euo pipefail
+cd "$(dirname "$0")/.."
+N=${N:-47756566}
+DIR=${DIR:-/tmp/pcimg-bench}
+BIN=target/release/pcimg
+cargo build --release -q
+mkdir -p "$DIR"
+echo "machine: $(nproc) cores, $(free -g | awk '/Mem:/ {print $2}') GiB, $(uname -sr)"
+echo "points: $N"
+[ -f "$DIR/paper-$N.xyz" ] || $BIN synth -n "$N" -o "$DIR/paper-$N.xyz"
+[ -f "$DIR/paper-$N.las" ] || $BIN synth -n "$N" -o "$DIR/paper-$N.las"
+
+run() {
+  local label=$1 input=$2
+  shift 2
+  rm -rf "$DIR/out"
+  sync
+  /usr/bin/time -v "$BIN" convert "$input" -o "$DIR/out" --force -q "$@" 2> "$DIR/time.txt"
+  local wall rss bytes parts
+  wall=$(awk -F': ' '/Elapsed \(wall clock\)/ {print $2}' "$DIR/time.txt" |
+    awk -F: '{ if (NF == 3) print $1*3600 + $2*60 + $3; else print $1*60 + $2 }')
+  rss=$(awk -F': ' '/Maximum resident set size/ {print $2}' "$DIR/time.txt")
+  bytes=$(stat -c %s "$input")
+  parts=$(ls "$DIR/out" | wc -l)
+  local out
+  out=$(du -sb "$DIR/out" | cut -f1)
+  awk -v l="$label" -v w="$wall" -v r="$rss" -v n="$N" -v b="$bytes" -v p="$parts" -v o="$out" 'BEGIN {
+    printf "%-34s %7.2f s  %6.2f M points/s  %6.0f MB/s  peak %6.0f MiB  %3d parts  %6.0f MiB out\n",
+      l, w, n / w / 1e6, b / w / 1e6, r / 1024, p, o / 1048576 }'
+}
+
+echo
+echo "run                                  wall    throughput      input      memory    parts   output"
+run "text, 3 bands, --memory 256MiB" "$DIR/paper-$N.xyz" --columns "x y z _" --memory 256MiB
+run "text, 4 bands, --memory 256MiB" "$DIR/paper-$N.xyz" --memory 256MiB
+run "text, 3 bands, default memory" "$DIR/paper-$N.xyz" --columns "x y z _"
+run "text, 4 bands, default memory" "$DIR/paper-$N.xyz"
+run "text, 4 bands, stream, 256MiB" "$DIR/paper-$N.xyz" --memory 256MiB --partition stream
+run "las, 4+ bands, --memory 256MiB" "$DIR/paper-$N.las" --memory 256MiB
+run "las, 4+ bands, default memory" "$DIR/paper-$N.las"
+rm -rf "$DIR/out"
