@@ -3,7 +3,10 @@
 pub mod convert;
 pub mod demo;
 pub mod info;
+pub mod preview;
+pub mod render;
 pub mod synth;
+pub mod view;
 
 use clap::{Parser, Subcommand};
 
@@ -23,6 +26,10 @@ pub enum Command {
     Convert(convert::Args),
     /// Build a synthetic dataset in a temporary directory and show it.
     Demo(demo::Args),
+    /// Render one frame of a dataset to a PNG, headless.
+    Render(render::Args),
+    /// Print one frame inline in the terminal (kitty, sixel, iTerm2, half-blocks).
+    Preview(preview::Args),
     /// Write a deterministic synthetic scan as text or LAS.
     Synth(synth::Args),
 }
@@ -33,6 +40,8 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Info(a) => info::run(a),
         Command::Convert(a) => convert::run(a),
         Command::Demo(a) => demo::run(a),
+        Command::Render(a) => render::run(a),
+        Command::Preview(a) => preview::run(a),
         Command::Synth(a) => synth::run(a),
     }
 }

@@ -1,0 +1,305 @@
+//! The tile cache: tiles of (part, level, tile) loaded through the store by worker
+//! threads, kept under a memory budget (least recently used out). Callers ask for a
+//! selection and never wait: tiles arrive as workers finish, and requests for tiles
+//! no longer wanted are skipped.
+
+use super::select::TileRef;
+use crate::store::Dataset;
+use std::collections::{HashMap, HashSet};
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::mpsc::{Receiver, Sender, channel};
+use std::sync::{Arc, Mutex};
+use std::time::Instant;
+
+/// Identifies a tile of a dataset.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub struct TileKey {
+    pub part: usize,
+    pub level: usize,
+    pub tile: u32,
+}
+
+impl From<&TileRef> for TileKey {
+    fn from(t: &TileRef) -> Self {
+        TileKey {
+            part: t.part,
+            level: t.level,
+            tile: t.tile,
+        }
+    }
+}
+
+/// A loaded tile: coordinates relative to its part's origin, and the attribute
+/// columns used for colouring.
+#[derive(Debug, Clone)]
+pub struct LoadedTile {
+    pub key: TileKey,
+    pub origin: [f64; 3],
+    pub x: Vec<f32>,
+    pub y: Vec<f32>,
+    pub z: Vec<f32>,
+    /// Attribute columns by band name (with their offsets).
+    pub attributes: Vec<(String, f64, Vec<f32>)>,
+    pub load_ms: f64,
+}
+
+impl LoadedTile {
+    pub fn len(&self) -> usize {
+        self.x.len()
+    }
+    pub fn is_empty(&self) -> bool {
+        self.x.is_empty()
+    }
+    pub fn bytes(&self) -> u64 {
+        4 * (self.x.len() as u64 * 3 + self.attributes.iter().map(|a| a.2.len() as u64).sum::<u64>())
+    }
+    pub fn attribute(&self, name: &str) -> Option<&[f32]> {
+        self.attributes
+            .iter()
+            .find(|a| a.0 == name)
+            .map(|a| a.2.as_slice())
+    }
+}
+
+/// Attribute bands loaded for colouring, when the part has them.
+pub const COLOR_BANDS: [&str; 4] = ["intensity", "red", "green", "blue"];
+
+/// Loads one tile from the store.
+pub fn load_tile(ds: &Dataset, key: TileKey) -> Result<LoadedTile, String> {
+    let t0 = Instant::now();
+    let part = ds
+        .parts
+        .get(key.part)
+        .ok_or_else(|| format!("no part {}", key.part))?;
+    let mut bands = vec![0usize, 1, 2];
+    bands.extend(COLOR_BANDS.iter().filter_map(|n| part.band_index(n)));
+    let p = part
+        .read_tiles(key.level, &[key.tile], &bands)
+        .map_err(|e| e.to_string())?;
+    let mut cols = p.columns.into_iter();
+    let (x, y, z) = (
+        cols.next().unwrap_or_default(),
+        cols.next().unwrap_or_default(),
+        cols.next().unwrap_or_default(),
+    );
+    let attributes = p.bands[3..]
+        .iter()
+        .zip(&p.offsets[3..])
+        .zip(cols)
+        .map(|((n, &o), c)| (n.clone(), o, c))
+        .collect();
+    Ok(LoadedTile {
+        key,
+        origin: [p.offsets[0], p.offsets[1], p.offsets[2]],
+        x,
+        y,
+        z,
+        attributes,
+        load_ms: t0.elapsed().as_secs_f64() * 1e3,
+    })
+}
+
+struct Entry {
+    tile: Arc<LoadedTile>,
+    last_used: u64,
+}
+
+#[derive(Default)]
+struct State {
+    tiles: HashMap<TileKey, Entry>,
+    wanted: HashSet<TileKey>,
+    queued: HashSet<TileKey>,
+    bytes: u64,
+    clock: u64,
+    errors: Vec<String>,
+}
+
+/// Counters for the status line.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct CacheStats {
+    pub tiles: usize,
+    pub bytes: u64,
+    pub budget: u64,
+    pub pending: usize,
+    pub loads: u64,
+    pub load_ms: f64,
+}
+
+/// Tiles loaded on worker threads under a memory budget.
+pub struct TileCache {
+    ds: Arc<Dataset>,
+    budget: u64,
+    state: Arc<Mutex<State>>,
+    jobs: Option<Sender<TileKey>>,
+    workers: Vec<std::thread::JoinHandle<()>>,
+    loads: Arc<AtomicU64>,
+    load_us: Arc<AtomicU64>,
+    /// Signalled whenever a tile arrives (the interface redraws).
+    pub arrivals: Receiver<TileKey>,
+}
+
+impl TileCache {
+    pub fn new(ds: Arc<Dataset>, budget: u64, threads: usize) -> TileCache {
+        let (job_tx, job_rx) = channel::<TileKey>();
+        let (arrive_tx, arrive_rx) = channel::<TileKey>();
+        let job_rx = Arc::new(Mutex::new(job_rx));
+        let state = Arc::new(Mutex::new(State::default()));
+        let loads = Arc::new(AtomicU64::new(0));
+        let load_us = Arc::new(AtomicU64::new(0));
+        let workers = (0..threads.max(1))
+            .map(|_| {
+                let (rx, state, ds, tx) = (job_rx.clone(), state.clone(), ds.clone(), arrive_tx.clone());
+                let (loads, load_us) = (loads.clone(), load_us.clone());
+                std::thread::spawn(move || {
+                    loop {
+                        let key = match rx.lock() {
+                            Ok(r) => match r.recv() {
+                                Ok(k) => k,
+                                Err(_) => return,
+                            },
+                            Err(_) => return,
+                        };
+                        let still_wanted = state.lock().map(|s| s.wanted.contains(&key)).unwrap_or(false);
+                        if !still_wanted {
+                            if let Ok(mut s) = state.lock() {
+                                s.queued.remove(&key);
+                            }
+                            continue;
+                        }
+                        let res = load_tile(&ds, key);
+                        let Ok(mut s) = state.lock() else { return };
+                        s.queued.remove(&key);
+                        match res {
+                            Ok(t) => {
+                                loads.fetch_add(1, Ordering::Relaxed);
+                                load_us.fetch_add((t.load_ms * 1e3) as u64, Ordering::Relaxed);
+                                s.bytes += t.bytes();
+                                s.clock += 1;
+                                let clock = s.clock;
+                                s.tiles.insert(key, Entry { tile: Arc::new(t), last_used: clock });
+                                evict(&mut s, budget);
+                                drop(s);
+                                let _ = tx.send(key);
+                            }
+                            Err(e) => s.errors.push(e),
+                        }
+                    }
+                })
+            })
+            .collect();
+        TileCache {
+            ds,
+            budget,
+            state,
+            jobs: Some(job_tx),
+            workers,
+            loads,
+            load_us,
+            arrivals: arrive_rx,
+        }
+    }
+
+    pub fn dataset(&self) -> &Arc<Dataset> {
+        &self.ds
+    }
+
+    /// Asks for the tiles of a selection; returns at once. Tiles already cached are
+    /// kept; tiles of earlier requests not in this one are no longer loaded.
+    pub fn request(&self, tiles: &[TileRef]) {
+        let Ok(mut s) = self.state.lock() else { return };
+        s.wanted = tiles.iter().map(TileKey::from).collect();
+        s.clock += 1;
+        let clock = s.clock;
+        for t in tiles {
+            let k = TileKey::from(t);
+            if let Some(e) = s.tiles.get_mut(&k) {
+                e.last_used = clock;
+            } else if !s.queued.contains(&k) {
+                s.queued.insert(k);
+                if let Some(j) = &self.jobs {
+                    let _ = j.send(k);
+                }
+            }
+        }
+    }
+
+    /// The cached tiles among `tiles` (others are still loading).
+    pub fn ready(&self, tiles: &[TileRef]) -> Vec<Arc<LoadedTile>> {
+        let Ok(s) = self.state.lock() else { return Vec::new() };
+        tiles
+            .iter()
+            .filter_map(|t| s.tiles.get(&TileKey::from(t)).map(|e| e.tile.clone()))
+            .collect()
+    }
+
+    /// Loads the tiles now (in parallel) and returns them all: for one-shot renders.
+    pub fn load_all(&self, tiles: &[TileRef]) -> Result<Vec<Arc<LoadedTile>>, String> {
+        use rayon::prelude::*;
+        let out: Vec<Arc<LoadedTile>> = tiles
+            .par_iter()
+            .map(|t| load_tile(&self.ds, TileKey::from(t)).map(Arc::new))
+            .collect::<Result<_, String>>()?;
+        for t in &out {
+            self.loads.fetch_add(1, Ordering::Relaxed);
+            self.load_us.fetch_add((t.load_ms * 1e3) as u64, Ordering::Relaxed);
+        }
+        Ok(out)
+    }
+
+    /// Errors from workers since the last call.
+    pub fn take_errors(&self) -> Vec<String> {
+        self.state
+            .lock()
+            .map(|mut s| std::mem::take(&mut s.errors))
+            .unwrap_or_default()
+    }
+
+    pub fn stats(&self) -> CacheStats {
+        let (tiles, bytes, pending) = self
+            .state
+            .lock()
+            .map(|s| (s.tiles.len(), s.bytes, s.queued.len()))
+            .unwrap_or_default();
+        CacheStats {
+            tiles,
+            bytes,
+            budget: self.budget,
+            pending,
+            loads: self.loads.load(Ordering::Relaxed),
+            load_ms: self.load_us.load(Ordering::Relaxed) as f64 / 1e3,
+        }
+    }
+
+    /// Whether every tile of `tiles` is cached.
+    pub fn has_all(&self, tiles: &[TileRef]) -> bool {
+        self.state
+            .lock()
+            .map(|s| tiles.iter().all(|t| s.tiles.contains_key(&TileKey::from(t))))
+            .unwrap_or(false)
+    }
+}
+
+/// Drops least recently used tiles that are not wanted until under budget.
+fn evict(s: &mut State, budget: u64) {
+    while s.bytes > budget {
+        let victim = s
+            .tiles
+            .iter()
+            .filter(|(k, _)| !s.wanted.contains(k))
+            .min_by_key(|(_, e)| e.last_used)
+            .map(|(k, _)| *k);
+        let Some(k) = victim else { break };
+        if let Some(e) = s.tiles.remove(&k) {
+            s.bytes -= e.tile.bytes();
+        }
+    }
+}
+
+impl Drop for TileCache {
+    fn drop(&mut self) {
+        self.jobs = None; // closes the channel: workers finish
+        for w in self.workers.drain(..) {
+            let _ = w.join();
+        }
+    }
+}

@@ -1,0 +1,9 @@
+//! Level selection and loading: which tiles of which pyramid levels to draw for a
+//! viewpoint (the paper's distance rule, or view-dependent selection under a point
+//! budget), and a tile cache filled by worker threads under a memory budget.
+
+pub mod cache;
+pub mod select;
+
+pub use cache::{LoadedTile, TileCache, TileKey};
+pub use select::{LodMode, Selection, TileRef, distance_level, select};

@@ -1,0 +1,266 @@
+//! Choosing tiles for a viewpoint.
+//!
+//! - `Distance` (the paper): the distance from the eye to the centre of the
+//!   dataset's bounds picks one level for every part; thresholds double per level,
+//!   starting at half the bounds' diagonal, so closer means finer, down to level 0.
+//! - `View` (default): per part and per tile, tiles outside the frustum are culled
+//!   by their stored bounds; starting from each part's coarsest level, the visible
+//!   tile whose points are spread widest on screen is refined into its four children
+//!   (which hold its points and three times more) until every tile's projected point
+//!   spacing is below about a pixel or the point budget would be exceeded.
+//! - `Fixed(k)`: level k (clamped per part) everywhere, culled by the frustum.
+//!
+//! Every mode then respects a memory budget: tiles that do not fit are not loaded,
+//! farthest first, and the selection says so (the paper: "it has to give up
+//! loading").
+
+use crate::camera::{Camera, Containment, Frustum};
+use crate::points::Bounds;
+use crate::store::Dataset;
+use std::cmp::Ordering;
+use std::collections::BinaryHeap;
+
+/// How levels are chosen.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum LodMode {
+    Distance,
+    View { budget: u64 },
+    Fixed(usize),
+}
+
+/// One tile to draw.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct TileRef {
+    pub part: usize,
+    pub level: usize,
+    /// Raster index of the tile in its level.
+    pub tile: u32,
+    pub points: u64,
+    pub bounds: Bounds,
+}
+
+/// The outcome of a selection.
+#[derive(Debug, Clone, Default)]
+pub struct Selection {
+    pub tiles: Vec<TileRef>,
+    pub points: u64,
+    /// Tiles left out because they lie outside the view.
+    pub culled: usize,
+    /// Tiles (and their points) given up for the memory budget.
+    pub dropped_tiles: usize,
+    pub dropped_points: u64,
+    /// The finest and coarsest level drawn.
+    pub levels: Option<(usize, usize)>,
+}
+
+/// Bytes a point costs in memory when loaded (x, y, z and one colour source).
+pub const BYTES_PER_LOADED_POINT: u64 = 4 * 4 + 4;
+
+/// The paper's distance rule: level for the eye at `distance` from the centre of
+/// bounds with diagonal `diag`, for a part with `levels` levels.
+pub fn distance_level(distance: f64, diag: f64, levels: usize) -> usize {
+    if levels == 0 {
+        return 0;
+    }
+    let t0 = (0.5 * diag).max(1e-9);
+    let mut level = 0;
+    let mut t = t0;
+    while distance >= t && level + 1 < levels {
+        level += 1;
+        t *= 2.0;
+    }
+    level
+}
+
+/// Points spacing in world units of a tile: points spread over its two largest
+/// extents (scans sample surfaces).
+fn spacing(b: &Bounds, points: u64) -> f64 {
+    let mut e = b.extent();
+    e.sort_by(|a, b| b.total_cmp(a));
+    let area = (e[0] * e[1]).max(e[0] * e[0] * 1e-6).max(1e-12);
+    (area / points.max(1) as f64).sqrt()
+}
+
+/// Distance from the eye to the nearest point of `b`.
+fn distance_to_box(eye: [f64; 3], b: &Bounds) -> f64 {
+    (0..3)
+        .map(|a| {
+            let d = (b.min[a] - eye[a]).max(eye[a] - b.max[a]).max(0.0);
+            d * d
+        })
+        .sum::<f64>()
+        .sqrt()
+}
+
+/// A tile waiting in the refinement queue, ordered by projected point spacing.
+struct Candidate {
+    key: f64,
+    tile: TileRef,
+}
+impl PartialEq for Candidate {
+    fn eq(&self, o: &Self) -> bool {
+        self.key == o.key
+    }
+}
+impl Eq for Candidate {}
+impl PartialOrd for Candidate {
+    fn partial_cmp(&self, o: &Self) -> Option<Ordering> {
+        Some(self.cmp(o))
+    }
+}
+impl Ord for Candidate {
+    fn cmp(&self, o: &Self) -> Ordering {
+        self.key.total_cmp(&o.key)
+    }
+}
+
+/// Tile entries of a level: raster index → (points, bounds), in Z-rank order.
+fn level_tiles(ds: &Dataset, part: usize, level: usize) -> Vec<TileRef> {
+    let p = &ds.parts[part];
+    let l = &p.levels[level];
+    l.tiles
+        .iter()
+        .map(|t| TileRef {
+            part,
+            level,
+            tile: t.index,
+            points: t
+                .points
+                .map(|n| n as u64)
+                .unwrap_or_else(|| l.points.unwrap_or(p.meta.point_count) / l.tiles.len().max(1) as u64),
+            bounds: t.bounds,
+        })
+        .collect()
+}
+
+/// The four children (one level finer) of a tile, when the level below has a tile
+/// index with the same Z-order structure.
+fn children(ds: &Dataset, t: &TileRef) -> Option<Vec<TileRef>> {
+    if t.level == 0 {
+        return None;
+    }
+    let p = &ds.parts[t.part];
+    let (up, down) = (&p.levels[t.level], &p.levels[t.level - 1]);
+    if !up.indexed || !down.indexed || down.tiles_across != 2 * up.tiles_across {
+        return None;
+    }
+    let col = t.tile % up.tiles_across;
+    let row = t.tile / up.tiles_across;
+    let kids: Vec<u32> = [(0, 0), (1, 0), (0, 1), (1, 1)]
+        .iter()
+        .map(|(dx, dy)| (2 * row + dy) * down.tiles_across + 2 * col + dx)
+        .collect();
+    Some(
+        down.tiles
+            .iter()
+            .filter(|d| kids.contains(&d.index))
+            .map(|d| TileRef {
+                part: t.part,
+                level: t.level - 1,
+                tile: d.index,
+                points: d.points.unwrap_or(0) as u64,
+                bounds: d.bounds,
+            })
+            .collect(),
+    )
+}
+
+/// Selects the tiles to draw for `camera` on a `width`×`height` view.
+pub fn select(
+    ds: &Dataset,
+    camera: &Camera,
+    width: u32,
+    height: u32,
+    mode: LodMode,
+    memory_budget: u64,
+) -> Selection {
+    let aspect = width as f64 / height.max(1) as f64;
+    let frustum: Frustum = camera.frustum(aspect);
+    let eye = camera.eye().to_array();
+    let mut sel = Selection::default();
+    let mut chosen: Vec<TileRef> = Vec::new();
+    let visible = |t: &TileRef| frustum.contains_aabb(&t.bounds) != Containment::Outside;
+    match mode {
+        LodMode::Distance | LodMode::Fixed(_) => {
+            let total = ds.bounds();
+            let diag = total.extent().iter().map(|e| e * e).sum::<f64>().sqrt();
+            let d = camera.distance_to(total.center());
+            for (pi, p) in ds.parts.iter().enumerate() {
+                let n = p.levels.len();
+                let level = match mode {
+                    LodMode::Fixed(k) => k.min(n.saturating_sub(1)),
+                    _ => distance_level(d, diag, n),
+                };
+                for t in level_tiles(ds, pi, level) {
+                    if visible(&t) {
+                        chosen.push(t);
+                    } else {
+                        sel.culled += 1;
+                    }
+                }
+            }
+        }
+        LodMode::View { budget } => {
+            let ppu = |b: &Bounds| camera.pixels_per_unit(distance_to_box(eye, b), height);
+            let mut heap = BinaryHeap::new();
+            let mut total = 0u64;
+            for (pi, p) in ds.parts.iter().enumerate() {
+                let top = p.levels.len().saturating_sub(1);
+                for t in level_tiles(ds, pi, top) {
+                    if !visible(&t) {
+                        sel.culled += 1;
+                        continue;
+                    }
+                    total += t.points;
+                    heap.push(Candidate {
+                        key: spacing(&t.bounds, t.points) * ppu(&t.bounds),
+                        tile: t,
+                    });
+                }
+            }
+            while let Some(c) = heap.pop() {
+                // Fine enough, or nothing finer: keep it.
+                let kids = if c.key > 1.0 { children(ds, &c.tile) } else { None };
+                let Some(kids) = kids else {
+                    chosen.push(c.tile);
+                    continue;
+                };
+                let vis: Vec<TileRef> = kids.iter().copied().filter(|k| visible(k)).collect();
+                let added: u64 = vis.iter().map(|k| k.points).sum::<u64>();
+                if total - c.tile.points + added > budget {
+                    chosen.push(c.tile);
+                    continue;
+                }
+                total = total - c.tile.points + added;
+                sel.culled += kids.len() - vis.len();
+                for k in vis {
+                    heap.push(Candidate {
+                        key: spacing(&k.bounds, k.points) * ppu(&k.bounds),
+                        tile: k,
+                    });
+                }
+            }
+        }
+    }
+    // The memory budget: nearest tiles first; give up the rest.
+    chosen.sort_by(|a, b| {
+        distance_to_box(eye, &a.bounds).total_cmp(&distance_to_box(eye, &b.bounds))
+    });
+    let mut bytes = 0u64;
+    for t in chosen {
+        let cost = t.points * BYTES_PER_LOADED_POINT;
+        if bytes + cost > memory_budget {
+            sel.dropped_tiles += 1;
+            sel.dropped_points += t.points;
+            continue;
+        }
+        bytes += cost;
+        sel.points += t.points;
+        sel.levels = Some(match sel.levels {
+            None => (t.level, t.level),
+            Some((lo, hi)) => (lo.min(t.level), hi.max(t.level)),
+        });
+        sel.tiles.push(t);
+    }
+    sel
+}
