@@ -5,5 +5,6 @@
 //! level selection and loading → renderers → the terminal interface.
 
 pub mod points;
+pub mod render;
 pub mod store;
 pub mod text;
