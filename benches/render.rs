@@ -145,6 +145,14 @@ fn bench(cr: &mut Criterion) {
         }
         Err(e) => eprintln!("no wgpu adapter, GPU benchmarks skipped: {e}"),
     }
+    // Fixed per-frame cost: clear, merge/resolve, readback of an empty frame.
+    let mut g = cr.benchmark_group("render_empty_frame");
+    for (name, r) in renderers.iter_mut() {
+        g.bench_function(name.as_str(), |b| {
+            b.iter(|| r.render(&cam, &[], &opts).is_ok())
+        });
+    }
+    g.finish();
     for n in [1_000_000usize, 10_000_000] {
         let morton = terrain(n);
         let orders = [
@@ -180,5 +188,23 @@ fn bench(cr: &mut Criterion) {
     }
 }
 
-criterion_group!(benches, bench);
+/// Colour modes on 10 M values.
+fn bench_color(cr: &mut Criterion) {
+    use pcimg::render::color;
+    let n = 10_000_000usize;
+    let mut r = Rng(3);
+    let v: Vec<f32> = (0..n).map(|_| r.f() * 65535.0).collect();
+    let z: Vec<f32> = (0..n).map(|_| r.f() * 100.0).collect();
+    let rgb: Vec<f32> = (0..n).map(|_| r.f() * 255.0).collect();
+    let mut g = cr.benchmark_group("color_10M");
+    g.throughput(Throughput::Elements(n as u64));
+    g.bench_function("intensity", |b| b.iter(|| color::intensity(&v)));
+    g.bench_function("height", |b| {
+        b.iter(|| color::height(&z, 300.0, 300.0, 400.0))
+    });
+    g.bench_function("rgb", |b| b.iter(|| color::rgb(&rgb, &rgb, &rgb)));
+    g.finish();
+}
+
+criterion_group!(benches, bench, bench_color);
 criterion_main!(benches);

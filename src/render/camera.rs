@@ -267,7 +267,8 @@ impl Camera {
         }
     }
 
-    fn near_far(&self) -> (f64, f64) {
+    /// Near and far planes as used by the projection (invalid values replaced).
+    pub fn near_far(&self) -> (f64, f64) {
         let near = if self.near.is_finite() && self.near > 0.0 {
             self.near
         } else {

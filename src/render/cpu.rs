@@ -26,8 +26,15 @@ use super::{
 /// balance two threads when parts of the input are culled.
 const CHUNK: usize = 1 << 16;
 
+/// Points per transform block in [`Projector::splat`].
+const LANES: usize = 64;
+
 /// Rows per block in the merge/resolve pass.
 const MERGE_ROWS: usize = 16;
+
+/// Most memory the per-thread framebuffers may take together; beyond it (many
+/// threads, huge frames) the shared atomic framebuffer is used instead.
+const PER_THREAD_BUDGET: usize = 1 << 30;
 
 /// How worker threads share the framebuffer.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
@@ -81,6 +88,10 @@ impl Projector {
     }
 
     /// Splats points `[start, end)` of `b` through `put(pixel_index, packed)`.
+    ///
+    /// Two phases per block of [`LANES`] points: a branch-free transform that
+    /// the compiler vectorizes (first covered pixel, depth bits, validity),
+    /// then the scalar scatter.
     #[inline(always)]
     fn splat<F: FnMut(usize, u64)>(
         &self,
@@ -90,48 +101,66 @@ impl Projector {
         mut put: F,
     ) {
         let m = &self.m;
-        let (xs, ys, zs, cs) = (
-            &b.x[start..end],
-            &b.y[start..end],
-            &b.z[start..end],
-            &b.color[start..end],
-        );
         let (hw, hh, wi, hi) = (self.hw, self.hh, self.w, self.h);
+        let (wf, hf) = (hw * 2.0, hh * 2.0);
         let wu = wi as usize;
-        for i in 0..xs.len() {
-            let (x, y, z) = (xs[i], ys[i], zs[i]);
-            let cw = m.x_axis.w * x + m.y_axis.w * y + m.z_axis.w * z + m.w_axis.w;
-            let cz = m.x_axis.z * x + m.y_axis.z * y + m.z_axis.z * z + m.w_axis.z;
-            // Also rejects NaN (all comparisons false).
-            if !(cw > 0.0 && cz >= 0.0 && cz <= cw) {
-                continue;
+        let size = self.size;
+        let off = self.off;
+        // A splat starting at floor(f) covers floor(f)..floor(f) + size - 1, so it
+        // is visible when f >= 1 - size (and f < frame side).
+        let lo = (1 - size) as f32;
+        let mut px = [0i32; LANES];
+        let mut py = [0i32; LANES];
+        let mut dep = [0u32; LANES];
+        let mut ok = [0u8; LANES];
+        let mut s = start;
+        while s < end {
+            let e = (s + LANES).min(end);
+            let n = e - s;
+            let (xs, ys, zs, cs) = (&b.x[s..e], &b.y[s..e], &b.z[s..e], &b.color[s..e]);
+            for j in 0..n {
+                let (x, y, z) = (xs[j], ys[j], zs[j]);
+                let cw = m.x_axis.w * x + m.y_axis.w * y + m.z_axis.w * z + m.w_axis.w;
+                let cz = m.x_axis.z * x + m.y_axis.z * y + m.z_axis.z * z + m.w_axis.z;
+                let cx = m.x_axis.x * x + m.y_axis.x * y + m.z_axis.x * z + m.w_axis.x;
+                let cy = m.x_axis.y * x + m.y_axis.y * y + m.z_axis.y * z + m.w_axis.y;
+                let sx = cx / cw * hw + hw;
+                let sy = hh - cy / cw * hh;
+                let fx = sx - off;
+                let fy = sy - off;
+                // All comparisons are false for NaN, so NaN is rejected.
+                let valid =
+                    cw > 0.0 && cz >= 0.0 && cz <= cw && fx >= lo && fy >= lo && fx < wf && fy < hf;
+                // Truncation of `v + 8` is floor(v) + 8 for v > -8.
+                px[j] = (fx + 8.0) as i32 - 8;
+                py[j] = (fy + 8.0) as i32 - 8;
+                dep[j] = cw.to_bits();
+                ok[j] = valid as u8;
             }
-            let cx = m.x_axis.x * x + m.y_axis.x * y + m.z_axis.x * z + m.w_axis.x;
-            let cy = m.x_axis.y * x + m.y_axis.y * y + m.z_axis.y * z + m.w_axis.y;
-            let sx = cx / cw * hw + hw;
-            let sy = hh - cy / cw * hh;
-            let v = ((cw.to_bits() as u64) << 32) | (cs[i] & 0x00ff_ffff) as u64;
-            if self.size == 1 {
-                if sx >= 0.0 && sy >= 0.0 && sx < hw * 2.0 && sy < hh * 2.0 {
-                    let ix = (sx as i32).min(wi - 1) as usize;
-                    let iy = (sy as i32).min(hi - 1) as usize;
-                    put(iy * wu + ix, v);
+            if size == 1 {
+                for j in 0..n {
+                    if ok[j] != 0 {
+                        let (x, y) = (px[j].clamp(0, wi - 1), py[j].clamp(0, hi - 1));
+                        let v = ((dep[j] as u64) << 32) | (cs[j] & 0x00ff_ffff) as u64;
+                        put(y as usize * wu + x as usize, v);
+                    }
                 }
             } else {
-                let fx = sx - self.off;
-                let fy = sy - self.off;
-                if !(fx > -4.0 && fy > -4.0 && fx < hw * 2.0 + 4.0 && fy < hh * 2.0 + 4.0) {
-                    continue;
-                }
-                let x0 = fx.floor() as i32;
-                let y0 = fy.floor() as i32;
-                for py in y0.max(0)..(y0 + self.size).min(hi) {
-                    let row = py as usize * wu;
-                    for px in x0.max(0)..(x0 + self.size).min(wi) {
-                        put(row + px as usize, v);
+                for j in 0..n {
+                    if ok[j] == 0 {
+                        continue;
+                    }
+                    let v = ((dep[j] as u64) << 32) | (cs[j] & 0x00ff_ffff) as u64;
+                    let (x0, y0) = (px[j], py[j]);
+                    for y in y0.max(0)..(y0 + size).min(hi) {
+                        let row = y as usize * wu;
+                        for x in x0.max(0)..(x0 + size).min(wi) {
+                            put(row + x as usize, v);
+                        }
                     }
                 }
             }
+            s = e;
         }
     }
 }
@@ -157,7 +186,7 @@ impl CpuRasterizer {
 
     /// (Re)allocates framebuffers for `width`×`height`; they are kept cleared
     /// (all [`EMPTY_PIXEL`]) between frames by the resolve pass.
-    fn prepare(&mut self, width: u32, height: u32) {
+    fn prepare(&mut self, width: u32, height: u32) -> CpuStrategy {
         let n = width as usize * height as usize;
         let threads = rayon::current_num_threads().max(1);
         if self.size != (width, height) {
@@ -165,7 +194,14 @@ impl CpuRasterizer {
             self.shared = Vec::new();
             self.size = (width, height);
         }
-        match self.strategy {
+        let strategy = match self.strategy {
+            CpuStrategy::PerThread if threads * n * 8 > PER_THREAD_BUDGET => {
+                self.per_thread.clear();
+                CpuStrategy::SharedAtomic
+            }
+            s => s,
+        };
+        match strategy {
             CpuStrategy::PerThread => {
                 if self.per_thread.len() != threads {
                     self.per_thread = (0..threads)
@@ -179,6 +215,7 @@ impl CpuRasterizer {
                 }
             }
         }
+        strategy
     }
 }
 
@@ -231,7 +268,7 @@ impl Rasterizer for CpuRasterizer {
         let t0 = Instant::now();
         let (w, h) = (opts.width, opts.height);
         let npx = w as usize * h as usize;
-        self.prepare(w, h);
+        let strategy = self.prepare(w, h);
         let aspect = opts.aspect();
         let projs: Vec<Projector> = batches
             .iter()
@@ -244,7 +281,7 @@ impl Rasterizer for CpuRasterizer {
         let row = w as usize;
         let block = MERGE_ROWS * row;
 
-        match self.strategy {
+        match strategy {
             CpuStrategy::PerThread => {
                 let bufs = &self.per_thread;
                 let nb = bufs.len();
@@ -257,9 +294,9 @@ impl Rasterizer for CpuRasterizer {
                     };
                     let buf = guard.as_mut_slice();
                     projs[bi].splat(&batches[bi], s, e, |i, v| {
-                        let p = &mut buf[i];
-                        if v < *p {
-                            *p = v;
+                        // Branch-free: ordered input makes `v < *p` unpredictable.
+                        if let Some(p) = buf.get_mut(i) {
+                            *p = (*p).min(v);
                         }
                     });
                 });

@@ -607,7 +607,8 @@ impl Rasterizer for GpuRasterizer {
         let Some(t) = self.targets.as_ref() else {
             return Err(RenderError::Gpu("framebuffer missing".into()));
         };
-        let (near, far) = (camera.near as f32, camera.far as f32);
+        let (near, far) = camera.near_far();
+        let (near, far) = (near as f32, far as f32);
         self.queue.write_buffer(
             &t.resolve_params,
             0,
