@@ -6,12 +6,12 @@
 //!
 //! `cargo bench --bench render -- --sample-size 10`
 
-use criterion::{BenchmarkId, Criterion, Throughput, criterion_group, criterion_main};
+use criterion::{BenchmarkId, Criterion, Throughput, criterion_group};
 
 use pcimg::points::Bounds;
 use pcimg::render::color::pack_rgb;
 use pcimg::render::cpu::{CpuRasterizer, CpuStrategy};
-use pcimg::render::gpu::GpuRasterizer;
+use pcimg::render::gpu::{GpuOptions, GpuRasterizer};
 use pcimg::render::{Camera, PointBatch, Rasterizer, RenderOptions};
 
 #[derive(Clone)]
@@ -207,4 +207,80 @@ fn bench_color(cr: &mut Criterion) {
 }
 
 criterion_group!(benches, bench, bench_color);
-criterion_main!(benches);
+
+/// `PCIMG_RENDER_AB=1 cargo bench --bench render`: interleaved A/B of wgpu
+/// shader variants, best of several frames each (robust on a shared machine).
+fn ab() {
+    let variants: Vec<(String, GpuOptions)> = [(1, false), (1, true), (8, false), (8, true)]
+        .into_iter()
+        .map(|(ppt, pre)| {
+            (
+                format!("ppt{ppt}{}", if pre { "+pretest" } else { "" }),
+                GpuOptions {
+                    points_per_thread: ppt,
+                    early_depth_test: pre,
+                    ..Default::default()
+                },
+            )
+        })
+        .collect();
+    let mut gpus: Vec<(String, GpuRasterizer)> = variants
+        .into_iter()
+        .filter_map(|(n, o)| GpuRasterizer::with_options(o).ok().map(|g| (n, g)))
+        .collect();
+    let mut cpu = CpuRasterizer::new();
+    let opts = RenderOptions {
+        width: 1280,
+        height: 720,
+        ..Default::default()
+    };
+    let bounds = Bounds {
+        min: [500_000.0, 4_000_000.0, -60.0],
+        max: [500_000.0 + SIZE as f64, 4_000_000.0 + SIZE as f64, 60.0],
+    };
+    let cam = Camera::fit(&bounds);
+    let n = 10_000_000;
+    let morton = terrain(n);
+    let orders = [
+        ("morton", morton.clone()),
+        ("morton_blocks_shuffled", block_shuffled(&morton, 10_240)),
+        ("shuffled", shuffled(&morton)),
+    ];
+    for (order, c) in &orders {
+        let batch = PointBatch {
+            origin: [bounds.min[0], bounds.min[1], 0.0],
+            x: &c.x,
+            y: &c.y,
+            z: &c.z,
+            color: &c.c,
+        };
+        let mut best = vec![f64::INFINITY; gpus.len() + 1];
+        for _ in 0..7 {
+            for (k, (_, g)) in gpus.iter_mut().enumerate() {
+                if let Ok(f) = g.render(&cam, &[batch], &opts) {
+                    best[k] = best[k].min(f.stats.render_ms);
+                }
+            }
+            if let Ok(f) = cpu.render(&cam, &[batch], &opts) {
+                let k = gpus.len();
+                best[k] = best[k].min(f.stats.render_ms);
+            }
+        }
+        for (k, ms) in best.iter().enumerate() {
+            let name = gpus.get(k).map_or("cpu", |g| g.0.as_str());
+            println!(
+                "{order:24} {name:14} {ms:8.1} ms {:7.1} M points/s",
+                n as f64 / ms / 1e3
+            );
+        }
+    }
+}
+
+fn main() {
+    if std::env::var_os("PCIMG_RENDER_AB").is_some() {
+        ab();
+        return;
+    }
+    benches();
+    Criterion::default().configure_from_args().final_summary();
+}

@@ -1,7 +1,7 @@
 // Fallback point rasterization for adapters without 64-bit atomics: the packed
 // value is `depth16 << 16 | rgb565` with a 32-bit `atomicMin` (16-bit depth is the
 // quantized 0..1 projection depth, so distant near-ties may resolve either way).
-// Same transform and splat rules as rasterize.wgsl.
+// Same transform, splat rules and dispatch shape as rasterize.wgsl.
 
 struct Params {
     mvp: mat4x4<f32>,
@@ -12,7 +12,7 @@ struct Params {
     hw: f32,
     hh: f32,
     off: f32,
-    row_stride: u32,
+    _pad: u32,
 }
 
 @group(0) @binding(0) var<uniform> params: Params;
@@ -22,12 +22,32 @@ struct Params {
 @group(0) @binding(4) var<storage, read> cs: array<u32>;
 @group(1) @binding(0) var<storage, read_write> fb: array<atomic<u32>>;
 
-@compute @workgroup_size(256)
-fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
-    let i = gid.y * params.row_stride + gid.x;
-    if (i >= params.count) {
+const POINTS_PER_THREAD: u32 = 1u; // replaced by the host
+
+fn write_min(idx: u32, v: u32) {
+    if (atomicLoad(&fb[idx]) <= v) {
         return;
     }
+    atomicMin(&fb[idx], v);
+}
+
+@compute @workgroup_size(256)
+fn main(
+    @builtin(workgroup_id) wg: vec3<u32>,
+    @builtin(num_workgroups) nwg: vec3<u32>,
+    @builtin(local_invocation_index) li: u32,
+) {
+    let base = (wg.y * nwg.x + wg.x) * (256u * POINTS_PER_THREAD) + li;
+    for (var k = 0u; k < POINTS_PER_THREAD; k++) {
+        let i = base + k * 256u;
+        if (i >= params.count) {
+            return;
+        }
+        draw(i);
+    }
+}
+
+fn draw(i: u32) {
     let x = xs[i];
     let y = ys[i];
     let z = zs[i];
@@ -51,7 +71,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
         if (sx >= 0.0 && sy >= 0.0 && sx < params.hw * 2.0 && sy < params.hh * 2.0) {
             let ix = min(i32(sx), w - 1);
             let iy = min(i32(sy), h - 1);
-            atomicMin(&fb[u32(iy) * params.width + u32(ix)], v);
+            write_min(u32(iy) * params.width + u32(ix), v);
         }
         return;
     }
@@ -65,7 +85,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
     let s = i32(params.point_size);
     for (var py = max(y0, 0); py < min(y0 + s, h); py++) {
         for (var px = max(x0, 0); px < min(x0 + s, w); px++) {
-            atomicMin(&fb[u32(py) * params.width + u32(px)], v);
+            write_min(u32(py) * params.width + u32(px), v);
         }
     }
 }

@@ -322,6 +322,7 @@ fn gpu_32bit_fallback_agrees_roughly() {
     }
     let mut gpu = GpuRasterizer::with_options(GpuOptions {
         force_32bit_atomics: true,
+        ..Default::default()
     })
     .unwrap();
     assert!(!gpu.has_int64_atomics());
@@ -334,6 +335,32 @@ fn gpu_32bit_fallback_agrees_roughly() {
         agree >= 0.97,
         "32-bit fallback: only {agree} of pixels agree"
     );
+}
+
+#[test]
+fn gpu_shader_variants_agree() {
+    let (cols, bounds) = scene();
+    let bs = batches(&cols);
+    let cam = Camera::fit(&bounds);
+    let o = opts(320, 180, 2);
+    let mut reference = None;
+    with_gpu(|gpu| reference = Some(gpu.render(&cam, &bs, &o).unwrap()));
+    let Some(reference) = reference else {
+        return;
+    };
+    for (early_depth_test, points_per_thread) in [(true, 1), (false, 3), (true, 64)] {
+        let mut g = GpuRasterizer::with_options(GpuOptions {
+            early_depth_test,
+            points_per_thread,
+            ..Default::default()
+        })
+        .unwrap();
+        let f = g.render(&cam, &bs, &o).unwrap();
+        assert_eq!(
+            f.rgba, reference.rgba,
+            "early {early_depth_test} ppt {points_per_thread}"
+        );
+    }
 }
 
 /// A camera at the world origin looking along +Y, and a frame whose centre
