@@ -1,5 +1,5 @@
 // Fallback point rasterization for adapters without 64-bit atomics: the packed
-// value is `depth16 << 16 | rgb565` with a 32-bit `atomicMin` (16-bit depth is the
+// value is `depth16 << 16 | bgr565` with a 32-bit `atomicMin` (16-bit depth is the
 // quantized 0..1 projection depth, so distant near-ties may resolve either way).
 // Same transform, splat rules and dispatch shape as rasterize.wgsl.
 
@@ -62,9 +62,11 @@ fn draw(i: u32) {
     let sx = cx / cw * params.hw + params.hw;
     let sy = params.hh - cy / cw * params.hh;
     let c = cs[i];
-    let rgb565 = ((c & 0xf8u) << 8u) | ((c >> 5u) & 0x7e0u) | ((c >> 19u) & 0x1fu);
+    // Blue in the high bits, red in the low ones: ties then break like the
+    // 64-bit path, which compares b << 16 | g << 8 | r.
+    let bgr565 = (((c >> 19u) & 0x1fu) << 11u) | (((c >> 10u) & 0x3fu) << 5u) | ((c >> 3u) & 0x1fu);
     let d16 = min(u32(cz / cw * 65535.0), 65534u);
-    let v = (d16 << 16u) | rgb565;
+    let v = (d16 << 16u) | bgr565;
     let w = i32(params.width);
     let h = i32(params.height);
     if (params.point_size == 1u) {

@@ -68,9 +68,9 @@ fn resolve32(@builtin(global_invocation_id) gid: vec3<u32>) {
         out_depth[i] = bitcast<f32>(0x7f800000u);
     } else {
         let c = v & 0xffffu;
-        let r = (c >> 11u) & 0x1fu;
+        let b = (c >> 11u) & 0x1fu;
         let g = (c >> 5u) & 0x3fu;
-        let b = c & 0x1fu;
+        let r = c & 0x1fu;
         let r8 = (r << 3u) | (r >> 2u);
         let g8 = (g << 2u) | (g >> 4u);
         let b8 = (b << 3u) | (b >> 2u);

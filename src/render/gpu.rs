@@ -1,7 +1,7 @@
 //! The wgpu compute rasterizer (Schütz et al. 2021): point columns live in
 //! storage buffers (cached between frames), one compute invocation per point
 //! does an `atomicMin` of `depth << 32 | colour` into a 64-bit framebuffer
-//! (`SHADER_INT64_ATOMIC_MIN_MAX`), or of `depth16 << 16 | rgb565` into a 32-bit
+//! (`SHADER_INT64_ATOMIC_MIN_MAX`), or of `depth16 << 16 | bgr565` into a 32-bit
 //! one where 64-bit atomics are missing; a resolve pass writes RGBA8 and linear
 //! depth, which are read back. Runs headless (pollster), also on software
 //! adapters such as lavapipe/llvmpipe.
@@ -167,6 +167,11 @@ pub fn quiet_mesa_layers() {
     });
 }
 
+/// Scores at or above this are hardware adapters.
+const HARDWARE_SCORE: u32 = 20;
+
+/// Preference of an adapter: device type first (hardware > software), then
+/// Vulkan over GL, then 64-bit atomics. `None` when it cannot run compute shaders.
 fn adapter_score(a: &wgpu::Adapter) -> Option<u32> {
     let info = a.get_info();
     let caps = a.get_downlevel_capabilities();
@@ -199,7 +204,7 @@ fn adapter_score(a: &wgpu::Adapter) -> Option<u32> {
 /// Construction options for [`GpuRasterizer::with_options`].
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
 pub struct GpuOptions {
-    /// Use the 32-bit fallback (16-bit depth, RGB565) even where 64-bit atomics exist.
+    /// Use the 32-bit fallback (16-bit depth, BGR565) even where 64-bit atomics exist.
     pub force_32bit_atomics: bool,
     /// Pre-test depth with a plain `atomicLoad` before each `atomicMin` where
     /// `SHADER_INT64_ATOMIC_ALL_OPS` exists (no clear gain on lavapipe).
@@ -218,16 +223,31 @@ impl GpuRasterizer {
     /// [`GpuRasterizer::new`] with options.
     pub fn with_options(opts: GpuOptions) -> Result<GpuRasterizer, RenderError> {
         quiet_mesa_layers();
-        let mut desc = wgpu::InstanceDescriptor::new_without_display_handle_from_env();
-        if std::env::var_os("WGPU_BACKEND").is_none() {
-            desc.backends = wgpu::Backends::VULKAN | wgpu::Backends::GL;
+        // Vulkan first; GL (EGL) is only initialized when Vulkan offers no
+        // hardware adapter, since a hardware GL device beats a software Vulkan one.
+        let from_env = std::env::var_os("WGPU_BACKEND").is_some();
+        let allowed = if from_env {
+            wgpu::InstanceDescriptor::new_without_display_handle_from_env().backends
+        } else {
+            wgpu::Backends::VULKAN | wgpu::Backends::GL
+        };
+        let enumerate = |backends: wgpu::Backends| -> Vec<(u32, wgpu::Adapter)> {
+            if backends.is_empty() {
+                return Vec::new();
+            }
+            let mut desc = wgpu::InstanceDescriptor::new_without_display_handle_from_env();
+            desc.backends = backends;
+            let instance = wgpu::Instance::new(desc);
+            pollster::block_on(instance.enumerate_adapters(backends))
+                .into_iter()
+                .filter_map(|a| adapter_score(&a).map(|s| (s, a)))
+                .collect()
+        };
+        let mut scored = enumerate(allowed & !wgpu::Backends::GL);
+        let has_hardware = scored.iter().any(|(s, _)| *s >= HARDWARE_SCORE);
+        if !has_hardware {
+            scored.extend(enumerate(allowed & wgpu::Backends::GL));
         }
-        let instance = wgpu::Instance::new(desc);
-        let adapters = pollster::block_on(instance.enumerate_adapters(wgpu::Backends::all()));
-        let mut scored: Vec<(u32, wgpu::Adapter)> = adapters
-            .into_iter()
-            .filter_map(|a| adapter_score(&a).map(|s| (s, a)))
-            .collect();
         scored.sort_by_key(|(s, _)| std::cmp::Reverse(*s));
         if scored.is_empty() {
             return Err(RenderError::NoAdapter(
@@ -361,7 +381,7 @@ impl GpuRasterizer {
         })
     }
 
-    /// Whether the 64-bit atomic framebuffer is in use (else 16-bit depth + RGB565).
+    /// Whether the 64-bit atomic framebuffer is in use (else 16-bit depth + BGR565).
     pub fn has_int64_atomics(&self) -> bool {
         self.int64
     }
