@@ -228,7 +228,13 @@ fn ab() {
         .into_iter()
         .filter_map(|(n, o)| GpuRasterizer::with_options(o).ok().map(|g| (n, g)))
         .collect();
-    let mut cpu = CpuRasterizer::new();
+    let mut cpus = [
+        ("cpu", CpuRasterizer::with_strategy(CpuStrategy::PerThread)),
+        (
+            "cpu_atomic",
+            CpuRasterizer::with_strategy(CpuStrategy::SharedAtomic),
+        ),
+    ];
     let opts = RenderOptions {
         width: 1280,
         height: 720,
@@ -254,20 +260,25 @@ fn ab() {
             z: &c.z,
             color: &c.c,
         };
-        let mut best = vec![f64::INFINITY; gpus.len() + 1];
+        let mut best = vec![f64::INFINITY; gpus.len() + cpus.len()];
         for _ in 0..7 {
             for (k, (_, g)) in gpus.iter_mut().enumerate() {
                 if let Ok(f) = g.render(&cam, &[batch], &opts) {
                     best[k] = best[k].min(f.stats.render_ms);
                 }
             }
-            if let Ok(f) = cpu.render(&cam, &[batch], &opts) {
-                let k = gpus.len();
-                best[k] = best[k].min(f.stats.render_ms);
+            for (k, (_, c)) in cpus.iter_mut().enumerate() {
+                if let Ok(f) = c.render(&cam, &[batch], &opts) {
+                    let k = gpus.len() + k;
+                    best[k] = best[k].min(f.stats.render_ms);
+                }
             }
         }
-        for (k, ms) in best.iter().enumerate() {
-            let name = gpus.get(k).map_or("cpu", |g| g.0.as_str());
+        let names = gpus
+            .iter()
+            .map(|g| g.0.as_str())
+            .chain(cpus.iter().map(|c| c.0));
+        for (name, ms) in names.zip(&best) {
             println!(
                 "{order:24} {name:14} {ms:8.1} ms {:7.1} M points/s",
                 n as f64 / ms / 1e3

@@ -280,6 +280,7 @@ fn cpu_and_gpu_agree() {
             dump(&g, &format!("gpu_size{size}"));
             if gpu.has_int64_atomics() {
                 let agree = agreement(&c, &g);
+                println!("size {size}: {:.4}% of pixels identical", agree * 100.0);
                 assert!(agree >= 0.99, "size {size}: only {agree} of pixels agree");
             } else {
                 let agree = agreement_tol(&c, &g, 8);

@@ -157,11 +157,14 @@ static QUIET_MESA: Once = Once::new();
 pub fn quiet_mesa_layers() {
     QUIET_MESA.call_once(|| {
         if std::env::var_os("NODEVICE_SELECT").is_none() {
-            // SAFETY: `set_var` races with concurrent environment access from
-            // other threads. This runs once per process, before the Vulkan
-            // instance is created; the renderer is meant to be created at
-            // startup before worker threads exist (and callers that cannot
-            // guarantee that set NODEVICE_SELECT themselves, which skips this).
+            // SAFETY: `set_var` is unsound only against environment reads that
+            // bypass std's environment lock, i.e. C code calling getenv on
+            // another thread at the same moment. The C code that reads this
+            // variable is the Vulkan loader/Mesa, which only runs after this
+            // `Once` completes (every instance creation goes through here first
+            // and waits for it), so no Vulkan code can be running yet. Programs
+            // with other C threads should call this at startup before spawning
+            // them, or set NODEVICE_SELECT themselves, which skips the write.
             unsafe { std::env::set_var("NODEVICE_SELECT", "1") };
         }
     });
