@@ -211,19 +211,20 @@ criterion_group!(benches, bench, bench_color);
 /// `PCIMG_RENDER_AB=1 cargo bench --bench render`: interleaved A/B of wgpu
 /// shader variants, best of several frames each (robust on a shared machine).
 fn ab() {
-    let variants: Vec<(String, GpuOptions)> = [(1, false), (1, true), (8, false), (8, true)]
-        .into_iter()
-        .map(|(ppt, pre)| {
-            (
-                format!("ppt{ppt}{}", if pre { "+pretest" } else { "" }),
-                GpuOptions {
-                    points_per_thread: ppt,
-                    early_depth_test: pre,
-                    ..Default::default()
-                },
-            )
-        })
-        .collect();
+    let variants: Vec<(String, GpuOptions)> =
+        [(1, false), (8, false), (8, true), (32, false), (32, true)]
+            .into_iter()
+            .map(|(ppt, pre)| {
+                (
+                    format!("ppt{ppt}{}", if pre { "+pretest" } else { "" }),
+                    GpuOptions {
+                        points_per_thread: ppt,
+                        early_depth_test: pre,
+                        ..Default::default()
+                    },
+                )
+            })
+            .collect();
     let mut gpus: Vec<(String, GpuRasterizer)> = variants
         .into_iter()
         .filter_map(|(n, o)| GpuRasterizer::with_options(o).ok().map(|g| (n, g)))

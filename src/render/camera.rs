@@ -231,6 +231,49 @@ impl Camera {
         self.mode = mode;
     }
 
+    /// Unit right vector (horizontal, perpendicular to the viewing direction).
+    pub fn right(&self) -> DVec3 {
+        DVec3::new(self.yaw.sin(), -self.yaw.cos(), 0.0)
+    }
+
+    /// Camera up vector (perpendicular to forward and right).
+    pub fn up(&self) -> DVec3 {
+        self.right().cross(self.forward())
+    }
+
+    /// Turns the view: orbit mode circles the target, fly mode looks around.
+    /// Radians; pitch is clamped short of straight up/down.
+    pub fn rotate(&mut self, d_yaw: f64, d_pitch: f64) {
+        if !(d_yaw.is_finite() && d_pitch.is_finite()) {
+            return;
+        }
+        self.yaw = (self.yaw + d_yaw).rem_euclid(std::f64::consts::TAU);
+        self.pitch = (self.pitch + d_pitch).clamp(-MAX_PITCH, MAX_PITCH);
+    }
+
+    /// Orbit mode: multiplies the distance by `factor` (< 1 moves closer).
+    /// Fly mode: moves forward by `(1 - factor) * distance`.
+    pub fn zoom(&mut self, factor: f64) {
+        if !(factor.is_finite() && factor > 0.0) {
+            return;
+        }
+        match self.mode {
+            CameraMode::Orbit => self.distance = (self.distance * factor).max(1e-9),
+            CameraMode::Fly => self.position += self.forward() * (1.0 - factor) * self.distance,
+        }
+    }
+
+    /// Moves eye (and target) by `right`, `up`, `forward` world units along
+    /// the camera axes.
+    pub fn translate(&mut self, right: f64, up: f64, forward: f64) {
+        let d = self.right() * right + self.up() * up + self.forward() * forward;
+        if !d.is_finite() {
+            return;
+        }
+        self.target += d;
+        self.position += d;
+    }
+
     /// Applies a `--view` spec (orbit mode; keeps the distance when none is given).
     pub fn apply_view(&mut self, v: &ViewSpec) {
         if self.mode != CameraMode::Orbit {
@@ -558,6 +601,41 @@ mod tests {
         c.apply_view(&v);
         assert!((c.yaw - 30f64.to_radians()).abs() < 1e-12);
         assert_eq!(c.distance, 120.0);
+    }
+
+    #[test]
+    fn navigation_helpers() {
+        let b = bounds([0.0; 3], [10.0; 3]);
+        let mut cam = Camera::fit(&b);
+        let t = cam.target;
+        let d = cam.distance;
+        cam.rotate(0.3, 0.2);
+        assert_eq!(cam.target, t);
+        assert!(((cam.eye() - t).length() - d).abs() < 1e-9);
+        cam.rotate(0.0, 10.0);
+        assert_eq!(cam.pitch, MAX_PITCH);
+        assert!(cam.view_proj([0.0; 3]).is_finite());
+        cam.zoom(0.5);
+        assert!((cam.distance - d * 0.5).abs() < 1e-9);
+        cam.zoom(f64::NAN);
+        cam.zoom(-1.0);
+        assert!((cam.distance - d * 0.5).abs() < 1e-9);
+        let eye = cam.eye();
+        cam.translate(1.0, 2.0, 3.0);
+        let moved = cam.eye() - eye;
+        assert!((moved.length() - 14f64.sqrt()).abs() < 1e-9);
+        assert!(cam.right().dot(cam.forward()).abs() < 1e-12);
+        assert!(cam.up().dot(cam.forward()).abs() < 1e-12);
+        // Right is to the right on screen, up is up.
+        let c = cam.target;
+        let r = cam.project((c + cam.right()).into(), 100, 100).unwrap();
+        let u = cam.project((c + cam.up()).into(), 100, 100).unwrap();
+        assert!(r[0] > 50.0 && (r[1] - 50.0).abs() < 1e-6);
+        assert!(u[1] < 50.0 && (u[0] - 50.0).abs() < 1e-6);
+        cam.set_mode(CameraMode::Fly);
+        let p = cam.position;
+        cam.zoom(0.5);
+        assert!(((cam.position - p).length() - 0.5 * cam.distance).abs() < 1e-9);
     }
 
     #[test]
