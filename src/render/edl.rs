@@ -73,6 +73,9 @@ pub fn apply(rgba: &mut [u8], depth: &[f32], width: u32, height: u32, p: &EdlPar
                     sum += (l - ln).max(0.0);
                 }
             }
+            if sum <= 0.0 {
+                continue;
+            }
             let shade = (-(sum / 8.0) * k).exp();
             for c in &mut row[x * 4..x * 4 + 3] {
                 *c = (*c as f32 * shade + 0.5) as u8;

@@ -30,6 +30,8 @@ const MAX_GROUPS_X: u32 = 65535;
 /// Points per shader invocation: fewer, longer invocations measured ~1.5x
 /// faster than one point each on lavapipe.
 const DEFAULT_POINTS_PER_THREAD: u32 = 8;
+/// Must match `PIXELS_PER_THREAD` in resolve.wgsl.
+const PIXELS_PER_THREAD: u32 = 16;
 
 #[repr(C)]
 #[derive(Clone, Copy, Pod, Zeroable)]
@@ -52,8 +54,9 @@ struct ResolveParams {
     background: u32,
     near: f32,
     far: f32,
-    row_stride: u32,
-    _pad: [u32; 3],
+    _unused: u32,
+    write_depth: u32,
+    _pad: [u32; 2],
 }
 
 /// Workgroup counts (x, y) covering `n` invocations, and the invocations per row.
@@ -144,6 +147,9 @@ pub struct GpuRasterizer {
     early_out: bool,
     max_binding: u64,
     targets: Option<Targets>,
+    /// The framebuffer may hold stale values (new, or a frame failed midway):
+    /// the next frame clears it first. Otherwise resolve leaves it cleared.
+    fb_dirty: bool,
     cache: HashMap<Key, CacheEntry>,
     frame: u64,
     errors: Arc<Mutex<Option<String>>>,
@@ -378,6 +384,7 @@ impl GpuRasterizer {
             early_out,
             max_binding,
             targets: None,
+            fb_dirty: true,
             cache: HashMap::new(),
             frame: 0,
             errors,
@@ -505,6 +512,7 @@ impl GpuRasterizer {
                 },
             ],
         });
+        self.fb_dirty = true;
         self.targets = Some(Targets {
             width,
             height,
@@ -671,7 +679,7 @@ impl Rasterizer for GpuRasterizer {
         let t0 = Instant::now();
         let aspect = opts.aspect();
         let px = w * h;
-        let (ngx, ngy, nstride) = dispatch_shape(px);
+        let (ngx, ngy, _) = dispatch_shape(px.div_ceil(PIXELS_PER_THREAD));
         let Some(t) = self.targets.as_ref() else {
             return Err(RenderError::Gpu("framebuffer missing".into()));
         };
@@ -685,8 +693,9 @@ impl Rasterizer for GpuRasterizer {
                 background: pack_background(opts.background),
                 near,
                 far,
-                row_stride: nstride,
-                _pad: [0; 3],
+                _unused: 0,
+                write_depth: opts.eye_dome_lighting as u32,
+                _pad: [0; 2],
             }),
         );
         let mut work: Vec<(&Chunk, (u32, u32))> = Vec::new();
@@ -718,7 +727,7 @@ impl Rasterizer for GpuRasterizer {
             .create_command_encoder(&wgpu::CommandEncoderDescriptor {
                 label: Some("frame"),
             });
-        {
+        if self.fb_dirty {
             let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor {
                 label: Some("clear"),
                 timestamp_writes: None,
@@ -727,6 +736,8 @@ impl Rasterizer for GpuRasterizer {
             pass.set_bind_group(0, &t.clear_bg, &[]);
             pass.dispatch_workgroups(ngx, ngy, 1);
         }
+        // Until this frame's resolve is known to have run.
+        self.fb_dirty = true;
         {
             let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor {
                 label: Some("rasterize"),
@@ -768,10 +779,7 @@ impl Rasterizer for GpuRasterizer {
             Ok(Err(e)) => return Err(RenderError::Gpu(format!("reading back the frame: {e}"))),
             Err(_) => return Err(RenderError::Gpu("frame readback did not complete".into())),
         }
-        let (mut rgba, depth) = {
-            let view = slice
-                .get_mapped_range()
-                .map_err(|e| RenderError::Gpu(format!("mapping the frame: {e}")))?;
+        let read = slice.get_mapped_range().map(|view| {
             let rgba = view[..px as usize * 4].to_vec();
             let depth: Vec<f32> = if opts.eye_dome_lighting {
                 view[depth_at as usize..]
@@ -782,11 +790,14 @@ impl Rasterizer for GpuRasterizer {
                 Vec::new()
             };
             (rgba, depth)
-        };
+        });
         t.staging.unmap();
+        let (mut rgba, depth) =
+            read.map_err(|e| RenderError::Gpu(format!("mapping the frame: {e}")))?;
         if let Some(e) = self.take_error() {
             return Err(RenderError::Gpu(e));
         }
+        self.fb_dirty = false;
         if opts.eye_dome_lighting {
             edl::apply(&mut rgba, &depth, w, h, &edl::EdlParams::default());
         }
