@@ -479,7 +479,12 @@ fn empty_input_and_bad_options() {
         z: &[],
         color: &[],
     };
+    let mut one = Cols::new([0.0; 3]);
+    one.push([0.0, 10.0, 0.0], pack_rgb(255, 0, 0));
     for mut r in all_renderers() {
+        // A drawn frame first: nothing of it may leak into the next frames.
+        let f = r.render(&cam, &[one.batch()], &opts(16, 9, 3)).unwrap();
+        assert_eq!(count_drawn(&f), 9);
         for bs in [vec![], vec![empty]] {
             for edl in [false, true] {
                 let mut o = opts(16, 9, 2);
@@ -527,6 +532,29 @@ fn empty_input_and_bad_options() {
         let mut c = Cols::new([0.0; 3]);
         c.push([0.0, 1.0, 0.0], 5);
         assert!(r.render(&weird, &[c.batch()], &opts(8, 8, 1)).is_ok());
+    }
+}
+
+#[test]
+fn frame_size_changes_between_frames() {
+    let (cols, bounds) = scene();
+    let bs = batches(&cols);
+    let cam = Camera::fit(&bounds);
+    for mut r in all_renderers() {
+        for (w, h) in [(320, 240), (97, 31), (320, 240), (1, 1)] {
+            let mut fresh = all_renderers();
+            let a = r.render(&cam, &bs, &opts(w, h, 1)).unwrap();
+            assert_eq!(a.rgba.len(), (w * h * 4) as usize);
+            // Same image as a renderer that never saw another size.
+            let kind = r.name();
+            let b = fresh
+                .iter_mut()
+                .find(|f| f.name() == kind)
+                .unwrap()
+                .render(&cam, &bs, &opts(w, h, 1))
+                .unwrap();
+            assert_eq!(a.rgba, b.rgba, "{kind} at {w}x{h}");
+        }
     }
 }
 
