@@ -208,7 +208,7 @@ fn bench_color(cr: &mut Criterion) {
 
 criterion_group!(benches, bench, bench_color);
 
-/// `PCIMG_RENDER_AB=1 cargo bench --bench render`: interleaved A/B of wgpu
+/// `PCIMG_RENDER_AB=1 cargo bench --bench render` (or `=<points>`): interleaved A/B of wgpu
 /// shader variants, best of several frames each (robust on a shared machine).
 fn ab() {
     let variants: Vec<(String, GpuOptions)> =
@@ -246,7 +246,12 @@ fn ab() {
         max: [500_000.0 + SIZE as f64, 4_000_000.0 + SIZE as f64, 60.0],
     };
     let cam = Camera::fit(&bounds);
-    let n = 10_000_000;
+    // PCIMG_RENDER_AB=<points> (default 10 M).
+    let n = std::env::var("PCIMG_RENDER_AB")
+        .ok()
+        .and_then(|v| v.parse::<usize>().ok())
+        .filter(|&n| n > 1)
+        .unwrap_or(10_000_000);
     let morton = terrain(n);
     let orders = [
         ("morton", morton.clone()),
