@@ -184,6 +184,11 @@ impl CpuRasterizer {
         self.strategy
     }
 
+    /// Linear view depth of the last frame (`INFINITY` for background), row-major.
+    pub fn last_depth(&self) -> &[f32] {
+        &self.depth
+    }
+
     /// (Re)allocates framebuffers for `width`×`height`; they are kept cleared
     /// (all [`EMPTY_PIXEL`]) between frames by the resolve pass.
     fn prepare(&mut self, width: u32, height: u32) -> CpuStrategy {
@@ -386,12 +391,5 @@ impl Rasterizer for CpuRasterizer {
                 upload_ms: 0.0,
             },
         })
-    }
-}
-
-impl CpuRasterizer {
-    /// Linear view depth of the last frame (`INFINITY` for background), row-major.
-    pub fn last_depth(&self) -> &[f32] {
-        &self.depth
     }
 }

@@ -30,6 +30,8 @@ const MAX_GROUPS_X: u32 = 65535;
 /// Points per shader invocation: fewer, longer invocations measured ~1.5x
 /// faster than one point each on lavapipe.
 const DEFAULT_POINTS_PER_THREAD: u32 = 8;
+/// Longest wait for the device before a frame fails (instead of hanging).
+const GPU_TIMEOUT: std::time::Duration = std::time::Duration::from_secs(60);
 /// Must match `PIXELS_PER_THREAD` in resolve.wgsl.
 const PIXELS_PER_THREAD: u32 = 16;
 
@@ -612,7 +614,10 @@ impl GpuRasterizer {
 
     fn wait(&self) -> Result<(), RenderError> {
         self.device
-            .poll(wgpu::PollType::wait_indefinitely())
+            .poll(wgpu::PollType::Wait {
+                submission_index: None,
+                timeout: Some(GPU_TIMEOUT),
+            })
             .map(|_| ())
             .map_err(|e| RenderError::Gpu(format!("waiting for the device: {e}")))
     }

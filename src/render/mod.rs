@@ -11,6 +11,25 @@
 //! * [`cpu::CpuRasterizer`]: rayon, per-thread framebuffers merged with `min`.
 //! * [`gpu::GpuRasterizer`]: wgpu compute shaders (works on lavapipe/llvmpipe too).
 //!
+//! ```
+//! use pcimg::points::Bounds;
+//! use pcimg::render::{create, Camera, PointBatch, RenderOptions, RendererChoice};
+//!
+//! // Two points 637 km east of the datum, stored relative to a per-part origin.
+//! let origin = [637_179.22, 5_100_000.0, 300.0];
+//! let (x, y, z) = ([0.0f32, 1.0], [0.0f32, 1.0], [0.0f32, 0.5]);
+//! let color = [pcimg::render::color::pack_rgb(255, 0, 0); 2];
+//! let batch = PointBatch { origin, x: &x, y: &y, z: &z, color: &color };
+//! let bounds = Bounds { min: origin, max: [origin[0] + 1.0, origin[1] + 1.0, origin[2] + 0.5] };
+//! let camera = Camera::fit(&bounds);
+//! let mut renderer = create(RendererChoice::Cpu)?;
+//! let opts = RenderOptions { width: 64, height: 48, ..Default::default() };
+//! let frame = renderer.render(&camera, &[batch], &opts)?;
+//! assert_eq!(frame.rgba.len(), 64 * 48 * 4);
+//! assert!(frame.rgba.chunks(4).any(|p| p[0] == 255));
+//! # Ok::<(), pcimg::render::RenderError>(())
+//! ```
+//!
 //! Depth convention shared by both: the depth of a point is its positive
 //! view-space distance along the view axis (clip-space `w`), stored as the bits of
 //! the `f32` (monotonic for positive floats). Ties (same depth bits) are broken
