@@ -8,10 +8,14 @@
 // Loops over the three axes index several parallel arrays at once.
 #![allow(clippy::needless_range_loop)]
 
+pub mod camera;
 pub mod cli;
 pub mod convert;
 pub mod ingest;
+pub mod lod;
 pub mod points;
+pub mod render;
 pub mod store;
 pub mod synth;
+pub mod term;
 pub mod text;

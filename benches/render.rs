@@ -1,0 +1,303 @@
+//! Rasterization throughput at 1280×720 for a synthetic terrain-like cloud of
+//! 1 M and 10 M points in three orders: Morton-sorted (as the store delivers
+//! them), Morton-sorted with blocks of 10240 points shuffled (Schütz et al.'s
+//! "shuffled Morton", which spreads atomic contention on GPUs) and fully
+//! shuffled. CPU (both framebuffer strategies) and wgpu (when an adapter exists).
+//!
+//! `cargo bench --bench render -- --sample-size 10`
+
+use criterion::{BenchmarkId, Criterion, Throughput, criterion_group};
+
+use pcimg::points::Bounds;
+use pcimg::render::color::pack_rgb;
+use pcimg::render::cpu::{CpuRasterizer, CpuStrategy};
+use pcimg::render::gpu::{GpuOptions, GpuRasterizer};
+use pcimg::render::{Camera, PointBatch, Rasterizer, RenderOptions};
+
+#[derive(Clone)]
+struct Cloud {
+    x: Vec<f32>,
+    y: Vec<f32>,
+    z: Vec<f32>,
+    c: Vec<u32>,
+}
+
+struct Rng(u64);
+impl Rng {
+    fn next(&mut self) -> u64 {
+        self.0 ^= self.0 << 13;
+        self.0 ^= self.0 >> 7;
+        self.0 ^= self.0 << 17;
+        self.0
+    }
+    fn f(&mut self) -> f32 {
+        (self.next() >> 40) as f32 / (1u64 << 24) as f32
+    }
+}
+
+fn spread(v: u32) -> u64 {
+    let mut x = v as u64 & 0xffff_ffff;
+    x = (x | (x << 16)) & 0x0000_ffff_0000_ffff;
+    x = (x | (x << 8)) & 0x00ff_00ff_00ff_00ff;
+    x = (x | (x << 4)) & 0x0f0f_0f0f_0f0f_0f0f;
+    x = (x | (x << 2)) & 0x3333_3333_3333_3333;
+    x = (x | (x << 1)) & 0x5555_5555_5555_5555;
+    x
+}
+
+const SIZE: f32 = 2000.0;
+
+/// Terrain over a 2 km square: rolling hills, coloured by height, Morton-sorted.
+fn terrain(n: usize) -> Cloud {
+    let mut r = Rng(0x2545_f491_4f6c_dd1d);
+    let mut pts: Vec<(u64, f32, f32, f32)> = (0..n)
+        .map(|_| {
+            let (x, y) = (r.f() * SIZE, r.f() * SIZE);
+            let z = 40.0 * (x * 0.004).sin() * (y * 0.003).cos()
+                + 8.0 * (x * 0.03 + y * 0.02).sin()
+                + r.f() * 0.5;
+            let key =
+                spread((x / SIZE * 65535.0) as u32) | spread((y / SIZE * 65535.0) as u32) << 1;
+            (key, x, y, z)
+        })
+        .collect();
+    pts.sort_unstable_by_key(|p| p.0);
+    let mut c = Cloud {
+        x: Vec::with_capacity(n),
+        y: Vec::with_capacity(n),
+        z: Vec::with_capacity(n),
+        c: Vec::with_capacity(n),
+    };
+    for (_, x, y, z) in pts {
+        c.x.push(x);
+        c.y.push(y);
+        c.z.push(z);
+        let t = ((z + 50.0) / 100.0).clamp(0.0, 1.0);
+        c.c.push(pack_rgb((255.0 * t) as u8, 120, (255.0 * (1.0 - t)) as u8));
+    }
+    c
+}
+
+fn permute(c: &Cloud, perm: &[usize]) -> Cloud {
+    Cloud {
+        x: perm.iter().map(|&i| c.x[i]).collect(),
+        y: perm.iter().map(|&i| c.y[i]).collect(),
+        z: perm.iter().map(|&i| c.z[i]).collect(),
+        c: perm.iter().map(|&i| c.c[i]).collect(),
+    }
+}
+
+fn shuffle<T>(v: &mut [T], r: &mut Rng) {
+    for i in (1..v.len()).rev() {
+        let j = (r.next() % (i as u64 + 1)) as usize;
+        v.swap(i, j);
+    }
+}
+
+fn shuffled(c: &Cloud) -> Cloud {
+    let mut perm: Vec<usize> = (0..c.x.len()).collect();
+    shuffle(&mut perm, &mut Rng(7));
+    permute(c, &perm)
+}
+
+fn block_shuffled(c: &Cloud, block: usize) -> Cloud {
+    let n = c.x.len();
+    let mut blocks: Vec<usize> = (0..n.div_ceil(block)).collect();
+    shuffle(&mut blocks, &mut Rng(11));
+    let perm: Vec<usize> = blocks
+        .iter()
+        .flat_map(|&b| b * block..((b + 1) * block).min(n))
+        .collect();
+    permute(c, &perm)
+}
+
+fn bench(cr: &mut Criterion) {
+    let opts = RenderOptions {
+        width: 1280,
+        height: 720,
+        point_size: 1,
+        eye_dome_lighting: false,
+        background: [0, 0, 0],
+    };
+    let bounds = Bounds {
+        min: [500_000.0, 4_000_000.0, -60.0],
+        max: [500_000.0 + SIZE as f64, 4_000_000.0 + SIZE as f64, 60.0],
+    };
+    let cam = Camera::fit(&bounds);
+    let mut renderers: Vec<(String, Box<dyn Rasterizer>)> = vec![
+        (
+            "cpu".into(),
+            Box::new(CpuRasterizer::with_strategy(CpuStrategy::PerThread)),
+        ),
+        (
+            "cpu_atomic".into(),
+            Box::new(CpuRasterizer::with_strategy(CpuStrategy::SharedAtomic)),
+        ),
+    ];
+    match GpuRasterizer::new() {
+        Ok(g) => {
+            eprintln!(
+                "gpu: {} (64-bit atomics: {})",
+                g.name(),
+                g.has_int64_atomics()
+            );
+            renderers.push(("gpu".into(), Box::new(g)));
+        }
+        Err(e) => eprintln!("no wgpu adapter, GPU benchmarks skipped: {e}"),
+    }
+    // Fixed per-frame cost: clear, merge/resolve, readback of an empty frame.
+    let mut g = cr.benchmark_group("render_empty_frame");
+    for (name, r) in renderers.iter_mut() {
+        g.bench_function(name.as_str(), |b| {
+            b.iter(|| r.render(&cam, &[], &opts).is_ok())
+        });
+    }
+    g.finish();
+    for n in [1_000_000usize, 10_000_000] {
+        let morton = terrain(n);
+        let orders = [
+            ("morton", morton.clone()),
+            ("morton_blocks_shuffled", block_shuffled(&morton, 10_240)),
+            ("shuffled", shuffled(&morton)),
+        ];
+        let mut g = cr.benchmark_group(format!("render_{}M", n / 1_000_000));
+        g.throughput(Throughput::Elements(n as u64));
+        for (order, cloud) in &orders {
+            let batch = PointBatch {
+                origin: [bounds.min[0], bounds.min[1], 0.0],
+                x: &cloud.x,
+                y: &cloud.y,
+                z: &cloud.z,
+                color: &cloud.c,
+            };
+            for (name, r) in renderers.iter_mut() {
+                // Warm-up frame uploads (GPU) and allocates framebuffers.
+                if let Err(e) = r.render(&cam, &[batch], &opts) {
+                    eprintln!("{name} {order}: {e}");
+                    continue;
+                }
+                g.bench_function(BenchmarkId::new(name.as_str(), order), |b| {
+                    b.iter(|| {
+                        r.render(&cam, &[batch], &opts)
+                            .map(|f| f.stats.points_drawn)
+                    })
+                });
+            }
+        }
+        g.finish();
+    }
+}
+
+/// Colour modes on 10 M values.
+fn bench_color(cr: &mut Criterion) {
+    use pcimg::render::color;
+    let n = 10_000_000usize;
+    let mut r = Rng(3);
+    let v: Vec<f32> = (0..n).map(|_| r.f() * 65535.0).collect();
+    let z: Vec<f32> = (0..n).map(|_| r.f() * 100.0).collect();
+    let rgb: Vec<f32> = (0..n).map(|_| r.f() * 255.0).collect();
+    let mut g = cr.benchmark_group("color_10M");
+    g.throughput(Throughput::Elements(n as u64));
+    g.bench_function("intensity", |b| b.iter(|| color::intensity(&v)));
+    g.bench_function("height", |b| {
+        b.iter(|| color::height(&z, 300.0, 300.0, 400.0))
+    });
+    g.bench_function("rgb", |b| b.iter(|| color::rgb(&rgb, &rgb, &rgb)));
+    g.finish();
+}
+
+criterion_group!(benches, bench, bench_color);
+
+/// `PCIMG_RENDER_AB=1 cargo bench --bench render` (or `=<points>`): interleaved A/B of wgpu
+/// shader variants, best of several frames each (robust on a shared machine).
+fn ab() {
+    let variants: Vec<(String, GpuOptions)> =
+        [(1, false), (8, false), (8, true), (32, false), (32, true)]
+            .into_iter()
+            .map(|(ppt, pre)| {
+                (
+                    format!("ppt{ppt}{}", if pre { "+pretest" } else { "" }),
+                    GpuOptions {
+                        points_per_thread: ppt,
+                        early_depth_test: pre,
+                        ..Default::default()
+                    },
+                )
+            })
+            .collect();
+    let mut gpus: Vec<(String, GpuRasterizer)> = variants
+        .into_iter()
+        .filter_map(|(n, o)| GpuRasterizer::with_options(o).ok().map(|g| (n, g)))
+        .collect();
+    let mut cpus = [
+        ("cpu", CpuRasterizer::with_strategy(CpuStrategy::PerThread)),
+        (
+            "cpu_atomic",
+            CpuRasterizer::with_strategy(CpuStrategy::SharedAtomic),
+        ),
+    ];
+    let opts = RenderOptions {
+        width: 1280,
+        height: 720,
+        ..Default::default()
+    };
+    let bounds = Bounds {
+        min: [500_000.0, 4_000_000.0, -60.0],
+        max: [500_000.0 + SIZE as f64, 4_000_000.0 + SIZE as f64, 60.0],
+    };
+    let cam = Camera::fit(&bounds);
+    // PCIMG_RENDER_AB=<points> (default 10 M).
+    let n = std::env::var("PCIMG_RENDER_AB")
+        .ok()
+        .and_then(|v| v.parse::<usize>().ok())
+        .filter(|&n| n > 1)
+        .unwrap_or(10_000_000);
+    let morton = terrain(n);
+    let orders = [
+        ("morton", morton.clone()),
+        ("morton_blocks_shuffled", block_shuffled(&morton, 10_240)),
+        ("shuffled", shuffled(&morton)),
+    ];
+    for (order, c) in &orders {
+        let batch = PointBatch {
+            origin: [bounds.min[0], bounds.min[1], 0.0],
+            x: &c.x,
+            y: &c.y,
+            z: &c.z,
+            color: &c.c,
+        };
+        let mut best = vec![f64::INFINITY; gpus.len() + cpus.len()];
+        for _ in 0..7 {
+            for (k, (_, g)) in gpus.iter_mut().enumerate() {
+                if let Ok(f) = g.render(&cam, &[batch], &opts) {
+                    best[k] = best[k].min(f.stats.render_ms);
+                }
+            }
+            for (k, (_, c)) in cpus.iter_mut().enumerate() {
+                if let Ok(f) = c.render(&cam, &[batch], &opts) {
+                    let k = gpus.len() + k;
+                    best[k] = best[k].min(f.stats.render_ms);
+                }
+            }
+        }
+        let names = gpus
+            .iter()
+            .map(|g| g.0.as_str())
+            .chain(cpus.iter().map(|c| c.0));
+        for (name, ms) in names.zip(&best) {
+            println!(
+                "{order:24} {name:14} {ms:8.1} ms {:7.1} M points/s",
+                n as f64 / ms / 1e3
+            );
+        }
+    }
+}
+
+fn main() {
+    if std::env::var_os("PCIMG_RENDER_AB").is_some() {
+        ab();
+        return;
+    }
+    benches();
+    Criterion::default().configure_from_args().final_summary();
+}

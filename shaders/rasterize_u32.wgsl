@@ -1,0 +1,93 @@
+// Fallback point rasterization for adapters without 64-bit atomics: the packed
+// value is `depth16 << 16 | bgr565` with a 32-bit `atomicMin` (16-bit depth is the
+// quantized 0..1 projection depth, so distant near-ties may resolve either way).
+// Same transform, splat rules and dispatch shape as rasterize.wgsl.
+
+struct Params {
+    mvp: mat4x4<f32>,
+    width: u32,
+    height: u32,
+    point_size: u32,
+    count: u32,
+    hw: f32,
+    hh: f32,
+    off: f32,
+    _pad: u32,
+}
+
+@group(0) @binding(0) var<uniform> params: Params;
+@group(0) @binding(1) var<storage, read> xs: array<f32>;
+@group(0) @binding(2) var<storage, read> ys: array<f32>;
+@group(0) @binding(3) var<storage, read> zs: array<f32>;
+@group(0) @binding(4) var<storage, read> cs: array<u32>;
+@group(1) @binding(0) var<storage, read_write> fb: array<atomic<u32>>;
+
+const POINTS_PER_THREAD: u32 = 1u; // replaced by the host
+
+fn write_min(idx: u32, v: u32) {
+    if (atomicLoad(&fb[idx]) <= v) {
+        return;
+    }
+    atomicMin(&fb[idx], v);
+}
+
+@compute @workgroup_size(256)
+fn main(
+    @builtin(workgroup_id) wg: vec3<u32>,
+    @builtin(num_workgroups) nwg: vec3<u32>,
+    @builtin(local_invocation_index) li: u32,
+) {
+    let base = (wg.y * nwg.x + wg.x) * (256u * POINTS_PER_THREAD) + li;
+    for (var k = 0u; k < POINTS_PER_THREAD; k++) {
+        let i = base + k * 256u;
+        if (i >= params.count) {
+            return;
+        }
+        draw(i);
+    }
+}
+
+fn draw(i: u32) {
+    let x = xs[i];
+    let y = ys[i];
+    let z = zs[i];
+    let m = params.mvp;
+    let cw = m[0].w * x + m[1].w * y + m[2].w * z + m[3].w;
+    let cz = m[0].z * x + m[1].z * y + m[2].z * z + m[3].z;
+    if (!(cw > 0.0 && cz >= 0.0 && cz <= cw)) {
+        return;
+    }
+    let cx = m[0].x * x + m[1].x * y + m[2].x * z + m[3].x;
+    let cy = m[0].y * x + m[1].y * y + m[2].y * z + m[3].y;
+    let sx = cx / cw * params.hw + params.hw;
+    let sy = params.hh - cy / cw * params.hh;
+    let c = cs[i];
+    // Blue in the high bits, red in the low ones: ties then break like the
+    // 64-bit path, which compares b << 16 | g << 8 | r.
+    let bgr565 = (((c >> 19u) & 0x1fu) << 11u) | (((c >> 10u) & 0x3fu) << 5u) | ((c >> 3u) & 0x1fu);
+    let d16 = min(u32(cz / cw * 65535.0), 65534u);
+    let v = (d16 << 16u) | bgr565;
+    let w = i32(params.width);
+    let h = i32(params.height);
+    if (params.point_size == 1u) {
+        if (sx >= 0.0 && sy >= 0.0 && sx < params.hw * 2.0 && sy < params.hh * 2.0) {
+            let ix = min(i32(sx), w - 1);
+            let iy = min(i32(sy), h - 1);
+            write_min(u32(iy) * params.width + u32(ix), v);
+        }
+        return;
+    }
+    let fx = sx - params.off;
+    let fy = sy - params.off;
+    if (!(fx > -4.0 && fy > -4.0 && fx < params.hw * 2.0 + 4.0 && fy < params.hh * 2.0 + 4.0)) {
+        return;
+    }
+    let x0 = i32(floor(fx));
+    let y0 = i32(floor(fy));
+    let s = i32(params.point_size);
+    for (var py = max(y0, 0); py < min(y0 + s, h); py++) {
+        for (var px = max(x0, 0); px < min(x0 + s, w); px++) {
+            write_min(u32(py) * params.width + u32(px), v);
+        }
+    }
+}
