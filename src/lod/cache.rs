@@ -51,7 +51,12 @@ impl LoadedTile {
         self.x.is_empty()
     }
     pub fn bytes(&self) -> u64 {
-        4 * (self.x.len() as u64 * 3 + self.attributes.iter().map(|a| a.2.len() as u64).sum::<u64>())
+        4 * (self.x.len() as u64 * 3
+            + self
+                .attributes
+                .iter()
+                .map(|a| a.2.len() as u64)
+                .sum::<u64>())
     }
     pub fn attribute(&self, name: &str) -> Option<&[f32]> {
         self.attributes
@@ -148,7 +153,8 @@ impl TileCache {
         let load_us = Arc::new(AtomicU64::new(0));
         let workers = (0..threads.max(1))
             .map(|_| {
-                let (rx, state, ds, tx) = (job_rx.clone(), state.clone(), ds.clone(), arrive_tx.clone());
+                let (rx, state, ds, tx) =
+                    (job_rx.clone(), state.clone(), ds.clone(), arrive_tx.clone());
                 let (loads, load_us) = (loads.clone(), load_us.clone());
                 std::thread::spawn(move || {
                     loop {
@@ -159,7 +165,10 @@ impl TileCache {
                             },
                             Err(_) => return,
                         };
-                        let still_wanted = state.lock().map(|s| s.wanted.contains(&key)).unwrap_or(false);
+                        let still_wanted = state
+                            .lock()
+                            .map(|s| s.wanted.contains(&key))
+                            .unwrap_or(false);
                         if !still_wanted {
                             if let Ok(mut s) = state.lock() {
                                 s.queued.remove(&key);
@@ -176,7 +185,13 @@ impl TileCache {
                                 s.bytes += t.bytes();
                                 s.clock += 1;
                                 let clock = s.clock;
-                                s.tiles.insert(key, Entry { tile: Arc::new(t), last_used: clock });
+                                s.tiles.insert(
+                                    key,
+                                    Entry {
+                                        tile: Arc::new(t),
+                                        last_used: clock,
+                                    },
+                                );
                                 evict(&mut s, budget);
                                 drop(s);
                                 let _ = tx.send(key);
@@ -225,7 +240,9 @@ impl TileCache {
 
     /// The cached tiles among `tiles` (others are still loading).
     pub fn ready(&self, tiles: &[TileRef]) -> Vec<Arc<LoadedTile>> {
-        let Ok(s) = self.state.lock() else { return Vec::new() };
+        let Ok(s) = self.state.lock() else {
+            return Vec::new();
+        };
         tiles
             .iter()
             .filter_map(|t| s.tiles.get(&TileKey::from(t)).map(|e| e.tile.clone()))
@@ -235,13 +252,15 @@ impl TileCache {
     /// Loads the tiles now (in parallel) and returns them all: for one-shot renders.
     pub fn load_all(&self, tiles: &[TileRef]) -> Result<Vec<Arc<LoadedTile>>, String> {
         use rayon::prelude::*;
+        let ds: &Dataset = &self.ds;
         let out: Vec<Arc<LoadedTile>> = tiles
             .par_iter()
-            .map(|t| load_tile(&self.ds, TileKey::from(t)).map(Arc::new))
+            .map(|t| load_tile(ds, TileKey::from(t)).map(Arc::new))
             .collect::<Result<_, String>>()?;
         for t in &out {
             self.loads.fetch_add(1, Ordering::Relaxed);
-            self.load_us.fetch_add((t.load_ms * 1e3) as u64, Ordering::Relaxed);
+            self.load_us
+                .fetch_add((t.load_ms * 1e3) as u64, Ordering::Relaxed);
         }
         Ok(out)
     }
@@ -274,7 +293,11 @@ impl TileCache {
     pub fn has_all(&self, tiles: &[TileRef]) -> bool {
         self.state
             .lock()
-            .map(|s| tiles.iter().all(|t| s.tiles.contains_key(&TileKey::from(t))))
+            .map(|s| {
+                tiles
+                    .iter()
+                    .all(|t| s.tiles.contains_key(&TileKey::from(t)))
+            })
             .unwrap_or(false)
     }
 }

@@ -124,10 +124,9 @@ fn level_tiles(ds: &Dataset, part: usize, level: usize) -> Vec<TileRef> {
             part,
             level,
             tile: t.index,
-            points: t
-                .points
-                .map(|n| n as u64)
-                .unwrap_or_else(|| l.points.unwrap_or(p.meta.point_count) / l.tiles.len().max(1) as u64),
+            points: t.points.map(|n| n as u64).unwrap_or_else(|| {
+                l.points.unwrap_or(p.meta.point_count) / l.tiles.len().max(1) as u64
+            }),
             bounds: t.bounds,
         })
         .collect()
@@ -220,7 +219,11 @@ pub fn select(
             }
             while let Some(c) = heap.pop() {
                 // Fine enough, or nothing finer: keep it.
-                let kids = if c.key > 1.0 { children(ds, &c.tile) } else { None };
+                let kids = if c.key > 1.0 {
+                    children(ds, &c.tile)
+                } else {
+                    None
+                };
                 let Some(kids) = kids else {
                     chosen.push(c.tile);
                     continue;

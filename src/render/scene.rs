@@ -29,7 +29,10 @@ impl ColorRanges {
                 sample.extend(v.iter().step_by(step));
             }
             if let Some(r) = t.attribute("red") {
-                rgb_max = r.iter().step_by((r.len() / 1024).max(1)).fold(rgb_max, |m, &x| m.max(x));
+                rgb_max = r
+                    .iter()
+                    .step_by((r.len() / 1024).max(1))
+                    .fold(rgb_max, |m, &x| m.max(x));
             }
         }
         let intensity = color::robust_range(&sample, 2.0, 98.0).unwrap_or((0.0, 255.0));
@@ -60,9 +63,11 @@ pub fn colorize(t: &LoadedTile, mode: ColorMode, r: &ColorRanges) -> Vec<u32> {
             }
         }
         ColorMode::Rgb => {
-            if let (Some(red), Some(g), Some(b)) =
-                (t.attribute("red"), t.attribute("green"), t.attribute("blue"))
-            {
+            if let (Some(red), Some(g), Some(b)) = (
+                t.attribute("red"),
+                t.attribute("green"),
+                t.attribute("blue"),
+            ) {
                 if let Ok(c) = color::rgb_scaled(red, g, b, r.rgb_scale) {
                     return c;
                 }
@@ -81,7 +86,10 @@ pub fn colorize(t: &LoadedTile, mode: ColorMode, r: &ColorRanges) -> Vec<u32> {
 impl Scene {
     pub fn new(tiles: Vec<Arc<LoadedTile>>, mode: ColorMode, ranges: &ColorRanges) -> Scene {
         use rayon::prelude::*;
-        let colors = tiles.par_iter().map(|t| colorize(t, mode, ranges)).collect();
+        let colors = tiles
+            .par_iter()
+            .map(|t| colorize(t, mode, ranges))
+            .collect();
         Scene { tiles, colors }
     }
 

@@ -74,7 +74,9 @@ pub fn quantization_bound(bounds: &Bounds, origin: [f64; 3]) -> f64 {
     }
     (0..3)
         .map(|a| {
-            let rel = (bounds.max[a] - origin[a]).abs().max((bounds.min[a] - origin[a]).abs());
+            let rel = (bounds.max[a] - origin[a])
+                .abs()
+                .max((bounds.min[a] - origin[a]).abs());
             let mag = bounds.max[a].abs().max(bounds.min[a].abs());
             let half_ulp = if rel > 0.0 {
                 2f64.powi(rel.log2().floor() as i32 - 24)
