@@ -334,6 +334,20 @@ impl Part {
             );
         }
         levels.sort_by_key(|l| std::cmp::Reverse(l.width));
+        let l0 = &levels[0];
+        let pixels0 = l0.width as u64 * l0.height as u64;
+        if pixels0 > 1 << 34 {
+            return Err(err(format!(
+                "level 0 is {}x{} pixels, more than pcimg reads",
+                l0.width, l0.height
+            )));
+        }
+        if meta.point_count > pixels0 {
+            return Err(err(format!(
+                "metadata POINT_COUNT {} exceeds the {} pixels of level 0",
+                meta.point_count, pixels0
+            )));
+        }
         let mut lut_cache: BTreeMap<u32, Arc<Vec<u32>>> = BTreeMap::new();
         for (k, level) in levels.iter_mut().enumerate() {
             level.index = k;
@@ -353,7 +367,7 @@ impl Part {
                 );
             }
             let own = ifds_software(&tiff, data, &ifds, level.width);
-            Self::attach_index(level, index.as_deref(), k, own, &meta);
+            Self::attach_index(level, index.as_deref(), k, own, &meta).map_err(err)?;
         }
         Ok(Part {
             path: path.to_path_buf(),
@@ -477,8 +491,9 @@ impl Part {
         k: usize,
         own: bool,
         meta: &PartMeta,
-    ) {
+    ) -> std::result::Result<(), String> {
         let per_band = (level.tiles_across * level.tiles_down) as usize;
+        let pixels = level.tile_width as u64 * level.tile_height as u64;
         let has_data = |t: usize| level.counts[t] > 0;
         if let Some(li) = index.and_then(|ix| ix.get(k)) {
             // Level 0 pixels survive a GDAL rewrite unchanged; overviews must be ours.
@@ -491,6 +506,21 @@ impl Part {
                 .iter()
                 .all(|t| (t.index as usize) < per_band && has_data(t.index as usize));
             if geometry_ok && tiles_ok && (k == 0 || own) {
+                // The index must agree with the level: counts fit their tiles and
+                // add up to the level's count.
+                let sum: u64 = li.tiles.iter().map(|t| t.points as u64).sum();
+                let expected = meta.level_points.get(k).copied();
+                if li.tiles.iter().any(|t| t.points as u64 > pixels)
+                    || expected.is_some_and(|e| e != sum)
+                    || sum > meta.point_count
+                {
+                    return Err(format!(
+                        "the tile index of level {k} disagrees with the image ({sum} points, metadata says {})",
+                        expected
+                            .map(|e| e.to_string())
+                            .unwrap_or_else(|| "nothing".into())
+                    ));
+                }
                 level.indexed = true;
                 level.points = meta.level_points.get(k).copied();
                 level.tiles = li
@@ -502,7 +532,7 @@ impl Part {
                         bounds: t.bounds,
                     })
                     .collect();
-                return;
+                return Ok(());
             }
         }
         let order: Vec<u32> = if level.z_lut.is_some() {
@@ -524,6 +554,7 @@ impl Part {
                 bounds: meta.bounds,
             })
             .collect();
+        Ok(())
     }
 
     /// Index of band `name`.
@@ -608,11 +639,28 @@ impl Part {
                 tile_points: counts.iter().map(|&c| c as u32).collect(),
             });
         }
-        let per_tile: Vec<Vec<Vec<f32>>> = tiles
-            .par_iter()
-            .map(|&t| self.read_tile(l, t, known.get(&t).copied().flatten(), bands))
-            .collect::<std::result::Result<_, String>>()
-            .map_err(fail)?;
+        // Without counts, tiles are decoded in parallel batches and the total is
+        // checked against POINT_COUNT, so a corrupt file cannot make us hold more.
+        let mut per_tile: Vec<Vec<Vec<f32>>> = Vec::with_capacity(tiles.len());
+        let mut held = 0u64;
+        for batch in tiles.chunks(8) {
+            let got: Vec<Vec<Vec<f32>>> = batch
+                .par_iter()
+                .map(|&t| self.read_tile(l, t, known.get(&t).copied().flatten(), bands))
+                .collect::<std::result::Result<_, String>>()
+                .map_err(fail)?;
+            held += got
+                .iter()
+                .map(|c| c.first().map_or(0, Vec::len) as u64)
+                .sum::<u64>();
+            if held > self.meta.point_count {
+                return Err(fail(format!(
+                    "holds more points than the part's POINT_COUNT ({})",
+                    self.meta.point_count
+                )));
+            }
+            per_tile.extend(got);
+        }
         let total: usize = per_tile.iter().map(|c| c.first().map_or(0, Vec::len)).sum();
         let mut columns: Vec<Vec<f32>> = bands.iter().map(|_| Vec::with_capacity(total)).collect();
         let mut tile_points = Vec::with_capacity(tiles.len());
