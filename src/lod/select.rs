@@ -245,14 +245,20 @@ pub fn select(
             }
         }
     }
-    // The memory budget: nearest tiles first; give up the rest.
+    // The memory budget (and in view mode the point budget, which the coarsest
+    // tiles of many parts could exceed on their own): nearest tiles first; give up
+    // the rest.
     chosen.sort_by(|a, b| {
         distance_to_box(eye, &a.bounds).total_cmp(&distance_to_box(eye, &b.bounds))
     });
+    let point_cap = match mode {
+        LodMode::View { budget } => budget,
+        _ => u64::MAX,
+    };
     let mut bytes = 0u64;
     for t in chosen {
         let cost = t.points * BYTES_PER_LOADED_POINT;
-        if bytes + cost > memory_budget {
+        if bytes + cost > memory_budget || sel.points + t.points > point_cap {
             sel.dropped_tiles += 1;
             sel.dropped_points += t.points;
             continue;
