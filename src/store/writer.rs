@@ -137,27 +137,29 @@ fn arrange(path: &Path, pts: &PointColumns, layout: Layout, ph: &mut Phases) -> 
         }
         names.push(name);
     }
-    // One parallel pass: bounds, and the first point that is not finite.
-    let (bounds, bad) = (0..n)
-        .into_par_iter()
-        .with_min_len(1 << 16)
-        .fold(
-            || (Bounds::EMPTY, usize::MAX),
-            |(mut b, bad), i| {
-                let p = [pts.x[i], pts.y[i], pts.z[i]];
-                if p.iter().all(|v| v.is_finite()) {
-                    b.extend(p);
-                    (b, bad)
-                } else {
-                    (b, bad.min(i))
-                }
-            },
-        )
-        .reduce(
-            || (Bounds::EMPTY, usize::MAX),
-            |a, b| (a.0.union(&b.0), a.1.min(b.1)),
-        );
-    if bad != usize::MAX {
+    // Bounds axis by axis over contiguous slices (vectorizes); a non-finite value
+    // makes a sum non-finite, and only then is the offending point looked for.
+    let axes = [&pts.x, &pts.y, &pts.z];
+    let stats: Vec<(f64, f64, bool)> = axes
+        .par_iter()
+        .map(|col| {
+            col.par_chunks(1 << 16)
+                .map(|c| {
+                    let lo = c.iter().copied().fold(f64::INFINITY, f64::min);
+                    let hi = c.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+                    let finite = c.iter().map(|v| v * 0.0).sum::<f64>() == 0.0;
+                    (lo, hi, finite)
+                })
+                .reduce(
+                    || (f64::INFINITY, f64::NEG_INFINITY, true),
+                    |a, b| (a.0.min(b.0), a.1.max(b.1), a.2 && b.2),
+                )
+        })
+        .collect();
+    if stats.iter().any(|s| !s.2) {
+        let bad = (0..n)
+            .find(|&i| !(pts.x[i].is_finite() && pts.y[i].is_finite() && pts.z[i].is_finite()))
+            .unwrap_or(0);
         return Err(StoreError::new(
             path,
             format!(
@@ -166,6 +168,14 @@ fn arrange(path: &Path, pts: &PointColumns, layout: Layout, ph: &mut Phases) -> 
             ),
         ));
     }
+    let bounds = if n == 0 {
+        Bounds::EMPTY
+    } else {
+        Bounds {
+            min: [stats[0].0, stats[1].0, stats[2].0],
+            max: [stats[0].1, stats[1].1, stats[2].1],
+        }
+    };
     let origin = if n == 0 { [0.0; 3] } else { bounds.center() };
     // Coordinates relative to the origin.
     let mut pos = vec![[0f32; 3]; n];
