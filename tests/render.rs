@@ -349,9 +349,9 @@ fn gpu_shader_variants_agree() {
     let Some(reference) = reference else {
         return;
     };
-    for (early_depth_test, points_per_thread) in [(true, 1), (false, 3), (true, 64)] {
+    for (no_early_depth_test, points_per_thread) in [(true, 1), (false, 3), (true, 64)] {
         let mut g = GpuRasterizer::with_options(GpuOptions {
-            early_depth_test,
+            no_early_depth_test,
             points_per_thread,
             ..Default::default()
         })
@@ -359,7 +359,7 @@ fn gpu_shader_variants_agree() {
         let f = g.render(&cam, &bs, &o).unwrap();
         assert_eq!(
             f.rgba, reference.rgba,
-            "early {early_depth_test} ppt {points_per_thread}"
+            "no early {no_early_depth_test} ppt {points_per_thread}"
         );
     }
 }

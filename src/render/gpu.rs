@@ -217,9 +217,10 @@ fn adapter_score(a: &wgpu::Adapter) -> Option<u32> {
 pub struct GpuOptions {
     /// Use the 32-bit fallback (16-bit depth, BGR565) even where 64-bit atomics exist.
     pub force_32bit_atomics: bool,
-    /// Pre-test depth with a plain `atomicLoad` before each `atomicMin` where
-    /// `SHADER_INT64_ATOMIC_ALL_OPS` exists (no clear gain on lavapipe).
-    pub early_depth_test: bool,
+    /// Skip the plain `atomicLoad` depth pre-test that otherwise guards each
+    /// `atomicMin` where `SHADER_INT64_ATOMIC_ALL_OPS` exists (it measured
+    /// 0–20% faster on lavapipe for ordered input, neutral for shuffled).
+    pub no_early_depth_test: bool,
     /// Points each shader invocation rasterizes (0 = default, 8).
     pub points_per_thread: u32,
 }
@@ -282,7 +283,7 @@ impl GpuRasterizer {
     ) -> Result<GpuRasterizer, RenderError> {
         let info = adapter.get_info();
         let want64 = wgpu::Features::SHADER_INT64 | wgpu::Features::SHADER_INT64_ATOMIC_MIN_MAX;
-        let all_ops = if opts.early_depth_test {
+        let all_ops = if !opts.no_early_depth_test {
             wgpu::Features::SHADER_INT64_ATOMIC_ALL_OPS
         } else {
             wgpu::Features::empty()
@@ -329,7 +330,7 @@ impl GpuRasterizer {
             && adapter
                 .features()
                 .contains(wgpu::Features::SHADER_INT64_ATOMIC_ALL_OPS)
-            && opts.early_depth_test;
+            && !opts.no_early_depth_test;
         let points_per_thread = match opts.points_per_thread {
             0 => DEFAULT_POINTS_PER_THREAD,
             n => n.min(64),
