@@ -587,3 +587,80 @@ fn save_png_round_trip() {
     assert!(std::fs::metadata(&p).unwrap().len() > 0);
     assert!(f.save_png(&dir.path().join("no/such/dir.png")).is_err());
 }
+
+mod arbitrary {
+    use super::*;
+    use proptest::prelude::*;
+
+    fn any_f32() -> impl Strategy<Value = f32> {
+        prop_oneof![
+            8 => -1e3f32..1e3,
+            1 => prop::num::f32::ANY,
+            1 => Just(f32::NAN),
+            1 => Just(f32::INFINITY),
+            1 => Just(-1e30f32),
+        ]
+    }
+
+    fn any_f64() -> impl Strategy<Value = f64> {
+        prop_oneof![
+            8 => -1e4f64..1e4,
+            1 => prop::num::f64::ANY,
+            1 => Just(f64::NAN),
+        ]
+    }
+
+    proptest! {
+        // 48 cases unless PROPTEST_CASES says otherwise.
+        #![proptest_config(ProptestConfig {
+            cases: std::env::var("PROPTEST_CASES").ok().and_then(|v| v.parse().ok()).unwrap_or(48),
+            ..ProptestConfig::default()
+        })]
+
+        /// Any points, any camera, any small frame: an image or an error, never a panic.
+        #[test]
+        fn renderers_never_panic(
+            pts in prop::collection::vec((any_f32(), any_f32(), any_f32(), any::<u32>()), 0..200),
+            origin in (any_f64(), any_f64(), any_f64()),
+            cam in (any_f64(), any_f64(), any_f64(), any_f64(), any_f64(), any_f64()),
+            mode in any::<bool>(),
+            size in (0u32..40, 0u32..40, 0u32..6, any::<bool>()),
+        ) {
+            let x: Vec<f32> = pts.iter().map(|p| p.0).collect();
+            let y: Vec<f32> = pts.iter().map(|p| p.1).collect();
+            let z: Vec<f32> = pts.iter().map(|p| p.2).collect();
+            let c: Vec<u32> = pts.iter().map(|p| p.3).collect();
+            let batch = PointBatch { origin: [origin.0, origin.1, origin.2], x: &x, y: &y, z: &z, color: &c };
+            let camera = Camera {
+                mode: if mode { CameraMode::Orbit } else { CameraMode::Fly },
+                target: glam::DVec3::new(cam.0, cam.1, cam.2),
+                position: glam::DVec3::new(cam.2, cam.0, cam.1),
+                yaw: cam.3,
+                pitch: cam.4,
+                distance: cam.5,
+                fov_y: cam.3,
+                near: cam.4,
+                far: cam.5,
+                ..Camera::default()
+            };
+            let o = RenderOptions {
+                width: size.0,
+                height: size.1,
+                point_size: size.2,
+                eye_dome_lighting: size.3,
+                background: BG,
+            };
+            let mut cpu = CpuRasterizer::new();
+            let r = cpu.render(&camera, &[batch], &o);
+            if let Ok(f) = &r {
+                prop_assert_eq!(f.rgba.len(), (o.width * o.height * 4) as usize);
+            }
+            with_gpu(|gpu| {
+                let g = gpu.render(&camera, &[batch], &o);
+                assert_eq!(g.is_ok(), r.is_ok());
+            });
+            let _ = Camera::from_json(&camera.to_json());
+            let _ = camera.frustum(1.5).contains_aabb(&Bounds { min: [origin.0; 3], max: [origin.1; 3] });
+        }
+    }
+}
