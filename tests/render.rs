@@ -663,4 +663,44 @@ mod arbitrary {
             let _ = camera.frustum(1.5).contains_aabb(&Bounds { min: [origin.0; 3], max: [origin.1; 3] });
         }
     }
+
+    proptest! {
+        /// Colour modes, EDL, view parsing and camera fitting take anything.
+        #[test]
+        fn helpers_never_panic(
+            v in prop::collection::vec(any_f32(), 0..300),
+            pct in (any_f64(), any_f64()),
+            range in (any_f64(), any_f64(), any_f64()),
+            text in ".{0,20}",
+            b in ((any_f64(), any_f64(), any_f64()), (any_f64(), any_f64(), any_f64())),
+            w in 0u32..20,
+        ) {
+            use pcimg::render::{color, edl};
+            let _ = color::robust_range(&v, pct.0, pct.1);
+            let grey = color::intensity(&v);
+            prop_assert_eq!(grey.len(), v.len());
+            let mut out = vec![0; v.len()];
+            color::intensity_with_range(&v, pct.0 as f32, pct.1 as f32, &mut out);
+            let _ = color::height(&v, range.0, range.1, range.2);
+            let _ = color::height_auto(&v, range.0);
+            let _ = color::rgb_scaled(&v, &v, &v, pct.0 as f32);
+            let _ = color::turbo(pct.0 as f32);
+            let _ = color::level_color(w);
+            let h = if w == 0 { 0 } else { v.len() as u32 / w };
+            let mut img = vec![200u8; (w * h * 4) as usize];
+            edl::apply(&mut img, &v[..(w * h) as usize], w, h, &edl::EdlParams { strength: pct.0 as f32, radius: w });
+            let _ = pcimg::render::camera::parse_view(&text);
+            let _ = Camera::from_json(&text);
+            let bounds = Bounds { min: [(b.0).0, (b.0).1, (b.0).2], max: [(b.1).0, (b.1).1, (b.1).2] };
+            let mut cam = Camera::fit(&bounds);
+            cam.rotate(pct.0, pct.1);
+            cam.zoom(range.0);
+            cam.translate(range.0, range.1, range.2);
+            cam.set_clip_from_bounds(&bounds);
+            let _ = cam.view_proj(bounds.min);
+            let _ = cam.frustum(pct.0).contains_aabb(&bounds);
+            let _ = cam.project(bounds.max, w, w);
+            let _ = cam.pixels_per_unit(range.0, w);
+        }
+    }
 }
