@@ -686,7 +686,7 @@ mod arbitrary {
             let _ = color::rgb_scaled(&v, &v, &v, pct.0 as f32);
             let _ = color::turbo(pct.0 as f32);
             let _ = color::level_color(w);
-            let h = if w == 0 { 0 } else { v.len() as u32 / w };
+            let h = (v.len() as u32).checked_div(w).unwrap_or(0);
             let mut img = vec![200u8; (w * h * 4) as usize];
             edl::apply(&mut img, &v[..(w * h) as usize], w, h, &edl::EdlParams { strength: pct.0 as f32, radius: w });
             let _ = pcimg::render::camera::parse_view(&text);
