@@ -32,8 +32,6 @@ const MAX_GROUPS_X: u32 = 65535;
 const DEFAULT_POINTS_PER_THREAD: u32 = 8;
 /// Longest wait for the device before a frame fails (instead of hanging).
 const GPU_TIMEOUT: std::time::Duration = std::time::Duration::from_secs(60);
-/// Must match `PIXELS_PER_THREAD` in resolve.wgsl.
-const PIXELS_PER_THREAD: u32 = 16;
 
 #[repr(C)]
 #[derive(Clone, Copy, Pod, Zeroable)]
@@ -52,7 +50,7 @@ struct RasterParams {
 #[repr(C)]
 #[derive(Clone, Copy, Pod, Zeroable)]
 struct ResolveParams {
-    pixels: u32,
+    quads: u32,
     background: u32,
     near: f32,
     far: f32,
@@ -438,6 +436,8 @@ impl GpuRasterizer {
             return Ok(());
         }
         let px = width as u64 * height as u64;
+        // Padded to whole quads of 4 pixels for the vectorized resolve.
+        let px = px.next_multiple_of(4);
         let fb_bytes = px * if self.int64 { 8 } else { 4 };
         if fb_bytes > self.max_binding {
             return Err(RenderError::InvalidOptions(format!(
@@ -685,7 +685,8 @@ impl Rasterizer for GpuRasterizer {
         let t0 = Instant::now();
         let aspect = opts.aspect();
         let px = w * h;
-        let (ngx, ngy, _) = dispatch_shape(px.div_ceil(PIXELS_PER_THREAD));
+        let quads = px.div_ceil(4);
+        let (ngx, ngy, _) = dispatch_shape(quads);
         let Some(t) = self.targets.as_ref() else {
             return Err(RenderError::Gpu("framebuffer missing".into()));
         };
@@ -695,7 +696,7 @@ impl Rasterizer for GpuRasterizer {
             &t.resolve_params,
             0,
             bytemuck::bytes_of(&ResolveParams {
-                pixels: px,
+                quads,
                 background: pack_background(opts.background),
                 near,
                 far,
@@ -765,7 +766,7 @@ impl Rasterizer for GpuRasterizer {
             pass.set_bind_group(0, &t.resolve_bg, &[]);
             pass.dispatch_workgroups(ngx, ngy, 1);
         }
-        let depth_at = depth_offset(px as u64);
+        let depth_at = depth_offset(quads as u64 * 4);
         let read_bytes = if opts.eye_dome_lighting {
             depth_at + px as u64 * 4
         } else {
