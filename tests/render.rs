@@ -339,6 +339,46 @@ fn gpu_32bit_fallback_agrees_roughly() {
 }
 
 #[test]
+fn gpu_cache_keeps_recent_batches_within_budget() {
+    let (cols, bounds) = scene();
+    let bs = batches(&cols);
+    let cam = Camera::fit(&bounds);
+    let mut have_gpu = false;
+    with_gpu(|_| have_gpu = true);
+    if !have_gpu {
+        return;
+    }
+    let mut gpu = GpuRasterizer::new().unwrap();
+    let o = opts(160, 120, 1);
+    let (a, b) = (&bs[..1], &bs[1..]);
+    let first = gpu.render(&cam, a, &o).unwrap();
+    assert!(first.stats.upload_ms > 0.0);
+    gpu.render(&cam, b, &o).unwrap();
+    // `a` was not drawn last frame but stays within the default budget.
+    assert_eq!(gpu.render(&cam, a, &o).unwrap().stats.upload_ms, 0.0);
+    assert_eq!(gpu.cached_bytes(), 200_000 * 16);
+    gpu.set_cache_budget(0);
+    gpu.render(&cam, b, &o).unwrap();
+    assert_eq!(gpu.cached_bytes(), cols[1].x.len() as u64 * 16);
+    assert!(gpu.render(&cam, a, &o).unwrap().stats.upload_ms > 0.0);
+    // Same pointers, changed contents: the fingerprint forces a re-upload.
+    let mut changed = Cols::new(cols[0].origin);
+    changed.x = cols[0].x.clone();
+    changed.y = cols[0].y.clone();
+    changed.z = cols[0].z.clone();
+    changed.c = cols[0].c.clone();
+    let before = gpu.render(&cam, &[changed.batch()], &o).unwrap();
+    for c in changed.c.iter_mut() {
+        *c = pack_rgb(1, 2, 3);
+    }
+    let after = gpu.render(&cam, &[changed.batch()], &o).unwrap();
+    assert!(after.stats.upload_ms > 0.0);
+    assert_ne!(before.rgba, after.rgba);
+    gpu.invalidate_cache();
+    assert_eq!(gpu.cached_bytes(), 0);
+}
+
+#[test]
 fn gpu_shader_variants_agree() {
     let (cols, bounds) = scene();
     let bs = batches(&cols);

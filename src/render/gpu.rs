@@ -30,6 +30,8 @@ const MAX_GROUPS_X: u32 = 65535;
 /// Points per shader invocation: fewer, longer invocations measured ~1.5x
 /// faster than one point each on lavapipe.
 const DEFAULT_POINTS_PER_THREAD: u32 = 8;
+/// Default [`GpuRasterizer::set_cache_budget`].
+const DEFAULT_CACHE_BUDGET: u64 = 1 << 30;
 /// Longest wait for the device before a frame fails (instead of hanging).
 const GPU_TIMEOUT: std::time::Duration = std::time::Duration::from_secs(60);
 
@@ -77,6 +79,8 @@ struct Chunk {
 
 struct CacheEntry {
     fingerprint: u64,
+    /// Bytes of point data held on the device.
+    bytes: u64,
     chunks: Vec<Chunk>,
     last_used: u64,
 }
@@ -151,6 +155,8 @@ pub struct GpuRasterizer {
     /// the next frame clears it first. Otherwise resolve leaves it cleared.
     fb_dirty: bool,
     cache: HashMap<Key, CacheEntry>,
+    /// Bytes of point buffers kept for batches not drawn in the last frame.
+    cache_budget: u64,
     frame: u64,
     errors: Arc<Mutex<Option<String>>>,
 }
@@ -387,6 +393,7 @@ impl GpuRasterizer {
             targets: None,
             fb_dirty: true,
             cache: HashMap::new(),
+            cache_budget: DEFAULT_CACHE_BUDGET,
             frame: 0,
             errors,
         })
@@ -417,6 +424,18 @@ impl GpuRasterizer {
     pub fn set_chunk_points(&mut self, n: usize) {
         self.chunk_points = n.clamp(1, (self.max_binding / 4) as usize);
         self.cache.clear();
+    }
+
+    /// Sets how many bytes of point buffers may stay on the device for batches
+    /// that the last frame did not draw (least recently used are dropped
+    /// first). Batches of the current frame are always kept. Default 1 GiB.
+    pub fn set_cache_budget(&mut self, bytes: u64) {
+        self.cache_budget = bytes;
+    }
+
+    /// Bytes of point buffers currently cached on the device.
+    pub fn cached_bytes(&self) -> u64 {
+        self.cache.values().map(|e| e.bytes).sum()
     }
 
     /// Drops all cached point buffers (call when column memory is reused in place).
@@ -606,11 +625,35 @@ impl GpuRasterizer {
             key,
             CacheEntry {
                 fingerprint: fp,
+                bytes: n as u64 * 16,
                 chunks,
                 last_used: frame,
             },
         );
         true
+    }
+
+    /// Drops least recently used entries not drawn in `frame` until those
+    /// left fit the budget.
+    fn evict(&mut self, frame: u64) {
+        let mut stale: Vec<(u64, u64, Key)> = self
+            .cache
+            .iter()
+            .filter(|(_, e)| e.last_used != frame)
+            .map(|(k, e)| (e.last_used, e.bytes, *k))
+            .collect();
+        let mut total: u64 = stale.iter().map(|s| s.1).sum();
+        if total <= self.cache_budget {
+            return;
+        }
+        stale.sort_unstable();
+        for (_, bytes, key) in stale {
+            if total <= self.cache_budget {
+                break;
+            }
+            self.cache.remove(&key);
+            total -= bytes;
+        }
     }
 
     fn wait(&self) -> Result<(), RenderError> {
@@ -671,7 +714,7 @@ impl Rasterizer for GpuRasterizer {
             uploaded |= self.upload(b);
         }
         let frame = self.frame;
-        self.cache.retain(|_, e| e.last_used == frame);
+        self.evict(frame);
         if uploaded {
             self.queue.submit(None);
             self.wait()?;
