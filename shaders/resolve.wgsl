@@ -14,8 +14,8 @@
 struct Params {
     quads: u32,
     background: u32, // packed like the colour column, alpha 255
-    near: f32,
-    far: f32,
+    log2_near: f32,   // 32-bit path: depth = exp2(log2_near + depth16 / depth_scale)
+    depth_scale: f32,
     _unused: u32,
     write_depth: u32,
     _pad1: u32,
@@ -108,8 +108,7 @@ fn resolve32(
     let rgba = r8 | (g8 << vec4<u32>(8u)) | (b8 << vec4<u32>(16u)) | vec4<u32>(0xff000000u);
     out_rgba[q] = select(rgba, vec4<u32>(params.background), empty);
     if (params.write_depth != 0u) {
-        let z = vec4<f32>(v >> vec4<u32>(16u)) / 65535.0;
-        let d = params.far * params.near / (params.far - z * (params.far - params.near));
+        let d = exp2(params.log2_near + vec4<f32>(v >> vec4<u32>(16u)) / params.depth_scale);
         out_depth[q] = select(d, bitcast<vec4<f32>>(vec4<u32>(INF)), empty);
     }
 }

@@ -332,6 +332,22 @@ fn gpu_32bit_fallback_agrees_roughly() {
     let c = CpuRasterizer::new().render(&cam, &bs, &o).unwrap();
     let g = gpu.render(&cam, &bs, &o).unwrap();
     let agree = agreement_tol(&c, &g, 8);
+    println!(
+        "32-bit fallback: {:.3}% of pixels within 8/255",
+        agree * 100.0
+    );
+    // 16-bit log depth still separates points 0.1% apart at 90% of the far
+    // plane (a 16-bit projection depth would tie them and pick by colour).
+    let mut pts = Cols::new([0.0; 3]);
+    pts.push([0.0, 900.0, 0.0], pack_rgb(255, 255, 255)); // near, larger colour
+    pts.push([0.0, 901.0, 0.0], pack_rgb(0, 0, 8)); // far, smaller colour
+    let deep = Camera {
+        near: 0.1,
+        far: 1000.0,
+        ..axis_camera()
+    };
+    let f = gpu.render(&deep, &[pts.batch()], &opts(65, 49, 1)).unwrap();
+    assert_eq!(f.pixel(32, 24), Some([255, 255, 255, 255]));
     assert!(
         agree >= 0.97,
         "32-bit fallback: only {agree} of pixels agree"

@@ -46,7 +46,9 @@ struct RasterParams {
     hw: f32,
     hh: f32,
     off: f32,
-    _pad: u32,
+    log2_near: f32,
+    depth_scale: f32,
+    _pad: [u32; 3],
 }
 
 #[repr(C)]
@@ -54,8 +56,8 @@ struct RasterParams {
 struct ResolveParams {
     quads: u32,
     background: u32,
-    near: f32,
-    far: f32,
+    log2_near: f32,
+    depth_scale: f32,
     _unused: u32,
     write_depth: u32,
     _pad: [u32; 2],
@@ -733,16 +735,18 @@ impl Rasterizer for GpuRasterizer {
         let Some(t) = self.targets.as_ref() else {
             return Err(RenderError::Gpu("framebuffer missing".into()));
         };
+        // 16-bit log depth of the 32-bit path spans [near, far].
         let (near, far) = camera.near_far();
-        let (near, far) = (near as f32, far as f32);
+        let log2_near = near.log2() as f32;
+        let depth_scale = (65534.0 / (far / near).log2().max(1e-6)) as f32;
         self.queue.write_buffer(
             &t.resolve_params,
             0,
             bytemuck::bytes_of(&ResolveParams {
                 quads,
                 background: pack_background(opts.background),
-                near,
-                far,
+                log2_near,
+                depth_scale,
                 _unused: 0,
                 write_depth: opts.eye_dome_lighting as u32,
                 _pad: [0; 2],
@@ -765,7 +769,9 @@ impl Rasterizer for GpuRasterizer {
                     hw: w as f32 * 0.5,
                     hh: h as f32 * 0.5,
                     off: (point_size as f32 - 1.0) * 0.5,
-                    _pad: 0,
+                    log2_near,
+                    depth_scale,
+                    _pad: [0; 3],
                 };
                 self.queue
                     .write_buffer(&c.params, 0, bytemuck::bytes_of(&p));
