@@ -1,14 +1,18 @@
 //! The wgpu compute rasterizer (Schütz et al. 2021): point columns live in
-//! storage buffers (cached between frames), one compute invocation per point
-//! does an `atomicMin` of `depth << 32 | colour` into a 64-bit framebuffer
-//! (`SHADER_INT64_ATOMIC_MIN_MAX`), or of `depth16 << 16 | bgr565` into a 32-bit
-//! one where 64-bit atomics are missing; a resolve pass writes RGBA8 and linear
-//! depth, which are read back. Runs headless (pollster), also on software
-//! adapters such as lavapipe/llvmpipe.
+//! storage buffers, each shader invocation transforms a few points and does an
+//! `atomicMin` of `depth << 32 | colour` per covered pixel into a 64-bit
+//! framebuffer (`SHADER_INT64_ATOMIC_MIN_MAX`; guarded by a plain `atomicLoad`
+//! depth pre-test where all 64-bit atomic ops exist), or of
+//! `log-depth16 << 16 | bgr565` into a 32-bit one where 64-bit atomics are
+//! missing (GL, older GPUs). A resolve pass writes RGBA8 (and linear depth for
+//! eye-dome lighting), resets the framebuffer and the frame is read back. Runs
+//! headless (pollster), also on software adapters such as lavapipe/llvmpipe.
 //!
-//! Buffers are split into chunks no larger than the adapter's storage-buffer
-//! binding limit (128 MiB on the software backends) and each chunk is its own
-//! dispatch.
+//! Point buffers are split into chunks no larger than the adapter's
+//! storage-buffer binding limit (128 MiB on the software backends), one dispatch
+//! each, and cached between frames keyed by column address and length (plus a
+//! sampled content fingerprint); batches not drawn recently are dropped LRU
+//! beyond a byte budget.
 
 use std::collections::HashMap;
 use std::sync::{Arc, Mutex, Once};
