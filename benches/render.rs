@@ -219,7 +219,7 @@ fn ab() {
                     format!("ppt{ppt}{}", if pre { "+pretest" } else { "" }),
                     GpuOptions {
                         points_per_thread: ppt,
-                        early_depth_test: pre,
+                        no_early_depth_test: !pre,
                         ..Default::default()
                     },
                 )

@@ -16,7 +16,11 @@ struct Params {
     hw: f32,
     hh: f32,
     off: f32,
-    _pad: u32,
+    log2_near: f32,  // 32-bit path: depth16 = (log2(w) - log2_near) * depth_scale
+    depth_scale: f32,
+    _pad0: u32,
+    _pad1: u32,
+    _pad2: u32,
 }
 
 @group(0) @binding(0) var<uniform> params: Params;

@@ -1,6 +1,8 @@
 // Fallback point rasterization for adapters without 64-bit atomics: the packed
-// value is `depth16 << 16 | bgr565` with a 32-bit `atomicMin` (16-bit depth is the
-// quantized 0..1 projection depth, so distant near-ties may resolve either way).
+// value is `depth16 << 16 | bgr565` with a 32-bit `atomicMin`. The 16-bit depth
+// is log2 of the view depth scaled over [near, far] (uniform relative precision,
+// about 0.02% of the distance for far/near = 1e5), so only points that close
+// may resolve either way.
 // Same transform, splat rules and dispatch shape as rasterize.wgsl.
 
 struct Params {
@@ -12,7 +14,11 @@ struct Params {
     hw: f32,
     hh: f32,
     off: f32,
-    _pad: u32,
+    log2_near: f32,  // 32-bit path: depth16 = (log2(w) - log2_near) * depth_scale
+    depth_scale: f32,
+    _pad0: u32,
+    _pad1: u32,
+    _pad2: u32,
 }
 
 @group(0) @binding(0) var<uniform> params: Params;
@@ -65,7 +71,7 @@ fn draw(i: u32) {
     // Blue in the high bits, red in the low ones: ties then break like the
     // 64-bit path, which compares b << 16 | g << 8 | r.
     let bgr565 = (((c >> 19u) & 0x1fu) << 11u) | (((c >> 10u) & 0x3fu) << 5u) | ((c >> 3u) & 0x1fu);
-    let d16 = min(u32(cz / cw * 65535.0), 65534u);
+    let d16 = u32(clamp((log2(cw) - params.log2_near) * params.depth_scale, 0.0, 65534.0));
     let v = (d16 << 16u) | bgr565;
     let w = i32(params.width);
     let h = i32(params.height);

@@ -332,10 +332,66 @@ fn gpu_32bit_fallback_agrees_roughly() {
     let c = CpuRasterizer::new().render(&cam, &bs, &o).unwrap();
     let g = gpu.render(&cam, &bs, &o).unwrap();
     let agree = agreement_tol(&c, &g, 8);
+    println!(
+        "32-bit fallback: {:.3}% of pixels within 8/255",
+        agree * 100.0
+    );
+    // 16-bit log depth still separates points 0.1% apart at 90% of the far
+    // plane (a 16-bit projection depth would tie them and pick by colour).
+    let mut pts = Cols::new([0.0; 3]);
+    pts.push([0.0, 900.0, 0.0], pack_rgb(255, 255, 255)); // near, larger colour
+    pts.push([0.0, 901.0, 0.0], pack_rgb(0, 0, 8)); // far, smaller colour
+    let deep = Camera {
+        near: 0.1,
+        far: 1000.0,
+        ..axis_camera()
+    };
+    let f = gpu.render(&deep, &[pts.batch()], &opts(65, 49, 1)).unwrap();
+    assert_eq!(f.pixel(32, 24), Some([255, 255, 255, 255]));
     assert!(
         agree >= 0.97,
         "32-bit fallback: only {agree} of pixels agree"
     );
+}
+
+#[test]
+fn gpu_cache_keeps_recent_batches_within_budget() {
+    let (cols, bounds) = scene();
+    let bs = batches(&cols);
+    let cam = Camera::fit(&bounds);
+    let mut have_gpu = false;
+    with_gpu(|_| have_gpu = true);
+    if !have_gpu {
+        return;
+    }
+    let mut gpu = GpuRasterizer::new().unwrap();
+    let o = opts(160, 120, 1);
+    let (a, b) = (&bs[..1], &bs[1..]);
+    let first = gpu.render(&cam, a, &o).unwrap();
+    assert!(first.stats.upload_ms > 0.0);
+    gpu.render(&cam, b, &o).unwrap();
+    // `a` was not drawn last frame but stays within the default budget.
+    assert_eq!(gpu.render(&cam, a, &o).unwrap().stats.upload_ms, 0.0);
+    assert_eq!(gpu.cached_bytes(), 200_000 * 16);
+    gpu.set_cache_budget(0);
+    gpu.render(&cam, b, &o).unwrap();
+    assert_eq!(gpu.cached_bytes(), cols[1].x.len() as u64 * 16);
+    assert!(gpu.render(&cam, a, &o).unwrap().stats.upload_ms > 0.0);
+    // Same pointers, changed contents: the fingerprint forces a re-upload.
+    let mut changed = Cols::new(cols[0].origin);
+    changed.x = cols[0].x.clone();
+    changed.y = cols[0].y.clone();
+    changed.z = cols[0].z.clone();
+    changed.c = cols[0].c.clone();
+    let before = gpu.render(&cam, &[changed.batch()], &o).unwrap();
+    for c in changed.c.iter_mut() {
+        *c = pack_rgb(1, 2, 3);
+    }
+    let after = gpu.render(&cam, &[changed.batch()], &o).unwrap();
+    assert!(after.stats.upload_ms > 0.0);
+    assert_ne!(before.rgba, after.rgba);
+    gpu.invalidate_cache();
+    assert_eq!(gpu.cached_bytes(), 0);
 }
 
 #[test]
@@ -349,9 +405,9 @@ fn gpu_shader_variants_agree() {
     let Some(reference) = reference else {
         return;
     };
-    for (early_depth_test, points_per_thread) in [(true, 1), (false, 3), (true, 64)] {
+    for (no_early_depth_test, points_per_thread) in [(true, 1), (false, 3), (true, 64)] {
         let mut g = GpuRasterizer::with_options(GpuOptions {
-            early_depth_test,
+            no_early_depth_test,
             points_per_thread,
             ..Default::default()
         })
@@ -359,7 +415,7 @@ fn gpu_shader_variants_agree() {
         let f = g.render(&cam, &bs, &o).unwrap();
         assert_eq!(
             f.rgba, reference.rgba,
-            "early {early_depth_test} ppt {points_per_thread}"
+            "no early {no_early_depth_test} ppt {points_per_thread}"
         );
     }
 }
@@ -586,4 +642,121 @@ fn save_png_round_trip() {
     f.save_png(&p).unwrap();
     assert!(std::fs::metadata(&p).unwrap().len() > 0);
     assert!(f.save_png(&dir.path().join("no/such/dir.png")).is_err());
+}
+
+mod arbitrary {
+    use super::*;
+    use proptest::prelude::*;
+
+    fn any_f32() -> impl Strategy<Value = f32> {
+        prop_oneof![
+            8 => -1e3f32..1e3,
+            1 => prop::num::f32::ANY,
+            1 => Just(f32::NAN),
+            1 => Just(f32::INFINITY),
+            1 => Just(-1e30f32),
+        ]
+    }
+
+    fn any_f64() -> impl Strategy<Value = f64> {
+        prop_oneof![
+            8 => -1e4f64..1e4,
+            1 => prop::num::f64::ANY,
+            1 => Just(f64::NAN),
+        ]
+    }
+
+    proptest! {
+        // 48 cases unless PROPTEST_CASES says otherwise.
+        #![proptest_config(ProptestConfig {
+            cases: std::env::var("PROPTEST_CASES").ok().and_then(|v| v.parse().ok()).unwrap_or(48),
+            ..ProptestConfig::default()
+        })]
+
+        /// Any points, any camera, any small frame: an image or an error, never a panic.
+        #[test]
+        fn renderers_never_panic(
+            pts in prop::collection::vec((any_f32(), any_f32(), any_f32(), any::<u32>()), 0..200),
+            origin in (any_f64(), any_f64(), any_f64()),
+            cam in (any_f64(), any_f64(), any_f64(), any_f64(), any_f64(), any_f64()),
+            mode in any::<bool>(),
+            size in (0u32..40, 0u32..40, 0u32..6, any::<bool>()),
+        ) {
+            let x: Vec<f32> = pts.iter().map(|p| p.0).collect();
+            let y: Vec<f32> = pts.iter().map(|p| p.1).collect();
+            let z: Vec<f32> = pts.iter().map(|p| p.2).collect();
+            let c: Vec<u32> = pts.iter().map(|p| p.3).collect();
+            let batch = PointBatch { origin: [origin.0, origin.1, origin.2], x: &x, y: &y, z: &z, color: &c };
+            let camera = Camera {
+                mode: if mode { CameraMode::Orbit } else { CameraMode::Fly },
+                target: glam::DVec3::new(cam.0, cam.1, cam.2),
+                position: glam::DVec3::new(cam.2, cam.0, cam.1),
+                yaw: cam.3,
+                pitch: cam.4,
+                distance: cam.5,
+                fov_y: cam.3,
+                near: cam.4,
+                far: cam.5,
+                ..Camera::default()
+            };
+            let o = RenderOptions {
+                width: size.0,
+                height: size.1,
+                point_size: size.2,
+                eye_dome_lighting: size.3,
+                background: BG,
+            };
+            let mut cpu = CpuRasterizer::new();
+            let r = cpu.render(&camera, &[batch], &o);
+            if let Ok(f) = &r {
+                prop_assert_eq!(f.rgba.len(), (o.width * o.height * 4) as usize);
+            }
+            with_gpu(|gpu| {
+                let g = gpu.render(&camera, &[batch], &o);
+                assert_eq!(g.is_ok(), r.is_ok());
+            });
+            let _ = Camera::from_json(&camera.to_json());
+            let _ = camera.frustum(1.5).contains_aabb(&Bounds { min: [origin.0; 3], max: [origin.1; 3] });
+        }
+    }
+
+    proptest! {
+        /// Colour modes, EDL, view parsing and camera fitting take anything.
+        #[test]
+        fn helpers_never_panic(
+            v in prop::collection::vec(any_f32(), 0..300),
+            pct in (any_f64(), any_f64()),
+            range in (any_f64(), any_f64(), any_f64()),
+            text in ".{0,20}",
+            b in ((any_f64(), any_f64(), any_f64()), (any_f64(), any_f64(), any_f64())),
+            w in 0u32..20,
+        ) {
+            use pcimg::render::{color, edl};
+            let _ = color::robust_range(&v, pct.0, pct.1);
+            let grey = color::intensity(&v);
+            prop_assert_eq!(grey.len(), v.len());
+            let mut out = vec![0; v.len()];
+            color::intensity_with_range(&v, pct.0 as f32, pct.1 as f32, &mut out);
+            let _ = color::height(&v, range.0, range.1, range.2);
+            let _ = color::height_auto(&v, range.0);
+            let _ = color::rgb_scaled(&v, &v, &v, pct.0 as f32);
+            let _ = color::turbo(pct.0 as f32);
+            let _ = color::level_color(w);
+            let h = (v.len() as u32).checked_div(w).unwrap_or(0);
+            let mut img = vec![200u8; (w * h * 4) as usize];
+            edl::apply(&mut img, &v[..(w * h) as usize], w, h, &edl::EdlParams { strength: pct.0 as f32, radius: w });
+            let _ = pcimg::render::camera::parse_view(&text);
+            let _ = Camera::from_json(&text);
+            let bounds = Bounds { min: [(b.0).0, (b.0).1, (b.0).2], max: [(b.1).0, (b.1).1, (b.1).2] };
+            let mut cam = Camera::fit(&bounds);
+            cam.rotate(pct.0, pct.1);
+            cam.zoom(range.0);
+            cam.translate(range.0, range.1, range.2);
+            cam.set_clip_from_bounds(&bounds);
+            let _ = cam.view_proj(bounds.min);
+            let _ = cam.frustum(pct.0).contains_aabb(&bounds);
+            let _ = cam.project(bounds.max, w, w);
+            let _ = cam.pixels_per_unit(range.0, w);
+        }
+    }
 }

@@ -98,7 +98,8 @@ pub fn robust_range(values: &[f32], lo_pct: f64, hi_pct: f64) -> Option<(f32, f3
         };
         ((p / 100.0) * (n - 1) as f64).round() as usize
     };
-    let (il, ih) = (idx(lo_pct.min(hi_pct)), idx(hi_pct.max(lo_pct)));
+    let (a, b) = (idx(lo_pct), idx(hi_pct));
+    let (il, ih) = (a.min(b), a.max(b));
     let (_, &mut hi, _) = s.select_nth_unstable_by(ih, f32::total_cmp);
     let (_, &mut lo, _) = s[..=ih].select_nth_unstable_by(il, f32::total_cmp);
     Some((lo, hi))

@@ -131,9 +131,11 @@ impl Projector {
                 // All comparisons are false for NaN, so NaN is rejected.
                 let valid =
                     cw > 0.0 && cz >= 0.0 && cz <= cw && fx >= lo && fy >= lo && fx < wf && fy < hf;
-                // Truncation of `v + 8` is floor(v) + 8 for v > -8.
-                px[j] = (fx + 8.0) as i32 - 8;
-                py[j] = (fy + 8.0) as i32 - 8;
+                // Truncation of `v + 8` is floor(v) + 8 for v > -8. Only used
+                // when valid (-8 < v < frame side); wrapping keeps garbage
+                // lanes (NaN, huge) from overflowing.
+                px[j] = ((fx + 8.0) as i32).wrapping_sub(8);
+                py[j] = ((fy + 8.0) as i32).wrapping_sub(8);
                 dep[j] = cw.to_bits();
                 ok[j] = valid as u8;
             }

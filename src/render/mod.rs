@@ -259,6 +259,10 @@ impl std::str::FromStr for RendererChoice {
 /// Builds a rasterizer. `Gpu` fails with [`RenderError::NoAdapter`] when no
 /// adapter can be created; `Auto` then falls back to the CPU. Check
 /// [`Rasterizer::name`] for what was chosen.
+///
+/// Note that `Auto` accepts software adapters: on a 2-core machine lavapipe
+/// rasterized ~3x slower than [`cpu::CpuRasterizer`] (see benches/render.rs),
+/// so callers that know they run without a hardware GPU may prefer `Cpu`.
 pub fn create(choice: RendererChoice) -> Result<Box<dyn Rasterizer>, RenderError> {
     match choice {
         RendererChoice::Cpu => Ok(Box::new(cpu::CpuRasterizer::new())),
