@@ -14,7 +14,9 @@ fn median(mut v: Vec<f64>) -> f64 {
 }
 
 fn main() -> anyhow::Result<()> {
-    let path = std::env::args().nth(1).ok_or_else(|| anyhow::anyhow!("usage: level_table DATASET"))?;
+    let path = std::env::args()
+        .nth(1)
+        .ok_or_else(|| anyhow::anyhow!("usage: level_table DATASET"))?;
     let ds = Dataset::open(std::path::Path::new(&path))?;
     let levels = ds.parts.iter().map(|p| p.levels.len()).max().unwrap_or(0);
     let cam = {
@@ -23,15 +25,27 @@ fn main() -> anyhow::Result<()> {
         c
     };
     let opts = RenderOptions::default();
-    let mut renderers: Vec<Box<dyn render::Rasterizer>> = vec![render::create(RendererChoice::Cpu)?];
+    let mut renderers: Vec<Box<dyn render::Rasterizer>> =
+        vec![render::create(RendererChoice::Cpu)?];
     match render::create(RendererChoice::Gpu) {
         Ok(r) => renderers.push(r),
         Err(e) => eprintln!("no wgpu adapter: {e}"),
     }
     let names: Vec<String> = renderers.iter().map(|r| r.name()).collect();
-    println!("dataset {path}: {} points in {} parts", ds.points(), ds.parts.len());
+    println!(
+        "dataset {path}: {} points in {} parts",
+        ds.points(),
+        ds.parts.len()
+    );
     println!("renderers: {}", names.join(" | "));
-    println!("| level | points | load ms (median of 3) | {} |", names.iter().map(|n| format!("fps {n}")).collect::<Vec<_>>().join(" | "));
+    println!(
+        "| level | points | load ms (median of 3) | {} |",
+        names
+            .iter()
+            .map(|n| format!("fps {n}"))
+            .collect::<Vec<_>>()
+            .join(" | ")
+    );
     println!("|---|---|---|{}", "---|".repeat(names.len()));
     for level in (0..levels).rev() {
         let mut loads = Vec::new();
@@ -70,7 +84,11 @@ fn main() -> anyhow::Result<()> {
                 .collect();
             fps.push(format!("{:.1}", 1.0 / median(times)));
         }
-        println!("| {level} | {points} | {:.0} | {} |", median(loads), fps.join(" | "));
+        println!(
+            "| {level} | {points} | {:.0} | {} |",
+            median(loads),
+            fps.join(" | ")
+        );
     }
     Ok(())
 }

@@ -1,8 +1,8 @@
 //! pcimg: massive point clouds stored as multi-band image pyramids (Du & Li 2009),
 //! viewed from the terminal.
 //!
-//! Data flows one way: [`ingest`] (input readers) → [`store`] (the image format) →
-//! level selection and loading → renderers → the terminal interface. [`convert`]
+//! Data flows one way: `ingest` (input readers) → [`store`] (the image format) →
+//! level selection and loading → renderers → the terminal interface. `convert`
 //! drives readers into the store.
 
 // Loops over the three axes index several parallel arrays at once.

@@ -136,7 +136,7 @@ impl Sample {
     }
     fn add(&mut self, c: &PointColumns) {
         for i in 0..c.len() {
-            if self.seen % self.stride == 0 {
+            if self.seen.is_multiple_of(self.stride) {
                 self.pts.push([c.x[i], c.y[i], c.z[i]]);
                 if self.pts.len() >= self.cap {
                     let mut k = 0;

