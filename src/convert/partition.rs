@@ -106,7 +106,8 @@ impl Region {
 }
 
 /// Splits the grid into regions of at most `max_points` each (where cells allow):
-/// recursively at the median slab of the box's longest populated axis. Empty
+/// recursively along the box's longest populated axis, at the slab that leaves
+/// each side a whole number of parts' worth of points. Empty
 /// regions are dropped.
 pub fn split(grid: &CountGrid, max_points: u64) -> Vec<Region> {
     let mut out = Vec::new();
@@ -137,7 +138,11 @@ pub fn split(grid: &CountGrid, max_points: u64) -> Vec<Region> {
             continue;
         };
         let slabs = grid.slabs(r.lo, r.hi, a);
-        let half = r.points / 2;
+        // Cut so that both sides need whole numbers of parts: with k parts needed,
+        // the left side takes floor(k/2)/k of the points (the minimum part count,
+        // not a power of two).
+        let k = r.points.div_ceil(max_points.max(1));
+        let half = (r.points as u128 * (k / 2) as u128 / k as u128) as u64;
         let mut acc = 0;
         let mut cut = 1;
         for (i, s) in slabs.iter().enumerate() {
