@@ -370,3 +370,22 @@ fn empty_directory_and_missing_path() {
         .to_string();
     assert!(e.contains("nope.tif") && e.contains("cannot open"), "{e}");
 }
+
+#[test]
+fn fuzz_regressions_stay_bounded() {
+    // Inputs cargo fuzz found (fixtures/fuzz): each must give Ok or Err quickly,
+    // never a panic or an unbounded allocation.
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("fixtures/fuzz");
+    for entry in std::fs::read_dir(dir).unwrap() {
+        let path = entry.unwrap().path();
+        let bytes = std::fs::read(&path).unwrap();
+        let t = std::time::Instant::now();
+        if let Ok(part) = Part::from_bytes(&path, bytes) {
+            let bands: Vec<usize> = (0..part.bands.len()).collect();
+            for level in 0..part.levels.len() {
+                let _ = part.read_level(level, &bands);
+            }
+        }
+        assert!(t.elapsed().as_secs() < 10, "{} took too long", path.display());
+    }
+}
