@@ -220,11 +220,10 @@ pub fn convert(
                 let a = acc.get_or_insert_with(|| chunk.empty_like());
                 normalize(&mut chunk, a);
                 // Fill the current part up to the budget; the rest starts the next.
+                // A full part is written once more points arrive (so an input of
+                // exactly one part's size still fits a single-file output).
                 let mut from = 0;
                 while from < chunk.len() {
-                    let take = ((per_part as usize) - a.len()).min(chunk.len() - from);
-                    append_range(a, &chunk, from, from + take);
-                    from += take;
                     if a.len() as u64 >= per_part {
                         if as_file {
                             anyhow::bail!(too_many_parts(&o.output, per_part, o.memory));
@@ -232,6 +231,9 @@ pub fn convert(
                         let full = std::mem::replace(a, chunk.empty_like());
                         write(&full, &mut parts)?;
                     }
+                    let take = ((per_part as usize) - a.len()).min(chunk.len() - from);
+                    append_range(a, &chunk, from, from + take);
+                    from += take;
                 }
             }
             if let Some(a) = acc.filter(|a| !a.is_empty()) {
