@@ -203,6 +203,7 @@ fn arrange(path: &Path, pts: &PointColumns, layout: Layout, ph: &mut Phases) -> 
             ph.mark("hilbert sort");
             let mut sorted: Vec<[f32; 3]> = perm.par_iter().map(|&i| pos[i as usize]).collect();
             drop(pos);
+            ph.mark("gather positions");
             let mut perm = perm;
             layout::choose_representatives(&mut sorted, &mut perm, geometry.levels());
             ph.mark("representatives");
