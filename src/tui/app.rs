@@ -250,8 +250,8 @@ impl App {
         Effect::Render
     }
 
-    /// The status line: level mode and levels shown, points drawn, timings, fps and
-    /// the renderer.
+    /// The status line: level mode, levels shown, points drawn against the budget,
+    /// colour, point size, eye-dome lighting, tiles still loading.
     pub fn status_line(&self) -> String {
         let f = &self.frame;
         let levels = match f.levels {
@@ -260,23 +260,32 @@ impl App {
             None => "no frame yet".into(),
         };
         let mut s = format!(
-            "{} | {levels} | {} pts / {} | {} | size {}{} | load {:.0} render {:.0} encode {:.0} ms | {:.1} fps | {}",
+            "{} | {levels} | {} pts / {} | {} | size {}{}",
             self.settings.lod.label(),
             crate::text::count(f.points),
             crate::text::count(self.settings.budget),
             color_name(self.settings.color),
             self.settings.point_size,
-            if self.settings.edl { " edl" } else { "" },
-            f.load_ms,
-            f.render_ms,
-            f.encode_ms,
-            self.fps,
-            crate::text::sanitize(&f.renderer),
+            if self.settings.edl { " | edl" } else { "" },
         );
         if f.pending > 0 {
             s.push_str(&format!(" | loading {} tiles", f.pending));
         }
         s
+    }
+
+    /// The second status line: where the last frame's time went, frames per
+    /// second, and the renderer.
+    pub fn timing_line(&self) -> String {
+        let f = &self.frame;
+        format!(
+            "load {:.0} · render {:.0} · encode {:.0} ms | {:.1} fps | {}",
+            f.load_ms,
+            f.render_ms,
+            f.encode_ms,
+            self.fps,
+            crate::text::sanitize(&f.renderer),
+        )
     }
 }
 

@@ -82,7 +82,12 @@ pub fn draw(f: &mut Frame, app: &App, image: Option<&Protocol>) {
     draw_memory(f, app, a.memory);
 
     let view_title = format!(" view · {} ", app.protocol);
-    f.render_widget(Block::bordered().title(title(view_title)), a.view);
+    let mut view_block = Block::bordered().title(title(view_title));
+    if !app.message.is_empty() {
+        view_block =
+            view_block.title_bottom(Line::from(format!(" {} ", sanitize(&app.message))).yellow());
+    }
+    f.render_widget(view_block, a.view);
     match image {
         Some(img) => f.render_widget(Image::new(img).allow_clipping(true), a.view_inner),
         None => f.render_widget(
@@ -95,22 +100,14 @@ pub fn draw(f: &mut Frame, app: &App, image: Option<&Protocol>) {
         Paragraph::new(app.status_line()).style(Style::new().fg(Color::Black).bg(Color::Cyan)),
         a.status,
     );
-    let hint = if app.message.is_empty() {
-        Line::from(vec![
-            Span::from(" ? ").bold(),
-            Span::from("help  "),
-            Span::from(" q ").bold(),
-            Span::from("quit  "),
-            Span::from(" 0-9 ").bold(),
-            Span::from("pin level  "),
-            Span::from(" a ").bold(),
-            Span::from("auto  "),
-            Span::from(" c ").bold(),
-            Span::from("colour"),
-        ])
-    } else {
-        Line::from(sanitize(&app.message))
-    };
+    let hint = Line::from(vec![
+        Span::from(app.timing_line()),
+        Span::from(" · "),
+        Span::from("?").bold(),
+        Span::from(" help "),
+        Span::from("q").bold(),
+        Span::from(" quit"),
+    ]);
     f.render_widget(Paragraph::new(hint), a.hint);
 
     if app.show_help {
@@ -191,7 +188,7 @@ fn draw_bands(f: &mut Frame, app: &App, area: Rect) {
                     Row::new(vec![
                         Cell::from(sanitize(&b.name)),
                         Cell::from("Float32"),
-                        Cell::from(format!("{}", b.offset)),
+                        Cell::from(format!("{:.3}", b.offset)),
                     ])
                 })
                 .collect()
@@ -305,7 +302,7 @@ fn draw_memory(f: &mut Frame, app: &App, area: Rect) {
 }
 
 fn draw_help(f: &mut Frame, area: Rect) {
-    let w = 64.min(area.width);
+    let w = 76.min(area.width);
     let h = (HELP.len() as u16 + 2).min(area.height);
     let r = Rect::new(
         area.x + (area.width - w) / 2,
