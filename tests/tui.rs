@@ -332,6 +332,15 @@ fn the_binary_runs_in_tmux_and_restores_the_terminal() {
     tmux.wait_for("the status line to show the pinned level", 5, |s| {
         s.contains("pinned level 1 | level 1 |")
     });
+    // A smaller window: the panels and the frame follow.
+    tmux.run(&["resize-window", "-t", "t", "-x", "100", "-y", "30"]);
+    tmux.wait_for("a frame at the new size", 5, |s| {
+        let rows: Vec<&str> = s.lines().collect();
+        rows.len() >= 29
+            && rows[0].chars().count() == 100
+            && rows[0].contains("view")
+            && s.contains('▀')
+    });
     tmux.run(&["send-keys", "-t", "t", "q"]);
     let s = tmux.wait_for("the shell", 5, |s| {
         s.contains("EXIT=") && s.contains("icanon")

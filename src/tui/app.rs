@@ -189,6 +189,11 @@ impl App {
         use Command::*;
         let top = self.max_levels() - 1;
         match cmd {
+            Interrupt => return Effect::Quit,
+            Quit if self.show_help => {
+                self.show_help = false;
+                return Effect::Redraw;
+            }
             Quit => return Effect::Quit,
             ToggleHelp => {
                 self.show_help = !self.show_help;
@@ -376,6 +381,12 @@ mod tests {
         assert_eq!(a.settings.budget, BUDGET_RANGE.1);
         assert_eq!(a.apply(Command::ToggleHelp), Effect::Redraw);
         assert!(a.show_help);
+        assert_eq!(
+            a.apply(Command::Quit),
+            Effect::Redraw,
+            "q closes the help first"
+        );
+        assert!(!a.show_help);
         assert_eq!(a.apply(Command::NextPart), Effect::Redraw);
         assert_eq!(a.part, 0, "one part wraps around");
         assert_eq!(a.apply(Command::SaveFrame), Effect::Save);

@@ -30,7 +30,10 @@ pub enum Command {
     SaveFrame,
     NextPart,
     ToggleHelp,
+    /// `q` or Esc: closes the help if it is open, else quits.
     Quit,
+    /// Ctrl-C: quits at once.
+    Interrupt,
 }
 
 /// The command for a key press, if any. Releases and repeats of non-movement
@@ -43,7 +46,7 @@ pub fn command_for(key: KeyEvent) -> Option<Command> {
     let ctrl = key.modifiers.contains(KeyModifiers::CONTROL);
     use Command::*;
     Some(match key.code {
-        KeyCode::Char('c') | KeyCode::Char('C') if ctrl => Quit,
+        KeyCode::Char('c') | KeyCode::Char('C') if ctrl => Interrupt,
         KeyCode::Char('q') | KeyCode::Esc => Quit,
         KeyCode::Left if shift => Pan(-1, 0),
         KeyCode::Right if shift => Pan(1, 0),
@@ -97,7 +100,7 @@ pub const HELP: &[(&str, &str)] = &[
     ("e", "eye-dome lighting on / off"),
     ("s", "save the current frame as PNG"),
     ("Tab / n", "select the next part"),
-    ("?", "this help"),
+    ("?", "this help (q or Esc closes it)"),
     ("q / Esc / Ctrl-C", "quit"),
 ];
 
@@ -126,7 +129,7 @@ mod tests {
         );
         assert_eq!(
             command_for(key(KeyCode::Char('c'), KeyModifiers::CONTROL)),
-            Some(Command::Quit)
+            Some(Command::Interrupt)
         );
         assert_eq!(
             command_for(key(KeyCode::Char('c'), none)),
