@@ -19,3 +19,4 @@ pub mod store;
 pub mod synth;
 pub mod term;
 pub mod text;
+pub mod tui;

@@ -1,4 +1,5 @@
-//! `pcimg demo`: builds a synthetic dataset in a temporary directory and shows it.
+//! `pcimg demo`: builds a synthetic dataset in a temporary directory and opens the
+//! inspector on it (or, without a terminal, prints its report).
 
 use crate::store::{self, WriteOptions};
 use std::path::PathBuf;
@@ -11,9 +12,14 @@ pub struct Args {
     /// Keep the dataset in this directory instead of a temporary one.
     #[arg(long)]
     pub keep: Option<PathBuf>,
+    /// Image protocol of the inspector: auto, kitty, sixel, iterm or halfblocks.
+    #[arg(long, default_value = "auto")]
+    pub protocol: crate::term::Protocol,
 }
 
 pub fn run(a: Args) -> anyhow::Result<()> {
+    super::inspect::no_device_select();
+    let interactive = super::inspect::have_terminal();
     let tmp;
     let dir = match &a.keep {
         Some(d) => {
@@ -45,12 +51,31 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         t.elapsed().as_secs_f64()
     );
     let ds = store::Dataset::open(&path)?;
-    print!(
-        "{}",
-        super::info::render_text(&super::info::report(&ds, false))
-    );
+    let shown = if interactive {
+        let mut args = super::inspect::defaults(&path);
+        args.protocol = a.protocol;
+        super::inspect::open(std::sync::Arc::new(ds), &args)
+    } else {
+        print!(
+            "{}",
+            super::info::render_text(&super::info::report(&ds, false))
+        );
+        match &a.keep {
+            Some(_) => println!(
+                "(stdout is not a terminal, so the inspector did not open: look at the dataset with \
+                 `pcimg render {0} -o frame.png` or `pcimg preview {0}`)",
+                path.display()
+            ),
+            None => println!(
+                "(stdout is not a terminal, so the inspector did not open. Keep the dataset with \
+                 `pcimg demo --keep DIR`, then look at it with `pcimg render DIR/demo.tif -o frame.png` \
+                 or `pcimg preview DIR/demo.tif`.)"
+            ),
+        }
+        Ok(())
+    };
     if a.keep.is_none() {
         let _ = std::fs::remove_dir_all(&dir);
     }
-    Ok(())
+    shown
 }

@@ -289,6 +289,14 @@ impl TileCache {
         }
     }
 
+    /// Keys of the tiles cached now (for displays of what is loaded).
+    pub fn loaded(&self) -> Vec<TileKey> {
+        self.state
+            .lock()
+            .map(|s| s.tiles.keys().copied().collect())
+            .unwrap_or_default()
+    }
+
     /// Whether every tile of `tiles` is cached.
     pub fn has_all(&self, tiles: &[TileRef]) -> bool {
         self.state

@@ -15,7 +15,7 @@ pub fn tool_available(program: &str, arg: &str) -> bool {
     if !ok {
         assert!(
             std::env::var("CI").ok().as_deref() != Some("true"),
-            "{program} is required in CI (apt-get install gdal-bin)"
+            "{program} is required in CI (.ci/run installs it: gdal-bin, tmux)"
         );
         eprintln!("note: {program} not found, skipping this test outside CI");
     }

@@ -1,0 +1,146 @@
+//! Key press → new frame in the inspector, per image protocol, without a terminal:
+//! a synthetic dataset, the inspector's render worker at the default point budget,
+//! and a 120×40-cell view pane drawn through ratatui's crossterm backend into a
+//! byte counter (what would reach the terminal).
+//!
+//! ```sh
+//! cargo run --release --example tui_latency -- [POINTS] [PRESSES]
+//! ```
+//!
+//! Each press orbits the camera by one step (the `→` key), sends the request, waits
+//! for the frame that answers it with every tile loaded, and draws it. Reports
+//! medians: key → frame drawn, and the worker's select/render/encode times.
+
+use pcimg::camera::Camera;
+use pcimg::render::RendererChoice;
+use pcimg::store::{self, Dataset, WriteOptions};
+use pcimg::tui::app::{App, Settings};
+use pcimg::tui::keys::Command;
+use pcimg::tui::protocol::Graphics;
+use pcimg::tui::worker::{FrameReady, RenderWorker, Report, Request, WorkerOptions};
+use ratatui::Terminal;
+use ratatui::backend::CrosstermBackend;
+use std::io::Write;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::time::{Duration, Instant};
+
+/// Counts the bytes written and drops them.
+struct Counter(Arc<AtomicU64>);
+
+impl Write for Counter {
+    fn write(&mut self, b: &[u8]) -> std::io::Result<usize> {
+        self.0.fetch_add(b.len() as u64, Ordering::Relaxed);
+        Ok(b.len())
+    }
+    fn flush(&mut self) -> std::io::Result<()> {
+        Ok(())
+    }
+}
+
+fn median(mut v: Vec<f64>) -> f64 {
+    v.sort_by(f64::total_cmp);
+    v[v.len() / 2]
+}
+
+fn wait_complete(w: &RenderWorker, seq: u64) -> Box<FrameReady> {
+    let deadline = Instant::now() + Duration::from_secs(120);
+    loop {
+        assert!(Instant::now() < deadline, "no frame in 120 s");
+        match w.recv_timeout(Duration::from_millis(500)) {
+            Some(Report::Frame(f)) if f.seq == seq && f.status.pending == 0 => return f,
+            Some(Report::Error(e)) => panic!("worker: {e}"),
+            _ => {}
+        }
+    }
+}
+
+fn main() -> anyhow::Result<()> {
+    // SAFETY: before any thread starts.
+    unsafe { std::env::set_var("NODEVICE_SELECT", "1") };
+    let mut args = std::env::args().skip(1);
+    let points: u64 = args.next().map_or(Ok(4_000_000), |s| s.parse())?;
+    let presses: usize = args.next().map_or(Ok(15), |s| s.parse())?;
+    let dir = tempfile::tempdir()?;
+    let path = dir.path().join("scene.tif");
+    let t = Instant::now();
+    store::write_part(
+        &path,
+        &pcimg::synth::scene(points, 1),
+        &WriteOptions::default(),
+    )?;
+    eprintln!(
+        "{points} points written in {:.1} s",
+        t.elapsed().as_secs_f64()
+    );
+    let ds = Arc::new(Dataset::open(&path)?);
+    let cells = (120u16, 40u16);
+
+    println!(
+        "| protocol | key → frame drawn ms | select ms | render ms | encode ms | bytes / frame | points drawn | renderer |"
+    );
+    println!("|---|---|---|---|---|---|---|---|");
+    for graphics in [Graphics::Halfblocks, Graphics::Sixel, Graphics::Kitty] {
+        let cell_pixels = if graphics == Graphics::Halfblocks {
+            (1, 2)
+        } else {
+            (10, 20)
+        };
+        let w = RenderWorker::spawn(
+            ds.clone(),
+            WorkerOptions {
+                graphics,
+                in_tmux: false,
+                renderer: RendererChoice::Auto,
+                memory: 2 << 30,
+                load_threads: 2,
+            },
+        );
+        let mut app = App::new(ds.clone(), Camera::fit(&ds.bounds()), Settings::default());
+        let bytes = Arc::new(AtomicU64::new(0));
+        let mut term = Terminal::new(CrosstermBackend::new(Counter(bytes.clone())))?;
+        term.resize(ratatui::layout::Rect::new(0, 0, cells.0, cells.1))?;
+        let request = |app: &App, seq| Request {
+            seq,
+            camera: app.camera,
+            settings: app.settings,
+            cells,
+            cell_pixels,
+        };
+        // Warm up: load the tiles of the first view.
+        w.request(request(&app, 0));
+        wait_complete(&w, 0);
+        let (mut lat, mut sel, mut ren, mut enc, mut sent, mut pts) =
+            (vec![], vec![], vec![], vec![], vec![], vec![]);
+        let mut renderer = String::new();
+        for seq in 1..=presses as u64 {
+            let t0 = Instant::now();
+            app.apply(Command::Orbit(1, 0));
+            w.request(request(&app, seq));
+            let f = wait_complete(&w, seq);
+            let before = bytes.load(Ordering::Relaxed);
+            term.draw(|fr| {
+                fr.render_widget(ratatui_image::Image::new(&f.image), fr.area());
+            })?;
+            lat.push(t0.elapsed().as_secs_f64() * 1e3);
+            sent.push((bytes.load(Ordering::Relaxed) - before) as f64);
+            sel.push(f.status.select_ms);
+            ren.push(f.status.render_ms);
+            enc.push(f.status.encode_ms);
+            pts.push(f.status.points as f64);
+            renderer = f.status.renderer.clone();
+        }
+        println!(
+            "| {} | {:.1} | {:.1} | {:.1} | {:.1} | {:.0} K | {:.0} | {} |",
+            graphics.name(),
+            median(lat),
+            median(sel),
+            median(ren),
+            median(enc),
+            median(sent) / 1024.0,
+            median(pts),
+            renderer
+        );
+    }
+    Ok(())
+}

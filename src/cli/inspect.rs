@@ -1,0 +1,94 @@
+//! `pcimg inspect PATH` (and `pcimg PATH`): opens the terminal inspector on a
+//! dataset. Refuses clearly when there is no terminal to draw on.
+
+use super::view::{self, ViewArgs};
+use crate::render::RendererChoice;
+use crate::store::Dataset;
+use crate::term::Protocol;
+use crate::tui::app::{LodChoice, Settings};
+use crate::tui::{self, InspectOptions};
+use clap::Parser;
+use std::io::IsTerminal;
+use std::path::Path;
+use std::sync::Arc;
+
+#[derive(Debug, clap::Args)]
+pub struct Args {
+    #[command(flatten)]
+    pub view: ViewArgs,
+    /// Image protocol: auto (from the environment; half-blocks in tmux), kitty,
+    /// sixel, iterm or halfblocks.
+    #[arg(long, default_value = "auto")]
+    pub protocol: Protocol,
+    /// Threads loading tiles.
+    #[arg(long, default_value_t = 2)]
+    pub load_threads: usize,
+}
+
+/// The inspector's arguments with every default, for `path`.
+pub fn defaults(path: &Path) -> Args {
+    #[derive(Parser)]
+    struct Wrapper {
+        #[command(flatten)]
+        args: Args,
+    }
+    Wrapper::parse_from([std::ffi::OsStr::new("pcimg"), path.as_os_str()]).args
+}
+
+/// Whether stdin and stdout are a terminal the inspector can take over.
+pub fn have_terminal() -> bool {
+    std::io::stdout().is_terminal() && std::io::stdin().is_terminal()
+}
+
+/// Sets `NODEVICE_SELECT=1` for the process unless it is set: Mesa's Vulkan
+/// device-select layer must not run (it can hang headless machines). Call before
+/// any thread or GPU adapter exists.
+pub fn no_device_select() {
+    if std::env::var_os("NODEVICE_SELECT").is_none() {
+        // SAFETY: called at the start of a command, before our threads start.
+        unsafe { std::env::set_var("NODEVICE_SELECT", "1") };
+    }
+}
+
+pub fn run(a: Args) -> anyhow::Result<()> {
+    no_device_select();
+    if !have_terminal() {
+        anyhow::bail!(
+            "the inspector needs a terminal (stdin and stdout are not one here): use `pcimg info {0}` for a report, `pcimg render {0} -o frame.png` for an image",
+            a.view.path.display()
+        );
+    }
+    let ds = Arc::new(Dataset::open(&a.view.path)?);
+    open(ds, &a)
+}
+
+/// Opens the inspector on an already opened dataset.
+pub fn open(ds: Arc<Dataset>, a: &Args) -> anyhow::Result<()> {
+    no_device_select();
+    let v = &a.view;
+    let lod = match view::parse_lod(&v.lod, v.budget)? {
+        crate::lod::LodMode::View { .. } => LodChoice::View,
+        crate::lod::LodMode::Distance => LodChoice::Distance,
+        crate::lod::LodMode::Fixed(k) => LodChoice::Pinned(k),
+    };
+    let settings = Settings {
+        lod,
+        color: v.color.parse()?,
+        point_size: v.point_size,
+        edl: v.edl,
+        budget: v.budget,
+        memory: v.memory,
+    };
+    let renderer: RendererChoice = v.renderer.parse()?;
+    let camera = view::camera_for(v, &ds)?;
+    tui::run(
+        ds,
+        InspectOptions {
+            protocol: a.protocol,
+            renderer,
+            camera,
+            settings,
+            load_threads: a.load_threads,
+        },
+    )
+}

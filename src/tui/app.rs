@@ -1,0 +1,395 @@
+//! The inspector's state machine: the dataset, the selected part, the camera, the
+//! level-of-detail choice, colour, point size, eye-dome lighting, point budget and
+//! the status of the last frame. [`App::apply`] turns a [`Command`] into a state
+//! change and says what the event loop must do next; nothing here touches a
+//! terminal, a thread or a file, so every key can be tested on its own.
+
+use super::keys::Command;
+use crate::camera::Camera;
+use crate::lod::LodMode;
+use crate::render::color::ColorMode;
+use crate::store::Dataset;
+use std::sync::Arc;
+
+/// How pyramid levels are chosen.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum LodChoice {
+    /// View-dependent, per tile, under the point budget.
+    View,
+    /// The paper's distance rule: one level for all parts.
+    Distance,
+    /// One level everywhere (clamped per part).
+    Pinned(usize),
+}
+
+impl LodChoice {
+    /// Short name for the status line.
+    pub fn label(&self) -> String {
+        match self {
+            LodChoice::View => "auto (view-dependent)".into(),
+            LodChoice::Distance => "auto (distance rule)".into(),
+            LodChoice::Pinned(k) => format!("pinned level {k}"),
+        }
+    }
+}
+
+/// Everything that decides what a frame shows, apart from the camera.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Settings {
+    pub lod: LodChoice,
+    pub color: ColorMode,
+    /// Splat side in pixels, 1..=3.
+    pub point_size: u32,
+    pub edl: bool,
+    /// Points drawn at most in view-dependent mode.
+    pub budget: u64,
+    /// Bytes of loaded tiles kept in memory.
+    pub memory: u64,
+}
+
+impl Default for Settings {
+    fn default() -> Self {
+        Settings {
+            lod: LodChoice::View,
+            color: ColorMode::Rgb,
+            point_size: 1,
+            edl: false,
+            budget: DEFAULT_BUDGET,
+            memory: 2 << 30,
+        }
+    }
+}
+
+impl Settings {
+    /// The level selection mode for `lod::select`.
+    pub fn lod_mode(&self) -> LodMode {
+        match self.lod {
+            LodChoice::View => LodMode::View {
+                budget: self.budget,
+            },
+            LodChoice::Distance => LodMode::Distance,
+            LodChoice::Pinned(k) => LodMode::Fixed(k),
+        }
+    }
+}
+
+/// The default point budget.
+pub const DEFAULT_BUDGET: u64 = 2_000_000;
+/// Point budgets `b` and `B` stay within.
+pub const BUDGET_RANGE: (u64, u64) = (15_625, 256_000_000);
+/// Radians per orbit step.
+const ORBIT_STEP: f64 = 10.0 * std::f64::consts::PI / 180.0;
+/// Share of the orbit distance per pan step.
+const PAN_STEP: f64 = 0.1;
+/// Distance factor per zoom-in step.
+const ZOOM_STEP: f64 = 0.8;
+
+/// The order `c` cycles through.
+pub const COLOR_CYCLE: [ColorMode; 5] = [
+    ColorMode::Rgb,
+    ColorMode::Intensity,
+    ColorMode::Height,
+    ColorMode::Level,
+    ColorMode::Part,
+];
+
+/// A colour mode's name as the command line spells it.
+pub fn color_name(c: ColorMode) -> &'static str {
+    match c {
+        ColorMode::Rgb => "rgb",
+        ColorMode::Intensity => "intensity",
+        ColorMode::Height => "height",
+        ColorMode::Level => "level",
+        ColorMode::Part => "part",
+    }
+}
+
+/// What the event loop does after a command.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Effect {
+    /// Nothing changed.
+    None,
+    /// Only the panels changed: redraw.
+    Redraw,
+    /// The frame is out of date: ask the worker for a new one.
+    Render,
+    /// Save the current frame.
+    Save,
+    Quit,
+}
+
+/// What the last frame was, as the worker reported it.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct FrameStatus {
+    /// Finest and coarsest level drawn.
+    pub levels: Option<(usize, usize)>,
+    pub points: u64,
+    pub tiles: usize,
+    /// Tiles of the selection still loading.
+    pub pending: usize,
+    pub select_ms: f64,
+    pub load_ms: f64,
+    pub render_ms: f64,
+    pub encode_ms: f64,
+    pub renderer: String,
+    /// Bytes of loaded tiles in the cache.
+    pub cache_bytes: u64,
+    /// Loaded tiles per (part, level).
+    pub loaded: Vec<((usize, usize), usize)>,
+}
+
+/// The inspector's state.
+pub struct App {
+    pub dataset: Arc<Dataset>,
+    /// Index of the part the panels describe.
+    pub part: usize,
+    pub camera: Camera,
+    /// The camera `r` returns to.
+    pub home: Camera,
+    pub settings: Settings,
+    pub show_help: bool,
+    /// A message for the user (saved frames, errors), already sanitized.
+    pub message: String,
+    pub frame: FrameStatus,
+    /// Frames shown per second, measured by the event loop.
+    pub fps: f64,
+    /// Name of the image protocol in use.
+    pub protocol: String,
+}
+
+impl App {
+    pub fn new(dataset: Arc<Dataset>, camera: Camera, settings: Settings) -> App {
+        App {
+            dataset,
+            part: 0,
+            home: camera,
+            camera,
+            settings,
+            show_help: false,
+            message: String::new(),
+            frame: FrameStatus::default(),
+            fps: 0.0,
+            protocol: String::new(),
+        }
+    }
+
+    /// The finest-to-coarsest level count of the deepest part.
+    pub fn max_levels(&self) -> usize {
+        self.dataset
+            .parts
+            .iter()
+            .map(|p| p.levels.len())
+            .max()
+            .unwrap_or(1)
+            .max(1)
+    }
+
+    /// Applies one command.
+    pub fn apply(&mut self, cmd: Command) -> Effect {
+        use Command::*;
+        let top = self.max_levels() - 1;
+        match cmd {
+            Interrupt => return Effect::Quit,
+            Quit if self.show_help => {
+                self.show_help = false;
+                return Effect::Redraw;
+            }
+            Quit => return Effect::Quit,
+            ToggleHelp => {
+                self.show_help = !self.show_help;
+                return Effect::Redraw;
+            }
+            SaveFrame => return Effect::Save,
+            NextPart => {
+                self.part = (self.part + 1) % self.dataset.parts.len().max(1);
+                return Effect::Redraw;
+            }
+            Orbit(dy, dp) => self
+                .camera
+                .rotate(dy as f64 * ORBIT_STEP, dp as f64 * ORBIT_STEP),
+            Pan(dr, du) => {
+                let step = self.camera.distance * PAN_STEP;
+                self.camera
+                    .translate(dr as f64 * step, du as f64 * step, 0.0);
+            }
+            Zoom(d) => self.camera.zoom(ZOOM_STEP.powi(d as i32)),
+            ResetView => self.camera = self.home,
+            PinLevel(k) => self.settings.lod = LodChoice::Pinned(k.min(top)),
+            Automatic => self.settings.lod = LodChoice::View,
+            Coarser | Finer => {
+                let current = match self.settings.lod {
+                    LodChoice::Pinned(k) => k,
+                    // From an automatic choice, step from the finest level drawn.
+                    _ => self.frame.levels.map_or(top, |l| l.0),
+                };
+                let next = if cmd == Coarser {
+                    (current + 1).min(top)
+                } else {
+                    current.saturating_sub(1)
+                };
+                self.settings.lod = LodChoice::Pinned(next);
+            }
+            ToggleDistanceRule => {
+                self.settings.lod = match self.settings.lod {
+                    LodChoice::Distance => LodChoice::View,
+                    _ => LodChoice::Distance,
+                }
+            }
+            CycleColor => {
+                let i = COLOR_CYCLE
+                    .iter()
+                    .position(|&c| c == self.settings.color)
+                    .unwrap_or(0);
+                self.settings.color = COLOR_CYCLE[(i + 1) % COLOR_CYCLE.len()];
+            }
+            CyclePointSize => self.settings.point_size = self.settings.point_size % 3 + 1,
+            ToggleEdl => self.settings.edl = !self.settings.edl,
+            BudgetDown => {
+                self.settings.budget = (self.settings.budget / 2).max(BUDGET_RANGE.0);
+            }
+            BudgetUp => {
+                self.settings.budget = (self.settings.budget * 2).min(BUDGET_RANGE.1);
+            }
+        }
+        self.camera.set_clip_from_bounds(&self.dataset.bounds());
+        Effect::Render
+    }
+
+    /// The status line: level mode, levels shown, points drawn against the budget,
+    /// colour, point size, eye-dome lighting, tiles still loading.
+    pub fn status_line(&self) -> String {
+        let f = &self.frame;
+        let levels = match f.levels {
+            Some((lo, hi)) if lo == hi => format!("level {lo}"),
+            Some((lo, hi)) => format!("levels {lo}-{hi}"),
+            None => "no frame yet".into(),
+        };
+        let mut s = format!(
+            "{} | {levels} | {} pts / {} | {} | size {}{}",
+            self.settings.lod.label(),
+            crate::text::count(f.points),
+            crate::text::count(self.settings.budget),
+            color_name(self.settings.color),
+            self.settings.point_size,
+            if self.settings.edl { " | edl" } else { "" },
+        );
+        if f.pending > 0 {
+            s.push_str(&format!(" | loading {} tiles", f.pending));
+        }
+        s
+    }
+
+    /// The second status line: where the last frame's time went, frames per
+    /// second, and the renderer.
+    pub fn timing_line(&self) -> String {
+        let f = &self.frame;
+        format!(
+            "load {:.0} · render {:.0} · encode {:.0} ms | {:.1} fps | {}",
+            f.load_ms,
+            f.render_ms,
+            f.encode_ms,
+            self.fps,
+            crate::text::sanitize(&f.renderer),
+        )
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::store::{self, WriteOptions};
+
+    fn app() -> (tempfile::TempDir, App) {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("a.tif");
+        store::write_part(
+            &path,
+            &crate::synth::scene(300_000, 3),
+            &WriteOptions::default(),
+        )
+        .unwrap();
+        let ds = Arc::new(Dataset::open(&path).unwrap());
+        let cam = Camera::fit(&ds.bounds());
+        (dir, App::new(ds, cam, Settings::default()))
+    }
+
+    #[test]
+    fn levels_pin_step_and_return_to_automatic() {
+        let (_d, mut a) = app();
+        let top = a.max_levels() - 1;
+        assert!(top >= 2, "a 300 k point part has three levels");
+        assert_eq!(a.apply(Command::PinLevel(1)), Effect::Render);
+        assert_eq!(a.settings.lod, LodChoice::Pinned(1));
+        a.apply(Command::Coarser);
+        assert_eq!(a.settings.lod, LodChoice::Pinned(2));
+        a.apply(Command::Finer);
+        a.apply(Command::Finer);
+        a.apply(Command::Finer);
+        assert_eq!(a.settings.lod, LodChoice::Pinned(0));
+        a.apply(Command::PinLevel(9));
+        assert_eq!(a.settings.lod, LodChoice::Pinned(top), "clamped");
+        a.apply(Command::ToggleDistanceRule);
+        assert_eq!(a.settings.lod, LodChoice::Distance);
+        a.apply(Command::ToggleDistanceRule);
+        assert_eq!(a.settings.lod, LodChoice::View);
+        a.apply(Command::PinLevel(0));
+        a.apply(Command::Automatic);
+        assert_eq!(a.settings.lod, LodChoice::View);
+    }
+
+    #[test]
+    fn view_keys_move_the_camera_and_r_resets() {
+        let (_d, mut a) = app();
+        let home = a.camera;
+        a.apply(Command::Orbit(1, 0));
+        assert!(a.camera.yaw != home.yaw);
+        a.apply(Command::Zoom(1));
+        assert!(a.camera.distance < home.distance);
+        a.apply(Command::Pan(1, 0));
+        assert!(a.camera.target != home.target);
+        a.apply(Command::ResetView);
+        assert_eq!(a.camera.target, home.target);
+        assert_eq!(a.camera.distance, home.distance);
+    }
+
+    #[test]
+    fn settings_cycle_and_stay_in_range() {
+        let (_d, mut a) = app();
+        for want in [
+            ColorMode::Intensity,
+            ColorMode::Height,
+            ColorMode::Level,
+            ColorMode::Part,
+            ColorMode::Rgb,
+        ] {
+            a.apply(Command::CycleColor);
+            assert_eq!(a.settings.color, want);
+        }
+        for want in [2, 3, 1] {
+            a.apply(Command::CyclePointSize);
+            assert_eq!(a.settings.point_size, want);
+        }
+        a.apply(Command::ToggleEdl);
+        assert!(a.settings.edl);
+        for _ in 0..40 {
+            a.apply(Command::BudgetDown);
+        }
+        assert_eq!(a.settings.budget, BUDGET_RANGE.0);
+        for _ in 0..40 {
+            a.apply(Command::BudgetUp);
+        }
+        assert_eq!(a.settings.budget, BUDGET_RANGE.1);
+        assert_eq!(a.apply(Command::ToggleHelp), Effect::Redraw);
+        assert!(a.show_help);
+        assert_eq!(
+            a.apply(Command::Quit),
+            Effect::Redraw,
+            "q closes the help first"
+        );
+        assert!(!a.show_help);
+        assert_eq!(a.apply(Command::NextPart), Effect::Redraw);
+        assert_eq!(a.part, 0, "one part wraps around");
+        assert_eq!(a.apply(Command::SaveFrame), Effect::Save);
+        assert_eq!(a.apply(Command::Quit), Effect::Quit);
+    }
+}

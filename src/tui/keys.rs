@@ -1,0 +1,147 @@
+//! The inspector's key map: which key does what ([`command_for`]), and the same
+//! table as text for the `?` help overlay ([`HELP`]). Only this file knows keys;
+//! the state machine in `app.rs` works on [`Command`]s.
+
+use crossterm::event::{KeyCode, KeyEvent, KeyEventKind, KeyModifiers};
+
+/// Something the user asked for.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Command {
+    /// Orbit by (yaw, pitch) steps: +1 turns right / up.
+    Orbit(i8, i8),
+    /// Pan by (right, up) steps.
+    Pan(i8, i8),
+    /// Zoom in (+1) or out (-1).
+    Zoom(i8),
+    ResetView,
+    /// Pin one pyramid level (0 = finest).
+    PinLevel(usize),
+    /// Automatic level choice (view-dependent under the point budget).
+    Automatic,
+    Coarser,
+    Finer,
+    CycleColor,
+    CyclePointSize,
+    ToggleEdl,
+    BudgetDown,
+    BudgetUp,
+    /// Switch between the distance rule and view-dependent selection.
+    ToggleDistanceRule,
+    SaveFrame,
+    NextPart,
+    ToggleHelp,
+    /// `q` or Esc: closes the help if it is open, else quits.
+    Quit,
+    /// Ctrl-C: quits at once.
+    Interrupt,
+}
+
+/// The command for a key press, if any. Releases and repeats of non-movement
+/// keys are ignored by the caller through [`KeyEvent::kind`].
+pub fn command_for(key: KeyEvent) -> Option<Command> {
+    if key.kind == KeyEventKind::Release {
+        return None;
+    }
+    let shift = key.modifiers.contains(KeyModifiers::SHIFT);
+    let ctrl = key.modifiers.contains(KeyModifiers::CONTROL);
+    use Command::*;
+    Some(match key.code {
+        KeyCode::Char('c') | KeyCode::Char('C') if ctrl => Interrupt,
+        KeyCode::Char('q') | KeyCode::Esc => Quit,
+        KeyCode::Left if shift => Pan(-1, 0),
+        KeyCode::Right if shift => Pan(1, 0),
+        KeyCode::Up if shift => Pan(0, 1),
+        KeyCode::Down if shift => Pan(0, -1),
+        KeyCode::Left | KeyCode::Char('h') => Orbit(-1, 0),
+        KeyCode::Right | KeyCode::Char('l') => Orbit(1, 0),
+        KeyCode::Up | KeyCode::Char('k') => Orbit(0, 1),
+        KeyCode::Down | KeyCode::Char('j') => Orbit(0, -1),
+        KeyCode::Char('a') => Automatic,
+        KeyCode::Char('w') => Pan(0, 1),
+        KeyCode::Char('s') => SaveFrame,
+        KeyCode::Char('S') => Pan(0, -1),
+        KeyCode::Char('A') => Pan(-1, 0),
+        KeyCode::Char('d') | KeyCode::Char('D') => Pan(1, 0),
+        KeyCode::Char('W') => Pan(0, 1),
+        KeyCode::Char('+') | KeyCode::Char('=') => Zoom(1),
+        KeyCode::Char('-') | KeyCode::Char('_') => Zoom(-1),
+        KeyCode::Char('r') => ResetView,
+        KeyCode::Char(c @ '0'..='9') => PinLevel(c as usize - '0' as usize),
+        KeyCode::Char('[') => Coarser,
+        KeyCode::Char(']') => Finer,
+        KeyCode::Char('c') => CycleColor,
+        KeyCode::Char('p') => CyclePointSize,
+        KeyCode::Char('e') => ToggleEdl,
+        KeyCode::Char('b') => BudgetDown,
+        KeyCode::Char('B') => BudgetUp,
+        KeyCode::Char('m') => ToggleDistanceRule,
+        KeyCode::Tab | KeyCode::Char('n') => NextPart,
+        KeyCode::Char('?') => ToggleHelp,
+        _ => return None,
+    })
+}
+
+/// The key map as (keys, what they do), for the help overlay and the README.
+pub const HELP: &[(&str, &str)] = &[
+    ("←→↑↓ / h l k j", "orbit around the centre"),
+    (
+        "shift+arrows / W A S D",
+        "pan (lower-case a and s: automatic, save)",
+    ),
+    ("+ / -", "zoom in / out"),
+    ("r", "reset the view"),
+    ("0 … 9", "pin a pyramid level (0 = finest)"),
+    ("a", "automatic level choice"),
+    ("[ / ]", "coarser / finer level"),
+    ("m", "distance rule ↔ view-dependent"),
+    ("b / B", "halve / double the point budget"),
+    ("c", "cycle colour: rgb, intensity, height, level, part"),
+    ("p", "point size 1 → 2 → 3"),
+    ("e", "eye-dome lighting on / off"),
+    ("s", "save the current frame as PNG"),
+    ("Tab / n", "select the next part"),
+    ("?", "this help (q or Esc closes it)"),
+    ("q / Esc / Ctrl-C", "quit"),
+];
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn key(code: KeyCode, m: KeyModifiers) -> KeyEvent {
+        KeyEvent::new(code, m)
+    }
+
+    #[test]
+    fn the_documented_keys_map_to_commands() {
+        let none = KeyModifiers::NONE;
+        assert_eq!(
+            command_for(key(KeyCode::Char('3'), none)),
+            Some(Command::PinLevel(3))
+        );
+        assert_eq!(
+            command_for(key(KeyCode::Left, KeyModifiers::SHIFT)),
+            Some(Command::Pan(-1, 0))
+        );
+        assert_eq!(
+            command_for(key(KeyCode::Left, none)),
+            Some(Command::Orbit(-1, 0))
+        );
+        assert_eq!(
+            command_for(key(KeyCode::Char('c'), KeyModifiers::CONTROL)),
+            Some(Command::Interrupt)
+        );
+        assert_eq!(
+            command_for(key(KeyCode::Char('c'), none)),
+            Some(Command::CycleColor)
+        );
+        assert_eq!(
+            command_for(key(KeyCode::Tab, none)),
+            Some(Command::NextPart)
+        );
+        assert_eq!(command_for(key(KeyCode::Char('x'), none)), None);
+        let mut release = key(KeyCode::Char('q'), none);
+        release.kind = KeyEventKind::Release;
+        assert_eq!(command_for(release), None);
+    }
+}

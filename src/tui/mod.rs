@@ -1,0 +1,215 @@
+//! `pcimg inspect`, the terminal inspector: panels describing a dataset beside a
+//! live view of it, driven by the keyboard, over SSH and without a GPU.
+//!
+//! One concern per file: [`app`] (state machine, key commands → state changes),
+//! [`keys`] (the key map and help), [`ui`] (layout), [`worker`] (select → load →
+//! render → encode on a worker thread), [`protocol`] (which terminal image
+//! protocol, and encoding for it), `terminal` (entering and restoring the
+//! terminal). This file holds the event loop, which never waits on loading or
+//! rendering: it sends requests and polls for finished frames between key presses.
+
+pub mod app;
+pub mod keys;
+pub mod protocol;
+mod terminal;
+pub mod ui;
+pub mod worker;
+
+use crate::camera::Camera;
+use crate::render::{Frame, RendererChoice};
+use crate::store::Dataset;
+use app::{App, Effect, Settings};
+use ratatui::layout::Rect;
+use ratatui_image::protocol::Protocol;
+use std::collections::VecDeque;
+use std::path::PathBuf;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::mpsc::{Receiver, Sender, channel};
+use std::time::{Duration, Instant};
+use worker::{RenderWorker, Report, Request, WorkerOptions};
+
+/// How the inspector starts.
+#[derive(Debug, Clone, Copy)]
+pub struct InspectOptions {
+    /// `--protocol`.
+    pub protocol: crate::term::Protocol,
+    pub renderer: RendererChoice,
+    pub camera: Camera,
+    pub settings: Settings,
+    /// Tile loading threads.
+    pub load_threads: usize,
+}
+
+/// Set by SIGTERM / SIGHUP: the loop ends and the terminal is restored.
+static STOP: AtomicBool = AtomicBool::new(false);
+
+/// How long the loop waits for a key before looking for finished frames.
+const POLL: Duration = Duration::from_millis(8);
+
+/// Runs the inspector on `ds` until the user quits; the terminal is restored on
+/// every exit path.
+pub fn run(ds: Arc<Dataset>, opts: InspectOptions) -> anyhow::Result<()> {
+    let env = protocol::TerminalEnv::from_process();
+    let graphics = protocol::choose(opts.protocol, &env);
+    let cell_pixels = protocol::cell_pixels(graphics);
+    // Termination signals end the loop (the first handler of the process wins).
+    let _ = ctrlc::set_handler(|| STOP.store(true, Ordering::SeqCst));
+
+    let worker = RenderWorker::spawn(
+        ds.clone(),
+        WorkerOptions {
+            graphics,
+            in_tmux: env.in_multiplexer(),
+            renderer: opts.renderer,
+            memory: opts.settings.memory,
+            load_threads: opts.load_threads,
+        },
+    );
+    let mut app = App::new(ds, opts.camera, opts.settings);
+    app.protocol = graphics.name().into();
+    let mut session = terminal::Session::enter(graphics == protocol::Graphics::Kitty)?;
+    let result = event_loop(&mut session, &mut app, &worker, cell_pixels);
+    drop(session);
+    result
+}
+
+/// What the view pane shows now.
+#[derive(Default)]
+struct Shown {
+    image: Option<Protocol>,
+    frame: Option<Arc<Frame>>,
+    arrivals: VecDeque<Instant>,
+}
+
+fn event_loop(
+    session: &mut terminal::Session,
+    app: &mut App,
+    worker: &RenderWorker,
+    cell_pixels: (u32, u32),
+) -> anyhow::Result<()> {
+    use crossterm::event::{self, Event};
+    let term = &mut session.terminal;
+    let mut shown = Shown::default();
+    let (msg_tx, msg_rx): (Sender<String>, Receiver<String>) = channel();
+    let mut seq = 0u64;
+    let mut want_frame = true;
+    let mut requested_cells = (0u16, 0u16);
+    let mut dirty = true;
+    let mut saved = 0u32;
+    loop {
+        if STOP.load(Ordering::SeqCst) {
+            return Ok(());
+        }
+        let size = term.size()?;
+        let cells = ui::areas(Rect::new(0, 0, size.width, size.height), app).view_inner;
+        let cells = (cells.width, cells.height);
+        if cells != requested_cells {
+            want_frame = true;
+        }
+        if want_frame && cells.0 > 0 && cells.1 > 0 {
+            seq += 1;
+            worker.request(Request {
+                seq,
+                camera: app.camera,
+                settings: app.settings,
+                cells,
+                cell_pixels,
+            });
+            requested_cells = cells;
+            want_frame = false;
+        }
+        if dirty {
+            term.draw(|f| ui::draw(f, app, shown.image.as_ref()))?;
+            dirty = false;
+        }
+        if event::poll(POLL)? {
+            match event::read()? {
+                Event::Key(k) => {
+                    if let Some(cmd) = keys::command_for(k) {
+                        let effect = app.apply(cmd);
+                        if effect != Effect::None {
+                            app.message.clear();
+                        }
+                        match effect {
+                            Effect::Quit => return Ok(()),
+                            Effect::Render => want_frame = true,
+                            Effect::Save => {
+                                saved += 1;
+                                save_frame(shown.frame.clone(), saved, msg_tx.clone());
+                                app.message = "saving the frame…".into();
+                            }
+                            Effect::Redraw | Effect::None => {}
+                        }
+                        dirty = true;
+                    }
+                }
+                Event::Resize(..) => dirty = true,
+                _ => {}
+            }
+        }
+        loop {
+            match worker.try_recv() {
+                Ok(Some(Report::Frame(f))) => {
+                    let now = Instant::now();
+                    shown.arrivals.push_back(now);
+                    while shown
+                        .arrivals
+                        .front()
+                        .is_some_and(|t| now - *t > Duration::from_secs(2))
+                    {
+                        shown.arrivals.pop_front();
+                    }
+                    app.fps = fps(&shown.arrivals);
+                    app.frame = f.status;
+                    shown.image = Some(f.image);
+                    shown.frame = Some(f.frame);
+                    dirty = true;
+                }
+                Ok(Some(Report::Error(e))) => {
+                    app.message = crate::text::sanitize(&e);
+                    dirty = true;
+                }
+                Ok(None) => break,
+                Err(e) => return Err(e),
+            }
+        }
+        while let Ok(m) = msg_rx.try_recv() {
+            app.message = crate::text::sanitize(&m);
+            dirty = true;
+        }
+    }
+}
+
+/// Frames per second over the arrivals of the last two seconds.
+fn fps(arrivals: &VecDeque<Instant>) -> f64 {
+    match (arrivals.front(), arrivals.back()) {
+        (Some(a), Some(b)) if arrivals.len() > 1 && b > a => {
+            (arrivals.len() - 1) as f64 / (*b - *a).as_secs_f64()
+        }
+        _ => 0.0,
+    }
+}
+
+/// Saves a frame as `pcimg-frame-NNN.png` in the working directory, on a thread;
+/// the outcome comes back as a message.
+fn save_frame(frame: Option<Arc<Frame>>, n: u32, done: Sender<String>) {
+    std::thread::spawn(move || {
+        let msg = match frame {
+            None => "no frame to save yet".to_string(),
+            Some(f) => {
+                let mut path = PathBuf::from(format!("pcimg-frame-{n:03}.png"));
+                let mut k = n;
+                while path.exists() {
+                    k += 1;
+                    path = PathBuf::from(format!("pcimg-frame-{k:03}.png"));
+                }
+                match f.save_png(&path) {
+                    Ok(()) => format!("saved {} ({}×{} px)", path.display(), f.width, f.height),
+                    Err(e) => format!("could not save: {e}"),
+                }
+            }
+        };
+        let _ = done.send(msg);
+    });
+}

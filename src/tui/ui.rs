@@ -1,0 +1,323 @@
+//! The inspector's layout, drawn with ratatui from the [`App`] state: the parts
+//! table, the selected part's bands and pyramid levels, memory gauges, the view
+//! pane with the latest frame, the status line, and the `?` help overlay. Drawing
+//! only copies: frames arrive already encoded from the render worker. Every text
+//! that came from a file passes through [`sanitize`] first.
+
+use super::app::App;
+use super::keys::HELP;
+use crate::store::codec::compression_name;
+use crate::text::{bytes, count, sanitize};
+use ratatui::Frame;
+use ratatui::layout::{Constraint, Layout, Rect};
+use ratatui::style::{Color, Modifier, Style, Stylize};
+use ratatui::text::{Line, Span};
+use ratatui::widgets::{Block, Cell, Clear, Gauge, Paragraph, Row, Table};
+use ratatui_image::Image;
+use ratatui_image::protocol::Protocol;
+
+/// Where things go on screen.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Areas {
+    pub parts: Rect,
+    pub bands: Rect,
+    pub levels: Rect,
+    pub memory: Rect,
+    /// The view pane's border, and inside it the frame.
+    pub view: Rect,
+    pub view_inner: Rect,
+    pub status: Rect,
+    pub hint: Rect,
+}
+
+/// Splits the screen. The left column holds the panels, the view takes the rest.
+pub fn areas(area: Rect, app: &App) -> Areas {
+    let [main, status, hint] = Layout::vertical([
+        Constraint::Min(3),
+        Constraint::Length(1),
+        Constraint::Length(1),
+    ])
+    .areas(area);
+    let left_width = (area.width * 2 / 5).clamp(20.min(area.width), 72);
+    let [left, view] =
+        Layout::horizontal([Constraint::Length(left_width), Constraint::Min(1)]).areas(main);
+    let part = app.dataset.parts.get(app.part);
+    let n_parts = app.dataset.parts.len() as u16;
+    let n_bands = part.map_or(0, |p| p.bands.len()) as u16;
+    let [parts, bands, levels, memory] = Layout::vertical([
+        Constraint::Length(n_parts.min(8) + 4),
+        Constraint::Length(n_bands + 3),
+        Constraint::Min(4),
+        Constraint::Length(4),
+    ])
+    .areas(left);
+    let view_inner = Block::bordered().inner(view);
+    Areas {
+        parts,
+        bands,
+        levels,
+        memory,
+        view,
+        view_inner,
+        status,
+        hint,
+    }
+}
+
+fn title(s: impl Into<String>) -> Line<'static> {
+    Line::from(Span::from(s.into()).bold())
+}
+
+fn header(cells: &[&'static str]) -> Row<'static> {
+    Row::new(cells.iter().map(|c| Cell::from(*c)))
+        .style(Style::new().add_modifier(Modifier::BOLD | Modifier::UNDERLINED))
+}
+
+/// Draws the whole screen; `image` is the latest encoded frame, if any.
+pub fn draw(f: &mut Frame, app: &App, image: Option<&Protocol>) {
+    let a = areas(f.area(), app);
+    draw_parts(f, app, a.parts);
+    draw_bands(f, app, a.bands);
+    draw_levels(f, app, a.levels);
+    draw_memory(f, app, a.memory);
+
+    let view_title = format!(" view · {} ", app.protocol);
+    let mut view_block = Block::bordered().title(title(view_title));
+    if !app.message.is_empty() {
+        view_block =
+            view_block.title_bottom(Line::from(format!(" {} ", sanitize(&app.message))).yellow());
+    }
+    f.render_widget(view_block, a.view);
+    match image {
+        Some(img) => f.render_widget(Image::new(img).allow_clipping(true), a.view_inner),
+        None => f.render_widget(
+            Paragraph::new("rendering the first frame…").dark_gray(),
+            a.view_inner,
+        ),
+    }
+
+    f.render_widget(
+        Paragraph::new(app.status_line()).style(Style::new().fg(Color::Black).bg(Color::Cyan)),
+        a.status,
+    );
+    let hint = Line::from(vec![
+        Span::from(app.timing_line()),
+        Span::from(" · "),
+        Span::from("?").bold(),
+        Span::from(" help "),
+        Span::from("q").bold(),
+        Span::from(" quit"),
+    ]);
+    f.render_widget(Paragraph::new(hint), a.hint);
+
+    if app.show_help {
+        draw_help(f, f.area());
+    }
+}
+
+fn draw_parts(f: &mut Frame, app: &App, area: Rect) {
+    let rows: Vec<Row> = app
+        .dataset
+        .parts
+        .iter()
+        .enumerate()
+        .map(|(i, p)| {
+            let name = p
+                .path
+                .file_name()
+                .map(|n| n.to_string_lossy().into_owned())
+                .unwrap_or_else(|| p.path.display().to_string());
+            let b = &p.meta.bounds;
+            let bounds = format!(
+                "{:.0}..{:.0} {:.0}..{:.0} {:.0}..{:.0}",
+                b.min[0], b.max[0], b.min[1], b.max[1], b.min[2], b.max[2]
+            );
+            let row = Row::new(vec![
+                Cell::from(sanitize(&name)),
+                Cell::from(count(p.meta.point_count)),
+                Cell::from(bounds),
+                Cell::from(bytes(p.file_bytes)),
+            ]);
+            if i == app.part {
+                row.style(Style::new().reversed())
+            } else {
+                row
+            }
+        })
+        .collect();
+    let part = app.dataset.parts.get(app.part);
+    let source = part
+        .and_then(|p| p.meta.source.as_deref())
+        .map(sanitize)
+        .unwrap_or_else(|| "-".into());
+    let crs = part
+        .and_then(|p| p.meta.crs.as_deref())
+        .map(sanitize)
+        .unwrap_or_else(|| "-".into());
+    let block = Block::bordered().title(title(" parts "));
+    let inner = block.inner(area);
+    f.render_widget(block, area);
+    let [table_area, detail] =
+        Layout::vertical([Constraint::Min(1), Constraint::Length(1)]).areas(inner);
+    let table = Table::new(
+        rows,
+        [
+            Constraint::Fill(2),
+            Constraint::Length(11),
+            Constraint::Fill(3),
+            Constraint::Length(10),
+        ],
+    )
+    .header(header(&["file", "points", "bounds (x y z)", "bytes"]));
+    f.render_widget(table, table_area);
+    f.render_widget(
+        Paragraph::new(format!("source {source} · crs {crs}")).dark_gray(),
+        detail,
+    );
+}
+
+fn draw_bands(f: &mut Frame, app: &App, area: Rect) {
+    let rows: Vec<Row> = app
+        .dataset
+        .parts
+        .get(app.part)
+        .map(|p| {
+            p.bands
+                .iter()
+                .map(|b| {
+                    Row::new(vec![
+                        Cell::from(sanitize(&b.name)),
+                        Cell::from("Float32"),
+                        Cell::from(format!("{:.3}", b.offset)),
+                    ])
+                })
+                .collect()
+        })
+        .unwrap_or_default();
+    let t = Table::new(
+        rows,
+        [
+            Constraint::Fill(1),
+            Constraint::Length(8),
+            Constraint::Fill(1),
+        ],
+    )
+    .header(header(&["band", "type", "offset"]))
+    .block(Block::bordered().title(title(" bands ")));
+    f.render_widget(t, area);
+}
+
+fn draw_levels(f: &mut Frame, app: &App, area: Rect) {
+    let loaded = |level: usize| {
+        app.frame
+            .loaded
+            .iter()
+            .find(|(k, _)| *k == (app.part, level))
+            .map_or(0, |(_, n)| *n)
+    };
+    let shown = app.frame.levels;
+    let rows: Vec<Row> = app
+        .dataset
+        .parts
+        .get(app.part)
+        .map(|p| {
+            p.levels
+                .iter()
+                .map(|l| {
+                    let tiles = l.tiles.len();
+                    let n = loaded(l.index);
+                    let state = if n == 0 {
+                        "-".to_string()
+                    } else if n >= tiles {
+                        "loaded".to_string()
+                    } else {
+                        format!("{n}/{tiles} tiles")
+                    };
+                    let row = Row::new(vec![
+                        Cell::from(l.index.to_string()),
+                        Cell::from(format!("{}×{}", l.width, l.height)),
+                        Cell::from(l.points.map_or("?".into(), count)),
+                        Cell::from(bytes(l.bytes)),
+                        Cell::from(compression_name(l.compression)),
+                        Cell::from(state),
+                    ]);
+                    match shown {
+                        Some((lo, hi)) if (lo..=hi).contains(&l.index) => {
+                            row.style(Style::new().fg(Color::Green))
+                        }
+                        _ => row,
+                    }
+                })
+                .collect()
+        })
+        .unwrap_or_default();
+    let t = Table::new(
+        rows,
+        [
+            Constraint::Length(5),
+            Constraint::Length(11),
+            Constraint::Length(11),
+            Constraint::Length(10),
+            Constraint::Length(8),
+            Constraint::Fill(1),
+        ],
+    )
+    .header(header(&[
+        "level", "size", "points", "bytes", "codec", "cache",
+    ]))
+    .block(Block::bordered().title(title(format!(" levels of part {} ", app.part + 1))));
+    f.render_widget(t, area);
+}
+
+fn draw_memory(f: &mut Frame, app: &App, area: Rect) {
+    let block = Block::bordered().title(title(" memory "));
+    let inner = block.inner(area);
+    f.render_widget(block, area);
+    let [cache, points] =
+        Layout::vertical([Constraint::Length(1), Constraint::Length(1)]).areas(inner);
+    let s = &app.settings;
+    let ratio = |a: u64, b: u64| (a as f64 / b.max(1) as f64).clamp(0.0, 1.0);
+    f.render_widget(
+        Gauge::default()
+            .gauge_style(Style::new().fg(Color::Blue))
+            .ratio(ratio(app.frame.cache_bytes, s.memory))
+            .label(format!(
+                "cache {} / {}",
+                bytes(app.frame.cache_bytes),
+                bytes(s.memory)
+            )),
+        cache,
+    );
+    f.render_widget(
+        Gauge::default()
+            .gauge_style(Style::new().fg(Color::Magenta))
+            .ratio(ratio(app.frame.points, s.budget))
+            .label(format!(
+                "points {} / {}",
+                count(app.frame.points),
+                count(s.budget)
+            )),
+        points,
+    );
+}
+
+fn draw_help(f: &mut Frame, area: Rect) {
+    let w = 76.min(area.width);
+    let h = (HELP.len() as u16 + 2).min(area.height);
+    let r = Rect::new(
+        area.x + (area.width - w) / 2,
+        area.y + (area.height - h) / 2,
+        w,
+        h,
+    );
+    let rows: Vec<Row> = HELP
+        .iter()
+        .map(|(k, what)| Row::new(vec![Cell::from(k.bold()), Cell::from(*what)]))
+        .collect();
+    f.render_widget(Clear, r);
+    f.render_widget(
+        Table::new(rows, [Constraint::Length(24), Constraint::Fill(1)])
+            .block(Block::bordered().title(title(" keys (? closes) "))),
+        r,
+    );
+}

@@ -1,0 +1,344 @@
+//! Rendering off the event loop: a worker thread receives (camera, settings, pane
+//! size) requests through a channel, keeps only the newest, selects tiles, asks
+//! the tile cache for them (loading happens on the cache's own threads), draws
+//! what is loaded, encodes the frame for the terminal and sends it back. While
+//! tiles are still arriving it redraws as they come. The event loop never waits
+//! on it: it polls [`RenderWorker::try_recv`] between key presses.
+
+use super::app::{FrameStatus, Settings};
+use super::protocol::{self, Graphics};
+use crate::camera::Camera;
+use crate::lod::{self, TileCache, TileKey, TileRef};
+use crate::render::color::ColorMode;
+use crate::render::scene::{ColorRanges, colorize};
+use crate::render::{self, Frame, PointBatch, Rasterizer, RenderOptions, RendererChoice};
+use crate::store::Dataset;
+use ratatui_image::protocol::Protocol;
+use std::collections::{BTreeMap, HashMap};
+use std::sync::Arc;
+use std::sync::mpsc::{Receiver, RecvTimeoutError, Sender, TryRecvError, channel};
+use std::time::{Duration, Instant};
+
+/// What to draw.
+#[derive(Debug, Clone, Copy)]
+pub struct Request {
+    /// Increases with every request; frames carry the number they answer.
+    pub seq: u64,
+    pub camera: Camera,
+    pub settings: Settings,
+    /// The view pane in cells.
+    pub cells: (u16, u16),
+    /// Pixels per cell for the protocol in use.
+    pub cell_pixels: (u32, u32),
+}
+
+/// A drawn and encoded frame.
+pub struct FrameReady {
+    pub seq: u64,
+    /// Ready for the terminal; drawing it only copies cells.
+    pub image: Protocol,
+    pub frame: Arc<Frame>,
+    /// Cells the image covers.
+    pub cells: (u16, u16),
+    pub status: FrameStatus,
+    /// When the request this frame answers was received by the worker.
+    pub requested: Instant,
+}
+
+/// What the worker sends back.
+pub enum Report {
+    Frame(Box<FrameReady>),
+    Error(String),
+}
+
+/// How long the worker waits for more tiles before drawing what arrived.
+const REDRAW_WHILE_LOADING: Duration = Duration::from_millis(60);
+
+/// The render worker thread and its two channels.
+pub struct RenderWorker {
+    requests: Option<Sender<Request>>,
+    reports: Receiver<Report>,
+    thread: Option<std::thread::JoinHandle<()>>,
+}
+
+/// How the worker is set up.
+#[derive(Debug, Clone, Copy)]
+pub struct WorkerOptions {
+    pub graphics: Graphics,
+    pub in_tmux: bool,
+    pub renderer: RendererChoice,
+    /// Bytes of loaded tiles kept.
+    pub memory: u64,
+    /// Tile loading threads.
+    pub load_threads: usize,
+}
+
+impl RenderWorker {
+    pub fn spawn(ds: Arc<Dataset>, opts: WorkerOptions) -> RenderWorker {
+        let (req_tx, req_rx) = channel::<Request>();
+        let (rep_tx, rep_rx) = channel::<Report>();
+        let thread = std::thread::Builder::new()
+            .name("pcimg-render".into())
+            .spawn(move || run(ds, opts, req_rx, rep_tx))
+            .expect("cannot start the render thread");
+        RenderWorker {
+            requests: Some(req_tx),
+            reports: rep_rx,
+            thread: Some(thread),
+        }
+    }
+
+    /// Asks for a frame; returns at once. Older requests not yet started are dropped.
+    pub fn request(&self, r: Request) {
+        if let Some(tx) = &self.requests {
+            let _ = tx.send(r);
+        }
+    }
+
+    /// A report, if one is waiting; an error when the worker has stopped (it
+    /// panicked: the panic hook has already restored the terminal).
+    pub fn try_recv(&self) -> anyhow::Result<Option<Report>> {
+        match self.reports.try_recv() {
+            Ok(r) => Ok(Some(r)),
+            Err(TryRecvError::Empty) => Ok(None),
+            Err(TryRecvError::Disconnected) => Err(anyhow::anyhow!("the render thread stopped")),
+        }
+    }
+
+    /// Waits up to `timeout` for a report (for tests and measurements).
+    pub fn recv_timeout(&self, timeout: Duration) -> Option<Report> {
+        self.reports.recv_timeout(timeout).ok()
+    }
+}
+
+impl Drop for RenderWorker {
+    fn drop(&mut self) {
+        // Closing the request channel ends the thread after its current frame;
+        // nobody waits for that.
+        self.requests = None;
+        drop(self.thread.take());
+    }
+}
+
+/// Colour columns of loaded tiles, for one colour mode (orbiting recolours nothing).
+struct ColorCache {
+    mode: Option<ColorMode>,
+    columns: HashMap<TileKey, Vec<u32>>,
+}
+
+struct Worker {
+    ds: Arc<Dataset>,
+    opts: WorkerOptions,
+    cache: TileCache,
+    renderer: Option<Box<dyn Rasterizer>>,
+    /// When the current wait for tiles began.
+    loading_since: Option<Instant>,
+    ranges: ColorRanges,
+    colors: ColorCache,
+}
+
+fn run(
+    ds: Arc<Dataset>,
+    opts: WorkerOptions,
+    requests: Receiver<Request>,
+    reports: Sender<Report>,
+) {
+    let cache = TileCache::new(ds.clone(), opts.memory, opts.load_threads.max(1));
+    let ranges = color_ranges(&ds, &cache);
+    let mut w = Worker {
+        ds,
+        opts,
+        cache,
+        renderer: None,
+        loading_since: None,
+        ranges,
+        colors: ColorCache {
+            mode: None,
+            columns: HashMap::new(),
+        },
+    };
+    let mut current: Option<(Request, Instant)> = None;
+    let mut pending = 0usize;
+    loop {
+        let mut dirty = false;
+        let got = if pending > 0 {
+            requests.recv_timeout(REDRAW_WHILE_LOADING)
+        } else {
+            requests.recv().map_err(|_| RecvTimeoutError::Disconnected)
+        };
+        match got {
+            Ok(r) => {
+                current = Some((r, Instant::now()));
+                dirty = true;
+            }
+            Err(RecvTimeoutError::Timeout) => {}
+            Err(RecvTimeoutError::Disconnected) => return,
+        }
+        // Only the newest request matters.
+        while let Ok(r) = requests.try_recv() {
+            current = Some((r, Instant::now()));
+            dirty = true;
+        }
+        if w.cache.arrivals.try_iter().count() > 0 {
+            dirty = true;
+        }
+        let Some((req, received)) = current else {
+            continue;
+        };
+        if !dirty {
+            continue;
+        }
+        match w.frame(&req, received) {
+            Ok(f) => {
+                pending = f.status.pending;
+                if reports.send(Report::Frame(Box::new(f))).is_err() {
+                    return;
+                }
+            }
+            Err(e) => {
+                pending = 0;
+                if reports.send(Report::Error(format!("{e:#}"))).is_err() {
+                    return;
+                }
+            }
+        }
+        for e in w.cache.take_errors() {
+            let _ = reports.send(Report::Error(e));
+        }
+    }
+}
+
+/// Colour ranges from every part's coarsest level (small, and fixed for the
+/// session so colours do not flicker as tiles stream in).
+fn color_ranges(ds: &Dataset, cache: &TileCache) -> ColorRanges {
+    let refs: Vec<TileRef> = ds
+        .parts
+        .iter()
+        .enumerate()
+        .filter_map(|(pi, p)| p.levels.last().map(|l| (pi, l)))
+        .flat_map(|(pi, l)| {
+            l.tiles.iter().map(move |t| TileRef {
+                part: pi,
+                level: l.index,
+                tile: t.index,
+                points: t.points.unwrap_or(0) as u64,
+                bounds: t.bounds,
+            })
+        })
+        .collect();
+    let tiles = cache.load_all(&refs).unwrap_or_default();
+    ColorRanges::from_tiles(&tiles, &ds.bounds())
+}
+
+impl Worker {
+    fn renderer(&mut self) -> anyhow::Result<&mut Box<dyn Rasterizer>> {
+        if self.renderer.is_none() {
+            let r = match render::create(self.opts.renderer) {
+                Ok(r) => r,
+                Err(e) if self.opts.renderer == RendererChoice::Gpu => {
+                    return Err(anyhow::anyhow!("{e}"));
+                }
+                Err(_) => render::create(RendererChoice::Cpu)?,
+            };
+            self.renderer = Some(r);
+        }
+        Ok(self.renderer.as_mut().expect("created above"))
+    }
+
+    fn frame(&mut self, req: &Request, received: Instant) -> anyhow::Result<FrameReady> {
+        let (cols, rows) = (req.cells.0.max(1), req.cells.1.max(1));
+        let width = (cols as u32 * req.cell_pixels.0).clamp(1, render::MAX_FRAME_SIDE);
+        let height = (rows as u32 * req.cell_pixels.1).clamp(1, render::MAX_FRAME_SIDE);
+        let s = req.settings;
+        self.renderer()?;
+
+        let t = Instant::now();
+        let sel = lod::select(&self.ds, &req.camera, width, height, s.lod_mode(), s.memory);
+        let select_ms = ms(t);
+        self.cache.request(&sel.tiles);
+        let tiles = self.cache.ready(&sel.tiles);
+        let pending = sel.tiles.len() - tiles.len();
+        // Load time: from the request that found tiles missing until all arrived.
+        let load_ms = if pending > 0 {
+            ms(*self.loading_since.get_or_insert(received))
+        } else {
+            self.loading_since.take().map_or(0.0, ms)
+        };
+
+        if self.colors.mode != Some(s.color) {
+            self.colors.columns.clear();
+            self.colors.mode = Some(s.color);
+        }
+        let keep: std::collections::HashSet<TileKey> = tiles.iter().map(|t| t.key).collect();
+        self.colors.columns.retain(|k, _| keep.contains(k));
+        for t in &tiles {
+            if !self.colors.columns.contains_key(&t.key) {
+                let c = colorize(t, s.color, &self.ranges);
+                self.colors.columns.insert(t.key, c);
+            }
+        }
+        let batches: Vec<PointBatch<'_>> = tiles
+            .iter()
+            .map(|t| PointBatch {
+                origin: t.origin,
+                x: &t.x,
+                y: &t.y,
+                z: &t.z,
+                color: &self.colors.columns[&t.key],
+            })
+            .collect();
+        let points: u64 = tiles.iter().map(|t| t.len() as u64).sum();
+        let levels = tiles.iter().fold(None, |acc: Option<(usize, usize)>, t| {
+            let l = t.key.level;
+            Some(acc.map_or((l, l), |(lo, hi)| (lo.min(l), hi.max(l))))
+        });
+
+        let opts = RenderOptions {
+            width,
+            height,
+            point_size: s.point_size,
+            eye_dome_lighting: s.edl,
+            background: [0, 0, 0],
+        };
+        let t = Instant::now();
+        let renderer = self.renderer.as_mut().expect("created at the top");
+        let frame = renderer.render(&req.camera, &batches, &opts)?;
+        let renderer_name = renderer.name();
+        let render_ms = ms(t);
+        drop(batches);
+
+        let t = Instant::now();
+        let image = protocol::encode(self.opts.graphics, &frame, (cols, rows), self.opts.in_tmux)?;
+        let encode_ms = ms(t);
+
+        let mut loaded: BTreeMap<(usize, usize), usize> = BTreeMap::new();
+        for k in self.cache.loaded() {
+            *loaded.entry((k.part, k.level)).or_default() += 1;
+        }
+        let status = FrameStatus {
+            levels,
+            points,
+            tiles: tiles.len(),
+            pending,
+            select_ms,
+            load_ms,
+            render_ms,
+            encode_ms,
+            renderer: renderer_name,
+            cache_bytes: self.cache.stats().bytes,
+            loaded: loaded.into_iter().collect(),
+        };
+        Ok(FrameReady {
+            seq: req.seq,
+            image,
+            frame: Arc::new(frame),
+            cells: (cols, rows),
+            status,
+            requested: received,
+        })
+    }
+}
+
+fn ms(t: Instant) -> f64 {
+    t.elapsed().as_secs_f64() * 1e3
+}

@@ -1,0 +1,359 @@
+//! The terminal inspector: its panels, keys and sanitizing drawn into ratatui's
+//! `TestBackend` (half-blocks, deterministic), a frame from the render worker, and
+//! the real binary driven through tmux (start, pin a level, quit, terminal sane).
+
+mod common;
+
+use crossterm::event::{KeyCode, KeyEvent, KeyModifiers};
+use pcimg::camera::Camera;
+use pcimg::render::RendererChoice;
+use pcimg::store::{self, Dataset, WriteOptions};
+use pcimg::tui::app::{App, LodChoice, Settings};
+use pcimg::tui::keys::command_for;
+use pcimg::tui::protocol::Graphics;
+use pcimg::tui::ui;
+use pcimg::tui::worker::{RenderWorker, Report, Request, WorkerOptions};
+use ratatui::Terminal;
+use ratatui::backend::TestBackend;
+use std::path::{Path, PathBuf};
+use std::process::Command;
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+/// A directory of two parts of the synthetic scene.
+fn two_parts(dir: &Path, source: Option<&str>) -> PathBuf {
+    let d = dir.join("parts");
+    std::fs::create_dir_all(&d).unwrap();
+    let opts = WriteOptions {
+        source: source.map(String::from),
+        ..Default::default()
+    };
+    store::write_part(
+        &d.join("a_north.tif"),
+        &pcimg::synth::scene(300_000, 1),
+        &opts,
+    )
+    .unwrap();
+    store::write_part(
+        &d.join("b_south.tif"),
+        &pcimg::synth::scene(70_000, 2),
+        &opts,
+    )
+    .unwrap();
+    d
+}
+
+fn app_for(path: &Path) -> App {
+    let ds = Arc::new(Dataset::open(path).unwrap());
+    let cam = Camera::fit(&ds.bounds());
+    App::new(ds, cam, Settings::default())
+}
+
+/// The screen as lines of text.
+fn screen(app: &App, image: Option<&ratatui_image::protocol::Protocol>) -> Vec<String> {
+    let mut t = Terminal::new(TestBackend::new(160, 48)).unwrap();
+    t.draw(|f| ui::draw(f, app, image)).unwrap();
+    let buf = t.backend().buffer().clone();
+    let w = buf.area.width as usize;
+    buf.content()
+        .chunks(w)
+        .map(|row| row.iter().map(|c| c.symbol()).collect::<String>())
+        .collect()
+}
+
+fn press(app: &mut App, code: KeyCode) {
+    let cmd = command_for(KeyEvent::new(code, KeyModifiers::NONE)).expect("a mapped key");
+    app.apply(cmd);
+}
+
+#[test]
+fn panels_list_parts_bands_and_levels() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = two_parts(dir.path(), Some("synthetic scan"));
+    let mut app = app_for(&path);
+    let text = screen(&app, None).join("\n");
+    assert!(
+        text.contains("a_north.tif") && text.contains("b_south.tif"),
+        "{text}"
+    );
+    assert!(
+        text.contains("300,000") && text.contains("70,000"),
+        "{text}"
+    );
+    assert!(text.contains("source synthetic scan"), "{text}");
+    for band in &app.dataset.parts[0].bands {
+        assert!(
+            text.contains(&band.name),
+            "band {} missing:\n{text}",
+            band.name
+        );
+    }
+    assert!(text.contains("intensity"));
+    // Every level of the selected part, with its raster size.
+    let levels = &app.dataset.parts[0].levels;
+    assert!(levels.len() >= 3);
+    for l in levels {
+        assert!(
+            text.contains(&format!("{}×{}", l.width, l.height)),
+            "level {} missing:\n{text}",
+            l.index
+        );
+    }
+    assert!(text.contains("levels of part 1"));
+    assert!(text.contains("cache 0 B / 2.0 GiB"), "{text}");
+
+    // Tab selects the next part: its levels replace the first part's.
+    press(&mut app, KeyCode::Tab);
+    let text = screen(&app, None).join("\n");
+    assert!(text.contains("levels of part 2"), "{text}");
+    let l0 = &app.dataset.parts[1].levels[0];
+    assert!(text.contains(&format!("{}×{}", l0.width, l0.height)));
+}
+
+#[test]
+fn keys_pin_levels_and_cycle_colours_in_the_status_line() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = two_parts(dir.path(), None);
+    let mut app = app_for(&path);
+    let status = |app: &App| screen(app, None)[46].clone();
+    assert!(
+        status(&app).contains("auto (view-dependent)"),
+        "{}",
+        status(&app)
+    );
+    assert!(status(&app).contains("| rgb |"));
+
+    press(&mut app, KeyCode::Char('2'));
+    assert_eq!(app.settings.lod, LodChoice::Pinned(2));
+    assert!(status(&app).contains("pinned level 2"), "{}", status(&app));
+    press(&mut app, KeyCode::Char(']'));
+    assert!(status(&app).contains("pinned level 1"), "finer");
+    press(&mut app, KeyCode::Char('['));
+    press(&mut app, KeyCode::Char('['));
+    assert!(
+        status(&app).contains("pinned level 2"),
+        "coarsest of 3 levels"
+    );
+    press(&mut app, KeyCode::Char('c'));
+    assert!(status(&app).contains("| intensity |"), "{}", status(&app));
+    press(&mut app, KeyCode::Char('c'));
+    assert!(status(&app).contains("| height |"));
+    press(&mut app, KeyCode::Char('m'));
+    assert!(status(&app).contains("auto (distance rule)"));
+    press(&mut app, KeyCode::Char('a'));
+    assert!(status(&app).contains("auto (view-dependent)"));
+    press(&mut app, KeyCode::Char('b'));
+    assert!(status(&app).contains("/ 1,000,000"), "{}", status(&app));
+
+    press(&mut app, KeyCode::Char('?'));
+    let text = screen(&app, None).join("\n");
+    assert!(text.contains("keys (? closes)") && text.contains("pin a pyramid level"));
+}
+
+#[test]
+fn control_characters_from_metadata_are_sanitized() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("evil.tif");
+    let opts = WriteOptions {
+        source: Some("scan\x1b[31mRED\x1b]0;title\x07".into()),
+        crs: Some("EPSG:\u{9b}2J4326".into()),
+        ..Default::default()
+    };
+    store::write_part(&path, &pcimg::synth::scene(5_000, 4), &opts).unwrap();
+    let mut app = app_for(&path);
+    app.message = "worker said \x1b[2J".into();
+    let lines = screen(&app, None);
+    let text = lines.join("\n");
+    assert!(
+        !text.chars().any(|c| c.is_control() && c != '\n'),
+        "control characters reached the screen:\n{text:?}"
+    );
+    assert!(text.contains("scan\u{FFFD}[31mRED"), "{text}");
+    assert!(text.contains("EPSG:\u{FFFD}2J4326"), "{text}");
+    assert!(text.contains("worker said \u{FFFD}[2J"), "{text}");
+}
+
+#[test]
+fn the_worker_renders_and_encodes_half_block_frames() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = two_parts(dir.path(), None);
+    let mut app = app_for(&path);
+    let w = RenderWorker::spawn(
+        app.dataset.clone(),
+        WorkerOptions {
+            graphics: Graphics::Halfblocks,
+            in_tmux: false,
+            renderer: RendererChoice::Cpu,
+            memory: 1 << 30,
+            load_threads: 2,
+        },
+    );
+    app.settings.lod = LodChoice::Pinned(1);
+    let area = ui::areas(ratatui::layout::Rect::new(0, 0, 160, 48), &app).view_inner;
+    w.request(Request {
+        seq: 1,
+        camera: app.camera,
+        settings: app.settings,
+        cells: (area.width, area.height),
+        cell_pixels: (1, 2),
+    });
+    let deadline = Instant::now() + Duration::from_secs(30);
+    let frame = loop {
+        assert!(Instant::now() < deadline, "no complete frame in 30 s");
+        match w.recv_timeout(Duration::from_millis(200)) {
+            Some(Report::Frame(f)) if f.status.pending == 0 => break f,
+            Some(Report::Error(e)) => panic!("worker error: {e}"),
+            _ => {}
+        }
+    };
+    assert_eq!(frame.seq, 1);
+    assert_eq!(frame.cells, (area.width, area.height));
+    assert_eq!(frame.status.levels, Some((1, 1)));
+    let expected: u64 = app
+        .dataset
+        .parts
+        .iter()
+        .map(|p| p.levels[1].points.unwrap())
+        .sum();
+    assert_eq!(
+        frame.status.points, expected,
+        "level 1 of both parts, all in view"
+    );
+    assert!(frame.status.renderer.starts_with("cpu"));
+    assert_eq!(frame.frame.width as u16, area.width);
+    app.frame = frame.status.clone();
+    let lines = screen(&app, Some(&frame.image));
+    let pane: String = lines[area.y as usize..(area.y + area.height) as usize]
+        .iter()
+        .map(|l| {
+            l.chars()
+                .skip(area.x as usize)
+                .take(area.width as usize)
+                .collect::<String>()
+        })
+        .collect();
+    assert!(
+        pane.contains('▀') || pane.contains('▄'),
+        "no half-blocks in the view"
+    );
+    let text = lines.join("\n");
+    assert!(
+        text.contains("loaded"),
+        "levels panel shows what is cached:\n{text}"
+    );
+}
+
+/// tmux on a private socket, killed on drop.
+struct Tmux {
+    socket: String,
+}
+
+impl Tmux {
+    fn cmd(&self) -> Command {
+        let mut c = Command::new("tmux");
+        c.args(["-L", &self.socket, "-f", "/dev/null"]);
+        c
+    }
+    fn run(&self, args: &[&str]) -> String {
+        let o = self.cmd().args(args).output().expect("tmux runs");
+        assert!(
+            o.status.success(),
+            "tmux {args:?}: {}",
+            String::from_utf8_lossy(&o.stderr)
+        );
+        String::from_utf8_lossy(&o.stdout).into_owned()
+    }
+    fn capture(&self) -> String {
+        self.run(&["capture-pane", "-p", "-t", "t"])
+    }
+    /// Polls the pane until `pred` holds, at most `secs` seconds.
+    fn wait_for(&self, what: &str, secs: u64, pred: impl Fn(&str) -> bool) -> String {
+        let deadline = Instant::now() + Duration::from_secs(secs);
+        loop {
+            let s = self.capture();
+            if pred(&s) {
+                return s;
+            }
+            assert!(
+                Instant::now() < deadline,
+                "waited {secs} s for {what}; the pane shows:\n{s}"
+            );
+            std::thread::sleep(Duration::from_millis(100));
+        }
+    }
+}
+
+impl Drop for Tmux {
+    fn drop(&mut self) {
+        let _ = self.cmd().arg("kill-server").output();
+    }
+}
+
+#[test]
+fn the_binary_runs_in_tmux_and_restores_the_terminal() {
+    if !common::tool_available("tmux", "-V") {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("scan.tif");
+    store::write_part(
+        &path,
+        &pcimg::synth::scene(70_000, 5),
+        &WriteOptions::default(),
+    )
+    .unwrap();
+    let tmux = Tmux {
+        socket: format!("pcimg-test-{}", std::process::id()),
+    };
+    tmux.run(&[
+        "new-session",
+        "-d",
+        "-s",
+        "t",
+        "-x",
+        "150",
+        "-y",
+        "45",
+        "env",
+        "PS1=$ ",
+        "sh",
+    ]);
+    let line = format!(
+        "NODEVICE_SELECT=1 '{}' inspect '{}' --renderer cpu; echo EXIT=$?; stty -a",
+        env!("CARGO_BIN_EXE_pcimg"),
+        path.display()
+    );
+    tmux.run(&["send-keys", "-t", "t", "-l", &line]);
+    tmux.run(&["send-keys", "-t", "t", "Enter"]);
+    tmux.wait_for("the panels", 10, |s| {
+        s.contains("levels of part 1") && s.contains("half-blocks") && s.contains("fps")
+    });
+    tmux.run(&["send-keys", "-t", "t", "1"]);
+    tmux.wait_for("the status line to show the pinned level", 5, |s| {
+        s.contains("pinned level 1 | level 1 |")
+    });
+    // A smaller window: the panels and the frame follow.
+    tmux.run(&["resize-window", "-t", "t", "-x", "100", "-y", "30"]);
+    tmux.wait_for("a frame at the new size", 5, |s| {
+        let rows: Vec<&str> = s.lines().collect();
+        rows.len() >= 29
+            && rows[0].chars().count() == 100
+            && rows[0].contains("view")
+            && s.contains('▀')
+    });
+    tmux.run(&["send-keys", "-t", "t", "q"]);
+    let s = tmux.wait_for("the shell", 5, |s| {
+        s.contains("EXIT=") && s.contains("icanon")
+    });
+    assert!(s.contains("EXIT=0"), "{s}");
+    let words: Vec<&str> = s.split_whitespace().collect();
+    assert!(words.contains(&"icanon") && words.contains(&"echo"), "{s}");
+    assert!(
+        !words.contains(&"-icanon") && !words.contains(&"-echo"),
+        "{s}"
+    );
+    assert!(
+        !s.contains("levels of part 1"),
+        "the alternate screen is left: {s}"
+    );
+}
