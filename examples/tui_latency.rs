@@ -4,7 +4,7 @@
 //! byte counter (what would reach the terminal).
 //!
 //! ```sh
-//! cargo run --release --example tui_latency -- [POINTS] [PRESSES]
+//! cargo run --release --example tui_latency -- [POINTS] [PRESSES] [auto|cpu|gpu]
 //! ```
 //!
 //! Each press orbits the camera by one step (the `→` key), sends the request, waits
@@ -61,6 +61,9 @@ fn main() -> anyhow::Result<()> {
     let mut args = std::env::args().skip(1);
     let points: u64 = args.next().map_or(Ok(4_000_000), |s| s.parse())?;
     let presses: usize = args.next().map_or(Ok(15), |s| s.parse())?;
+    let renderer: RendererChoice = args
+        .next()
+        .map_or(Ok(RendererChoice::Auto), |s| s.parse())?;
     let dir = tempfile::tempdir()?;
     let path = dir.path().join("scene.tif");
     let t = Instant::now();
@@ -91,15 +94,22 @@ fn main() -> anyhow::Result<()> {
             WorkerOptions {
                 graphics,
                 in_tmux: false,
-                renderer: RendererChoice::Auto,
+                renderer,
                 memory: 2 << 30,
                 load_threads: 2,
             },
         );
         let mut app = App::new(ds.clone(), Camera::fit(&ds.bounds()), Settings::default());
         let bytes = Arc::new(AtomicU64::new(0));
-        let mut term = Terminal::new(CrosstermBackend::new(Counter(bytes.clone())))?;
-        term.resize(ratatui::layout::Rect::new(0, 0, cells.0, cells.1))?;
+        // A fixed viewport: there is no real terminal to ask for its size.
+        let mut term = Terminal::with_options(
+            CrosstermBackend::new(Counter(bytes.clone())),
+            ratatui::TerminalOptions {
+                viewport: ratatui::Viewport::Fixed(ratatui::layout::Rect::new(
+                    0, 0, cells.0, cells.1,
+                )),
+            },
+        )?;
         let request = |app: &App, seq| Request {
             seq,
             camera: app.camera,

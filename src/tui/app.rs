@@ -289,7 +289,11 @@ impl App {
             f.render_ms,
             f.encode_ms,
             self.fps,
-            crate::text::sanitize(&f.renderer),
+            // "wgpu Vulkan: llvmpipe (LLVM 15.0.6, 256 bits) (Mesa …)" → "wgpu Vulkan: llvmpipe".
+            crate::text::sanitize(match f.renderer.split_once(" (") {
+                Some((short, _)) if f.renderer.starts_with("wgpu") => short,
+                _ => &f.renderer,
+            }),
         )
     }
 }
