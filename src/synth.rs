@@ -60,26 +60,26 @@ fn point(seed: u64, i: u64) -> ([f64; 3], f32) {
     let y = r.f64() * SCENE_SIZE;
     let ground = terrain(x, y);
     let cell = ((x / 50.0).floor() as i64, (y / 50.0).floor() as i64);
-    if kind < 0.25 {
-        if let Some((bx, by, w, d, h)) = building(cell.0, cell.1) {
-            // A point on the building: roof or one of four walls.
-            let face = r.f64();
-            let (u, v) = (r.f64(), r.f64());
-            let base = terrain(bx, by);
-            let p = if face < 0.5 {
-                [bx + u * w, by + v * d, base + h]
-            } else if face < 0.625 {
-                [bx, by + u * d, base + v * h]
-            } else if face < 0.75 {
-                [bx + w, by + u * d, base + v * h]
-            } else if face < 0.875 {
-                [bx + u * w, by, base + v * h]
-            } else {
-                [bx + u * w, by + d, base + v * h]
-            };
-            let intensity = if face < 0.5 { 180.0 } else { 120.0 } + 20.0 * r.f64();
-            return (p, intensity as f32);
-        }
+    if kind < 0.25
+        && let Some((bx, by, w, d, h)) = building(cell.0, cell.1)
+    {
+        // A point on the building: roof or one of four walls.
+        let face = r.f64();
+        let (u, v) = (r.f64(), r.f64());
+        let base = terrain(bx, by);
+        let p = if face < 0.5 {
+            [bx + u * w, by + v * d, base + h]
+        } else if face < 0.625 {
+            [bx, by + u * d, base + v * h]
+        } else if face < 0.75 {
+            [bx + w, by + u * d, base + v * h]
+        } else if face < 0.875 {
+            [bx + u * w, by, base + v * h]
+        } else {
+            [bx + u * w, by + d, base + v * h]
+        };
+        let intensity = if face < 0.5 { 180.0 } else { 120.0 } + 20.0 * r.f64();
+        return (p, intensity as f32);
     }
     if kind > 0.9 {
         // Vegetation-like clutter: blobs of points above the ground.

@@ -386,6 +386,10 @@ fn fuzz_regressions_stay_bounded() {
                 let _ = part.read_level(level, &bands);
             }
         }
-        assert!(t.elapsed().as_secs() < 10, "{} took too long", path.display());
+        assert!(
+            t.elapsed().as_secs() < 10,
+            "{} took too long",
+            path.display()
+        );
     }
 }

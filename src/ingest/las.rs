@@ -370,13 +370,13 @@ fn append_columns(pd: &las::PointData, cols: &mut PointColumns, gps_offset: &mut
             a.values.extend(t.map(|x| (x - off) as f32));
         }
     }
-    if let Some(rgb) = pd.rgb() {
-        if let (Some(r), Some(g), Some(b)) = (next(), next(), next()) {
-            for (cr, cg, cb) in rgb {
-                r.values.push(f32::from(cr));
-                g.values.push(f32::from(cg));
-                b.values.push(f32::from(cb));
-            }
+    if let Some(rgb) = pd.rgb()
+        && let (Some(r), Some(g), Some(b)) = (next(), next(), next())
+    {
+        for (cr, cg, cb) in rgb {
+            r.values.push(f32::from(cr));
+            g.values.push(f32::from(cg));
+            b.values.push(f32::from(cb));
         }
     }
     if let Some(nir) = pd.nir()

@@ -67,10 +67,9 @@ pub fn colorize(t: &LoadedTile, mode: ColorMode, r: &ColorRanges) -> Vec<u32> {
                 t.attribute("red"),
                 t.attribute("green"),
                 t.attribute("blue"),
-            ) {
-                if let Ok(c) = color::rgb_scaled(red, g, b, r.rgb_scale) {
-                    return c;
-                }
+            ) && let Ok(c) = color::rgb_scaled(red, g, b, r.rgb_scale)
+            {
+                return c;
             }
             if t.attribute("intensity").is_some() {
                 return colorize(t, ColorMode::Intensity, r);
