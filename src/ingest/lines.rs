@@ -609,6 +609,46 @@ impl LineEngine {
     }
 }
 
+/// A reader of line-oriented points (text files, ASCII PLY vertex lines): the
+/// memory map, the line engine over it, and the consumed-page release.
+pub struct LineReader {
+    pub(crate) info: super::SourceInfo,
+    pub(crate) map: memmap2::Mmap,
+    pub(crate) engine: LineEngine,
+    pub(crate) released: usize,
+}
+
+impl LineReader {
+    pub(crate) fn new(info: super::SourceInfo, map: memmap2::Mmap, engine: LineEngine) -> Self {
+        LineReader {
+            info,
+            map,
+            engine,
+            released: 0,
+        }
+    }
+}
+
+impl super::PointReader for LineReader {
+    fn info(&self) -> &super::SourceInfo {
+        &self.info
+    }
+
+    fn next_chunk(&mut self) -> Result<Option<PointColumns>, IngestError> {
+        let r = self.engine.next_chunk(&self.map);
+        super::release_consumed(&self.map, &mut self.released, self.engine.pos);
+        r
+    }
+
+    fn bytes_done(&self) -> u64 {
+        self.engine.pos as u64
+    }
+
+    fn skipped(&self) -> u64 {
+        self.engine.skipped
+    }
+}
+
 #[cfg(test)]
 mod tests {
     #[test]

@@ -23,7 +23,7 @@ use rayon::prelude::*;
 
 use super::color::{ColorNormalizer, is_color};
 use super::error::IngestError;
-use super::lines::{Layout, LineEngine, Role};
+use super::lines::{Layout, LineEngine, LineReader, Role};
 use super::{PointReader, ReadOptions, SourceInfo, canonical_name};
 use crate::points::{Attribute, PointColumns};
 
@@ -370,12 +370,7 @@ pub fn open(path: &Path, opts: &ReadOptions) -> Result<Box<dyn PointReader>, Ing
             colors: ColorNormalizer::new(plan.float_color),
             pending: Default::default(),
         };
-        return Ok(Box::new(AsciiPly {
-            info,
-            map,
-            engine,
-            released: 0,
-        }));
+        return Ok(Box::new(LineReader::new(info, map, engine)));
     }
     let be = header.encoding == Encoding::BinaryBe;
     // Skip the elements before the vertex element.
@@ -473,31 +468,6 @@ fn skip_binary_element(
         }
     }
     Ok(p as u64)
-}
-
-/// ASCII PLY: the vertex lines through the text line engine.
-struct AsciiPly {
-    info: SourceInfo,
-    map: Mmap,
-    engine: LineEngine,
-    released: usize,
-}
-
-impl PointReader for AsciiPly {
-    fn info(&self) -> &SourceInfo {
-        &self.info
-    }
-    fn next_chunk(&mut self) -> Result<Option<PointColumns>, IngestError> {
-        let r = self.engine.next_chunk(&self.map);
-        super::release_consumed(&self.map, &mut self.released, self.engine.pos);
-        r
-    }
-    fn bytes_done(&self) -> u64 {
-        self.engine.pos as u64
-    }
-    fn skipped(&self) -> u64 {
-        self.engine.skipped
-    }
 }
 
 /// Binary PLY: fixed-stride records.

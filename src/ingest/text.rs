@@ -27,13 +27,10 @@
 
 use std::path::Path;
 
-use memmap2::Mmap;
-
 use super::color::ColorNormalizer;
 use super::error::IngestError;
-use super::lines::{Layout, LineEngine, is_sep, sample_bytes_per_line};
-use super::{PointReader, ReadOptions, SourceInfo, canonical_name};
-use crate::points::PointColumns;
+use super::lines::{Layout, LineEngine, LineReader, is_sep, sample_bytes_per_line};
+use super::{ReadOptions, SourceInfo, canonical_name};
 
 /// Splits a line into tokens (separators as in the data).
 fn tokens(line: &[u8]) -> impl Iterator<Item = &[u8]> {
@@ -143,13 +140,8 @@ fn scan_preamble(data: &[u8], start: usize) -> Preamble {
     pre
 }
 
-/// Reader for text point clouds.
-pub struct TextReader {
-    info: SourceInfo,
-    map: Mmap,
-    engine: LineEngine,
-    released: usize,
-}
+/// Reader for text point clouds (the line reader shared with ASCII PLY).
+pub type TextReader = LineReader;
 
 impl TextReader {
     pub fn open(path: &Path, opts: &ReadOptions) -> Result<TextReader, IngestError> {
@@ -235,32 +227,7 @@ impl TextReader {
             attribute_names: layout.attr_names.clone(),
             file_bytes: data.len() as u64,
         };
-        Ok(TextReader {
-            info,
-            map,
-            engine,
-            released: 0,
-        })
-    }
-}
-
-impl PointReader for TextReader {
-    fn info(&self) -> &SourceInfo {
-        &self.info
-    }
-
-    fn next_chunk(&mut self) -> Result<Option<PointColumns>, IngestError> {
-        let r = self.engine.next_chunk(&self.map);
-        super::release_consumed(&self.map, &mut self.released, self.engine.pos);
-        r
-    }
-
-    fn bytes_done(&self) -> u64 {
-        self.engine.pos as u64
-    }
-
-    fn skipped(&self) -> u64 {
-        self.engine.skipped
+        Ok(LineReader::new(info, map, engine))
     }
 }
 
