@@ -245,3 +245,64 @@ fn fewer_bands_are_refused() {
     assert!(e.contains("two.tif"), "{e}");
     assert!(e.contains("2 band") || e.contains("lists 5 bands"), "{e}");
 }
+
+#[test]
+fn gdal_reads_the_paper_layout() {
+    if !gdal() {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("paper.tif");
+    let n = 300_000usize;
+    let opts = WriteOptions {
+        layout: pcimg::store::Layout::Paper,
+        ..Default::default()
+    };
+    let pts = common::random_cloud(n, 42, 0);
+    write_part(&path, &pts, &opts).unwrap();
+    let info: serde_json::Value =
+        serde_json::from_str(&run("gdalinfo", &["-json", path.to_str().unwrap()])).unwrap();
+    assert_eq!(info["size"], serde_json::json!([1024, 1024]));
+    assert_eq!(info["metadata"][""]["LAYOUT"], "paper");
+    let origin = Part::open(&path).unwrap().meta.origin;
+    // Pixel (x, y) of level k holds input point 2^k·y·1024 + 2^k·x.
+    for (level, x, y) in [
+        (0u32, 0u32, 0u32),
+        (0, 1023, 5),
+        (0, 15, 292),
+        (1, 7, 3),
+        (2, 255, 72),
+    ] {
+        let i = ((y << level) * 1024 + (x << level)) as usize;
+        for (band, want) in [
+            (1, pts.x[i] - origin[0]),
+            (4, pts.attributes[0].values[i] as f64),
+        ] {
+            let mut args = vec!["-valonly".to_string(), "-b".into(), band.to_string()];
+            if level > 0 {
+                args.extend(["-overview".into(), level.to_string()]);
+            }
+            let p = path.to_str().unwrap().to_string();
+            args.extend([p, (x << level).to_string(), (y << level).to_string()]);
+            let out = run(
+                "gdallocationinfo",
+                &args.iter().map(String::as_str).collect::<Vec<_>>(),
+            );
+            let v: f64 = out
+                .trim()
+                .parse()
+                .unwrap_or_else(|_| panic!("value '{out}'"));
+            // gdallocationinfo prints the stored value (without the band offset).
+            assert!(
+                (v - want).abs() <= want.abs() * 1e-6 + 1e-3,
+                "level {level} ({x}, {y}) band {band}: gdal {v}, point {i} {want}"
+            );
+        }
+    }
+    // Past the last point (row 292, column 992 onward) the pixel is nodata.
+    let out = run(
+        "gdallocationinfo",
+        &["-valonly", "-b", "1", path.to_str().unwrap(), "1000", "292"],
+    );
+    assert!(out.trim().eq_ignore_ascii_case("nan"), "{out}");
+}

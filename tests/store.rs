@@ -393,3 +393,70 @@ fn fuzz_regressions_stay_bounded() {
         );
     }
 }
+
+/// The paper's layout: level 0 reads back in input order, every level `k` is exactly
+/// the input points at pixels (2^k·x, 2^k·y) of the row-major image, the tile index
+/// counts and bounds what each tile holds.
+fn check_paper_layout(pts: &PointColumns, compression: Compression) {
+    use pcimg::store::{Layout, paper};
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("paper.tif");
+    let opts = WriteOptions {
+        compression,
+        layout: Layout::Paper,
+        ..Default::default()
+    };
+    let summary = write_part(&path, pts, &opts).unwrap();
+    let part = Part::open(&path).unwrap();
+    assert_eq!(part.meta.layout, "paper");
+    let n = pts.len() as u64;
+    let g = Geometry::for_points(n);
+    assert_eq!(part.levels.len(), g.levels());
+    let origin = part.meta.origin;
+    let all: Vec<usize> = (0..part.bands.len()).collect();
+    for (k, level) in part.levels.iter().enumerate() {
+        let want = paper::level_indices(n, k);
+        assert_eq!(level.points, Some(want.len() as u64), "level {k}");
+        assert_eq!(summary.level_points[k], want.len() as u64);
+        let got = part.read_level(k, &all).unwrap();
+        assert_eq!(got.len(), want.len(), "level {k}");
+        for (j, &i) in want.iter().enumerate() {
+            let i = i as usize;
+            let xyz = [pts.x[i], pts.y[i], pts.z[i]];
+            for a in 0..3 {
+                assert_eq!(
+                    got.offsets[a] + got.columns[a][j] as f64,
+                    stored(xyz[a], origin[a]),
+                    "level {k} point {j}"
+                );
+            }
+            for (b, attr) in pts.attributes.iter().enumerate() {
+                assert_eq!(got.columns[3 + b][j], attr.values[i]);
+            }
+        }
+        // Tiles: counts as indexed, points inside the bounds, together the level.
+        let mut from_tiles = 0;
+        for t in &level.tiles {
+            let p = part.read_tiles(k, &[t.index], &[0, 1, 2]).unwrap();
+            assert_eq!(p.tile_points, [t.points.unwrap()]);
+            from_tiles += p.len();
+            for i in 0..p.len() {
+                for a in 0..3 {
+                    let v = p.offsets[a] + p.columns[a][i] as f64;
+                    assert!(v >= t.bounds.min[a] && v <= t.bounds.max[a]);
+                }
+            }
+        }
+        assert_eq!(from_tiles, want.len());
+    }
+}
+
+#[test]
+fn paper_layout_is_row_major_with_a_strided_pyramid() {
+    for n in [0usize, 1, 5, 65_537] {
+        check_paper_layout(&random_cloud(n, n as u64, 3), Compression::None);
+    }
+    // 3 levels; rows of 1024 points, the last one partial.
+    check_paper_layout(&random_cloud(300_001, 9, 0), Compression::None);
+    check_paper_layout(&random_cloud(70_000, 2, 0), Compression::Deflate);
+}

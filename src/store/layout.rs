@@ -15,15 +15,17 @@ pub enum Layout {
     /// Hilbert order with centroid representatives (the default).
     #[default]
     Hilbert,
-    /// The paper's layout: input order, no representative selection.
+    /// The paper's layout: input order, row-major image, plain nearest-neighbour
+    /// pyramid (`super::paper`).
     Paper,
 }
 
 impl Layout {
+    /// The value of the `LAYOUT` metadata item.
     pub fn name(self) -> &'static str {
         match self {
-            Layout::Hilbert => "hilbert-centroid",
-            Layout::Paper => "paper",
+            Layout::Hilbert => super::spec::layout::HILBERT,
+            Layout::Paper => super::spec::layout::PAPER,
         }
     }
 }
@@ -202,6 +204,17 @@ pub fn sort_u64(v: &mut Vec<u64>) {
     }
     slices.par_iter_mut().for_each(|s| s.sort_unstable());
     *v = out;
+}
+
+/// Levels over which [`choose_representatives`] runs for `n` points: every level
+/// whose blocks can hold more than one sub-block, beyond the stored pyramid too, so
+/// any stride-`4^k` subset of a stored level (of its last tile, say) is even as well.
+pub fn representative_levels(n: usize) -> usize {
+    let mut levels = 1;
+    while (1u128 << (2 * (levels - 1))) < n as u128 {
+        levels += 1;
+    }
+    levels
 }
 
 /// Rearranges points (`pos` and their source indices `perm`, already in Hilbert

@@ -358,7 +358,8 @@ impl Part {
                 && level.height % tw == 0
                 && level.tiles_across.is_power_of_two()
                 && level.tiles_across == level.tiles_down;
-            if z_ok {
+            // The paper's layout is row-major: tiles read in raster order.
+            if z_ok && meta.layout != spec::layout::PAPER {
                 level.z_lut = Some(
                     lut_cache
                         .entry(tw)
@@ -573,14 +574,18 @@ impl Part {
             .collect()
     }
 
-    /// Reads every point of `level` for `bands`.
+    /// Reads every point of `level` for `bands` (a paper-layout part: in image row
+    /// order, so level 0 comes back in input order).
     pub fn read_level(&self, level: usize, bands: &[usize]) -> Result<Points> {
+        if self.row_major() {
+            return self.read_level_row_major(level, bands);
+        }
         let l = self.level(level)?;
         let tiles: Vec<u32> = l.tiles.iter().map(|t| t.index).collect();
         self.read_tiles(level, &tiles, bands)
     }
 
-    fn level(&self, level: usize) -> Result<&Level> {
+    pub(super) fn level(&self, level: usize) -> Result<&Level> {
         self.levels.get(level).ok_or_else(|| {
             StoreError::new(
                 &self.path,
@@ -592,6 +597,9 @@ impl Part {
     /// Reads the points of the tiles `tiles` (raster indices) of `level` for `bands`,
     /// tile after tile in the order given.
     pub fn read_tiles(&self, level: usize, tiles: &[u32], bands: &[usize]) -> Result<Points> {
+        if self.row_major() {
+            return self.read_tiles_row_major(level, tiles, bands);
+        }
         let l = self.level(level)?;
         if let Some(&b) = bands.iter().find(|&&b| b >= self.bands.len()) {
             return Err(StoreError::new(
@@ -745,7 +753,7 @@ impl Part {
     }
 
     /// Decodes one tile: per requested band, the tile's points in reading order.
-    fn read_tile(
+    pub(super) fn read_tile(
         &self,
         l: &Level,
         t: u32,

@@ -72,6 +72,16 @@ pub mod key {
     pub const TILE_INDEX_DOMAIN: &str = "pcimg";
 }
 
+/// Values of the `LAYOUT` item: how points are placed in the image. A part without
+/// the item is read as [`layout::HILBERT`].
+pub mod layout {
+    /// Hilbert order along the image's Z-order curve, centroid representatives.
+    pub const HILBERT: &str = "hilbert-centroid";
+    /// The paper's placement: input order, row-major, plain nearest-neighbour
+    /// pyramid (level k keeps pixel (2^k·i, 2^k·j) of level 0).
+    pub const PAPER: &str = "paper";
+}
+
 /// Magic and version of the binary tile index blob.
 pub const TILE_INDEX_MAGIC: &[u8; 4] = b"PCTI";
 pub const TILE_INDEX_VERSION: u32 = 1;

@@ -6,6 +6,7 @@ use super::codec::{self, Compression};
 use super::error::{Result, StoreError};
 use super::layout::{self, Layout};
 use super::metadata::{self, Item, LevelIndex, TileEntry};
+use super::paper;
 use super::spec::{self, TILE_PIXELS, TILE_SIZE, key, tag};
 use super::zorder::{Geometry, tile_z_to_raster};
 use crate::points::{Bounds, PointColumns};
@@ -91,6 +92,7 @@ pub fn quantization_bound(bounds: &Bounds, origin: [f64; 3]) -> f64 {
 /// Columns of a part in image order, ready to be tiled.
 struct Arranged {
     geometry: Geometry,
+    layout: Layout,
     bands: Vec<Vec<f32>>,
     names: Vec<String>,
     offsets: Vec<f64>,
@@ -205,7 +207,11 @@ fn arrange(path: &Path, pts: &PointColumns, layout: Layout, ph: &mut Phases) -> 
             drop(pos);
             ph.mark("gather positions");
             let mut perm = perm;
-            layout::choose_representatives(&mut sorted, &mut perm, geometry.levels());
+            layout::choose_representatives(
+                &mut sorted,
+                &mut perm,
+                layout::representative_levels(n),
+            );
             ph.mark("representatives");
             (sorted, perm)
         }
@@ -228,6 +234,7 @@ fn arrange(path: &Path, pts: &PointColumns, layout: Layout, ph: &mut Phases) -> 
     ph.mark("gather bands");
     Ok(Arranged {
         geometry,
+        layout,
         bands,
         names,
         offsets,
@@ -241,6 +248,9 @@ fn arrange(path: &Path, pts: &PointColumns, layout: Layout, ph: &mut Phases) -> 
 /// coarser tile the union of the four tiles below it.
 fn tile_index(a: &Arranged) -> Vec<LevelIndex> {
     let g = a.geometry;
+    if a.layout == Layout::Paper {
+        return paper::tile_index(&a.bands, a.origin, g);
+    }
     let o = a.origin;
     let mut levels: Vec<LevelIndex> = Vec::with_capacity(g.levels());
     let level0: Vec<Bounds> = (0..g.filled_tiles(0) as usize)
@@ -300,8 +310,9 @@ fn metadata_xml(a: &Arranged, opts: &WriteOptions, index: &[LevelIndex]) -> Stri
         Item::dataset(key::BOUNDS_MAX, metadata::f64s(&a.bounds.max)),
         Item::dataset(
             key::LEVEL_POINTS,
-            (0..g.levels())
-                .map(|l| g.level_points(l).to_string())
+            level_points(index)
+                .iter()
+                .map(u64::to_string)
                 .collect::<Vec<_>>()
                 .join(" "),
         ),
@@ -332,6 +343,14 @@ fn metadata_xml(a: &Arranged, opts: &WriteOptions, index: &[LevelIndex]) -> Stri
         ..Item::dataset(key::TILE_INDEX, metadata::encode_tile_index(index))
     });
     metadata::to_xml(&items)
+}
+
+/// Points per level, from the tile index.
+fn level_points(index: &[LevelIndex]) -> Vec<u64> {
+    index
+        .iter()
+        .map(|l| l.tiles.iter().map(|t| t.points as u64).sum())
+        .collect()
 }
 
 /// Upper bound of the file size, to choose between classic TIFF and BigTIFF.
@@ -390,9 +409,9 @@ pub fn write_part(path: &Path, pts: &PointColumns, opts: &WriteOptions) -> Resul
     let mut w = BufWriter::with_capacity(64 << 10, file);
     let io = |e: tiff::TiffError| StoreError::new(path, format!("write failed: {e}"));
     if bigtiff {
-        encode::<_, TiffKindBig>(&mut w, &a, opts, &xml, true).map_err(io)?
+        encode::<_, TiffKindBig>(&mut w, &a, opts, &xml, &index, true).map_err(io)?
     } else {
-        encode::<_, TiffKindStandard>(&mut w, &a, opts, &xml, false).map_err(io)?
+        encode::<_, TiffKindStandard>(&mut w, &a, opts, &xml, &index, false).map_err(io)?
     }
     w.flush()
         .map_err(|e| StoreError::new(path, format!("write failed: {e}")))?;
@@ -412,7 +431,7 @@ pub fn write_part(path: &Path, pts: &PointColumns, opts: &WriteOptions) -> Resul
     Ok(PartSummary {
         path: path.to_path_buf(),
         points: g.points,
-        level_points: (0..g.levels()).map(|l| g.level_points(l)).collect(),
+        level_points: level_points(&index),
         bytes,
         bounds: a.bounds,
         origin: a.origin,
@@ -436,6 +455,7 @@ fn encode<W: Write + Seek, K: TiffKind>(
     a: &Arranged,
     opts: &WriteOptions,
     xml: &str,
+    index: &[LevelIndex],
     big: bool,
 ) -> tiff::TiffResult<()> {
     let g = a.geometry;
@@ -448,7 +468,9 @@ fn encode<W: Write + Seek, K: TiffKind>(
         let per_band = across * across;
         let mut offsets = vec![0u64; per_band * nb];
         let mut counts = vec![0u64; per_band * nb];
-        let filled = g.filled_tiles(level) as usize;
+        // Tiles holding points: in Z-order (Hilbert layout) or raster order (paper).
+        let tiles = &index[level].tiles;
+        let filled = tiles.len();
         let stride = 1usize << (2 * level);
         let mut dir = enc.image_directory()?;
         // Align tile data to 8 bytes so readers can view planes in place.
@@ -464,6 +486,13 @@ fn encode<W: Write + Seek, K: TiffKind>(
             let encoded: Vec<Encoded> = jobs
                 .par_iter()
                 .map(|&(t, b)| {
+                    if a.layout == Layout::Paper {
+                        let buf = paper::tile_pixels(&a.bands[b], g, level, tiles[t].index);
+                        return match opts.compression {
+                            Compression::None => Encoded::Raw(buf),
+                            c => Encoded::Bytes(codec::encode(&buf, TILE_SIZE as usize, c)),
+                        };
+                    }
                     let mut buf = vec![f32::NAN; TILE_PIXELS];
                     let count = g.tile_points(level, t as u64) as usize;
                     let src = &a.bands[b];
@@ -488,7 +517,7 @@ fn encode<W: Write + Seek, K: TiffKind>(
                     Encoded::Raw(v) => bytemuck::cast_slice(v),
                     Encoded::Bytes(v) => v,
                 };
-                let r = g.tile_raster_index(level, t as u64) as usize;
+                let r = tiles[t].index as usize;
                 offsets[b * per_band + r] = dir.write_data(bytes)?;
                 counts[b * per_band + r] = bytes.len() as u64;
             }
