@@ -98,9 +98,74 @@ fn point(seed: u64, i: u64) -> ([f64; 3], f32) {
     ([x, y, ground + noise], (70.0 + 40.0 * r.f64()) as f32)
 }
 
+/// The order in which points are listed.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum Order {
+    /// Generation order: every point anywhere in the scene (spatially random).
+    #[default]
+    Random,
+    /// Like an airborne scan: flight strips 100 m wide flown back and forth along
+    /// x, each a run of scan lines across the strip (zigzag), as a scanner lists
+    /// them; consecutive points are neighbours, as in the paper's input file.
+    Scan,
+}
+
+impl Order {
+    pub fn parse(s: &str) -> Result<Order, String> {
+        match s {
+            "random" => Ok(Order::Random),
+            "scan" => Ok(Order::Scan),
+            _ => Err(format!("unknown point order '{s}' (random or scan)")),
+        }
+    }
+}
+
+/// Width of a flight strip in metres (the scene holds four).
+const STRIP: f64 = 100.0;
+
+/// Generation indices of `n` points in `order` (`None`: generation order).
+fn permutation(n: u64, seed: u64, order: Order) -> Option<Vec<u32>> {
+    if order == Order::Random || n == 0 {
+        return None;
+    }
+    // Scan lines one mean point spacing apart; position across the strip in 13 bits.
+    let lines = ((n as f64).sqrt().ceil() as u64).clamp(1, 1 << 16);
+    let line_len = SCENE_SIZE / lines as f64;
+    let mut keys: Vec<u64> = (0..n)
+        .into_par_iter()
+        .map(|i| {
+            let (p, _) = point(seed, i);
+            let (x, y) = (p[0].clamp(0.0, SCENE_SIZE), p[1].clamp(0.0, SCENE_SIZE));
+            let strip = ((y / STRIP) as u64).min((SCENE_SIZE / STRIP) as u64 - 1);
+            let mut line = ((x / line_len) as u64).min(lines - 1);
+            if strip % 2 == 1 {
+                line = lines - 1 - line;
+            }
+            let across = (y - strip as f64 * STRIP) / STRIP;
+            let mut q = ((across * 8191.0) as u64).min(8191);
+            if line % 2 == 1 {
+                q = 8191 - q;
+            }
+            (((strip << 29) | (line << 13) | q) << 32) | i
+        })
+        .collect();
+    keys.par_sort_unstable();
+    Some(keys.into_par_iter().map(|k| k as u32).collect())
+}
+
 /// `n` points of the synthetic scene with an `intensity` attribute.
 pub fn scene(n: u64, seed: u64) -> PointColumns {
-    let pts: Vec<([f64; 3], f32)> = (0..n).into_par_iter().map(|i| point(seed, i)).collect();
+    scene_in_order(n, seed, Order::Random)
+}
+
+/// `n` points of the synthetic scene (the same points as [`scene`]) listed in `order`.
+pub fn scene_in_order(n: u64, seed: u64, order: Order) -> PointColumns {
+    let perm = permutation(n, seed, order);
+    let at = |i: u64| perm.as_ref().map_or(i, |p| p[i as usize] as u64);
+    let pts: Vec<([f64; 3], f32)> = (0..n)
+        .into_par_iter()
+        .map(|i| point(seed, at(i)))
+        .collect();
     let mut c = PointColumns {
         x: Vec::with_capacity(n as usize),
         y: Vec::with_capacity(n as usize),
@@ -123,6 +188,23 @@ mod tests {
         let a = super::scene(1000, 7);
         assert_eq!(a, super::scene(1000, 7));
         assert_ne!(a, super::scene(1000, 8));
+        // Scan order: the same points, consecutive ones close together.
+        let s = super::scene_in_order(1000, 7, super::Order::Scan);
+        let key = |c: &crate::points::PointColumns, i: usize| {
+            [c.x[i].to_bits(), c.y[i].to_bits(), c.z[i].to_bits()]
+        };
+        let mut ka: Vec<_> = (0..1000).map(|i| key(&a, i)).collect();
+        let mut ks: Vec<_> = (0..1000).map(|i| key(&s, i)).collect();
+        ka.sort();
+        ks.sort();
+        assert_eq!(ka, ks);
+        let step = |c: &crate::points::PointColumns| {
+            (1..1000)
+                .map(|i| (c.x[i] - c.x[i - 1]).hypot(c.y[i] - c.y[i - 1]))
+                .sum::<f64>()
+                / 999.0
+        };
+        assert!(step(&s) * 5.0 < step(&a), "{} vs {}", step(&s), step(&a));
         let b = a.bounds();
         assert!(
             b.min[0] >= super::SCENE_ORIGIN[0] - 5.0 && b.max[0] <= super::SCENE_ORIGIN[0] + 405.0
@@ -162,7 +244,22 @@ const WRITE_BLOCK: u64 = 1 << 20;
 /// Writes `n` points of the scene as text, one `x y z intensity` line each (the
 /// paper's input), atomically. Generation and formatting run in parallel.
 pub fn write_text(path: &std::path::Path, n: u64, seed: u64) -> std::io::Result<u64> {
+    write_text_in_order(path, n, seed, Order::Random)
+}
+
+/// [`write_text`] with the points listed in `order`.
+pub fn write_text_in_order(
+    path: &std::path::Path,
+    n: u64,
+    seed: u64,
+    order: Order,
+) -> std::io::Result<u64> {
     use std::io::Write;
+    if n > u32::MAX as u64 && order != Order::Random {
+        return Err(std::io::Error::other("scan order holds at most 2^32 points"));
+    }
+    let perm = permutation(n, seed, order);
+    let at = |i: u64| perm.as_ref().map_or(i, |p| p[i as usize] as u64);
     let tmp = path.with_extension("partial");
     let mut out = std::io::BufWriter::with_capacity(1 << 20, std::fs::File::create(&tmp)?);
     let mut bytes = 0u64;
@@ -178,7 +275,7 @@ pub fn write_text(path: &std::path::Path, n: u64, seed: u64) -> std::io::Result<
                     let e = (s + (1 << 14)).min(end);
                     let mut b = Vec::with_capacity((e - s) as usize * 48);
                     for i in s..e {
-                        let (p, inten) = point(seed, i);
+                        let (p, inten) = point(seed, at(i));
                         for (k, o) in SCENE_ORIGIN.iter().enumerate() {
                             push_fixed3(&mut b, o + p[k]);
                             b.push(b' ');
@@ -209,6 +306,21 @@ pub fn write_text(path: &std::path::Path, n: u64, seed: u64) -> std::io::Result<
 /// Writes `n` points of the scene as LAS 1.2 (point format 1: intensity, GPS time),
 /// scale 1 mm, atomically.
 pub fn write_las(path: &std::path::Path, n: u64, seed: u64) -> std::io::Result<u64> {
+    write_las_in_order(path, n, seed, Order::Random)
+}
+
+/// [`write_las`] with the points listed in `order`.
+pub fn write_las_in_order(
+    path: &std::path::Path,
+    n: u64,
+    seed: u64,
+    order: Order,
+) -> std::io::Result<u64> {
+    if n > u32::MAX as u64 && order != Order::Random {
+        return Err(std::io::Error::other("scan order holds at most 2^32 points"));
+    }
+    let perm = permutation(n, seed, order);
+    let at = |i: u64| perm.as_ref().map_or(i, |p| p[i as usize] as u64);
     let err = |e: las::Error| std::io::Error::other(e.to_string());
     let tmp = path.with_extension("partial");
     let res = (|| -> std::io::Result<()> {
@@ -230,7 +342,7 @@ pub fn write_las(path: &std::path::Path, n: u64, seed: u64) -> std::io::Result<u
             let end = (start + WRITE_BLOCK).min(n);
             let pts: Vec<([f64; 3], f32)> = (start..end)
                 .into_par_iter()
-                .map(|i| point(seed, i))
+                .map(|i| point(seed, at(i)))
                 .collect();
             for (k, (p, inten)) in pts.into_iter().enumerate() {
                 w.write_point(las::Point {

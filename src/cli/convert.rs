@@ -30,7 +30,8 @@ pub struct Args {
     #[arg(long, default_value = "none", value_parser = Compression::parse)]
     pub compression: Compression,
     /// Point layout: hilbert (Hilbert order, centroid representatives: even levels)
-    /// or paper (file order, as Du & Li 2009).
+    /// or paper (as Du & Li 2009: file order, row-major image, every other row and
+    /// column per level).
     #[arg(long, default_value = "hilbert", value_parser = ["hilbert", "paper"])]
     pub layout: String,
     /// Text columns, e.g. "x y z intensity r g b"; "_" skips a column.

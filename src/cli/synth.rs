@@ -14,6 +14,10 @@ pub struct Args {
     /// Seed: the same seed and count always give the same points.
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
+    /// Point order: random (generation order, spatially random) or scan (flight
+    /// strips and scan lines, neighbours next to each other, like a scanner's file).
+    #[arg(long, default_value = "random", value_parser = crate::synth::Order::parse)]
+    pub order: crate::synth::Order,
     /// Replace an existing file.
     #[arg(long)]
     pub force: bool,
@@ -34,8 +38,8 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         .unwrap_or_default();
     let t = std::time::Instant::now();
     let bytes = match ext.as_str() {
-        "las" => crate::synth::write_las(&a.output, a.points, a.seed),
-        "xyz" | "txt" => crate::synth::write_text(&a.output, a.points, a.seed),
+        "las" => crate::synth::write_las_in_order(&a.output, a.points, a.seed, a.order),
+        "xyz" | "txt" => crate::synth::write_text_in_order(&a.output, a.points, a.seed, a.order),
         _ => anyhow::bail!(
             "{}: unknown output format (use .xyz, .txt or .las)",
             a.output.display()
