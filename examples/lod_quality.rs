@@ -134,7 +134,10 @@ fn load(spec: &str) -> anyhow::Result<(String, PointColumns)> {
         ("synth-scan:", Order::Scan, "synthetic, scan order"),
     ] {
         if let Some(n) = spec.strip_prefix(prefix) {
-            let n: u64 = n.replace('_', "").parse().context("synth:N needs a count")?;
+            let n: u64 = n
+                .replace('_', "")
+                .parse()
+                .context("synth:N needs a count")?;
             return Ok((
                 format!("{label} ({n} pts)"),
                 synth::scene_in_order(n, 1, order),
@@ -226,7 +229,9 @@ fn main() -> anyhow::Result<()> {
         }
     }
     if inputs.is_empty() {
-        bail!("usage: lod_quality [--levels K] [--min-points M] INPUT... (file, synth:N, synth-scan:N)");
+        bail!(
+            "usage: lod_quality [--levels K] [--min-points M] INPUT... (file, synth:N, synth-scan:N)"
+        );
     }
     println!(
         "Distance from every point to the nearest point of the level (dataset units): mean / p95. \

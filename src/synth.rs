@@ -162,10 +162,7 @@ pub fn scene(n: u64, seed: u64) -> PointColumns {
 pub fn scene_in_order(n: u64, seed: u64, order: Order) -> PointColumns {
     let perm = permutation(n, seed, order);
     let at = |i: u64| perm.as_ref().map_or(i, |p| p[i as usize] as u64);
-    let pts: Vec<([f64; 3], f32)> = (0..n)
-        .into_par_iter()
-        .map(|i| point(seed, at(i)))
-        .collect();
+    let pts: Vec<([f64; 3], f32)> = (0..n).into_par_iter().map(|i| point(seed, at(i))).collect();
     let mut c = PointColumns {
         x: Vec::with_capacity(n as usize),
         y: Vec::with_capacity(n as usize),
@@ -256,7 +253,9 @@ pub fn write_text_in_order(
 ) -> std::io::Result<u64> {
     use std::io::Write;
     if n > u32::MAX as u64 && order != Order::Random {
-        return Err(std::io::Error::other("scan order holds at most 2^32 points"));
+        return Err(std::io::Error::other(
+            "scan order holds at most 2^32 points",
+        ));
     }
     let perm = permutation(n, seed, order);
     let at = |i: u64| perm.as_ref().map_or(i, |p| p[i as usize] as u64);
@@ -317,7 +316,9 @@ pub fn write_las_in_order(
     order: Order,
 ) -> std::io::Result<u64> {
     if n > u32::MAX as u64 && order != Order::Random {
-        return Err(std::io::Error::other("scan order holds at most 2^32 points"));
+        return Err(std::io::Error::other(
+            "scan order holds at most 2^32 points",
+        ));
     }
     let perm = permutation(n, seed, order);
     let at = |i: u64| perm.as_ref().map_or(i, |p| p[i as usize] as u64);

@@ -1,7 +1,8 @@
 //! The order in which a part's points are laid out in its image: a 3D Hilbert sort,
-//! then, block by block up the pyramid, the point nearest each block's centroid moved
-//! to the block's first slot, so that every down-sampled level is a spatially even
-//! sample (see `../shared/notes/lod-layout.md` for the measurements behind this).
+//! then representatives moved to the first slot of every block up the pyramid (a
+//! voxel-like choice at level 1, the centroid rule above), so that every
+//! down-sampled level is a spatially even sample (`../shared/notes/lod-layout.md`
+//! and `examples/lod_quality.rs` for the measurements behind this).
 
 use rayon::prelude::*;
 use std::sync::OnceLock;
@@ -218,75 +219,320 @@ pub fn representative_levels(n: usize) -> usize {
 }
 
 /// Rearranges points (`pos` and their source indices `perm`, already in Hilbert
-/// order) so that for every level `k` in `1..levels`, the first slot of each aligned
-/// block of `4^k` slots holds the block's point nearest its centroid. Works
-/// bottom-up, moving whole sub-blocks, so each level's choice is among the
-/// representatives of the level below and the pyramid stays nested. Only full
-/// sub-blocks move, so the filled slots stay a prefix.
+/// order) so that for every level `k` in `1..levels` the first slots of the aligned
+/// blocks of `4^k` slots hold an even sample of the points.
+///
+/// Level 1 is chosen like a voxel grid ([`select`]), so sparse parts (vegetation,
+/// walls, a single flight line) keep as many neighbours as dense ones; each chosen
+/// point then leads a block of four with the next three unchosen ones along the
+/// curve. This happens inside each level-0 tile, so every tile still holds the same
+/// run of the Hilbert curve. Coarser levels move whole sub-blocks: the one whose
+/// first point is nearest the block's centroid comes first (measured as good as any
+/// density rule there, once level 1 has evened the density out). The pyramid stays
+/// nested and the filled slots a prefix.
 pub fn choose_representatives(pos: &mut [[f32; 3]], perm: &mut [u32], levels: usize) {
-    let n = pos.len();
-    if n < 2 || levels < 2 {
+    if pos.len() < 2 || levels < 2 {
         return;
     }
-    // Sums and counts of the current level's blocks, in block order.
-    let mut sums: Vec<[f64; 3]> = Vec::new();
-    let mut counts: Vec<u32> = Vec::new();
-    for level in 1..levels {
+    let grid = Grid::new(pos);
+    pos.par_chunks_mut(super::spec::TILE_PIXELS)
+        .zip(perm.par_chunks_mut(super::spec::TILE_PIXELS))
+        .for_each(|(p, i)| arrange_level1(p, i, &grid));
+    centroid_levels(pos, perm, 2, levels);
+}
+
+/// The quantization of `hilbert_order` (21 bits per axis over a cube), so runs of
+/// points sharing a cell are the curve's own cells.
+struct Grid {
+    lo: [f32; 3],
+    scale: f64,
+}
+
+impl Grid {
+    fn new(pos: &[[f32; 3]]) -> Grid {
+        let (lo, hi) = pos
+            .par_chunks(1 << 16)
+            .map(|c| {
+                c.iter().fold(
+                    ([f32::INFINITY; 3], [f32::NEG_INFINITY; 3]),
+                    |(lo, hi), p| {
+                        (
+                            [0, 1, 2].map(|a| lo[a].min(p[a])),
+                            [0, 1, 2].map(|a| hi[a].max(p[a])),
+                        )
+                    },
+                )
+            })
+            .reduce(
+                || ([f32::INFINITY; 3], [f32::NEG_INFINITY; 3]),
+                |a, b| {
+                    (
+                        [0, 1, 2].map(|k| a.0[k].min(b.0[k])),
+                        [0, 1, 2].map(|k| a.1[k].max(b.1[k])),
+                    )
+                },
+            );
+        let side = (0..3).map(|a| hi[a] - lo[a]).fold(0f32, f32::max) as f64;
+        let max = ((1u32 << KEY_BITS) - 1) as f64;
+        Grid {
+            lo,
+            scale: if side > 0.0 { max / side } else { 0.0 },
+        }
+    }
+
+    fn cell(&self, p: &[f32; 3]) -> [u32; 3] {
+        let max = (1u32 << KEY_BITS) - 1;
+        [0, 1, 2].map(|a| (((p[a] - self.lo[a]) as f64 * self.scale) as u32).min(max))
+    }
+}
+
+/// Depth (0..=KEY_BITS) of the smallest grid cell holding both points.
+fn common_depth(a: [u32; 3], b: [u32; 3]) -> usize {
+    let x = (a[0] ^ b[0]) | (a[1] ^ b[1]) | (a[2] ^ b[2]);
+    (x.leading_zeros() as usize).saturating_sub(32 - KEY_BITS as usize)
+}
+
+/// Index (within `pts`) of the point of `range` nearest the range's centroid.
+fn nearest_centroid(pts: &[[f32; 3]], range: std::ops::Range<usize>) -> usize {
+    if range.len() == 1 {
+        return range.start;
+    }
+    let mut c = [0f32; 3];
+    for p in &pts[range.clone()] {
+        for a in 0..3 {
+            c[a] += p[a];
+        }
+    }
+    let c = c.map(|v| v / range.len() as f32);
+    let mut best = (range.start, f32::INFINITY);
+    for i in range {
+        let p = pts[i];
+        let d = (p[0] - c[0]).powi(2) + (p[1] - c[1]).powi(2) + (p[2] - c[2]).powi(2);
+        if d < best.1 {
+            best = (i, d);
+        }
+    }
+    best.0
+}
+
+/// Splits `total` equally among children of `sizes` points, none above its size
+/// (water-filling: child `i` gets `min(sizes[i], L)` for the level `L` that adds up
+/// to `total`), into `out`; `order` is scratch.
+fn share(total: f64, sizes: &[usize], out: &mut Vec<f64>, order: &mut Vec<usize>) {
+    out.clear();
+    let all: usize = sizes.iter().sum();
+    if total >= all as f64 {
+        out.extend(sizes.iter().map(|&n| n as f64));
+        return;
+    }
+    // The level: walk the distinct sizes in increasing order, capping while the
+    // even share of what is left reaches them.
+    let mut left = total;
+    let mut open = sizes.len();
+    let mut level = None;
+    let mut visit = |v: usize, c: usize| -> bool {
+        if left / open as f64 >= v as f64 {
+            left -= (v * c) as f64;
+            open -= c;
+            false
+        } else {
+            level = Some(left / open as f64);
+            true
+        }
+    };
+    order.clear();
+    const SMALL: usize = 64;
+    if sizes.len() > 4 * SMALL {
+        // Thousands of cells of a few points: a histogram for the small sizes.
+        let mut hist = [0usize; SMALL];
+        for &n in sizes {
+            if n < SMALL {
+                hist[n] += 1;
+            } else {
+                order.push(n);
+            }
+        }
+        order.sort_unstable();
+        let done = hist
+            .iter()
+            .enumerate()
+            .filter(|&(_, &c)| c > 0)
+            .any(|(v, &c)| visit(v, c));
+        if !done {
+            order.iter().any(|&v| visit(v, 1));
+        }
+    } else {
+        order.extend_from_slice(sizes);
+        order.sort_unstable();
+        order.iter().any(|&v| visit(v, 1));
+    }
+    let level = level.unwrap_or(f64::INFINITY);
+    out.extend(sizes.iter().map(|&n| (n as f64).min(level)));
+}
+
+/// Chooses exactly `quota` of `pts` (in curve order) as an even sample, like a
+/// voxel grid. Each point gets a weight: every cell of the finest grid depth with at
+/// most `quota` occupied cells (cells are runs of the curve) gets the same share of
+/// `quota`, and a cell's share is split equally among its occupied sub-cells, down to
+/// cells of weight one or less, which share it evenly among their points; no point
+/// weighs more than one. The curve is then cut into `quota` runs of weight one, and
+/// each run keeps its point nearest its centroid. With equal weights this is the
+/// plain rule (runs of four, nearest the centroid); sparse cells get more.
+fn select(pts: &[[f32; 3]], quota: usize, grid: &Grid) -> Vec<bool> {
+    let m = pts.len();
+    let mut chosen = vec![false; m];
+    if quota == 0 {
+        return chosen;
+    }
+    // cd[i]: depth of the smallest cell holding points i - 1 and i.
+    let mut cd = vec![0u8; m];
+    let mut prev = grid.cell(&pts[0]);
+    for i in 1..m {
+        let c = grid.cell(&pts[i]);
+        cd[i] = common_depth(prev, c) as u8;
+        prev = c;
+    }
+    let mut hist = [0usize; KEY_BITS as usize + 1];
+    for &d in &cd[1..] {
+        hist[d as usize] += 1;
+    }
+    // occupied(d) = 1 + #{i : cd[i] < d}
+    let mut depth = 0;
+    let mut occupied = 1;
+    while depth < KEY_BITS as usize && occupied + hist[depth] <= quota {
+        occupied += hist[depth];
+        depth += 1;
+    }
+    let mut starts: Vec<usize> = (0..m)
+        .filter(|&i| i == 0 || (cd[i] as usize) < depth)
+        .collect();
+    starts.push(m);
+    let mut sizes: Vec<usize> = starts.windows(2).map(|w| w[1] - w[0]).collect();
+    let (mut shares, mut order) = (Vec::new(), Vec::new());
+    share(quota as f64, &sizes, &mut shares, &mut order);
+    let mut stack: Vec<(usize, usize, f64)> = starts
+        .windows(2)
+        .zip(&shares)
+        .map(|(r, &x)| (r[0], r[1], x))
+        .collect();
+    let mut weight = vec![0f64; m];
+    while let Some((s, e, w)) = stack.pop() {
+        let n = e - s;
+        if w <= 1.0 || w >= n as f64 {
+            weight[s..e].fill(w.min(n as f64) / n as f64);
+            continue;
+        }
+        // The sub-cells: runs split where the common depth is least.
+        let mut split = u8::MAX;
+        starts.clear();
+        starts.push(s);
+        for (i, &d) in cd.iter().enumerate().take(e).skip(s + 1) {
+            if d < split {
+                split = d;
+                starts.truncate(1);
+            }
+            if d == split {
+                starts.push(i);
+            }
+        }
+        if split as u32 >= KEY_BITS {
+            // Closer than the grid resolves: even shares.
+            weight[s..e].fill(w / n as f64);
+            continue;
+        }
+        starts.push(e);
+        sizes.clear();
+        sizes.extend(starts.windows(2).map(|w| w[1] - w[0]));
+        share(w, &sizes, &mut shares, &mut order);
+        for (r, &x) in starts.windows(2).zip(&shares) {
+            stack.push((r[0], r[1], x));
+        }
+    }
+    // Run of point i: where the middle of its weight falls on the cumulative scale
+    // (weights never exceed one, so every run gets at least one point).
+    let mut start = 0;
+    let mut run = 0;
+    let mut cum = 0f64;
+    for i in 0..m {
+        let r = ((cum + weight[i] / 2.0) as usize).min(quota - 1);
+        cum += weight[i];
+        if r != run {
+            chosen[nearest_centroid(pts, start..i)] = true;
+            start = i;
+            run = r;
+        }
+    }
+    chosen[nearest_centroid(pts, start..m)] = true;
+    chosen
+}
+
+/// Level 1 inside one tile (`p`, `idx`: its slots in curve order): a quarter of the
+/// points is chosen by [`select`], and each chosen one leads a block of four with
+/// the next three unchosen ones along the curve. A partial last block (last tile
+/// only) keeps its points and leads with the one nearest its centroid.
+fn arrange_level1(p: &mut [[f32; 3]], idx: &mut [u32], grid: &Grid) {
+    let len = p.len();
+    if len < 2 {
+        return;
+    }
+    let domain = len / 4 * 4;
+    if domain > 0 {
+        let chosen = select(&p[..domain], domain / 4, grid);
+        let old_p = p[..domain].to_vec();
+        let old_i = idx[..domain].to_vec();
+        // Chosen points go to slots 4j, the others fill the slots between in turn.
+        let (mut lead, mut rest) = (0, 1);
+        for (i, &c) in chosen.iter().enumerate() {
+            let k = if c {
+                lead += 4;
+                lead - 4
+            } else {
+                let k = rest;
+                rest += if rest % 4 == 3 { 2 } else { 1 };
+                k
+            };
+            p[k] = old_p[i];
+            idx[k] = old_i[i];
+        }
+    }
+    if domain < len {
+        let best = nearest_centroid(p, domain..len);
+        p.swap(domain, best);
+        idx.swap(domain, best);
+    }
+}
+
+/// Levels `from..levels`: in each block, the sub-block whose first point (its
+/// representative) is nearest the centroid of the four representatives is swapped,
+/// whole, to the front. (The centroid of the representatives, not of all points:
+/// after level 1 a block's other points need not sit around its representative.)
+fn centroid_levels(pos: &mut [[f32; 3]], perm: &mut [u32], from: usize, levels: usize) {
+    for level in from..levels {
         let block = 1usize << (2 * level);
         let sub = block / 4;
-        let nblocks = n.div_ceil(block);
-        let (new_sums, new_counts): (Vec<[f64; 3]>, Vec<u32>) = if level == 1 {
-            pos.par_chunks(4)
-                .map(|c| {
-                    let mut s = [0f64; 3];
-                    for p in c {
-                        for a in 0..3 {
-                            s[a] += p[a] as f64;
-                        }
-                    }
-                    (s, c.len() as u32)
-                })
-                .unzip()
-        } else {
-            (0..nblocks)
-                .into_par_iter()
-                .map(|b| {
-                    let mut s = [0f64; 3];
-                    let mut c = 0;
-                    for j in 4 * b..(4 * b + 4).min(sums.len()) {
-                        for a in 0..3 {
-                            s[a] += sums[j][a];
-                        }
-                        c += counts[j];
-                    }
-                    (s, c)
-                })
-                .unzip()
-        };
-        sums = new_sums;
-        counts = new_counts;
-        let (sums_ref, counts_ref) = (&sums, &counts);
         pos.par_chunks_mut(block)
             .zip(perm.par_chunks_mut(block))
-            .enumerate()
-            .for_each(|(b, (chunk, idx))| {
-                let c = counts_ref[b] as f64;
-                let centroid = sums_ref[b].map(|s| s / c);
-                let mut best = 0usize;
-                let mut best_d = f64::INFINITY;
-                for j in 0..4 {
-                    let start = j * sub;
-                    // Only full sub-blocks may move (sub-block 0 is where they go).
-                    if j > 0 && start + sub > chunk.len() {
-                        break;
-                    }
-                    let p = chunk[start];
-                    let d: f64 = (0..3).map(|a| (p[a] as f64 - centroid[a]).powi(2)).sum();
-                    if d < best_d {
-                        best_d = d;
-                        best = j;
+            .for_each(|(chunk, idx)| {
+                let count = chunk.len().div_ceil(sub);
+                if count < 2 {
+                    return;
+                }
+                let first = |j: usize| chunk[j * sub];
+                let mut c = [0f32; 3];
+                for j in 0..count {
+                    for a in 0..3 {
+                        c[a] += first(j)[a];
                     }
                 }
+                let c = c.map(|v| v / count as f32);
+                let d = |p: [f32; 3]| {
+                    (p[0] - c[0]).powi(2) + (p[1] - c[1]).powi(2) + (p[2] - c[2]).powi(2)
+                };
+                // Only full sub-blocks may move (sub-block 0 is where they go).
+                let full = (chunk.len() / sub).max(1);
+                let best = (0..full)
+                    .min_by(|&i, &j| d(first(i)).total_cmp(&d(first(j))))
+                    .unwrap_or(0);
                 if best > 0 {
                     let (head, tail) = chunk.split_at_mut(best * sub);
                     head[..sub].swap_with_slice(&mut tail[..sub]);
@@ -416,7 +662,91 @@ mod tests {
         let mut sorted = order.clone();
         sorted.sort();
         assert_eq!(sorted, (0..22).collect::<Vec<_>>());
-        // Block 1 (slots 16..22) holds sub-block 1 (slots 20, 21) partial: it stays.
-        assert!(order[16..20].iter().all(|&i| (16..20).contains(&i)));
+        // The last block of level 1 (slots 20, 21) is partial: its points stay there.
+        let mut last = order[20..].to_vec();
+        last.sort();
+        assert_eq!(last, [20, 21]);
+    }
+    #[test]
+    fn share_fills_water_levels() {
+        let (mut out, mut scratch) = (Vec::new(), Vec::new());
+        share(9.0, &[1, 5, 10], &mut out, &mut scratch);
+        assert_eq!(out, [1.0, 4.0, 4.0]);
+        share(100.0, &[1, 5, 10], &mut out, &mut scratch);
+        assert_eq!(out, [1.0, 5.0, 10.0]);
+        // Many children (the histogram path): equal shares, small ones capped.
+        let sizes: Vec<usize> = (0..1000)
+            .map(|i| if i % 2 == 0 { 1 } else { 100 })
+            .collect();
+        share(2000.0, &sizes, &mut out, &mut scratch);
+        assert!((out.iter().sum::<f64>() - 2000.0).abs() < 1e-6);
+        assert_eq!((out[0], out[1]), (1.0, 3.0));
+    }
+
+    #[test]
+    fn level_one_keeps_sparse_points() {
+        // A dense patch (one corner) and isolated points spread over the rest.
+        let mut r = crate::synth::Rng::new(5);
+        let mut pos: Vec<[f32; 3]> = (0..20_000)
+            .map(|_| [r.f64() as f32, r.f64() as f32, 0.0])
+            .collect();
+        let sparse: Vec<[f32; 3]> = (0..400)
+            .map(|i| {
+                [
+                    10.0 + (i % 20) as f32 * 5.0,
+                    10.0 + (i / 20) as f32 * 5.0,
+                    0.0,
+                ]
+            })
+            .collect();
+        pos.extend(&sparse);
+        let order = hilbert_order(&pos, [0.0; 3], [110.0, 110.0, 0.0]);
+        let mut sorted: Vec<[f32; 3]> = order.iter().map(|&i| pos[i as usize]).collect();
+        let mut perm = order.clone();
+        choose_representatives(&mut sorted, &mut perm, 3);
+        let kept: Vec<u32> = perm.iter().step_by(4).copied().collect();
+        assert_eq!(kept.len(), pos.len().div_ceil(4));
+        let sparse_kept = kept.iter().filter(|&&i| i >= 20_000).count();
+        // The plain rule would keep about a quarter of them.
+        assert!(
+            sparse_kept >= 380,
+            "kept {sparse_kept} of 400 isolated points"
+        );
+        for (p, &i) in sorted.iter().zip(&perm) {
+            assert_eq!(*p, pos[i as usize], "positions move with their indices");
+        }
+    }
+
+    #[test]
+    fn points_stay_in_their_tile() {
+        let mut r = crate::synth::Rng::new(8);
+        let n = 2 * crate::store::spec::TILE_PIXELS + 12_345;
+        let pos: Vec<[f32; 3]> = (0..n)
+            .map(|_| {
+                [
+                    r.f64() as f32 * 50.0,
+                    r.f64().powi(3) as f32 * 50.0,
+                    r.f64() as f32,
+                ]
+            })
+            .collect();
+        let order = hilbert_order(&pos, [0.0; 3], [50.0, 50.0, 1.0]);
+        let mut sorted: Vec<[f32; 3]> = order.iter().map(|&i| pos[i as usize]).collect();
+        let mut perm = order.clone();
+        choose_representatives(&mut sorted, &mut perm, representative_levels(n));
+        // Tiles hold the same runs of the curve (coarse levels may reorder tiles).
+        let tiles = |v: &[u32]| {
+            let mut t: Vec<Vec<u32>> = v
+                .chunks(crate::store::spec::TILE_PIXELS)
+                .map(|c| {
+                    let mut c = c.to_vec();
+                    c.sort();
+                    c
+                })
+                .collect();
+            t.sort();
+            t
+        };
+        assert_eq!(tiles(&order), tiles(&perm));
     }
 }
