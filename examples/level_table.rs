@@ -2,7 +2,11 @@
 //! x y z, from the page cache) and frames per second of the CPU and wgpu
 //! rasterizers at 1280×720 (median of 5 frames, data already uploaded).
 //!
-//! `cargo run --release --example level_table -- DATASET`
+//! With `--paper`, the paper's Table 2 (Du & Li 2009: LOD3…LOD0 and the original,
+//! GeForce 7300 GT) is printed beside ours: our level k ≥ 1 stands for its
+//! LOD(k − 1), level 0 for the original.
+//!
+//! `cargo run --release --example level_table -- DATASET [--paper]`
 use pcimg::camera::Camera;
 use pcimg::render::{self, PointBatch, RenderOptions, RendererChoice};
 use pcimg::store::Dataset;
@@ -13,10 +17,32 @@ fn median(mut v: Vec<f64>) -> f64 {
     v[v.len() / 2]
 }
 
+/// The paper's Table 2: (name, points, loading ms, fps), finest last.
+const PAPER: [(&str, u64, u64, u64); 5] = [
+    ("LOD3", 187_810, 129, 60),
+    ("LOD2", 748_525, 439, 40),
+    ("LOD1", 2_988_239, 1686, 35),
+    ("LOD0", 11_943_853, 4496, 12),
+    ("original", 47_775_412, 30408, 2),
+];
+
+/// The paper's row for our `level`.
+fn paper_row(level: usize) -> Option<(&'static str, u64, u64, u64)> {
+    match level {
+        0 => Some(PAPER[4]),
+        1..=4 => Some(PAPER[4 - level]),
+        _ => None,
+    }
+}
+
 fn main() -> anyhow::Result<()> {
-    let path = std::env::args()
-        .nth(1)
-        .ok_or_else(|| anyhow::anyhow!("usage: level_table DATASET"))?;
+    let args: Vec<String> = std::env::args().skip(1).collect();
+    let paper = args.iter().any(|a| a == "--paper");
+    let path = args
+        .iter()
+        .find(|a| !a.starts_with("--"))
+        .cloned()
+        .ok_or_else(|| anyhow::anyhow!("usage: level_table DATASET [--paper]"))?;
     let ds = Dataset::open(std::path::Path::new(&path))?;
     let levels = ds.parts.iter().map(|p| p.levels.len()).max().unwrap_or(0);
     let cam = {
@@ -38,15 +64,20 @@ fn main() -> anyhow::Result<()> {
         ds.parts.len()
     );
     println!("renderers: {}", names.join(" | "));
-    println!(
-        "| level | points | load ms (median of 3) | {} |",
-        names
-            .iter()
-            .map(|n| format!("fps {n}"))
-            .collect::<Vec<_>>()
-            .join(" | ")
-    );
-    println!("|---|---|---|{}", "---|".repeat(names.len()));
+    let fps_names = names
+        .iter()
+        .map(|n| format!("fps {}", n.split(" (").next().unwrap_or(n)))
+        .collect::<Vec<_>>()
+        .join(" | ");
+    if paper {
+        println!(
+            "| level | points | paper's level (points) | load ms (median of 3) | paper load ms | {fps_names} | paper fps |"
+        );
+        println!("|---|---|---|---|---|{}---|", "---|".repeat(names.len()));
+    } else {
+        println!("| level | points | load ms (median of 3) | {fps_names} |");
+        println!("|---|---|---|{}", "---|".repeat(names.len()));
+    }
     for level in (0..levels).rev() {
         let mut loads = Vec::new();
         let mut data = Vec::new();
@@ -84,11 +115,24 @@ fn main() -> anyhow::Result<()> {
                 .collect();
             fps.push(format!("{:.1}", 1.0 / median(times)));
         }
-        println!(
-            "| {level} | {points} | {:.0} | {} |",
-            median(loads),
-            fps.join(" | ")
-        );
+        let load = median(loads);
+        if paper {
+            let (pl, pms, pfps) = match paper_row(level) {
+                Some((n, p, ms, f)) => (
+                    format!("{n} ({})", pcimg::text::count(p)),
+                    ms.to_string(),
+                    f.to_string(),
+                ),
+                None => ("–".into(), "–".into(), "–".into()),
+            };
+            println!(
+                "| {level} | {} | {pl} | {load:.1} | {pms} | {} | {pfps} |",
+                pcimg::text::count(points as u64),
+                fps.join(" | ")
+            );
+        } else {
+            println!("| {level} | {points} | {load:.1} | {} |", fps.join(" | "));
+        }
     }
     Ok(())
 }
