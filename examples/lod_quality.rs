@@ -246,7 +246,7 @@ fn main() -> anyhow::Result<()> {
     for spec in &inputs {
         let t = std::time::Instant::now();
         let (name, pts) = load(spec).with_context(|| format!("loading {spec}"))?;
-        let rows = evaluate(&pts, levels, min_points).with_context(|| format!("{spec}"))?;
+        let rows = evaluate(&pts, levels, min_points).with_context(|| spec.clone())?;
         for r in &rows {
             let f = |v: (f64, f64)| format!("{} / {}", sig(v.0), sig(v.1));
             let ratio = (r.ours.0 / r.voxel.0, r.ours.1 / r.voxel.1);

@@ -155,6 +155,9 @@ pub(super) fn tile_pixels(src: &[f32], g: Geometry, level: usize, t: u32) -> Vec
     buf
 }
 
+/// A decoded tile: one plane per band (x first), and the width of its rows.
+type Planes = (Vec<Vec<f32>>, usize);
+
 impl Part {
     /// Whether points are placed row-major (the paper's layout).
     pub fn row_major(&self) -> bool {
@@ -168,7 +171,7 @@ impl Part {
         level: usize,
         t: u32,
         bands: &[usize],
-    ) -> std::result::Result<(Vec<Vec<f32>>, usize), String> {
+    ) -> std::result::Result<Planes, String> {
         let l = &self.levels[level];
         let dec: Vec<usize> = std::iter::once(0).chain(bands.iter().copied()).collect();
         let planes = self.read_tile(l, t, Some(l.tile_width * l.tile_height), &dec)?;
@@ -218,7 +221,7 @@ impl Part {
                 .map(|t| t.index)
                 .filter(|t| t / l.tiles_across == row)
                 .collect();
-            let mut decoded: Vec<(u32, (Vec<Vec<f32>>, usize))> = tiles
+            let mut decoded: Vec<(u32, Planes)> = tiles
                 .par_iter()
                 .map(|&t| self.tile_planes(level, t, bands).map(|p| (t, p)))
                 .collect::<std::result::Result<_, String>>()
