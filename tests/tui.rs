@@ -357,3 +357,62 @@ fn the_binary_runs_in_tmux_and_restores_the_terminal() {
         "the alternate screen is left: {s}"
     );
 }
+
+/// An SSH drop or a killed tmux pane hangs up the inspector's terminal: it must
+/// exit, not spin on the dead terminal (crossterm's reader loops on a hung-up pty).
+#[cfg(target_os = "linux")]
+#[test]
+fn the_inspector_exits_when_its_terminal_hangs_up() {
+    if !common::tool_available("tmux", "-V") {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("scan.tif");
+    store::write_part(
+        &path,
+        &pcimg::synth::scene(20_000, 6),
+        &WriteOptions::default(),
+    )
+    .unwrap();
+    let pid_file = dir.path().join("pid");
+    let tmux = Tmux {
+        socket: format!("pcimg-hup-{}", std::process::id()),
+    };
+    let script = format!(
+        "echo $$ > '{}'; NODEVICE_SELECT=1 exec '{}' inspect '{}' --renderer cpu",
+        pid_file.display(),
+        env!("CARGO_BIN_EXE_pcimg"),
+        path.display()
+    );
+    tmux.run(&[
+        "new-session",
+        "-d",
+        "-s",
+        "t",
+        "-x",
+        "120",
+        "-y",
+        "40",
+        "sh",
+        "-c",
+        &script,
+    ]);
+    tmux.wait_for("the panels", 10, |s| s.contains("levels of part 1"));
+    let pid: u32 = std::fs::read_to_string(&pid_file)
+        .unwrap()
+        .trim()
+        .parse()
+        .unwrap();
+    let proc_dir = PathBuf::from(format!("/proc/{pid}"));
+    assert!(proc_dir.exists());
+    tmux.run(&["kill-session", "-t", "t"]);
+    let deadline = Instant::now() + Duration::from_secs(5);
+    while proc_dir.exists() {
+        if Instant::now() > deadline {
+            // Do not leave it spinning on the machine.
+            let _ = Command::new("kill").args(["-9", &pid.to_string()]).status();
+            panic!("the inspector (pid {pid}) still runs 5 s after its terminal hung up");
+        }
+        std::thread::sleep(Duration::from_millis(100));
+    }
+}

@@ -69,6 +69,7 @@ pub fn run(ds: Arc<Dataset>, opts: InspectOptions) -> anyhow::Result<()> {
     let mut app = App::new(ds, opts.camera, opts.settings);
     app.protocol = graphics.name().into();
     let mut session = terminal::Session::enter(graphics == protocol::Graphics::Kitty)?;
+    terminal::spawn_watchdog(&STOP);
     let result = event_loop(&mut session, &mut app, &worker, cell_pixels);
     drop(session);
     result
