@@ -69,7 +69,7 @@ pub fn run(ds: Arc<Dataset>, opts: InspectOptions) -> anyhow::Result<()> {
     let mut app = App::new(ds, opts.camera, opts.settings);
     app.protocol = graphics.name().into();
     let mut session = terminal::Session::enter(graphics == protocol::Graphics::Kitty)?;
-    let result = event_loop(&mut session, &mut app, &worker, cell_pixels);
+    let result = event_loop(&mut session, &mut app, &worker, graphics, cell_pixels);
     drop(session);
     result
 }
@@ -86,6 +86,7 @@ fn event_loop(
     session: &mut terminal::Session,
     app: &mut App,
     worker: &RenderWorker,
+    graphics: protocol::Graphics,
     cell_pixels: (u32, u32),
 ) -> anyhow::Result<()> {
     use crossterm::event::{self, Event};
@@ -97,6 +98,7 @@ fn event_loop(
     let mut requested_cells = (0u16, 0u16);
     let mut dirty = true;
     let mut saved = 0u32;
+    let mut help_shown = false;
     loop {
         if STOP.load(Ordering::SeqCst) {
             return Ok(());
@@ -119,6 +121,13 @@ fn event_loop(
             requested_cells = cells;
             want_frame = false;
         }
+        if help_shown && !app.show_help && protocol::image_in_one_cell(graphics) {
+            // The help was drawn over the image's skipped cells; ratatui would not
+            // send those again, so its text would stay. Redraw everything once.
+            term.clear()?;
+            dirty = true;
+        }
+        help_shown = app.show_help;
         if dirty {
             term.draw(|f| ui::draw(f, app, shown.image.as_ref()))?;
             dirty = false;

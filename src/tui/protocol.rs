@@ -46,6 +46,13 @@ impl Graphics {
     }
 }
 
+/// Whether the protocol draws the whole image from the pane's first cell and
+/// skips the others (sixel, iTerm2): text drawn over such an image is not
+/// replaced by the diff when it goes away, so the screen must be redrawn.
+pub fn image_in_one_cell(graphics: Graphics) -> bool {
+    matches!(graphics, Graphics::Sixel | Graphics::Iterm2)
+}
+
 /// The one kitty image id the inspector uses (frames replace each other).
 pub const KITTY_IMAGE_ID: u32 = 0x00_70_63_69; // "pci"
 
