@@ -9,7 +9,9 @@
 //!
 //! Each press orbits the camera by one step (the `→` key), sends the request, waits
 //! for the frame that answers it with every tile loaded, and draws it. Reports
-//! medians: key → frame drawn, and the worker's select/render/encode times.
+//! medians: key → frame drawn, and the worker's select/render/encode times. Then,
+//! for comparison, the last sixel frame encoded through ratatui-image's own
+//! `Sixel` (icy_sixel: quantizer and dithering), which the inspector used before.
 
 use pcimg::camera::Camera;
 use pcimg::render::RendererChoice;
@@ -83,6 +85,7 @@ fn main() -> anyhow::Result<()> {
         "| protocol | key → frame drawn ms | select ms | render ms | encode ms | bytes / frame | points drawn | renderer |"
     );
     println!("|---|---|---|---|---|---|---|---|");
+    let mut last_sixel = None;
     for graphics in [Graphics::Halfblocks, Graphics::Sixel, Graphics::Kitty] {
         let cell_pixels = if graphics == Graphics::Halfblocks {
             (1, 2)
@@ -139,6 +142,9 @@ fn main() -> anyhow::Result<()> {
             enc.push(f.status.encode_ms);
             pts.push(f.status.points as f64);
             renderer = f.status.renderer.clone();
+            if graphics == Graphics::Sixel {
+                last_sixel = Some(f.frame.clone());
+            }
         }
         println!(
             "| {} | {:.1} | {:.1} | {:.1} | {:.1} | {:.0} K | {:.0} | {} |",
@@ -150,6 +156,26 @@ fn main() -> anyhow::Result<()> {
             median(sent) / 1024.0,
             median(pts),
             renderer
+        );
+    }
+    if let Some(frame) = last_sixel {
+        let (mut enc, mut len) = (vec![], 0);
+        for _ in 0..3 {
+            let img = image::RgbaImage::from_raw(frame.width, frame.height, frame.rgba.clone())
+                .ok_or_else(|| anyhow::anyhow!("frame size"))?;
+            let t = Instant::now();
+            let p = ratatui_image::protocol::sixel::Sixel::new(
+                image::DynamicImage::ImageRgba8(img),
+                ratatui::layout::Size::new(cells.0, cells.1),
+                false,
+            )?;
+            enc.push(t.elapsed().as_secs_f64() * 1e3);
+            len = p.data.len();
+        }
+        println!(
+            "\nThe last sixel frame through ratatui-image's Sixel (icy_sixel): encode {:.1} ms (median of 3), {:.0} K",
+            median(enc),
+            len as f64 / 1024.0
         );
     }
     Ok(())

@@ -2,6 +2,7 @@
 //! (kitty, sixel, iTerm2, or Unicode half-blocks), and our own sixel encoder.
 
 pub mod inline;
+pub mod palette;
 pub mod sixel;
 
 pub use inline::{Protocol, print_frame, terminal_pixels};

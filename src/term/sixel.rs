@@ -1,26 +1,25 @@
-//! A fast sixel encoder for rendered frames: a fixed 256-colour palette (a 6×6×6
-//! colour cube and a 40-step grey ramp, picked through a 2^18-entry lookup table,
-//! no dithering), per 6-row band one pass that collects each colour's column masks,
-//! then only the colours present, run-length encoded (`!n`).
+//! A fast sixel encoder for rendered frames: the frame reduced to at most 256
+//! colours ([`super::palette`]), then per 6-row band one pass that collects each
+//! colour's column masks, and only the colours present, run-length encoded (`!n`).
 //!
-//! The band's most common colour over the whole frame (the background) is painted
-//! first as one full-width run; the other colours overwrite it where they are, so
-//! empty sky costs a few bytes per band. The image is declared with raster
-//! attributes `"1;1;W;H` (square pixels, exact size); a last band shorter than six
-//! rows sets only the bits of its rows.
+//! The frame's most common colour (the background) is painted first in every band
+//! as one full-width run; the other colours overwrite it where they are, so empty
+//! sky costs a few bytes per band. The image is declared with raster attributes
+//! `"1;1;W;H` (square pixels, exact size); a last band shorter than six rows sets
+//! only the bits of its rows.
 //!
 //! Why not icy_sixel (through ratatui-image or viuer): its quantizer and dithering
 //! took ~97 ms for a 1200×800 frame on the project's 2-core machine, more than the
 //! whole key-to-frame budget (`bench/RESULTS.md`).
 
-use std::sync::OnceLock;
+use super::palette::{self, Indexed};
 
-/// Steps per channel of the colour cube.
-const CUBE: u32 = 6;
-/// Entries of the grey ramp after the cube (216 + 40 = 256 colours).
-const GREYS: u32 = 40;
-/// Bits per channel of the quantizer's lookup table.
-const LUT_BITS: u32 = 6;
+/// Colours per frame. Measured on 1200×800 frames (`examples/sixel_png.rs`): 32
+/// adaptive colours cost fewer bytes than a fixed 6×6×6 cube with a grey ramp
+/// (254 K against 274 K for a height-coloured synthetic scan, 113 K against 122 K
+/// for Autzen in its own RGB) and keep muted colours that the cube turned grey;
+/// 64 colours cost 28–32% more bytes, 256 more than twice as many.
+pub const COLORS: usize = 32;
 
 /// Why a frame could not be encoded.
 #[derive(Debug, thiserror::Error, PartialEq, Eq)]
@@ -29,96 +28,6 @@ pub enum SixelError {
     Empty { width: u32, height: u32 },
     #[error("{len} bytes of RGBA do not make a {width}×{height} image")]
     WrongSize { len: usize, width: u32, height: u32 },
-}
-
-/// The fixed palette: index `r·36 + g·6 + b` for the cube (each 0…5), then the
-/// grey ramp, lightest last.
-pub fn palette() -> &'static [[u8; 3]; 256] {
-    static PALETTE: OnceLock<[[u8; 3]; 256]> = OnceLock::new();
-    PALETTE.get_or_init(|| {
-        let mut p = [[0u8; 3]; 256];
-        let level = |i: u32| (i * 255 / (CUBE - 1)) as u8;
-        for i in 0..CUBE * CUBE * CUBE {
-            p[i as usize] = [level(i / 36), level(i / 6 % 6), level(i % 6)];
-        }
-        for i in 0..GREYS {
-            // Evenly between black and white, neither of which it repeats.
-            let v = ((i + 1) * 255 / (GREYS + 1)) as u8;
-            p[(CUBE * CUBE * CUBE + i) as usize] = [v, v, v];
-        }
-        p
-    })
-}
-
-/// The palette index nearest (in RGB distance) to a colour whose channels are
-/// given to [`LUT_BITS`] bits of precision, by search: used to fill the table.
-fn nearest(r: u8, g: u8, b: u8) -> u8 {
-    let p = palette();
-    let d = |c: &[u8; 3]| {
-        let dr = c[0] as i32 - r as i32;
-        let dg = c[1] as i32 - g as i32;
-        let db = c[2] as i32 - b as i32;
-        dr * dr + dg * dg + db * db
-    };
-    // The nearest cube colour rounds each channel; the nearest grey is the one
-    // nearest the mean. Only these two can be the nearest of all.
-    let q = |v: u8| (v as u32 * (CUBE - 1) + 127) / 255;
-    let cube = (q(r) * 36 + q(g) * 6 + q(b)) as usize;
-    let mean = (r as u32 + g as u32 + b as u32) as f64 / 3.0;
-    let grey_i =
-        ((mean * (GREYS + 1) as f64 / 255.0).round() as i64 - 1).clamp(0, GREYS as i64 - 1);
-    let mut best = cube;
-    // Check the neighbours of the rounded grey step (integer division in the ramp).
-    for gi in (grey_i - 1).max(0)..=(grey_i + 1).min(GREYS as i64 - 1) {
-        let idx = (CUBE * CUBE * CUBE) as usize + gi as usize;
-        if d(&p[idx]) < d(&p[best]) {
-            best = idx;
-        }
-    }
-    best as u8
-}
-
-/// The quantizer's table: index by the top [`LUT_BITS`] bits of r, g, b.
-fn lut() -> &'static [u8] {
-    static LUT: OnceLock<Vec<u8>> = OnceLock::new();
-    LUT.get_or_init(|| {
-        let n = 1usize << LUT_BITS;
-        let mut t = vec![0u8; n * n * n];
-        // The channel value a table cell stands for: the middle of its range.
-        let mid = |i: usize| ((i << (8 - LUT_BITS)) + (1 << (7 - LUT_BITS))) as u8;
-        for r in 0..n {
-            for g in 0..n {
-                for b in 0..n {
-                    t[(r * n + g) * n + b] = nearest(mid(r), mid(g), mid(b));
-                }
-            }
-        }
-        t
-    })
-}
-
-/// The palette index of one colour.
-#[inline]
-pub fn quantize(r: u8, g: u8, b: u8) -> u8 {
-    let s = 8 - LUT_BITS;
-    let i = (((r >> s) as usize) << (2 * LUT_BITS))
-        | (((g >> s) as usize) << LUT_BITS)
-        | (b >> s) as usize;
-    lut()[i]
-}
-
-/// Palette indices of every pixel of an RGBA image (alpha is ignored).
-pub fn quantize_image(rgba: &[u8]) -> Vec<u8> {
-    let table = lut();
-    let s = 8 - LUT_BITS;
-    rgba.chunks_exact(4)
-        .map(|p| {
-            let i = (((p[0] >> s) as usize) << (2 * LUT_BITS))
-                | (((p[1] >> s) as usize) << LUT_BITS)
-                | (p[2] >> s) as usize;
-            table[i]
-        })
-        .collect()
 }
 
 /// Appends the decimal digits of `n`.
@@ -215,14 +124,14 @@ pub fn encode(rgba: &[u8], width: u32, height: u32) -> Result<String, SixelError
             height,
         });
     }
-    let idx = quantize_image(rgba);
-    Ok(encode_indexed(&idx, w, h))
+    Ok(encode_indexed(&palette::reduce(rgba, COLORS), w, h))
 }
 
-/// Encodes an image of palette indices, `w × h`, row-major (`idx.len() == w·h`).
-fn encode_indexed(idx: &[u8], w: usize, h: usize) -> String {
+/// Encodes an indexed image of `w × h` pixels (`indices.len() == w·h`).
+pub fn encode_indexed(image: &Indexed, w: usize, h: usize) -> String {
+    let idx = &image.indices;
     let mut used = [0u64; 256];
-    for &c in idx {
+    for &c in idx.iter() {
         used[c as usize] += 1;
     }
     let bg = (0..256)
@@ -234,15 +143,14 @@ fn encode_indexed(idx: &[u8], w: usize, h: usize) -> String {
     push_number(&mut out, w);
     out.push(b';');
     push_number(&mut out, h);
-    let pal = palette();
     for (c, &n) in used.iter().enumerate() {
-        if n == 0 {
+        let Some(rgb) = image.palette.get(c).filter(|_| n > 0) else {
             continue;
-        }
+        };
         out.push(b'#');
         push_number(&mut out, c);
         out.extend_from_slice(b";2");
-        for v in pal[c] {
+        for &v in rgb {
             out.push(b';');
             push_number(&mut out, (v as usize * 100 + 127) / 255);
         }
@@ -415,8 +323,8 @@ mod tests {
         let s = encode(rgba, w, h).unwrap();
         let d = decode(&s);
         assert_eq!((d.width, d.height), (w as usize, h as usize));
-        let idx = quantize_image(rgba);
-        for (i, (&want, got)) in idx.iter().zip(&d.pixels).enumerate() {
+        let q = palette::reduce(rgba, COLORS);
+        for (i, (&want, got)) in q.indices.iter().zip(&d.pixels).enumerate() {
             let got = got.unwrap_or_else(|| panic!("pixel {i} never painted"));
             assert_eq!(
                 got,
@@ -425,7 +333,7 @@ mod tests {
                 i % w as usize,
                 i / w as usize
             );
-            let p = palette()[want as usize];
+            let p = q.palette[want as usize];
             assert_eq!(d.registers[&got], p.map(percent));
         }
         s
@@ -450,55 +358,6 @@ mod tests {
             s ^= s >> 7;
             s ^= s << 17;
             s
-        }
-    }
-
-    #[test]
-    fn the_palette_holds_the_cube_and_a_grey_ramp() {
-        let p = palette();
-        assert_eq!(p[0], [0, 0, 0]);
-        assert_eq!(p[215], [255, 255, 255]);
-        assert_eq!(p[5 * 36], [255, 0, 0]);
-        assert_eq!(p[2 * 36 + 3 * 6 + 4], [102, 153, 204]);
-        for i in 216..255 {
-            assert!(p[i][0] < p[i + 1][0], "greys rise");
-            assert_eq!(p[i][0], p[i][2]);
-        }
-        // Every palette colour quantizes to itself, or (a cube grey next to a ramp
-        // grey, seen through the 6-bit table) to a grey within 4 of it.
-        for (i, c) in p.iter().enumerate() {
-            let q = p[quantize(c[0], c[1], c[2]) as usize];
-            let near = q.iter().zip(c).all(|(a, b)| a.abs_diff(*b) <= 4);
-            assert!(
-                q == *c || (near && q[0] == q[1] && q[1] == q[2]),
-                "entry {i}: {q:?}"
-            );
-        }
-        // Greys use the ramp: near-grey pixels are not forced onto 6 levels.
-        assert!(quantize(30, 30, 30) >= 216);
-        assert_eq!(quantize(250, 10, 5), 5 * 36);
-    }
-
-    #[test]
-    fn the_quantizer_picks_the_nearest_entry() {
-        let p = palette();
-        let mut rnd = noise(7);
-        for _ in 0..20_000 {
-            let v = rnd();
-            let (r, g, b) = (v as u8, (v >> 8) as u8, (v >> 16) as u8);
-            let dist = |c: &[u8; 3]| {
-                let d = |a: u8, b: u8| (a as i32 - b as i32).pow(2);
-                d(c[0], r) + d(c[1], g) + d(c[2], b)
-            };
-            let best = (p.iter().map(dist).min().unwrap() as f64).sqrt();
-            let got = (dist(&p[quantize(r, g, b) as usize]) as f64).sqrt();
-            // The table stands for each 4-wide cell by its middle, at most 2 away
-            // per channel, so the choice is off by at most twice that distance.
-            assert!(
-                got <= best + 2.0 * 12f64.sqrt(),
-                "{r} {g} {b}: {got} vs {best}"
-            );
-            assert!(got > best - 1e-9);
         }
     }
 
