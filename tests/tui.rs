@@ -452,3 +452,70 @@ fn the_binary_runs_in_tmux_and_restores_the_terminal() {
         "the alternate screen is left: {s}"
     );
 }
+
+/// Whether a process is alive (not gone, not a zombie), from `/proc`.
+fn alive(pid: u32) -> bool {
+    std::fs::read_to_string(format!("/proc/{pid}/stat"))
+        .ok()
+        .and_then(|s| {
+            s.rsplit_once(')')
+                .map(|(_, rest)| !rest.trim_start().starts_with('Z'))
+        })
+        .unwrap_or(false)
+}
+
+#[test]
+fn the_binary_ends_when_its_terminal_goes_away() {
+    if !common::tool_available("tmux", "-V") || !Path::new("/proc/self/stat").exists() {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("scan.tif");
+    store::write_part(
+        &path,
+        &pcimg::synth::scene(20_000, 6),
+        &WriteOptions::default(),
+    )
+    .unwrap();
+    let tmux = Tmux {
+        socket: format!("pcimg-hup-{}", std::process::id()),
+    };
+    // The inspector is the pane's process itself (no shell in between).
+    let command = format!(
+        "exec env NODEVICE_SELECT=1 '{}' inspect '{}' --renderer cpu",
+        env!("CARGO_BIN_EXE_pcimg"),
+        path.display()
+    );
+    tmux.run(&[
+        "new-session",
+        "-d",
+        "-s",
+        "t",
+        "-x",
+        "120",
+        "-y",
+        "40",
+        &command,
+    ]);
+    tmux.wait_for("the panels", 10, |s| {
+        s.contains("levels of part 1") && s.contains("fps")
+    });
+    let pid: u32 = tmux
+        .run(&["display", "-p", "-t", "t", "#{pane_pid}"])
+        .trim()
+        .parse()
+        .unwrap();
+    assert!(alive(pid));
+    // Closing the pane closes the terminal under the inspector (SIGHUP, and reads
+    // that return nothing): it must end, not spin.
+    tmux.run(&["kill-pane", "-t", "t"]);
+    let deadline = Instant::now() + Duration::from_secs(10);
+    while alive(pid) {
+        if Instant::now() > deadline {
+            // Leave no spinning process behind.
+            let _ = Command::new("kill").args(["-9", &pid.to_string()]).status();
+            panic!("the inspector still ran 10 s after its terminal closed");
+        }
+        std::thread::sleep(Duration::from_millis(100));
+    }
+}

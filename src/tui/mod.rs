@@ -43,6 +43,8 @@ pub struct InspectOptions {
 
 /// Set by SIGTERM / SIGHUP: the loop ends and the terminal is restored.
 static STOP: AtomicBool = AtomicBool::new(false);
+/// Set when the event loop has returned (the signal handler's watchdog stands down).
+static LOOP_ENDED: AtomicBool = AtomicBool::new(false);
 
 /// How long the loop waits for a key before looking for finished frames.
 const POLL: Duration = Duration::from_millis(8);
@@ -54,7 +56,16 @@ pub fn run(ds: Arc<Dataset>, opts: InspectOptions) -> anyhow::Result<()> {
     let graphics = protocol::choose(opts.protocol, &env);
     let cell_pixels = protocol::cell_pixels(graphics);
     // Termination signals end the loop (the first handler of the process wins).
-    let _ = ctrlc::set_handler(|| STOP.store(true, Ordering::SeqCst));
+    // Should the loop not get there within a second (stuck in a read from a
+    // terminal that is gone), the process ends anyway.
+    let _ = ctrlc::set_handler(|| {
+        STOP.store(true, Ordering::SeqCst);
+        std::thread::sleep(Duration::from_secs(1));
+        if !LOOP_ENDED.load(Ordering::SeqCst) {
+            terminal::restore();
+            std::process::exit(130);
+        }
+    });
 
     let worker = RenderWorker::spawn(
         ds.clone(),
@@ -70,6 +81,7 @@ pub fn run(ds: Arc<Dataset>, opts: InspectOptions) -> anyhow::Result<()> {
     app.protocol = graphics.name().into();
     let mut session = terminal::Session::enter(graphics == protocol::Graphics::Kitty)?;
     let result = event_loop(&mut session, &mut app, &worker, graphics, cell_pixels);
+    LOOP_ENDED.store(true, Ordering::SeqCst);
     drop(session);
     result
 }
@@ -131,6 +143,10 @@ fn event_loop(
         if dirty {
             term.draw(|f| ui::draw(f, app, shown.image.as_ref()))?;
             dirty = false;
+        }
+        if terminal::hung_up() {
+            // The terminal went away: nothing to restore, nobody to show frames to.
+            return Ok(());
         }
         if event::poll(POLL)? {
             match event::read()? {
