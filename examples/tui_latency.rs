@@ -82,9 +82,9 @@ fn main() -> anyhow::Result<()> {
     let cells = (120u16, 40u16);
 
     println!(
-        "| protocol | key → frame drawn ms | select ms | render ms | encode ms | bytes / frame | points drawn | renderer |"
+        "| protocol | key → frame drawn ms | select ms | render ms | encode ms | bytes / frame | bytes, same frame again | points drawn | renderer |"
     );
-    println!("|---|---|---|---|---|---|---|---|");
+    println!("|---|---|---|---|---|---|---|---|---|");
     let mut last_sixel = None;
     for graphics in [Graphics::Halfblocks, Graphics::Sixel, Graphics::Kitty] {
         let cell_pixels = if graphics == Graphics::Halfblocks {
@@ -125,6 +125,7 @@ fn main() -> anyhow::Result<()> {
         wait_complete(&w, 0);
         let (mut lat, mut sel, mut ren, mut enc, mut sent, mut pts) =
             (vec![], vec![], vec![], vec![], vec![], vec![]);
+        let mut again = vec![];
         let mut renderer = String::new();
         for seq in 1..=presses as u64 {
             let t0 = Instant::now();
@@ -137,6 +138,13 @@ fn main() -> anyhow::Result<()> {
             })?;
             lat.push(t0.elapsed().as_secs_f64() * 1e3);
             sent.push((bytes.load(Ordering::Relaxed) - before) as f64);
+            // A redraw with nothing new (a status line tick): ratatui's diff sends
+            // only changed cells, so the image is not sent again.
+            let before = bytes.load(Ordering::Relaxed);
+            term.draw(|fr| {
+                fr.render_widget(ratatui_image::Image::new(&f.image), fr.area());
+            })?;
+            again.push((bytes.load(Ordering::Relaxed) - before) as f64);
             sel.push(f.status.select_ms);
             ren.push(f.status.render_ms);
             enc.push(f.status.encode_ms);
@@ -147,13 +155,14 @@ fn main() -> anyhow::Result<()> {
             }
         }
         println!(
-            "| {} | {:.1} | {:.1} | {:.1} | {:.1} | {:.0} K | {:.0} | {} |",
+            "| {} | {:.1} | {:.1} | {:.1} | {:.1} | {:.0} K | {:.0} B | {:.0} | {} |",
             graphics.name(),
             median(lat),
             median(sel),
             median(ren),
             median(enc),
             median(sent) / 1024.0,
+            median(again),
             median(pts),
             renderer
         );
