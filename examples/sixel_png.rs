@@ -34,7 +34,7 @@ fn main() -> anyhow::Result<()> {
         let q = pcimg::term::palette::reduce(img.as_raw(), colors);
         reduce.push(t.elapsed().as_secs_f64() * 1e3);
         let t = Instant::now();
-        out = pcimg::term::sixel::encode_indexed(&q, w, h);
+        out = pcimg::term::sixel::encode_indexed(&q, w, h)?;
         encode.push(t.elapsed().as_secs_f64() * 1e3);
         n = q.palette.len();
     }

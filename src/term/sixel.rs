@@ -28,6 +28,15 @@ pub enum SixelError {
     Empty { width: u32, height: u32 },
     #[error("{len} bytes of RGBA do not make a {width}×{height} image")]
     WrongSize { len: usize, width: u32, height: u32 },
+    #[error("an image {width} pixels wide is wider than sixel columns are counted here (65536)")]
+    TooWide { width: usize },
+    #[error("{len} palette indices into {colors} colours do not make a {width}×{height} image")]
+    BadIndexed {
+        len: usize,
+        colors: usize,
+        width: usize,
+        height: usize,
+    },
 }
 
 /// Appends the decimal digits of `n`.
@@ -117,22 +126,31 @@ pub fn encode(rgba: &[u8], width: u32, height: u32) -> Result<String, SixelError
             height,
         });
     }
-    if w > u16::MAX as usize + 1 {
-        return Err(SixelError::WrongSize {
-            len: rgba.len(),
-            width,
-            height,
-        });
-    }
-    Ok(encode_indexed(&palette::reduce(rgba, COLORS), w, h))
+    encode_indexed(&palette::reduce(rgba, COLORS), w, h)
 }
 
-/// Encodes an indexed image of `w × h` pixels (`indices.len() == w·h`).
-pub fn encode_indexed(image: &Indexed, w: usize, h: usize) -> String {
+/// Encodes an indexed image of `w × h` pixels: `indices.len() == w·h`, every index
+/// within the palette.
+pub fn encode_indexed(image: &Indexed, w: usize, h: usize) -> Result<String, SixelError> {
     let idx = &image.indices;
+    let bad = || SixelError::BadIndexed {
+        len: idx.len(),
+        colors: image.palette.len(),
+        width: w,
+        height: h,
+    };
+    if w == 0 || h == 0 || w.checked_mul(h) != Some(idx.len()) {
+        return Err(bad());
+    }
+    if w > u16::MAX as usize + 1 {
+        return Err(SixelError::TooWide { width: w });
+    }
     let mut used = [0u64; 256];
     for &c in idx.iter() {
         used[c as usize] += 1;
+    }
+    if used[image.palette.len().min(256)..].iter().any(|&n| n > 0) {
+        return Err(bad());
     }
     let bg = (0..256)
         .max_by_key(|&c| (used[c], std::cmp::Reverse(c)))
@@ -203,7 +221,7 @@ pub fn encode_indexed(image: &Indexed, w: usize, h: usize) -> String {
     }
     out.extend_from_slice(b"\x1b\\");
     // Only ASCII was written.
-    String::from_utf8(out).unwrap_or_default()
+    Ok(String::from_utf8(out).unwrap_or_default())
 }
 
 #[cfg(test)]
@@ -445,5 +463,22 @@ mod tests {
             })
         );
         assert!(matches!(encode(&[], 0, 5), Err(SixelError::Empty { .. })));
+        let two = Indexed {
+            palette: vec![[0, 0, 0], [9, 9, 9]],
+            indices: vec![0, 1, 1, 0],
+        };
+        assert!(encode_indexed(&two, 2, 2).is_ok());
+        assert!(matches!(
+            encode_indexed(&two, 3, 2),
+            Err(SixelError::BadIndexed { .. })
+        ));
+        let past = Indexed {
+            indices: vec![0, 2, 1, 0],
+            ..two
+        };
+        assert!(matches!(
+            encode_indexed(&past, 2, 2),
+            Err(SixelError::BadIndexed { .. })
+        ));
     }
 }
