@@ -1,6 +1,8 @@
 //! The terminal inspector: its panels, keys and sanitizing drawn into ratatui's
-//! `TestBackend` (half-blocks, deterministic), a frame from the render worker, and
-//! the real binary driven through tmux (start, pin a level, quit, terminal sane).
+//! `TestBackend` (half-blocks, deterministic), a frame from the render worker, sixel
+//! frames drawn through ratatui (first cell, sent only when changed, tmux
+//! passthrough), and the real binary driven through tmux (start, pin a level, quit,
+//! terminal sane; and ending when its terminal closes).
 
 mod common;
 
