@@ -1,8 +1,8 @@
 //! Entering and leaving the inspector's terminal mode (raw input, alternate
 //! screen, hidden cursor) on every exit path: a normal return, an error (the
 //! [`Session`] guard's `Drop`) and a panic on any thread (a panic hook that
-//! restores the terminal before the message is printed), and a hang-up (the
-//! [`spawn_watchdog`] thread).
+//! restores the terminal before the message is printed); and waiting for input in
+//! a way that notices a terminal that went away.
 
 use super::protocol;
 use crossterm::cursor::{Hide, Show};
@@ -77,53 +77,21 @@ pub fn restore() {
     let _ = out.flush();
 }
 
-/// crossterm 0.29's event reader spins without end inside `poll` once its
-/// terminal is gone (a hung-up pty reads 0 bytes, which `event/source/unix/mio.rs`
-/// retries forever), so after an SSH drop or a killed tmux pane the event loop
-/// never sees `stop` again and the process burns a core. This thread notices a
-/// hang-up (`stop` set by SIGHUP/SIGTERM, or the terminal failing `tcgetattr`)
-/// and, when the event loop has not ended within a second, restores what it can
-/// and exits with status 129. It ends by itself when the session ends.
-pub fn spawn_watchdog(stop: &'static AtomicBool) {
-    #[cfg(unix)]
-    let watched_fd = {
-        // SAFETY: isatty only inspects the descriptor.
-        (unsafe { libc::isatty(0) } == 1).then_some(0)
+/// Whether the terminal under stdin is gone (the SSH connection or the terminal
+/// window closed), asked of `poll(2)` without waiting.
+///
+/// Why the event loop asks before each `crossterm::event::poll`: crossterm 0.29's
+/// reader loops until a read would block, and on a terminal that hung up every read
+/// returns 0 bytes at once, so it spins at full CPU and never returns. A hang-up
+/// that happens while crossterm waits is caught by the signal handler instead
+/// (SIGHUP; see `tui::run`).
+pub fn hung_up() -> bool {
+    let mut fd = libc::pollfd {
+        fd: libc::STDIN_FILENO,
+        events: libc::POLLIN,
+        revents: 0,
     };
-    #[cfg(not(unix))]
-    let watched_fd: Option<i32> = None;
-    let _ = std::thread::Builder::new()
-        .name("pcimg-watchdog".into())
-        .spawn(move || {
-            let mut stopping: Option<std::time::Instant> = None;
-            loop {
-                std::thread::sleep(std::time::Duration::from_millis(200));
-                if !ACTIVE.load(Ordering::SeqCst) {
-                    return;
-                }
-                if watched_fd.is_some_and(terminal_gone) {
-                    stop.store(true, Ordering::SeqCst);
-                }
-                if stop.load(Ordering::SeqCst) {
-                    let since = *stopping.get_or_insert_with(std::time::Instant::now);
-                    if since.elapsed() > std::time::Duration::from_secs(1) {
-                        restore();
-                        std::process::exit(129);
-                    }
-                }
-            }
-        });
-}
-
-/// Whether the terminal on `fd` no longer answers (hung up or closed).
-#[cfg(unix)]
-fn terminal_gone(fd: i32) -> bool {
-    let mut t = std::mem::MaybeUninit::<libc::termios>::uninit();
-    // SAFETY: tcgetattr writes the termios it is given, or fails.
-    unsafe { libc::tcgetattr(fd, t.as_mut_ptr()) != 0 }
-}
-
-#[cfg(not(unix))]
-fn terminal_gone(_: i32) -> bool {
-    false
+    // SAFETY: one valid pollfd, and its count is 1; a zero timeout never blocks.
+    let n = unsafe { libc::poll(&mut fd, 1, 0) };
+    n > 0 && fd.revents & (libc::POLLHUP | libc::POLLERR | libc::POLLNVAL) != 0
 }
