@@ -9,7 +9,9 @@
 //!
 //! Each press orbits the camera by one step (the `→` key), sends the request, waits
 //! for the frame that answers it with every tile loaded, and draws it. Reports
-//! medians: key → frame drawn, and the worker's select/render/encode times.
+//! medians: key → frame drawn, and the worker's select/render/encode times. Then,
+//! for comparison, the last sixel frame encoded through ratatui-image's own
+//! `Sixel` (icy_sixel: quantizer and dithering), which the inspector used before.
 
 use pcimg::camera::Camera;
 use pcimg::render::RendererChoice;
@@ -80,9 +82,10 @@ fn main() -> anyhow::Result<()> {
     let cells = (120u16, 40u16);
 
     println!(
-        "| protocol | key → frame drawn ms | select ms | render ms | encode ms | bytes / frame | points drawn | renderer |"
+        "| protocol | key → frame drawn ms | select ms | render ms | encode ms | bytes / frame | bytes, same frame again | points drawn | renderer |"
     );
-    println!("|---|---|---|---|---|---|---|---|");
+    println!("|---|---|---|---|---|---|---|---|---|");
+    let mut last_sixel = None;
     for graphics in [Graphics::Halfblocks, Graphics::Sixel, Graphics::Kitty] {
         let cell_pixels = if graphics == Graphics::Halfblocks {
             (1, 2)
@@ -122,6 +125,7 @@ fn main() -> anyhow::Result<()> {
         wait_complete(&w, 0);
         let (mut lat, mut sel, mut ren, mut enc, mut sent, mut pts) =
             (vec![], vec![], vec![], vec![], vec![], vec![]);
+        let mut again = vec![];
         let mut renderer = String::new();
         for seq in 1..=presses as u64 {
             let t0 = Instant::now();
@@ -134,22 +138,53 @@ fn main() -> anyhow::Result<()> {
             })?;
             lat.push(t0.elapsed().as_secs_f64() * 1e3);
             sent.push((bytes.load(Ordering::Relaxed) - before) as f64);
+            // A redraw with nothing new (a status line tick): ratatui's diff sends
+            // only changed cells, so the image is not sent again.
+            let before = bytes.load(Ordering::Relaxed);
+            term.draw(|fr| {
+                fr.render_widget(ratatui_image::Image::new(&f.image), fr.area());
+            })?;
+            again.push((bytes.load(Ordering::Relaxed) - before) as f64);
             sel.push(f.status.select_ms);
             ren.push(f.status.render_ms);
             enc.push(f.status.encode_ms);
             pts.push(f.status.points as f64);
             renderer = f.status.renderer.clone();
+            if graphics == Graphics::Sixel {
+                last_sixel = Some(f.frame.clone());
+            }
         }
         println!(
-            "| {} | {:.1} | {:.1} | {:.1} | {:.1} | {:.0} K | {:.0} | {} |",
+            "| {} | {:.1} | {:.1} | {:.1} | {:.1} | {:.0} K | {:.0} B | {:.0} | {} |",
             graphics.name(),
             median(lat),
             median(sel),
             median(ren),
             median(enc),
             median(sent) / 1024.0,
+            median(again),
             median(pts),
             renderer
+        );
+    }
+    if let Some(frame) = last_sixel {
+        let (mut enc, mut len) = (vec![], 0);
+        for _ in 0..3 {
+            let img = image::RgbaImage::from_raw(frame.width, frame.height, frame.rgba.clone())
+                .ok_or_else(|| anyhow::anyhow!("frame size"))?;
+            let t = Instant::now();
+            let p = ratatui_image::protocol::sixel::Sixel::new(
+                image::DynamicImage::ImageRgba8(img),
+                ratatui::layout::Size::new(cells.0, cells.1),
+                false,
+            )?;
+            enc.push(t.elapsed().as_secs_f64() * 1e3);
+            len = p.data.len();
+        }
+        println!(
+            "\nThe last sixel frame through ratatui-image's Sixel (icy_sixel): encode {:.1} ms (median of 3), {:.0} K",
+            median(enc),
+            len as f64 / 1024.0
         );
     }
     Ok(())

@@ -8,6 +8,7 @@
 // Loops over the three axes index several parallel arrays at once.
 #![allow(clippy::needless_range_loop)]
 
+pub mod bigvec;
 pub mod camera;
 pub mod cli;
 pub mod convert;

@@ -133,11 +133,28 @@ impl PointColumns {
 
     /// The bounds of all points (`Bounds::EMPTY` when there are none).
     pub fn bounds(&self) -> Bounds {
-        let mut b = Bounds::EMPTY;
-        for i in 0..self.len() {
-            b.extend([self.x[i], self.y[i], self.z[i]]);
+        use rayon::prelude::*;
+        let axis = |col: &[f64]| {
+            col.par_chunks(1 << 16)
+                .map(|c| {
+                    c.iter()
+                        .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), &v| {
+                            (lo.min(v), hi.max(v))
+                        })
+                })
+                .reduce(
+                    || (f64::INFINITY, f64::NEG_INFINITY),
+                    |a, b| (a.0.min(b.0), a.1.max(b.1)),
+                )
+        };
+        if self.is_empty() {
+            return Bounds::EMPTY;
         }
-        b
+        let r = [axis(&self.x), axis(&self.y), axis(&self.z)];
+        Bounds {
+            min: r.map(|a| a.0),
+            max: r.map(|a| a.1),
+        }
     }
 
     /// Appends all points of `other`, whose attributes must match by name and order.

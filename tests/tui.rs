@@ -1,6 +1,8 @@
 //! The terminal inspector: its panels, keys and sanitizing drawn into ratatui's
-//! `TestBackend` (half-blocks, deterministic), a frame from the render worker, and
-//! the real binary driven through tmux (start, pin a level, quit, terminal sane).
+//! `TestBackend` (half-blocks, deterministic), a frame from the render worker, sixel
+//! frames drawn through ratatui (first cell, sent only when changed, tmux
+//! passthrough), and the real binary driven through tmux (start, pin a level, quit,
+//! terminal sane; and ending when its terminal closes).
 
 mod common;
 
@@ -243,6 +245,101 @@ fn the_worker_renders_and_encodes_half_block_frames() {
     );
 }
 
+/// Bytes written by ratatui's crossterm backend, kept for the test to read.
+#[derive(Clone, Default)]
+struct Sink(Arc<std::sync::Mutex<Vec<u8>>>);
+
+impl std::io::Write for Sink {
+    fn write(&mut self, b: &[u8]) -> std::io::Result<usize> {
+        self.0.lock().unwrap().extend_from_slice(b);
+        Ok(b.len())
+    }
+    fn flush(&mut self) -> std::io::Result<()> {
+        Ok(())
+    }
+}
+
+impl Sink {
+    fn take(&self) -> String {
+        String::from_utf8(std::mem::take(&mut *self.0.lock().unwrap())).unwrap()
+    }
+}
+
+#[test]
+fn sixel_frames_go_into_the_first_cell_and_are_sent_only_when_they_change() {
+    use pcimg::tui::protocol;
+    use ratatui::backend::CrosstermBackend;
+    use ratatui::layout::Rect;
+    use ratatui_image::Image;
+    // 6×3 cells of 10×20 px: a red square on black.
+    let mut frame = pcimg::render::Frame::background(60, 60, [0, 0, 0]);
+    for y in 10..30 {
+        for x in 20..40 {
+            frame.rgba[(y * 60 + x) * 4] = 255;
+        }
+    }
+    let image = protocol::encode(Graphics::Sixel, &frame, (6, 3), false).unwrap();
+    let pane = Rect::new(2, 1, 6, 3);
+
+    // In ratatui's buffer: the escape string in the first cell, the rest skipped.
+    let mut t = Terminal::new(TestBackend::new(12, 6)).unwrap();
+    let buf = t
+        .draw(|f| f.render_widget(Image::new(&image), pane))
+        .unwrap()
+        .buffer
+        .clone();
+    let first = buf[(2, 1)].symbol();
+    assert!(
+        first.starts_with("\x1b[6X\x1b[1B"),
+        "pane erased first: {first:?}"
+    );
+    assert!(first.contains("\x1bP0;1;0q\"1;1;60;60#"), "{first:?}");
+    assert!(first.ends_with("\x1b\\"));
+    let skipped = |x, y| buf[(x, y)].diff_option == ratatui::buffer::CellDiffOption::Skip;
+    assert!(skipped(3, 1) && skipped(7, 3) && !skipped(8, 3) && !skipped(2, 1));
+
+    // Through the crossterm backend: sent once, not again while it is unchanged.
+    let sink = Sink::default();
+    let mut t = Terminal::with_options(
+        CrosstermBackend::new(sink.clone()),
+        ratatui::TerminalOptions {
+            viewport: ratatui::Viewport::Fixed(Rect::new(0, 0, 12, 6)),
+        },
+    )
+    .unwrap();
+    let draw = |t: &mut Terminal<CrosstermBackend<Sink>>, img, note: &str| {
+        t.draw(|f| {
+            f.render_widget(Image::new(img), pane);
+            f.render_widget(
+                ratatui::widgets::Paragraph::new(note.to_string()),
+                Rect::new(0, 5, 12, 1),
+            );
+        })
+        .unwrap();
+    };
+    draw(&mut t, &image, "one");
+    let sent = sink.take();
+    assert_eq!(sent.matches("\x1bP0;1;0q").count(), 1, "{sent:?}");
+    draw(&mut t, &image, "two");
+    let sent = sink.take();
+    assert!(!sent.contains("\x1bP") && sent.contains("two"), "{sent:?}");
+    // A changed frame is sent again.
+    frame.rgba[0] = 255;
+    let changed = protocol::encode(Graphics::Sixel, &frame, (6, 3), false).unwrap();
+    draw(&mut t, &changed, "two");
+    assert_eq!(sink.take().matches("\x1bP0;1;0q").count(), 1);
+
+    // In tmux the whole string goes through passthrough, every inner ESC doubled.
+    let tmux = protocol::encode(Graphics::Sixel, &frame, (6, 3), true).unwrap();
+    let mut t = Terminal::new(TestBackend::new(12, 6)).unwrap();
+    t.draw(|f| f.render_widget(Image::new(&tmux), pane))
+        .unwrap();
+    let s = t.backend().buffer()[(2, 1)].symbol().to_string();
+    assert!(s.starts_with("\x1bPtmux;\x1b\x1b[6X"), "{s:?}");
+    assert!(s.ends_with("\x1b\x1b\\\x1b\\"), "{s:?}");
+    assert_eq!(s.matches('\x1b').count() % 2, 0);
+}
+
 /// tmux on a private socket, killed on drop.
 struct Tmux {
     socket: String,
@@ -356,4 +453,71 @@ fn the_binary_runs_in_tmux_and_restores_the_terminal() {
         !s.contains("levels of part 1"),
         "the alternate screen is left: {s}"
     );
+}
+
+/// Whether a process is alive (not gone, not a zombie), from `/proc`.
+fn alive(pid: u32) -> bool {
+    std::fs::read_to_string(format!("/proc/{pid}/stat"))
+        .ok()
+        .and_then(|s| {
+            s.rsplit_once(')')
+                .map(|(_, rest)| !rest.trim_start().starts_with('Z'))
+        })
+        .unwrap_or(false)
+}
+
+#[test]
+fn the_binary_ends_when_its_terminal_goes_away() {
+    if !common::tool_available("tmux", "-V") || !Path::new("/proc/self/stat").exists() {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("scan.tif");
+    store::write_part(
+        &path,
+        &pcimg::synth::scene(20_000, 6),
+        &WriteOptions::default(),
+    )
+    .unwrap();
+    let tmux = Tmux {
+        socket: format!("pcimg-hup-{}", std::process::id()),
+    };
+    // The inspector is the pane's process itself (no shell in between).
+    let command = format!(
+        "exec env NODEVICE_SELECT=1 '{}' inspect '{}' --renderer cpu",
+        env!("CARGO_BIN_EXE_pcimg"),
+        path.display()
+    );
+    tmux.run(&[
+        "new-session",
+        "-d",
+        "-s",
+        "t",
+        "-x",
+        "120",
+        "-y",
+        "40",
+        &command,
+    ]);
+    tmux.wait_for("the panels", 10, |s| {
+        s.contains("levels of part 1") && s.contains("fps")
+    });
+    let pid: u32 = tmux
+        .run(&["display", "-p", "-t", "t", "#{pane_pid}"])
+        .trim()
+        .parse()
+        .unwrap();
+    assert!(alive(pid));
+    // Closing the pane closes the terminal under the inspector (SIGHUP, and reads
+    // that return nothing): it must end, not spin.
+    tmux.run(&["kill-pane", "-t", "t"]);
+    let deadline = Instant::now() + Duration::from_secs(10);
+    while alive(pid) {
+        if Instant::now() > deadline {
+            // Leave no spinning process behind.
+            let _ = Command::new("kill").args(["-9", &pid.to_string()]).status();
+            panic!("the inspector still ran 10 s after its terminal closed");
+        }
+        std::thread::sleep(Duration::from_millis(100));
+    }
 }

@@ -14,12 +14,13 @@ pub const EXCERPT_CHARS: usize = 80;
 #[derive(Debug, thiserror::Error)]
 pub enum IngestError {
     /// The operating system refused an operation (open, stat, map, read).
-    #[error("{}: {what}: {source}", show_path(path))]
+    // The OS error is part of the message, not a `source`: the CLI prints the
+    // whole chain, and it would appear twice.
+    #[error("{}: {what}: {error}", show_path(path))]
     Io {
         path: PathBuf,
         what: String,
-        #[source]
-        source: std::io::Error,
+        error: std::io::Error,
     },
     /// A line of a line-oriented input could not be read.
     #[error("{}: line {line}: {msg}: \"{text}\"", show_path(path))]
@@ -48,7 +49,7 @@ impl IngestError {
         IngestError::Io {
             path: path.to_path_buf(),
             what: what.into(),
-            source,
+            error: source,
         }
     }
 

@@ -122,8 +122,33 @@ fn las_err(path: &Path, offset: u64, what: &str, e: impl std::fmt::Display) -> I
     IngestError::binary(path, offset, format!("{what}: {e}"))
 }
 
-impl LasReader {
-    pub fn open(path: &Path, opts: &ReadOptions) -> Result<LasReader, IngestError> {
+/// A LAS/LAZ file whose header has been read and checked.
+pub(crate) struct Opened {
+    pub file: File,
+    pub header: las::Header,
+    /// Byte offset of the first point record.
+    pub start: u64,
+    /// Bytes per point record (uncompressed files).
+    pub record_len: u64,
+    pub info: SourceInfo,
+}
+
+/// Opens a LAS or LAZ file: uncompressed records are decoded straight from a
+/// memory map in parallel ([`super::las_records`]), LAZ through the `las` crate.
+pub fn open(path: &Path, opts: &ReadOptions) -> Result<Box<dyn PointReader>, IngestError> {
+    let o = open_header(path)?;
+    if o.header.point_format().is_compressed {
+        Ok(Box::new(LasReader::start(path, o, opts)?))
+    } else {
+        Ok(Box::new(super::las_records::RecordReader::new(
+            path, o, opts,
+        )?))
+    }
+}
+
+/// Reads and checks the header: the point data must lie inside the file.
+pub(crate) fn open_header(path: &Path) -> Result<Opened, IngestError> {
+    {
         let mut file = File::open(path).map_err(|e| IngestError::io(path, "cannot open", e))?;
         let file_len = file
             .metadata()
@@ -195,6 +220,7 @@ impl LasReader {
         }
         file.seek(SeekFrom::Start(0))
             .map_err(|e| IngestError::io(path, "cannot seek", e))?;
+        let record_len = u64::from(raw.point_data_record_length);
         let info = SourceInfo {
             path: path.to_path_buf(),
             format: format!(
@@ -208,6 +234,27 @@ impl LasReader {
             attribute_names: attribute_names(&format),
             file_bytes: file_len,
         };
+        Ok(Opened {
+            file,
+            header,
+            start,
+            record_len,
+            info,
+        })
+    }
+}
+
+impl LasReader {
+    /// Reads `path` through the `las` crate on a decoder thread.
+    pub fn open(path: &Path, opts: &ReadOptions) -> Result<LasReader, IngestError> {
+        LasReader::start(path, open_header(path)?, opts)
+    }
+
+    fn start(path: &Path, o: Opened, opts: &ReadOptions) -> Result<LasReader, IngestError> {
+        let Opened {
+            file, header, info, ..
+        } = o;
+        let n = header.number_of_points();
         let pos = Arc::new(AtomicU64::new(0));
         let tracked = Tracked {
             file,

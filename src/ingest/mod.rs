@@ -22,6 +22,7 @@
 pub mod color;
 pub mod error;
 pub mod las;
+pub mod las_records;
 pub(crate) mod lines;
 pub mod ply;
 pub mod text;
@@ -159,7 +160,7 @@ pub fn open(path: &Path, opts: &ReadOptions) -> Result<Box<dyn PointReader>, Ing
     Ok(match kind {
         InputKind::Text => Box::new(text::TextReader::open(path, opts)?),
         InputKind::Ply => ply::open(path, opts)?,
-        InputKind::Las => Box::new(las::LasReader::open(path, opts)?),
+        InputKind::Las => las::open(path, opts)?,
     })
 }
 
@@ -219,44 +220,15 @@ pub(crate) fn map_file(path: &Path) -> Result<memmap2::Mmap, IngestError> {
     Ok(map)
 }
 
-/// A zero-filled column of `n` values for a reader to fill in parallel (see
-/// [`advise_huge_pages`]).
+/// A zero-filled column of `n` values for a reader to fill in parallel, in
+/// huge-page-backed memory (see [`crate::bigvec`]).
 pub(crate) fn zeroed_column<T: Copy + Default>(n: usize) -> Vec<T> {
-    let mut v = vec![T::default(); n];
-    advise_huge_pages(&mut v);
-    v
+    crate::bigvec::zeroed(n)
 }
 
-/// An empty column with room for `n` values (see [`advise_huge_pages`]).
+/// An empty column with room for `n` values (see [`crate::bigvec`]).
 pub(crate) fn column_with_capacity<T>(n: usize) -> Vec<T> {
-    let mut v = Vec::with_capacity(n);
-    advise_huge_pages(&mut v);
-    v
-}
-
-/// Marks the allocation of a large, not yet written column for transparent huge
-/// pages. Large buffers come straight from the kernel (mmap) and every 4 KiB page
-/// faults on first write; with huge pages there are 512 times fewer faults. Only
-/// a hint: without THP (or off Linux) nothing changes but the speed.
-pub(crate) fn advise_huge_pages<T>(v: &mut Vec<T>) {
-    #[cfg(target_os = "linux")]
-    {
-        const HUGE: usize = 2 << 20;
-        let bytes = v.capacity() * std::mem::size_of::<T>();
-        if bytes >= 2 * HUGE {
-            let start = v.as_mut_ptr() as usize;
-            let aligned = start.next_multiple_of(4096);
-            let len = (start + bytes).saturating_sub(aligned) / 4096 * 4096;
-            // SAFETY: the range lies inside the allocation that `v` owns;
-            // MADV_HUGEPAGE changes how the kernel backs the pages, never their
-            // contents. The result is ignored: it is a hint.
-            unsafe {
-                libc::madvise(aligned as *mut libc::c_void, len, libc::MADV_HUGEPAGE);
-            }
-        }
-    }
-    #[cfg(not(target_os = "linux"))]
-    let _ = v;
+    crate::bigvec::with_capacity(n)
 }
 
 /// Drops the page mappings of the consumed bytes `map[*released..upto]`, so that

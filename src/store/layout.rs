@@ -4,6 +4,7 @@
 //! down-sampled level is a spatially even sample (`../shared/notes/lod-layout.md`
 //! and `examples/lod_quality.rs` for the measurements behind this).
 
+use crate::bigvec;
 use rayon::prelude::*;
 use std::sync::OnceLock;
 
@@ -146,6 +147,7 @@ fn index_bits(n: usize) -> u32 {
 /// per-axis ranges). Each key keeps its top `64 - log2(n)` bits and carries the
 /// point's index in the rest, so one `u64` sort orders everything; points that
 /// share a truncated key (a cell of 2^-10 of the extent or finer) keep input order.
+/// Only the curve levels that survive the truncation are computed.
 pub fn hilbert_order(pos: &[[f32; 3]], lo: [f32; 3], hi: [f32; 3]) -> Vec<u32> {
     let n = pos.len();
     let side = (0..3).map(|a| hi[a] - lo[a]).fold(0f32, f32::max) as f64;
@@ -153,57 +155,135 @@ pub fn hilbert_order(pos: &[[f32; 3]], lo: [f32; 3], hi: [f32; 3]) -> Vec<u32> {
     let scale = if side > 0.0 { max / side } else { 0.0 };
     let ib = index_bits(n);
     let mask = (1u64 << ib) - 1;
-    let mut packed: Vec<u64> = pos
-        .par_iter()
+    // Key bit j lands at bit j + 1 and survives when j + 1 >= ib.
+    let levels = ((63 - ib) / 3 + 1).min(KEY_BITS);
+    let mut packed: Vec<u64> = bigvec::with_capacity(n);
+    pos.par_iter()
         .enumerate()
         .with_min_len(1 << 14)
         .map(|(i, p)| {
             let q = [0, 1, 2].map(|a| (((p[a] - lo[a]) as f64 * scale) as u32).min(max as u32));
             // The 63-bit key moved up to bit 63, the index in the low bits.
-            ((hilbert_key(q) << 1) & !mask) | i as u64
+            ((hilbert_key_top(q, levels) << 1) & !mask) | i as u64
         })
-        .collect();
-    sort_u64(&mut packed);
-    packed.par_iter().map(|&k| (k & mask) as u32).collect()
+        .collect_into_vec(&mut packed);
+    sort_indexed(&mut packed, ib);
+    let mut perm = bigvec::with_capacity(n);
+    packed
+        .par_iter()
+        .map(|&k| (k & mask) as u32)
+        .collect_into_vec(&mut perm);
+    perm
 }
 
-/// Sorts `v`: one pass scatters by the top bits into buckets, then the buckets are
-/// sorted in parallel.
-pub fn sort_u64(v: &mut Vec<u64>) {
+/// The Hilbert index of `q` with only its `levels` most significant levels
+/// computed (rounded up to a multiple of three); the rest are zero.
+#[inline]
+pub fn hilbert_key_top(q: [u32; 3], levels: u32) -> u64 {
+    let t3 = hilbert_table3();
+    let m = spread3(q[0]) | (spread3(q[1]) << 1) | (spread3(q[2]) << 2);
+    let steps = levels.div_ceil(3).min(KEY_BITS / 3) as i32;
+    let mut h = 0u64;
+    let mut state = 0usize;
+    for step in 0..steps {
+        let s = t3[state][((m >> (54 - 9 * step)) & 511) as usize];
+        h = (h << 9) | (s & 511) as u64;
+        state = (s >> 9) as usize;
+    }
+    h << (9 * (KEY_BITS as i32 / 3 - steps))
+}
+
+/// Digit width of the sort's scatter passes.
+const RADIX_BITS: u32 = 11;
+
+/// A pointer that scatter passes share across threads; every thread writes a
+/// disjoint set of slots.
+#[derive(Clone, Copy)]
+struct Shared(*mut u64);
+unsafe impl Send for Shared {}
+unsafe impl Sync for Shared {}
+
+impl Shared {
+    /// The slot `i` (a method, so closures capture the whole `Shared`).
+    fn at(self, i: usize) -> *mut u64 {
+        self.0.wrapping_add(i)
+    }
+}
+
+/// Sorts `v` ascending, given that its low `low_bits` bits are unique and already
+/// ascending in the current order (they are the element's index), so only the
+/// bits above them need sorting: a parallel most-significant-digit scatter, then
+/// each bucket sorted in cache by stable least-significant-digit passes.
+pub fn sort_indexed(v: &mut Vec<u64>, low_bits: u32) {
     let n = v.len();
     if n < 1 << 16 {
         v.sort_unstable();
         return;
     }
-    const BUCKET_BITS: u32 = 12;
     let (kmin, kmax) = v
-        .iter()
-        .fold((u64::MAX, 0u64), |(a, b), &k| (a.min(k), b.max(k)));
-    let span_bits = 64 - (kmax - kmin).leading_zeros();
-    let shift = span_bits.saturating_sub(BUCKET_BITS);
+        .par_iter()
+        .with_min_len(1 << 16)
+        .fold(|| (u64::MAX, 0u64), |(a, b), &k| (a.min(k), b.max(k)))
+        .reduce(|| (u64::MAX, 0u64), |x, y| (x.0.min(y.0), x.1.max(y.1)));
+    // The base keeps whole keys: subtracting it never borrows from the index bits.
+    let kmin = kmin & !((1u64 << low_bits) - 1);
+    let key_bits = 64 - ((kmax - kmin) >> low_bits).leading_zeros();
+    if key_bits == 0 {
+        return; // one key: the indices are already in order
+    }
+    let top = key_bits.min(RADIX_BITS);
+    let shift = low_bits + key_bits - top;
+    let buckets = 1usize << top;
     let bucket = |k: u64| ((k - kmin) >> shift) as usize;
-    let mut counts = vec![0usize; (1 << BUCKET_BITS) + 1];
-    for &k in v.iter() {
-        counts[bucket(k) + 1] += 1;
+    // Histograms per chunk, then each chunk's start in each bucket.
+    let chunk = n.div_ceil(rayon::current_num_threads() * 4).max(1 << 14);
+    let hists: Vec<Vec<u32>> = v
+        .par_chunks(chunk)
+        .map(|c| {
+            let mut h = vec![0u32; buckets];
+            for &k in c {
+                h[bucket(k)] += 1;
+            }
+            h
+        })
+        .collect();
+    let mut starts = vec![vec![0usize; buckets]; hists.len()];
+    let mut bounds = vec![0usize; buckets + 1];
+    let mut at = 0usize;
+    for b in 0..buckets {
+        bounds[b] = at;
+        for (c, h) in hists.iter().enumerate() {
+            starts[c][b] = at;
+            at += h[b] as usize;
+        }
     }
-    for b in 1..counts.len() {
-        counts[b] += counts[b - 1];
-    }
-    let mut out = vec![0u64; n];
-    let mut fill = counts.clone();
-    for &k in v.iter() {
-        let b = bucket(k);
-        out[fill[b]] = k;
-        fill[b] += 1;
-    }
-    let mut slices: Vec<&mut [u64]> = Vec::with_capacity(1 << BUCKET_BITS);
+    bounds[buckets] = n;
+    let mut out: Vec<u64> = bigvec::with_capacity(n);
+    let dst = Shared(out.as_mut_ptr());
+    v.par_chunks(chunk)
+        .zip(starts.par_iter_mut())
+        .for_each(|(c, fill)| {
+            for &k in c {
+                let b = bucket(k);
+                // SAFETY: chunk c owns slots starts[c][b].. of bucket b, sized by
+                // its own histogram, and no two chunks' ranges overlap.
+                unsafe { *dst.at(fill[b]) = k };
+                fill[b] += 1;
+            }
+        });
+    // SAFETY: the scatter wrote every one of the n slots exactly once.
+    unsafe { out.set_len(n) };
+    let mut slices: Vec<&mut [u64]> = Vec::with_capacity(buckets);
     let mut rest = out.as_mut_slice();
-    for b in 0..(1 << BUCKET_BITS) {
-        let (head, tail) = rest.split_at_mut(counts[b + 1] - counts[b]);
+    for b in 0..buckets {
+        let (head, tail) = rest.split_at_mut(bounds[b + 1] - bounds[b]);
         slices.push(head);
         rest = tail;
     }
-    slices.par_iter_mut().for_each(|s| s.sort_unstable());
+    let rest_bits = shift - low_bits;
+    slices.par_iter_mut().for_each_init(Vec::new, |scratch, s| {
+        lsd_sort(s, scratch, kmin, low_bits, rest_bits)
+    });
     *v = out;
 }
 
@@ -216,6 +296,53 @@ pub fn representative_levels(n: usize) -> usize {
         levels += 1;
     }
     levels
+}
+
+/// Stable sort of `s` by bits `low..low + bits` of `k - base` (digit passes of at
+/// most `RADIX_BITS`), ping-ponging through `scratch`.
+fn lsd_sort(s: &mut [u64], scratch: &mut Vec<u64>, base: u64, low: u32, bits: u32) {
+    if s.len() < 2 || bits == 0 {
+        return;
+    }
+    if s.len() <= 64 {
+        s.sort_unstable();
+        return;
+    }
+    scratch.clear();
+    scratch.resize(s.len(), 0);
+    let passes = bits.div_ceil(RADIX_BITS);
+    let width = bits.div_ceil(passes);
+    let mut counts = vec![0usize; 1 << width];
+    let mut in_s = true;
+    for p in 0..passes {
+        let shift = low + p * width;
+        let w = width.min(low + bits - shift);
+        let mask = (1u64 << w) - 1;
+        let (src, dst): (&[u64], &mut [u64]) = if in_s {
+            (&*s, scratch.as_mut_slice())
+        } else {
+            (scratch.as_slice(), &mut *s)
+        };
+        counts.iter_mut().for_each(|c| *c = 0);
+        for &k in src {
+            counts[(((k - base) >> shift) & mask) as usize] += 1;
+        }
+        let mut at = 0;
+        for c in counts.iter_mut() {
+            let k = *c;
+            *c = at;
+            at += k;
+        }
+        for &k in src {
+            let d = (((k - base) >> shift) & mask) as usize;
+            dst[counts[d]] = k;
+            counts[d] += 1;
+        }
+        in_s = !in_s;
+    }
+    if !in_s {
+        s.copy_from_slice(scratch);
+    }
 }
 
 /// Rearranges points (`pos` and their source indices `perm`, already in Hilbert
@@ -597,13 +724,40 @@ mod tests {
 
     #[test]
     fn sort_matches_std() {
-        let mut v: Vec<u64> = (0..200_000u64)
-            .map(|i| i.wrapping_mul(0x9E37_79B9_7F4A_7C15) >> 3)
-            .collect();
-        let mut w = v.clone();
-        w.sort();
-        sort_u64(&mut v);
-        assert_eq!(v, w);
+        // Keys of several spreads (full range, narrow, one outlier, all equal)
+        // above a 20-bit index.
+        let spreads: [fn(u64) -> u64; 5] = [
+            |h| h >> 20,
+            |h| 1_000_003 + (h >> 36),
+            |h| h >> 50,
+            |h| if h % 1000 == 0 { 1 << 43 } else { h >> 58 },
+            |_| 77,
+        ];
+        for (s, f) in spreads.iter().enumerate() {
+            for n in [1000usize, 70_000, 300_000] {
+                let mut v: Vec<u64> = (0..n as u64)
+                    .map(|i| (f(i.wrapping_mul(0x9E37_79B9_7F4A_7C15)) << 20) | i)
+                    .collect();
+                let mut w = v.clone();
+                w.sort();
+                sort_indexed(&mut v, 20);
+                assert!(v == w, "spread {s}, n {n}");
+            }
+        }
+    }
+
+    #[test]
+    fn truncated_key_is_the_full_key_top() {
+        let mut r = crate::synth::Rng::new(5);
+        for _ in 0..10_000 {
+            let q = [0, 1, 2].map(|_| (r.next_u64() & 0x1f_ffff) as u32);
+            for levels in [1u32, 9, 13, 14, 15, 21] {
+                let keep = 9 * levels.div_ceil(3);
+                let full = hilbert_key(q) >> (63 - keep);
+                assert_eq!(hilbert_key_top(q, levels) >> (63 - keep), full);
+                assert_eq!(hilbert_key_top(q, levels) & ((1 << (63 - keep)) - 1), 0);
+            }
+        }
     }
 
     #[test]

@@ -59,7 +59,7 @@ pub fn tile_points(g: Geometry, level: usize, t: u32) -> u32 {
 
 /// The tile index: per level, every tile holding points, in raster order. A tile's
 /// bounds are those of all level-0 points under it (the union of its four children).
-pub(super) fn tile_index(bands: &[Vec<f32>], origin: [f64; 3], g: Geometry) -> Vec<LevelIndex> {
+pub(super) fn tile_index(pos: &[[f32; 3]], origin: [f64; 3], g: Geometry) -> Vec<LevelIndex> {
     let w = g.size(0);
     let across0 = g.tiles_across(0);
     // Level 0: every tile's rows are contiguous runs of the input.
@@ -77,10 +77,10 @@ pub(super) fn tile_index(bands: &[Vec<f32>], origin: [f64; 3], g: Geometry) -> V
                 }
                 any = true;
                 let s = source(w, 0, col * TILE_SIZE, row * TILE_SIZE + y) as usize;
-                for a in 0..3 {
-                    for &v in &bands[a][s..s + c] {
-                        lo[a] = lo[a].min(v);
-                        hi[a] = hi[a].max(v);
+                for p in &pos[s..s + c] {
+                    for a in 0..3 {
+                        lo[a] = lo[a].min(p[a]);
+                        hi[a] = hi[a].max(p[a]);
                     }
                 }
             }
@@ -131,9 +131,14 @@ pub(super) fn tile_index(bands: &[Vec<f32>], origin: [f64; 3], g: Geometry) -> V
     levels
 }
 
-/// The pixels of the tile of raster index `t` of `level` for one band (`src` in
-/// input order), NaN where no point is held.
-pub(super) fn tile_pixels(src: &[f32], g: Geometry, level: usize, t: u32) -> Vec<f32> {
+/// The pixels of the tile of raster index `t` of `level` for one band (`value(i)`:
+/// the band's value for input point `i`), NaN where no point is held.
+pub(super) fn tile_pixels(
+    value: impl Fn(usize) -> f32,
+    g: Geometry,
+    level: usize,
+    t: u32,
+) -> Vec<f32> {
     let mut buf = vec![f32::NAN; TILE_PIXELS];
     let w = g.size(0);
     let across = g.tiles_across(level);
@@ -144,12 +149,8 @@ pub(super) fn tile_pixels(src: &[f32], g: Geometry, level: usize, t: u32) -> Vec
             break;
         }
         let s = source(w, level, x0, y0 + y as u32) as usize;
-        if level == 0 {
-            out[..c].copy_from_slice(&src[s..s + c]);
-        } else {
-            for (j, o) in out[..c].iter_mut().enumerate() {
-                *o = src[s + (j << level)];
-            }
+        for (j, o) in out[..c].iter_mut().enumerate() {
+            *o = value(s + (j << level));
         }
     }
     buf
@@ -335,7 +336,7 @@ mod tests {
         for level in 0..g.levels() {
             let across = g.tiles_across(level);
             for t in 0..across * across {
-                let px = tile_pixels(&src, g, level, t);
+                let px = tile_pixels(|i| src[i], g, level, t);
                 for (p, &v) in px.iter().enumerate() {
                     let x = (t % across) * TILE_SIZE + p as u32 % TILE_SIZE;
                     let y = (t / across) * TILE_SIZE + p as u32 / TILE_SIZE;

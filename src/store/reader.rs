@@ -10,11 +10,13 @@ use super::ifd::{Ifd, Tiff};
 use super::metadata::{self, LevelIndex};
 use super::spec::{self, key, tag};
 use super::zorder::tile_z_to_raster;
+use crate::bigvec;
 use crate::points::Bounds;
 use memmap2::Mmap;
 use rayon::prelude::*;
 use std::collections::BTreeMap;
 use std::fs::File;
+use std::mem::MaybeUninit;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
@@ -624,12 +626,15 @@ impl Part {
         if let Some(counts) = counts {
             // Every count is known: fill disjoint slices of the output in parallel.
             let total: usize = counts.iter().sum();
-            let mut columns: Vec<Vec<f32>> = bands.iter().map(|_| vec![0f32; total]).collect();
-            let mut outs: Vec<Vec<&mut [f32]>> = (0..tiles.len())
+            // Columns are filled in place without being zeroed first (every slot is
+            // written by exactly one tile), in huge-page-backed memory.
+            let mut columns: Vec<Vec<f32>> =
+                bands.iter().map(|_| bigvec::with_capacity(total)).collect();
+            let mut outs: Vec<Vec<&mut [MaybeUninit<f32>]>> = (0..tiles.len())
                 .map(|_| Vec::with_capacity(bands.len()))
                 .collect();
             for col in columns.iter_mut() {
-                let mut rest = col.as_mut_slice();
+                let mut rest = &mut col.spare_capacity_mut()[..total];
                 for (k, &c) in counts.iter().enumerate() {
                     let (head, tail) = rest.split_at_mut(c);
                     outs[k].push(head);
@@ -640,6 +645,11 @@ impl Part {
                 .zip(tiles.par_iter())
                 .try_for_each(|(o, &t)| self.fill_tile(l, t, bands, o))
                 .map_err(fail)?;
+            for col in columns.iter_mut() {
+                // SAFETY: fill_tile succeeded for every tile, and the tiles' slices
+                // (sized by their counts) cover the first `total` slots exactly.
+                unsafe { col.set_len(total) };
+            }
             return Ok(Points {
                 bands: bands.iter().map(|&b| self.bands[b].name.clone()).collect(),
                 offsets: bands.iter().map(|&b| self.bands[b].offset).collect(),
@@ -694,7 +704,7 @@ impl Part {
         l: &Level,
         t: u32,
         bands: &[usize],
-        outs: Vec<&mut [f32]>,
+        outs: Vec<&mut [MaybeUninit<f32>]>,
     ) -> std::result::Result<(), String> {
         let n = outs.first().map_or(0, |o| o.len());
         let per_band = (l.tiles_across * l.tiles_down) as usize;
@@ -706,7 +716,9 @@ impl Part {
                 if c.len() != o.len() {
                     return Err(format!("tile {t} holds fewer points than its index says"));
                 }
-                o.copy_from_slice(&c);
+                for (d, v) in o.iter_mut().zip(c) {
+                    d.write(v);
+                }
             }
             return Ok(());
         };
@@ -715,7 +727,12 @@ impl Part {
         if !l.planar_separate {
             let cols = self.read_tile(l, t, Some(n as u32), bands)?;
             for (o, c) in outs.into_iter().zip(cols) {
-                o.copy_from_slice(&c[..o.len()]);
+                if c.len() < o.len() {
+                    return Err(format!("tile {t} holds fewer points than its index says"));
+                }
+                for (d, &v) in o.iter_mut().zip(&c) {
+                    d.write(v);
+                }
             }
             return Ok(());
         }
@@ -735,7 +752,7 @@ impl Part {
             match raw {
                 Some(plane) => {
                     for (v, &p) in o.iter_mut().zip(&lut[..n]) {
-                        *v = plane[p as usize];
+                        v.write(plane[p as usize]);
                     }
                 }
                 None => {
@@ -744,7 +761,7 @@ impl Part {
                         .decode(stored, pixels)
                         .map_err(|m| format!("tile {t} band {}: {m}", b + 1))?;
                     for (v, &p) in o.iter_mut().zip(&lut[..n]) {
-                        *v = plane[p as usize];
+                        v.write(plane[p as usize]);
                     }
                 }
             }

@@ -9,6 +9,7 @@ use super::metadata::{self, Item, LevelIndex, TileEntry};
 use super::paper;
 use super::spec::{self, TILE_PIXELS, TILE_SIZE, key, tag};
 use super::zorder::{Geometry, tile_z_to_raster};
+use crate::bigvec;
 use crate::points::{Bounds, PointColumns};
 use rayon::prelude::*;
 use std::fs::File;
@@ -89,11 +90,14 @@ pub fn quantization_bound(bounds: &Bounds, origin: [f64; 3]) -> f64 {
         .fold(0.0, f64::max)
 }
 
-/// Columns of a part in image order, ready to be tiled.
+/// Columns of a part in image order, ready to be tiled. Positions stay interleaved
+/// (`x y z` bands 0–2 are read straight out of them by the tile encoder, which
+/// saves a pass over every point); `attrs` are bands 3 and up.
 struct Arranged {
     geometry: Geometry,
     layout: Layout,
-    bands: Vec<Vec<f32>>,
+    pos: Vec<[f32; 3]>,
+    attrs: Vec<Vec<f32>>,
     names: Vec<String>,
     offsets: Vec<f64>,
     origin: [f64; 3],
@@ -180,19 +184,18 @@ fn arrange(path: &Path, pts: &PointColumns, layout: Layout, ph: &mut Phases) -> 
     };
     let origin = if n == 0 { [0.0; 3] } else { bounds.center() };
     // Coordinates relative to the origin.
-    let mut pos = vec![[0f32; 3]; n];
-    pos.par_chunks_mut(1 << 16)
-        .enumerate()
-        .for_each(|(c, chunk)| {
-            for (k, p) in chunk.iter_mut().enumerate() {
-                let i = (c << 16) + k;
-                *p = [
-                    (pts.x[i] - origin[0]) as f32,
-                    (pts.y[i] - origin[1]) as f32,
-                    (pts.z[i] - origin[2]) as f32,
-                ];
-            }
-        });
+    let mut pos: Vec<[f32; 3]> = bigvec::with_capacity(n);
+    (0..n)
+        .into_par_iter()
+        .with_min_len(1 << 14)
+        .map(|i| {
+            [
+                (pts.x[i] - origin[0]) as f32,
+                (pts.y[i] - origin[1]) as f32,
+                (pts.z[i] - origin[2]) as f32,
+            ]
+        })
+        .collect_into_vec(&mut pos);
     let max_error = quantization_bound(&bounds, origin);
     let geometry = Geometry::for_points(n as u64);
     ph.mark("validate+origin");
@@ -203,7 +206,10 @@ fn arrange(path: &Path, pts: &PointColumns, layout: Layout, ph: &mut Phases) -> 
             let hi = [0, 1, 2].map(|a| (bounds.max[a] - origin[a]) as f32);
             let perm = layout::hilbert_order(&pos, lo, hi);
             ph.mark("hilbert sort");
-            let mut sorted: Vec<[f32; 3]> = perm.par_iter().map(|&i| pos[i as usize]).collect();
+            let mut sorted: Vec<[f32; 3]> = bigvec::with_capacity(n);
+            perm.par_iter()
+                .map(|&i| pos[i as usize])
+                .collect_into_vec(&mut sorted);
             drop(pos);
             ph.mark("gather positions");
             let mut perm = perm;
@@ -217,25 +223,30 @@ fn arrange(path: &Path, pts: &PointColumns, layout: Layout, ph: &mut Phases) -> 
         }
         Layout::Paper => (pos, (0..n as u32).collect()),
     };
-    let mut bands: Vec<Vec<f32>> = (0..3)
-        .map(|a| pos.par_iter().map(|p| p[a]).collect())
-        .collect();
-    drop(pos);
     let identity = layout == Layout::Paper;
-    for a in &pts.attributes {
-        bands.push(if identity {
-            a.values.clone()
-        } else {
-            perm.par_iter().map(|&i| a.values[i as usize]).collect()
-        });
-    }
+    let attrs: Vec<Vec<f32>> = pts
+        .attributes
+        .iter()
+        .map(|a| {
+            if identity {
+                a.values.clone()
+            } else {
+                let mut v = bigvec::with_capacity(n);
+                perm.par_iter()
+                    .map(|&i| a.values[i as usize])
+                    .collect_into_vec(&mut v);
+                v
+            }
+        })
+        .collect();
     let mut offsets = origin.to_vec();
     offsets.extend(pts.attributes.iter().map(|a| a.offset));
     ph.mark("gather bands");
     Ok(Arranged {
         geometry,
         layout,
-        bands,
+        pos,
+        attrs,
         names,
         offsets,
         origin,
@@ -249,7 +260,7 @@ fn arrange(path: &Path, pts: &PointColumns, layout: Layout, ph: &mut Phases) -> 
 fn tile_index(a: &Arranged) -> Vec<LevelIndex> {
     let g = a.geometry;
     if a.layout == Layout::Paper {
-        return paper::tile_index(&a.bands, a.origin, g);
+        return paper::tile_index(&a.pos, a.origin, g);
     }
     let o = a.origin;
     let mut levels: Vec<LevelIndex> = Vec::with_capacity(g.levels());
@@ -257,13 +268,13 @@ fn tile_index(a: &Arranged) -> Vec<LevelIndex> {
         .into_par_iter()
         .map(|t| {
             let s = t * TILE_PIXELS;
-            let e = (s + TILE_PIXELS).min(a.bands[0].len());
+            let e = (s + TILE_PIXELS).min(a.pos.len());
             let mut lo = [f32::INFINITY; 3];
             let mut hi = [f32::NEG_INFINITY; 3];
-            for ax in 0..3 {
-                for &v in &a.bands[ax][s..e] {
-                    lo[ax] = lo[ax].min(v);
-                    hi[ax] = hi[ax].max(v);
+            for p in &a.pos[s..e] {
+                for ax in 0..3 {
+                    lo[ax] = lo[ax].min(p[ax]);
+                    hi[ax] = hi[ax].max(p[ax]);
                 }
             }
             Bounds {
@@ -356,7 +367,7 @@ fn level_points(index: &[LevelIndex]) -> Vec<u64> {
 /// Upper bound of the file size, to choose between classic TIFF and BigTIFF.
 fn size_estimate(a: &Arranged, xml: &str) -> u64 {
     let g = a.geometry;
-    let per_tile = (TILE_PIXELS * 4) as u64 * a.bands.len() as u64;
+    let per_tile = (TILE_PIXELS * 4) as u64 * a.names.len() as u64;
     // Compressed tiles can exceed raw size slightly: allow 1%.
     let data: u64 = (0..g.levels())
         .map(|l| g.filled_tiles(l) * per_tile)
@@ -364,7 +375,7 @@ fn size_estimate(a: &Arranged, xml: &str) -> u64 {
         * 101
         / 100;
     let tags: u64 = (0..g.levels())
-        .map(|l| (g.tiles_across(l) as u64).pow(2) * a.bands.len() as u64 * 16 + 4096)
+        .map(|l| (g.tiles_across(l) as u64).pow(2) * a.names.len() as u64 * 16 + 4096)
         .sum();
     data + tags + xml.len() as u64
 }
@@ -447,8 +458,52 @@ enum Encoded {
     Bytes(Vec<u8>),
 }
 
-/// Tiles encoded per parallel batch (bounds memory: batch × bands × 256 KiB).
-const BATCH_TILES: usize = 16;
+/// Tiles encoded per parallel batch (bounds memory: about three batches of
+/// batch × bands × 256 KiB are alive at once).
+const BATCH_TILES: usize = 8;
+
+/// Places the `count` samples `value(0..count)` of one tile (Z-order within the
+/// tile) at their row-major pixels; the rest stays NaN.
+#[inline]
+fn scatter_tile(lut: &[u32], count: usize, value: impl Fn(usize) -> f32) -> Vec<f32> {
+    let mut buf = vec![f32::NAN; TILE_PIXELS];
+    for (i, &to) in lut[..count].iter().enumerate() {
+        buf[to as usize] = value(i);
+    }
+    buf
+}
+
+/// Encodes tile `t` (Z-rank; `raster`: its raster index) of band `b` at `level`.
+fn encode_tile(
+    a: &Arranged,
+    lut: &[u32],
+    level: usize,
+    (t, raster): (usize, u32),
+    b: usize,
+    compression: Compression,
+) -> Encoded {
+    let g = a.geometry;
+    let count = g.tile_points(level, t as u64) as usize;
+    let stride = 1usize << (2 * level);
+    let base = t * TILE_PIXELS;
+    let buf = if a.layout == Layout::Paper {
+        // The paper's layout: input order, row-major (`paper.rs`).
+        match b {
+            0..3 => paper::tile_pixels(|i| a.pos[i][b], g, level, raster),
+            _ => paper::tile_pixels(|i| a.attrs[b - 3][i], g, level, raster),
+        }
+    } else if b < 3 {
+        let pos = &a.pos;
+        scatter_tile(lut, count, |i| pos[(base + i) * stride][b])
+    } else {
+        let src = &a.attrs[b - 3];
+        scatter_tile(lut, count, |i| src[(base + i) * stride])
+    };
+    match compression {
+        Compression::None => Encoded::Raw(buf),
+        c => Encoded::Bytes(codec::encode(&buf, TILE_SIZE as usize, c)),
+    }
+}
 
 fn encode<W: Write + Seek, K: TiffKind>(
     w: &mut W,
@@ -459,7 +514,7 @@ fn encode<W: Write + Seek, K: TiffKind>(
     big: bool,
 ) -> tiff::TiffResult<()> {
     let g = a.geometry;
-    let nb = a.bands.len();
+    let nb = a.names.len();
     let lut = tile_z_to_raster(spec::TILE_LOG2);
     let software = format!("{} {}", spec::SOFTWARE_PREFIX, env!("CARGO_PKG_VERSION"));
     let mut enc = TiffEncoder::<&mut W, K>::new_generic(w)?;
@@ -471,57 +526,49 @@ fn encode<W: Write + Seek, K: TiffKind>(
         // Tiles holding points: in Z-order (Hilbert layout) or raster order (paper).
         let tiles = &index[level].tiles;
         let filled = tiles.len();
-        let stride = 1usize << (2 * level);
         let mut dir = enc.image_directory()?;
         // Align tile data to 8 bytes so readers can view planes in place.
         let at = dir.write_data(&[0u8; 0][..])?;
         if at % 8 != 0 {
             dir.write_data(&[0u8; 8][..(8 - at % 8) as usize])?;
         }
-        for batch_start in (0..filled).step_by(BATCH_TILES) {
-            let batch_end = (batch_start + BATCH_TILES).min(filled);
-            let jobs: Vec<(usize, usize)> = (batch_start..batch_end)
-                .flat_map(|t| (0..nb).map(move |b| (t, b)))
-                .collect();
-            let encoded: Vec<Encoded> = jobs
-                .par_iter()
-                .map(|&(t, b)| {
-                    if a.layout == Layout::Paper {
-                        let buf = paper::tile_pixels(&a.bands[b], g, level, tiles[t].index);
-                        return match opts.compression {
-                            Compression::None => Encoded::Raw(buf),
-                            c => Encoded::Bytes(codec::encode(&buf, TILE_SIZE as usize, c)),
-                        };
+        // Tiles are encoded in batches on the rayon pool by a producer thread
+        // while this thread writes the previous batch: encoding and the copy into
+        // the page cache overlap.
+        std::thread::scope(|scope| -> tiff::TiffResult<()> {
+            let (tx, rx) = std::sync::mpsc::sync_channel::<Vec<(usize, usize, Encoded)>>(1);
+            let (lut, compression) = (&lut, opts.compression);
+            scope.spawn(move || {
+                for start in (0..filled).step_by(BATCH_TILES) {
+                    let end = (start + BATCH_TILES).min(filled);
+                    let jobs: Vec<(usize, usize)> = (start..end)
+                        .flat_map(|t| (0..nb).map(move |b| (t, b)))
+                        .collect();
+                    let batch: Vec<(usize, usize, Encoded)> = jobs
+                        .into_par_iter()
+                        .map(|(t, b)| {
+                            let tile = (t, tiles[t].index);
+                            (t, b, encode_tile(a, lut, level, tile, b, compression))
+                        })
+                        .collect();
+                    if tx.send(batch).is_err() {
+                        return; // the writer failed and stopped listening
                     }
-                    let mut buf = vec![f32::NAN; TILE_PIXELS];
-                    let count = g.tile_points(level, t as u64) as usize;
-                    let src = &a.bands[b];
-                    let base = t * TILE_PIXELS;
-                    if stride == 1 {
-                        for (i, &v) in src[base..base + count].iter().enumerate() {
-                            buf[lut[i] as usize] = v;
-                        }
-                    } else {
-                        for i in 0..count {
-                            buf[lut[i] as usize] = src[(base + i) * stride];
-                        }
-                    }
-                    match opts.compression {
-                        Compression::None => Encoded::Raw(buf),
-                        c => Encoded::Bytes(codec::encode(&buf, TILE_SIZE as usize, c)),
-                    }
-                })
-                .collect();
-            for (&(t, b), e) in jobs.iter().zip(&encoded) {
-                let bytes: &[u8] = match e {
-                    Encoded::Raw(v) => bytemuck::cast_slice(v),
-                    Encoded::Bytes(v) => v,
-                };
-                let r = tiles[t].index as usize;
-                offsets[b * per_band + r] = dir.write_data(bytes)?;
-                counts[b * per_band + r] = bytes.len() as u64;
+                }
+            });
+            for batch in rx {
+                for (t, b, e) in &batch {
+                    let bytes: &[u8] = match e {
+                        Encoded::Raw(v) => bytemuck::cast_slice(v),
+                        Encoded::Bytes(v) => v,
+                    };
+                    let r = tiles[*t].index as usize;
+                    offsets[b * per_band + r] = dir.write_data(bytes)?;
+                    counts[b * per_band + r] = bytes.len() as u64;
+                }
             }
-        }
+            Ok(())
+        })?;
         if level > 0 {
             dir.write_tag(Tag::NewSubfileType, 1u32)?;
         }

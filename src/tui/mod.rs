@@ -43,6 +43,8 @@ pub struct InspectOptions {
 
 /// Set by SIGTERM / SIGHUP: the loop ends and the terminal is restored.
 static STOP: AtomicBool = AtomicBool::new(false);
+/// Set when the event loop has returned (the signal handler's watchdog stands down).
+static LOOP_ENDED: AtomicBool = AtomicBool::new(false);
 
 /// How long the loop waits for a key before looking for finished frames.
 const POLL: Duration = Duration::from_millis(8);
@@ -54,7 +56,16 @@ pub fn run(ds: Arc<Dataset>, opts: InspectOptions) -> anyhow::Result<()> {
     let graphics = protocol::choose(opts.protocol, &env);
     let cell_pixels = protocol::cell_pixels(graphics);
     // Termination signals end the loop (the first handler of the process wins).
-    let _ = ctrlc::set_handler(|| STOP.store(true, Ordering::SeqCst));
+    // Should the loop not get there within a second (stuck in a read from a
+    // terminal that is gone), the process ends anyway.
+    let _ = ctrlc::set_handler(|| {
+        STOP.store(true, Ordering::SeqCst);
+        std::thread::sleep(Duration::from_secs(1));
+        if !LOOP_ENDED.load(Ordering::SeqCst) {
+            terminal::restore();
+            std::process::exit(130);
+        }
+    });
 
     let worker = RenderWorker::spawn(
         ds.clone(),
@@ -69,7 +80,8 @@ pub fn run(ds: Arc<Dataset>, opts: InspectOptions) -> anyhow::Result<()> {
     let mut app = App::new(ds, opts.camera, opts.settings);
     app.protocol = graphics.name().into();
     let mut session = terminal::Session::enter(graphics == protocol::Graphics::Kitty)?;
-    let result = event_loop(&mut session, &mut app, &worker, cell_pixels);
+    let result = event_loop(&mut session, &mut app, &worker, graphics, cell_pixels);
+    LOOP_ENDED.store(true, Ordering::SeqCst);
     drop(session);
     result
 }
@@ -86,6 +98,7 @@ fn event_loop(
     session: &mut terminal::Session,
     app: &mut App,
     worker: &RenderWorker,
+    graphics: protocol::Graphics,
     cell_pixels: (u32, u32),
 ) -> anyhow::Result<()> {
     use crossterm::event::{self, Event};
@@ -97,6 +110,7 @@ fn event_loop(
     let mut requested_cells = (0u16, 0u16);
     let mut dirty = true;
     let mut saved = 0u32;
+    let mut help_shown = false;
     loop {
         if STOP.load(Ordering::SeqCst) {
             return Ok(());
@@ -119,9 +133,20 @@ fn event_loop(
             requested_cells = cells;
             want_frame = false;
         }
+        if help_shown && !app.show_help && protocol::image_in_one_cell(graphics) {
+            // The help was drawn over the image's skipped cells; ratatui would not
+            // send those again, so its text would stay. Redraw everything once.
+            term.clear()?;
+            dirty = true;
+        }
+        help_shown = app.show_help;
         if dirty {
             term.draw(|f| ui::draw(f, app, shown.image.as_ref()))?;
             dirty = false;
+        }
+        if terminal::hung_up() {
+            // The terminal went away: nothing to restore, nobody to show frames to.
+            return Ok(());
         }
         if event::poll(POLL)? {
             match event::read()? {

@@ -11,10 +11,14 @@
 //!
 //! Encoding runs on the render worker, so the event loop only copies cells; kitty
 //! frames all use one image id ([`KITTY_IMAGE_ID`]) so each frame replaces the last
-//! in the terminal's memory instead of piling up.
+//! in the terminal's memory instead of piling up. Sixel frames come from our own
+//! encoder ([`crate::term::sixel`]) and are handed to ratatui-image's `Sixel`
+//! ready-made, which draws them as ratatui-image does its own: the escape string in
+//! the pane's first cell, the other cells skipped.
 
 use crate::render::Frame;
 use crate::term::Protocol as Requested;
+use crate::term::sixel;
 use ratatui::layout::Size;
 use ratatui_image::protocol::Protocol;
 use ratatui_image::protocol::halfblocks::Halfblocks;
@@ -40,6 +44,13 @@ impl Graphics {
             Graphics::Halfblocks => "half-blocks",
         }
     }
+}
+
+/// Whether the protocol draws the whole image from the pane's first cell and
+/// skips the others (sixel, iTerm2): text drawn over such an image is not
+/// replaced by the diff when it goes away, so the screen must be redrawn.
+pub fn image_in_one_cell(graphics: Graphics) -> bool {
+    matches!(graphics, Graphics::Sixel | Graphics::Iterm2)
 }
 
 /// The one kitty image id the inspector uses (frames replace each other).
@@ -137,6 +148,29 @@ pub fn cell_pixels(graphics: Graphics) -> (u32, u32) {
         .unwrap_or((10, 20))
 }
 
+/// The sixel escape string for a pane of `cells`: the pane's cells erased first
+/// (ECH per row, as ratatui-image does, so no old text shows through), then the
+/// image; inside tmux all of it goes through passthrough.
+fn sixel_for_pane(frame: &Frame, cells: (u16, u16), in_tmux: bool) -> anyhow::Result<String> {
+    let image = sixel::encode(&frame.rgba, frame.width, frame.height)?;
+    let (w, h) = cells;
+    let mut s = String::with_capacity(image.len() + 16 * h as usize);
+    if h <= 1 {
+        s.push_str(&format!("\x1b[{w}X"));
+    } else {
+        for _ in 0..h {
+            s.push_str(&format!("\x1b[{w}X\x1b[1B"));
+        }
+        s.push_str(&format!("\x1b[{h}A"));
+    }
+    s.push_str(&image);
+    Ok(if in_tmux {
+        sixel::tmux_passthrough(&s)
+    } else {
+        s
+    })
+}
+
 /// Encodes `frame` (rendered at `cells` × the cell size in pixels) for `graphics`.
 pub fn encode(
     graphics: Graphics,
@@ -144,19 +178,25 @@ pub fn encode(
     cells: (u16, u16),
     in_tmux: bool,
 ) -> anyhow::Result<Protocol> {
-    let img = image::RgbaImage::from_raw(frame.width, frame.height, frame.rgba.clone())
-        .ok_or_else(|| anyhow::anyhow!("frame buffer has the wrong size"))?;
-    let img = image::DynamicImage::ImageRgba8(img);
     let size = Size::new(cells.0, cells.1);
     let err = |e: ratatui_image::errors::Errors| anyhow::anyhow!("cannot encode the frame: {e}");
+    let image = || {
+        image::RgbaImage::from_raw(frame.width, frame.height, frame.rgba.clone())
+            .map(image::DynamicImage::ImageRgba8)
+            .ok_or_else(|| anyhow::anyhow!("frame buffer has the wrong size"))
+    };
     Ok(match graphics {
-        Graphics::Halfblocks => Protocol::Halfblocks(Halfblocks::new(img, size).map_err(err)?),
-        Graphics::Sixel => Protocol::Sixel(Sixel::new(img, size, in_tmux).map_err(err)?),
+        Graphics::Halfblocks => Protocol::Halfblocks(Halfblocks::new(image()?, size).map_err(err)?),
+        Graphics::Sixel => Protocol::Sixel(Sixel {
+            data: sixel_for_pane(frame, cells, in_tmux)?,
+            size,
+            is_tmux: in_tmux,
+        }),
         // zlib-compressed: a tenth of the bytes for ~5 ms more (notes/terminal-frames.md).
         Graphics::Kitty => {
-            Protocol::Kitty(Kitty::new(img, size, KITTY_IMAGE_ID, in_tmux, true).map_err(err)?)
+            Protocol::Kitty(Kitty::new(image()?, size, KITTY_IMAGE_ID, in_tmux, true).map_err(err)?)
         }
-        Graphics::Iterm2 => Protocol::ITerm2(Iterm2::new(img, size, in_tmux).map_err(err)?),
+        Graphics::Iterm2 => Protocol::ITerm2(Iterm2::new(image()?, size, in_tmux).map_err(err)?),
     })
 }
 

@@ -1,7 +1,8 @@
 //! Entering and leaving the inspector's terminal mode (raw input, alternate
 //! screen, hidden cursor) on every exit path: a normal return, an error (the
 //! [`Session`] guard's `Drop`) and a panic on any thread (a panic hook that
-//! restores the terminal before the message is printed).
+//! restores the terminal before the message is printed); and waiting for input in
+//! a way that notices a terminal that went away.
 
 use super::protocol;
 use crossterm::cursor::{Hide, Show};
@@ -74,4 +75,23 @@ pub fn restore() {
     let _ = execute!(out, LeaveAlternateScreen, Show);
     let _ = disable_raw_mode();
     let _ = out.flush();
+}
+
+/// Whether the terminal under stdin is gone (the SSH connection or the terminal
+/// window closed), asked of `poll(2)` without waiting.
+///
+/// Why the event loop asks before each `crossterm::event::poll`: crossterm 0.29's
+/// reader loops until a read would block, and on a terminal that hung up every read
+/// returns 0 bytes at once, so it spins at full CPU and never returns. A hang-up
+/// that happens while crossterm waits is caught by the signal handler instead
+/// (SIGHUP; see `tui::run`).
+pub fn hung_up() -> bool {
+    let mut fd = libc::pollfd {
+        fd: libc::STDIN_FILENO,
+        events: libc::POLLIN,
+        revents: 0,
+    };
+    // SAFETY: one valid pollfd, and its count is 1; a zero timeout never blocks.
+    let n = unsafe { libc::poll(&mut fd, 1, 0) };
+    n > 0 && fd.revents & (libc::POLLHUP | libc::POLLERR | libc::POLLNVAL) != 0
 }

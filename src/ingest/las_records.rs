@@ -1,0 +1,402 @@
+//! Uncompressed LAS point records (formats 0–10) decoded straight from a memory
+//! map: a fixed-stride reader. Each chunk is cut into windows of records that stay
+//! in cache, decoded in parallel (rayon) into disjoint slices of the chunk's
+//! columns. The columns and their meaning are exactly those of the `las`-crate
+//! path in [`super::las`] (which still reads LAZ): the tests compare the two.
+
+use super::color::ColorNormalizer;
+use super::error::IngestError;
+use super::las::Opened;
+use super::{PointReader, ReadOptions, SourceInfo};
+use crate::points::{Attribute, PointColumns};
+use rayon::prelude::*;
+use std::path::Path;
+
+/// Records decoded per parallel job (about half a megabyte of records).
+const WINDOW: usize = 16 * 1024;
+
+/// Where the fields of one record format are.
+#[derive(Debug, Clone, Copy)]
+struct Fields {
+    stride: usize,
+    extended: bool,
+    gps: Option<usize>,
+    rgb: Option<usize>,
+    nir: Option<usize>,
+    /// Scale and offset per axis (`value = scale · raw + offset`, as the `las`
+    /// crate computes it).
+    transforms: [(f64, f64); 3],
+}
+
+impl Fields {
+    fn new(
+        path: &Path,
+        f: &las::point::Format,
+        stride: usize,
+        h: &las::Header,
+    ) -> Result<Self, IngestError> {
+        let (base, gps, rgb, nir) = if f.is_extended {
+            (
+                30,
+                Some(22),
+                f.has_color.then_some(30),
+                f.has_nir.then_some(36),
+            )
+        } else {
+            let gps = f.has_gps_time.then_some(20);
+            let rgb = f.has_color.then_some(if f.has_gps_time { 28 } else { 20 });
+            (20, gps, rgb, None)
+        };
+        let need = [
+            Some(base),
+            gps.map(|g| g + 8),
+            rgb.map(|c| c + 6),
+            nir.map(|n| n + 2),
+        ]
+        .into_iter()
+        .flatten()
+        .max()
+        .unwrap_or(base);
+        if stride < need {
+            return Err(IngestError::binary(
+                path,
+                0,
+                format!(
+                    "point records of {stride} bytes are too short for point format {} \
+                     ({need} bytes at least)",
+                    f.to_u8().unwrap_or(255)
+                ),
+            ));
+        }
+        let t = h.transforms();
+        Ok(Fields {
+            stride,
+            extended: f.is_extended,
+            gps,
+            rgb,
+            nir,
+            transforms: [
+                (t.x.scale, t.x.offset),
+                (t.y.scale, t.y.offset),
+                (t.z.scale, t.z.offset),
+            ],
+        })
+    }
+}
+
+#[inline]
+fn u16_at(r: &[u8], at: usize) -> u16 {
+    u16::from_le_bytes([r[at], r[at + 1]])
+}
+
+#[inline]
+fn i32_at(r: &[u8], at: usize) -> i32 {
+    i32::from_le_bytes([r[at], r[at + 1], r[at + 2], r[at + 3]])
+}
+
+#[inline]
+fn f64_at(r: &[u8], at: usize) -> f64 {
+    let mut b = [0u8; 8];
+    b.copy_from_slice(&r[at..at + 8]);
+    f64::from_le_bytes(b)
+}
+
+/// The output slices of one window: x, y, z and the attributes in
+/// [`attribute_names`] order.
+struct Out<'a> {
+    xyz: [&'a mut [f64]; 3],
+    attrs: Vec<&'a mut [f32]>,
+}
+
+/// Decodes the records `rec` (a whole number of records) into `out`.
+fn decode_window(rec: &[u8], f: &Fields, gps_offset: f64, out: Out<'_>) {
+    let records = || rec.chunks_exact(f.stride);
+    let Out { xyz, mut attrs } = out;
+    for (axis, col) in xyz.into_iter().enumerate() {
+        let (scale, offset) = f.transforms[axis];
+        for (v, r) in col.iter_mut().zip(records()) {
+            *v = scale * f64::from(i32_at(r, 4 * axis)) + offset;
+        }
+    }
+    let mut next = attrs.iter_mut();
+    let mut column = |value: &dyn Fn(&[u8]) -> f32| {
+        if let Some(col) = next.next() {
+            for (v, r) in col.iter_mut().zip(records()) {
+                *v = value(r);
+            }
+        }
+    };
+    column(&|r| f32::from(u16_at(r, 12)));
+    if f.extended {
+        column(&|r| f32::from(r[14] & 15));
+        column(&|r| f32::from((r[14] >> 4) & 15));
+        column(&|r| f32::from(r[16]));
+    } else {
+        column(&|r| f32::from(r[14] & 7));
+        column(&|r| f32::from((r[14] >> 3) & 7));
+        column(&|r| f32::from(r[15] & 0b0001_1111));
+    }
+    if let Some(g) = f.gps {
+        column(&|r| (f64_at(r, g) - gps_offset) as f32);
+    }
+    if let Some(c) = f.rgb {
+        column(&|r| f32::from(u16_at(r, c)));
+        column(&|r| f32::from(u16_at(r, c + 2)));
+        column(&|r| f32::from(u16_at(r, c + 4)));
+    }
+    if let Some(n) = f.nir {
+        column(&|r| f32::from(u16_at(r, n)));
+    }
+}
+
+/// Reader of uncompressed LAS files.
+pub struct RecordReader {
+    info: SourceInfo,
+    map: memmap2::Mmap,
+    fields: Fields,
+    start: usize,
+    total: usize,
+    done: usize,
+    chunk: usize,
+    gps_offset: f64,
+    colors: ColorNormalizer,
+    released: usize,
+}
+
+impl RecordReader {
+    pub(crate) fn new(path: &Path, o: Opened, opts: &ReadOptions) -> Result<Self, IngestError> {
+        let map = super::map_file(path)?;
+        let stride = o.record_len as usize;
+        let fields = Fields::new(path, o.header.point_format(), stride, &o.header)?;
+        let total = o.header.number_of_points() as usize;
+        let start = o.start as usize;
+        // open_header checked that the declared records lie inside the file; the
+        // map is the same file, checked again so no slice below can go out of it.
+        let end = total
+            .checked_mul(stride)
+            .and_then(|b| b.checked_add(start))
+            .filter(|&e| e <= map.len())
+            .ok_or_else(|| {
+                IngestError::binary(
+                    path,
+                    map.len() as u64,
+                    format!("truncated file: {total} records of {stride} bytes from byte {start}"),
+                )
+            })?;
+        debug_assert!(end <= map.len());
+        let gps_offset = match fields.gps {
+            Some(g) if total > 0 => f64_at(&map[start..start + stride], g),
+            _ => 0.0,
+        };
+        Ok(RecordReader {
+            info: o.info,
+            map,
+            fields,
+            start,
+            total,
+            done: 0,
+            chunk: opts.chunk_points.max(1),
+            gps_offset,
+            colors: ColorNormalizer::new(false),
+            released: 0,
+        })
+    }
+}
+
+impl PointReader for RecordReader {
+    fn info(&self) -> &SourceInfo {
+        &self.info
+    }
+
+    fn next_chunk(&mut self) -> Result<Option<PointColumns>, IngestError> {
+        if self.done >= self.total {
+            return Ok(None);
+        }
+        let n = self.chunk.min(self.total - self.done);
+        let names = &self.info.attribute_names;
+        let mut xyz: [Vec<f64>; 3] = std::array::from_fn(|_| super::zeroed_column(n));
+        let mut attrs: Vec<Vec<f32>> = names.iter().map(|_| super::zeroed_column(n)).collect();
+        // One Out per window, each holding that window's slice of every column.
+        let windows = n.div_ceil(WINDOW);
+        let mut outs: Vec<Out<'_>> = Vec::with_capacity(windows);
+        {
+            let [x, y, z] = &mut xyz;
+            let mut xs = x.chunks_mut(WINDOW);
+            let mut ys = y.chunks_mut(WINDOW);
+            let mut zs = z.chunks_mut(WINDOW);
+            let mut per_attr: Vec<std::slice::ChunksMut<'_, f32>> =
+                attrs.iter_mut().map(|a| a.chunks_mut(WINDOW)).collect();
+            for _ in 0..windows {
+                let (Some(x), Some(y), Some(z)) = (xs.next(), ys.next(), zs.next()) else {
+                    break;
+                };
+                outs.push(Out {
+                    xyz: [x, y, z],
+                    attrs: per_attr.iter_mut().filter_map(|c| c.next()).collect(),
+                });
+            }
+        }
+        let f = self.fields;
+        let first = self.start + self.done * f.stride;
+        let bytes = &self.map[first..first + n * f.stride];
+        let gps_offset = self.gps_offset;
+        outs.into_par_iter().enumerate().for_each(|(w, out)| {
+            let s = w * WINDOW * f.stride;
+            let e = (s + WINDOW * f.stride).min(bytes.len());
+            decode_window(&bytes[s..e], &f, gps_offset, out);
+        });
+        self.done += n;
+        super::release_consumed(&self.map, &mut self.released, first + n * f.stride);
+        let [x, y, z] = xyz;
+        let mut cols = PointColumns {
+            x,
+            y,
+            z,
+            attributes: names
+                .iter()
+                .zip(attrs)
+                .map(|(name, values)| {
+                    let mut a = Attribute::new(name.clone(), values);
+                    if name == "gps_time" {
+                        a.offset = gps_offset;
+                    }
+                    a
+                })
+                .collect(),
+        };
+        self.colors.apply(&mut cols);
+        Ok(Some(cols))
+    }
+
+    fn bytes_done(&self) -> u64 {
+        if self.done >= self.total {
+            self.info.file_bytes
+        } else {
+            (self.start + self.done * self.fields.stride) as u64
+        }
+    }
+
+    fn skipped(&self) -> u64 {
+        0
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::super::las::LasReader;
+    use super::super::{PointReader, ReadOptions, open};
+    use crate::points::PointColumns;
+
+    /// Writes `n` points of point format `format` with varied field values.
+    fn write(path: &std::path::Path, format: u8, n: usize) {
+        let mut b = las::Builder::default();
+        b.version = las::Version::new(1, 4);
+        b.point_format = las::point::Format::new(format).unwrap();
+        b.transforms = las::Vector {
+            x: las::Transform {
+                scale: 0.001,
+                offset: 500_000.0,
+            },
+            y: las::Transform {
+                scale: 0.01,
+                offset: 4_000_000.0,
+            },
+            z: las::Transform {
+                scale: 0.001,
+                offset: -10.0,
+            },
+        };
+        let header = b.into_header().unwrap();
+        let mut w = las::Writer::from_path(path, header).unwrap();
+        let f = las::point::Format::new(format).unwrap();
+        let mut r = crate::synth::Rng::new(u64::from(format));
+        for i in 0..n {
+            let nr = if f.is_extended { 15 } else { 7 };
+            let returns = 1 + (r.next_u64() % nr) as u8;
+            let class = (r.next_u64() % if f.is_extended { 256 } else { 32 }) as u8;
+            w.write_point(las::Point {
+                x: 500_000.0 + r.f64() * 1000.0,
+                y: 4_000_000.0 + r.f64() * 2000.0,
+                z: -10.0 + r.f64() * 100.0,
+                intensity: r.next_u64() as u16,
+                return_number: 1 + (i as u8 % returns),
+                number_of_returns: returns,
+                classification: las::point::Classification::new(class)
+                    .unwrap_or(las::point::Classification::Ground),
+                gps_time: f.has_gps_time.then_some(4e8 + i as f64 * 3e-5),
+                color: f.has_color.then(|| {
+                    las::Color::new(
+                        r.next_u64() as u16,
+                        r.next_u64() as u16,
+                        r.next_u64() as u16,
+                    )
+                }),
+                nir: f.has_nir.then(|| r.next_u64() as u16),
+                waveform: f.has_waveform.then(Default::default),
+                ..Default::default()
+            })
+            .unwrap();
+        }
+        w.close().unwrap();
+    }
+
+    fn drain(mut r: Box<dyn PointReader>) -> PointColumns {
+        let names = r.info().attribute_names.clone();
+        let mut all = PointColumns {
+            attributes: names
+                .iter()
+                .map(|n| crate::points::Attribute::new(n.clone(), Vec::new()))
+                .collect(),
+            ..Default::default()
+        };
+        while let Some(c) = r.next_chunk().unwrap() {
+            all.append(&c).unwrap();
+        }
+        assert_eq!(r.bytes_done(), r.info().file_bytes);
+        all
+    }
+
+    #[test]
+    fn every_point_format_matches_the_las_crate() {
+        let dir = tempfile::tempdir().unwrap();
+        // More points than a window, read in chunks that do not divide it.
+        let n = 40_000;
+        let opts = ReadOptions {
+            chunk_points: 17_000,
+            ..Default::default()
+        };
+        for format in 0..=10u8 {
+            let path = dir.path().join(format!("f{format}.las"));
+            write(&path, format, n);
+            let ours = drain(open(&path, &opts).unwrap());
+            let theirs = drain(Box::new(LasReader::open(&path, &opts).unwrap()));
+            assert_eq!(ours.len(), n, "format {format}");
+            assert!(
+                ours.x == theirs.x && ours.y == theirs.y && ours.z == theirs.z,
+                "format {format}"
+            );
+            assert_eq!(ours.attributes.len(), theirs.attributes.len());
+            for (a, b) in ours.attributes.iter().zip(&theirs.attributes) {
+                assert_eq!(a.name, b.name, "format {format}");
+                assert_eq!(a.offset, b.offset, "format {format} {}", a.name);
+                assert!(a.values == b.values, "format {format} {}", a.name);
+            }
+        }
+    }
+
+    #[test]
+    fn short_records_are_an_error() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("short.las");
+        write(&path, 3, 10);
+        // Shrink the declared record length (header byte 105) below format 3's 34.
+        let mut bytes = std::fs::read(&path).unwrap();
+        bytes[105..107].copy_from_slice(&20u16.to_le_bytes());
+        std::fs::write(&path, &bytes).unwrap();
+        let e = open(&path, &ReadOptions::default())
+            .err()
+            .expect("an error");
+        let msg = e.to_string();
+        assert!(msg.contains("short.las"), "{msg}");
+    }
+}
