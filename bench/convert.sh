@@ -7,6 +7,7 @@
 #
 #   bash bench/convert.sh            # full size (needs ~5 GB in $DIR)
 #   N=5000000 bash bench/convert.sh  # a quick run
+#   ORDER=random bash bench/convert.sh  # points in random spatial order
 set -euo pipefail
 cd "$(dirname "$0")/.."
 N=${N:-47756566}
@@ -16,8 +17,12 @@ cargo build --release -q
 mkdir -p "$DIR"
 echo "machine: $(nproc) cores, $(free -g | awk '/Mem:/ {print $2}') GiB, $(uname -sr)"
 echo "points: $N"
-[ -f "$DIR/paper-$N.xyz" ] || $BIN synth -n "$N" -o "$DIR/paper-$N.xyz"
-[ -f "$DIR/paper-$N.las" ] || $BIN synth -n "$N" -o "$DIR/paper-$N.las"
+# ORDER=scan (default): points listed as an airborne scanner records them, like
+# real files; ORDER=random: the worst case for the sort's gathers.
+ORDER=${ORDER:-scan}
+[ -f "$DIR/$ORDER-$N.xyz" ] || $BIN synth -n "$N" --order "$ORDER" -o "$DIR/$ORDER-$N.xyz"
+[ -f "$DIR/$ORDER-$N.las" ] || $BIN synth -n "$N" --order "$ORDER" -o "$DIR/$ORDER-$N.las"
+echo "input order: $ORDER"
 
 run() {
   local label=$1 input=$2
@@ -40,11 +45,11 @@ run() {
 
 echo
 echo "run                                  wall    throughput      input      memory    parts   output"
-run "text, 3 bands, --memory 256MiB" "$DIR/paper-$N.xyz" --columns "x y z _" --memory 256MiB
-run "text, 4 bands, --memory 256MiB" "$DIR/paper-$N.xyz" --memory 256MiB
-run "text, 3 bands, default memory" "$DIR/paper-$N.xyz" --columns "x y z _"
-run "text, 4 bands, default memory" "$DIR/paper-$N.xyz"
-run "text, 4 bands, stream, 256MiB" "$DIR/paper-$N.xyz" --memory 256MiB --partition stream
-run "las, 4+ bands, --memory 256MiB" "$DIR/paper-$N.las" --memory 256MiB
-run "las, 4+ bands, default memory" "$DIR/paper-$N.las"
+run "text, 3 bands, --memory 256MiB" "$DIR/$ORDER-$N.xyz" --columns "x y z _" --memory 256MiB
+run "text, 4 bands, --memory 256MiB" "$DIR/$ORDER-$N.xyz" --memory 256MiB
+run "text, 3 bands, default memory" "$DIR/$ORDER-$N.xyz" --columns "x y z _"
+run "text, 4 bands, default memory" "$DIR/$ORDER-$N.xyz"
+run "text, 4 bands, stream, 256MiB" "$DIR/$ORDER-$N.xyz" --memory 256MiB --partition stream
+run "las, 4+ bands, --memory 256MiB" "$DIR/$ORDER-$N.las" --memory 256MiB
+run "las, 4+ bands, default memory" "$DIR/$ORDER-$N.las"
 rm -rf "$DIR/out"
