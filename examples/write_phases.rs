@@ -1,5 +1,5 @@
 //! Prints the time of each phase of writing a synthetic part:
-//! `cargo run --release --example write_phases -- 10000000 none`
+//! `cargo run --release --example write_phases -- 10000000 none [random|scan]`
 //! (wall time per run and per phase, and the CPU time the run used)
 fn main() {
     let mut args = std::env::args().skip(1);
@@ -8,7 +8,8 @@ fn main() {
         .and_then(|s| s.parse().ok())
         .unwrap_or(10_000_000);
     let comp = pcimg::store::Compression::parse(&args.next().unwrap_or("none".into())).unwrap();
-    let cloud = pcimg::synth::scene(n, 1);
+    let order = pcimg::synth::Order::parse(&args.next().unwrap_or("random".into())).unwrap();
+    let cloud = pcimg::synth::scene_in_order(n, 1, order);
     let dir = tempfile::tempdir().unwrap();
     let opts = pcimg::store::WriteOptions {
         compression: comp,
