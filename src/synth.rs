@@ -124,6 +124,17 @@ impl Order {
 const STRIP: f64 = 100.0;
 
 /// Generation indices of `n` points in `order` (`None`: generation order).
+/// [`permutation`] for the file writers: a scan order beyond `u32` indices is an
+/// error, not a panic.
+fn file_permutation(n: u64, seed: u64, order: Order) -> std::io::Result<Option<Vec<u32>>> {
+    if n > u32::MAX as u64 && order != Order::Random {
+        return Err(std::io::Error::other(
+            "scan order holds at most 2^32 points",
+        ));
+    }
+    Ok(permutation(n, seed, order))
+}
+
 fn permutation(n: u64, seed: u64, order: Order) -> Option<Vec<u32>> {
     if order == Order::Random || n == 0 {
         return None;
@@ -252,12 +263,7 @@ pub fn write_text_in_order(
     order: Order,
 ) -> std::io::Result<u64> {
     use std::io::Write;
-    if n > u32::MAX as u64 && order != Order::Random {
-        return Err(std::io::Error::other(
-            "scan order holds at most 2^32 points",
-        ));
-    }
-    let perm = permutation(n, seed, order);
+    let perm = file_permutation(n, seed, order)?;
     let at = |i: u64| perm.as_ref().map_or(i, |p| p[i as usize] as u64);
     let tmp = path.with_extension("partial");
     let mut out = std::io::BufWriter::with_capacity(1 << 20, std::fs::File::create(&tmp)?);
@@ -315,12 +321,7 @@ pub fn write_las_in_order(
     seed: u64,
     order: Order,
 ) -> std::io::Result<u64> {
-    if n > u32::MAX as u64 && order != Order::Random {
-        return Err(std::io::Error::other(
-            "scan order holds at most 2^32 points",
-        ));
-    }
-    let perm = permutation(n, seed, order);
+    let perm = file_permutation(n, seed, order)?;
     let at = |i: u64| perm.as_ref().map_or(i, |p| p[i as usize] as u64);
     let err = |e: las::Error| std::io::Error::other(e.to_string());
     let tmp = path.with_extension("partial");

@@ -380,6 +380,18 @@ impl Tmux {
     }
 }
 
+/// A synthetic part of `n` points written in `dir`.
+fn scan_part(dir: &Path, n: u64, seed: u64) -> PathBuf {
+    let path = dir.join("scan.tif");
+    store::write_part(
+        &path,
+        &pcimg::synth::scene(n, seed),
+        &WriteOptions::default(),
+    )
+    .unwrap();
+    path
+}
+
 impl Drop for Tmux {
     fn drop(&mut self) {
         let _ = self.cmd().arg("kill-server").output();
@@ -392,13 +404,7 @@ fn the_binary_runs_in_tmux_and_restores_the_terminal() {
         return;
     }
     let dir = tempfile::tempdir().unwrap();
-    let path = dir.path().join("scan.tif");
-    store::write_part(
-        &path,
-        &pcimg::synth::scene(70_000, 5),
-        &WriteOptions::default(),
-    )
-    .unwrap();
+    let path = scan_part(dir.path(), 70_000, 5);
     let tmux = Tmux {
         socket: format!("pcimg-test-{}", std::process::id()),
     };
@@ -472,13 +478,7 @@ fn the_binary_ends_when_its_terminal_goes_away() {
         return;
     }
     let dir = tempfile::tempdir().unwrap();
-    let path = dir.path().join("scan.tif");
-    store::write_part(
-        &path,
-        &pcimg::synth::scene(20_000, 6),
-        &WriteOptions::default(),
-    )
-    .unwrap();
+    let path = scan_part(dir.path(), 20_000, 6);
     let tmux = Tmux {
         socket: format!("pcimg-hup-{}", std::process::id()),
     };
