@@ -211,6 +211,33 @@ fn metadata_survives_and_dataset_directory_opens() {
     assert_eq!(names, ["x", "y", "z", "intensity", "gps_time"]);
     assert_eq!(p.bands[4].offset, 3.1e8);
     assert!(ds.bounds().contains(&p.meta.bounds));
+    // Band ranges (GDAL's STATISTICS_*) in source units: the attributes' exactly,
+    // the coordinates' within the quantization bound.
+    let cloud = random_cloud(100, 1, 0);
+    for (k, a) in cloud.attributes.iter().enumerate() {
+        let lo = a.values.iter().copied().fold(f32::INFINITY, f32::min) as f64 + a.offset;
+        let hi = a.values.iter().copied().fold(f32::NEG_INFINITY, f32::max) as f64 + a.offset;
+        let (got_lo, got_hi) = p.bands[3 + k].range.expect("a range");
+        assert!(
+            (got_lo - lo).abs() <= 1e-9 * lo.abs().max(1.0),
+            "{} {got_lo} {lo}",
+            a.name
+        );
+        assert!(
+            (got_hi - hi).abs() <= 1e-9 * hi.abs().max(1.0),
+            "{} {got_hi} {hi}",
+            a.name
+        );
+    }
+    let b = cloud.bounds();
+    for k in 0..3 {
+        let (lo, hi) = p.bands[k].range.expect("a range");
+        let tol = p.meta.max_quantization_error.expect("a quantization bound") + 1e-9;
+        assert!(
+            (lo - b.min[k]).abs() <= tol && (hi - b.max[k]).abs() <= tol,
+            "axis {k}"
+        );
+    }
     // Text output never carries the escape character from the metadata.
     let text = pcimg::cli::info::render_text(&pcimg::cli::info::report(&ds, true));
     assert!(!text.contains('\u{1b}'));

@@ -51,6 +51,8 @@ pub struct BandReport {
     pub name: String,
     pub data_type: &'static str,
     pub offset: f64,
+    /// Smallest and largest value in source units, when the part records them.
+    pub range: Option<[f64; 2]>,
 }
 
 #[derive(Debug, Serialize)]
@@ -97,6 +99,7 @@ fn part_report(p: &Part, tiles: bool) -> PartReport {
                 name: b.name.clone(),
                 data_type: "Float32",
                 offset: b.offset,
+                range: b.range.map(|(lo, hi)| [lo, hi]),
             })
             .collect(),
         levels: p
@@ -210,11 +213,13 @@ pub fn render_text(r: &DatasetReport) -> String {
         let _ = writeln!(o, "  crs      {crs}");
         let _ = writeln!(o, "  bands    {}", p.bands.len());
         for (b, band) in p.bands.iter().enumerate() {
-            let off = if band.offset != 0.0 {
-                format!("  offset {}", band.offset)
-            } else {
-                String::new()
+            let mut off = match band.range {
+                Some([lo, hi]) => format!("  range {lo} .. {hi}"),
+                None => String::new(),
             };
+            if band.offset != 0.0 {
+                off.push_str(&format!("  offset {}", band.offset));
+            }
             let _ = writeln!(
                 o,
                 "    {:>2}  {:<18} {}{}",

@@ -28,6 +28,17 @@ impl Item {
         }
     }
 
+    /// A band item without a role, as GDAL writes `STATISTICS_*`.
+    pub fn band_stat(name: &str, sample: usize, value: impl Into<String>) -> Item {
+        Item {
+            name: name.into(),
+            value: value.into(),
+            sample: Some(sample),
+            role: None,
+            domain: None,
+        }
+    }
+
     pub fn band(name: &str, sample: usize, role: &str, value: impl Into<String>) -> Item {
         Item {
             name: name.into(),
@@ -181,6 +192,15 @@ pub fn dataset_items(items: &[Item]) -> BTreeMap<String, String> {
         .iter()
         .filter(|i| i.sample.is_none() && i.domain.is_none())
         .map(|i| (i.name.clone(), i.value.clone()))
+        .collect()
+}
+
+/// Per-band item `name` without a role (as GDAL writes band statistics), by band.
+pub fn band_named(items: &[Item], name: &str) -> BTreeMap<usize, String> {
+    items
+        .iter()
+        .filter(|i| i.name == name && i.role.is_none() && i.domain.is_none())
+        .filter_map(|i| i.sample.map(|s| (s, i.value.clone())))
         .collect()
 }
 

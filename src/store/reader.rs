@@ -41,6 +41,9 @@ pub struct PartMeta {
 pub struct BandInfo {
     pub name: String,
     pub offset: f64,
+    /// Smallest and largest value in source units (stored value + offset), when
+    /// the part records them (GDAL's `STATISTICS_MINIMUM` / `_MAXIMUM`).
+    pub range: Option<(f64, f64)>,
 }
 
 /// One tile of a level that holds data.
@@ -260,6 +263,8 @@ impl Part {
         let meta = parse_meta(&ds_items).map_err(|m| err(format!("bad metadata: {m}")))?;
         let names = metadata::band_items(&items, "description");
         let offsets = metadata::band_items(&items, "offset");
+        let minima = metadata::band_named(&items, key::STATISTICS_MINIMUM);
+        let maxima = metadata::band_named(&items, key::STATISTICS_MAXIMUM);
         let samples = tiff
             .uint(data, first, tag::SAMPLES_PER_PIXEL)
             .map_err(err)?
@@ -297,7 +302,18 @@ impl Part {
                     .map_err(|_| err(format!("band {} offset '{s}' is not a number", b + 1)))?,
                 None => 0.0,
             };
-            bands.push(BandInfo { name, offset });
+            // A statistic that does not parse is only not shown: it is a hint.
+            let stat =
+                |m: &BTreeMap<usize, String>| m.get(&b).and_then(|s| s.trim().parse::<f64>().ok());
+            let range = match (stat(&minima), stat(&maxima)) {
+                (Some(lo), Some(hi)) if lo <= hi => Some((lo + offset, hi + offset)),
+                _ => None,
+            };
+            bands.push(BandInfo {
+                name,
+                offset,
+                range,
+            });
         }
         for (b, want) in spec::COORDINATE_BANDS.iter().enumerate() {
             if bands[b].name != *want {

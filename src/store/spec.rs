@@ -67,6 +67,10 @@ pub mod key {
     pub const SOURCE: &str = "SOURCE";
     pub const CRS: &str = "CRS";
     pub const MAX_QUANTIZATION_ERROR: &str = "MAX_QUANTIZATION_ERROR";
+    /// Per-band minimum and maximum of the stored values (before the band offset),
+    /// as GDAL names its band statistics, so `gdalinfo` shows them.
+    pub const STATISTICS_MINIMUM: &str = "STATISTICS_MINIMUM";
+    pub const STATISTICS_MAXIMUM: &str = "STATISTICS_MAXIMUM";
     /// Per-level, per-tile bounds and counts (base64), in domain [`TILE_INDEX_DOMAIN`].
     pub const TILE_INDEX: &str = "TILE_INDEX";
     pub const TILE_INDEX_DOMAIN: &str = "pcimg";

@@ -311,6 +311,35 @@ fn tile_index(a: &Arranged) -> Vec<LevelIndex> {
     levels
 }
 
+/// Minimum and maximum of each band's stored values (NaN ignored; `lo > hi` for a
+/// band with no finite value): x y z from the bounds, the rest in one parallel pass.
+fn stored_ranges(a: &Arranged) -> Vec<(f64, f64)> {
+    let mut r: Vec<(f64, f64)> = (0..3)
+        .map(|k| {
+            (
+                (a.bounds.min[k] - a.origin[k]) as f32 as f64,
+                (a.bounds.max[k] - a.origin[k]) as f32 as f64,
+            )
+        })
+        .collect();
+    r.extend(a.attrs.iter().map(|v| {
+        let (lo, hi) = v
+            .par_chunks(1 << 16)
+            .map(|c| {
+                c.iter()
+                    .fold((f32::INFINITY, f32::NEG_INFINITY), |(lo, hi), &x| {
+                        (lo.min(x), hi.max(x))
+                    })
+            })
+            .reduce(
+                || (f32::INFINITY, f32::NEG_INFINITY),
+                |p, q| (p.0.min(q.0), p.1.max(q.1)),
+            );
+        (lo as f64, hi as f64)
+    }));
+    r
+}
+
 fn metadata_xml(a: &Arranged, opts: &WriteOptions, index: &[LevelIndex]) -> String {
     let g = a.geometry;
     let mut items = vec![
@@ -336,6 +365,20 @@ fn metadata_xml(a: &Arranged, opts: &WriteOptions, index: &[LevelIndex]) -> Stri
     }
     if let Some(c) = &opts.crs {
         items.push(Item::dataset(key::CRS, c.clone()));
+    }
+    for (b, (lo, hi)) in stored_ranges(a).into_iter().enumerate() {
+        if lo <= hi {
+            items.push(Item::band_stat(
+                key::STATISTICS_MINIMUM,
+                b,
+                format!("{lo:?}"),
+            ));
+            items.push(Item::band_stat(
+                key::STATISTICS_MAXIMUM,
+                b,
+                format!("{hi:?}"),
+            ));
+        }
     }
     for (b, name) in a.names.iter().enumerate() {
         items.push(Item::band("DESCRIPTION", b, "description", name.clone()));

@@ -176,6 +176,21 @@ fn draw_parts(f: &mut Frame, app: &App, area: Rect) {
     );
 }
 
+/// A value in at most about 9 characters: 3 decimals for small magnitudes, fewer
+/// as they grow (coordinates of a few hundred thousand keep 2).
+fn short(v: f64) -> String {
+    let a = v.abs();
+    if a >= 1e7 {
+        format!("{v:.3e}")
+    } else if a >= 1e5 {
+        format!("{v:.1}")
+    } else if a >= 100.0 {
+        format!("{v:.2}")
+    } else {
+        format!("{v:.3}")
+    }
+}
+
 fn draw_bands(f: &mut Frame, app: &App, area: Rect) {
     let rows: Vec<Row> = app
         .dataset
@@ -188,7 +203,10 @@ fn draw_bands(f: &mut Frame, app: &App, area: Rect) {
                     Row::new(vec![
                         Cell::from(sanitize(&b.name)),
                         Cell::from("Float32"),
-                        Cell::from(format!("{:.3}", b.offset)),
+                        Cell::from(match b.range {
+                            Some((lo, hi)) => format!("{} .. {}", short(lo), short(hi)),
+                            None => "-".into(),
+                        }),
                     ])
                 })
                 .collect()
@@ -202,7 +220,7 @@ fn draw_bands(f: &mut Frame, app: &App, area: Rect) {
             Constraint::Fill(1),
         ],
     )
-    .header(header(&["band", "type", "offset"]))
+    .header(header(&["band", "type", "range"]))
     .block(Block::bordered().title(title(" bands ")));
     f.render_widget(t, area);
 }
