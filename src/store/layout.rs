@@ -357,11 +357,19 @@ fn lsd_sort(s: &mut [u64], scratch: &mut Vec<u64>, base: u64, low: u32, bits: u3
 /// first point is nearest the block's centroid comes first (measured as good as any
 /// density rule there, once level 1 has evened the density out). The pyramid stays
 /// nested and the filled slots a prefix.
-pub fn choose_representatives(pos: &mut [[f32; 3]], perm: &mut [u32], levels: usize) {
+/// `lo`, `hi`: the bounds of `pos` (the writer has them; the grid is built from
+/// them rather than from another pass over the points).
+pub fn choose_representatives(
+    pos: &mut [[f32; 3]],
+    perm: &mut [u32],
+    levels: usize,
+    lo: [f32; 3],
+    hi: [f32; 3],
+) {
     if pos.len() < 2 || levels < 2 {
         return;
     }
-    let grid = Grid::new(pos);
+    let grid = Grid::new(lo, hi);
     pos.par_chunks_mut(super::spec::TILE_PIXELS)
         .zip(perm.par_chunks_mut(super::spec::TILE_PIXELS))
         .for_each(|(p, i)| arrange_level1(p, i, &grid));
@@ -376,29 +384,9 @@ struct Grid {
 }
 
 impl Grid {
-    fn new(pos: &[[f32; 3]]) -> Grid {
-        let (lo, hi) = pos
-            .par_chunks(1 << 16)
-            .map(|c| {
-                c.iter().fold(
-                    ([f32::INFINITY; 3], [f32::NEG_INFINITY; 3]),
-                    |(lo, hi), p| {
-                        (
-                            [0, 1, 2].map(|a| lo[a].min(p[a])),
-                            [0, 1, 2].map(|a| hi[a].max(p[a])),
-                        )
-                    },
-                )
-            })
-            .reduce(
-                || ([f32::INFINITY; 3], [f32::NEG_INFINITY; 3]),
-                |a, b| {
-                    (
-                        [0, 1, 2].map(|k| a.0[k].min(b.0[k])),
-                        [0, 1, 2].map(|k| a.1[k].max(b.1[k])),
-                    )
-                },
-            );
+    /// The grid over `lo`, `hi`, the bounds of the points (the cube of the largest
+    /// extent, as the Hilbert keys use).
+    fn new(lo: [f32; 3], hi: [f32; 3]) -> Grid {
         let side = (0..3).map(|a| hi[a] - lo[a]).fold(0f32, f32::max) as f64;
         let max = ((1u32 << KEY_BITS) - 1) as f64;
         Grid {
@@ -674,6 +662,13 @@ fn centroid_levels(pos: &mut [[f32; 3]], perm: &mut [u32], from: usize, levels: 
 mod tests {
     use super::*;
 
+    /// [`choose_representatives`] with the bounds taken from the points.
+    fn representatives(pos: &mut [[f32; 3]], perm: &mut [u32], levels: usize) {
+        let lo = [0, 1, 2].map(|a| pos.iter().map(|p| p[a]).fold(f32::INFINITY, f32::min));
+        let hi = [0, 1, 2].map(|a| pos.iter().map(|p| p[a]).fold(f32::NEG_INFINITY, f32::max));
+        choose_representatives(pos, perm, levels, lo, hi);
+    }
+
     #[test]
     fn hilbert_visits_neighbours_in_turn() {
         // On an 8×8×8 grid, consecutive Hilbert indices are face neighbours.
@@ -803,13 +798,13 @@ mod tests {
             [5.0, 9.0, 0.0],
         ];
         let mut order = vec![0u32, 1, 2, 3];
-        choose_representatives(&mut pos, &mut order, 2);
+        representatives(&mut pos, &mut order, 2);
         assert_eq!(order[0], 2);
         assert_eq!(pos[0], [5.0, 0.1, 0.0]);
         // A partial last block never moves a partial sub-block forward.
         let mut pos: Vec<[f32; 3]> = (0..22).map(|i| [i as f32, 0.0, 0.0]).collect();
         let mut order: Vec<u32> = (0..22).collect();
-        choose_representatives(&mut pos, &mut order, 3);
+        representatives(&mut pos, &mut order, 3);
         for (p, &i) in pos.iter().zip(&order) {
             assert_eq!(p[0], i as f32, "positions move with their indices");
         }
@@ -857,7 +852,7 @@ mod tests {
         let order = hilbert_order(&pos, [0.0; 3], [110.0, 110.0, 0.0]);
         let mut sorted: Vec<[f32; 3]> = order.iter().map(|&i| pos[i as usize]).collect();
         let mut perm = order.clone();
-        choose_representatives(&mut sorted, &mut perm, 3);
+        representatives(&mut sorted, &mut perm, 3);
         let kept: Vec<u32> = perm.iter().step_by(4).copied().collect();
         assert_eq!(kept.len(), pos.len().div_ceil(4));
         let sparse_kept = kept.iter().filter(|&&i| i >= 20_000).count();
@@ -887,7 +882,7 @@ mod tests {
         let order = hilbert_order(&pos, [0.0; 3], [50.0, 50.0, 1.0]);
         let mut sorted: Vec<[f32; 3]> = order.iter().map(|&i| pos[i as usize]).collect();
         let mut perm = order.clone();
-        choose_representatives(&mut sorted, &mut perm, representative_levels(n));
+        representatives(&mut sorted, &mut perm, representative_levels(n));
         // Tiles hold the same runs of the curve (coarse levels may reorder tiles).
         let tiles = |v: &[u32]| {
             let mut t: Vec<Vec<u32>> = v

@@ -217,6 +217,8 @@ fn arrange(path: &Path, pts: &PointColumns, layout: Layout, ph: &mut Phases) -> 
                 &mut sorted,
                 &mut perm,
                 layout::representative_levels(n),
+                lo,
+                hi,
             );
             ph.mark("representatives");
             (sorted, perm)
