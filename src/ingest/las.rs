@@ -22,6 +22,7 @@
 //!   refused at open; any later read failure is an error naming the byte offset
 //!   the decoder had reached.
 
+use crate::bigvec;
 use std::fs::File;
 use std::io::{BufReader, Read, Seek, SeekFrom};
 use std::path::{Path, PathBuf};
@@ -340,12 +341,12 @@ fn decode(path: PathBuf, file: Tracked, chunk: u64, total: u64, tx: SyncSender<M
         let want = chunk.min(total - done);
         let cap = want as usize;
         let mut cols = PointColumns {
-            x: super::column_with_capacity(cap),
-            y: super::column_with_capacity(cap),
-            z: super::column_with_capacity(cap),
+            x: bigvec::with_capacity(cap),
+            y: bigvec::with_capacity(cap),
+            z: bigvec::with_capacity(cap),
             attributes: names
                 .iter()
-                .map(|n| Attribute::new(n.clone(), super::column_with_capacity(cap)))
+                .map(|n| Attribute::new(n.clone(), bigvec::with_capacity(cap)))
                 .collect(),
         };
         // Decode in small batches so the raw records stay in cache and the raw

@@ -8,6 +8,7 @@ use super::color::ColorNormalizer;
 use super::error::IngestError;
 use super::las::Opened;
 use super::{PointReader, ReadOptions, SourceInfo};
+use crate::bigvec;
 use crate::points::{Attribute, PointColumns};
 use rayon::prelude::*;
 use std::path::Path;
@@ -172,7 +173,7 @@ impl RecordReader {
         let start = o.start as usize;
         // open_header checked that the declared records lie inside the file; the
         // map is the same file, checked again so no slice below can go out of it.
-        let end = total
+        total
             .checked_mul(stride)
             .and_then(|b| b.checked_add(start))
             .filter(|&e| e <= map.len())
@@ -183,7 +184,6 @@ impl RecordReader {
                     format!("truncated file: {total} records of {stride} bytes from byte {start}"),
                 )
             })?;
-        debug_assert!(end <= map.len());
         let gps_offset = match fields.gps {
             Some(g) if total > 0 => f64_at(&map[start..start + stride], g),
             _ => 0.0,
@@ -214,8 +214,8 @@ impl PointReader for RecordReader {
         }
         let n = self.chunk.min(self.total - self.done);
         let names = &self.info.attribute_names;
-        let mut xyz: [Vec<f64>; 3] = std::array::from_fn(|_| super::zeroed_column(n));
-        let mut attrs: Vec<Vec<f32>> = names.iter().map(|_| super::zeroed_column(n)).collect();
+        let mut xyz: [Vec<f64>; 3] = std::array::from_fn(|_| bigvec::zeroed(n));
+        let mut attrs: Vec<Vec<f32>> = names.iter().map(|_| bigvec::zeroed(n)).collect();
         // One Out per window, each holding that window's slice of every column.
         let windows = n.div_ceil(WINDOW);
         let mut outs: Vec<Out<'_>> = Vec::with_capacity(windows);

@@ -15,6 +15,7 @@
 //! * Chunks never exceed `chunk_points`: when a window holds more points, the
 //!   rest is cut into chunks delivered next.
 
+use crate::bigvec;
 use std::path::PathBuf;
 
 use rayon::prelude::*;
@@ -249,11 +250,11 @@ fn parse_piece(
     let ncols = layout.ncols();
     let nattr = layout.attr_names.len();
     let mut p = Piece {
-        x: super::column_with_capacity(est_points),
-        y: super::column_with_capacity(est_points),
-        z: super::column_with_capacity(est_points),
+        x: bigvec::with_capacity(est_points),
+        y: bigvec::with_capacity(est_points),
+        z: bigvec::with_capacity(est_points),
         attrs: (0..nattr)
-            .map(|_| super::column_with_capacity(est_points))
+            .map(|_| bigvec::with_capacity(est_points))
             .collect(),
         ..Default::default()
     };
@@ -375,7 +376,7 @@ fn concat_par<T: Copy + Default + Send + Sync>(parts: &[&[T]]) -> Vec<T> {
         return parts[0].to_vec();
     }
     let total = parts.iter().map(|p| p.len()).sum();
-    let mut out = super::zeroed_column(total);
+    let mut out = bigvec::zeroed(total);
     let mut dests = Vec::with_capacity(parts.len());
     let mut rest = &mut out[..];
     for p in parts {

@@ -220,17 +220,6 @@ pub(crate) fn map_file(path: &Path) -> Result<memmap2::Mmap, IngestError> {
     Ok(map)
 }
 
-/// A zero-filled column of `n` values for a reader to fill in parallel, in
-/// huge-page-backed memory (see [`crate::bigvec`]).
-pub(crate) fn zeroed_column<T: Copy + Default>(n: usize) -> Vec<T> {
-    crate::bigvec::zeroed(n)
-}
-
-/// An empty column with room for `n` values (see [`crate::bigvec`]).
-pub(crate) fn column_with_capacity<T>(n: usize) -> Vec<T> {
-    crate::bigvec::with_capacity(n)
-}
-
 /// Drops the page mappings of the consumed bytes `map[*released..upto]`, so that
 /// the resident size of a reader stays about one window even on an input larger
 /// than memory (the pages stay in the page cache; the kernel reclaims them).

@@ -16,6 +16,7 @@
 //! * A file shorter than its header declares is an error naming the byte offset
 //!   (binary) or the line (ASCII).
 
+use crate::bigvec;
 use std::path::Path;
 
 use memmap2::Mmap;
@@ -627,15 +628,15 @@ impl BinaryPly {
             ));
         };
         let mut cols = PointColumns {
-            x: super::zeroed_column(n),
-            y: super::zeroed_column(n),
-            z: super::zeroed_column(n),
+            x: bigvec::zeroed(n),
+            y: bigvec::zeroed(n),
+            z: bigvec::zeroed(n),
             attributes: self
                 .plan
                 .layout
                 .attr_names
                 .iter()
-                .map(|a| Attribute::new(a.clone(), super::zeroed_column(n)))
+                .map(|a| Attribute::new(a.clone(), bigvec::zeroed(n)))
                 .collect(),
         };
         let threads = rayon::current_num_threads().max(1);
