@@ -4,6 +4,7 @@
 //! down-sampled level is a spatially even sample (`../shared/notes/lod-layout.md`
 //! and `examples/lod_quality.rs` for the measurements behind this).
 
+use super::spec::TILE_PIXELS;
 use crate::bigvec;
 use rayon::prelude::*;
 use std::sync::OnceLock;
@@ -370,10 +371,110 @@ pub fn choose_representatives(
         return;
     }
     let grid = Grid::new(lo, hi);
-    pos.par_chunks_mut(super::spec::TILE_PIXELS)
-        .zip(perm.par_chunks_mut(super::spec::TILE_PIXELS))
-        .for_each(|(p, i)| arrange_level1(p, i, &grid));
-    centroid_levels(pos, perm, 2, levels);
+    pos.par_chunks_mut(TILE_PIXELS)
+        .zip(perm.par_chunks_mut(TILE_PIXELS))
+        .for_each_init(Scratch::default, |sc, (p, i)| {
+            sc.pos.clear();
+            sc.pos.extend_from_slice(p);
+            arrange_tile(sc, p, i, &grid, levels);
+        });
+    centroid_levels(pos, perm, TILE_LEVELS + 1, levels);
+}
+
+/// [`choose_representatives`] fused with the gather that puts the points in curve
+/// order: `perm` holds the indices of `src` in Hilbert order and is rearranged;
+/// the result is the points in that final order. Each tile is gathered into
+/// scratch, arranged there (levels up to the tile's own block size, all in cache)
+/// and written once.
+pub fn gather_representatives(
+    src: &[[f32; 3]],
+    perm: &mut [u32],
+    levels: usize,
+    lo: [f32; 3],
+    hi: [f32; 3],
+) -> Vec<[f32; 3]> {
+    let n = perm.len();
+    let mut out: Vec<[f32; 3]> = crate::bigvec::with_capacity(n);
+    let grid = Grid::new(lo, hi);
+    out.spare_capacity_mut()[..n]
+        .par_chunks_mut(TILE_PIXELS)
+        .zip(perm.par_chunks_mut(TILE_PIXELS))
+        .for_each_init(Scratch::default, |sc, (o, i)| {
+            sc.pos.clear();
+            sc.pos.extend(i.iter().map(|&k| src[k as usize]));
+            // SAFETY: `[f32; 3]` has no invalid bit patterns to fear and
+            // `arrange_tile` writes every slot of `o` before anything reads it.
+            let o =
+                unsafe { &mut *(o as *mut [std::mem::MaybeUninit<[f32; 3]>] as *mut [[f32; 3]]) };
+            arrange_tile(sc, o, i, &grid, levels);
+        });
+    // SAFETY: every tile chunk of the n slots was written above.
+    unsafe { out.set_len(n) };
+    if levels >= 2 {
+        centroid_levels(&mut out, perm, TILE_LEVELS + 1, levels);
+    }
+    out
+}
+
+/// Levels whose blocks fit in one tile (block 4^k ≤ tile pixels): arranged tile by
+/// tile, in cache.
+const TILE_LEVELS: usize = (TILE_PIXELS.trailing_zeros() / 2) as usize;
+
+/// Per-thread working memory of [`arrange_tile`].
+#[derive(Default)]
+struct Scratch {
+    /// The tile's points in curve order (input).
+    pos: Vec<[f32; 3]>,
+    idx: Vec<u32>,
+}
+
+/// Arranges one tile: `sc.pos` holds its points in curve order and `idx` their
+/// indices; `out` receives the points in arranged order and `idx` is rearranged
+/// the same way. Level 1 by [`select`], levels 2..=TILE_LEVELS by the centroid rule.
+fn arrange_tile(
+    sc: &mut Scratch,
+    out: &mut [[f32; 3]],
+    idx: &mut [u32],
+    grid: &Grid,
+    levels: usize,
+) {
+    let len = out.len();
+    if len < 2 || levels < 2 {
+        out.copy_from_slice(&sc.pos);
+        return;
+    }
+    let p = &sc.pos;
+    let domain = len / 4 * 4;
+    if domain > 0 {
+        let chosen = select(&p[..domain], domain / 4, grid);
+        sc.idx.clear();
+        sc.idx.extend_from_slice(&idx[..domain]);
+        // Chosen points go to slots 4j, the others fill the slots between in turn.
+        let (mut lead, mut rest) = (0, 1);
+        for (i, &c) in chosen.iter().enumerate() {
+            let k = if c {
+                lead += 4;
+                lead - 4
+            } else {
+                let k = rest;
+                rest += if rest % 4 == 3 { 2 } else { 1 };
+                k
+            };
+            out[k] = p[i];
+            idx[k] = sc.idx[i];
+        }
+    }
+    // A partial last block (last tile only) keeps its points and leads with the
+    // one nearest its centroid.
+    if domain < len {
+        out[domain..].copy_from_slice(&p[domain..]);
+        let best = nearest_centroid(out, domain..len);
+        out.swap(domain, best);
+        idx.swap(domain, best);
+    }
+    for level in 2..levels.min(TILE_LEVELS + 1) {
+        centroid_level(out, idx, level);
+    }
 }
 
 /// The quantization of `hilbert_order` (21 bits per axis over a cube), so runs of
@@ -409,25 +510,25 @@ fn common_depth(a: [u32; 3], b: [u32; 3]) -> usize {
 
 /// Index (within `pts`) of the point of `range` nearest the range's centroid.
 fn nearest_centroid(pts: &[[f32; 3]], range: std::ops::Range<usize>) -> usize {
-    if range.len() == 1 {
+    let run = &pts[range.clone()];
+    if run.len() == 1 {
         return range.start;
     }
     let mut c = [0f32; 3];
-    for p in &pts[range.clone()] {
-        for a in 0..3 {
-            c[a] += p[a];
-        }
+    for p in run {
+        c[0] += p[0];
+        c[1] += p[1];
+        c[2] += p[2];
     }
-    let c = c.map(|v| v / range.len() as f32);
-    let mut best = (range.start, f32::INFINITY);
-    for i in range {
-        let p = pts[i];
+    let c = c.map(|v| v / run.len() as f32);
+    let mut best = (0, f32::INFINITY);
+    for (i, p) in run.iter().enumerate() {
         let d = (p[0] - c[0]).powi(2) + (p[1] - c[1]).powi(2) + (p[2] - c[2]).powi(2);
         if d < best.1 {
             best = (i, d);
         }
     }
-    best.0
+    range.start + best.0
 }
 
 /// Splits `total` equally among children of `sizes` points, none above its size
@@ -438,6 +539,12 @@ fn share(total: f64, sizes: &[usize], out: &mut Vec<f64>, order: &mut Vec<usize>
     let all: usize = sizes.iter().sum();
     if total >= all as f64 {
         out.extend(sizes.iter().map(|&n| n as f64));
+        return;
+    }
+    // Common case: no child is below the even share.
+    let even = total / sizes.len() as f64;
+    if sizes.iter().all(|&n| n as f64 > even) {
+        out.resize(sizes.len(), even);
         return;
     }
     // The level: walk the distinct sizes in increasing order, capping while the
@@ -485,6 +592,41 @@ fn share(total: f64, sizes: &[usize], out: &mut Vec<f64>, order: &mut Vec<usize>
     out.extend(sizes.iter().map(|&n| (n as f64).min(level)));
 }
 
+/// Cuts the curve into runs of weight one as weights arrive in curve order; each
+/// finished run marks its point nearest its centroid.
+struct Runs {
+    quota: usize,
+    /// First point of the open run, and its number.
+    start: usize,
+    run: usize,
+    /// Weight before the next point.
+    cum: f64,
+}
+
+impl Runs {
+    /// Points `range`, each of weight `u`. A point belongs to the run where the
+    /// middle of its weight falls (weights never exceed one, so every run gets at
+    /// least one point).
+    #[inline]
+    fn add(
+        &mut self,
+        pts: &[[f32; 3]],
+        chosen: &mut [bool],
+        range: std::ops::Range<usize>,
+        u: f64,
+    ) {
+        for i in range {
+            let r = ((self.cum + u / 2.0) as usize).min(self.quota - 1);
+            self.cum += u;
+            if r != self.run {
+                chosen[nearest_centroid(pts, self.start..i)] = true;
+                self.start = i;
+                self.run = r;
+            }
+        }
+    }
+}
+
 /// Chooses exactly `quota` of `pts` (in curve order) as an even sample, like a
 /// voxel grid. Each point gets a weight: every cell of the finest grid depth with at
 /// most `quota` occupied cells (cells are runs of the curve) gets the same share of
@@ -500,13 +642,13 @@ fn select(pts: &[[f32; 3]], quota: usize, grid: &Grid) -> Vec<bool> {
         return chosen;
     }
     // cd[i]: depth of the smallest cell holding points i - 1 and i.
+    // (Cells first, in a loop of their own that vectorizes.)
+    let cells: Vec<[u32; 3]> = pts.iter().map(|p| grid.cell(p)).collect();
     let mut cd = vec![0u8; m];
-    let mut prev = grid.cell(&pts[0]);
-    for i in 1..m {
-        let c = grid.cell(&pts[i]);
-        cd[i] = common_depth(prev, c) as u8;
-        prev = c;
+    for (d, w) in cd[1..].iter_mut().zip(cells.windows(2)) {
+        *d = common_depth(w[0], w[1]) as u8;
     }
+    drop(cells);
     let mut hist = [0usize; KEY_BITS as usize + 1];
     for &d in &cd[1..] {
         hist[d as usize] += 1;
@@ -525,96 +667,53 @@ fn select(pts: &[[f32; 3]], quota: usize, grid: &Grid) -> Vec<bool> {
     let mut sizes: Vec<usize> = starts.windows(2).map(|w| w[1] - w[0]).collect();
     let (mut shares, mut order) = (Vec::new(), Vec::new());
     share(quota as f64, &sizes, &mut shares, &mut order);
+    // Cells are visited depth first in curve order (children pushed last first), so
+    // the weights arrive in order and the runs are cut on the fly.
     let mut stack: Vec<(usize, usize, f64)> = starts
         .windows(2)
         .zip(&shares)
+        .rev()
         .map(|(r, &x)| (r[0], r[1], x))
         .collect();
-    let mut weight = vec![0f64; m];
+    let mut runs = Runs {
+        quota,
+        start: 0,
+        run: 0,
+        cum: 0.0,
+    };
     while let Some((s, e, w)) = stack.pop() {
         let n = e - s;
         if w <= 1.0 || w >= n as f64 {
-            weight[s..e].fill(w.min(n as f64) / n as f64);
+            runs.add(pts, &mut chosen, s..e, w.min(n as f64) / n as f64);
             continue;
         }
         // The sub-cells: runs split where the common depth is least.
-        let mut split = u8::MAX;
-        starts.clear();
-        starts.push(s);
-        for (i, &d) in cd.iter().enumerate().take(e).skip(s + 1) {
-            if d < split {
-                split = d;
-                starts.truncate(1);
-            }
-            if d == split {
-                starts.push(i);
-            }
-        }
+        let inner = &cd[s + 1..e];
+        let split = inner.iter().copied().min().unwrap_or(u8::MAX);
         if split as u32 >= KEY_BITS {
             // Closer than the grid resolves: even shares.
-            weight[s..e].fill(w / n as f64);
+            runs.add(pts, &mut chosen, s..e, w / n as f64);
             continue;
         }
+        starts.clear();
+        starts.push(s);
+        starts.extend(
+            inner
+                .iter()
+                .enumerate()
+                .filter(|&(_, &d)| d == split)
+                .map(|(i, _)| s + 1 + i),
+        );
         starts.push(e);
         sizes.clear();
         sizes.extend(starts.windows(2).map(|w| w[1] - w[0]));
         share(w, &sizes, &mut shares, &mut order);
-        for (r, &x) in starts.windows(2).zip(&shares) {
+        for (r, &x) in starts.windows(2).zip(&shares).rev() {
             stack.push((r[0], r[1], x));
         }
     }
-    // Run of point i: where the middle of its weight falls on the cumulative scale
-    // (weights never exceed one, so every run gets at least one point).
-    let mut start = 0;
-    let mut run = 0;
-    let mut cum = 0f64;
-    for i in 0..m {
-        let r = ((cum + weight[i] / 2.0) as usize).min(quota - 1);
-        cum += weight[i];
-        if r != run {
-            chosen[nearest_centroid(pts, start..i)] = true;
-            start = i;
-            run = r;
-        }
-    }
-    chosen[nearest_centroid(pts, start..m)] = true;
+    chosen[nearest_centroid(pts, runs.start..m)] = true;
     chosen
-}
-
-/// Level 1 inside one tile (`p`, `idx`: its slots in curve order): a quarter of the
-/// points is chosen by [`select`], and each chosen one leads a block of four with
-/// the next three unchosen ones along the curve. A partial last block (last tile
-/// only) keeps its points and leads with the one nearest its centroid.
-fn arrange_level1(p: &mut [[f32; 3]], idx: &mut [u32], grid: &Grid) {
-    let len = p.len();
-    if len < 2 {
-        return;
-    }
-    let domain = len / 4 * 4;
-    if domain > 0 {
-        let chosen = select(&p[..domain], domain / 4, grid);
-        let old_p = p[..domain].to_vec();
-        let old_i = idx[..domain].to_vec();
-        // Chosen points go to slots 4j, the others fill the slots between in turn.
-        let (mut lead, mut rest) = (0, 1);
-        for (i, &c) in chosen.iter().enumerate() {
-            let k = if c {
-                lead += 4;
-                lead - 4
-            } else {
-                let k = rest;
-                rest += if rest % 4 == 3 { 2 } else { 1 };
-                k
-            };
-            p[k] = old_p[i];
-            idx[k] = old_i[i];
-        }
-    }
-    if domain < len {
-        let best = nearest_centroid(p, domain..len);
-        p.swap(domain, best);
-        idx.swap(domain, best);
-    }
 }
 
 /// Levels `from..levels`: in each block, the sub-block whose first point (its
@@ -624,37 +723,47 @@ fn arrange_level1(p: &mut [[f32; 3]], idx: &mut [u32], grid: &Grid) {
 fn centroid_levels(pos: &mut [[f32; 3]], perm: &mut [u32], from: usize, levels: usize) {
     for level in from..levels {
         let block = 1usize << (2 * level);
-        let sub = block / 4;
         pos.par_chunks_mut(block)
             .zip(perm.par_chunks_mut(block))
-            .for_each(|(chunk, idx)| {
-                let count = chunk.len().div_ceil(sub);
-                if count < 2 {
-                    return;
-                }
-                let first = |j: usize| chunk[j * sub];
-                let mut c = [0f32; 3];
-                for j in 0..count {
-                    for a in 0..3 {
-                        c[a] += first(j)[a];
-                    }
-                }
-                let c = c.map(|v| v / count as f32);
-                let d = |p: [f32; 3]| {
-                    (p[0] - c[0]).powi(2) + (p[1] - c[1]).powi(2) + (p[2] - c[2]).powi(2)
-                };
-                // Only full sub-blocks may move (sub-block 0 is where they go).
-                let full = (chunk.len() / sub).max(1);
-                let best = (0..full)
-                    .min_by(|&i, &j| d(first(i)).total_cmp(&d(first(j))))
-                    .unwrap_or(0);
-                if best > 0 {
-                    let (head, tail) = chunk.split_at_mut(best * sub);
-                    head[..sub].swap_with_slice(&mut tail[..sub]);
-                    let (head, tail) = idx.split_at_mut(best * sub);
-                    head[..sub].swap_with_slice(&mut tail[..sub]);
-                }
-            });
+            .for_each(|(chunk, idx)| centroid_block(chunk, idx, level));
+    }
+}
+
+/// One level of the centroid rule over a run of whole blocks (a tile).
+fn centroid_level(pos: &mut [[f32; 3]], perm: &mut [u32], level: usize) {
+    let block = 1usize << (2 * level);
+    for (chunk, idx) in pos.chunks_mut(block).zip(perm.chunks_mut(block)) {
+        centroid_block(chunk, idx, level);
+    }
+}
+
+/// The centroid rule in one block of `4^level` slots (or the partial last one).
+#[inline]
+fn centroid_block(chunk: &mut [[f32; 3]], idx: &mut [u32], level: usize) {
+    let sub = 1usize << (2 * (level - 1));
+    let count = chunk.len().div_ceil(sub);
+    if count < 2 {
+        return;
+    }
+    let first = |j: usize| chunk[j * sub];
+    let mut c = [0f32; 3];
+    for j in 0..count {
+        for a in 0..3 {
+            c[a] += first(j)[a];
+        }
+    }
+    let c = c.map(|v| v / count as f32);
+    let d = |p: [f32; 3]| (p[0] - c[0]).powi(2) + (p[1] - c[1]).powi(2) + (p[2] - c[2]).powi(2);
+    // Only full sub-blocks may move (sub-block 0 is where they go).
+    let full = (chunk.len() / sub).max(1);
+    let best = (0..full)
+        .min_by(|&i, &j| d(first(i)).total_cmp(&d(first(j))))
+        .unwrap_or(0);
+    if best > 0 {
+        let (head, tail) = chunk.split_at_mut(best * sub);
+        head[..sub].swap_with_slice(&mut tail[..sub]);
+        let (head, tail) = idx.split_at_mut(best * sub);
+        head[..sub].swap_with_slice(&mut tail[..sub]);
     }
 }
 

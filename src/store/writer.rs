@@ -206,21 +206,16 @@ fn arrange(path: &Path, pts: &PointColumns, layout: Layout, ph: &mut Phases) -> 
             let hi = [0, 1, 2].map(|a| (bounds.max[a] - origin[a]) as f32);
             let perm = layout::hilbert_order(&pos, lo, hi);
             ph.mark("hilbert sort");
-            let mut sorted: Vec<[f32; 3]> = bigvec::with_capacity(n);
-            perm.par_iter()
-                .map(|&i| pos[i as usize])
-                .collect_into_vec(&mut sorted);
-            drop(pos);
-            ph.mark("gather positions");
             let mut perm = perm;
-            layout::choose_representatives(
-                &mut sorted,
+            let sorted = layout::gather_representatives(
+                &pos,
                 &mut perm,
                 layout::representative_levels(n),
                 lo,
                 hi,
             );
-            ph.mark("representatives");
+            drop(pos);
+            ph.mark("gather+representatives");
             (sorted, perm)
         }
         Layout::Paper => (pos, (0..n as u32).collect()),
@@ -483,6 +478,7 @@ pub fn write_part(path: &Path, pts: &PointColumns, opts: &WriteOptions) -> Resul
         )
     })?;
     tmp.done = true;
+    ph.mark("rename");
     let g = a.geometry;
     Ok(PartSummary {
         path: path.to_path_buf(),
