@@ -6,6 +6,13 @@
 /// Below this size the advice is not worth a system call.
 const MIN_BYTES: usize = 4 << 20;
 
+/// Above this size buffers keep ordinary pages. Measured on the 2-core VM (writing
+/// 47.7 M points, `write_phases`): with the advice on every buffer (up to 573 MB)
+/// the kernel spent 2.0–3.9 s of system time per write against 1.7–2.1 s without
+/// it, and the Hilbert sort's 382 MB buffers took 1.5–2.0 s against 1.0–1.2 s;
+/// at 10 M points (buffers up to 120 MB) the advice still wins.
+const MAX_BYTES: usize = 256 << 20;
+
 /// An empty vector with room for `n` elements whose memory the kernel is asked to
 /// back with huge pages before anything touches it.
 pub fn with_capacity<T>(n: usize) -> Vec<T> {
@@ -25,7 +32,7 @@ pub fn zeroed<T: Copy + Default>(n: usize) -> Vec<T> {
 #[cfg(target_os = "linux")]
 fn advise_huge<T>(v: &Vec<T>) {
     let bytes = v.capacity() * std::mem::size_of::<T>();
-    if bytes < MIN_BYTES {
+    if !(MIN_BYTES..=MAX_BYTES).contains(&bytes) {
         return;
     }
     // madvise wants a page-aligned start: advise the whole pages inside the buffer.
@@ -46,6 +53,36 @@ fn advise_huge<T>(v: &Vec<T>) {
 #[cfg(not(target_os = "linux"))]
 fn advise_huge<T>(_: &Vec<T>) {}
 
+/// The slices of `parts` one after another, copied into place in parallel.
+pub fn concat<T: Copy + Send + Sync>(parts: &[&[T]]) -> Vec<T> {
+    use rayon::prelude::*;
+    let total = parts.iter().map(|p| p.len()).sum();
+    let mut out: Vec<T> = with_capacity(total);
+    let mut dests = Vec::with_capacity(parts.len());
+    let mut rest = &mut out.spare_capacity_mut()[..total];
+    for p in parts {
+        let (a, b) = rest.split_at_mut(p.len());
+        dests.push(a);
+        rest = b;
+    }
+    dests
+        .into_par_iter()
+        .zip(parts.par_iter())
+        .for_each(|(d, s)| {
+            d.par_chunks_mut(1 << 18)
+                .zip(s.par_chunks(1 << 18))
+                .for_each(|(d, s)| {
+                    for (d, &v) in d.iter_mut().zip(s) {
+                        d.write(v);
+                    }
+                })
+        });
+    // SAFETY: the parts' lengths add up to `total` and each was copied into its
+    // own slots.
+    unsafe { out.set_len(total) };
+    out
+}
+
 #[cfg(test)]
 mod tests {
     #[test]
@@ -57,5 +94,16 @@ mod tests {
         assert_eq!(v[2_999_999], 1.5);
         let w: Vec<u64> = super::with_capacity(10);
         assert!(w.capacity() >= 10 && w.is_empty());
+    }
+
+    #[test]
+    fn concat_keeps_order() {
+        let a: Vec<u32> = (0..300_000).collect();
+        let b: Vec<u32> = vec![7; 5];
+        let joined = super::concat(&[&a[..], &[], &b[..], &a[..1000]]);
+        assert_eq!(joined.len(), 301_005);
+        assert_eq!(&joined[..300_000], &a[..]);
+        assert_eq!(&joined[300_000..300_005], &b[..]);
+        assert_eq!(&joined[300_005..], &a[..1000]);
     }
 }

@@ -487,3 +487,36 @@ fn paper_layout_is_row_major_with_a_strided_pyramid() {
     check_paper_layout(&random_cloud(300_001, 9, 0), Compression::None);
     check_paper_layout(&random_cloud(70_000, 2, 0), Compression::Deflate);
 }
+
+/// A part written from several chunks (as `convert` hands over a reader's
+/// windows) is byte for byte the part written from the joined columns; chunks
+/// whose attributes differ are refused.
+#[test]
+fn chunks_write_the_same_part() {
+    let pts = pcimg::synth::scene(150_000, 4);
+    let cut = |from: usize, to: usize| {
+        let mut c = pts.empty_like();
+        c.x.extend_from_slice(&pts.x[from..to]);
+        c.y.extend_from_slice(&pts.y[from..to]);
+        c.z.extend_from_slice(&pts.z[from..to]);
+        for (d, s) in c.attributes.iter_mut().zip(&pts.attributes) {
+            d.offset = s.offset;
+            d.values.extend_from_slice(&s.values[from..to]);
+        }
+        c
+    };
+    let chunks = vec![cut(0, 40_000), cut(40_000, 40_001), cut(40_001, 150_000)];
+    let dir = tempfile::tempdir().unwrap();
+    let (a, b) = (dir.path().join("a.tif"), dir.path().join("b.tif"));
+    let opts = WriteOptions::default();
+    write_part(&a, &pts, &opts).unwrap();
+    pcimg::store::write_part_chunks(&b, &chunks, &opts).unwrap();
+    assert!(std::fs::read(&a).unwrap() == std::fs::read(&b).unwrap());
+
+    let mut odd = chunks;
+    odd[1].attributes[0].offset += 1.0;
+    let e = pcimg::store::write_part_chunks(&b, &odd, &opts)
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("b.tif") && e.contains("offsets"), "{e}");
+}

@@ -135,20 +135,24 @@ impl Sample {
         }
     }
     fn add(&mut self, c: &PointColumns) {
-        for i in 0..c.len() {
-            if self.seen.is_multiple_of(self.stride) {
-                self.pts.push([c.x[i], c.y[i], c.z[i]]);
-                if self.pts.len() >= self.cap {
-                    let mut k = 0;
-                    self.pts.retain(|_| {
-                        k += 1;
-                        k % 2 == 1
-                    });
-                    self.stride *= 2;
-                }
+        let n = c.len() as u64;
+        let end = self.seen + n;
+        // The next multiple of the stride, then every stride-th point from there.
+        let mut next = self.seen.next_multiple_of(self.stride);
+        while next < end {
+            let i = (next - self.seen) as usize;
+            self.pts.push([c.x[i], c.y[i], c.z[i]]);
+            if self.pts.len() >= self.cap {
+                let mut k = 0;
+                self.pts.retain(|_| {
+                    k += 1;
+                    k % 2 == 1
+                });
+                self.stride *= 2;
             }
-            self.seen += 1;
+            next = (next + 1).next_multiple_of(self.stride);
         }
+        self.seen = end;
     }
 }
 
@@ -195,18 +199,23 @@ pub fn convert(
         None => o.output.clone(),
     };
     let mut parts: Vec<PartSummary> = Vec::new();
+    // A part from consecutive chunks of points, whose bounds the caller has.
+    let write_chunks =
+        |chunks: &[PointColumns], bounds: &Bounds, parts: &mut Vec<PartSummary>| -> Result<()> {
+            check_cancel(o)?;
+            check_precision(bounds, parts.len(), o.allow_lossy)?;
+            let s = store::write_part_chunks(&part_path(parts.len()), chunks, &write_opts)?;
+            progress.note(&format!(
+                "part {} written: {} points, {}",
+                parts.len() + 1,
+                crate::text::count(s.points),
+                crate::text::bytes(s.bytes)
+            ));
+            parts.push(s);
+            Ok(())
+        };
     let write = |pts: &PointColumns, parts: &mut Vec<PartSummary>| -> Result<()> {
-        check_cancel(o)?;
-        check_precision(&pts.bounds(), parts.len(), o.allow_lossy)?;
-        let s = store::write_part(&part_path(parts.len()), pts, &write_opts)?;
-        progress.note(&format!(
-            "part {} written: {} points, {}",
-            parts.len() + 1,
-            crate::text::count(s.points),
-            crate::text::bytes(s.bytes)
-        ));
-        parts.push(s);
-        Ok(())
+        write_chunks(std::slice::from_ref(pts), &pts.bounds(), parts)
     };
 
     let mut total = 0u64;
@@ -243,7 +252,9 @@ pub fn convert(
         Partition::Spatial => {
             // Pass 1: bounds and a sample; points kept while they fit one part.
             let mut bounds = Bounds::EMPTY;
-            let mut held: Option<PointColumns> = None;
+            // The chunks as read (no copy), while they fit one part.
+            let mut held: Vec<PointColumns> = Vec::new();
+            let mut held_points = 0u64;
             let mut overflow = false;
             let mut sample = Sample::new(1 << 21);
             let mut like: Option<PointColumns> = None;
@@ -253,21 +264,21 @@ pub fn convert(
                 progress.advance(reader.bytes_done(), total);
                 let l = like.get_or_insert_with(|| chunk.empty_like());
                 normalize(&mut chunk, l);
-                bounds = bounds.union(&chunk_bounds(&chunk));
+                bounds = bounds.union(&chunk.bounds());
                 sample.add(&chunk);
                 if !overflow {
-                    let h = held.get_or_insert_with(|| chunk.empty_like());
-                    if (h.len() + chunk.len()) as u64 <= per_part {
-                        h.append(&chunk).map_err(anyhow::Error::msg)?;
+                    if held_points + chunk.len() as u64 <= per_part {
+                        held_points += chunk.len() as u64;
+                        held.push(chunk);
                     } else {
                         overflow = true;
-                        held = None;
+                        held = Vec::new();
                     }
                 }
             }
             if !overflow {
-                if let Some(h) = held.filter(|h| !h.is_empty()) {
-                    write(&h, &mut parts)?;
+                if held_points > 0 {
+                    write_chunks(&held, &bounds, &mut parts)?;
                 }
             } else {
                 if as_file {
@@ -399,20 +410,6 @@ fn check_precision(b: &Bounds, part: usize, allow_lossy: bool) -> Result<()> {
         );
     }
     Ok(())
-}
-
-fn chunk_bounds(c: &PointColumns) -> Bounds {
-    (0..c.len())
-        .into_par_iter()
-        .with_min_len(1 << 16)
-        .fold(
-            || Bounds::EMPTY,
-            |mut b, i| {
-                b.extend([c.x[i], c.y[i], c.z[i]]);
-                b
-            },
-        )
-        .reduce(|| Bounds::EMPTY, |a, b| a.union(&b))
 }
 
 fn append_range(dst: &mut PointColumns, src: &PointColumns, from: usize, to: usize) {

@@ -370,27 +370,6 @@ fn parse_piece(
     p
 }
 
-/// Concatenates slices, copying them in parallel into their places.
-fn concat_par<T: Copy + Default + Send + Sync>(parts: &[&[T]]) -> Vec<T> {
-    if parts.len() == 1 {
-        return parts[0].to_vec();
-    }
-    let total = parts.iter().map(|p| p.len()).sum();
-    let mut out = bigvec::zeroed(total);
-    let mut dests = Vec::with_capacity(parts.len());
-    let mut rest = &mut out[..];
-    for p in parts {
-        let (a, b) = rest.split_at_mut(p.len());
-        dests.push(a);
-        rest = b;
-    }
-    dests
-        .into_par_iter()
-        .zip(parts.par_iter())
-        .for_each(|(d, s)| d.copy_from_slice(s));
-    out
-}
-
 /// Average bytes per line over the first 64 KiB from `start` (at least 1): the
 /// first window's size estimate.
 pub(crate) fn sample_bytes_per_line(data: &[u8], start: usize) -> f64 {
@@ -583,11 +562,11 @@ impl LineEngine {
         }
         let part = |f: fn(&Piece) -> &[f64]| -> Vec<&[f64]> { pieces.iter().map(f).collect() };
         let (x, (y, z)) = rayon::join(
-            || concat_par(&part(|p| &p.x)),
+            || bigvec::concat(&part(|p| &p.x)),
             || {
                 rayon::join(
-                    || concat_par(&part(|p| &p.y)),
-                    || concat_par(&part(|p| &p.z)),
+                    || bigvec::concat(&part(|p| &p.y)),
+                    || bigvec::concat(&part(|p| &p.z)),
                 )
             },
         );
@@ -597,7 +576,7 @@ impl LineEngine {
             .enumerate()
             .map(|(k, n)| {
                 let parts: Vec<&[f32]> = pieces.iter().map(|p| &p.attrs[k][..]).collect();
-                Attribute::new(n.clone(), concat_par(&parts))
+                Attribute::new(n.clone(), bigvec::concat(&parts))
             })
             .collect();
         let cols = PointColumns {

@@ -120,9 +120,31 @@ fn band_name(raw: &str) -> String {
     if s.is_empty() { "band".into() } else { s }
 }
 
-fn arrange(path: &Path, pts: &PointColumns, layout: Layout, ph: &mut Phases) -> Result<Arranged> {
-    pts.check_lengths().map_err(|m| StoreError::new(path, m))?;
-    let n = pts.len();
+fn arrange(
+    path: &Path,
+    chunks: &[PointColumns],
+    layout: Layout,
+    ph: &mut Phases,
+) -> Result<Arranged> {
+    for c in chunks {
+        c.check_lengths().map_err(|m| StoreError::new(path, m))?;
+    }
+    let empty = PointColumns::default();
+    let first = chunks.first().unwrap_or(&empty);
+    for c in chunks {
+        let same = c.attributes.len() == first.attributes.len()
+            && c.attributes
+                .iter()
+                .zip(&first.attributes)
+                .all(|(a, b)| a.name == b.name && a.offset == b.offset);
+        if !same {
+            return Err(StoreError::new(
+                path,
+                "the chunks of a part differ in their attribute columns or offsets",
+            ));
+        }
+    }
+    let n: usize = chunks.iter().map(|c| c.len()).sum();
     if n as u64 > u32::MAX as u64 {
         return Err(StoreError::new(
             path,
@@ -133,7 +155,7 @@ fn arrange(path: &Path, pts: &PointColumns, layout: Layout, ph: &mut Phases) -> 
         .iter()
         .map(|s| s.to_string())
         .collect();
-    for a in &pts.attributes {
+    for a in &first.attributes {
         let name = band_name(&a.name);
         if names.contains(&name) {
             return Err(StoreError::new(
@@ -145,11 +167,12 @@ fn arrange(path: &Path, pts: &PointColumns, layout: Layout, ph: &mut Phases) -> 
     }
     // Bounds axis by axis over contiguous slices (vectorizes); a non-finite value
     // makes a sum non-finite, and only then is the offending point looked for.
-    let axes = [&pts.x, &pts.y, &pts.z];
-    let stats: Vec<(f64, f64, bool)> = axes
-        .par_iter()
-        .map(|col| {
-            col.par_chunks(1 << 16)
+    let stats: Vec<(f64, f64, bool)> = (0..3)
+        .into_par_iter()
+        .map(|axis| {
+            chunks
+                .par_iter()
+                .flat_map(|c| [&c.x, &c.y, &c.z][axis].par_chunks(1 << 16))
                 .map(|c| {
                     let lo = c.iter().copied().fold(f64::INFINITY, f64::min);
                     let hi = c.iter().copied().fold(f64::NEG_INFINITY, f64::max);
@@ -163,16 +186,23 @@ fn arrange(path: &Path, pts: &PointColumns, layout: Layout, ph: &mut Phases) -> 
         })
         .collect();
     if stats.iter().any(|s| !s.2) {
-        let bad = (0..n)
-            .find(|&i| !(pts.x[i].is_finite() && pts.y[i].is_finite() && pts.z[i].is_finite()))
-            .unwrap_or(0);
-        return Err(StoreError::new(
-            path,
-            format!(
-                "point {bad} has a coordinate that is not a finite number ({}, {}, {})",
-                pts.x[bad], pts.y[bad], pts.z[bad]
-            ),
-        ));
+        let mut base = 0;
+        for c in chunks {
+            let finite = |i: usize| c.x[i].is_finite() && c.y[i].is_finite() && c.z[i].is_finite();
+            if let Some(i) = (0..c.len()).find(|&i| !finite(i)) {
+                return Err(StoreError::new(
+                    path,
+                    format!(
+                        "point {} has a coordinate that is not a finite number ({}, {}, {})",
+                        base + i,
+                        c.x[i],
+                        c.y[i],
+                        c.z[i]
+                    ),
+                ));
+            }
+            base += c.len();
+        }
     }
     let bounds = if n == 0 {
         Bounds::EMPTY
@@ -183,19 +213,25 @@ fn arrange(path: &Path, pts: &PointColumns, layout: Layout, ph: &mut Phases) -> 
         }
     };
     let origin = if n == 0 { [0.0; 3] } else { bounds.center() };
-    // Coordinates relative to the origin.
+    // Coordinates relative to the origin, chunk after chunk.
     let mut pos: Vec<[f32; 3]> = bigvec::with_capacity(n);
-    (0..n)
-        .into_par_iter()
-        .with_min_len(1 << 14)
-        .map(|i| {
-            [
-                (pts.x[i] - origin[0]) as f32,
-                (pts.y[i] - origin[1]) as f32,
-                (pts.z[i] - origin[2]) as f32,
-            ]
-        })
-        .collect_into_vec(&mut pos);
+    let mut rest = &mut pos.spare_capacity_mut()[..n];
+    for c in chunks {
+        let (dst, tail) = rest.split_at_mut(c.len());
+        rest = tail;
+        dst.par_iter_mut()
+            .enumerate()
+            .with_min_len(1 << 14)
+            .for_each(|(i, d)| {
+                d.write([
+                    (c.x[i] - origin[0]) as f32,
+                    (c.y[i] - origin[1]) as f32,
+                    (c.z[i] - origin[2]) as f32,
+                ]);
+            });
+    }
+    // SAFETY: the chunks' lengths add up to n and each wrote its slots.
+    unsafe { pos.set_len(n) };
     let max_error = quantization_bound(&bounds, origin);
     let geometry = Geometry::for_points(n as u64);
     ph.mark("validate+origin");
@@ -221,23 +257,32 @@ fn arrange(path: &Path, pts: &PointColumns, layout: Layout, ph: &mut Phases) -> 
         Layout::Paper => (pos, (0..n as u32).collect()),
     };
     let identity = layout == Layout::Paper;
-    let attrs: Vec<Vec<f32>> = pts
-        .attributes
-        .iter()
-        .map(|a| {
+    let attrs: Vec<Vec<f32>> = (0..first.attributes.len())
+        .map(|k| {
+            // One column: the chunk's own, or the chunks' concatenated (4 bytes a
+            // point, where x y z alone would be 24).
+            let joined: Vec<f32>;
+            let values: &[f32] = if chunks.len() == 1 {
+                &first.attributes[k].values
+            } else {
+                let parts: Vec<&[f32]> =
+                    chunks.iter().map(|c| &c.attributes[k].values[..]).collect();
+                joined = bigvec::concat(&parts);
+                &joined
+            };
             if identity {
-                a.values.clone()
+                values.to_vec()
             } else {
                 let mut v = bigvec::with_capacity(n);
                 perm.par_iter()
-                    .map(|&i| a.values[i as usize])
+                    .map(|&i| values[i as usize])
                     .collect_into_vec(&mut v);
                 v
             }
         })
         .collect();
     let mut offsets = origin.to_vec();
-    offsets.extend(pts.attributes.iter().map(|a| a.offset));
+    offsets.extend(first.attributes.iter().map(|a| a.offset));
     ph.mark("gather bands");
     Ok(Arranged {
         geometry,
@@ -436,8 +481,19 @@ impl Drop for TempFile {
 
 /// Writes `pts` as one part at `path` (replacing an existing file atomically).
 pub fn write_part(path: &Path, pts: &PointColumns, opts: &WriteOptions) -> Result<PartSummary> {
+    write_part_chunks(path, std::slice::from_ref(pts), opts)
+}
+
+/// Writes the points of consecutive `chunks` (a reader's windows, as read: no
+/// copy into one set of columns) as one part at `path`. The chunks must have the
+/// same attributes with the same offsets.
+pub fn write_part_chunks(
+    path: &Path,
+    chunks: &[PointColumns],
+    opts: &WriteOptions,
+) -> Result<PartSummary> {
     let mut ph = Phases::new();
-    let a = arrange(path, pts, opts.layout, &mut ph)?;
+    let a = arrange(path, chunks, opts.layout, &mut ph)?;
     let index = tile_index(&a);
     let xml = metadata_xml(&a, opts, &index);
     ph.mark("tile index");
