@@ -159,15 +159,43 @@ pub fn hilbert_order(pos: &[[f32; 3]], lo: [f32; 3], hi: [f32; 3]) -> Vec<u32> {
     // Key bit j lands at bit j + 1 and survives when j + 1 >= ib.
     let levels = ((63 - ib) / 3 + 1).min(KEY_BITS);
     let mut packed: Vec<u64> = bigvec::with_capacity(n);
-    pos.par_iter()
+    let quantize = |p: &[f32; 3]| {
+        let q = [0, 1, 2].map(|a| (((p[a] - lo[a]) as f64 * scale) as u32).min(max as u32));
+        spread3(q[0]) | (spread3(q[1]) << 1) | (spread3(q[2]) << 2)
+    };
+    let t3 = hilbert_table3();
+    let steps = levels.div_ceil(3).min(KEY_BITS / 3) as usize;
+    const CHUNK: usize = 1 << 14;
+    packed.spare_capacity_mut()[..n]
+        .par_chunks_mut(CHUNK)
+        .zip(pos.par_chunks(CHUNK))
         .enumerate()
-        .with_min_len(1 << 14)
-        .map(|(i, p)| {
-            let q = [0, 1, 2].map(|a| (((p[a] - lo[a]) as f64 * scale) as u32).min(max as u32));
+        .for_each(|(c, (out, pts))| {
+            let base = (c * CHUNK) as u64;
             // The 63-bit key moved up to bit 63, the index in the low bits.
-            ((hilbert_key_top(q, levels) << 1) & !mask) | i as u64
-        })
-        .collect_into_vec(&mut packed);
+            let pack = |h: u64, i: usize| ((h << 1) & !mask) | (base + i as u64);
+            // Eight keys in lockstep: each key's table walk is a chain of
+            // dependent loads, and eight chains keep the core busy.
+            const LANES: usize = 8;
+            let whole = pts.len() / LANES * LANES;
+            for (g, (o, p)) in out[..whole]
+                .chunks_exact_mut(LANES)
+                .zip(pts[..whole].chunks_exact(LANES))
+                .enumerate()
+            {
+                let m: [u64; LANES] = std::array::from_fn(|j| quantize(&p[j]));
+                let h = hilbert_top_lanes(t3, m, steps);
+                for j in 0..LANES {
+                    o[j].write(pack(h[j], g * LANES + j));
+                }
+            }
+            for i in whole..pts.len() {
+                let h = hilbert_top_lanes(t3, [quantize(&pts[i])], steps);
+                out[i].write(pack(h[0], i));
+            }
+        });
+    // SAFETY: every chunk wrote each of its slots.
+    unsafe { packed.set_len(n) };
     sort_indexed(&mut packed, ib);
     let mut perm = bigvec::with_capacity(n);
     packed
@@ -175,6 +203,23 @@ pub fn hilbert_order(pos: &[[f32; 3]], lo: [f32; 3], hi: [f32; 3]) -> Vec<u32> {
         .map(|&k| (k & mask) as u32)
         .collect_into_vec(&mut perm);
     perm
+}
+
+/// [`hilbert_key_top`] of `L` Morton codes at once (`steps` lookups of three
+/// levels each), their table walks interleaved.
+#[inline(always)]
+fn hilbert_top_lanes<const L: usize>(t3: &[[u16; 512]; 24], m: [u64; L], steps: usize) -> [u64; L] {
+    let mut h = [0u64; L];
+    let mut state = [0usize; L];
+    for step in 0..steps {
+        let shift = 54 - 9 * step;
+        for j in 0..L {
+            let s = t3[state[j]][((m[j] >> shift) & 511) as usize];
+            h[j] = (h[j] << 9) | (s & 511) as u64;
+            state[j] = (s >> 9) as usize;
+        }
+    }
+    h.map(|h| h << (9 * (KEY_BITS as usize / 3 - steps)))
 }
 
 /// The Hilbert index of `q` with only its `levels` most significant levels
@@ -860,6 +905,23 @@ mod tests {
                 let full = hilbert_key(q) >> (63 - keep);
                 assert_eq!(hilbert_key_top(q, levels) >> (63 - keep), full);
                 assert_eq!(hilbert_key_top(q, levels) & ((1 << (63 - keep)) - 1), 0);
+            }
+        }
+    }
+
+    #[test]
+    fn lockstep_keys_match_single_keys() {
+        let mut r = crate::synth::Rng::new(6);
+        for levels in [1u32, 9, 13, 14, 21] {
+            let steps = levels.div_ceil(3).min(KEY_BITS / 3) as usize;
+            for _ in 0..1000 {
+                let qs: [[u32; 3]; 8] =
+                    std::array::from_fn(|_| [0, 1, 2].map(|_| (r.next_u64() & 0x1f_ffff) as u32));
+                let m = qs.map(|q| spread3(q[0]) | (spread3(q[1]) << 1) | (spread3(q[2]) << 2));
+                let h = hilbert_top_lanes(hilbert_table3(), m, steps);
+                for j in 0..8 {
+                    assert_eq!(h[j], hilbert_key_top(qs[j], levels));
+                }
             }
         }
     }
