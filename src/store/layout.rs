@@ -641,32 +641,44 @@ fn share(total: f64, sizes: &[usize], out: &mut Vec<f64>, order: &mut Vec<usize>
 /// finished run marks its point nearest its centroid.
 struct Runs {
     quota: usize,
-    /// First point of the open run, and its number.
+    /// First point of the open run.
     start: usize,
-    run: usize,
+    /// Where the next run begins on the weight scale (`run + 1`; infinite for
+    /// the last run).
+    next: f64,
     /// Weight before the next point.
     cum: f64,
 }
 
 impl Runs {
+    fn new(quota: usize) -> Runs {
+        Runs {
+            quota,
+            start: 0,
+            next: if quota > 1 { 1.0 } else { f64::INFINITY },
+            cum: 0.0,
+        }
+    }
+
     /// Points `range`, each of weight `u`. A point belongs to the run where the
     /// middle of its weight falls (weights never exceed one, so every run gets at
-    /// least one point).
+    /// least one point). The middles only grow, so a run ends where a middle
+    /// reaches `next`.
     #[inline]
-    fn add(
-        &mut self,
-        pts: &[[f32; 3]],
-        chosen: &mut [bool],
-        range: std::ops::Range<usize>,
-        u: f64,
-    ) {
+    fn add(&mut self, pts: &[[f32; 3]], chosen: &mut [bool], range: std::ops::Range<usize>, u: f64) {
+        let half = u / 2.0;
         for i in range {
-            let r = ((self.cum + u / 2.0) as usize).min(self.quota - 1);
+            let mid = self.cum + half;
             self.cum += u;
-            if r != self.run {
+            if mid >= self.next {
+                let r = (mid as usize).min(self.quota - 1);
                 chosen[nearest_centroid(pts, self.start..i)] = true;
                 self.start = i;
-                self.run = r;
+                self.next = if r + 1 < self.quota {
+                    (r + 1) as f64
+                } else {
+                    f64::INFINITY
+                };
             }
         }
     }
@@ -720,12 +732,7 @@ fn select(pts: &[[f32; 3]], quota: usize, grid: &Grid) -> Vec<bool> {
         .rev()
         .map(|(r, &x)| (r[0], r[1], x))
         .collect();
-    let mut runs = Runs {
-        quota,
-        start: 0,
-        run: 0,
-        cum: 0.0,
-    };
+    let mut runs = Runs::new(quota);
     while let Some((s, e, w)) = stack.pop() {
         let n = e - s;
         if w <= 1.0 || w >= n as f64 {
