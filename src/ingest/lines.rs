@@ -16,6 +16,7 @@
 //!   rest is cut into chunks delivered next.
 
 use crate::bigvec;
+use std::mem::MaybeUninit;
 use std::path::PathBuf;
 
 use rayon::prelude::*;
@@ -227,10 +228,8 @@ impl LineFault {
 /// The result of parsing one piece of a window.
 #[derive(Default)]
 struct Piece {
-    x: Vec<f64>,
-    y: Vec<f64>,
-    z: Vec<f64>,
-    attrs: Vec<Vec<f32>>,
+    /// Points written at the start of the piece's output slices.
+    points: usize,
     /// Lines consumed (complete or not) up to the end of the piece or the error.
     lines: u64,
     skipped: u64,
@@ -239,25 +238,34 @@ struct Piece {
     error: Option<(u64, LineFault, usize, usize)>,
 }
 
-/// Parses the lines of `buf` (which ends at a line boundary or at the end of data).
+/// Where one piece's points go: its slots of the window's columns, at least one
+/// per line of the piece.
+struct Out<'a> {
+    x: &'a mut [MaybeUninit<f64>],
+    y: &'a mut [MaybeUninit<f64>],
+    z: &'a mut [MaybeUninit<f64>],
+    attrs: Vec<&'a mut [MaybeUninit<f32>]>,
+}
+
+/// Lines in `buf`, counting a last line without its newline: an upper bound of
+/// the points it holds.
+fn count_lines(buf: &[u8]) -> usize {
+    let newlines = memchr::memchr_iter(b'\n', buf).count();
+    newlines + usize::from(buf.last().is_some_and(|&c| c != b'\n'))
+}
+
+/// Parses the lines of `buf` (which ends at a line boundary or at the end of data)
+/// into `out`, which has a slot for every line.
 fn parse_piece(
     buf: &[u8],
     layout: &Layout,
     skip_invalid: bool,
     allow_count_lines: bool,
-    est_points: usize,
+    out: &mut Out,
 ) -> Piece {
     let ncols = layout.ncols();
-    let nattr = layout.attr_names.len();
-    let mut p = Piece {
-        x: bigvec::with_capacity(est_points),
-        y: bigvec::with_capacity(est_points),
-        z: bigvec::with_capacity(est_points),
-        attrs: (0..nattr)
-            .map(|_| bigvec::with_capacity(est_points))
-            .collect(),
-        ..Default::default()
-    };
+    let mut p = Piece::default();
+    let mut k = 0usize; // next output slot
     let mut vals = vec![0f64; ncols];
     let n = buf.len();
     let mut i = 0usize;
@@ -331,23 +339,24 @@ fn parse_piece(
                     Role::X => xyz[0] = vals[c],
                     Role::Y => xyz[1] = vals[c],
                     Role::Z => xyz[2] = vals[c],
-                    Role::Attr(a) => p.attrs[a].push(vals[c] as f32),
+                    // (An attribute written for a line that turns out invalid is
+                    // overwritten by the next point.)
+                    Role::Attr(a) => {
+                        out.attrs[a][k].write(vals[c] as f32);
+                    }
                     Role::Skip => {}
                 }
             }
             if xyz.iter().all(|v| v.is_finite()) {
-                p.x.push(xyz[0]);
-                p.y.push(xyz[1]);
-                p.z.push(xyz[2]);
+                out.x[k].write(xyz[0]);
+                out.y[k].write(xyz[1]);
+                out.z[k].write(xyz[2]);
+                k += 1;
                 if i < n {
                     i += 1; // the newline
                 }
                 p.lines += 1;
                 continue;
-            }
-            // Undo the attributes pushed for this line.
-            for a in &mut p.attrs {
-                a.truncate(p.x.len());
             }
             fault = Some(LineFault::NonFinite);
         }
@@ -365,9 +374,44 @@ fn parse_piece(
         if let Some(f) = fault {
             p.error = Some((p.lines, f, line_start, line_end));
         }
-        return p;
+        break;
     }
+    p.points = k;
     p
+}
+
+/// Splits the first `total` slots of `v`'s spare capacity into pieces of `sizes`.
+fn split_spare<'a, T>(v: &'a mut Vec<T>, sizes: &[usize]) -> Vec<&'a mut [MaybeUninit<T>]> {
+    let total: usize = sizes.iter().sum();
+    let mut rest = &mut v.spare_capacity_mut()[..total];
+    sizes
+        .iter()
+        .map(|&len| {
+            let (a, b) = std::mem::take(&mut rest).split_at_mut(len);
+            rest = b;
+            a
+        })
+        .collect()
+}
+
+/// Closes the gaps that pieces with fewer points than lines left: moves each
+/// piece's points right after the previous piece's and sets the length.
+/// `slots`: each piece's slot count; `points`: the points it wrote.
+fn close_gaps<T: Copy>(v: &mut Vec<T>, slots: &[usize], points: &[usize]) {
+    let mut from = 0usize;
+    let mut to = 0usize;
+    let base = v.as_mut_ptr();
+    for (&s, &p) in slots.iter().zip(points) {
+        if from != to && p > 0 {
+            // SAFETY: the `p` initialized values at `from` move down to `to`
+            // (< from), inside the capacity; `copy` allows overlap.
+            unsafe { std::ptr::copy(base.add(from), base.add(to), p) };
+        }
+        from += s;
+        to += p;
+    }
+    // SAFETY: slots 0..to now hold initialized values (the pieces' points).
+    unsafe { v.set_len(to) };
 }
 
 /// Average bytes per line over the first 64 KiB from `start` (at least 1): the
@@ -517,13 +561,44 @@ impl LineEngine {
             }
         }
         bounds.push(w.len());
-        let est = |len: usize| ((len as f64 / self.bytes_per_line) * 1.05) as usize + 16;
         let layout = &self.layout;
         let (skip, count) = (self.skip_invalid, self.allow_count_lines);
-        let mut pieces: Vec<Piece> = bounds
-            .par_windows(2)
-            .map(|b| parse_piece(&w[b[0]..b[1]], layout, skip, count, est(b[1] - b[0])))
+        let ranges: Vec<&[u8]> = bounds.windows(2).map(|b| &w[b[0]..b[1]]).collect();
+        // A slot per line, so the pieces parse straight into the window's columns.
+        let slots: Vec<usize> = ranges.par_iter().map(|r| count_lines(r)).collect();
+        let total_slots: usize = slots.iter().sum();
+        let nattr = layout.attr_names.len();
+        let mut x: Vec<f64> = bigvec::with_capacity(total_slots);
+        let mut y: Vec<f64> = bigvec::with_capacity(total_slots);
+        let mut z: Vec<f64> = bigvec::with_capacity(total_slots);
+        let mut attrs: Vec<Vec<f32>> = (0..nattr)
+            .map(|_| bigvec::with_capacity(total_slots))
             .collect();
+        let pieces: Vec<Piece> = {
+            let mut xs = split_spare(&mut x, &slots).into_iter();
+            let mut ys = split_spare(&mut y, &slots).into_iter();
+            let mut zs = split_spare(&mut z, &slots).into_iter();
+            let mut per_attr: Vec<_> = attrs
+                .iter_mut()
+                .map(|a| split_spare(a, &slots).into_iter())
+                .collect();
+            let outs: Vec<Out> = (0..ranges.len())
+                .map(|_| Out {
+                    x: xs.next().unwrap_or_default(),
+                    y: ys.next().unwrap_or_default(),
+                    z: zs.next().unwrap_or_default(),
+                    attrs: per_attr
+                        .iter_mut()
+                        .map(|a| a.next().unwrap_or_default())
+                        .collect(),
+                })
+                .collect();
+            ranges
+                .par_iter()
+                .zip(outs)
+                .map(|(r, mut o)| parse_piece(r, layout, skip, count, &mut o))
+                .collect()
+        };
         let mut lines = 0u64;
         let mut skipped = 0u64;
         for (k, p) in pieces.iter().enumerate() {
@@ -539,51 +614,26 @@ impl LineEngine {
             lines += p.lines;
             skipped += p.skipped;
         }
-        let total: usize = pieces.iter().map(|p| p.x.len()).sum();
-        if total == 0 {
+        let points: Vec<usize> = pieces.iter().map(|p| p.points).collect();
+        if points.iter().sum::<usize>() == 0 {
             return Ok((None, lines, skipped));
         }
-        if pieces.len() == 1
-            && let Some(p) = pieces.pop()
-        {
-            // One piece: its columns are the chunk, no copy.
-            let cols = PointColumns {
-                x: p.x,
-                y: p.y,
-                z: p.z,
-                attributes: layout
-                    .attr_names
-                    .iter()
-                    .zip(p.attrs)
-                    .map(|(n, v)| Attribute::new(n.clone(), v))
-                    .collect(),
-            };
-            return Ok((Some(cols), lines, skipped));
+        close_gaps(&mut x, &slots, &points);
+        close_gaps(&mut y, &slots, &points);
+        close_gaps(&mut z, &slots, &points);
+        for a in &mut attrs {
+            close_gaps(a, &slots, &points);
         }
-        let part = |f: fn(&Piece) -> &[f64]| -> Vec<&[f64]> { pieces.iter().map(f).collect() };
-        let (x, (y, z)) = rayon::join(
-            || bigvec::concat(&part(|p| &p.x)),
-            || {
-                rayon::join(
-                    || bigvec::concat(&part(|p| &p.y)),
-                    || bigvec::concat(&part(|p| &p.z)),
-                )
-            },
-        );
-        let attributes = layout
-            .attr_names
-            .par_iter()
-            .enumerate()
-            .map(|(k, n)| {
-                let parts: Vec<&[f32]> = pieces.iter().map(|p| &p.attrs[k][..]).collect();
-                Attribute::new(n.clone(), bigvec::concat(&parts))
-            })
-            .collect();
         let cols = PointColumns {
             x,
             y,
             z,
-            attributes,
+            attributes: layout
+                .attr_names
+                .iter()
+                .zip(attrs)
+                .map(|(n, v)| Attribute::new(n.clone(), v))
+                .collect(),
         };
         Ok((Some(cols), lines, skipped))
     }

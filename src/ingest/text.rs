@@ -471,6 +471,41 @@ mod tests {
         }
     }
 
+    /// A window of many pieces (several MB) where comment, blank and skipped lines
+    /// leave pieces with fewer points than lines: the points close up in order.
+    #[test]
+    fn pieces_with_gaps_close_up() {
+        let d = tempfile::tempdir().unwrap();
+        let mut body = String::from("x y z intensity\n");
+        let mut expect = Vec::new();
+        for i in 0..150_000u32 {
+            match i % 997 {
+                0 => body.push_str("# a comment\n"),
+                1 => body.push('\n'),
+                2 => body.push_str("1 2 nan 4\n"),
+                3 => body.push_str("1 2 x 4\n"),
+                _ => {
+                    body.push_str(&format!("{i} {} 0.5 {}\n", i % 1000, i % 7));
+                    expect.push((i as f64, (i % 1000) as f64, (i % 7) as f32));
+                }
+            }
+        }
+        assert!(body.len() > 2 << 20, "several pieces");
+        let p = write(&d, "gaps.xyz", &body);
+        let opts = ReadOptions {
+            skip_invalid: true,
+            ..Default::default()
+        };
+        let (c, _, skipped) = read(&p, &opts).unwrap();
+        assert_eq!(skipped, 2 * 150_000u64.div_ceil(997));
+        assert_eq!(c.len(), expect.len());
+        let got: Vec<(f64, f64, f32)> = (0..c.len())
+            .map(|i| (c.x[i], c.y[i], attr(&c, "intensity")[i]))
+            .collect();
+        assert!(got == expect);
+        assert!(c.z.iter().all(|&z| z == 0.5));
+    }
+
     #[test]
     fn uneven_lines_still_give_bounded_chunks() {
         let d = tempfile::tempdir().unwrap();

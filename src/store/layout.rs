@@ -665,7 +665,13 @@ impl Runs {
     /// least one point). The middles only grow, so a run ends where a middle
     /// reaches `next`.
     #[inline]
-    fn add(&mut self, pts: &[[f32; 3]], chosen: &mut [bool], range: std::ops::Range<usize>, u: f64) {
+    fn add(
+        &mut self,
+        pts: &[[f32; 3]],
+        chosen: &mut [bool],
+        range: std::ops::Range<usize>,
+        u: f64,
+    ) {
         let half = u / 2.0;
         for i in range {
             let mid = self.cum + half;
