@@ -200,11 +200,13 @@ pub fn convert(
     };
     let mut parts: Vec<PartSummary> = Vec::new();
     // A part from consecutive chunks of points, whose bounds the caller has.
+    // It takes the chunks, so their coordinates are freed as soon as the store has
+    // read them.
     let write_chunks =
-        |chunks: &[PointColumns], bounds: &Bounds, parts: &mut Vec<PartSummary>| -> Result<()> {
+        |chunks: Vec<PointColumns>, bounds: &Bounds, parts: &mut Vec<PartSummary>| -> Result<()> {
             check_cancel(o)?;
             check_precision(bounds, parts.len(), o.allow_lossy)?;
-            let s = store::write_part_chunks(&part_path(parts.len()), chunks, &write_opts)?;
+            let s = store::write_part_owned(&part_path(parts.len()), chunks, &write_opts)?;
             progress.note(&format!(
                 "part {} written: {} points, {}",
                 parts.len() + 1,
@@ -214,8 +216,9 @@ pub fn convert(
             parts.push(s);
             Ok(())
         };
-    let write = |pts: &PointColumns, parts: &mut Vec<PartSummary>| -> Result<()> {
-        write_chunks(std::slice::from_ref(pts), &pts.bounds(), parts)
+    let write = |pts: PointColumns, parts: &mut Vec<PartSummary>| -> Result<()> {
+        let bounds = pts.bounds();
+        write_chunks(vec![pts], &bounds, parts)
     };
 
     let mut total = 0u64;
@@ -238,7 +241,7 @@ pub fn convert(
                             anyhow::bail!(too_many_parts(&o.output, per_part, o.memory));
                         }
                         let full = std::mem::replace(a, chunk.empty_like());
-                        write(&full, &mut parts)?;
+                        write(full, &mut parts)?;
                     }
                     let take = ((per_part as usize) - a.len()).min(chunk.len() - from);
                     append_range(a, &chunk, from, from + take);
@@ -246,7 +249,7 @@ pub fn convert(
                 }
             }
             if let Some(a) = acc.filter(|a| !a.is_empty()) {
-                write(&a, &mut parts)?;
+                write(a, &mut parts)?;
             }
         }
         Partition::Spatial => {
@@ -278,7 +281,7 @@ pub fn convert(
             }
             if !overflow {
                 if held_points > 0 {
-                    write_chunks(&held, &bounds, &mut parts)?;
+                    write_chunks(held, &bounds, &mut parts)?;
                 }
             } else {
                 if as_file {
@@ -324,17 +327,17 @@ pub fn convert(
                     }
                     let pts = spill::read_back(&path, &like)?;
                     let _ = std::fs::remove_file(&path);
-                    let mut from = 0usize;
-                    while from < pts.len() {
-                        let to = (from + per_part as usize).min(pts.len());
-                        if from == 0 && to == pts.len() {
-                            write(&pts, &mut parts)?;
-                        } else {
+                    if pts.len() as u64 <= per_part {
+                        write(pts, &mut parts)?;
+                    } else {
+                        let mut from = 0usize;
+                        while from < pts.len() {
+                            let to = (from + per_part as usize).min(pts.len());
                             let mut piece = pts.empty_like();
                             append_range(&mut piece, &pts, from, to);
-                            write(&piece, &mut parts)?;
+                            write(piece, &mut parts)?;
+                            from = to;
                         }
-                        from = to;
                     }
                     done += n;
                     progress.advance(done, done);

@@ -13,7 +13,7 @@ pub mod zorder;
 pub use codec::Compression;
 pub use error::StoreError;
 pub use layout::Layout;
-pub use writer::{PartSummary, WriteOptions, write_part, write_part_chunks};
+pub use writer::{PartSummary, WriteOptions, write_part, write_part_chunks, write_part_owned};
 pub mod dataset;
 pub mod ifd;
 pub mod reader;
