@@ -211,20 +211,33 @@ criterion_group!(benches, bench, bench_color);
 /// `PCIMG_RENDER_AB=1 cargo bench --bench render` (or `=<points>`): interleaved A/B of wgpu
 /// shader variants, best of several frames each (robust on a shared machine).
 fn ab() {
-    let variants: Vec<(String, GpuOptions)> =
-        [(1, false), (8, false), (8, true), (32, false), (32, true)]
-            .into_iter()
-            .map(|(ppt, pre)| {
-                (
-                    format!("ppt{ppt}{}", if pre { "+pretest" } else { "" }),
-                    GpuOptions {
-                        points_per_thread: ppt,
-                        no_early_depth_test: !pre,
-                        ..Default::default()
-                    },
-                )
-            })
-            .collect();
+    let mut variants: Vec<(String, GpuOptions)> = vec![("default".into(), GpuOptions::default())];
+    variants.extend(
+        [
+            (8, true, false),
+            (32, true, false),
+            (16, true, true),
+            (32, true, true),
+            (64, true, true),
+            (32, false, true),
+        ]
+        .into_iter()
+        .map(|(ppt, pre, merge)| {
+            (
+                format!(
+                    "ppt{ppt}{}{}",
+                    if pre { "+pretest" } else { "" },
+                    if merge { "+merge" } else { "" }
+                ),
+                GpuOptions {
+                    points_per_thread: ppt,
+                    no_early_depth_test: !pre,
+                    merge_runs: Some(merge),
+                    ..Default::default()
+                },
+            )
+        }),
+    );
     let mut gpus: Vec<(String, GpuRasterizer)> = variants
         .into_iter()
         .filter_map(|(n, o)| GpuRasterizer::with_options(o).ok().map(|g| (n, g)))

@@ -399,24 +399,33 @@ fn gpu_shader_variants_agree() {
     let (cols, bounds) = scene();
     let bs = batches(&cols);
     let cam = Camera::fit(&bounds);
-    let o = opts(320, 180, 2);
-    let mut reference = None;
-    with_gpu(|gpu| reference = Some(gpu.render(&cam, &bs, &o).unwrap()));
-    let Some(reference) = reference else {
-        return;
-    };
-    for (no_early_depth_test, points_per_thread) in [(true, 1), (false, 3), (true, 64)] {
-        let mut g = GpuRasterizer::with_options(GpuOptions {
-            no_early_depth_test,
-            points_per_thread,
-            ..Default::default()
-        })
-        .unwrap();
-        let f = g.render(&cam, &bs, &o).unwrap();
-        assert_eq!(
-            f.rgba, reference.rgba,
-            "no early {no_early_depth_test} ppt {points_per_thread}"
-        );
+    for size in [1, 2] {
+        let o = opts(320, 180, size);
+        let mut reference = None;
+        with_gpu(|gpu| reference = Some(gpu.render(&cam, &bs, &o).unwrap()));
+        let Some(reference) = reference else {
+            return;
+        };
+        for (no_early_depth_test, points_per_thread, merge_runs) in [
+            (true, 1, false),
+            (false, 3, false),
+            (true, 64, false),
+            (false, 8, true),
+            (true, 5, true),
+        ] {
+            let mut g = GpuRasterizer::with_options(GpuOptions {
+                no_early_depth_test,
+                points_per_thread,
+                merge_runs: Some(merge_runs),
+                ..Default::default()
+            })
+            .unwrap();
+            let f = g.render(&cam, &bs, &o).unwrap();
+            assert_eq!(
+                f.rgba, reference.rgba,
+                "size {size}, no early {no_early_depth_test}, ppt {points_per_thread}, merge {merge_runs}"
+            );
+        }
     }
 }
 
