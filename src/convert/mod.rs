@@ -268,15 +268,20 @@ pub fn convert(
                 let l = like.get_or_insert_with(|| chunk.empty_like());
                 normalize(&mut chunk, l);
                 bounds = bounds.union(&chunk.bounds());
-                sample.add(&chunk);
-                if !overflow {
-                    if held_points + chunk.len() as u64 <= per_part {
-                        held_points += chunk.len() as u64;
-                        held.push(chunk);
-                    } else {
-                        overflow = true;
-                        held = Vec::new();
+                // The sample is only needed once the points overflow one part;
+                // it is then taken from the held chunks first, which gives the
+                // same sample as taking it chunk by chunk.
+                if overflow {
+                    sample.add(&chunk);
+                } else if held_points + chunk.len() as u64 <= per_part {
+                    held_points += chunk.len() as u64;
+                    held.push(chunk);
+                } else {
+                    overflow = true;
+                    for c in held.drain(..) {
+                        sample.add(&c);
                     }
+                    sample.add(&chunk);
                 }
             }
             if !overflow {
