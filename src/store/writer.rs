@@ -12,6 +12,7 @@ use super::zorder::{Geometry, tile_z_to_raster};
 use crate::bigvec;
 use crate::points::{Bounds, PointColumns};
 use rayon::prelude::*;
+use std::borrow::Cow;
 use std::fs::File;
 use std::io::{BufWriter, Seek, Write};
 use std::path::{Path, PathBuf};
@@ -93,11 +94,15 @@ pub fn quantization_bound(bounds: &Bounds, origin: [f64; 3]) -> f64 {
 /// Columns of a part in image order, ready to be tiled. Positions stay interleaved
 /// (`x y z` bands 0–2 are read straight out of them by the tile encoder, which
 /// saves a pass over every point); `attrs` are bands 3 and up.
-struct Arranged {
+struct Arranged<'a> {
     geometry: Geometry,
     layout: Layout,
     pos: Vec<[f32; 3]>,
-    attrs: Vec<Vec<f32>>,
+    /// Source index of each slot in image order (empty for the paper layout,
+    /// whose order is the input's).
+    perm: Vec<u32>,
+    /// Bands 3 and up in input order.
+    attrs: Vec<Cow<'a, [f32]>>,
     names: Vec<String>,
     offsets: Vec<f64>,
     origin: [f64; 3],
@@ -146,7 +151,12 @@ impl Chunks<'_> {
     }
 }
 
-fn arrange(path: &Path, mut input: Chunks, layout: Layout, ph: &mut Phases) -> Result<Arranged> {
+fn arrange<'a>(
+    path: &Path,
+    mut input: Chunks<'a>,
+    layout: Layout,
+    ph: &mut Phases,
+) -> Result<Arranged<'a>> {
     let chunks = input.get();
     for c in chunks {
         c.check_lengths().map_err(|m| StoreError::new(path, m))?;
@@ -237,6 +247,7 @@ fn arrange(path: &Path, mut input: Chunks, layout: Layout, ph: &mut Phases) -> R
     let origin = if n == 0 { [0.0; 3] } else { bounds.center() };
     let lens: Vec<usize> = chunks.iter().map(|c| c.len()).collect();
     let first_attrs = first.attributes.len();
+    let offsets_attr: Vec<f64> = first.attributes.iter().map(|a| a.offset).collect();
     // Coordinates relative to the origin, chunk after chunk; an owned chunk's
     // coordinates are freed as soon as they are read, so the next chunk's
     // positions mostly land in pages just freed (cheaper than fresh ones).
@@ -260,8 +271,6 @@ fn arrange(path: &Path, mut input: Chunks, layout: Layout, ph: &mut Phases) -> R
     }
     // SAFETY: the chunks' lengths add up to n and each wrote its slots.
     unsafe { pos.set_len(n) };
-    let chunks = input.get();
-    let first = chunks.first().unwrap_or(&empty);
     let max_error = quantization_bound(&bounds, origin);
     let geometry = Geometry::for_points(n as u64);
     ph.mark("validate+origin");
@@ -284,40 +293,39 @@ fn arrange(path: &Path, mut input: Chunks, layout: Layout, ph: &mut Phases) -> R
             ph.mark("gather+representatives");
             (sorted, perm)
         }
-        Layout::Paper => (pos, (0..n as u32).collect()),
+        Layout::Paper => (pos, Vec::new()),
     };
-    let identity = layout == Layout::Paper;
-    let attrs: Vec<Vec<f32>> = (0..first_attrs)
-        .map(|k| {
-            // One column: the chunk's own, or the chunks' concatenated (4 bytes a
-            // point, where x y z alone would be 24).
-            let joined: Vec<f32>;
-            let values: &[f32] = if chunks.len() == 1 {
-                &first.attributes[k].values
-            } else {
-                let parts: Vec<&[f32]> =
-                    chunks.iter().map(|c| &c.attributes[k].values[..]).collect();
-                joined = bigvec::concat(&parts);
-                &joined
-            };
-            if identity {
-                values.to_vec()
-            } else {
-                let mut v = bigvec::with_capacity(n);
-                perm.par_iter()
-                    .map(|&i| values[i as usize])
-                    .collect_into_vec(&mut v);
-                v
+    // Attribute columns stay in input order (tiles read them through `perm`):
+    // the chunk's own column (borrowed, or taken from an owned chunk), or the
+    // chunks' columns concatenated.
+    let attrs: Vec<Cow<'a, [f32]>> = (0..first_attrs)
+        .map(|k| match &mut input {
+            Chunks::Borrowed(c) if c.len() == 1 => {
+                let c: &'a [PointColumns] = c;
+                Cow::Borrowed(&c[0].attributes[k].values[..])
+            }
+            Chunks::Owned(c) if c.len() == 1 => {
+                Cow::Owned(std::mem::take(&mut c[0].attributes[k].values))
+            }
+            other => {
+                let parts: Vec<&[f32]> = other
+                    .get()
+                    .iter()
+                    .map(|c| &c.attributes[k].values[..])
+                    .collect();
+                Cow::Owned(bigvec::concat(&parts))
             }
         })
         .collect();
+    drop(input);
     let mut offsets = origin.to_vec();
-    offsets.extend(first.attributes.iter().map(|a| a.offset));
-    ph.mark("gather bands");
+    offsets.extend(offsets_attr);
+    ph.mark("bands");
     Ok(Arranged {
         geometry,
         layout,
         pos,
+        perm,
         attrs,
         names,
         offsets,
@@ -638,8 +646,8 @@ fn encode_tile(
         let pos = &a.pos;
         scatter_tile(lut, count, |i| pos[(base + i) * stride][b])
     } else {
-        let src = &a.attrs[b - 3];
-        scatter_tile(lut, count, |i| src[(base + i) * stride])
+        let (src, perm) = (&a.attrs[b - 3], &a.perm);
+        scatter_tile(lut, count, |i| src[perm[(base + i) * stride] as usize])
     };
     match compression {
         Compression::None => Encoded::Raw(buf),
