@@ -82,11 +82,15 @@ fn main_merge(
         if (i >= params.count) {
             break;
         }
-        let idx = pixel_of(i);
+        let p = project(i);
+        if (p.w == 0.0) {
+            continue;
+        }
+        let idx = pixel_of(p.xy);
         if (idx == none) {
             continue;
         }
-        let v = (u64(bitcast<u32>(clip_w(i))) << 32u) | u64(cs[i] & 0xffffffu);
+        let v = (u64(bitcast<u32>(p.z)) << 32u) | u64(cs[i] & 0xffffffu);
         if (idx == cur_idx) {
             cur_v = min(cur_v, v);
         } else {
@@ -102,60 +106,23 @@ fn main_merge(
     }
 }
 
-fn clip_w(i: u32) -> f32 {
-    let m = params.mvp;
-    return m[0].w * xs[i] + m[1].w * ys[i] + m[2].w * zs[i] + m[3].w;
-}
-
-// The pixel a 1-pixel point lands on, or 0xffffffff when it is clipped; the same
-// tests as `draw`.
-fn pixel_of(i: u32) -> u32 {
-    let x = xs[i];
-    let y = ys[i];
-    let z = zs[i];
-    let m = params.mvp;
-    let cw = m[0].w * x + m[1].w * y + m[2].w * z + m[3].w;
-    let cz = m[0].z * x + m[1].z * y + m[2].z * z + m[3].z;
-    if (!(cw > 0.0 && cz >= 0.0 && cz <= cw)) {
-        return 0xffffffffu;
-    }
-    let cx = m[0].x * x + m[1].x * y + m[2].x * z + m[3].x;
-    let cy = m[0].y * x + m[1].y * y + m[2].y * z + m[3].y;
-    let sx = cx / cw * params.hw + params.hw;
-    let sy = params.hh - cy / cw * params.hh;
-    if (sx >= 0.0 && sy >= 0.0 && sx < params.hw * 2.0 && sy < params.hh * 2.0) {
-        let ix = min(i32(sx), i32(params.width) - 1);
-        let iy = min(i32(sy), i32(params.height) - 1);
-        return u32(iy) * params.width + u32(ix);
-    }
-    return 0xffffffffu;
-}
-
 fn draw(i: u32) {
-    let x = xs[i];
-    let y = ys[i];
-    let z = zs[i];
-    let m = params.mvp;
-    let cw = m[0].w * x + m[1].w * y + m[2].w * z + m[3].w;
-    let cz = m[0].z * x + m[1].z * y + m[2].z * z + m[3].z;
-    if (!(cw > 0.0 && cz >= 0.0 && cz <= cw)) {
+    let p = project(i);
+    if (p.w == 0.0) {
         return;
     }
-    let cx = m[0].x * x + m[1].x * y + m[2].x * z + m[3].x;
-    let cy = m[0].y * x + m[1].y * y + m[2].y * z + m[3].y;
-    let sx = cx / cw * params.hw + params.hw;
-    let sy = params.hh - cy / cw * params.hh;
-    let v = (u64(bitcast<u32>(cw)) << 32u) | u64(cs[i] & 0xffffffu);
-    let w = i32(params.width);
-    let h = i32(params.height);
+    let v = (u64(bitcast<u32>(p.z)) << 32u) | u64(cs[i] & 0xffffffu);
     if (params.point_size == 1u) {
-        if (sx >= 0.0 && sy >= 0.0 && sx < params.hw * 2.0 && sy < params.hh * 2.0) {
-            let ix = min(i32(sx), w - 1);
-            let iy = min(i32(sy), h - 1);
-            write_min(u32(iy) * params.width + u32(ix), v);
+        let idx = pixel_of(p.xy);
+        if (idx != 0xffffffffu) {
+            write_min(idx, v);
         }
         return;
     }
+    let w = i32(params.width);
+    let h = i32(params.height);
+    let sx = p.x;
+    let sy = p.y;
     let fx = sx - params.off;
     let fy = sy - params.off;
     if (!(fx > -4.0 && fy > -4.0 && fx < params.hw * 2.0 + 4.0 && fy < params.hh * 2.0 + 4.0)) {

@@ -54,35 +54,28 @@ fn main(
 }
 
 fn draw(i: u32) {
-    let x = xs[i];
-    let y = ys[i];
-    let z = zs[i];
-    let m = params.mvp;
-    let cw = m[0].w * x + m[1].w * y + m[2].w * z + m[3].w;
-    let cz = m[0].z * x + m[1].z * y + m[2].z * z + m[3].z;
-    if (!(cw > 0.0 && cz >= 0.0 && cz <= cw)) {
+    let p = project(i);
+    if (p.w == 0.0) {
         return;
     }
-    let cx = m[0].x * x + m[1].x * y + m[2].x * z + m[3].x;
-    let cy = m[0].y * x + m[1].y * y + m[2].y * z + m[3].y;
-    let sx = cx / cw * params.hw + params.hw;
-    let sy = params.hh - cy / cw * params.hh;
+    let cw = p.z;
     let c = cs[i];
     // Blue in the high bits, red in the low ones: ties then break like the
     // 64-bit path, which compares b << 16 | g << 8 | r.
     let bgr565 = (((c >> 19u) & 0x1fu) << 11u) | (((c >> 10u) & 0x3fu) << 5u) | ((c >> 3u) & 0x1fu);
     let d16 = u32(clamp((log2(cw) - params.log2_near) * params.depth_scale, 0.0, 65534.0));
     let v = (d16 << 16u) | bgr565;
-    let w = i32(params.width);
-    let h = i32(params.height);
     if (params.point_size == 1u) {
-        if (sx >= 0.0 && sy >= 0.0 && sx < params.hw * 2.0 && sy < params.hh * 2.0) {
-            let ix = min(i32(sx), w - 1);
-            let iy = min(i32(sy), h - 1);
-            write_min(u32(iy) * params.width + u32(ix), v);
+        let idx = pixel_of(p.xy);
+        if (idx != 0xffffffffu) {
+            write_min(idx, v);
         }
         return;
     }
+    let w = i32(params.width);
+    let h = i32(params.height);
+    let sx = p.x;
+    let sy = p.y;
     let fx = sx - params.off;
     let fy = sy - params.off;
     if (!(fx > -4.0 && fy > -4.0 && fx < params.hw * 2.0 + 4.0 && fy < params.hh * 2.0 + 4.0)) {

@@ -27,6 +27,8 @@ use super::{
 
 const RASTERIZE64: &str = include_str!("../../shaders/rasterize.wgsl");
 const RASTERIZE32: &str = include_str!("../../shaders/rasterize_u32.wgsl");
+/// Appended to both rasterizers (WGSL has no includes).
+const PROJECT: &str = include_str!("../../shaders/project.wgsl");
 const RESOLVE: &str = include_str!("../../shaders/resolve.wgsl");
 
 const WORKGROUP: u32 = 256;
@@ -372,7 +374,7 @@ impl GpuRasterizer {
         .replace(
             "const POINTS_PER_THREAD: u32 = 1u;",
             &format!("const POINTS_PER_THREAD: u32 = {points_per_thread}u;"),
-        );
+        ) + PROJECT;
         let raster_mod = module(&raster_src, "rasterize");
         let resolve_mod = module(RESOLVE, "resolve");
         let raster = pipeline(
