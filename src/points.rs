@@ -158,6 +158,18 @@ impl PointColumns {
     }
 
     /// Appends all points of `other`, whose attributes must match by name and order.
+    /// Appends points `from..to` of `src`, which has the same attributes (their
+    /// offsets are taken from `src`).
+    pub fn append_range(&mut self, src: &PointColumns, from: usize, to: usize) {
+        self.x.extend_from_slice(&src.x[from..to]);
+        self.y.extend_from_slice(&src.y[from..to]);
+        self.z.extend_from_slice(&src.z[from..to]);
+        for (d, s) in self.attributes.iter_mut().zip(&src.attributes) {
+            d.offset = s.offset;
+            d.values.extend_from_slice(&s.values[from..to]);
+        }
+    }
+
     pub fn append(&mut self, other: &PointColumns) -> Result<(), String> {
         if self.attributes.len() != other.attributes.len()
             || self

@@ -496,13 +496,7 @@ fn chunks_write_the_same_part() {
     let pts = pcimg::synth::scene(150_000, 4);
     let cut = |from: usize, to: usize| {
         let mut c = pts.empty_like();
-        c.x.extend_from_slice(&pts.x[from..to]);
-        c.y.extend_from_slice(&pts.y[from..to]);
-        c.z.extend_from_slice(&pts.z[from..to]);
-        for (d, s) in c.attributes.iter_mut().zip(&pts.attributes) {
-            d.offset = s.offset;
-            d.values.extend_from_slice(&s.values[from..to]);
-        }
+        c.append_range(&pts, from, to);
         c
     };
     let chunks = vec![cut(0, 40_000), cut(40_000, 40_001), cut(40_001, 150_000)];

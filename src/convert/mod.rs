@@ -244,7 +244,7 @@ pub fn convert(
                         write(full, &mut parts)?;
                     }
                     let take = ((per_part as usize) - a.len()).min(chunk.len() - from);
-                    append_range(a, &chunk, from, from + take);
+                    a.append_range(&chunk, from, from + take);
                     from += take;
                 }
             }
@@ -339,7 +339,7 @@ pub fn convert(
                         while from < pts.len() {
                             let to = (from + per_part as usize).min(pts.len());
                             let mut piece = pts.empty_like();
-                            append_range(&mut piece, &pts, from, to);
+                            piece.append_range(&pts, from, to);
                             write(piece, &mut parts)?;
                             from = to;
                         }
@@ -418,16 +418,6 @@ fn check_precision(b: &Bounds, part: usize, allow_lossy: bool) -> Result<()> {
         );
     }
     Ok(())
-}
-
-fn append_range(dst: &mut PointColumns, src: &PointColumns, from: usize, to: usize) {
-    dst.x.extend_from_slice(&src.x[from..to]);
-    dst.y.extend_from_slice(&src.y[from..to]);
-    dst.z.extend_from_slice(&src.z[from..to]);
-    for (d, s) in dst.attributes.iter_mut().zip(&src.attributes) {
-        d.offset = s.offset;
-        d.values.extend_from_slice(&s.values[from..to]);
-    }
 }
 
 /// Pass 2 of spatial partitioning: re-reads the input and appends every point to
