@@ -8,6 +8,7 @@
 // Loops over the three axes index several parallel arrays at once.
 #![allow(clippy::needless_range_loop)]
 
+pub mod alloc;
 pub mod bigvec;
 pub mod camera;
 pub mod cli;
@@ -21,3 +22,8 @@ pub mod synth;
 pub mod term;
 pub mod text;
 pub mod tui;
+
+/// Large blocks are recycled within the process (`alloc`); everything linking the
+/// library (the binary, tests, benchmarks) allocates the same way.
+#[global_allocator]
+static GLOBAL: alloc::Recycling = alloc::Recycling;

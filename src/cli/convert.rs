@@ -49,6 +49,10 @@ pub struct Args {
     /// No progress bars or summary.
     #[arg(short, long)]
     pub quiet: bool,
+    /// Also print the wall time of each phase (passes over the input, and the
+    /// store's phases summed over parts).
+    #[arg(long)]
+    pub timings: bool,
 }
 
 /// Progress bars on stderr, one per phase.
@@ -172,5 +176,12 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         "  stored coordinates within {:.4} mm of the source",
         s.max_quantization_error * 1000.0
     );
+    if a.timings {
+        println!("  phases (wall time):");
+        for (name, d) in &s.phases {
+            let t = d.as_secs_f64();
+            println!("    {name:<32} {t:7.2} s  {:5.1}%", t / secs * 100.0);
+        }
+    }
     Ok(())
 }

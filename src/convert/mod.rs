@@ -75,6 +75,22 @@ pub struct ConvertSummary {
     pub points_per_part: u64,
     pub elapsed: Duration,
     pub max_quantization_error: f64,
+    /// Wall time per phase, in first-seen order: the passes over the input, then
+    /// the store's phases summed over parts.
+    pub phases: Vec<(String, Duration)>,
+}
+
+/// Wall time per named phase, summed, in first-seen order.
+#[derive(Default)]
+struct Timings(Vec<(String, Duration)>);
+
+impl Timings {
+    fn add(&mut self, name: &str, d: Duration) {
+        match self.0.iter_mut().find(|(n, _)| n == name) {
+            Some((_, t)) => *t += d,
+            None => self.0.push((name.to_string(), d)),
+        }
+    }
 }
 
 impl ConvertSummary {
@@ -173,6 +189,10 @@ pub fn convert(
     let opened = ingest::open(input, &read)?;
     let info = opened.info().clone();
     let per_part = budget::points_per_part(o.memory, info.attribute_names.len());
+    // Freed large buffers are kept for the next ones (a part's sort keys reuse the
+    // input columns' pages, the next part reuses this one's), within a share of
+    // the budget.
+    crate::alloc::set_pool_limit((o.memory / 4).min(usize::MAX as u64) as usize);
     // Reader windows are a small share of the budget.
     read.chunk_points = read.chunk_points.min((per_part / 8).max(1 << 16) as usize);
     drop(opened);
@@ -199,6 +219,7 @@ pub fn convert(
         None => o.output.clone(),
     };
     let mut parts: Vec<PartSummary> = Vec::new();
+    let timings = std::cell::RefCell::new(Timings::default());
     // A part from consecutive chunks of points, whose bounds the caller has.
     // It takes the chunks, so their coordinates are freed as soon as the store has
     // read them.
@@ -207,6 +228,9 @@ pub fn convert(
             check_cancel(o)?;
             check_precision(bounds, parts.len(), o.allow_lossy)?;
             let s = store::write_part_owned(&part_path(parts.len()), chunks, &write_opts)?;
+            for (name, d) in &s.phases {
+                timings.borrow_mut().add(&format!("write: {name}"), *d);
+            }
             progress.note(&format!(
                 "part {} written: {} points, {}",
                 parts.len() + 1,
@@ -222,6 +246,15 @@ pub fn convert(
     };
 
     let mut total = 0u64;
+    // The time of a stretch of work less the parts written during it.
+    let stored = || timings.borrow().0.iter().map(|(_, d)| *d).sum::<Duration>();
+    let pass = |name: &str, since: Instant, stored_before: Duration| {
+        let writes = stored() - stored_before;
+        timings
+            .borrow_mut()
+            .add(name, since.elapsed().saturating_sub(writes));
+    };
+    let (t_read, s_read) = (Instant::now(), stored());
     match o.partition {
         Partition::Stream => {
             let mut acc: Option<PointColumns> = None;
@@ -248,6 +281,7 @@ pub fn convert(
                     from += take;
                 }
             }
+            pass("read", t_read, s_read);
             if let Some(a) = acc.filter(|a| !a.is_empty()) {
                 write(a, &mut parts)?;
             }
@@ -284,6 +318,7 @@ pub fn convert(
                     sample.add(&chunk);
                 }
             }
+            pass("read", t_read, s_read);
             if !overflow {
                 if held_points > 0 {
                     write_chunks(held, &bounds, &mut parts)?;
@@ -309,6 +344,7 @@ pub fn convert(
                 ));
                 // Pass 2: distribute points into one temporary file per region.
                 let tmp = spill::TempDir::beside(&o.output, "pcimg-spill")?;
+                let t_partition = Instant::now();
                 let files = distribute(
                     &mut reader,
                     input,
@@ -321,6 +357,7 @@ pub fn convert(
                     &like,
                     &tmp.path,
                 )?;
+                pass("partition", t_partition, stored());
                 // Pass 3: each region becomes one part (or several, if the sample
                 // underestimated it).
                 progress.phase("write", total, "points");
@@ -330,8 +367,10 @@ pub fn convert(
                     if n == 0 {
                         continue;
                     }
+                    let t_back = Instant::now();
                     let pts = spill::read_back(&path, &like)?;
                     let _ = std::fs::remove_file(&path);
+                    pass("read back", t_back, stored());
                     if pts.len() as u64 <= per_part {
                         write(pts, &mut parts)?;
                     } else {
@@ -354,6 +393,7 @@ pub fn convert(
         anyhow::bail!("{}: no points in the input", input.display());
     }
     // Publish: move the staged parts into place.
+    let t_publish = Instant::now();
     if let Some(stage) = &staging {
         if o.output.exists() {
             if o.output.is_dir() {
@@ -374,6 +414,8 @@ pub fn convert(
             .collect();
         parts = moved;
     }
+    pass("publish", t_publish, stored());
+    let phases = timings.into_inner().0;
     let worst = parts
         .iter()
         .map(|p| p.max_quantization_error)
@@ -389,6 +431,7 @@ pub fn convert(
         points_per_part: per_part,
         elapsed: start.elapsed(),
         max_quantization_error: worst,
+        phases,
     })
 }
 
