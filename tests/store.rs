@@ -514,3 +514,45 @@ fn chunks_write_the_same_part() {
         .to_string();
     assert!(e.contains("b.tif") && e.contains("offsets"), "{e}");
 }
+
+/// Bounds a caller already has save the writer a pass: the part is the same as
+/// with bounds it computes itself, and points outside them (or not finite) are
+/// refused with the point's index, leaving nothing behind.
+#[test]
+fn given_bounds_write_the_same_part_and_are_checked() {
+    let pts = pcimg::synth::scene(100_000, 5);
+    let cut = |from: usize, to: usize| {
+        let mut c = pts.empty_like();
+        c.append_range(&pts, from, to);
+        c
+    };
+    let dir = tempfile::tempdir().unwrap();
+    let (a, b) = (dir.path().join("a.tif"), dir.path().join("b.tif"));
+    let opts = WriteOptions::default();
+    write_part(&a, &pts, &opts).unwrap();
+    let chunks = vec![cut(0, 30_000), cut(30_000, 100_000)];
+    pcimg::store::write_part_owned(&b, chunks, Some(pts.bounds()), &opts).unwrap();
+    assert!(std::fs::read(&a).unwrap() == std::fs::read(&b).unwrap());
+
+    let c = dir.path().join("c.tif");
+    let mut small = pts.bounds();
+    small.max[1] -= 1.0;
+    let e = pcimg::store::write_part_owned(&c, vec![pts.clone()], Some(small), &opts)
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("c.tif") && e.contains("outside the bounds"),
+        "{e}"
+    );
+    let mut bad = pts.clone();
+    bad.z[77_777] = f64::NAN;
+    let e = pcimg::store::write_part_owned(&c, vec![bad], Some(pts.bounds()), &opts)
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("point 77777") && e.contains("not a finite"),
+        "{e}"
+    );
+    let left: Vec<_> = std::fs::read_dir(dir.path()).unwrap().collect();
+    assert_eq!(left.len(), 2, "only a.tif and b.tif: {left:?}");
+}

@@ -223,23 +223,26 @@ pub fn convert(
     // A part from consecutive chunks of points, whose bounds the caller has.
     // It takes the chunks, so their coordinates are freed as soon as the store has
     // read them.
-    let write_chunks =
-        |chunks: Vec<PointColumns>, bounds: &Bounds, parts: &mut Vec<PartSummary>| -> Result<()> {
-            check_cancel(o)?;
-            check_precision(bounds, parts.len(), o.allow_lossy)?;
-            let s = store::write_part_owned(&part_path(parts.len()), chunks, &write_opts)?;
-            for (name, d) in &s.phases {
-                timings.borrow_mut().add(&format!("write: {name}"), *d);
-            }
-            progress.note(&format!(
-                "part {} written: {} points, {}",
-                parts.len() + 1,
-                crate::text::count(s.points),
-                crate::text::bytes(s.bytes)
-            ));
-            parts.push(s);
-            Ok(())
-        };
+    let write_chunks = |chunks: Vec<PointColumns>,
+                        bounds: &Bounds,
+                        parts: &mut Vec<PartSummary>|
+     -> Result<()> {
+        check_cancel(o)?;
+        check_precision(bounds, parts.len(), o.allow_lossy)?;
+        let s =
+            store::write_part_owned(&part_path(parts.len()), chunks, Some(*bounds), &write_opts)?;
+        for (name, d) in &s.phases {
+            timings.borrow_mut().add(&format!("write: {name}"), *d);
+        }
+        progress.note(&format!(
+            "part {} written: {} points, {}",
+            parts.len() + 1,
+            crate::text::count(s.points),
+            crate::text::bytes(s.bytes)
+        ));
+        parts.push(s);
+        Ok(())
+    };
     let write = |pts: PointColumns, parts: &mut Vec<PartSummary>| -> Result<()> {
         let bounds = pts.bounds();
         write_chunks(vec![pts], &bounds, parts)

@@ -151,9 +151,58 @@ impl Chunks<'_> {
     }
 }
 
+/// The bounds of the chunks' points, axis by axis over contiguous slices
+/// (vectorizes); a non-finite coordinate is an error.
+fn scan_bounds(path: &Path, chunks: &[PointColumns]) -> Result<Bounds> {
+    // A non-finite value makes a sum non-finite, and only then is the offending
+    // point looked for.
+    let stats: Vec<(f64, f64, bool)> = (0..3)
+        .into_par_iter()
+        .map(|axis| {
+            chunks
+                .par_iter()
+                .flat_map(|c| [&c.x, &c.y, &c.z][axis].par_chunks(1 << 16))
+                .map(|c| {
+                    let lo = c.iter().copied().fold(f64::INFINITY, f64::min);
+                    let hi = c.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+                    let finite = c.iter().map(|v| v * 0.0).sum::<f64>() == 0.0;
+                    (lo, hi, finite)
+                })
+                .reduce(
+                    || (f64::INFINITY, f64::NEG_INFINITY, true),
+                    |a, b| (a.0.min(b.0), a.1.max(b.1), a.2 && b.2),
+                )
+        })
+        .collect();
+    if stats.iter().any(|s| !s.2) {
+        let mut base = 0;
+        for c in chunks {
+            let finite = |i: usize| c.x[i].is_finite() && c.y[i].is_finite() && c.z[i].is_finite();
+            if let Some(i) = (0..c.len()).find(|&i| !finite(i)) {
+                return Err(StoreError::new(
+                    path,
+                    format!(
+                        "point {} has a coordinate that is not a finite number ({}, {}, {})",
+                        base + i,
+                        c.x[i],
+                        c.y[i],
+                        c.z[i]
+                    ),
+                ));
+            }
+            base += c.len();
+        }
+    }
+    Ok(Bounds {
+        min: [stats[0].0, stats[1].0, stats[2].0],
+        max: [stats[0].1, stats[1].1, stats[2].1],
+    })
+}
+
 fn arrange<'a>(
     path: &Path,
     mut input: Chunks<'a>,
+    known: Option<Bounds>,
     layout: Layout,
     ph: &mut Phases,
 ) -> Result<Arranged<'a>> {
@@ -197,76 +246,69 @@ fn arrange<'a>(
         }
         names.push(name);
     }
-    // Bounds axis by axis over contiguous slices (vectorizes); a non-finite value
-    // makes a sum non-finite, and only then is the offending point looked for.
-    let stats: Vec<(f64, f64, bool)> = (0..3)
-        .into_par_iter()
-        .map(|axis| {
-            chunks
-                .par_iter()
-                .flat_map(|c| [&c.x, &c.y, &c.z][axis].par_chunks(1 << 16))
-                .map(|c| {
-                    let lo = c.iter().copied().fold(f64::INFINITY, f64::min);
-                    let hi = c.iter().copied().fold(f64::NEG_INFINITY, f64::max);
-                    let finite = c.iter().map(|v| v * 0.0).sum::<f64>() == 0.0;
-                    (lo, hi, finite)
-                })
-                .reduce(
-                    || (f64::INFINITY, f64::NEG_INFINITY, true),
-                    |a, b| (a.0.min(b.0), a.1.max(b.1), a.2 && b.2),
-                )
-        })
-        .collect();
-    if stats.iter().any(|s| !s.2) {
-        let mut base = 0;
-        for c in chunks {
-            let finite = |i: usize| c.x[i].is_finite() && c.y[i].is_finite() && c.z[i].is_finite();
-            if let Some(i) = (0..c.len()).find(|&i| !finite(i)) {
-                return Err(StoreError::new(
-                    path,
-                    format!(
-                        "point {} has a coordinate that is not a finite number ({}, {}, {})",
-                        base + i,
-                        c.x[i],
-                        c.y[i],
-                        c.z[i]
-                    ),
-                ));
-            }
-            base += c.len();
-        }
-    }
-    let bounds = if n == 0 {
-        Bounds::EMPTY
-    } else {
-        Bounds {
-            min: [stats[0].0, stats[1].0, stats[2].0],
-            max: [stats[0].1, stats[1].1, stats[2].1],
-        }
+    let bounds = match known {
+        Some(b) => b,
+        None => scan_bounds(path, chunks)?,
     };
+    let bounds = if n == 0 { Bounds::EMPTY } else { bounds };
     let origin = if n == 0 { [0.0; 3] } else { bounds.center() };
     let lens: Vec<usize> = chunks.iter().map(|c| c.len()).collect();
     let first_attrs = first.attributes.len();
     let offsets_attr: Vec<f64> = first.attributes.iter().map(|a| a.offset).collect();
     // Coordinates relative to the origin, chunk after chunk; an owned chunk's
-    // coordinates are freed as soon as they are read, so the next chunk's
-    // positions mostly land in pages just freed (cheaper than fresh ones).
+    // coordinates are freed as soon as they are read, so the next buffers reuse
+    // their memory. The same pass checks that every point lies inside the bounds
+    // (a NaN never does), which catches bounds a caller got wrong.
     let mut pos: Vec<[f32; 3]> = bigvec::with_capacity(n);
     let mut rest = &mut pos.spare_capacity_mut()[..n];
+    let mut base = 0;
     for (k, &len) in lens.iter().enumerate() {
         let (dst, tail) = rest.split_at_mut(len);
         rest = tail;
         let c = &input.get()[k];
-        dst.par_iter_mut()
+        let (lo, hi) = (bounds.min, bounds.max);
+        let inside = dst
+            .par_iter_mut()
             .enumerate()
             .with_min_len(1 << 14)
-            .for_each(|(i, d)| {
-                d.write([
-                    (c.x[i] - origin[0]) as f32,
-                    (c.y[i] - origin[1]) as f32,
-                    (c.z[i] - origin[2]) as f32,
-                ]);
-            });
+            .fold(
+                || true,
+                |ok, (i, d)| {
+                    let p = [c.x[i], c.y[i], c.z[i]];
+                    d.write([0, 1, 2].map(|a| (p[a] - origin[a]) as f32));
+                    // `&`, not `&&`: no branches in the loop.
+                    ok & (p[0] >= lo[0])
+                        & (p[0] <= hi[0])
+                        & (p[1] >= lo[1])
+                        & (p[1] <= hi[1])
+                        & (p[2] >= lo[2])
+                        & (p[2] <= hi[2])
+                },
+            )
+            .reduce(|| true, |a, b| a & b);
+        if !inside {
+            let out = |i: usize| {
+                let p = [c.x[i], c.y[i], c.z[i]];
+                !(0..3).all(|a| p[a] >= lo[a] && p[a] <= hi[a])
+            };
+            let i = (0..len).find(|&i| out(i)).unwrap_or(0);
+            let what = if [c.x[i], c.y[i], c.z[i]].iter().all(|v| v.is_finite()) {
+                "lies outside the bounds given for the part"
+            } else {
+                "has a coordinate that is not a finite number"
+            };
+            return Err(StoreError::new(
+                path,
+                format!(
+                    "point {} {what} ({}, {}, {})",
+                    base + i,
+                    c.x[i],
+                    c.y[i],
+                    c.z[i]
+                ),
+            ));
+        }
+        base += len;
         input.release_coordinates(k);
     }
     // SAFETY: the chunks' lengths add up to n and each wrote its slots.
@@ -530,23 +572,31 @@ pub fn write_part_chunks(
     chunks: &[PointColumns],
     opts: &WriteOptions,
 ) -> Result<PartSummary> {
-    write(path, Chunks::Borrowed(chunks), opts)
+    write(path, Chunks::Borrowed(chunks), None, opts)
 }
 
 /// [`write_part_chunks`] taking the chunks: their coordinate columns are freed as
 /// soon as they are read, which lowers the peak memory by 24 bytes a point and
 /// gives that memory to the sort (reused pages are cheaper than fresh ones).
+/// `bounds`, when the caller has them, saves a pass over the coordinates; every
+/// point must lie inside them (it is checked, and an error otherwise).
 pub fn write_part_owned(
     path: &Path,
     chunks: Vec<PointColumns>,
+    bounds: Option<Bounds>,
     opts: &WriteOptions,
 ) -> Result<PartSummary> {
-    write(path, Chunks::Owned(chunks), opts)
+    write(path, Chunks::Owned(chunks), bounds, opts)
 }
 
-fn write(path: &Path, chunks: Chunks, opts: &WriteOptions) -> Result<PartSummary> {
+fn write(
+    path: &Path,
+    chunks: Chunks,
+    bounds: Option<Bounds>,
+    opts: &WriteOptions,
+) -> Result<PartSummary> {
     let mut ph = Phases::new();
-    let a = arrange(path, chunks, opts.layout, &mut ph)?;
+    let a = arrange(path, chunks, bounds, opts.layout, &mut ph)?;
     let index = tile_index(&a);
     let xml = metadata_xml(&a, opts, &index);
     ph.mark("tile index");
