@@ -505,18 +505,21 @@ fn distribute(
             .with_min_len(1 << 14)
             .map(|i| {
                 let c = grid.cell([chunk.x[i], chunk.y[i], chunk.z[i]]);
-                cell_region[grid.index(c)]
+                match cell_region[grid.index(c)] {
+                    // A cell the sample never saw belongs to the nearest region.
+                    u32::MAX => nearest_region(regions, c) as u32,
+                    r => r,
+                }
             })
             .collect();
-        for (i, &r) in ids.iter().enumerate() {
-            // Cells the sample never saw belong to the nearest region by order;
-            // fall back to the last region so no point is lost.
-            let r = if r == u32::MAX {
-                nearest_region(regions, grid.cell([chunk.x[i], chunk.y[i], chunk.z[i]]))
-            } else {
-                r as usize
-            };
-            writers[r].push(&chunk, i)?;
+        // Records grouped by region in parallel, then appended region by region.
+        let (records, starts) = spill::records_by_region(&chunk, &ids, regions.len());
+        let rs = spill::record_size(chunk.attributes.len());
+        for (r, w) in writers.iter_mut().enumerate() {
+            let (a, b) = (starts[r], starts[r + 1]);
+            if b > a {
+                w.push_records(&records[a * rs..b * rs], (b - a) as u64)?;
+            }
         }
         seen += chunk.len() as u64;
         progress.advance(reader.bytes_done(), seen);
