@@ -57,6 +57,22 @@ pub fn set_pool_limit(bytes: usize) {
     }
 }
 
+/// Returns every pooled block to the kernel.
+pub fn release_pool() {
+    let mut evicted = [(0usize, 0usize); SLOTS];
+    let k = {
+        let mut p = lock();
+        let k = p.n;
+        for i in (0..k).rev() {
+            evicted[i] = p.remove(i);
+        }
+        k
+    };
+    for &(a, l) in &evicted[..k] {
+        unmap(a, l);
+    }
+}
+
 /// The pool's current limit in bytes.
 pub fn pool_limit() -> usize {
     LIMIT.load(Ordering::Relaxed)
@@ -186,7 +202,14 @@ fn take(len: usize) -> (*mut u8, usize) {
         k += 1;
     }
     drop(p);
-    let base = map(len);
+    let mut base = map(len);
+    if base.is_null() {
+        // Out of address space or of kernel mappings (pooled blocks split by
+        // reuse count against the process's map limit): give the whole pool
+        // back to the kernel and try once more.
+        release_pool();
+        base = map(len);
+    }
     let mut warm = 0;
     for &(addr, have) in &parts[..k] {
         // Only what fits: the last block's tail goes back to the pool.
