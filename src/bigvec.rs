@@ -107,3 +107,54 @@ mod tests {
         assert_eq!(&joined[300_005..], &a[..1000]);
     }
 }
+
+/// A pointer into a buffer that a parallel scatter shares across threads, each
+/// thread writing its own disjoint set of slots (the caller guarantees that).
+#[derive(Clone, Copy)]
+pub struct Shared<T>(pub *mut T);
+// SAFETY: only addresses cross threads; every write through them is to slots the
+// writing thread owns (the caller's contract).
+unsafe impl<T> Send for Shared<T> {}
+unsafe impl<T> Sync for Shared<T> {}
+
+impl<T> Shared<T> {
+    /// The slot `i` (a method, so closures capture the whole `Shared`).
+    pub fn at(self, i: usize) -> *mut T {
+        self.0.wrapping_add(i)
+    }
+}
+
+/// The plan of a parallel, stable counting sort of `items` into `buckets`: the
+/// items cut into pieces of `piece`, each piece's first slot in each bucket
+/// (`starts[p][b]`: pieces fill a bucket in order, so the scatter is stable), and
+/// where each bucket begins (`bounds`, `buckets + 1` entries).
+pub fn scatter_plan<T: Sync>(
+    items: &[T],
+    piece: usize,
+    buckets: usize,
+    bucket: impl Fn(&T) -> usize + Sync,
+) -> (Vec<Vec<usize>>, Vec<usize>) {
+    use rayon::prelude::*;
+    let hists: Vec<Vec<u32>> = items
+        .par_chunks(piece.max(1))
+        .map(|c| {
+            let mut h = vec![0u32; buckets];
+            for k in c {
+                h[bucket(k)] += 1;
+            }
+            h
+        })
+        .collect();
+    let mut starts = vec![vec![0usize; buckets]; hists.len()];
+    let mut bounds = vec![0usize; buckets + 1];
+    let mut at = 0usize;
+    for b in 0..buckets {
+        bounds[b] = at;
+        for (c, h) in hists.iter().enumerate() {
+            starts[c][b] = at;
+            at += h[b] as usize;
+        }
+    }
+    bounds[buckets] = at;
+    (starts, bounds)
+}

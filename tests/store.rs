@@ -488,17 +488,24 @@ fn paper_layout_is_row_major_with_a_strided_pyramid() {
     check_paper_layout(&random_cloud(70_000, 2, 0), Compression::Deflate);
 }
 
+/// Points `from..to` of `pts` as a chunk of their own.
+fn cut_range(
+    pts: &pcimg::points::PointColumns,
+    from: usize,
+    to: usize,
+) -> pcimg::points::PointColumns {
+    let mut c = pts.empty_like();
+    c.append_range(pts, from, to);
+    c
+}
+
 /// A part written from several chunks (as `convert` hands over a reader's
 /// windows) is byte for byte the part written from the joined columns; chunks
 /// whose attributes differ are refused.
 #[test]
 fn chunks_write_the_same_part() {
     let pts = pcimg::synth::scene(150_000, 4);
-    let cut = |from: usize, to: usize| {
-        let mut c = pts.empty_like();
-        c.append_range(&pts, from, to);
-        c
-    };
+    let cut = |from: usize, to: usize| cut_range(&pts, from, to);
     let chunks = vec![cut(0, 40_000), cut(40_000, 40_001), cut(40_001, 150_000)];
     let dir = tempfile::tempdir().unwrap();
     let (a, b) = (dir.path().join("a.tif"), dir.path().join("b.tif"));
@@ -521,11 +528,7 @@ fn chunks_write_the_same_part() {
 #[test]
 fn given_bounds_write_the_same_part_and_are_checked() {
     let pts = pcimg::synth::scene(100_000, 5);
-    let cut = |from: usize, to: usize| {
-        let mut c = pts.empty_like();
-        c.append_range(&pts, from, to);
-        c
-    };
+    let cut = |from: usize, to: usize| cut_range(&pts, from, to);
     let dir = tempfile::tempdir().unwrap();
     let (a, b) = (dir.path().join("a.tif"), dir.path().join("b.tif"));
     let opts = WriteOptions::default();

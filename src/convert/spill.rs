@@ -83,30 +83,10 @@ pub fn records_by_region(
     let n = c.len();
     let rs = record_size(c.attributes.len());
     let piece = n.div_ceil(rayon::current_num_threads() * 4).max(1 << 14);
-    // Per piece and region: how many points, then where the piece's first goes.
-    let counts: Vec<Vec<usize>> = region
-        .par_chunks(piece)
-        .map(|ids| {
-            let mut h = vec![0usize; regions];
-            for &r in ids {
-                h[r as usize] += 1;
-            }
-            h
-        })
-        .collect();
-    let mut starts = vec![vec![0usize; regions]; counts.len()];
-    let mut bounds = vec![0usize; regions + 1];
-    let mut at = 0;
-    for r in 0..regions {
-        bounds[r] = at;
-        for (p, h) in counts.iter().enumerate() {
-            starts[p][r] = at;
-            at += h[r];
-        }
-    }
-    bounds[regions] = at;
+    // Per piece and region: where the piece's first record goes.
+    let (mut starts, bounds) = crate::bigvec::scatter_plan(region, piece, regions, |&r| r as usize);
     let mut out: Vec<u8> = crate::bigvec::with_capacity(n * rs);
-    let dst = Bytes(out.as_mut_ptr());
+    let dst = crate::bigvec::Shared(out.as_mut_ptr());
     region
         .par_chunks(piece)
         .zip(starts.par_iter_mut())
@@ -134,18 +114,6 @@ pub fn records_by_region(
     // SAFETY: every one of the n records was written above.
     unsafe { out.set_len(n * rs) };
     (out, bounds)
-}
-
-/// A pointer that the parallel encoding shares; each piece writes its own slots.
-#[derive(Clone, Copy)]
-struct Bytes(*mut u8);
-unsafe impl Send for Bytes {}
-unsafe impl Sync for Bytes {}
-
-impl Bytes {
-    fn at(self, i: usize) -> *mut u8 {
-        self.0.wrapping_add(i)
-    }
 }
 
 /// Most attribute columns a spill record carries.

@@ -242,20 +242,6 @@ pub fn hilbert_key_top(q: [u32; 3], levels: u32) -> u64 {
 /// Digit width of the sort's scatter passes.
 const RADIX_BITS: u32 = 11;
 
-/// A pointer that scatter passes share across threads; every thread writes a
-/// disjoint set of slots.
-#[derive(Clone, Copy)]
-struct Shared(*mut u64);
-unsafe impl Send for Shared {}
-unsafe impl Sync for Shared {}
-
-impl Shared {
-    /// The slot `i` (a method, so closures capture the whole `Shared`).
-    fn at(self, i: usize) -> *mut u64 {
-        self.0.wrapping_add(i)
-    }
-}
-
 /// Sorts `v` ascending, given that its low `low_bits` bits are unique and already
 /// ascending in the current order (they are the element's index), so only the
 /// bits above them need sorting: a parallel most-significant-digit scatter, then
@@ -283,29 +269,9 @@ pub fn sort_indexed(v: &mut Vec<u64>, low_bits: u32) {
     let bucket = |k: u64| ((k - kmin) >> shift) as usize;
     // Histograms per chunk, then each chunk's start in each bucket.
     let chunk = n.div_ceil(rayon::current_num_threads() * 4).max(1 << 14);
-    let hists: Vec<Vec<u32>> = v
-        .par_chunks(chunk)
-        .map(|c| {
-            let mut h = vec![0u32; buckets];
-            for &k in c {
-                h[bucket(k)] += 1;
-            }
-            h
-        })
-        .collect();
-    let mut starts = vec![vec![0usize; buckets]; hists.len()];
-    let mut bounds = vec![0usize; buckets + 1];
-    let mut at = 0usize;
-    for b in 0..buckets {
-        bounds[b] = at;
-        for (c, h) in hists.iter().enumerate() {
-            starts[c][b] = at;
-            at += h[b] as usize;
-        }
-    }
-    bounds[buckets] = n;
+    let (mut starts, bounds) = bigvec::scatter_plan(v, chunk, buckets, |&k| bucket(k));
     let mut out: Vec<u64> = bigvec::with_capacity(n);
-    let dst = Shared(out.as_mut_ptr());
+    let dst = bigvec::Shared(out.as_mut_ptr());
     v.par_chunks(chunk)
         .zip(starts.par_iter_mut())
         .for_each(|(c, fill)| {
