@@ -10,10 +10,13 @@
 //! (whose balloon reports freed pages to the host at once) about 0.75 s of CPU per
 //! GiB, against 0.02 s to touch memory the process already has.
 //!
-//! A pooled block is reused for a request it can hold (its tail stays pooled) or,
-//! for a larger request, grown with `mremap`, which keeps its pages and adds fresh
-//! ones only beyond them. The pool holds at most [`pool_limit`] bytes (set by
-//! `convert` from its memory budget), so resident memory stays within the budget.
+//! A pooled block is reused for a request it can hold (its tail stays pooled);
+//! a larger request gets a fresh mapping into whose start pooled blocks are moved
+//! with `mremap` (their pages come along), so only the remainder is fresh. Pooled
+//! memory is always used before fresh memory is mapped, so resident memory stays
+//! near the peak of live buffers; the pool holds at most [`pool_limit`] bytes (set
+//! by `convert` from its memory budget). Linux only (`mremap`); elsewhere the
+//! system allocator serves everything.
 
 use std::alloc::{GlobalAlloc, Layout, System};
 use std::sync::Mutex;
@@ -236,7 +239,7 @@ fn give(addr: usize, len: usize) {
 
 /// Whether a layout goes to the pool (large, and page alignment suffices).
 fn is_large(size: usize, align: usize) -> bool {
-    size >= LARGE && align <= PAGE && cfg!(target_os = "linux")
+    size >= LARGE && align <= PAGE
 }
 
 /// The system allocator with large blocks recycled (see the module comment).

@@ -8,7 +8,14 @@
 // Loops over the three axes index several parallel arrays at once.
 #![allow(clippy::needless_range_loop)]
 
+#[cfg(target_os = "linux")]
 pub mod alloc;
+/// Elsewhere the system allocator serves everything; the pool's controls do nothing.
+#[cfg(not(target_os = "linux"))]
+pub mod alloc {
+    pub fn set_pool_limit(_bytes: usize) {}
+    pub fn release_pool() {}
+}
 pub mod bigvec;
 pub mod camera;
 pub mod cli;
@@ -25,5 +32,6 @@ pub mod tui;
 
 /// Large blocks are recycled within the process (`alloc`); everything linking the
 /// library (the binary, tests, benchmarks) allocates the same way.
+#[cfg(target_os = "linux")]
 #[global_allocator]
 static GLOBAL: alloc::Recycling = alloc::Recycling;
