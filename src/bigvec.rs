@@ -83,31 +83,6 @@ pub fn concat<T: Copy + Send + Sync>(parts: &[&[T]]) -> Vec<T> {
     out
 }
 
-#[cfg(test)]
-mod tests {
-    #[test]
-    fn buffers_hold_what_was_asked() {
-        let mut v: Vec<f32> = super::zeroed(3_000_000);
-        assert_eq!(v.len(), 3_000_000);
-        assert!(v.iter().all(|&x| x == 0.0));
-        v[2_999_999] = 1.5;
-        assert_eq!(v[2_999_999], 1.5);
-        let w: Vec<u64> = super::with_capacity(10);
-        assert!(w.capacity() >= 10 && w.is_empty());
-    }
-
-    #[test]
-    fn concat_keeps_order() {
-        let a: Vec<u32> = (0..300_000).collect();
-        let b: Vec<u32> = vec![7; 5];
-        let joined = super::concat(&[&a[..], &[], &b[..], &a[..1000]]);
-        assert_eq!(joined.len(), 301_005);
-        assert_eq!(&joined[..300_000], &a[..]);
-        assert_eq!(&joined[300_000..300_005], &b[..]);
-        assert_eq!(&joined[300_005..], &a[..1000]);
-    }
-}
-
 /// A pointer into a buffer that a parallel scatter shares across threads, each
 /// thread writing its own disjoint set of slots (the caller guarantees that).
 #[derive(Clone, Copy)]
@@ -157,4 +132,29 @@ pub fn scatter_plan<T: Sync>(
     }
     bounds[buckets] = at;
     (starts, bounds)
+}
+
+#[cfg(test)]
+mod tests {
+    #[test]
+    fn buffers_hold_what_was_asked() {
+        let mut v: Vec<f32> = super::zeroed(3_000_000);
+        assert_eq!(v.len(), 3_000_000);
+        assert!(v.iter().all(|&x| x == 0.0));
+        v[2_999_999] = 1.5;
+        assert_eq!(v[2_999_999], 1.5);
+        let w: Vec<u64> = super::with_capacity(10);
+        assert!(w.capacity() >= 10 && w.is_empty());
+    }
+
+    #[test]
+    fn concat_keeps_order() {
+        let a: Vec<u32> = (0..300_000).collect();
+        let b: Vec<u32> = vec![7; 5];
+        let joined = super::concat(&[&a[..], &[], &b[..], &a[..1000]]);
+        assert_eq!(joined.len(), 301_005);
+        assert_eq!(&joined[..300_000], &a[..]);
+        assert_eq!(&joined[300_000..300_005], &b[..]);
+        assert_eq!(&joined[300_005..], &a[..1000]);
+    }
 }

@@ -220,6 +220,8 @@ pub fn convert(
     };
     let mut parts: Vec<PartSummary> = Vec::new();
     let timings = std::cell::RefCell::new(Timings::default());
+    // Wall time spent writing parts so far (passes report their time less this).
+    let written = std::cell::Cell::new(Duration::ZERO);
     // A part from consecutive chunks of points, whose bounds the caller has.
     // It takes the chunks, so their coordinates are freed as soon as the store has
     // read them.
@@ -233,6 +235,7 @@ pub fn convert(
             store::write_part_owned(&part_path(parts.len()), chunks, Some(*bounds), &write_opts)?;
         for (name, d) in &s.phases {
             timings.borrow_mut().add(&format!("write: {name}"), *d);
+            written.set(written.get() + *d);
         }
         progress.note(&format!(
             "part {} written: {} points, {}",
@@ -249,15 +252,16 @@ pub fn convert(
     };
 
     let mut total = 0u64;
-    // The time of a stretch of work less the parts written during it.
-    let stored = || timings.borrow().0.iter().map(|(_, d)| *d).sum::<Duration>();
-    let pass = |name: &str, since: Instant, stored_before: Duration| {
-        let writes = stored() - stored_before;
+    // A pass starts with the clock and the write time so far; its time is the
+    // wall time since, less the parts written meanwhile.
+    let begin = || (Instant::now(), written.get());
+    let pass = |name: &str, (since, before): (Instant, Duration)| {
+        let writes = written.get() - before;
         timings
             .borrow_mut()
             .add(name, since.elapsed().saturating_sub(writes));
     };
-    let (t_read, s_read) = (Instant::now(), stored());
+    let t_read = begin();
     match o.partition {
         Partition::Stream => {
             let mut acc: Option<PointColumns> = None;
@@ -284,7 +288,7 @@ pub fn convert(
                     from += take;
                 }
             }
-            pass("read", t_read, s_read);
+            pass("read", t_read);
             if let Some(a) = acc.filter(|a| !a.is_empty()) {
                 write(a, &mut parts)?;
             }
@@ -321,7 +325,7 @@ pub fn convert(
                     sample.add(&chunk);
                 }
             }
-            pass("read", t_read, s_read);
+            pass("read", t_read);
             if !overflow {
                 if held_points > 0 {
                     write_chunks(held, &bounds, &mut parts)?;
@@ -347,7 +351,7 @@ pub fn convert(
                 ));
                 // Pass 2: distribute points into one temporary file per region.
                 let tmp = spill::TempDir::beside(&o.output, "pcimg-spill")?;
-                let t_partition = Instant::now();
+                let t_partition = begin();
                 let files = distribute(
                     &mut reader,
                     input,
@@ -360,7 +364,7 @@ pub fn convert(
                     &like,
                     &tmp.path,
                 )?;
-                pass("partition", t_partition, stored());
+                pass("partition", t_partition);
                 // Pass 3: each region becomes one part (or several, if the sample
                 // underestimated it).
                 progress.phase("write", total, "points");
@@ -370,10 +374,10 @@ pub fn convert(
                     if n == 0 {
                         continue;
                     }
-                    let t_back = Instant::now();
+                    let t_back = begin();
                     let pts = spill::read_back(&path, &like)?;
                     let _ = std::fs::remove_file(&path);
-                    pass("read back", t_back, stored());
+                    pass("read back", t_back);
                     if pts.len() as u64 <= per_part {
                         write(pts, &mut parts)?;
                     } else {
@@ -396,7 +400,7 @@ pub fn convert(
         anyhow::bail!("{}: no points in the input", input.display());
     }
     // Publish: move the staged parts into place.
-    let t_publish = Instant::now();
+    let t_publish = begin();
     if let Some(stage) = &staging {
         if o.output.exists() {
             if o.output.is_dir() {
@@ -417,7 +421,7 @@ pub fn convert(
             .collect();
         parts = moved;
     }
-    pass("publish", t_publish, stored());
+    pass("publish", t_publish);
     let phases = timings.into_inner().0;
     let worst = parts
         .iter()

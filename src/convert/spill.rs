@@ -96,18 +96,15 @@ pub fn records_by_region(
                 let i = p * piece + j;
                 let slot = fill[r as usize];
                 fill[r as usize] += 1;
-                let mut rec = [0u8; 24 + 4 * MAX_ATTRIBUTES];
+                // SAFETY: piece p owns record slots starts[p][r].. of region r,
+                // counted by its own histogram, so no two pieces write the same
+                // bytes, and the n slots lie inside `out`'s capacity.
+                let rec = unsafe { std::slice::from_raw_parts_mut(dst.at(slot * rs), rs) };
                 rec[0..8].copy_from_slice(&c.x[i].to_le_bytes());
                 rec[8..16].copy_from_slice(&c.y[i].to_le_bytes());
                 rec[16..24].copy_from_slice(&c.z[i].to_le_bytes());
                 for (k, a) in c.attributes.iter().enumerate() {
                     rec[24 + 4 * k..28 + 4 * k].copy_from_slice(&a.values[i].to_le_bytes());
-                }
-                // SAFETY: piece p owns record slots starts[p][r].. of region r,
-                // counted by its own histogram, so no two pieces write the same
-                // bytes, and the n slots lie inside `out`'s capacity.
-                unsafe {
-                    std::ptr::copy_nonoverlapping(rec.as_ptr(), dst.at(slot * rs), rs);
                 }
             }
         });

@@ -152,11 +152,10 @@ impl Chunks<'_> {
 }
 
 /// The bounds of the chunks' points, axis by axis over contiguous slices
-/// (vectorizes); a non-finite coordinate is an error.
+/// (vectorizes). `min`/`max` pass over NaN, which the positions pass then finds
+/// outside the bounds; an infinity shows in the bounds themselves and is an error.
 fn scan_bounds(path: &Path, chunks: &[PointColumns]) -> Result<Bounds> {
-    // A non-finite value makes a sum non-finite, and only then is the offending
-    // point looked for.
-    let stats: Vec<(f64, f64, bool)> = (0..3)
+    let stats: Vec<(f64, f64)> = (0..3)
         .into_par_iter()
         .map(|axis| {
             chunks
@@ -165,16 +164,15 @@ fn scan_bounds(path: &Path, chunks: &[PointColumns]) -> Result<Bounds> {
                 .map(|c| {
                     let lo = c.iter().copied().fold(f64::INFINITY, f64::min);
                     let hi = c.iter().copied().fold(f64::NEG_INFINITY, f64::max);
-                    let finite = c.iter().map(|v| v * 0.0).sum::<f64>() == 0.0;
-                    (lo, hi, finite)
+                    (lo, hi)
                 })
                 .reduce(
-                    || (f64::INFINITY, f64::NEG_INFINITY, true),
-                    |a, b| (a.0.min(b.0), a.1.max(b.1), a.2 && b.2),
+                    || (f64::INFINITY, f64::NEG_INFINITY),
+                    |a, b| (a.0.min(b.0), a.1.max(b.1)),
                 )
         })
         .collect();
-    if stats.iter().any(|s| !s.2) {
+    if stats.iter().any(|s| s.0.is_infinite() || s.1.is_infinite()) {
         let mut base = 0;
         for c in chunks {
             let finite = |i: usize| c.x[i].is_finite() && c.y[i].is_finite() && c.z[i].is_finite();
