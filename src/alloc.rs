@@ -41,6 +41,14 @@ static POOL: Mutex<Pool> = Mutex::new(Pool {
     bytes: 0,
 });
 static LIMIT: AtomicUsize = AtomicUsize::new(1 << 30);
+/// Bytes of large blocks that came fresh from the kernel (not from the pool).
+static FRESH: AtomicUsize = AtomicUsize::new(0);
+
+/// Bytes of large blocks mapped fresh from the kernel so far (each page of them
+/// is faulted in and zeroed on first touch); the rest came from the pool.
+pub fn fresh_bytes() -> usize {
+    FRESH.load(Ordering::Relaxed)
+}
 
 /// The most bytes the pool keeps (default 1 GiB); lowering it releases the excess.
 pub fn set_pool_limit(bytes: usize) {
@@ -225,6 +233,9 @@ fn take(len: usize) -> (*mut u8, usize) {
             give(addr + m, have - m);
         }
         warm += m;
+    }
+    if !base.is_null() {
+        FRESH.fetch_add(len - warm, Ordering::Relaxed);
     }
     (base, warm)
 }

@@ -83,6 +83,29 @@ pub fn concat<T: Copy + Send + Sync>(parts: &[&[T]]) -> Vec<T> {
     out
 }
 
+/// How far ahead of a gather through an index list to prefetch: gathers of
+/// points in curve order from input order miss the cache on nearly every read,
+/// and prefetching the read this many steps ahead keeps a core's misses
+/// overlapping (measured on the 2-core VM, 47.7 M points: the attribute gather
+/// 0.40-0.60 s without, 0.25-0.28 s with).
+pub const PREFETCH_AHEAD: usize = 24;
+
+/// Asks the CPU to bring `v[i]` into the cache (a hint: nothing when `i` is out of
+/// range or the target has no prefetch instruction).
+#[inline(always)]
+pub fn prefetch<T>(v: &[T], i: usize) {
+    #[cfg(target_arch = "x86_64")]
+    if i < v.len() {
+        // SAFETY: a prefetch never faults, and the address lies inside `v`.
+        unsafe {
+            use std::arch::x86_64::{_MM_HINT_T0, _mm_prefetch};
+            _mm_prefetch::<_MM_HINT_T0>(v.as_ptr().add(i).cast());
+        }
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    let _ = (v, i);
+}
+
 /// A pointer into a buffer that a parallel scatter shares across threads, each
 /// thread writing its own disjoint set of slots (the caller guarantees that).
 #[derive(Clone, Copy)]

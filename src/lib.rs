@@ -15,6 +15,9 @@ pub mod alloc;
 pub mod alloc {
     pub fn set_pool_limit(_bytes: usize) {}
     pub fn release_pool() {}
+    pub fn fresh_bytes() -> usize {
+        0
+    }
 }
 pub mod bigvec;
 pub mod camera;

@@ -536,6 +536,13 @@ fn given_bounds_write_the_same_part_and_are_checked() {
     let chunks = vec![cut(0, 30_000), cut(30_000, 100_000)];
     pcimg::store::write_part_owned(&b, chunks, Some(pts.bounds()), &opts).unwrap();
     assert!(std::fs::read(&a).unwrap() == std::fs::read(&b).unwrap());
+    // Two attributes from several owned chunks (interleaved, then gathered
+    // into image order): the same part again.
+    let many = random_cloud(100_000, 9, 4);
+    write_part(&a, &many, &opts).unwrap();
+    let chunks = vec![cut_range(&many, 0, 1), cut_range(&many, 1, 100_000)];
+    pcimg::store::write_part_owned(&b, chunks, Some(many.bounds()), &opts).unwrap();
+    assert!(std::fs::read(&a).unwrap() == std::fs::read(&b).unwrap());
 
     let c = dir.path().join("c.tif");
     let mut small = pts.bounds();

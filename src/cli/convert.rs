@@ -182,6 +182,10 @@ pub fn run(a: Args) -> anyhow::Result<()> {
             let t = d.as_secs_f64();
             println!("    {name:<32} {t:7.2} s  {:5.1}%", t / secs * 100.0);
         }
+        println!(
+            "  large buffers mapped fresh: {} (the rest reused)",
+            crate::text::bytes(crate::alloc::fresh_bytes() as u64)
+        );
     }
     Ok(())
 }

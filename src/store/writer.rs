@@ -98,10 +98,7 @@ struct Arranged<'a> {
     geometry: Geometry,
     layout: Layout,
     pos: Vec<[f32; 3]>,
-    /// Source index of each slot in image order (empty for the paper layout,
-    /// whose order is the input's).
-    perm: Vec<u32>,
-    /// Bands 3 and up in input order.
+    /// Bands 3 and up, in the same order as `pos`.
     attrs: Vec<Cow<'a, [f32]>>,
     names: Vec<String>,
     offsets: Vec<f64>,
@@ -137,6 +134,15 @@ impl Chunks<'_> {
         match self {
             Chunks::Borrowed(c) => c,
             Chunks::Owned(c) => c,
+        }
+    }
+
+    /// Frees chunk `k`'s attribute columns if the chunks are owned.
+    fn release_attributes(&mut self, k: usize) {
+        if let Chunks::Owned(c) = self {
+            for a in &mut c[k].attributes {
+                a.values = Vec::new();
+            }
         }
     }
 
@@ -335,37 +341,44 @@ fn arrange<'a>(
         }
         Layout::Paper => (pos, Vec::new()),
     };
-    // Attribute columns stay in input order (tiles read them through `perm`):
-    // the chunk's own column (borrowed, or taken from an owned chunk), or the
-    // chunks' columns concatenated.
-    let attrs: Vec<Cow<'a, [f32]>> = (0..first_attrs)
-        .map(|k| match &mut input {
-            Chunks::Borrowed(c) if c.len() == 1 => {
-                let c: &'a [PointColumns] = c;
-                Cow::Borrowed(&c[0].attributes[k].values[..])
-            }
-            Chunks::Owned(c) if c.len() == 1 => {
-                Cow::Owned(std::mem::take(&mut c[0].attributes[k].values))
-            }
-            other => {
-                let parts: Vec<&[f32]> = other
-                    .get()
-                    .iter()
-                    .map(|c| &c.attributes[k].values[..])
-                    .collect();
-                Cow::Owned(bigvec::concat(&parts))
-            }
-        })
-        .collect();
+    // Attribute columns in image order (one gather for all of them: see
+    // `gather_attributes`), or, for the paper's layout, in input order (the chunk's
+    // own column, borrowed or taken, or the chunks' columns concatenated).
+    let attrs: Vec<Cow<'a, [f32]>> = if layout == Layout::Paper {
+        (0..first_attrs)
+            .map(|k| match &mut input {
+                Chunks::Borrowed(c) if c.len() == 1 => {
+                    let c: &'a [PointColumns] = c;
+                    Cow::Borrowed(&c[0].attributes[k].values[..])
+                }
+                Chunks::Owned(c) if c.len() == 1 => {
+                    Cow::Owned(std::mem::take(&mut c[0].attributes[k].values))
+                }
+                other => {
+                    let parts: Vec<&[f32]> = other
+                        .get()
+                        .iter()
+                        .map(|c| &c.attributes[k].values[..])
+                        .collect();
+                    Cow::Owned(bigvec::concat(&parts))
+                }
+            })
+            .collect()
+    } else {
+        gather_attributes(&mut input, &lens, first_attrs, &perm)
+            .into_iter()
+            .map(Cow::Owned)
+            .collect()
+    };
+    drop(perm);
     drop(input);
     let mut offsets = origin.to_vec();
     offsets.extend(offsets_attr);
-    ph.mark("bands");
+    ph.mark("attribute gather");
     Ok(Arranged {
         geometry,
         layout,
         pos,
-        perm,
         attrs,
         names,
         offsets,
@@ -373,6 +386,70 @@ fn arrange<'a>(
         bounds,
         max_error,
     })
+}
+
+/// The attribute columns of the chunks in image order: column `k` of the result
+/// holds `attribute k` of point `perm[j]` at `j`. The columns are first
+/// interleaved point by point (a sequential pass), so the gather through `perm`
+/// fetches all of a point's attributes with one cache miss instead of one per
+/// column (on 47.7 M points with five attributes that gather was most of the tile
+/// encoder's time). `lens`: the chunks' point counts (their coordinates may be
+/// gone already). Owned chunks give up their columns as soon as they are
+/// interleaved.
+fn gather_attributes(input: &mut Chunks, lens: &[usize], m: usize, perm: &[u32]) -> Vec<Vec<f32>> {
+    if m == 0 {
+        return Vec::new();
+    }
+    let n = perm.len();
+    debug_assert_eq!(lens.iter().sum::<usize>(), n);
+    // Interleaved: row i holds point i's m values.
+    let mut rows: Vec<f32> = bigvec::with_capacity(n * m);
+    let mut rest = &mut rows.spare_capacity_mut()[..n * m];
+    for (k, &len) in lens.iter().enumerate() {
+        let (dst, tail) = rest.split_at_mut(len * m);
+        rest = tail;
+        let cols: Vec<&[f32]> = input.get()[k]
+            .attributes
+            .iter()
+            .map(|a| &a.values[..])
+            .collect();
+        const ROWS: usize = 1 << 14;
+        dst.par_chunks_mut(ROWS * m).enumerate().for_each(|(c, d)| {
+            let from = c * ROWS;
+            for (j, col) in cols.iter().enumerate() {
+                for (r, &v) in col[from..from + d.len() / m].iter().enumerate() {
+                    d[r * m + j].write(v);
+                }
+            }
+        });
+        input.release_attributes(k);
+    }
+    // SAFETY: the chunks' lengths add up to n and each wrote its m values a row.
+    unsafe { rows.set_len(n * m) };
+    let mut out: Vec<Vec<f32>> = (0..m).map(|_| bigvec::with_capacity(n)).collect();
+    let dst: Vec<bigvec::Shared<f32>> = out
+        .iter_mut()
+        .map(|c| bigvec::Shared(c.as_mut_ptr()))
+        .collect();
+    perm.par_chunks(1 << 14).enumerate().for_each(|(c, idx)| {
+        let base = c << 14;
+        for (j, &p) in idx.iter().enumerate() {
+            if let Some(&q) = idx.get(j + bigvec::PREFETCH_AHEAD) {
+                bigvec::prefetch(&rows, q as usize * m);
+            }
+            let row = &rows[p as usize * m..p as usize * m + m];
+            for (d, &v) in dst.iter().zip(row) {
+                // SAFETY: slot base + j of every column belongs to this piece of
+                // `perm` alone, and base + j < n.
+                unsafe { *d.at(base + j) = v };
+            }
+        }
+    });
+    for c in &mut out {
+        // SAFETY: every slot 0..n was written above (perm has n entries).
+        unsafe { c.set_len(n) };
+    }
+    out
 }
 
 /// Bounds per tile for every level: level 0 from the stored coordinates, each
@@ -694,8 +771,8 @@ fn encode_tile(
         let pos = &a.pos;
         scatter_tile(lut, count, |i| pos[(base + i) * stride][b])
     } else {
-        let (src, perm) = (&a.attrs[b - 3], &a.perm);
-        scatter_tile(lut, count, |i| src[perm[(base + i) * stride] as usize])
+        let src = &a.attrs[b - 3];
+        scatter_tile(lut, count, |i| src[(base + i) * stride])
     };
     match compression {
         Compression::None => Encoded::Raw(buf),
