@@ -5,6 +5,7 @@ pub mod codec;
 pub mod error;
 pub mod layout;
 pub mod metadata;
+pub mod out;
 pub mod paper;
 pub mod spec;
 pub mod writer;

@@ -6,6 +6,7 @@ use super::codec::{self, Compression};
 use super::error::{Result, StoreError};
 use super::layout::{self, Layout};
 use super::metadata::{self, Item, LevelIndex, TileEntry};
+use super::out::{self, Out};
 use super::paper;
 use super::spec::{self, TILE_PIXELS, TILE_SIZE, key, tag};
 use super::zorder::{Geometry, tile_z_to_raster};
@@ -14,7 +15,7 @@ use crate::points::{Bounds, PointColumns};
 use rayon::prelude::*;
 use std::borrow::Cow;
 use std::fs::File;
-use std::io::{BufWriter, Seek, Write};
+use std::io::{Seek, Write};
 use std::path::{Path, PathBuf};
 use tiff::encoder::{TiffEncoder, TiffKind, TiffKindBig, TiffKindStandard};
 use tiff::tags::Tag;
@@ -690,13 +691,12 @@ fn write(
     };
     let file = File::create(&tmp_path)
         .map_err(|e| StoreError::new(path, format!("cannot create {}: {e}", tmp_path.display())))?;
-    // Small buffer: tile writes (256 KiB) pass straight through, tags are batched.
-    let mut w = BufWriter::with_capacity(64 << 10, file);
+    let mut w = Out::new(&file);
     let io = |e: tiff::TiffError| StoreError::new(path, format!("write failed: {e}"));
     if bigtiff {
-        encode::<_, TiffKindBig>(&mut w, &a, opts, &xml, &index, true).map_err(io)?
+        encode::<TiffKindBig>(&mut w, &a, opts, &xml, &index, true).map_err(io)?
     } else {
-        encode::<_, TiffKindStandard>(&mut w, &a, opts, &xml, &index, false).map_err(io)?
+        encode::<TiffKindStandard>(&mut w, &a, opts, &xml, &index, false).map_err(io)?
     }
     w.flush()
         .map_err(|e| StoreError::new(path, format!("write failed: {e}")))?;
@@ -704,6 +704,7 @@ fn write(
         .stream_position()
         .map_err(|e| StoreError::new(path, format!("write failed: {e}")))?;
     drop(w);
+    drop(file);
     ph.mark("tiles+write");
     std::fs::rename(&tmp_path, path).map_err(|e| {
         StoreError::new(
@@ -780,8 +781,8 @@ fn encode_tile(
     }
 }
 
-fn encode<W: Write + Seek, K: TiffKind>(
-    w: &mut W,
+fn encode<K: TiffKind>(
+    w: &mut Out,
     a: &Arranged,
     opts: &WriteOptions,
     xml: &str,
@@ -792,7 +793,9 @@ fn encode<W: Write + Seek, K: TiffKind>(
     let nb = a.names.len();
     let lut = tile_z_to_raster(spec::TILE_LOG2);
     let software = format!("{} {}", spec::SOFTWARE_PREFIX, env!("CARGO_PKG_VERSION"));
-    let mut enc = TiffEncoder::<&mut W, K>::new_generic(w)?;
+    let hole = w.hole();
+    let file = w.file();
+    let mut enc = TiffEncoder::<&mut Out, K>::new_generic(w)?;
     for level in 0..g.levels() {
         let across = g.tiles_across(level) as usize;
         let per_band = across * across;
@@ -807,43 +810,45 @@ fn encode<W: Write + Seek, K: TiffKind>(
         if at % 8 != 0 {
             dir.write_data(&[0u8; 8][..(8 - at % 8) as usize])?;
         }
-        // Tiles are encoded in batches on the rayon pool by a producer thread
-        // while this thread writes the previous batch: encoding and the copy into
-        // the page cache overlap.
-        std::thread::scope(|scope| -> tiff::TiffResult<()> {
-            let (tx, rx) = std::sync::mpsc::sync_channel::<Vec<(usize, usize, Encoded)>>(1);
-            let (lut, compression) = (&lut, opts.compression);
-            scope.spawn(move || {
-                for start in (0..filled).step_by(BATCH_TILES) {
-                    let end = (start + BATCH_TILES).min(filled);
-                    let jobs: Vec<(usize, usize)> = (start..end)
-                        .flat_map(|t| (0..nb).map(move |b| (t, b)))
-                        .collect();
-                    let batch: Vec<(usize, usize, Encoded)> = jobs
-                        .into_par_iter()
-                        .map(|(t, b)| {
-                            let tile = (t, tiles[t].index);
-                            (t, b, encode_tile(a, lut, level, tile, b, compression))
-                        })
-                        .collect();
-                    if tx.send(batch).is_err() {
-                        return; // the writer failed and stopped listening
-                    }
-                }
-            });
-            for batch in rx {
-                for (t, b, e) in &batch {
-                    let bytes: &[u8] = match e {
-                        Encoded::Raw(v) => bytemuck::cast_slice(v),
-                        Encoded::Bytes(v) => v,
-                    };
-                    let r = tiles[*t].index as usize;
-                    offsets[b * per_band + r] = dir.write_data(bytes)?;
-                    counts[b * per_band + r] = bytes.len() as u64;
+        if opts.compression == Compression::None {
+            // Every tile is TILE_PIXELS samples: the level's tile data is reserved
+            // in one piece (tile t's band b at slot t * nb + b) and the tiles are
+            // encoded and written into it by the rayon pool, both cores copying.
+            const BYTES: u64 = (TILE_PIXELS * 4) as u64;
+            let jobs = filled * nb;
+            let len = jobs as u64 * BYTES;
+            let zeros = out::untouched_zeros(len)?;
+            hole.set(len);
+            let start = dir.write_data(&zeros[..len as usize])?;
+            debug_assert_eq!(hole.get(), 0);
+            (0..jobs).into_par_iter().try_for_each(|j| {
+                let (t, b) = (j / nb, j % nb);
+                let tile = (t, tiles[t].index);
+                let e = encode_tile(a, &lut, level, tile, b, Compression::None);
+                let Encoded::Raw(v) = e else {
+                    unreachable!("uncompressed tiles are raw")
+                };
+                out::write_all_at(file, bytemuck::cast_slice(&v), start + j as u64 * BYTES)
+            })?;
+            for (t, tile) in tiles.iter().enumerate() {
+                for b in 0..nb {
+                    let r = tile.index as usize;
+                    offsets[b * per_band + r] = start + (t * nb + b) as u64 * BYTES;
+                    counts[b * per_band + r] = BYTES;
                 }
             }
-            Ok(())
-        })?;
+        } else {
+            encode_batches(
+                &mut dir,
+                a,
+                &lut,
+                level,
+                tiles,
+                opts.compression,
+                &mut offsets,
+                &mut counts,
+            )?;
+        }
         if level > 0 {
             dir.write_tag(Tag::NewSubfileType, 1u32)?;
         }
@@ -884,4 +889,56 @@ fn encode<W: Write + Seek, K: TiffKind>(
         dir.finish()?;
     }
     Ok(())
+}
+
+/// Compressed tiles (sizes known only once encoded): encoded in batches on the
+/// rayon pool by a producer thread while this thread writes the previous batch,
+/// so encoding and the copy into the page cache overlap.
+#[allow(clippy::too_many_arguments)]
+fn encode_batches<K: TiffKind>(
+    dir: &mut tiff::encoder::DirectoryEncoder<'_, &mut Out, K>,
+    a: &Arranged,
+    lut: &[u32],
+    level: usize,
+    tiles: &[TileEntry],
+    compression: Compression,
+    offsets: &mut [u64],
+    counts: &mut [u64],
+) -> tiff::TiffResult<()> {
+    let nb = a.names.len();
+    let per_band = offsets.len() / nb;
+    let filled = tiles.len();
+    std::thread::scope(|scope| -> tiff::TiffResult<()> {
+        let (tx, rx) = std::sync::mpsc::sync_channel::<Vec<(usize, usize, Encoded)>>(1);
+        scope.spawn(move || {
+            for start in (0..filled).step_by(BATCH_TILES) {
+                let end = (start + BATCH_TILES).min(filled);
+                let jobs: Vec<(usize, usize)> = (start..end)
+                    .flat_map(|t| (0..nb).map(move |b| (t, b)))
+                    .collect();
+                let batch: Vec<(usize, usize, Encoded)> = jobs
+                    .into_par_iter()
+                    .map(|(t, b)| {
+                        let tile = (t, tiles[t].index);
+                        (t, b, encode_tile(a, lut, level, tile, b, compression))
+                    })
+                    .collect();
+                if tx.send(batch).is_err() {
+                    return; // the writer failed and stopped listening
+                }
+            }
+        });
+        for batch in rx {
+            for (t, b, e) in &batch {
+                let bytes: &[u8] = match e {
+                    Encoded::Raw(v) => bytemuck::cast_slice(v),
+                    Encoded::Bytes(v) => v,
+                };
+                let r = tiles[*t].index as usize;
+                offsets[b * per_band + r] = dir.write_data(bytes)?;
+                counts[b * per_band + r] = bytes.len() as u64;
+            }
+        }
+        Ok(())
+    })
 }
