@@ -191,6 +191,35 @@ fn precision_is_refused_unless_allowed() {
     assert!(convert::convert(&input, &o, &Quiet).is_ok());
 }
 
+/// A LAS header's bounds only place the origin of a part collected while reading;
+/// when they are wrong (here 200 km wide around 400 m of points) the input is read
+/// again and converted around its true centre, every point kept.
+#[test]
+fn wrong_header_bounds_are_not_trusted() {
+    let dir = tempfile::tempdir().unwrap();
+    let good = dir.path().join("good.las");
+    pcimg::synth::write_las(&good, 50_000, 3).unwrap();
+    let mut bytes = std::fs::read(&good).unwrap();
+    // Max X (byte 179) and Min X (187) of the public header block.
+    let min_x = f64::from_le_bytes(bytes[187..195].try_into().unwrap());
+    bytes[179..187].copy_from_slice(&(min_x + 200_000.0).to_le_bytes());
+    let bad = dir.path().join("bad.las");
+    std::fs::write(&bad, &bytes).unwrap();
+    let (a, b) = (dir.path().join("a.tif"), dir.path().join("b.tif"));
+    let sa = convert::convert(&good, &opts(a.clone(), 1 << 30), &Quiet).unwrap();
+    let sb = convert::convert(&bad, &opts(b.clone(), 1 << 30), &Quiet).unwrap();
+    assert_eq!((sa.points, sb.points), (50_000, 50_000));
+    assert_eq!(dataset_points(&a), dataset_points(&b));
+    let part = &Dataset::open(&b).unwrap().parts[0];
+    let centre = part.meta.bounds.center();
+    assert!((0..3).all(|k| (part.meta.origin[k] - centre[k]).abs() < 1e-6));
+    assert!(
+        sb.max_quantization_error < 1e-4,
+        "{}",
+        sb.max_quantization_error
+    );
+}
+
 /// A progress sink that asks to stop after the first window, as Ctrl-C does.
 struct StopAfterFirst(Arc<AtomicBool>);
 impl Progress for StopAfterFirst {

@@ -172,11 +172,42 @@ impl Sample {
     }
 }
 
+/// The part collected around the centre of the input's declared bounds reaches
+/// too far from it (the declaration is wrong): the conversion starts over without
+/// trusting it.
+#[derive(Debug)]
+struct DeclaredBoundsWrong;
+
+impl std::fmt::Display for DeclaredBoundsWrong {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str("the input's declared bounds do not hold its points")
+    }
+}
+
+impl std::error::Error for DeclaredBoundsWrong {}
+
 /// Converts one input file into a dataset.
 pub fn convert(
     input: &Path,
     o: &ConvertOptions,
     progress: &dyn Progress,
+) -> Result<ConvertSummary> {
+    match convert_with(input, o, progress, true) {
+        Err(e) if e.downcast_ref::<DeclaredBoundsWrong>().is_some() => {
+            progress.note("the header's bounds do not hold the points: reading the input again");
+            convert_with(input, o, progress, false)
+        }
+        r => r,
+    }
+}
+
+/// [`convert`], using the bounds the input declares (if `trust_declared`) as the
+/// origin of a single part collected while reading.
+fn convert_with(
+    input: &Path,
+    o: &ConvertOptions,
+    progress: &dyn Progress,
+    trust_declared: bool,
 ) -> Result<ConvertSummary> {
     let start = Instant::now();
     if o.output.exists() && !o.force {
@@ -222,17 +253,8 @@ pub fn convert(
     let timings = std::cell::RefCell::new(Timings::default());
     // Wall time spent writing parts so far (passes report their time less this).
     let written = std::cell::Cell::new(Duration::ZERO);
-    // A part from consecutive chunks of points, whose bounds the caller has.
-    // It takes the chunks, so their coordinates are freed as soon as the store has
-    // read them.
-    let write_chunks = |chunks: Vec<PointColumns>,
-                        bounds: &Bounds,
-                        parts: &mut Vec<PartSummary>|
-     -> Result<()> {
-        check_cancel(o)?;
-        check_precision(bounds, parts.len(), o.allow_lossy)?;
-        let s =
-            store::write_part_owned(&part_path(parts.len()), chunks, Some(*bounds), &write_opts)?;
+    // Notes a written part: its timings and a progress line.
+    let record = |s: PartSummary, parts: &mut Vec<PartSummary>| {
         for (name, d) in &s.phases {
             timings.borrow_mut().add(&format!("write: {name}"), *d);
             written.set(written.get() + *d);
@@ -244,6 +266,33 @@ pub fn convert(
             crate::text::bytes(s.bytes)
         ));
         parts.push(s);
+    };
+    // A part from consecutive chunks of points, whose bounds the caller has.
+    // It takes the chunks, so their coordinates are freed as soon as the store has
+    // read them.
+    let write_chunks = |chunks: Vec<PointColumns>,
+                        bounds: &Bounds,
+                        parts: &mut Vec<PartSummary>|
+     -> Result<()> {
+        check_cancel(o)?;
+        check_precision(bounds, bounds.center(), parts.len(), o.allow_lossy)?;
+        let s =
+            store::write_part_owned(&part_path(parts.len()), chunks, Some(*bounds), &write_opts)?;
+        record(s, parts);
+        Ok(())
+    };
+    // A part collected by a store builder (its own origin and bounds).
+    let write_built = |b: store::PartBuilder, parts: &mut Vec<PartSummary>| -> Result<()> {
+        check_cancel(o)?;
+        let (bounds, origin) = (b.bounds(), b.origin());
+        if reach(&bounds, origin) > F32_MM_RADIUS
+            && reach(&bounds, bounds.center()) <= F32_MM_RADIUS
+        {
+            return Err(DeclaredBoundsWrong.into());
+        }
+        check_precision(&b.bounds(), b.origin(), parts.len(), o.allow_lossy)?;
+        let s = store::write_part_built(&part_path(parts.len()), b, &write_opts)?;
+        record(s, parts);
         Ok(())
     };
     let write = |pts: PointColumns, parts: &mut Vec<PartSummary>| -> Result<()> {
@@ -296,8 +345,16 @@ pub fn convert(
         Partition::Spatial => {
             // Pass 1: bounds and a sample; points kept while they fit one part.
             let mut bounds = Bounds::EMPTY;
-            // The chunks as read (no copy), while they fit one part.
+            // The points so far while they fit one part: the chunks as read (no
+            // copy), or, when the input declares its bounds (LAS), already
+            // converted for the store around their centre (each chunk is then
+            // freed at once, and its memory reused for the next).
             let mut held: Vec<PointColumns> = Vec::new();
+            let declared = info.declared_bounds.filter(|_| trust_declared);
+            let mut built = declared.map(|b| {
+                let expect = info.declared_points.unwrap_or(0).min(per_part);
+                store::PartBuilder::new(b.center(), None, expect as usize)
+            });
             let mut held_points = 0u64;
             let mut overflow = false;
             let mut sample = Sample::new(1 << 21);
@@ -311,14 +368,23 @@ pub fn convert(
                 bounds = bounds.union(&chunk.bounds());
                 // The sample is only needed once the points overflow one part;
                 // it is then taken from the held chunks first, which gives the
-                // same sample as taking it chunk by chunk.
-                if overflow {
+                // same sample as taking it chunk by chunk (converted points are
+                // not kept as read: with them it is taken from the start).
+                if overflow || built.is_some() {
                     sample.add(&chunk);
-                } else if held_points + chunk.len() as u64 <= per_part {
+                }
+                if overflow {
+                    continue;
+                }
+                if held_points + chunk.len() as u64 <= per_part {
                     held_points += chunk.len() as u64;
-                    held.push(chunk);
+                    match &mut built {
+                        Some(b) => b.push(&part_path(0), &chunk)?,
+                        None => held.push(chunk),
+                    }
                 } else {
                     overflow = true;
+                    built = None;
                     for c in held.drain(..) {
                         sample.add(&c);
                     }
@@ -327,7 +393,9 @@ pub fn convert(
             }
             pass("read", t_read);
             if !overflow {
-                if held_points > 0 {
+                if let Some(b) = built.filter(|b| !b.is_empty()) {
+                    write_built(b, &mut parts)?;
+                } else if held_points > 0 {
                     write_chunks(held, &bounds, &mut parts)?;
                 }
             } else {
@@ -453,17 +521,29 @@ fn too_many_parts(out: &Path, per_part: u64, memory: u64) -> String {
     )
 }
 
-/// Refuses a part whose extent f32 cannot hold to 1 mm.
-fn check_precision(b: &Bounds, part: usize, allow_lossy: bool) -> Result<()> {
-    let half = b.extent().iter().fold(0f64, |m, &e| m.max(e)) / 2.0;
-    if half > F32_MM_RADIUS && !allow_lossy {
-        let err_mm = half * f32::EPSILON as f64 / 2.0 * 1000.0;
+/// How far the points inside `b` lie from `origin` at most, along any axis.
+fn reach(b: &Bounds, origin: [f64; 3]) -> f64 {
+    (0..3)
+        .map(|a| {
+            (b.max[a] - origin[a])
+                .abs()
+                .max((b.min[a] - origin[a]).abs())
+        })
+        .fold(0f64, f64::max)
+}
+
+/// Refuses a part whose points lie farther from its origin than f32 keeps 1 mm.
+fn check_precision(b: &Bounds, origin: [f64; 3], part: usize, allow_lossy: bool) -> Result<()> {
+    let reach = reach(b, origin);
+    if reach > F32_MM_RADIUS && !allow_lossy {
+        let err_mm = reach * f32::EPSILON as f64 / 2.0 * 1000.0;
         anyhow::bail!(
-            "part {} spans {:.1} km: stored as f32 relative to its centre, coordinates would \
-             lose up to {:.1} mm; use a smaller --memory (spatial parts are then smaller), or \
-             --allow-lossy to accept it",
+            "part {} spans {:.1} km: stored as f32 relative to a point {:.1} km from its \
+             farthest points, coordinates would lose up to {:.1} mm; use a smaller --memory \
+             (spatial parts are then smaller), or --allow-lossy to accept it",
             part + 1,
-            half * 2.0 / 1000.0,
+            b.extent().iter().fold(0f64, |m, &e| m.max(e)) / 1000.0,
+            reach / 1000.0,
             err_mm
         );
     }

@@ -93,6 +93,14 @@ fn attribute_names(f: &las::point::Format) -> Vec<String> {
 }
 
 /// The CRS of a LAS header: WKT, else `EPSG:<code>` from GeoTIFF keys.
+/// The header's bounds, when they are finite and not inverted.
+fn declared_bounds(header: &las::Header) -> Option<crate::points::Bounds> {
+    let b = header.bounds();
+    let (min, max) = ([b.min.x, b.min.y, b.min.z], [b.max.x, b.max.y, b.max.z]);
+    let ok = (0..3).all(|a| min[a].is_finite() && max[a].is_finite() && min[a] <= max[a]);
+    ok.then_some(crate::points::Bounds { min, max })
+}
+
 fn crs_of(h: &las::Header) -> Option<String> {
     if let Some(w) = h.get_wkt_crs_bytes() {
         let s = String::from_utf8_lossy(w);
@@ -231,6 +239,7 @@ pub(crate) fn open_header(path: &Path) -> Result<Opened, IngestError> {
                 version.minor
             ),
             declared_points: Some(n),
+            declared_bounds: declared_bounds(&header),
             crs_wkt: crs_of(&header),
             attribute_names: attribute_names(&format),
             file_bytes: file_len,

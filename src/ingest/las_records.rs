@@ -11,6 +11,7 @@ use super::{PointReader, ReadOptions, SourceInfo};
 use crate::bigvec;
 use crate::points::{Attribute, PointColumns};
 use rayon::prelude::*;
+use std::mem::MaybeUninit;
 use std::path::Path;
 
 /// Records decoded per parallel job (about half a megabyte of records).
@@ -104,9 +105,11 @@ fn f64_at(r: &[u8], at: usize) -> f64 {
 
 /// The output slices of one window: x, y, z and the attributes in
 /// [`attribute_names`] order.
+/// Columns are written, not read: their memory is not zeroed first (every slot
+/// is written, see the end of `decode_window`).
 struct Out<'a> {
-    xyz: [&'a mut [f64]; 3],
-    attrs: Vec<&'a mut [f32]>,
+    xyz: [&'a mut [MaybeUninit<f64>]; 3],
+    attrs: Vec<&'a mut [MaybeUninit<f32>]>,
 }
 
 /// Decodes the records `rec` (a whole number of records) into `out`.
@@ -116,14 +119,14 @@ fn decode_window(rec: &[u8], f: &Fields, gps_offset: f64, out: Out<'_>) {
     for (axis, col) in xyz.into_iter().enumerate() {
         let (scale, offset) = f.transforms[axis];
         for (v, r) in col.iter_mut().zip(records()) {
-            *v = scale * f64::from(i32_at(r, 4 * axis)) + offset;
+            v.write(scale * f64::from(i32_at(r, 4 * axis)) + offset);
         }
     }
     let mut next = attrs.iter_mut();
     let mut column = |value: &dyn Fn(&[u8]) -> f32| {
         if let Some(col) = next.next() {
             for (v, r) in col.iter_mut().zip(records()) {
-                *v = value(r);
+                v.write(value(r));
             }
         }
     };
@@ -147,6 +150,11 @@ fn decode_window(rec: &[u8], f: &Fields, gps_offset: f64, out: Out<'_>) {
     }
     if let Some(n) = f.nir {
         column(&|r| f32::from(u16_at(r, n)));
+    }
+    // Every column is written (attribute_names lists the fields above); any left
+    // over would be NaN rather than unwritten memory.
+    for col in next {
+        col.fill(MaybeUninit::new(f32::NAN));
     }
 }
 
@@ -214,18 +222,20 @@ impl PointReader for RecordReader {
         }
         let n = self.chunk.min(self.total - self.done);
         let names = &self.info.attribute_names;
-        let mut xyz: [Vec<f64>; 3] = std::array::from_fn(|_| bigvec::zeroed(n));
-        let mut attrs: Vec<Vec<f32>> = names.iter().map(|_| bigvec::zeroed(n)).collect();
+        let mut xyz: [Vec<f64>; 3] = std::array::from_fn(|_| bigvec::with_capacity(n));
+        let mut attrs: Vec<Vec<f32>> = names.iter().map(|_| bigvec::with_capacity(n)).collect();
         // One Out per window, each holding that window's slice of every column.
         let windows = n.div_ceil(WINDOW);
         let mut outs: Vec<Out<'_>> = Vec::with_capacity(windows);
         {
             let [x, y, z] = &mut xyz;
-            let mut xs = x.chunks_mut(WINDOW);
-            let mut ys = y.chunks_mut(WINDOW);
-            let mut zs = z.chunks_mut(WINDOW);
-            let mut per_attr: Vec<std::slice::ChunksMut<'_, f32>> =
-                attrs.iter_mut().map(|a| a.chunks_mut(WINDOW)).collect();
+            let mut xs = x.spare_capacity_mut()[..n].chunks_mut(WINDOW);
+            let mut ys = y.spare_capacity_mut()[..n].chunks_mut(WINDOW);
+            let mut zs = z.spare_capacity_mut()[..n].chunks_mut(WINDOW);
+            let mut per_attr: Vec<std::slice::ChunksMut<'_, MaybeUninit<f32>>> = attrs
+                .iter_mut()
+                .map(|a| a.spare_capacity_mut()[..n].chunks_mut(WINDOW))
+                .collect();
             for _ in 0..windows {
                 let (Some(x), Some(y), Some(z)) = (xs.next(), ys.next(), zs.next()) else {
                     break;
@@ -245,6 +255,14 @@ impl PointReader for RecordReader {
             let e = (s + WINDOW * f.stride).min(bytes.len());
             decode_window(&bytes[s..e], &f, gps_offset, out);
         });
+        // SAFETY: the windows cover all n slots of every column and
+        // `decode_window` writes each slot of its window.
+        for c in xyz.iter_mut() {
+            unsafe { c.set_len(n) };
+        }
+        for c in attrs.iter_mut() {
+            unsafe { c.set_len(n) };
+        }
         self.done += n;
         super::release_consumed(&self.map, &mut self.released, first + n * f.stride);
         let [x, y, z] = xyz;

@@ -43,6 +43,9 @@ pub struct SourceInfo {
     /// The point count the file declares (PLY vertex count, LAS header, PTS count
     /// line), if it declares one.
     pub declared_points: Option<u64>,
+    /// The bounds the file declares (LAS header), if any: a hint for the
+    /// converter's origin, never trusted for anything else.
+    pub declared_bounds: Option<crate::points::Bounds>,
     /// The coordinate reference system: WKT when the file has it, otherwise a short
     /// description such as `EPSG:2992` taken from GeoTIFF keys.
     pub crs_wkt: Option<String>,

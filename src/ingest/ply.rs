@@ -329,6 +329,7 @@ pub fn open(path: &Path, opts: &ReadOptions) -> Result<Box<dyn PointReader>, Ing
         path: path.to_path_buf(),
         format: format.into(),
         declared_points: Some(count),
+        declared_bounds: None,
         crs_wkt: None,
         attribute_names: plan.layout.attr_names.clone(),
         file_bytes: map.len() as u64,

@@ -223,6 +223,7 @@ impl TextReader {
             path: path.to_path_buf(),
             format: "text".into(),
             declared_points: pre.count,
+            declared_bounds: None,
             crs_wkt: None,
             attribute_names: layout.attr_names.clone(),
             file_bytes: data.len() as u64,

@@ -1,6 +1,7 @@
 //! The multi-band image store: the file format (see ARCHITECTURE.md), its writer and
 //! its reader. Everything above the input readers goes through this module.
 
+pub mod builder;
 pub mod codec;
 pub mod error;
 pub mod layout;
@@ -11,10 +12,13 @@ pub mod spec;
 pub mod writer;
 pub mod zorder;
 
+pub use builder::PartBuilder;
 pub use codec::Compression;
 pub use error::StoreError;
 pub use layout::Layout;
-pub use writer::{PartSummary, WriteOptions, write_part, write_part_chunks, write_part_owned};
+pub use writer::{
+    PartSummary, WriteOptions, write_part, write_part_built, write_part_chunks, write_part_owned,
+};
 pub mod dataset;
 pub mod ifd;
 pub mod reader;

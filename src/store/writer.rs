@@ -2,6 +2,7 @@
 //! build the nearest-neighbour pyramid and write a tiled, band-separate Float32 TIFF
 //! with internal overviews, atomically (temporary name, then rename).
 
+use super::builder::PartBuilder;
 use super::codec::{self, Compression};
 use super::error::{Result, StoreError};
 use super::layout::{self, Layout};
@@ -13,7 +14,6 @@ use super::zorder::{Geometry, tile_z_to_raster};
 use crate::bigvec;
 use crate::points::{Bounds, PointColumns};
 use rayon::prelude::*;
-use std::borrow::Cow;
 use std::fs::File;
 use std::io::{Seek, Write};
 use std::path::{Path, PathBuf};
@@ -92,15 +92,20 @@ pub fn quantization_bound(bounds: &Bounds, origin: [f64; 3]) -> f64 {
         .fold(0.0, f64::max)
 }
 
-/// Columns of a part in image order, ready to be tiled. Positions stay interleaved
-/// (`x y z` bands 0–2 are read straight out of them by the tile encoder, which
-/// saves a pass over every point); `attrs` are bands 3 and up.
-struct Arranged<'a> {
+/// A part in image order, ready to be tiled. Positions stay interleaved (`x y z`
+/// bands 0–2 are read straight out of them by the tile encoder, which saves a
+/// pass over every point); attributes stay in input order as rows (`m` values a
+/// point), which the encoder gathers through `perm` a tile at a time.
+struct Arranged {
     geometry: Geometry,
     layout: Layout,
     pos: Vec<[f32; 3]>,
-    /// Bands 3 and up, in the same order as `pos`.
-    attrs: Vec<Cow<'a, [f32]>>,
+    /// Source index of each slot in image order (empty for the paper layout,
+    /// whose order is the input's).
+    perm: Vec<u32>,
+    /// Bands 3 and up, interleaved, in input order.
+    rows: Vec<f32>,
+    m: usize,
     names: Vec<String>,
     offsets: Vec<f64>,
     origin: [f64; 3],
@@ -121,41 +126,6 @@ fn band_name(raw: &str) -> String {
         })
         .collect();
     if s.is_empty() { "band".into() } else { s }
-}
-
-/// The points to write: borrowed, or owned (their coordinate columns are freed
-/// once the relative positions are made, so the memory is back for the sort).
-enum Chunks<'a> {
-    Borrowed(&'a [PointColumns]),
-    Owned(Vec<PointColumns>),
-}
-
-impl Chunks<'_> {
-    fn get(&self) -> &[PointColumns] {
-        match self {
-            Chunks::Borrowed(c) => c,
-            Chunks::Owned(c) => c,
-        }
-    }
-
-    /// Frees chunk `k`'s attribute columns if the chunks are owned.
-    fn release_attributes(&mut self, k: usize) {
-        if let Chunks::Owned(c) = self {
-            for a in &mut c[k].attributes {
-                a.values = Vec::new();
-            }
-        }
-    }
-
-    /// Frees chunk `k`'s coordinate columns if the chunks are owned.
-    fn release_coordinates(&mut self, k: usize) {
-        if let Chunks::Owned(c) = self {
-            let c = &mut c[k];
-            c.x = Vec::new();
-            c.y = Vec::new();
-            c.z = Vec::new();
-        }
-    }
 }
 
 /// The bounds of the chunks' points, axis by axis over contiguous slices
@@ -204,45 +174,22 @@ fn scan_bounds(path: &Path, chunks: &[PointColumns]) -> Result<Bounds> {
     })
 }
 
-fn arrange<'a>(
-    path: &Path,
-    mut input: Chunks<'a>,
-    known: Option<Bounds>,
-    layout: Layout,
-    ph: &mut Phases,
-) -> Result<Arranged<'a>> {
-    let chunks = input.get();
-    for c in chunks {
-        c.check_lengths().map_err(|m| StoreError::new(path, m))?;
-    }
-    let empty = PointColumns::default();
-    let first = chunks.first().unwrap_or(&empty);
-    for c in chunks {
-        let same = c.attributes.len() == first.attributes.len()
-            && c.attributes
-                .iter()
-                .zip(&first.attributes)
-                .all(|(a, b)| a.name == b.name && a.offset == b.offset);
-        if !same {
-            return Err(StoreError::new(
-                path,
-                "the chunks of a part differ in their attribute columns or offsets",
-            ));
-        }
-    }
-    let n: usize = chunks.iter().map(|c| c.len()).sum();
-    if n as u64 > u32::MAX as u64 {
-        return Err(StoreError::new(
-            path,
-            format!("{n} points are more than one part holds (4,294,967,295); split the input"),
-        ));
-    }
+fn arrange(path: &Path, part: PartBuilder, layout: Layout, ph: &mut Phases) -> Result<Arranged> {
+    let PartBuilder {
+        origin,
+        pos,
+        rows,
+        attributes,
+        bounds,
+        ..
+    } = part;
+    let n = pos.len();
     let mut names: Vec<String> = spec::COORDINATE_BANDS
         .iter()
         .map(|s| s.to_string())
         .collect();
-    for a in &first.attributes {
-        let name = band_name(&a.name);
+    for (a, _) in &attributes {
+        let name = band_name(a);
         if names.contains(&name) {
             return Err(StoreError::new(
                 path,
@@ -251,73 +198,11 @@ fn arrange<'a>(
         }
         names.push(name);
     }
-    let bounds = match known {
-        Some(b) => b,
-        None => scan_bounds(path, chunks)?,
+    let (bounds, origin) = if n == 0 {
+        (Bounds::EMPTY, [0.0; 3])
+    } else {
+        (bounds, origin)
     };
-    let bounds = if n == 0 { Bounds::EMPTY } else { bounds };
-    let origin = if n == 0 { [0.0; 3] } else { bounds.center() };
-    let lens: Vec<usize> = chunks.iter().map(|c| c.len()).collect();
-    let first_attrs = first.attributes.len();
-    let offsets_attr: Vec<f64> = first.attributes.iter().map(|a| a.offset).collect();
-    // Coordinates relative to the origin, chunk after chunk; an owned chunk's
-    // coordinates are freed as soon as they are read, so the next buffers reuse
-    // their memory. The same pass checks that every point lies inside the bounds
-    // (a NaN never does), which catches bounds a caller got wrong.
-    let mut pos: Vec<[f32; 3]> = bigvec::with_capacity(n);
-    let mut rest = &mut pos.spare_capacity_mut()[..n];
-    let mut base = 0;
-    for (k, &len) in lens.iter().enumerate() {
-        let (dst, tail) = rest.split_at_mut(len);
-        rest = tail;
-        let c = &input.get()[k];
-        let (lo, hi) = (bounds.min, bounds.max);
-        let inside = dst
-            .par_iter_mut()
-            .enumerate()
-            .with_min_len(1 << 14)
-            .fold(
-                || true,
-                |ok, (i, d)| {
-                    let p = [c.x[i], c.y[i], c.z[i]];
-                    d.write([0, 1, 2].map(|a| (p[a] - origin[a]) as f32));
-                    // `&`, not `&&`: no branches in the loop.
-                    ok & (p[0] >= lo[0])
-                        & (p[0] <= hi[0])
-                        & (p[1] >= lo[1])
-                        & (p[1] <= hi[1])
-                        & (p[2] >= lo[2])
-                        & (p[2] <= hi[2])
-                },
-            )
-            .reduce(|| true, |a, b| a & b);
-        if !inside {
-            let out = |i: usize| {
-                let p = [c.x[i], c.y[i], c.z[i]];
-                !(0..3).all(|a| p[a] >= lo[a] && p[a] <= hi[a])
-            };
-            let i = (0..len).find(|&i| out(i)).unwrap_or(0);
-            let what = if [c.x[i], c.y[i], c.z[i]].iter().all(|v| v.is_finite()) {
-                "lies outside the bounds given for the part"
-            } else {
-                "has a coordinate that is not a finite number"
-            };
-            return Err(StoreError::new(
-                path,
-                format!(
-                    "point {} {what} ({}, {}, {})",
-                    base + i,
-                    c.x[i],
-                    c.y[i],
-                    c.z[i]
-                ),
-            ));
-        }
-        base += len;
-        input.release_coordinates(k);
-    }
-    // SAFETY: the chunks' lengths add up to n and each wrote its slots.
-    unsafe { pos.set_len(n) };
     let max_error = quantization_bound(&bounds, origin);
     let geometry = Geometry::for_points(n as u64);
     ph.mark("validate+origin");
@@ -342,115 +227,21 @@ fn arrange<'a>(
         }
         Layout::Paper => (pos, Vec::new()),
     };
-    // Attribute columns in image order (one gather for all of them: see
-    // `gather_attributes`), or, for the paper's layout, in input order (the chunk's
-    // own column, borrowed or taken, or the chunks' columns concatenated).
-    let attrs: Vec<Cow<'a, [f32]>> = if layout == Layout::Paper {
-        (0..first_attrs)
-            .map(|k| match &mut input {
-                Chunks::Borrowed(c) if c.len() == 1 => {
-                    let c: &'a [PointColumns] = c;
-                    Cow::Borrowed(&c[0].attributes[k].values[..])
-                }
-                Chunks::Owned(c) if c.len() == 1 => {
-                    Cow::Owned(std::mem::take(&mut c[0].attributes[k].values))
-                }
-                other => {
-                    let parts: Vec<&[f32]> = other
-                        .get()
-                        .iter()
-                        .map(|c| &c.attributes[k].values[..])
-                        .collect();
-                    Cow::Owned(bigvec::concat(&parts))
-                }
-            })
-            .collect()
-    } else {
-        gather_attributes(&mut input, &lens, first_attrs, &perm)
-            .into_iter()
-            .map(Cow::Owned)
-            .collect()
-    };
-    drop(perm);
-    drop(input);
     let mut offsets = origin.to_vec();
-    offsets.extend(offsets_attr);
-    ph.mark("attribute gather");
+    offsets.extend(attributes.iter().map(|(_, o)| *o));
     Ok(Arranged {
         geometry,
         layout,
         pos,
-        attrs,
+        perm,
+        rows,
+        m: attributes.len(),
         names,
         offsets,
         origin,
         bounds,
         max_error,
     })
-}
-
-/// The attribute columns of the chunks in image order: column `k` of the result
-/// holds `attribute k` of point `perm[j]` at `j`. The columns are first
-/// interleaved point by point (a sequential pass), so the gather through `perm`
-/// fetches all of a point's attributes with one cache miss instead of one per
-/// column (on 47.7 M points with five attributes that gather was most of the tile
-/// encoder's time). `lens`: the chunks' point counts (their coordinates may be
-/// gone already). Owned chunks give up their columns as soon as they are
-/// interleaved.
-fn gather_attributes(input: &mut Chunks, lens: &[usize], m: usize, perm: &[u32]) -> Vec<Vec<f32>> {
-    if m == 0 {
-        return Vec::new();
-    }
-    let n = perm.len();
-    debug_assert_eq!(lens.iter().sum::<usize>(), n);
-    // Interleaved: row i holds point i's m values.
-    let mut rows: Vec<f32> = bigvec::with_capacity(n * m);
-    let mut rest = &mut rows.spare_capacity_mut()[..n * m];
-    for (k, &len) in lens.iter().enumerate() {
-        let (dst, tail) = rest.split_at_mut(len * m);
-        rest = tail;
-        let cols: Vec<&[f32]> = input.get()[k]
-            .attributes
-            .iter()
-            .map(|a| &a.values[..])
-            .collect();
-        const ROWS: usize = 1 << 14;
-        dst.par_chunks_mut(ROWS * m).enumerate().for_each(|(c, d)| {
-            let from = c * ROWS;
-            for (j, col) in cols.iter().enumerate() {
-                for (r, &v) in col[from..from + d.len() / m].iter().enumerate() {
-                    d[r * m + j].write(v);
-                }
-            }
-        });
-        input.release_attributes(k);
-    }
-    // SAFETY: the chunks' lengths add up to n and each wrote its m values a row.
-    unsafe { rows.set_len(n * m) };
-    let mut out: Vec<Vec<f32>> = (0..m).map(|_| bigvec::with_capacity(n)).collect();
-    let dst: Vec<bigvec::Shared<f32>> = out
-        .iter_mut()
-        .map(|c| bigvec::Shared(c.as_mut_ptr()))
-        .collect();
-    perm.par_chunks(1 << 14).enumerate().for_each(|(c, idx)| {
-        let base = c << 14;
-        for (j, &p) in idx.iter().enumerate() {
-            if let Some(&q) = idx.get(j + bigvec::PREFETCH_AHEAD) {
-                bigvec::prefetch(&rows, q as usize * m);
-            }
-            let row = &rows[p as usize * m..p as usize * m + m];
-            for (d, &v) in dst.iter().zip(row) {
-                // SAFETY: slot base + j of every column belongs to this piece of
-                // `perm` alone, and base + j < n.
-                unsafe { *d.at(base + j) = v };
-            }
-        }
-    });
-    for c in &mut out {
-        // SAFETY: every slot 0..n was written above (perm has n entries).
-        unsafe { c.set_len(n) };
-    }
-    out
 }
 
 /// Bounds per tile for every level: level 0 from the stored coordinates, each
@@ -520,21 +311,28 @@ fn stored_ranges(a: &Arranged) -> Vec<(f64, f64)> {
             )
         })
         .collect();
-    r.extend(a.attrs.iter().map(|v| {
-        let (lo, hi) = v
-            .par_chunks(1 << 16)
-            .map(|c| {
-                c.iter()
-                    .fold((f32::INFINITY, f32::NEG_INFINITY), |(lo, hi), &x| {
-                        (lo.min(x), hi.max(x))
-                    })
-            })
-            .reduce(
-                || (f32::INFINITY, f32::NEG_INFINITY),
-                |p, q| (p.0.min(q.0), p.1.max(q.1)),
-            );
-        (lo as f64, hi as f64)
-    }));
+    let m = a.m;
+    if m > 0 {
+        let rows = a.rows.par_chunks(m << 16).map(|c| {
+            let mut r = vec![(f32::INFINITY, f32::NEG_INFINITY); m];
+            for row in c.chunks_exact(m) {
+                for (r, &x) in r.iter_mut().zip(row) {
+                    *r = (r.0.min(x), r.1.max(x));
+                }
+            }
+            r
+        });
+        let all = rows.reduce(
+            || vec![(f32::INFINITY, f32::NEG_INFINITY); m],
+            |p, q| {
+                p.iter()
+                    .zip(&q)
+                    .map(|(p, q)| (p.0.min(q.0), p.1.max(q.1)))
+                    .collect()
+            },
+        );
+        r.extend(all.iter().map(|&(lo, hi)| (lo as f64, hi as f64)));
+    }
     r
 }
 
@@ -648,31 +446,56 @@ pub fn write_part_chunks(
     chunks: &[PointColumns],
     opts: &WriteOptions,
 ) -> Result<PartSummary> {
-    write(path, Chunks::Borrowed(chunks), None, opts)
+    let ph = Phases::new();
+    let bounds = scan_bounds(path, chunks)?;
+    let n = chunks.iter().map(|c| c.len()).sum();
+    let mut part = PartBuilder::new(bounds.center(), None, n);
+    for c in chunks {
+        part.push(path, c)?;
+    }
+    write(path, part, ph, opts)
 }
 
-/// [`write_part_chunks`] taking the chunks: their coordinate columns are freed as
-/// soon as they are read, which lowers the peak memory by 24 bytes a point and
-/// gives that memory to the sort (reused pages are cheaper than fresh ones).
-/// `bounds`, when the caller has them, saves a pass over the coordinates; every
-/// point must lie inside them (it is checked, and an error otherwise).
+/// [`write_part_chunks`] taking the chunks: each is freed as soon as it is
+/// converted, which lowers the peak memory and gives that memory to the sort
+/// (reused pages are cheaper than fresh ones). `bounds`, when the caller has
+/// them, save a pass over the coordinates; every point must lie inside them (it
+/// is checked, and an error otherwise).
 pub fn write_part_owned(
     path: &Path,
     chunks: Vec<PointColumns>,
     bounds: Option<Bounds>,
     opts: &WriteOptions,
 ) -> Result<PartSummary> {
-    write(path, Chunks::Owned(chunks), bounds, opts)
+    let ph = Phases::new();
+    let expect = match bounds {
+        Some(b) => b,
+        None => scan_bounds(path, &chunks)?,
+    };
+    let n = chunks.iter().map(|c| c.len()).sum();
+    let mut part = PartBuilder::new(expect.center(), bounds, n);
+    part.push_all(path, chunks)?;
+    write(path, part, ph, opts)
+}
+
+/// Writes the points collected in `part` as one part at `path` (replacing an
+/// existing file atomically). `part`'s origin should be near the centre of its
+/// points: f32 keeps 1 mm up to 16.7 km from it.
+pub fn write_part_built(
+    path: &Path,
+    part: PartBuilder,
+    opts: &WriteOptions,
+) -> Result<PartSummary> {
+    write(path, part, Phases::new(), opts)
 }
 
 fn write(
     path: &Path,
-    chunks: Chunks,
-    bounds: Option<Bounds>,
+    part: PartBuilder,
+    mut ph: Phases,
     opts: &WriteOptions,
 ) -> Result<PartSummary> {
-    let mut ph = Phases::new();
-    let a = arrange(path, chunks, bounds, opts.layout, &mut ph)?;
+    let a = arrange(path, part, opts.layout, &mut ph)?;
     let index = tile_index(&a);
     let xml = metadata_xml(&a, opts, &index);
     ph.mark("tile index");
@@ -749,36 +572,72 @@ fn scatter_tile(lut: &[u32], count: usize, value: impl Fn(usize) -> f32) -> Vec<
     buf
 }
 
-/// Encodes tile `t` (Z-rank; `raster`: its raster index) of band `b` at `level`.
-fn encode_tile(
+/// The parallel jobs of a level's tile `t`: one per coordinate band, and one for
+/// all attribute bands together (their values are gathered a point at a time).
+fn groups(a: &Arranged) -> usize {
+    3 + usize::from(a.m > 0)
+}
+
+/// Encodes job `group` (see [`groups`]) of tile `t` (Z-rank; `raster`: its raster
+/// index) at `level`: its bands and their tiles.
+fn encode_job(
     a: &Arranged,
     lut: &[u32],
     level: usize,
     (t, raster): (usize, u32),
-    b: usize,
+    group: usize,
     compression: Compression,
-) -> Encoded {
+) -> Vec<(usize, Encoded)> {
     let g = a.geometry;
     let count = g.tile_points(level, t as u64) as usize;
     let stride = 1usize << (2 * level);
     let base = t * TILE_PIXELS;
-    let buf = if a.layout == Layout::Paper {
-        // The paper's layout: input order, row-major (`paper.rs`).
-        match b {
-            0..3 => paper::tile_pixels(|i| a.pos[i][b], g, level, raster),
-            _ => paper::tile_pixels(|i| a.attrs[b - 3][i], g, level, raster),
-        }
-    } else if b < 3 {
-        let pos = &a.pos;
-        scatter_tile(lut, count, |i| pos[(base + i) * stride][b])
-    } else {
-        let src = &a.attrs[b - 3];
-        scatter_tile(lut, count, |i| src[(base + i) * stride])
-    };
-    match compression {
+    let m = a.m;
+    let done = |buf: Vec<f32>| match compression {
         Compression::None => Encoded::Raw(buf),
         c => Encoded::Bytes(codec::encode(&buf, TILE_SIZE as usize, c)),
+    };
+    if a.layout == Layout::Paper {
+        // The paper's layout: input order, row-major (`paper.rs`).
+        let rows = &a.rows;
+        return match group {
+            0..3 => vec![(
+                group,
+                done(paper::tile_pixels(|i| a.pos[i][group], g, level, raster)),
+            )],
+            _ => (0..m)
+                .map(|k| {
+                    let buf = paper::tile_pixels(|i| rows[i * m + k], g, level, raster);
+                    (3 + k, done(buf))
+                })
+                .collect(),
+        };
     }
+    if group < 3 {
+        let pos = &a.pos;
+        let buf = scatter_tile(lut, count, |i| pos[(base + i) * stride][group]);
+        return vec![(group, done(buf))];
+    }
+    // The tile's attribute rows, gathered through the permutation (one cache miss
+    // a point for all its attributes), then each band scattered from them.
+    let (rows, perm) = (&a.rows, &a.perm);
+    let mut gathered: Vec<f32> = Vec::with_capacity(count * m);
+    for i in 0..count {
+        if i + bigvec::PREFETCH_AHEAD < count {
+            let ahead = perm[(base + i + bigvec::PREFETCH_AHEAD) * stride] as usize;
+            bigvec::prefetch(rows, ahead * m);
+        }
+        let src = perm[(base + i) * stride] as usize * m;
+        gathered.extend_from_slice(&rows[src..src + m]);
+    }
+    (0..m)
+        .map(|k| {
+            (
+                3 + k,
+                done(scatter_tile(lut, count, |i| gathered[i * m + k])),
+            )
+        })
+        .collect()
 }
 
 fn encode<K: TiffKind>(
@@ -821,15 +680,21 @@ fn encode<K: TiffKind>(
             hole.set(len);
             let start = dir.write_data(&zeros[..len as usize])?;
             debug_assert_eq!(hole.get(), 0);
-            (0..jobs).into_par_iter().try_for_each(|j| {
-                let (t, b) = (j / nb, j % nb);
-                let tile = (t, tiles[t].index);
-                let e = encode_tile(a, &lut, level, tile, b, Compression::None);
-                let Encoded::Raw(v) = e else {
-                    unreachable!("uncompressed tiles are raw")
-                };
-                out::write_all_at(file, bytemuck::cast_slice(&v), start + j as u64 * BYTES)
-            })?;
+            let per_tile = groups(a);
+            (0..filled * per_tile)
+                .into_par_iter()
+                .try_for_each(|j| -> std::io::Result<()> {
+                    let (t, group) = (j / per_tile, j % per_tile);
+                    let tile = (t, tiles[t].index);
+                    for (b, e) in encode_job(a, &lut, level, tile, group, Compression::None) {
+                        let Encoded::Raw(v) = e else {
+                            unreachable!("uncompressed tiles are raw")
+                        };
+                        let at = start + (t * nb + b) as u64 * BYTES;
+                        out::write_all_at(file, bytemuck::cast_slice(&v), at)?;
+                    }
+                    Ok(())
+                })?;
             for (t, tile) in tiles.iter().enumerate() {
                 for b in 0..nb {
                     let r = tile.index as usize;
@@ -913,16 +778,21 @@ fn encode_batches<K: TiffKind>(
         scope.spawn(move || {
             for start in (0..filled).step_by(BATCH_TILES) {
                 let end = (start + BATCH_TILES).min(filled);
+                let per_tile = groups(a);
                 let jobs: Vec<(usize, usize)> = (start..end)
-                    .flat_map(|t| (0..nb).map(move |b| (t, b)))
+                    .flat_map(|t| (0..per_tile).map(move |g| (t, g)))
                     .collect();
-                let batch: Vec<(usize, usize, Encoded)> = jobs
+                let encoded: Vec<Vec<(usize, usize, Encoded)>> = jobs
                     .into_par_iter()
-                    .map(|(t, b)| {
+                    .map(|(t, group)| {
                         let tile = (t, tiles[t].index);
-                        (t, b, encode_tile(a, lut, level, tile, b, compression))
+                        encode_job(a, lut, level, tile, group, compression)
+                            .into_iter()
+                            .map(|(b, e)| (t, b, e))
+                            .collect()
                     })
                     .collect();
+                let batch: Vec<(usize, usize, Encoded)> = encoded.into_iter().flatten().collect();
                 if tx.send(batch).is_err() {
                     return; // the writer failed and stopped listening
                 }

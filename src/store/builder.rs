@@ -1,0 +1,272 @@
+//! Collects the points of one part as they arrive, chunk after chunk, in the form
+//! the writer sorts and tiles: coordinates as `f32` relative to an origin fixed in
+//! advance, and the attributes interleaved point by point (one row of values a
+//! point). A pushed chunk is converted at once, so the caller can drop it: a
+//! reader's `f64` window is never held for the whole part, and its memory is
+//! reused for the next window.
+
+use super::error::{Result, StoreError};
+use crate::points::{Attribute, Bounds, PointColumns};
+use rayon::prelude::*;
+use std::path::Path;
+
+/// One part's points, relative to `origin`, ready for [`super::writer`].
+pub struct PartBuilder {
+    pub(super) origin: [f64; 3],
+    /// Every point must lie inside these bounds (checked as points arrive).
+    expect: Option<Bounds>,
+    pub(super) pos: Vec<[f32; 3]>,
+    /// `attributes.len()` values a point, in the order of `attributes`.
+    pub(super) rows: Vec<f32>,
+    /// Attribute names and offsets, from the first chunk.
+    pub(super) attributes: Vec<(String, f64)>,
+    /// Bounds of the points pushed so far, from their `f64` coordinates.
+    pub(super) bounds: Bounds,
+}
+
+/// Points converted a parallel piece at a time.
+const PIECE: usize = 1 << 14;
+
+impl PartBuilder {
+    /// An empty part whose coordinates will be stored relative to `origin`;
+    /// `expect`, when given, bounds every point (a point outside is an error).
+    /// `capacity`: the points expected, if known (saves regrowing).
+    pub fn new(origin: [f64; 3], expect: Option<Bounds>, capacity: usize) -> PartBuilder {
+        PartBuilder {
+            origin,
+            expect,
+            pos: crate::bigvec::with_capacity(capacity),
+            rows: Vec::new(),
+            attributes: Vec::new(),
+            bounds: Bounds::EMPTY,
+        }
+    }
+
+    /// The origin the coordinates are stored relative to.
+    pub fn origin(&self) -> [f64; 3] {
+        self.origin
+    }
+
+    /// Points so far.
+    pub fn len(&self) -> usize {
+        self.pos.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.pos.is_empty()
+    }
+
+    /// The bounds of the points so far (`Bounds::EMPTY` when none).
+    pub fn bounds(&self) -> Bounds {
+        self.bounds
+    }
+
+    /// Appends the points of `c`; `path` names the part in errors. Every chunk must
+    /// have the attributes (names and offsets) of the first; coordinates must be
+    /// finite (and inside the expected bounds, if any). On an error the builder
+    /// is unchanged.
+    pub fn push(&mut self, path: &Path, c: &PointColumns) -> Result<()> {
+        c.check_lengths().map_err(|m| StoreError::new(path, m))?;
+        self.push_positions(path, c, &c.attributes)?;
+        self.push_rows(&c.attributes, c.len());
+        Ok(())
+    }
+
+    /// Appends the points of `chunks` as [`PartBuilder::push`] would, freeing each
+    /// chunk's coordinates once converted and only then its attributes: the
+    /// attribute rows are allocated after all coordinates are freed, so they reuse
+    /// that memory. On an error nothing is appended.
+    pub fn push_all(&mut self, path: &Path, chunks: Vec<PointColumns>) -> Result<()> {
+        let (len, first) = (self.pos.len(), self.attributes.clone());
+        let mut attrs: Vec<(Vec<Attribute>, usize)> = Vec::with_capacity(chunks.len());
+        for mut c in chunks {
+            let pushed = c
+                .check_lengths()
+                .map_err(|m| StoreError::new(path, m))
+                .and_then(|_| self.push_positions(path, &c, &c.attributes));
+            if let Err(e) = pushed {
+                self.pos.truncate(len);
+                self.attributes = first;
+                return Err(e);
+            }
+            attrs.push((std::mem::take(&mut c.attributes), c.len()));
+        }
+        let m = self.attributes.len();
+        let want = (self.pos.len() - len) * m;
+        if self.rows.capacity() == 0 {
+            self.rows = crate::bigvec::with_capacity(want);
+        } else {
+            self.rows.reserve_exact(want);
+        }
+        for (a, n) in attrs {
+            self.push_rows(&a, n);
+        }
+        Ok(())
+    }
+
+    /// Appends the positions of `c` (whose attributes are `attrs`), checking them.
+    fn push_positions(&mut self, path: &Path, c: &PointColumns, attrs: &[Attribute]) -> Result<()> {
+        let this: Vec<(String, f64)> = attrs.iter().map(|a| (a.name.clone(), a.offset)).collect();
+        let first = self.is_empty() && self.attributes.is_empty();
+        if !first && this != self.attributes {
+            return Err(StoreError::new(
+                path,
+                "the chunks of a part differ in their attribute columns or offsets",
+            ));
+        }
+        let len = c.len();
+        let base = self.pos.len();
+        if (base + len) as u64 > u32::MAX as u64 {
+            return Err(StoreError::new(
+                path,
+                format!(
+                    "{} points are more than one part holds (4,294,967,295); split the input",
+                    base + len
+                ),
+            ));
+        }
+        // Relative positions and the chunk's bounds in one pass; a NaN fails
+        // every comparison, so `ok` also catches it.
+        self.pos.reserve(len);
+        let dst = &mut self.pos.spare_capacity_mut()[..len];
+        let origin = self.origin;
+        let (lo, hi) = match self.expect {
+            Some(b) => (b.min, b.max),
+            None => ([f64::NEG_INFINITY; 3], [f64::INFINITY; 3]),
+        };
+        let (ok, b) = dst
+            .par_chunks_mut(PIECE)
+            .enumerate()
+            .map(|(k, d)| {
+                let from = k * PIECE;
+                let mut ok = true;
+                let mut b = Bounds::EMPTY;
+                for (i, d) in d.iter_mut().enumerate() {
+                    let p = [c.x[from + i], c.y[from + i], c.z[from + i]];
+                    d.write([0, 1, 2].map(|a| (p[a] - origin[a]) as f32));
+                    for a in 0..3 {
+                        // `&`, not `&&`: no branches in the loop.
+                        ok &= (p[a] >= lo[a]) & (p[a] <= hi[a]) & p[a].is_finite();
+                        b.min[a] = b.min[a].min(p[a]);
+                        b.max[a] = b.max[a].max(p[a]);
+                    }
+                }
+                (ok, b)
+            })
+            .reduce(
+                || (true, Bounds::EMPTY),
+                |x, y| (x.0 & y.0, x.1.union(&y.1)),
+            );
+        if !ok {
+            let bad = |i: usize| {
+                let p = [c.x[i], c.y[i], c.z[i]];
+                !(0..3).all(|a| p[a].is_finite() && p[a] >= lo[a] && p[a] <= hi[a])
+            };
+            let i = (0..len).find(|&i| bad(i)).unwrap_or(0);
+            let what = if [c.x[i], c.y[i], c.z[i]].iter().all(|v| v.is_finite()) {
+                "lies outside the bounds given for the part"
+            } else {
+                "has a coordinate that is not a finite number"
+            };
+            return Err(StoreError::new(
+                path,
+                format!(
+                    "point {} {what} ({}, {}, {})",
+                    base + i,
+                    c.x[i],
+                    c.y[i],
+                    c.z[i]
+                ),
+            ));
+        }
+        // SAFETY: every slot base..base + len was written above.
+        unsafe { self.pos.set_len(base + len) };
+        self.bounds = self.bounds.union(&b);
+        if first {
+            self.attributes = this;
+        }
+        Ok(())
+    }
+
+    /// Appends the values of `attrs` (`len` points), interleaved.
+    fn push_rows(&mut self, attrs: &[Attribute], len: usize) {
+        let m = attrs.len();
+        if m == 0 {
+            return;
+        }
+        let at = self.rows.len();
+        if self.rows.capacity() == 0 {
+            self.rows = crate::bigvec::with_capacity(self.pos.capacity() * m);
+        }
+        self.rows.reserve(len * m);
+        let dst = &mut self.rows.spare_capacity_mut()[..len * m];
+        dst.par_chunks_mut(PIECE * m)
+            .enumerate()
+            .for_each(|(k, d)| {
+                let from = k * PIECE;
+                for (j, a) in attrs.iter().enumerate() {
+                    for (r, &v) in a.values[from..from + d.len() / m].iter().enumerate() {
+                        d[r * m + j].write(v);
+                    }
+                }
+            });
+        // SAFETY: every slot at..at + len * m was written above.
+        unsafe { self.rows.set_len(at + len * m) };
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn chunk(xs: &[f64], a: &[f32], offset: f64) -> PointColumns {
+        PointColumns {
+            x: xs.to_vec(),
+            y: xs.iter().map(|v| v * 2.0).collect(),
+            z: xs.iter().map(|v| -v).collect(),
+            attributes: vec![
+                Attribute::new("i", a.to_vec()),
+                Attribute {
+                    name: "t".into(),
+                    offset,
+                    values: a.iter().map(|v| v + 0.5).collect(),
+                },
+            ],
+        }
+    }
+
+    #[test]
+    fn points_become_relative_rows_and_bounds() {
+        let p = Path::new("part.tif");
+        let mut b = PartBuilder::new([10.0, 20.0, 0.0], None, 0);
+        b.push(p, &chunk(&[11.0, 12.0], &[1.0, 2.0], 5.0)).unwrap();
+        b.push(p, &chunk(&[9.0], &[3.0], 5.0)).unwrap();
+        assert_eq!(b.len(), 3);
+        assert_eq!(
+            b.pos,
+            vec![[1.0, 2.0, -11.0], [2.0, 4.0, -12.0], [-1.0, -2.0, -9.0]]
+        );
+        assert_eq!(b.rows, vec![1.0, 1.5, 2.0, 2.5, 3.0, 3.5]);
+        assert_eq!(b.bounds().min, [9.0, 18.0, -12.0]);
+        assert_eq!(b.bounds().max, [12.0, 24.0, -9.0]);
+        // Other offsets, a NaN, a point outside the expected bounds: refused, and
+        // the builder keeps what it had.
+        let e = b
+            .push(p, &chunk(&[1.0], &[1.0], 6.0))
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("part.tif") && e.contains("offsets"), "{e}");
+        let e = b
+            .push(p, &chunk(&[1.0, f64::NAN], &[1.0, 2.0], 5.0))
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("point 4 ") && e.contains("not a finite"), "{e}");
+        assert_eq!((b.len(), b.rows.len()), (3, 6));
+        let mut tight = PartBuilder::new([0.0; 3], Some(b.bounds()), 0);
+        let e = tight
+            .push(p, &chunk(&[10.0, 13.0], &[1.0, 1.0], 0.0))
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("point 1 lies outside"), "{e}");
+    }
+}
