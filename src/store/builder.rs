@@ -20,6 +20,9 @@ pub struct PartBuilder {
     pub(super) rows: Vec<f32>,
     /// Attribute names and offsets, from the first chunk.
     pub(super) attributes: Vec<(String, f64)>,
+    /// Each attribute's smallest and largest stored value (NaN ignored; empty
+    /// until a point has attributes).
+    pub(super) ranges: Vec<(f32, f32)>,
     /// Bounds of the points pushed so far, from their `f64` coordinates.
     pub(super) bounds: Bounds,
 }
@@ -38,6 +41,7 @@ impl PartBuilder {
             pos: crate::bigvec::with_capacity(capacity),
             rows: Vec::new(),
             attributes: Vec::new(),
+            ranges: Vec::new(),
             bounds: Bounds::EMPTY,
         }
     }
@@ -188,7 +192,8 @@ impl PartBuilder {
         Ok(())
     }
 
-    /// Appends the values of `attrs` (`len` points), interleaved.
+    /// Appends the values of `attrs` (`len` points), interleaved, and widens the
+    /// attributes' ranges.
     fn push_rows(&mut self, attrs: &[Attribute], len: usize) {
         let m = attrs.len();
         if m == 0 {
@@ -200,19 +205,84 @@ impl PartBuilder {
         }
         self.rows.reserve(len * m);
         let dst = &mut self.rows.spare_capacity_mut()[..len * m];
-        dst.par_chunks_mut(PIECE * m)
+        let cols: Vec<&[f32]> = attrs.iter().map(|a| &a.values[..]).collect();
+        let ranges = dst
+            .par_chunks_mut(PIECE * m)
             .enumerate()
-            .for_each(|(k, d)| {
+            .map(|(k, d)| {
                 let from = k * PIECE;
-                for (j, a) in attrs.iter().enumerate() {
-                    for (r, &v) in a.values[from..from + d.len() / m].iter().enumerate() {
-                        d[r * m + j].write(v);
-                    }
+                let n = d.len() / m;
+                match m {
+                    1 => interleave::<1>(d, &cols, from, n),
+                    2 => interleave::<2>(d, &cols, from, n),
+                    3 => interleave::<3>(d, &cols, from, n),
+                    4 => interleave::<4>(d, &cols, from, n),
+                    5 => interleave::<5>(d, &cols, from, n),
+                    6 => interleave::<6>(d, &cols, from, n),
+                    7 => interleave::<7>(d, &cols, from, n),
+                    8 => interleave::<8>(d, &cols, from, n),
+                    _ => interleave_any(d, &cols, from, n),
                 }
-            });
+            })
+            .reduce(|| vec![EMPTY_RANGE; m], |a, b| widen(&a, &b));
         // SAFETY: every slot at..at + len * m was written above.
         unsafe { self.rows.set_len(at + len * m) };
+        self.ranges = if self.ranges.is_empty() {
+            ranges
+        } else {
+            widen(&self.ranges, &ranges)
+        };
     }
+}
+
+/// A range no value has widened yet.
+const EMPTY_RANGE: (f32, f32) = (f32::INFINITY, f32::NEG_INFINITY);
+
+/// Both ranges' union, attribute by attribute (NaN never widens a range).
+fn widen(a: &[(f32, f32)], b: &[(f32, f32)]) -> Vec<(f32, f32)> {
+    a.iter()
+        .zip(b)
+        .map(|(a, b)| (a.0.min(b.0), a.1.max(b.1)))
+        .collect()
+}
+
+/// Rows `from..from + n` of the `M` columns into `d`, row after row; their ranges.
+fn interleave<const M: usize>(
+    d: &mut [std::mem::MaybeUninit<f32>],
+    cols: &[&[f32]],
+    from: usize,
+    n: usize,
+) -> Vec<(f32, f32)> {
+    let cols: [&[f32]; M] = std::array::from_fn(|j| &cols[j][from..from + n]);
+    let mut lo = [f32::INFINITY; M];
+    let mut hi = [f32::NEG_INFINITY; M];
+    for (r, row) in d.chunks_exact_mut(M).enumerate() {
+        for j in 0..M {
+            let v = cols[j][r];
+            row[j].write(v);
+            lo[j] = lo[j].min(v);
+            hi[j] = hi[j].max(v);
+        }
+    }
+    (0..M).map(|j| (lo[j], hi[j])).collect()
+}
+
+/// [`interleave`] for any number of columns.
+fn interleave_any(
+    d: &mut [std::mem::MaybeUninit<f32>],
+    cols: &[&[f32]],
+    from: usize,
+    n: usize,
+) -> Vec<(f32, f32)> {
+    let m = cols.len();
+    let mut ranges = vec![EMPTY_RANGE; m];
+    for (j, col) in cols.iter().enumerate() {
+        for (r, &v) in col[from..from + n].iter().enumerate() {
+            d[r * m + j].write(v);
+            ranges[j] = (ranges[j].0.min(v), ranges[j].1.max(v));
+        }
+    }
+    ranges
 }
 
 #[cfg(test)]
@@ -247,6 +317,7 @@ mod tests {
             vec![[1.0, 2.0, -11.0], [2.0, 4.0, -12.0], [-1.0, -2.0, -9.0]]
         );
         assert_eq!(b.rows, vec![1.0, 1.5, 2.0, 2.5, 3.0, 3.5]);
+        assert_eq!(b.ranges, vec![(1.0, 3.0), (1.5, 3.5)]);
         assert_eq!(b.bounds().min, [9.0, 18.0, -12.0]);
         assert_eq!(b.bounds().max, [12.0, 24.0, -9.0]);
         // Other offsets, a NaN, a point outside the expected bounds: refused, and

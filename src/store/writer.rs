@@ -106,6 +106,8 @@ struct Arranged {
     /// Bands 3 and up, interleaved, in input order.
     rows: Vec<f32>,
     m: usize,
+    /// Each attribute's smallest and largest value.
+    ranges: Vec<(f32, f32)>,
     names: Vec<String>,
     offsets: Vec<f64>,
     origin: [f64; 3],
@@ -180,6 +182,7 @@ fn arrange(path: &Path, part: PartBuilder, layout: Layout, ph: &mut Phases) -> R
         pos,
         rows,
         attributes,
+        ranges,
         bounds,
         ..
     } = part;
@@ -236,6 +239,11 @@ fn arrange(path: &Path, part: PartBuilder, layout: Layout, ph: &mut Phases) -> R
         perm,
         rows,
         m: attributes.len(),
+        ranges: if ranges.is_empty() {
+            vec![(f32::INFINITY, f32::NEG_INFINITY); attributes.len()]
+        } else {
+            ranges
+        },
         names,
         offsets,
         origin,
@@ -301,7 +309,8 @@ fn tile_index(a: &Arranged) -> Vec<LevelIndex> {
 }
 
 /// Minimum and maximum of each band's stored values (NaN ignored; `lo > hi` for a
-/// band with no finite value): x y z from the bounds, the rest in one parallel pass.
+/// band with no finite value): x y z from the bounds, the rest as the builder
+/// found them.
 fn stored_ranges(a: &Arranged) -> Vec<(f64, f64)> {
     let mut r: Vec<(f64, f64)> = (0..3)
         .map(|k| {
@@ -311,28 +320,7 @@ fn stored_ranges(a: &Arranged) -> Vec<(f64, f64)> {
             )
         })
         .collect();
-    let m = a.m;
-    if m > 0 {
-        let rows = a.rows.par_chunks(m << 16).map(|c| {
-            let mut r = vec![(f32::INFINITY, f32::NEG_INFINITY); m];
-            for row in c.chunks_exact(m) {
-                for (r, &x) in r.iter_mut().zip(row) {
-                    *r = (r.0.min(x), r.1.max(x));
-                }
-            }
-            r
-        });
-        let all = rows.reduce(
-            || vec![(f32::INFINITY, f32::NEG_INFINITY); m],
-            |p, q| {
-                p.iter()
-                    .zip(&q)
-                    .map(|(p, q)| (p.0.min(q.0), p.1.max(q.1)))
-                    .collect()
-            },
-        );
-        r.extend(all.iter().map(|&(lo, hi)| (lo as f64, hi as f64)));
-    }
+    r.extend(a.ranges.iter().map(|&(lo, hi)| (lo as f64, hi as f64)));
     r
 }
 
@@ -620,15 +608,23 @@ fn encode_job(
     }
     // The tile's attribute rows, gathered through the permutation (one cache miss
     // a point for all its attributes), then each band scattered from them.
-    let (rows, perm) = (&a.rows, &a.perm);
     let mut gathered: Vec<f32> = Vec::with_capacity(count * m);
-    for i in 0..count {
-        if i + bigvec::PREFETCH_AHEAD < count {
-            let ahead = perm[(base + i + bigvec::PREFETCH_AHEAD) * stride] as usize;
-            bigvec::prefetch(rows, ahead * m);
+    let at = |i: usize| a.perm[(base + i) * stride] as usize;
+    match m {
+        1 => gather_rows::<1>(&a.rows, count, at, &mut gathered),
+        2 => gather_rows::<2>(&a.rows, count, at, &mut gathered),
+        3 => gather_rows::<3>(&a.rows, count, at, &mut gathered),
+        4 => gather_rows::<4>(&a.rows, count, at, &mut gathered),
+        5 => gather_rows::<5>(&a.rows, count, at, &mut gathered),
+        6 => gather_rows::<6>(&a.rows, count, at, &mut gathered),
+        7 => gather_rows::<7>(&a.rows, count, at, &mut gathered),
+        8 => gather_rows::<8>(&a.rows, count, at, &mut gathered),
+        _ => {
+            for i in 0..count {
+                let src = at(i) * m;
+                gathered.extend_from_slice(&a.rows[src..src + m]);
+            }
         }
-        let src = perm[(base + i) * stride] as usize * m;
-        gathered.extend_from_slice(&rows[src..src + m]);
     }
     (0..m)
         .map(|k| {
@@ -638,6 +634,24 @@ fn encode_job(
             )
         })
         .collect()
+}
+
+/// Appends rows `at(0..count)` of `rows` (`M` values each) to `out`, prefetching
+/// ahead (the rows are in input order, so nearly every one misses the cache).
+#[inline]
+fn gather_rows<const M: usize>(
+    rows: &[f32],
+    count: usize,
+    at: impl Fn(usize) -> usize,
+    out: &mut Vec<f32>,
+) {
+    let rows: &[[f32; M]] = bytemuck::cast_slice(rows);
+    for i in 0..count {
+        if i + bigvec::PREFETCH_AHEAD < count {
+            bigvec::prefetch(rows, at(i + bigvec::PREFETCH_AHEAD));
+        }
+        out.extend_from_slice(&rows[at(i)]);
+    }
 }
 
 fn encode<K: TiffKind>(
