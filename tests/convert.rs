@@ -220,6 +220,30 @@ fn wrong_header_bounds_are_not_trusted() {
     );
 }
 
+/// Text declares no bounds: a part is collected around its first window's centre.
+/// When that is too far from the rest for f32 (30 km of points, the first window
+/// at one end) the input is read again around the points' own centre.
+#[test]
+fn first_window_far_from_the_rest_is_read_again() {
+    let dir = tempfile::tempdir().unwrap();
+    let input = dir.path().join("long.xyz");
+    let mut text = String::new();
+    for i in 0..5000 {
+        let x = if i < 1000 { 0.0 } else { 29_990.0 } + (i % 10) as f64;
+        text.push_str(&format!("{x} {} {}\n", i % 7, i % 3));
+    }
+    std::fs::write(&input, text).unwrap();
+    let out = dir.path().join("long.tif");
+    let mut o = opts(out.clone(), 1 << 30);
+    o.read.chunk_points = 1000;
+    let s = convert::convert(&input, &o, &Quiet).unwrap();
+    assert_eq!(s.points, 5000);
+    let part = &Dataset::open(&out).unwrap().parts[0];
+    assert!((part.meta.origin[0] - 14_999.5).abs() < 1e-9, "{:?}", part.meta.origin);
+    assert!(s.max_quantization_error < 1e-3);
+    assert_eq!(dataset_points(&out).len(), 5000);
+}
+
 /// A progress sink that asks to stop after the first window, as Ctrl-C does.
 struct StopAfterFirst(Arc<AtomicBool>);
 impl Progress for StopAfterFirst {

@@ -172,19 +172,20 @@ impl Sample {
     }
 }
 
-/// The part collected around the centre of the input's declared bounds reaches
-/// too far from it (the declaration is wrong): the conversion starts over without
-/// trusting it.
+/// The part collected while reading, around the centre of the input's declared
+/// bounds or of its first window, reaches farther from it than f32 keeps 1 mm,
+/// though not from its own centre: the conversion starts over, holding the points
+/// as read until their bounds are known.
 #[derive(Debug)]
-struct DeclaredBoundsWrong;
+struct OriginTooFar;
 
-impl std::fmt::Display for DeclaredBoundsWrong {
+impl std::fmt::Display for OriginTooFar {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.write_str("the input's declared bounds do not hold its points")
+        f.write_str("the points reach too far from the origin chosen while reading")
     }
 }
 
-impl std::error::Error for DeclaredBoundsWrong {}
+impl std::error::Error for OriginTooFar {}
 
 /// Converts one input file into a dataset.
 pub fn convert(
@@ -193,21 +194,24 @@ pub fn convert(
     progress: &dyn Progress,
 ) -> Result<ConvertSummary> {
     match convert_with(input, o, progress, true) {
-        Err(e) if e.downcast_ref::<DeclaredBoundsWrong>().is_some() => {
-            progress.note("the header's bounds do not hold the points: reading the input again");
+        Err(e) if e.downcast_ref::<OriginTooFar>().is_some() => {
+            progress.note(
+                "the points reach too far from the centre of the header's bounds or of the \
+                 first window: reading the input again around their own centre",
+            );
             convert_with(input, o, progress, false)
         }
         r => r,
     }
 }
 
-/// [`convert`], using the bounds the input declares (if `trust_declared`) as the
-/// origin of a single part collected while reading.
+/// [`convert`]; with `early`, a single part is collected while reading (see
+/// [`OriginTooFar`]).
 fn convert_with(
     input: &Path,
     o: &ConvertOptions,
     progress: &dyn Progress,
-    trust_declared: bool,
+    early: bool,
 ) -> Result<ConvertSummary> {
     let start = Instant::now();
     if o.output.exists() && !o.force {
@@ -288,7 +292,7 @@ fn convert_with(
         if reach(&bounds, origin) > F32_MM_RADIUS
             && reach(&bounds, bounds.center()) <= F32_MM_RADIUS
         {
-            return Err(DeclaredBoundsWrong.into());
+            return Err(OriginTooFar.into());
         }
         check_precision(&b.bounds(), b.origin(), parts.len(), o.allow_lossy)?;
         let s = store::write_part_built(&part_path(parts.len()), b, &write_opts)?;
@@ -345,16 +349,13 @@ fn convert_with(
         Partition::Spatial => {
             // Pass 1: bounds and a sample; points kept while they fit one part.
             let mut bounds = Bounds::EMPTY;
-            // The points so far while they fit one part: the chunks as read (no
-            // copy), or, when the input declares its bounds (LAS), already
-            // converted for the store around their centre (each chunk is then
-            // freed at once, and its memory reused for the next).
+            // The points so far while they fit one part: converted for the store
+            // as they arrive (`early`), around the centre of the bounds the input
+            // declares (LAS) or else of its first window, so each window is freed
+            // at once and its memory reused for the next; or (when that origin
+            // proved too far) the chunks as read, no copy.
             let mut held: Vec<PointColumns> = Vec::new();
-            let declared = info.declared_bounds.filter(|_| trust_declared);
-            let mut built = declared.map(|b| {
-                let expect = info.declared_points.unwrap_or(0).min(per_part);
-                store::PartBuilder::new(b.center(), None, expect as usize)
-            });
+            let mut built: Option<store::PartBuilder> = None;
             let mut held_points = 0u64;
             let mut overflow = false;
             let mut sample = Sample::new(1 << 21);
@@ -365,22 +366,29 @@ fn convert_with(
                 progress.advance(reader.bytes_done(), total);
                 let l = like.get_or_insert_with(|| chunk.empty_like());
                 normalize(&mut chunk, l);
-                bounds = bounds.union(&chunk.bounds());
-                // The sample is only needed once the points overflow one part;
-                // it is then taken from the held chunks first, which gives the
-                // same sample as taking it chunk by chunk (converted points are
-                // not kept as read: with them it is taken from the start).
-                if overflow || built.is_some() {
+                let here = chunk.bounds();
+                bounds = bounds.union(&here);
+                // The sample is only needed once the points overflow one part.
+                // Held chunks give it then (the same sample as taking it chunk by
+                // chunk); converted ones are not kept as read, so with them it is
+                // taken from the start.
+                if overflow || early {
                     sample.add(&chunk);
                 }
-                if overflow {
+                if overflow || chunk.is_empty() {
                     continue;
                 }
                 if held_points + chunk.len() as u64 <= per_part {
                     held_points += chunk.len() as u64;
-                    match &mut built {
-                        Some(b) => b.push(&part_path(0), &chunk)?,
-                        None => held.push(chunk),
+                    if early {
+                        let b = built.get_or_insert_with(|| {
+                            let centre = info.declared_bounds.unwrap_or(here).center();
+                            let expect = info.declared_points.unwrap_or(0).min(per_part);
+                            store::PartBuilder::new(centre, None, expect as usize)
+                        });
+                        b.push(&part_path(0), &chunk)?;
+                    } else {
+                        held.push(chunk);
                     }
                 } else {
                     overflow = true;
@@ -388,7 +396,9 @@ fn convert_with(
                     for c in held.drain(..) {
                         sample.add(&c);
                     }
-                    sample.add(&chunk);
+                    if !early {
+                        sample.add(&chunk);
+                    }
                 }
             }
             pass("read", t_read);
