@@ -239,7 +239,11 @@ fn first_window_far_from_the_rest_is_read_again() {
     let s = convert::convert(&input, &o, &Quiet).unwrap();
     assert_eq!(s.points, 5000);
     let part = &Dataset::open(&out).unwrap().parts[0];
-    assert!((part.meta.origin[0] - 14_999.5).abs() < 1e-9, "{:?}", part.meta.origin);
+    assert!(
+        (part.meta.origin[0] - 14_999.5).abs() < 1e-9,
+        "{:?}",
+        part.meta.origin
+    );
     assert!(s.max_quantization_error < 1e-3);
     assert_eq!(dataset_points(&out).len(), 5000);
 }
