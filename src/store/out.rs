@@ -2,8 +2,8 @@
 //! writer that can leave a hole (a run of bytes the encoder counts but does not
 //! write), which worker threads then fill with positioned writes (`pwrite`) in
 //! parallel. Uncompressed tiles have known sizes, so a level's tile data is
-//! reserved in one piece and both cores copy tiles into the page cache at once;
-//! through the encoder alone one thread did all of that copying.
+//! reserved as one hole and the rayon pool encodes and writes tiles into it;
+//! through the encoder alone one thread did all of the writing.
 
 use std::cell::Cell;
 use std::fs::File;
@@ -122,14 +122,26 @@ pub fn write_all_at(file: &File, data: &[u8], offset: u64) -> io::Result<()> {
     }
 }
 
-/// `len` zero bytes that cost nothing until read: given to the encoder's
-/// `write_data` while the [`Out`] below it has a hole of `len`, they advance the
-/// encoder's offset without being read or written (an untouched anonymous
-/// mapping: no memory is committed for it). Were the hole not set, the zeros would
-/// simply be written.
-pub fn untouched_zeros(len: u64) -> io::Result<memmap2::MmapMut> {
-    let len = usize::try_from(len).map_err(|_| io::Error::other("reservation too large"))?;
-    memmap2::MmapOptions::new().len(len.max(1)).map_anon()
+/// Zeros handed to the encoder for a hole: a zero-initialized static, so its pages
+/// are never touched (the hole skips them unread).
+static ZEROS: [u8; 1 << 20] = [0; 1 << 20];
+
+/// Passes `len` zero bytes to `write` (the encoder's `write_data`) in pieces and
+/// returns the offset of the first: with the [`Out`] below the encoder holding a
+/// hole of `len`, this advances the encoder's offset without reading or writing
+/// anything. Were the hole not set, the zeros would simply be written.
+pub fn reserve<E>(len: u64, mut write: impl FnMut(&[u8]) -> Result<u64, E>) -> Result<u64, E> {
+    let mut start = None;
+    let mut left = len;
+    loop {
+        let k = left.min(ZEROS.len() as u64) as usize;
+        let at = write(&ZEROS[..k])?;
+        start.get_or_insert(at);
+        left -= k as u64;
+        if left == 0 {
+            return Ok(start.unwrap_or(at));
+        }
+    }
 }
 
 #[cfg(test)]
@@ -139,33 +151,41 @@ mod tests {
 
     #[test]
     fn holes_are_skipped_and_filled_by_positioned_writes() {
+        // A hole of three pieces (the zeros are 1 MiB), then a tail.
+        const HOLE: u64 = (2 << 20) + 100_000;
+        const END: u64 = 4 + HOLE + 4;
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join("f.bin");
         let file = File::create(&path).unwrap();
         let mut o = Out::new(&file);
         o.write_all(b"head").unwrap();
         let hole = o.hole();
-        hole.set(100_000);
-        // Written in pieces, as the encoder does; none of it reaches the file.
-        for _ in 0..4 {
-            o.write_all(&[7u8; 25_000]).unwrap();
-        }
-        assert_eq!(hole.get(), 0);
+        hole.set(HOLE);
+        let mut pieces = 0;
+        let start = reserve(HOLE, |piece| {
+            pieces += 1;
+            let at = o.stream_position()?;
+            o.write_all(piece).map(|()| at)
+        })
+        .unwrap();
+        assert_eq!((start, hole.get(), pieces), (4, 0, 3));
         o.write_all(b"tail").unwrap();
-        assert_eq!(o.stream_position().unwrap(), 100_008);
+        assert_eq!(o.stream_position().unwrap(), END);
         o.seek(SeekFrom::Start(2)).unwrap();
         o.write_all(b"AD").unwrap();
         o.flush().unwrap();
+        // The hole filled at both ends from positioned writes; its middle reads 0.
         write_all_at(&file, &[1u8; 10], 4).unwrap();
-        write_all_at(&file, &[2u8; 10], 99_994).unwrap();
+        write_all_at(&file, &[2u8; 10], 4 + HOLE - 10).unwrap();
         drop(o);
         let mut got = Vec::new();
         File::open(&path).unwrap().read_to_end(&mut got).unwrap();
-        assert_eq!(got.len(), 100_008);
+        let (h, e) = ((4 + HOLE) as usize, END as usize);
+        assert_eq!(got.len(), e);
         assert_eq!(&got[..4], b"heAD");
         assert_eq!(&got[4..14], &[1u8; 10]);
-        assert!(got[14..99_994].iter().all(|&b| b == 0));
-        assert_eq!(&got[99_994..100_004], &[2u8; 10]);
-        assert_eq!(&got[100_004..], b"tail");
+        assert!(got[14..h - 10].iter().all(|&b| b == 0));
+        assert_eq!(&got[h - 10..h], &[2u8; 10]);
+        assert_eq!(&got[h..], b"tail");
     }
 }

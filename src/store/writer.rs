@@ -685,14 +685,13 @@ fn encode<K: TiffKind>(
         }
         if opts.compression == Compression::None {
             // Every tile is TILE_PIXELS samples: the level's tile data is reserved
-            // in one piece (tile t's band b at slot t * nb + b) and the tiles are
-            // encoded and written into it by the rayon pool, both cores copying.
+            // as one hole (tile t's band b at slot t * nb + b) and the tiles are
+            // encoded and written into it by the rayon pool.
             const BYTES: u64 = (TILE_PIXELS * 4) as u64;
             let jobs = filled * nb;
             let len = jobs as u64 * BYTES;
-            let zeros = out::untouched_zeros(len)?;
             hole.set(len);
-            let start = dir.write_data(&zeros[..len as usize])?;
+            let start = out::reserve(len, |piece| dir.write_data(piece))?;
             debug_assert_eq!(hole.get(), 0);
             let per_tile = groups(a);
             (0..filled * per_tile)
