@@ -131,8 +131,8 @@ fn band_name(raw: &str) -> String {
 }
 
 /// The bounds of the chunks' points, axis by axis over contiguous slices
-/// (vectorizes). `min`/`max` pass over NaN, which the positions pass then finds
-/// outside the bounds; an infinity shows in the bounds themselves and is an error.
+/// (vectorizes). `min`/`max` pass over NaN, which the builder then refuses as
+/// not finite; an infinity shows in the bounds themselves and is an error.
 fn scan_bounds(path: &Path, chunks: &[PointColumns]) -> Result<Bounds> {
     let stats: Vec<(f64, f64)> = (0..3)
         .into_par_iter()
