@@ -53,36 +53,6 @@ fn advise_huge<T>(v: &Vec<T>) {
 #[cfg(not(target_os = "linux"))]
 fn advise_huge<T>(_: &Vec<T>) {}
 
-/// The slices of `parts` one after another, copied into place in parallel.
-pub fn concat<T: Copy + Send + Sync>(parts: &[&[T]]) -> Vec<T> {
-    use rayon::prelude::*;
-    let total = parts.iter().map(|p| p.len()).sum();
-    let mut out: Vec<T> = with_capacity(total);
-    let mut dests = Vec::with_capacity(parts.len());
-    let mut rest = &mut out.spare_capacity_mut()[..total];
-    for p in parts {
-        let (a, b) = rest.split_at_mut(p.len());
-        dests.push(a);
-        rest = b;
-    }
-    dests
-        .into_par_iter()
-        .zip(parts.par_iter())
-        .for_each(|(d, s)| {
-            d.par_chunks_mut(1 << 18)
-                .zip(s.par_chunks(1 << 18))
-                .for_each(|(d, s)| {
-                    for (d, &v) in d.iter_mut().zip(s) {
-                        d.write(v);
-                    }
-                })
-        });
-    // SAFETY: the parts' lengths add up to `total` and each was copied into its
-    // own slots.
-    unsafe { out.set_len(total) };
-    out
-}
-
 /// How far ahead of a gather through an index list to prefetch: gathers of
 /// points in curve order from input order miss the cache on nearly every read,
 /// and prefetching the read this many steps ahead keeps a core's misses
@@ -168,16 +138,5 @@ mod tests {
         assert_eq!(v[2_999_999], 1.5);
         let w: Vec<u64> = super::with_capacity(10);
         assert!(w.capacity() >= 10 && w.is_empty());
-    }
-
-    #[test]
-    fn concat_keeps_order() {
-        let a: Vec<u32> = (0..300_000).collect();
-        let b: Vec<u32> = vec![7; 5];
-        let joined = super::concat(&[&a[..], &[], &b[..], &a[..1000]]);
-        assert_eq!(joined.len(), 301_005);
-        assert_eq!(&joined[..300_000], &a[..]);
-        assert_eq!(&joined[300_000..300_005], &b[..]);
-        assert_eq!(&joined[300_005..], &a[..1000]);
     }
 }

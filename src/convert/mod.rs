@@ -294,7 +294,7 @@ fn convert_with(
         {
             return Err(OriginTooFar.into());
         }
-        check_precision(&b.bounds(), b.origin(), parts.len(), o.allow_lossy)?;
+        check_precision(&bounds, origin, parts.len(), o.allow_lossy)?;
         let s = store::write_part_built(&part_path(parts.len()), b, &write_opts)?;
         record(s, parts);
         Ok(())

@@ -92,7 +92,6 @@ fn attribute_names(f: &las::point::Format) -> Vec<String> {
     v
 }
 
-/// The CRS of a LAS header: WKT, else `EPSG:<code>` from GeoTIFF keys.
 /// The header's bounds, when they are finite and not inverted.
 fn declared_bounds(header: &las::Header) -> Option<crate::points::Bounds> {
     let b = header.bounds();
@@ -101,6 +100,7 @@ fn declared_bounds(header: &las::Header) -> Option<crate::points::Bounds> {
     ok.then_some(crate::points::Bounds { min, max })
 }
 
+/// The CRS of a LAS header: WKT, else `EPSG:<code>` from GeoTIFF keys.
 fn crs_of(h: &las::Header) -> Option<String> {
     if let Some(w) = h.get_wkt_crs_bytes() {
         let s = String::from_utf8_lossy(w);

@@ -105,6 +105,7 @@ fn f64_at(r: &[u8], at: usize) -> f64 {
 
 /// The output slices of one window: x, y, z and the attributes in
 /// [`attribute_names`] order.
+///
 /// Columns are written, not read: their memory is not zeroed first (every slot
 /// is written, see the end of `decode_window`).
 struct Out<'a> {

@@ -20,8 +20,8 @@ pub struct PartBuilder {
     pub(super) rows: Vec<f32>,
     /// Attribute names and offsets, from the first chunk.
     pub(super) attributes: Vec<(String, f64)>,
-    /// Each attribute's smallest and largest stored value (NaN ignored; empty
-    /// until a point has attributes).
+    /// Each attribute's smallest and largest stored value (NaN ignored; one
+    /// entry per attribute once a chunk was pushed, even an empty one).
     pub(super) ranges: Vec<(f32, f32)>,
     /// Bounds of the points pushed so far, from their `f64` coordinates.
     pub(super) bounds: Bounds,
@@ -71,7 +71,7 @@ impl PartBuilder {
     /// is unchanged.
     pub fn push(&mut self, path: &Path, c: &PointColumns) -> Result<()> {
         c.check_lengths().map_err(|m| StoreError::new(path, m))?;
-        self.push_positions(path, c, &c.attributes)?;
+        self.push_positions(path, c)?;
         self.push_rows(&c.attributes, c.len());
         Ok(())
     }
@@ -81,16 +81,17 @@ impl PartBuilder {
     /// attribute rows are allocated after all coordinates are freed, so they reuse
     /// that memory. On an error nothing is appended.
     pub fn push_all(&mut self, path: &Path, chunks: Vec<PointColumns>) -> Result<()> {
-        let (len, first) = (self.pos.len(), self.attributes.clone());
+        let (len, first, bounds) = (self.pos.len(), self.attributes.clone(), self.bounds);
         let mut attrs: Vec<(Vec<Attribute>, usize)> = Vec::with_capacity(chunks.len());
         for mut c in chunks {
             let pushed = c
                 .check_lengths()
                 .map_err(|m| StoreError::new(path, m))
-                .and_then(|_| self.push_positions(path, &c, &c.attributes));
+                .and_then(|_| self.push_positions(path, &c));
             if let Err(e) = pushed {
                 self.pos.truncate(len);
                 self.attributes = first;
+                self.bounds = bounds;
                 return Err(e);
             }
             attrs.push((std::mem::take(&mut c.attributes), c.len()));
@@ -108,9 +109,14 @@ impl PartBuilder {
         Ok(())
     }
 
-    /// Appends the positions of `c` (whose attributes are `attrs`), checking them.
-    fn push_positions(&mut self, path: &Path, c: &PointColumns, attrs: &[Attribute]) -> Result<()> {
-        let this: Vec<(String, f64)> = attrs.iter().map(|a| (a.name.clone(), a.offset)).collect();
+    /// Appends the positions of `c`, checking them and its attributes' names and
+    /// offsets.
+    fn push_positions(&mut self, path: &Path, c: &PointColumns) -> Result<()> {
+        let this: Vec<(String, f64)> = c
+            .attributes
+            .iter()
+            .map(|a| (a.name.clone(), a.offset))
+            .collect();
         let first = self.is_empty() && self.attributes.is_empty();
         if !first && this != self.attributes {
             return Err(StoreError::new(

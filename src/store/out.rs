@@ -38,7 +38,7 @@ impl<'f> Out<'f> {
         self.file
     }
 
-    /// A handle that makes the next `len` bytes written a hole (see [`Reserved`]).
+    /// A handle that makes the next `len` bytes written a hole (see [`reserve`]).
     pub fn hole(&self) -> Rc<Cell<u64>> {
         self.skip.clone()
     }

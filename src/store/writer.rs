@@ -239,11 +239,7 @@ fn arrange(path: &Path, part: PartBuilder, layout: Layout, ph: &mut Phases) -> R
         perm,
         rows,
         m: attributes.len(),
-        ranges: if ranges.is_empty() {
-            vec![(f32::INFINITY, f32::NEG_INFINITY); attributes.len()]
-        } else {
-            ranges
-        },
+        ranges,
         names,
         offsets,
         origin,
