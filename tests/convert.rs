@@ -26,6 +26,7 @@ fn opts(output: PathBuf, memory: u64) -> ConvertOptions {
         read: ReadOptions::default(),
         allow_lossy: false,
         cancel: Arc::new(AtomicBool::new(false)),
+        sample_points: convert::DEFAULT_SAMPLE_POINTS,
     }
 }
 
@@ -148,6 +149,82 @@ fn budget_far_below_input_gives_spatial_parts_with_every_point() {
     }
     // No temporary files left beside the output.
     assert_eq!(entries(dir.path()), ["scan.pcimg", "scan.xyz"]);
+}
+
+/// Keeps the progress notes.
+#[derive(Default)]
+struct Notes(std::sync::Mutex<Vec<String>>);
+
+impl Progress for Notes {
+    fn phase(&self, _: &str, _: u64, _: &'static str) {}
+    fn advance(&self, _: u64, _: u64) {}
+    fn note(&self, msg: &str) {
+        self.0.lock().unwrap().push(msg.to_string());
+    }
+}
+
+/// A first pass that samples the input once it proves larger than one part
+/// (forced here with a small `sample_points`) still places regions that hold every
+/// point, within the budget and without overlap, for text and for LAS, in scan
+/// order (a periodic layout, the case where evenly spaced samples would alias).
+#[test]
+fn sampled_first_pass_keeps_every_point_within_budget() {
+    use pcimg::synth::Order;
+    let dir = tempfile::tempdir().unwrap();
+    let n = 600_000;
+    let text = dir.path().join("scan.xyz");
+    let las = dir.path().join("scan.las");
+    pcimg::synth::write_text_in_order(&text, n, 5, Order::Scan).unwrap();
+    pcimg::synth::write_las_in_order(&las, n, 5, Order::Scan).unwrap();
+    for input in [&text, &las] {
+        let whole = dir.path().join("whole.pcimg");
+        let sampled = dir.path().join("sampled.pcimg");
+        let s = convert::convert(input, &opts(whole.clone(), 64 << 20), &Quiet).unwrap();
+        let mut o = opts(sampled.clone(), 64 << 20);
+        o.sample_points = 20_000;
+        let notes = Notes::default();
+        let t = convert::convert(input, &o, &notes).unwrap();
+        // The sample was taken (the region count is then an estimate).
+        let notes = notes.0.into_inner().unwrap();
+        assert!(
+            notes
+                .iter()
+                .any(|l| l.starts_with("about ") && l.contains("regions")),
+            "{notes:?}"
+        );
+        assert_eq!((s.points, t.points), (n, n), "{}", input.display());
+        assert!(t.parts.iter().all(|p| p.points <= t.points_per_part));
+        assert!(t.parts.len() >= 4, "{} parts", t.parts.len());
+        // The same points, only grouped differently.
+        assert_eq!(dataset_points(&sampled), dataset_points(&whole));
+        let ds = Dataset::open(&sampled).unwrap();
+        for (i, a) in ds.parts.iter().enumerate() {
+            for b in &ds.parts[i + 1..] {
+                let (a, b) = (a.meta.bounds, b.meta.bounds);
+                assert!(
+                    (0..3).any(|k| a.max[k] <= b.min[k] || b.max[k] <= a.min[k]),
+                    "parts overlap: {a:?} {b:?}"
+                );
+            }
+        }
+        std::fs::remove_dir_all(&whole).unwrap();
+        std::fs::remove_dir_all(&sampled).unwrap();
+    }
+    // A malformed line the sample may skip is still reported, with its number,
+    // by the pass that reads every line.
+    let mut bytes = std::fs::read(&text).unwrap();
+    let cut = bytes.len() * 9 / 10;
+    let at = cut + bytes[cut..].iter().position(|&c| c == b'\n').unwrap() + 1;
+    let line = bytes[..at].iter().filter(|&&c| c == b'\n').count() + 1;
+    bytes.splice(at..at, b"1 2 oops 4\n".iter().copied());
+    std::fs::write(&text, &bytes).unwrap();
+    let mut o = opts(dir.path().join("bad.pcimg"), 64 << 20);
+    o.sample_points = 20_000;
+    let e = convert::convert(&text, &o, &Quiet).unwrap_err().to_string();
+    assert!(e.contains(&format!("line {line}")), "{e}");
+    o.read.skip_invalid = true;
+    let t = convert::convert(&text, &o, &Quiet).unwrap();
+    assert_eq!((t.points, t.skipped), (n, 1));
 }
 
 #[test]

@@ -256,3 +256,55 @@ mod random_bytes {
         }
     }
 }
+
+/// After `sample_rest(every)`, text and LAS readers deliver about one point in
+/// `every` of the rest, each a point of the file, whole (a line parsed from its
+/// start, a record from its first byte), spread over the whole rest of the file.
+#[test]
+fn sampling_reads_an_even_subset_of_whole_points() {
+    use pcimg::synth::Order;
+    let dir = tempfile::tempdir().unwrap();
+    let n = 400_000u64;
+    let text = dir.path().join("s.xyz");
+    let las = dir.path().join("s.las");
+    pcimg::synth::write_text_in_order(&text, n, 9, Order::Scan).unwrap();
+    pcimg::synth::write_las_in_order(&las, n, 9, Order::Scan).unwrap();
+    for path in [&text, &las] {
+        let opts = ReadOptions {
+            chunk_points: 20_000,
+            ..Default::default()
+        };
+        let (_, all, _) = ingest::read_all(path, &opts).unwrap();
+        let key = |p: &PointColumns, i: usize| [p.x[i], p.y[i], p.z[i]].map(f64::to_bits);
+        let index: std::collections::HashMap<[u64; 3], usize> =
+            (0..all.len()).map(|i| (key(&all, i), i)).collect();
+        let mut r = ingest::open(path, &opts).unwrap();
+        let head = r.next_chunk().unwrap().unwrap().len();
+        assert!(r.sample_rest(8), "{}", path.display());
+        let mut got = Vec::new();
+        while let Some(c) = r.next_chunk().unwrap() {
+            for i in 0..c.len() {
+                let k = index.get(&key(&c, i));
+                assert!(k.is_some(), "{}: not a point of the file", path.display());
+                got.push(*k.unwrap_or(&0));
+            }
+        }
+        assert_eq!(r.bytes_done(), std::fs::metadata(path).unwrap().len());
+        let rest = n as usize - head;
+        let frac = got.len() as f64 / rest as f64;
+        assert!((0.10..0.15).contains(&frac), "{}: {frac}", path.display());
+        // In file order, and every tenth of the rest holds its share (within
+        // one LAS window of 1024 records: about 4.7 windows a tenth here).
+        assert!(got.windows(2).all(|w| w[0] < w[1]));
+        let mut tenths = [0usize; 10];
+        for &i in &got {
+            tenths[(i - head) * 10 / rest] += 1;
+        }
+        let mean = got.len() as f64 / 10.0;
+        assert!(
+            tenths.iter().all(|&t| (t as f64 - mean).abs() < 0.3 * mean),
+            "{}: {tenths:?}",
+            path.display()
+        );
+    }
+}

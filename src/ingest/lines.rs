@@ -449,6 +449,9 @@ pub(crate) struct LineEngine {
     /// Points parsed beyond `chunk_points` in the last window, as chunks of
     /// `chunk_points`, delivered next.
     pub pending: std::collections::VecDeque<PointColumns>,
+    /// Sampling (text only, see [`LineEngine::sample_rest`]): each window is read
+    /// from pieces spread over a stretch this many times its size.
+    pub sample: Option<u64>,
 }
 
 /// Cuts `cols` into chunks of at most `n` points (`n` ≥ 1), in order, copying
@@ -478,10 +481,83 @@ fn cut_chunks(mut cols: PointColumns, n: usize) -> Vec<PointColumns> {
 }
 
 impl LineEngine {
+    /// From here on, parse only about one line in `every`: each window is made of
+    /// pieces spread evenly over a stretch `every` windows long, their malformed
+    /// lines skipped (a full pass that follows reports them; line numbers are not
+    /// kept from here on). Returns false, changing nothing, for a PLY vertex
+    /// section, whose end is found by counting lines.
+    pub(crate) fn sample_rest(&mut self, every: u64) -> bool {
+        if self.lines_left.is_some() || every < 2 {
+            return false;
+        }
+        self.sample = Some(every);
+        true
+    }
+
+    /// One sampled window (see [`LineEngine::sample_rest`]) from `pos`.
+    fn next_sampled(
+        &mut self,
+        data: &[u8],
+        end: usize,
+        every: u64,
+    ) -> Result<Option<PointColumns>, IngestError> {
+        let line_end = |at: usize| -> usize {
+            if at >= end {
+                return end;
+            }
+            match memchr::memchr(b'\n', &data[at..end]) {
+                Some(k) => at + k + 1,
+                None => end,
+            }
+        };
+        while self.pos < end {
+            let target = ((self.chunk_points as f64) * self.bytes_per_line).clamp(1.0, 1e15);
+            let stretch_end = line_end(self.pos.saturating_add((target * every as f64) as usize));
+            let stretch = stretch_end - self.pos;
+            // Many small pieces, each at a random place in its slot of the stretch.
+            let pieces = (rayon::current_num_threads().max(1) * 32).min(stretch.div_ceil(4096));
+            let slot = stretch / pieces;
+            let piece_len = (slot / every as usize).max(1);
+            let mut ranges: Vec<&[u8]> = Vec::with_capacity(pieces);
+            let mut prev = self.pos;
+            for j in 0..pieces {
+                let jitter = super::mix((self.pos + j) as u64) as usize % (slot - piece_len + 1);
+                let guess = self.pos + slot * j + jitter;
+                // Each piece starts at a line start and ends at a line end, after
+                // the previous piece.
+                let start = if guess == self.pos {
+                    self.pos
+                } else {
+                    line_end(guess - 1)
+                }
+                .max(prev);
+                let stop = line_end(start + piece_len - 1).min(stretch_end);
+                if stop > start {
+                    ranges.push(&data[start..stop]);
+                    prev = stop;
+                }
+            }
+            let parsed: usize = ranges.iter().map(|r| r.len()).sum();
+            let (cols, lines, _) = self.parse_ranges(&ranges, true)?;
+            self.pos = stretch_end;
+            if lines > 0 {
+                self.bytes_per_line = (parsed as f64 / lines as f64).max(1.0);
+            }
+            if let Some(mut cols) = cols {
+                self.colors.apply(&mut cols);
+                return Ok(Some(cols));
+            }
+        }
+        Ok(None)
+    }
+
     pub(crate) fn next_chunk(&mut self, data: &[u8]) -> Result<Option<PointColumns>, IngestError> {
         let end = self.end.min(data.len());
         if let Some(p) = self.pending.pop_front() {
             return Ok(Some(p));
+        }
+        if let Some(every) = self.sample {
+            return self.next_sampled(data, end, every);
         }
         loop {
             if self.lines_left == Some(0) {
@@ -561,9 +637,20 @@ impl LineEngine {
             }
         }
         bounds.push(w.len());
-        let layout = &self.layout;
-        let (skip, count) = (self.skip_invalid, self.allow_count_lines);
         let ranges: Vec<&[u8]> = bounds.windows(2).map(|b| &w[b[0]..b[1]]).collect();
+        self.parse_ranges(&ranges, self.skip_invalid)
+    }
+
+    /// Parses `ranges` (each whole lines, in order, the first starting at line
+    /// `self.line`) in parallel into one set of columns: (points or None if there
+    /// were none, lines consumed, lines skipped).
+    fn parse_ranges(
+        &self,
+        ranges: &[&[u8]],
+        skip: bool,
+    ) -> Result<(Option<PointColumns>, u64, u64), IngestError> {
+        let layout = &self.layout;
+        let count = self.allow_count_lines;
         // A slot per line, so the pieces parse straight into the window's columns.
         let slots: Vec<usize> = ranges.par_iter().map(|r| count_lines(r)).collect();
         let total_slots: usize = slots.iter().sum();
@@ -603,12 +690,11 @@ impl LineEngine {
         let mut skipped = 0u64;
         for (k, p) in pieces.iter().enumerate() {
             if let Some((idx, fault, s, e)) = p.error {
-                let base = bounds[k];
                 return Err(IngestError::line(
                     &self.path,
                     self.line + lines + idx,
                     fault.message(layout.ncols()),
-                    &w[base + s..base + e],
+                    &ranges[k][s..e],
                 ));
             }
             lines += p.lines;
@@ -676,6 +762,10 @@ impl super::PointReader for LineReader {
 
     fn skipped(&self) -> u64 {
         self.engine.skipped
+    }
+
+    fn sample_rest(&mut self, every: u64) -> bool {
+        self.engine.sample_rest(every)
     }
 }
 

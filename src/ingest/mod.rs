@@ -92,6 +92,25 @@ pub trait PointReader: Send {
     fn bytes_done(&self) -> u64;
     /// Number of malformed lines skipped so far (with `skip_invalid`).
     fn skipped(&self) -> u64;
+    /// For a pass that only estimates where the points lie: from here on deliver
+    /// about one point in `every`, read as pieces spread evenly over the rest of
+    /// the input. Malformed records in those pieces may be skipped silently (a
+    /// full pass is expected to follow and report them). Returns whether the
+    /// reader samples; one that cannot skip cheaply goes on delivering every point.
+    fn sample_rest(&mut self, every: u64) -> bool {
+        let _ = every;
+        false
+    }
+}
+
+/// A well-mixed hash of `v` (splitmix64's finalizer): the jitter that places a
+/// sampling reader's pieces, so that a periodic layout (scan lines) cannot alias
+/// with evenly spaced pieces. Deterministic, so a conversion repeats exactly.
+pub(crate) fn mix(mut v: u64) -> u64 {
+    v = v.wrapping_add(0x9e37_79b9_7f4a_7c15);
+    v = (v ^ (v >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+    v = (v ^ (v >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
+    v ^ (v >> 31)
 }
 
 /// The input formats.

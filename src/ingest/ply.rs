@@ -371,6 +371,7 @@ pub fn open(path: &Path, opts: &ReadOptions) -> Result<Box<dyn PointReader>, Ing
             skipped: 0,
             colors: ColorNormalizer::new(plan.float_color),
             pending: Default::default(),
+            sample: None,
         };
         return Ok(Box::new(LineReader::new(info, map, engine)));
     }

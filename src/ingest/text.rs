@@ -218,6 +218,7 @@ impl TextReader {
             skipped: 0,
             colors: ColorNormalizer::new(false),
             pending: Default::default(),
+            sample: None,
         };
         let info = SourceInfo {
             path: path.to_path_buf(),
