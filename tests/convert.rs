@@ -227,6 +227,49 @@ fn sampled_first_pass_keeps_every_point_within_budget() {
     assert_eq!((t.points, t.skipped), (n, 1));
 }
 
+/// Regions the sample underestimates are split again, exactly, before they are
+/// written; a spot denser than any grid resolves (here 250,000 copies of one
+/// point) becomes parts in file order. No part exceeds the budget and every
+/// point is stored once.
+#[test]
+fn underestimated_regions_are_split_within_budget() {
+    let dir = tempfile::tempdir().unwrap();
+    let input = dir.path().join("dense.xyz");
+    pcimg::synth::write_text(&input, 400_000, 7).unwrap();
+    let mut text = std::fs::read(&input).unwrap();
+    for _ in 0..250_000 {
+        text.extend_from_slice(b"100.5 200.25 30.125 7\n");
+    }
+    std::fs::write(&input, &text).unwrap();
+    let out = dir.path().join("dense.pcimg");
+    let mut o = opts(out.clone(), 64 << 20);
+    // A tiny sample: its region estimates are far off.
+    o.sample_points = 2_000;
+    let s = convert::convert(&input, &o, &Quiet).unwrap();
+    assert_eq!(s.points, 650_000);
+    assert!(
+        s.phases.iter().any(|(name, _)| name == "split"),
+        "{:?}",
+        s.phases
+    );
+    assert!(s.parts.iter().all(|p| p.points <= s.points_per_part));
+    assert_eq!(s.parts.iter().map(|p| p.points).sum::<u64>(), 650_000);
+    let (_, all, _) = pcimg::ingest::read_all(&input, &ReadOptions::default()).unwrap();
+    let mut want: Vec<[i64; 3]> = (0..all.len())
+        .map(|i| [all.x[i], all.y[i], all.z[i]].map(|v| (v * 1e4).round() as i64))
+        .collect();
+    want.sort();
+    let got = dataset_points(&out);
+    assert_eq!(got.len(), want.len());
+    let off = got
+        .iter()
+        .zip(&want)
+        .filter(|(a, b)| (0..3).any(|k| (a[k] - b[k]).abs() > 1))
+        .count();
+    assert_eq!(off, 0, "points differ beyond 0.1 mm");
+    assert_eq!(entries(dir.path()), ["dense.pcimg", "dense.xyz"]);
+}
+
 #[test]
 fn stream_partition_keeps_file_order() {
     let dir = tempfile::tempdir().unwrap();

@@ -477,33 +477,80 @@ fn convert_with(
                     &tmp.path,
                 )?;
                 pass("partition", t_partition);
-                total = files.iter().map(|f| f.1).sum();
-                // Pass 3: each region becomes one part (or several, if the sample
-                // underestimated it).
+                total = files.iter().map(|f| f.points).sum();
+                // Pass 3: each region becomes one part, streamed from its file into
+                // a store builder around the centre of its exact bounds. A region
+                // the sample underestimated is first split again, exactly, by a
+                // count grid over its own points; a grid cell that alone holds more
+                // than a part (points denser than the grid resolves) becomes
+                // parts in file order. Either way no part exceeds the budget.
                 progress.phase("write", total, "points");
                 let mut done = 0u64;
-                for (path, n) in files {
+                let mut splits = 0usize;
+                let nattr = like.attributes.len();
+                let mut stack: Vec<(Spilled, bool)> =
+                    files.into_iter().rev().map(|f| (f, false)).collect();
+                while let Some((f, split)) = stack.pop() {
                     check_cancel(o)?;
-                    if n == 0 {
+                    if f.points == 0 {
+                        let _ = std::fs::remove_file(&f.path);
                         continue;
                     }
-                    let t_back = begin();
-                    let pts = spill::read_back(&path, &like)?;
-                    let _ = std::fs::remove_file(&path);
-                    pass("read back", t_back);
-                    if pts.len() as u64 <= per_part {
-                        write(pts, &mut parts)?;
+                    let mut blocks = spill::SpillReader::open(&f.path, nattr)?;
+                    let new_part = || {
+                        let n = f.points.min(per_part) as usize;
+                        store::PartBuilder::new(f.bounds.center(), Some(f.bounds), n)
+                    };
+                    if f.points <= per_part {
+                        let t_back = begin();
+                        let mut b = new_part();
+                        while let Some(c) = blocks.next_block(&like, usize::MAX)? {
+                            b.push(&part_path(parts.len()), &c)?;
+                        }
+                        drop(blocks);
+                        let _ = std::fs::remove_file(&f.path);
+                        pass("read back", t_back);
+                        write_built(b, &mut parts)?;
+                    } else if !split {
+                        let t_split = begin();
+                        let mut grid = CountGrid::new(f.bounds);
+                        while let Some(c) = blocks.next_block(&like, usize::MAX)? {
+                            for i in 0..c.len() {
+                                grid.add([c.x[i], c.y[i], c.z[i]]);
+                            }
+                        }
+                        let subs = partition::split(&grid, per_part);
+                        let map = partition::cell_regions(&grid, &subs);
+                        let mut blocks = spill::SpillReader::open(&f.path, nattr)?;
+                        splits += 1;
+                        let tag = format!("split{splits}");
+                        let pieces = spill_all(o, &grid, &subs, &map, &tmp.path, &tag, |sink| {
+                            while let Some(c) = blocks.next_block(&like, usize::MAX)? {
+                                sink(c)?;
+                            }
+                            Ok(())
+                        })?;
+                        drop(blocks);
+                        let _ = std::fs::remove_file(&f.path);
+                        pass("split", t_split);
+                        stack.extend(pieces.into_iter().rev().map(|p| (p, true)));
+                        continue;
                     } else {
-                        let mut from = 0usize;
-                        while from < pts.len() {
-                            let to = (from + per_part as usize).min(pts.len());
-                            let mut piece = pts.empty_like();
-                            piece.append_range(&pts, from, to);
-                            write(piece, &mut parts)?;
-                            from = to;
+                        let mut b = new_part();
+                        let room = |b: &store::PartBuilder| per_part as usize - b.len();
+                        while let Some(c) = blocks.next_block(&like, room(&b))? {
+                            b.push(&part_path(parts.len()), &c)?;
+                            if room(&b) == 0 {
+                                write_built(std::mem::replace(&mut b, new_part()), &mut parts)?;
+                            }
+                        }
+                        drop(blocks);
+                        let _ = std::fs::remove_file(&f.path);
+                        if !b.is_empty() {
+                            write_built(b, &mut parts)?;
                         }
                     }
-                    done += n;
+                    done += f.points;
                     progress.advance(done, done);
                 }
             }
@@ -595,8 +642,15 @@ fn check_precision(b: &Bounds, origin: [f64; 3], part: usize, allow_lossy: bool)
     Ok(())
 }
 
+/// A temporary region file: its path, points and their bounds.
+struct Spilled {
+    path: PathBuf,
+    points: u64,
+    bounds: Bounds,
+}
+
 /// Pass 2 of spatial partitioning: re-reads the input and appends every point to
-/// its region's temporary file. Returns each region's file and point count.
+/// its region's temporary file. Returns each region's file, point count and bounds.
 #[allow(clippy::too_many_arguments)]
 fn distribute(
     reader: &mut Box<dyn PointReader>,
@@ -609,7 +663,7 @@ fn distribute(
     cell_region: &[u32],
     like: &PointColumns,
     dir: &Path,
-) -> Result<Vec<(PathBuf, u64)>> {
+) -> Result<Vec<Spilled>> {
     if like.attributes.len() > spill::MAX_ATTRIBUTES {
         anyhow::bail!(
             "{}: {} attributes; pcimg stores at most {}",
@@ -620,43 +674,95 @@ fn distribute(
     }
     *reader = ingest::open(input, read)?;
     progress.phase("partition", reader.info().file_bytes, "bytes");
+    let mut seen = 0u64;
+    let reader = &mut **reader;
+    spill_all(o, grid, regions, cell_region, dir, "region", |sink| {
+        while let Some(mut chunk) = reader.next_chunk()? {
+            check_cancel(o)?;
+            normalize(&mut chunk, like);
+            seen += chunk.len() as u64;
+            sink(chunk)?;
+            progress.advance(reader.bytes_done(), seen);
+        }
+        Ok(())
+    })
+}
+
+/// Appends the chunks that `feed` passes to its sink to one temporary file per
+/// region (named `<tag>-<region>.bin` in `dir`), by grid cell. The files are
+/// written on a thread of their own while `feed` reads the next chunk (one chunk
+/// of records in flight).
+fn spill_all(
+    o: &ConvertOptions,
+    grid: &CountGrid,
+    regions: &[Region],
+    cell_region: &[u32],
+    dir: &Path,
+    tag: &str,
+    feed: impl FnOnce(&mut dyn FnMut(PointColumns) -> Result<()>) -> Result<()>,
+) -> Result<Vec<Spilled>> {
     // A quarter of the budget for write buffers, shared by the regions.
     let buffer = (o.memory / 4 / regions.len().max(1) as u64).clamp(64 << 10, 8 << 20) as usize;
     let mut writers: Vec<spill::SpillWriter> = (0..regions.len())
-        .map(|r| spill::SpillWriter::create(dir.join(format!("region-{r:05}.bin")), buffer))
+        .map(|r| spill::SpillWriter::create(dir.join(format!("{tag}-{r:05}.bin")), buffer))
         .collect::<std::io::Result<_>>()?;
-    let mut seen = 0u64;
-    while let Some(mut chunk) = reader.next_chunk()? {
-        check_cancel(o)?;
-        normalize(&mut chunk, like);
-        let ids: Vec<u32> = (0..chunk.len())
-            .into_par_iter()
-            .with_min_len(1 << 14)
-            .map(|i| {
-                let c = grid.cell([chunk.x[i], chunk.y[i], chunk.z[i]]);
-                match cell_region[grid.index(c)] {
-                    // A cell the sample never saw belongs to the nearest region.
-                    u32::MAX => nearest_region(regions, c) as u32,
-                    r => r,
+    let mut bounds = vec![Bounds::EMPTY; regions.len()];
+    let (send, recv) = std::sync::mpsc::sync_channel::<(Vec<u8>, Vec<usize>, usize)>(1);
+    std::thread::scope(|scope| -> Result<Vec<Spilled>> {
+        let writer = scope.spawn(move || -> std::io::Result<Vec<spill::SpillWriter>> {
+            for (records, starts, rs) in recv {
+                for (r, w) in writers.iter_mut().enumerate() {
+                    let (a, b) = (starts[r], starts[r + 1]);
+                    if b > a {
+                        w.push_records(&records[a * rs..b * rs], (b - a) as u64)?;
+                    }
                 }
-            })
-            .collect();
-        // Records grouped by region in parallel, then appended region by region.
-        let (records, starts) = spill::records_by_region(&chunk, &ids, regions.len());
-        let rs = spill::record_size(chunk.attributes.len());
-        for (r, w) in writers.iter_mut().enumerate() {
-            let (a, b) = (starts[r], starts[r + 1]);
-            if b > a {
-                w.push_records(&records[a * rs..b * rs], (b - a) as u64)?;
             }
-        }
-        seen += chunk.len() as u64;
-        progress.advance(reader.bytes_done(), seen);
-    }
-    writers
-        .into_iter()
-        .map(|w| w.finish().map_err(anyhow::Error::from))
-        .collect()
+            Ok(writers)
+        });
+        let fed = feed(&mut |chunk: PointColumns| -> Result<()> {
+            let ids: Vec<u32> = (0..chunk.len())
+                .into_par_iter()
+                .with_min_len(1 << 14)
+                .map(|i| {
+                    let c = grid.cell([chunk.x[i], chunk.y[i], chunk.z[i]]);
+                    match cell_region[grid.index(c)] {
+                        // A cell the sample never saw belongs to the nearest region.
+                        u32::MAX => nearest_region(regions, c) as u32,
+                        r => r,
+                    }
+                })
+                .collect();
+            // Records grouped by region in parallel, then appended region by region.
+            let (records, starts, boxes) = spill::records_by_region(&chunk, &ids, regions.len());
+            for (b, x) in bounds.iter_mut().zip(&boxes) {
+                *b = b.union(x);
+            }
+            let rs = spill::record_size(chunk.attributes.len());
+            // A send fails only when the writer stopped on an error (reported
+            // when it is joined below).
+            send.send((records, starts, rs))
+                .map_err(|_| anyhow::anyhow!("writing the temporary files stopped"))
+        });
+        // The writer ends once the last records are sent.
+        drop(send);
+        let writers = writer
+            .join()
+            .map_err(|_| anyhow::anyhow!("the temporary file writer panicked"))??;
+        fed?;
+        writers
+            .into_iter()
+            .zip(&bounds)
+            .map(|(w, b)| {
+                let (path, points) = w.finish()?;
+                Ok(Spilled {
+                    path,
+                    points,
+                    bounds: *b,
+                })
+            })
+            .collect()
+    })
 }
 
 /// The region whose box is nearest to cell `c` (for cells the sample missed).

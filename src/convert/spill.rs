@@ -1,9 +1,9 @@
 //! Temporary per-region files of the spatial partitioning: points appended in input
-//! order as fixed-size records (f64 x y z, then f32 attributes), read back whole
-//! when the region becomes a part. The directory holding them is removed on drop:
+//! order as fixed-size records (f64 x y z, then f32 attributes), read back a block
+//! at a time when the region becomes a part. The directory holding them is removed on drop:
 //! on success, on error, and when Ctrl-C unwinds the conversion.
 
-use crate::points::{Attribute, PointColumns};
+use crate::points::{Attribute, Bounds, PointColumns};
 use rayon::prelude::*;
 use std::fs::File;
 use std::io::{BufWriter, Write};
@@ -73,13 +73,14 @@ impl SpillWriter {
 }
 
 /// The records of `c`'s points grouped by region (`region[i]` < `regions`), in
-/// input order within each region, encoded in parallel (a counting sort); and
-/// where each region's records start (in records; `regions + 1` entries).
+/// input order within each region, encoded in parallel (a counting sort); where
+/// each region's records start (in records; `regions + 1` entries); and the
+/// bounds of each region's points in `c`.
 pub fn records_by_region(
     c: &PointColumns,
     region: &[u32],
     regions: usize,
-) -> (Vec<u8>, Vec<usize>) {
+) -> (Vec<u8>, Vec<usize>, Vec<Bounds>) {
     let n = c.len();
     let rs = record_size(c.attributes.len());
     let piece = n.div_ceil(rayon::current_num_threads() * 4).max(1 << 14);
@@ -87,15 +88,17 @@ pub fn records_by_region(
     let (mut starts, bounds) = crate::bigvec::scatter_plan(region, piece, regions, |&r| r as usize);
     let mut out: Vec<u8> = crate::bigvec::with_capacity(n * rs);
     let dst = crate::bigvec::Shared(out.as_mut_ptr());
-    region
+    let boxes = region
         .par_chunks(piece)
         .zip(starts.par_iter_mut())
         .enumerate()
-        .for_each(|(p, (ids, fill))| {
+        .map(|(p, (ids, fill))| {
+            let mut boxes = vec![Bounds::EMPTY; regions];
             for (j, &r) in ids.iter().enumerate() {
                 let i = p * piece + j;
                 let slot = fill[r as usize];
                 fill[r as usize] += 1;
+                boxes[r as usize].extend([c.x[i], c.y[i], c.z[i]]);
                 // SAFETY: piece p owns record slots starts[p][r].. of region r,
                 // counted by its own histogram, so no two pieces write the same
                 // bytes, and the n slots lie inside `out`'s capacity.
@@ -107,28 +110,76 @@ pub fn records_by_region(
                     rec[24 + 4 * k..28 + 4 * k].copy_from_slice(&a.values[i].to_le_bytes());
                 }
             }
-        });
+            boxes
+        })
+        .reduce(
+            || vec![Bounds::EMPTY; regions],
+            |a, b| a.iter().zip(&b).map(|(a, b)| a.union(b)).collect(),
+        );
     // SAFETY: every one of the n records was written above.
     unsafe { out.set_len(n * rs) };
-    (out, bounds)
+    (out, bounds, boxes)
 }
 
 /// Most attribute columns a spill record carries.
 pub const MAX_ATTRIBUTES: usize = 64;
 
-/// Reads a region file back into columns, with the attribute names and offsets of
-/// `like`.
-pub fn read_back(path: &Path, like: &PointColumns) -> std::io::Result<PointColumns> {
-    let na = like.attributes.len();
-    let rs = record_size(na);
-    let bytes = std::fs::read(path)?;
-    if bytes.len() % rs != 0 {
-        return Err(std::io::Error::other(format!(
-            "temporary file {} has a partial record",
-            path.display()
-        )));
+/// Reads a region file back a block of records at a time.
+pub struct SpillReader {
+    path: PathBuf,
+    file: File,
+    rs: usize,
+    buf: Vec<u8>,
+}
+
+impl SpillReader {
+    pub fn open(path: &Path, attributes: usize) -> std::io::Result<SpillReader> {
+        Ok(SpillReader {
+            path: path.to_path_buf(),
+            file: File::open(path)?,
+            rs: record_size(attributes),
+            buf: Vec::new(),
+        })
     }
-    let n = bytes.len() / rs;
+
+    /// The next block of at most `max` points (`None` at the end), with the
+    /// attribute names and offsets of `like`.
+    pub fn next_block(
+        &mut self,
+        like: &PointColumns,
+        max: usize,
+    ) -> std::io::Result<Option<PointColumns>> {
+        use std::io::Read;
+        let want = max.min(BLOCK_BYTES / self.rs).max(1) * self.rs;
+        self.buf.resize(want, 0);
+        let mut got = 0;
+        while got < want {
+            match self.file.read(&mut self.buf[got..]) {
+                Ok(0) => break,
+                Ok(k) => got += k,
+                Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
+                Err(e) => return Err(e),
+            }
+        }
+        if got % self.rs != 0 {
+            return Err(std::io::Error::other(format!(
+                "temporary file {} has a partial record",
+                self.path.display()
+            )));
+        }
+        if got == 0 {
+            return Ok(None);
+        }
+        Ok(Some(decode(&self.buf[..got], self.rs, like)))
+    }
+}
+
+/// Bytes of records a [`SpillReader`] block holds at most (cache-sized, so the
+/// columns decoded from them are still in cache when the caller uses them).
+const BLOCK_BYTES: usize = 4 << 20;
+
+/// Decodes whole records into columns named and offset like `like`'s.
+fn decode(bytes: &[u8], rs: usize, like: &PointColumns) -> PointColumns {
     let f64_at = |r: &[u8], o: usize| {
         f64::from_le_bytes([
             r[o],
@@ -141,33 +192,27 @@ pub fn read_back(path: &Path, like: &PointColumns) -> std::io::Result<PointColum
             r[o + 7],
         ])
     };
-    let recs = || bytes.par_chunks_exact(rs);
-    let x = recs().map(|r| f64_at(r, 0)).collect();
-    let y = recs().map(|r| f64_at(r, 8)).collect();
-    let z = recs().map(|r| f64_at(r, 16)).collect();
-    let attributes = like
-        .attributes
-        .iter()
-        .enumerate()
-        .map(|(k, a)| Attribute {
-            name: a.name.clone(),
-            offset: a.offset,
-            values: recs()
-                .map(|r| {
-                    let o = 24 + 4 * k;
-                    f32::from_le_bytes([r[o], r[o + 1], r[o + 2], r[o + 3]])
-                })
-                .collect(),
-        })
-        .collect();
-    let c = PointColumns {
-        x,
-        y,
-        z,
-        attributes,
-    };
-    debug_assert_eq!(c.len(), n);
-    Ok(c)
+    let recs = || bytes.par_chunks_exact(rs).with_min_len(1 << 13);
+    PointColumns {
+        x: recs().map(|r| f64_at(r, 0)).collect(),
+        y: recs().map(|r| f64_at(r, 8)).collect(),
+        z: recs().map(|r| f64_at(r, 16)).collect(),
+        attributes: like
+            .attributes
+            .iter()
+            .enumerate()
+            .map(|(k, a)| Attribute {
+                name: a.name.clone(),
+                offset: a.offset,
+                values: recs()
+                    .map(|r| {
+                        let o = 24 + 4 * k;
+                        f32::from_le_bytes([r[o], r[o + 1], r[o + 2], r[o + 3]])
+                    })
+                    .collect(),
+            })
+            .collect(),
+    }
 }
 
 #[cfg(test)]
@@ -183,7 +228,7 @@ mod tests {
         let ids: Vec<u32> = (0..c.len())
             .map(|i| ((i * 7 + i / 1000) % regions) as u32)
             .collect();
-        let (recs, starts) = records_by_region(&c, &ids, regions);
+        let (recs, starts, boxes) = records_by_region(&c, &ids, regions);
         let rs = record_size(c.attributes.len());
         assert_eq!(recs.len(), c.len() * rs);
         assert_eq!((starts[0], starts[regions]), (0, c.len()));
@@ -194,9 +239,20 @@ mod tests {
             w.push_records(&recs[a * rs..b * rs], (b - a) as u64)
                 .unwrap();
             let (path, n) = w.finish().unwrap();
-            let back = read_back(&path, &c).unwrap();
+            // Read back in blocks of at most 1000 points.
+            let mut blocks = SpillReader::open(&path, c.attributes.len()).unwrap();
+            let mut back = c.empty_like();
+            while let Some(b) = blocks.next_block(&c, 1000).unwrap() {
+                assert!(!b.is_empty() && b.len() <= 1000);
+                back.append_range(&b, 0, b.len());
+            }
             let mine: Vec<usize> = (0..c.len()).filter(|&i| ids[i] as usize == r).collect();
             assert_eq!(n as usize, mine.len());
+            let mut b = Bounds::EMPTY;
+            for &i in &mine {
+                b.extend([c.x[i], c.y[i], c.z[i]]);
+            }
+            assert_eq!(boxes[r], b);
             for (j, &i) in mine.iter().enumerate() {
                 assert_eq!([back.x[j], back.y[j], back.z[j]], [c.x[i], c.y[i], c.z[i]]);
                 for (ba, ca) in back.attributes.iter().zip(&c.attributes) {
