@@ -270,6 +270,55 @@ fn underestimated_regions_are_split_within_budget() {
     assert_eq!(entries(dir.path()), ["dense.pcimg", "dense.xyz"]);
 }
 
+/// A point the sample missed, 20 km beyond the rest, lands in an edge region whose
+/// box centre f32 cannot hold them to 1 mm from: the regions are spilled again
+/// around their own centres, and every point is stored within 1 mm.
+#[test]
+fn points_far_outside_the_sample_are_kept_to_a_millimetre() {
+    use std::fmt::Write as _;
+    let dir = tempfile::tempdir().unwrap();
+    let input = dir.path().join("far.xyz");
+    let mut text = String::new();
+    let n = 300_000;
+    for i in 0..n {
+        let (x, y) = ((i % 547) as f64 * 0.183, (i / 547) as f64 * 0.182);
+        writeln!(text, "{x:.3} {y:.3} {:.3} 1", (i % 7) as f64 * 0.1).unwrap();
+    }
+    // The last line, which no sampled piece reaches here.
+    text.push_str("20000.125 50.5 1.5 9\n");
+    std::fs::write(&input, &text).unwrap();
+    let out = dir.path().join("far.pcimg");
+    let mut o = opts(out.clone(), 64 << 20);
+    o.sample_points = 1;
+    let notes = Notes::default();
+    let s = convert::convert(&input, &o, &notes).unwrap();
+    let notes = notes.0.into_inner().unwrap();
+    assert!(
+        notes.iter().any(|l| l.contains("partitioning again")),
+        "{notes:?}"
+    );
+    assert_eq!(s.points, n + 1);
+    assert!(
+        s.max_quantization_error < 1e-3,
+        "{}",
+        s.max_quantization_error
+    );
+    let got = dataset_points(&out);
+    let (_, all, _) = pcimg::ingest::read_all(&input, &ReadOptions::default()).unwrap();
+    let mut want: Vec<[i64; 3]> = (0..all.len())
+        .map(|i| [all.x[i], all.y[i], all.z[i]].map(|v| (v * 1e4).round() as i64))
+        .collect();
+    want.sort();
+    assert_eq!(got.len(), want.len());
+    let worst = got
+        .iter()
+        .zip(&want)
+        .map(|(a, b)| (0..3).map(|k| (a[k] - b[k]).abs()).max().unwrap_or(0))
+        .max()
+        .unwrap_or(0);
+    assert!(worst <= 10, "a point moved {} x 0.1 mm", worst);
+}
+
 #[test]
 fn stream_partition_keeps_file_order() {
     let dir = tempfile::tempdir().unwrap();

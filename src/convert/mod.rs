@@ -192,6 +192,10 @@ impl Sample {
 /// their estimate on the benchmark scan).
 pub const DEFAULT_SAMPLE_POINTS: u64 = 1 << 22;
 
+/// The fewest points a sample reads, whatever `sample_points` asks (fewer would
+/// make pieces shorter than a line or a LAS window, sampling more than asked).
+const MIN_SAMPLE: u64 = 1 << 14;
+
 /// The part collected while reading, around the centre of the input's declared
 /// bounds or of its first window, reaches farther from it than f32 keeps 1 mm,
 /// though not from its own centre: the conversion starts over, holding the points
@@ -426,9 +430,9 @@ fn convert_with(
                     // regions, and a sample of it does (pass 2 reads every point).
                     let done = reader.bytes_done().max(1);
                     let left = info.file_bytes.saturating_sub(done);
-                    let every = (left as f64 * total as f64
-                        / done as f64
-                        / o.sample_points.max(1) as f64) as u64;
+                    let rest = left as f64 * total as f64 / done as f64;
+                    let sample = o.sample_points.max(MIN_SAMPLE) as f64;
+                    let every = (rest / sample) as u64;
                     if every >= 2 && reader.sample_rest(every) {
                         weight = every;
                     }
@@ -461,10 +465,12 @@ fn convert_with(
                     crate::text::count(total),
                     regions.len()
                 ));
-                // Pass 2: distribute points into one temporary file per region.
+                // Pass 2: distribute points into one temporary file per region,
+                // stored relative to the centre of the region's box of cells.
                 let tmp = spill::TempDir::beside(&o.output, "pcimg-spill")?;
                 let t_partition = begin();
-                let files = distribute(
+                let mut origins: Vec<[f64; 3]> = regions.iter().map(|r| r.centre(&grid)).collect();
+                let mut files = distribute(
                     &mut reader,
                     input,
                     &read,
@@ -473,13 +479,43 @@ fn convert_with(
                     &grid,
                     &regions,
                     &cell_region,
+                    &origins,
                     &like,
                     &tmp.path,
                 )?;
+                // Points the sample never saw can lie far outside their region's
+                // box. Where f32 then lost 1 mm around the box's centre but would
+                // not around the centre of the region's own bounds, the pass is
+                // run again around those centres (the parts' own check then holds).
+                let far = |f: &Spilled| {
+                    reach(&f.bounds, f.origin) > F32_MM_RADIUS
+                        && reach(&f.bounds, f.bounds.center()) <= F32_MM_RADIUS
+                };
+                if files.iter().any(far) {
+                    progress.note("points lie far outside their regions: partitioning again");
+                    for (origin, f) in origins.iter_mut().zip(&files) {
+                        if !f.bounds.is_empty() {
+                            *origin = f.bounds.center();
+                        }
+                    }
+                    files = distribute(
+                        &mut reader,
+                        input,
+                        &read,
+                        o,
+                        progress,
+                        &grid,
+                        &regions,
+                        &cell_region,
+                        &origins,
+                        &like,
+                        &tmp.path,
+                    )?;
+                }
                 pass("partition", t_partition);
                 total = files.iter().map(|f| f.points).sum();
                 // Pass 3: each region becomes one part, streamed from its file into
-                // a store builder around the centre of its exact bounds. A region
+                // a store builder around the region's origin. A region
                 // the sample underestimated is first split again, exactly, by a
                 // count grid over its own points; a grid cell that alone holds more
                 // than a part (points denser than the grid resolves) becomes
@@ -497,14 +533,16 @@ fn convert_with(
                         continue;
                     }
                     let mut blocks = spill::SpillReader::open(&f.path, nattr)?;
+                    // The file's origin, so the builder stores the f32 offsets
+                    // the file holds, exactly.
                     let new_part = || {
                         let n = f.points.min(per_part) as usize;
-                        store::PartBuilder::new(f.bounds.center(), Some(f.bounds), n)
+                        store::PartBuilder::new(f.origin, None, n)
                     };
                     if f.points <= per_part {
                         let t_back = begin();
                         let mut b = new_part();
-                        while let Some(c) = blocks.next_block(&like, usize::MAX)? {
+                        while let Some(c) = blocks.next_block(&like, usize::MAX, f.origin)? {
                             b.push(&part_path(parts.len()), &c)?;
                         }
                         drop(blocks);
@@ -514,7 +552,7 @@ fn convert_with(
                     } else if !split {
                         let t_split = begin();
                         let mut grid = CountGrid::new(f.bounds);
-                        while let Some(c) = blocks.next_block(&like, usize::MAX)? {
+                        while let Some(c) = blocks.next_block(&like, usize::MAX, f.origin)? {
                             for i in 0..c.len() {
                                 grid.add([c.x[i], c.y[i], c.z[i]]);
                             }
@@ -524,12 +562,18 @@ fn convert_with(
                         let mut blocks = spill::SpillReader::open(&f.path, nattr)?;
                         splits += 1;
                         let tag = format!("split{splits}");
-                        let pieces = spill_all(o, &grid, &subs, &map, &tmp.path, &tag, |sink| {
-                            while let Some(c) = blocks.next_block(&like, usize::MAX)? {
-                                sink(c)?;
-                            }
-                            Ok(())
-                        })?;
+                        // The pieces keep the region's origin (their offsets are
+                        // then the same f32 values, not rounded again).
+                        let origins = vec![f.origin; subs.len()];
+                        let pieces =
+                            spill_all(o, &grid, &subs, &map, &origins, &tmp.path, &tag, |sink| {
+                                while let Some(c) =
+                                    blocks.next_block(&like, usize::MAX, f.origin)?
+                                {
+                                    sink(c)?;
+                                }
+                                Ok(())
+                            })?;
                         drop(blocks);
                         let _ = std::fs::remove_file(&f.path);
                         pass("split", t_split);
@@ -538,7 +582,7 @@ fn convert_with(
                     } else {
                         let mut b = new_part();
                         let room = |b: &store::PartBuilder| per_part as usize - b.len();
-                        while let Some(c) = blocks.next_block(&like, room(&b))? {
+                        while let Some(c) = blocks.next_block(&like, room(&b), f.origin)? {
                             b.push(&part_path(parts.len()), &c)?;
                             if room(&b) == 0 {
                                 write_built(std::mem::replace(&mut b, new_part()), &mut parts)?;
@@ -642,11 +686,13 @@ fn check_precision(b: &Bounds, origin: [f64; 3], part: usize, allow_lossy: bool)
     Ok(())
 }
 
-/// A temporary region file: its path, points and their bounds.
+/// A temporary region file: its path, points, their bounds and the origin its
+/// coordinates are relative to.
 struct Spilled {
     path: PathBuf,
     points: u64,
     bounds: Bounds,
+    origin: [f64; 3],
 }
 
 /// Pass 2 of spatial partitioning: re-reads the input and appends every point to
@@ -661,6 +707,7 @@ fn distribute(
     grid: &CountGrid,
     regions: &[Region],
     cell_region: &[u32],
+    origins: &[[f64; 3]],
     like: &PointColumns,
     dir: &Path,
 ) -> Result<Vec<Spilled>> {
@@ -676,27 +723,39 @@ fn distribute(
     progress.phase("partition", reader.info().file_bytes, "bytes");
     let mut seen = 0u64;
     let reader = &mut **reader;
-    spill_all(o, grid, regions, cell_region, dir, "region", |sink| {
-        while let Some(mut chunk) = reader.next_chunk()? {
-            check_cancel(o)?;
-            normalize(&mut chunk, like);
-            seen += chunk.len() as u64;
-            sink(chunk)?;
-            progress.advance(reader.bytes_done(), seen);
-        }
-        Ok(())
-    })
+    spill_all(
+        o,
+        grid,
+        regions,
+        cell_region,
+        origins,
+        dir,
+        "region",
+        |sink| {
+            while let Some(mut chunk) = reader.next_chunk()? {
+                check_cancel(o)?;
+                normalize(&mut chunk, like);
+                seen += chunk.len() as u64;
+                sink(chunk)?;
+                progress.advance(reader.bytes_done(), seen);
+            }
+            Ok(())
+        },
+    )
 }
 
 /// Appends the chunks that `feed` passes to its sink to one temporary file per
-/// region (named `<tag>-<region>.bin` in `dir`), by grid cell. The files are
-/// written on a thread of their own while `feed` reads the next chunk (one chunk
-/// of records in flight).
+/// region (named `<tag>-<region>.bin` in `dir`, coordinates relative to the
+/// region's entry in `origins`), by grid cell. The files are written on a thread
+/// of their own while `feed` reads the next chunk (one chunk of records in
+/// flight).
+#[allow(clippy::too_many_arguments)]
 fn spill_all(
     o: &ConvertOptions,
     grid: &CountGrid,
     regions: &[Region],
     cell_region: &[u32],
+    origins: &[[f64; 3]],
     dir: &Path,
     tag: &str,
     feed: impl FnOnce(&mut dyn FnMut(PointColumns) -> Result<()>) -> Result<()>,
@@ -734,7 +793,7 @@ fn spill_all(
                 })
                 .collect();
             // Records grouped by region in parallel, then appended region by region.
-            let (records, starts, boxes) = spill::records_by_region(&chunk, &ids, regions.len());
+            let (records, starts, boxes) = spill::records_by_region(&chunk, &ids, origins);
             for (b, x) in bounds.iter_mut().zip(&boxes) {
                 *b = b.union(x);
             }
@@ -752,13 +811,14 @@ fn spill_all(
         fed?;
         writers
             .into_iter()
-            .zip(&bounds)
-            .map(|(w, b)| {
+            .zip(bounds.iter().zip(origins))
+            .map(|(w, (b, origin))| {
                 let (path, points) = w.finish()?;
                 Ok(Spilled {
                     path,
                     points,
                     bounds: *b,
+                    origin: *origin,
                 })
             })
             .collect()

@@ -103,6 +103,15 @@ impl Region {
     pub fn contains(&self, c: [usize; 3]) -> bool {
         (0..3).all(|a| self.lo[a] <= c[a] && c[a] < self.hi[a])
     }
+
+    /// The centre of the region's box of cells in `grid`, in world units.
+    pub fn centre(&self, grid: &CountGrid) -> [f64; 3] {
+        let b = &grid.bounds;
+        [0, 1, 2].map(|a| {
+            let cell = (b.max[a] - b.min[a]) / grid.dims[a] as f64;
+            b.min[a] + cell * (self.lo[a] + self.hi[a]) as f64 / 2.0
+        })
+    }
 }
 
 /// Splits the grid into regions of at most `max_points` each (where cells allow):

@@ -1,6 +1,7 @@
 //! Temporary per-region files of the spatial partitioning: points appended in input
-//! order as fixed-size records (f64 x y z, then f32 attributes), read back a block
-//! at a time when the region becomes a part. The directory holding them is removed on drop:
+//! order as fixed-size records (x y z as f32 relative to the region's origin, then
+//! the f32 attributes: the values the part will store, so 16 bytes a point with
+//! one attribute), read back a block at a time when the region becomes a part. The directory holding them is removed on drop:
 //! on success, on error, and when Ctrl-C unwinds the conversion.
 
 use crate::points::{Attribute, Bounds, PointColumns};
@@ -40,7 +41,7 @@ impl Drop for TempDir {
 
 /// Bytes of one record with `attributes` attribute columns.
 pub fn record_size(attributes: usize) -> usize {
-    24 + 4 * attributes
+    12 + 4 * attributes
 }
 
 /// Appends points to one region file.
@@ -72,15 +73,17 @@ impl SpillWriter {
     }
 }
 
-/// The records of `c`'s points grouped by region (`region[i]` < `regions`), in
-/// input order within each region, encoded in parallel (a counting sort); where
-/// each region's records start (in records; `regions + 1` entries); and the
-/// bounds of each region's points in `c`.
+/// The records of `c`'s points grouped by region (`region[i]` < `origins.len()`),
+/// in input order within each region, coordinates relative to the region's
+/// origin, encoded in parallel (a counting sort); where each region's records
+/// start (in records; `regions + 1` entries); and the bounds of each region's
+/// points in `c`.
 pub fn records_by_region(
     c: &PointColumns,
     region: &[u32],
-    regions: usize,
+    origins: &[[f64; 3]],
 ) -> (Vec<u8>, Vec<usize>, Vec<Bounds>) {
+    let regions = origins.len();
     let n = c.len();
     let rs = record_size(c.attributes.len());
     let piece = n.div_ceil(rayon::current_num_threads() * 4).max(1 << 14);
@@ -103,11 +106,12 @@ pub fn records_by_region(
                 // counted by its own histogram, so no two pieces write the same
                 // bytes, and the n slots lie inside `out`'s capacity.
                 let rec = unsafe { std::slice::from_raw_parts_mut(dst.at(slot * rs), rs) };
-                rec[0..8].copy_from_slice(&c.x[i].to_le_bytes());
-                rec[8..16].copy_from_slice(&c.y[i].to_le_bytes());
-                rec[16..24].copy_from_slice(&c.z[i].to_le_bytes());
+                let o = origins[r as usize];
+                rec[0..4].copy_from_slice(&((c.x[i] - o[0]) as f32).to_le_bytes());
+                rec[4..8].copy_from_slice(&((c.y[i] - o[1]) as f32).to_le_bytes());
+                rec[8..12].copy_from_slice(&((c.z[i] - o[2]) as f32).to_le_bytes());
                 for (k, a) in c.attributes.iter().enumerate() {
-                    rec[24 + 4 * k..28 + 4 * k].copy_from_slice(&a.values[i].to_le_bytes());
+                    rec[12 + 4 * k..16 + 4 * k].copy_from_slice(&a.values[i].to_le_bytes());
                 }
             }
             boxes
@@ -142,12 +146,15 @@ impl SpillReader {
         })
     }
 
-    /// The next block of at most `max` points (`None` at the end), with the
+    /// The next block of at most `max` points (`None` at the end), coordinates
+    /// made absolute again from the region's `origin` (exactly: the store, given
+    /// the same origin, recovers the `f32` values the file holds), with the
     /// attribute names and offsets of `like`.
     pub fn next_block(
         &mut self,
         like: &PointColumns,
         max: usize,
+        origin: [f64; 3],
     ) -> std::io::Result<Option<PointColumns>> {
         use std::io::Read;
         let want = max.min(BLOCK_BYTES / self.rs).max(1) * self.rs;
@@ -170,7 +177,7 @@ impl SpillReader {
         if got == 0 {
             return Ok(None);
         }
-        Ok(Some(decode(&self.buf[..got], self.rs, like)))
+        Ok(Some(decode(&self.buf[..got], self.rs, like, origin)))
     }
 }
 
@@ -179,24 +186,18 @@ impl SpillReader {
 const BLOCK_BYTES: usize = 4 << 20;
 
 /// Decodes whole records into columns named and offset like `like`'s.
-fn decode(bytes: &[u8], rs: usize, like: &PointColumns) -> PointColumns {
-    let f64_at = |r: &[u8], o: usize| {
-        f64::from_le_bytes([
-            r[o],
-            r[o + 1],
-            r[o + 2],
-            r[o + 3],
-            r[o + 4],
-            r[o + 5],
-            r[o + 6],
-            r[o + 7],
-        ])
-    };
+fn decode(bytes: &[u8], rs: usize, like: &PointColumns, origin: [f64; 3]) -> PointColumns {
+    let f32_at = |r: &[u8], o: usize| f32::from_le_bytes([r[o], r[o + 1], r[o + 2], r[o + 3]]);
     let recs = || bytes.par_chunks_exact(rs).with_min_len(1 << 13);
+    let axis = |a: usize| -> Vec<f64> {
+        recs()
+            .map(|r| origin[a] + f64::from(f32_at(r, 4 * a)))
+            .collect()
+    };
     PointColumns {
-        x: recs().map(|r| f64_at(r, 0)).collect(),
-        y: recs().map(|r| f64_at(r, 8)).collect(),
-        z: recs().map(|r| f64_at(r, 16)).collect(),
+        x: axis(0),
+        y: axis(1),
+        z: axis(2),
         attributes: like
             .attributes
             .iter()
@@ -204,12 +205,7 @@ fn decode(bytes: &[u8], rs: usize, like: &PointColumns) -> PointColumns {
             .map(|(k, a)| Attribute {
                 name: a.name.clone(),
                 offset: a.offset,
-                values: recs()
-                    .map(|r| {
-                        let o = 24 + 4 * k;
-                        f32::from_le_bytes([r[o], r[o + 1], r[o + 2], r[o + 3]])
-                    })
-                    .collect(),
+                values: recs().map(|r| f32_at(r, 12 + 4 * k)).collect(),
             })
             .collect(),
     }
@@ -220,7 +216,9 @@ mod tests {
     use super::*;
 
     /// Records grouped by region hold each region's points in input order, and a
-    /// region file written from them reads back as those points.
+    /// region file written from them reads back as those points, each within
+    /// f32's rounding of its offset from the region's origin, and exactly the
+    /// f32 offsets written.
     #[test]
     fn records_by_region_group_in_input_order() {
         let c = crate::synth::scene(70_001, 3);
@@ -228,7 +226,10 @@ mod tests {
         let ids: Vec<u32> = (0..c.len())
             .map(|i| ((i * 7 + i / 1000) % regions) as u32)
             .collect();
-        let (recs, starts, boxes) = records_by_region(&c, &ids, regions);
+        let origins: Vec<[f64; 3]> = (0..regions)
+            .map(|r| [100.0 * r as f64, -50.0, 7.25])
+            .collect();
+        let (recs, starts, boxes) = records_by_region(&c, &ids, &origins);
         let rs = record_size(c.attributes.len());
         assert_eq!(recs.len(), c.len() * rs);
         assert_eq!((starts[0], starts[regions]), (0, c.len()));
@@ -242,7 +243,7 @@ mod tests {
             // Read back in blocks of at most 1000 points.
             let mut blocks = SpillReader::open(&path, c.attributes.len()).unwrap();
             let mut back = c.empty_like();
-            while let Some(b) = blocks.next_block(&c, 1000).unwrap() {
+            while let Some(b) = blocks.next_block(&c, 1000, origins[r]).unwrap() {
                 assert!(!b.is_empty() && b.len() <= 1000);
                 back.append_range(&b, 0, b.len());
             }
@@ -253,8 +254,16 @@ mod tests {
                 b.extend([c.x[i], c.y[i], c.z[i]]);
             }
             assert_eq!(boxes[r], b);
+            let o = origins[r];
             for (j, &i) in mine.iter().enumerate() {
-                assert_eq!([back.x[j], back.y[j], back.z[j]], [c.x[i], c.y[i], c.z[i]]);
+                let got = [back.x[j], back.y[j], back.z[j]];
+                let want = [c.x[i], c.y[i], c.z[i]];
+                for a in 0..3 {
+                    // The f32 offset comes back exactly; the point within its rounding.
+                    assert_eq!((got[a] - o[a]) as f32, (want[a] - o[a]) as f32);
+                    let ulp = ((want[a] - o[a]).abs() as f32 * f32::EPSILON) as f64;
+                    assert!((got[a] - want[a]).abs() <= ulp, "{got:?} {want:?}");
+                }
                 for (ba, ca) in back.attributes.iter().zip(&c.attributes) {
                     assert_eq!(ba.values[j].to_bits(), ca.values[i].to_bits());
                 }

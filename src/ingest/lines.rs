@@ -512,17 +512,18 @@ impl LineEngine {
         };
         while self.pos < end {
             let target = ((self.chunk_points as f64) * self.bytes_per_line).clamp(1.0, 1e15);
-            let stretch_end = line_end(self.pos.saturating_add((target * every as f64) as usize));
-            let stretch = stretch_end - self.pos;
-            // Many small pieces, each at a random place in its slot of the stretch.
-            let pieces = (rayon::current_num_threads().max(1) * 32).min(stretch.div_ceil(4096));
-            let slot = stretch / pieces;
+            // Many small pieces, each at a random place in its slot: a stretch of
+            // `every` windows is `pieces` slots, each read for `1 / every` of it
+            // (at least a line). The last stretch may hold fewer slots.
+            let pieces = rayon::current_num_threads().max(1) * 32;
+            let slot = ((target * every as f64 / pieces as f64) as usize).max(1);
             let piece_len = (slot / every as usize).max(1);
+            let stretch_end = line_end(self.pos.saturating_add(slot.saturating_mul(pieces)));
             let mut ranges: Vec<&[u8]> = Vec::with_capacity(pieces);
             let mut prev = self.pos;
-            for j in 0..pieces {
+            for j in 0..(stretch_end - self.pos).div_ceil(slot) {
                 let jitter = super::mix((self.pos + j) as u64) as usize % (slot - piece_len + 1);
-                let guess = self.pos + slot * j + jitter;
+                let guess = (self.pos + slot * j + jitter).min(stretch_end);
                 // Each piece starts at a line start and ends at a line end, after
                 // the previous piece.
                 let start = if guess == self.pos {
