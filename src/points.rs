@@ -106,6 +106,25 @@ impl PointColumns {
         }
     }
 
+    /// Every `n`-th point (the first, the `n + 1`-th...), as a new set.
+    pub fn every_nth(&self, n: usize) -> Self {
+        let pick = |v: &[f64]| v.iter().step_by(n.max(1)).copied().collect();
+        Self {
+            x: pick(&self.x),
+            y: pick(&self.y),
+            z: pick(&self.z),
+            attributes: self
+                .attributes
+                .iter()
+                .map(|a| Attribute {
+                    name: a.name.clone(),
+                    offset: a.offset,
+                    values: a.values.iter().step_by(n.max(1)).copied().collect(),
+                })
+                .collect(),
+        }
+    }
+
     /// Checks that every column has the same length; readers call this before
     /// handing columns on.
     pub fn check_lengths(&self) -> Result<(), String> {

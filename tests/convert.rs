@@ -165,7 +165,7 @@ impl Progress for Notes {
 
 /// A first pass that samples the input once it proves larger than one part
 /// (forced here with a small `sample_points`) still places regions that hold every
-/// point, within the budget and without overlap, for text and for LAS, in scan
+/// point, within the budget and without overlap, for text, LAS and LAZ, in scan
 /// order (a periodic layout, the case where evenly spaced samples would alias).
 #[test]
 fn sampled_first_pass_keeps_every_point_within_budget() {
@@ -176,7 +176,17 @@ fn sampled_first_pass_keeps_every_point_within_budget() {
     let las = dir.path().join("scan.las");
     pcimg::synth::write_text_in_order(&text, n, 5, Order::Scan).unwrap();
     pcimg::synth::write_las_in_order(&las, n, 5, Order::Scan).unwrap();
-    for input in [&text, &las] {
+    let laz = dir.path().join("scan.laz");
+    {
+        let mut r = las::Reader::from_path(&las).unwrap();
+        let header = las::Builder::from(r.header().clone())
+            .into_header()
+            .unwrap();
+        let mut w = las::Writer::from_path(&laz, header).unwrap();
+        w.write_points(&r.read_all().unwrap()).unwrap();
+        w.close().unwrap();
+    }
+    for input in [&text, &las, &laz] {
         let whole = dir.path().join("whole.pcimg");
         let sampled = dir.path().join("sampled.pcimg");
         let s = convert::convert(input, &opts(whole.clone(), 64 << 20), &Quiet).unwrap();

@@ -308,3 +308,50 @@ fn sampling_reads_an_even_subset_of_whole_points() {
         );
     }
 }
+
+/// A LAZ reader samples by seeking: a piece of 50,000 points (one LAZ chunk) in
+/// every slot of `every` pieces, each point one of the file's, in file order,
+/// spread over the rest of the file; a chunk decoded before the request is
+/// thinned to the same rate.
+#[test]
+fn laz_sampling_seeks_to_pieces_of_the_file() {
+    use pcimg::synth::Order;
+    let dir = tempfile::tempdir().unwrap();
+    let n = 600_000usize;
+    let las_path = dir.path().join("s.las");
+    let laz_path = dir.path().join("s.laz");
+    pcimg::synth::write_las_in_order(&las_path, n as u64, 4, Order::Scan).unwrap();
+    {
+        let mut r = las::Reader::from_path(&las_path).unwrap();
+        let header = las::Builder::from(r.header().clone())
+            .into_header()
+            .unwrap();
+        let mut w = las::Writer::from_path(&laz_path, header).unwrap();
+        let points = r.read_all().unwrap();
+        w.write_points(&points).unwrap();
+        w.close().unwrap();
+    }
+    let opts = ReadOptions {
+        chunk_points: 20_000,
+        ..Default::default()
+    };
+    let (info, all, _) = ingest::read_all(&laz_path, &opts).unwrap();
+    assert_eq!((info.format.as_str(), all.len()), ("laz 1.2", n));
+    let key = |p: &PointColumns, i: usize| [p.x[i], p.y[i], p.z[i]].map(f64::to_bits);
+    let index: std::collections::HashMap<[u64; 3], usize> =
+        (0..n).map(|i| (key(&all, i), i)).collect();
+    let mut r = ingest::open(&laz_path, &opts).unwrap();
+    let head = r.next_chunk().unwrap().unwrap().len();
+    assert!(r.sample_rest(3));
+    let mut got = Vec::new();
+    while let Some(c) = r.next_chunk().unwrap() {
+        got.extend((0..c.len()).map(|i| index[&key(&c, i)]));
+    }
+    assert!(got.windows(2).all(|w| w[0] < w[1]), "not in file order");
+    let rest = n - head;
+    let frac = got.len() as f64 / rest as f64;
+    assert!((0.25..0.42).contains(&frac), "{frac}");
+    // Pieces in the first and the last third of the rest.
+    assert!(got.iter().any(|&i| i < head + rest / 3));
+    assert!(got.iter().any(|&i| i > head + 2 * rest / 3));
+}

@@ -11,7 +11,8 @@
 //!   GeographicTypeGeoKey 2048), otherwise a note that GeoTIFF keys are present.
 //! * Reading: `las::Reader` is not `Send`, so it lives on a decoder thread that
 //!   reads chunks with `fill_points` and converts them to columns one chunk ahead
-//!   of the consumer (a bounded channel of one chunk). LAS records are decoded in
+//!   of the consumer (a bounded channel of one chunk). The thread starts with the
+//!   first read, so opening a file for its header decodes nothing. LAS records are decoded in
 //!   small batches that stay in cache; LAZ uses the `laz-parallel` decompressor
 //!   (chunks decompressed with rayon) in large batches, falling back to the
 //!   sequential one when the file has no chunk table. A panic in the decoder (the
@@ -58,16 +59,30 @@ impl Seek for Tracked {
 }
 
 enum Msg {
-    Chunk(PointColumns),
+    /// Decoded points; `true` when they are a sampled piece (see
+    /// [`PointReader::sample_rest`]).
+    Chunk(PointColumns, bool),
     Err(IngestError),
 }
+
+/// Starts a decoder thread and returns its channel.
+type Spawn = Box<dyn FnOnce() -> Result<Receiver<Msg>, IngestError> + Send>;
 
 /// Reader for LAS and LAZ files.
 pub struct LasReader {
     info: SourceInfo,
-    rx: Receiver<Msg>,
+    /// The decoder's channel, once started.
+    rx: Option<Receiver<Msg>>,
+    /// Starts the decoder (taken by the first read).
+    spawn: Option<Spawn>,
     pos: Arc<AtomicU64>,
     finished: bool,
+    /// Shared with the decoder: 1 to read every point, `every` > 1 to sample, 0
+    /// when the file cannot seek (no chunk table).
+    every: Arc<AtomicU64>,
+    /// The sampling rate asked for (1: none), to thin a whole chunk the decoder
+    /// had decoded before it saw the request.
+    thin: u64,
 }
 
 /// The attribute names for a point format.
@@ -270,37 +285,57 @@ impl LasReader {
             file,
             pos: pos.clone(),
         };
-        let (tx, rx) = sync_channel(1);
         let chunk = opts.chunk_points as u64;
         let p = path.to_path_buf();
         let pos2 = pos.clone();
-        std::thread::Builder::new()
-            .name("pcimg-las".into())
-            .spawn(move || {
-                let tx2 = tx.clone();
-                let r = std::panic::catch_unwind(std::panic::AssertUnwindSafe(move || {
-                    decode(p, tracked, chunk, n, tx2)
-                }));
-                if r.is_err() {
-                    let _ = tx.send(Msg::Err(IngestError::binary(
-                        &PathBuf::new(),
-                        pos2.load(Ordering::Relaxed),
-                        "the LAS/LAZ decoder failed on corrupt data",
-                    )));
-                }
-            })
-            .map_err(|e| IngestError::io(path, "cannot start the decoder thread", e))?;
+        let every = Arc::new(AtomicU64::new(1));
+        let every2 = every.clone();
+        // The decoder starts with the first read, so a reader opened only for its
+        // header decodes nothing.
+        let spawn = move || -> Result<Receiver<Msg>, IngestError> {
+            let (tx, rx) = sync_channel(1);
+            let path = p.clone();
+            std::thread::Builder::new()
+                .name("pcimg-las".into())
+                .spawn(move || {
+                    let tx2 = tx.clone();
+                    let r = std::panic::catch_unwind(std::panic::AssertUnwindSafe(move || {
+                        decode(p, tracked, chunk, n, tx2, every2)
+                    }));
+                    if r.is_err() {
+                        let _ = tx.send(Msg::Err(IngestError::binary(
+                            &PathBuf::new(),
+                            pos2.load(Ordering::Relaxed),
+                            "the LAS/LAZ decoder failed on corrupt data",
+                        )));
+                    }
+                })
+                .map_err(|e| IngestError::io(&path, "cannot start the decoder thread", e))?;
+            Ok(rx)
+        };
         Ok(LasReader {
             info,
-            rx,
+            rx: None,
+            spawn: Some(Box::new(spawn)),
             pos,
             finished: false,
+            every,
+            thin: 1,
         })
     }
 }
 
-/// The decoder thread: reads chunks and sends them as columns.
-fn decode(path: PathBuf, file: Tracked, chunk: u64, total: u64, tx: SyncSender<Msg>) {
+/// The decoder thread: reads chunks and sends them as columns. Once `every` > 1,
+/// it sends one piece of [`SAMPLE_PIECE`] points (a LAZ chunk's worth, at a
+/// jittered place) for every `every` pieces of the file, seeking past the rest.
+fn decode(
+    path: PathBuf,
+    file: Tracked,
+    chunk: u64,
+    total: u64,
+    tx: SyncSender<Msg>,
+    every: Arc<AtomicU64>,
+) {
     let pos = file.pos.clone();
     let err_at = |what: &str, e: &dyn std::fmt::Display| {
         Msg::Err(las_err(&path, pos.load(Ordering::Relaxed), what, e))
@@ -313,6 +348,8 @@ fn decode(path: PathBuf, file: Tracked, chunk: u64, total: u64, tx: SyncSender<M
         // back to the sequential decompressor on a fresh handle.
         Err(first) => match File::open(&path) {
             Ok(f) => {
+                // Without a chunk table the decompressor cannot seek: no sampling.
+                every.store(0, Ordering::Relaxed);
                 let tracked = Tracked {
                     file: f,
                     pos: pos.clone(),
@@ -347,7 +384,20 @@ fn decode(path: PathBuf, file: Tracked, chunk: u64, total: u64, tx: SyncSender<M
     let mut gps_offset: Option<f64> = None;
     let mut colors = ColorNormalizer::new(false);
     while done < total {
-        let want = chunk.min(total - done);
+        let mut want = chunk.min(total - done);
+        let mut span = want;
+        let e = every.load(Ordering::Relaxed);
+        if e > 1 {
+            // A slot of `e` pieces; one of them, chosen by a hash, is read.
+            span = (SAMPLE_PIECE * e).min(total - done);
+            let k = super::mix(done) % e;
+            let at = (k * SAMPLE_PIECE).min(span - 1);
+            want = SAMPLE_PIECE.min(span - at);
+            if let Err(err) = reader.seek(done + at) {
+                let _ = tx.send(err_at(&format!("cannot seek to point {}", done + at), &err));
+                return;
+            }
+        }
         let cap = want as usize;
         let mut cols = PointColumns {
             x: bigvec::with_capacity(cap),
@@ -384,13 +434,17 @@ fn decode(path: PathBuf, file: Tracked, chunk: u64, total: u64, tx: SyncSender<M
             append_columns(&pd, &mut cols, &mut gps_offset);
             got_total += got;
         }
-        done += got_total;
+        done += span;
         colors.apply(&mut cols);
-        if tx.send(Msg::Chunk(cols)).is_err() {
+        if tx.send(Msg::Chunk(cols, e > 1)).is_err() {
             return; // the consumer is gone
         }
     }
 }
+
+/// Points of one sampled piece: a LAZ chunk's worth at the default chunk size
+/// (seeks land on chunk starts when the file uses it).
+const SAMPLE_PIECE: u64 = 50_000;
 
 /// Points decoded per `fill_points` call (LAS).
 const BATCH_POINTS: u64 = 32 * 1024;
@@ -452,8 +506,16 @@ impl PointReader for LasReader {
         if self.finished {
             return Ok(None);
         }
-        match self.rx.recv() {
-            Ok(Msg::Chunk(c)) => Ok(Some(c)),
+        if let Some(spawn) = self.spawn.take() {
+            self.rx = Some(spawn()?);
+        }
+        let Some(rx) = &self.rx else {
+            return Ok(None);
+        };
+        match rx.recv() {
+            // A whole chunk decoded before sampling began: thinned to the rate.
+            Ok(Msg::Chunk(c, false)) if self.thin > 1 => Ok(Some(c.every_nth(self.thin as usize))),
+            Ok(Msg::Chunk(c, _)) => Ok(Some(c)),
             Ok(Msg::Err(e)) => {
                 self.finished = true;
                 Err(match e {
@@ -481,6 +543,18 @@ impl PointReader for LasReader {
 
     fn skipped(&self) -> u64 {
         0
+    }
+
+    fn sample_rest(&mut self, every: u64) -> bool {
+        let ok = every > 1
+            && self
+                .every
+                .compare_exchange(1, every, Ordering::Relaxed, Ordering::Relaxed)
+                .is_ok();
+        if ok {
+            self.thin = every;
+        }
+        ok
     }
 }
 
@@ -593,6 +667,20 @@ mod tests {
             assert_eq!(r.info().format, fmt);
             assert!(r.info().crs_wkt.is_none());
         }
+    }
+
+    /// A LAZ reader opened only for its header decodes nothing: its decoder
+    /// starts with the first read (a conversion opens the input once for its
+    /// header and attribute names before choosing the chunk size).
+    #[test]
+    fn laz_decoder_starts_with_the_first_read() {
+        let p =
+            std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data/autzen_trim.laz");
+        let mut r = open(&p, &ReadOptions::default()).unwrap();
+        std::thread::sleep(std::time::Duration::from_millis(300));
+        assert_eq!(r.bytes_done(), 0);
+        assert!(r.next_chunk().unwrap().is_some());
+        assert!(r.bytes_done() > 0);
     }
 
     #[test]
