@@ -4,13 +4,19 @@
 //! them into parts, each written through the image store.
 
 pub mod budget;
+mod distribute;
 pub mod partition;
+mod sample;
 pub mod spill;
 
-use crate::ingest::{self, PointReader, ReadOptions};
+use distribute::{Spilled, distribute, spill_all};
+pub use sample::DEFAULT_SAMPLE_POINTS;
+use sample::{MIN_SAMPLE, Sample};
+
+use crate::ingest::{self, ReadOptions};
 use crate::points::{Bounds, PointColumns};
 use crate::store::{self, Compression, Layout, PartSummary, WriteOptions};
-use partition::{CountGrid, Region};
+use partition::CountGrid;
 use rayon::prelude::*;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
@@ -135,66 +141,6 @@ fn normalize(chunk: &mut PointColumns, like: &PointColumns) {
         }
     }
 }
-
-/// A fixed-memory sample of a stream: keeps every `stride`-th point, halving
-/// itself and doubling the stride when full. A point delivered by a sampling
-/// reader stands for `weight` points of the stream, so the sample stays even over
-/// the input whether it was read whole or sampled.
-struct Sample {
-    pts: Vec<[f64; 3]>,
-    stride: u64,
-    /// Points of the stream so far (weighted).
-    seen: u64,
-    cap: usize,
-}
-
-impl Sample {
-    fn new(cap: usize) -> Self {
-        Sample {
-            pts: Vec::new(),
-            stride: 1,
-            seen: 0,
-            cap,
-        }
-    }
-
-    /// Adds the points of `c`, each standing for `weight` (≥ 1) points.
-    fn add(&mut self, c: &PointColumns, weight: u64) {
-        let w = weight.max(1);
-        let n = c.len() as u64;
-        let end = self.seen + n * w;
-        // Point i covers stream positions seen + i*w .. seen + (i+1)*w; it is
-        // kept once for every multiple of the stride among them (so the sample
-        // holds one entry per `stride` positions everywhere, and halving it keeps
-        // that true).
-        let mut next = self.seen.next_multiple_of(self.stride);
-        while next < end {
-            let i = ((next - self.seen) / w) as usize;
-            self.pts.push([c.x[i], c.y[i], c.z[i]]);
-            if self.pts.len() >= self.cap {
-                let mut k = 0;
-                self.pts.retain(|_| {
-                    k += 1;
-                    k % 2 == 1
-                });
-                self.stride *= 2;
-                next = (next + 1).next_multiple_of(self.stride);
-            } else {
-                next += self.stride;
-            }
-        }
-        self.seen = end;
-    }
-}
-
-/// Default [`ConvertOptions::sample_points`]: twice the points the region sample
-/// keeps, so every sampled window contributes (measured: regions within ±10% of
-/// their estimate on the benchmark scan).
-pub const DEFAULT_SAMPLE_POINTS: u64 = 1 << 22;
-
-/// The fewest points a sample reads, whatever `sample_points` asks (fewer would
-/// make pieces shorter than a line or a LAS window, sampling more than asked).
-const MIN_SAMPLE: u64 = 1 << 14;
 
 /// The part collected while reading, around the centre of the input's declared
 /// bounds or of its first window, reaches farther from it than f32 keeps 1 mm,
@@ -684,203 +630,4 @@ fn check_precision(b: &Bounds, origin: [f64; 3], part: usize, allow_lossy: bool)
         );
     }
     Ok(())
-}
-
-/// A temporary region file: its path, points, their bounds and the origin its
-/// coordinates are relative to.
-struct Spilled {
-    path: PathBuf,
-    points: u64,
-    bounds: Bounds,
-    origin: [f64; 3],
-}
-
-/// Pass 2 of spatial partitioning: re-reads the input and appends every point to
-/// its region's temporary file. Returns each region's file, point count and bounds.
-#[allow(clippy::too_many_arguments)]
-fn distribute(
-    reader: &mut Box<dyn PointReader>,
-    input: &Path,
-    read: &ReadOptions,
-    o: &ConvertOptions,
-    progress: &dyn Progress,
-    grid: &CountGrid,
-    regions: &[Region],
-    cell_region: &[u32],
-    origins: &[[f64; 3]],
-    like: &PointColumns,
-    dir: &Path,
-) -> Result<Vec<Spilled>> {
-    if like.attributes.len() > spill::MAX_ATTRIBUTES {
-        anyhow::bail!(
-            "{}: {} attributes; pcimg stores at most {}",
-            input.display(),
-            like.attributes.len(),
-            spill::MAX_ATTRIBUTES
-        );
-    }
-    *reader = ingest::open(input, read)?;
-    progress.phase("partition", reader.info().file_bytes, "bytes");
-    let mut seen = 0u64;
-    let reader = &mut **reader;
-    spill_all(
-        o,
-        grid,
-        regions,
-        cell_region,
-        origins,
-        dir,
-        "region",
-        |sink| {
-            while let Some(mut chunk) = reader.next_chunk()? {
-                check_cancel(o)?;
-                normalize(&mut chunk, like);
-                seen += chunk.len() as u64;
-                sink(chunk)?;
-                progress.advance(reader.bytes_done(), seen);
-            }
-            Ok(())
-        },
-    )
-}
-
-/// Appends the chunks that `feed` passes to its sink to one temporary file per
-/// region (named `<tag>-<region>.bin` in `dir`, coordinates relative to the
-/// region's entry in `origins`), by grid cell. The files are written on a thread
-/// of their own while `feed` reads the next chunk (one chunk of records in
-/// flight).
-#[allow(clippy::too_many_arguments)]
-fn spill_all(
-    o: &ConvertOptions,
-    grid: &CountGrid,
-    regions: &[Region],
-    cell_region: &[u32],
-    origins: &[[f64; 3]],
-    dir: &Path,
-    tag: &str,
-    feed: impl FnOnce(&mut dyn FnMut(PointColumns) -> Result<()>) -> Result<()>,
-) -> Result<Vec<Spilled>> {
-    // A quarter of the budget for write buffers, shared by the regions.
-    let buffer = (o.memory / 4 / regions.len().max(1) as u64).clamp(64 << 10, 8 << 20) as usize;
-    let mut writers: Vec<spill::SpillWriter> = (0..regions.len())
-        .map(|r| spill::SpillWriter::create(dir.join(format!("{tag}-{r:05}.bin")), buffer))
-        .collect::<std::io::Result<_>>()?;
-    let mut bounds = vec![Bounds::EMPTY; regions.len()];
-    let (send, recv) = std::sync::mpsc::sync_channel::<(Vec<u8>, Vec<usize>, usize)>(1);
-    std::thread::scope(|scope| -> Result<Vec<Spilled>> {
-        let writer = scope.spawn(move || -> std::io::Result<Vec<spill::SpillWriter>> {
-            for (records, starts, rs) in recv {
-                for (r, w) in writers.iter_mut().enumerate() {
-                    let (a, b) = (starts[r], starts[r + 1]);
-                    if b > a {
-                        w.push_records(&records[a * rs..b * rs], (b - a) as u64)?;
-                    }
-                }
-            }
-            Ok(writers)
-        });
-        let fed = feed(&mut |chunk: PointColumns| -> Result<()> {
-            let ids: Vec<u32> = (0..chunk.len())
-                .into_par_iter()
-                .with_min_len(1 << 14)
-                .map(|i| {
-                    let c = grid.cell([chunk.x[i], chunk.y[i], chunk.z[i]]);
-                    match cell_region[grid.index(c)] {
-                        // A cell the sample never saw belongs to the nearest region.
-                        u32::MAX => nearest_region(regions, c) as u32,
-                        r => r,
-                    }
-                })
-                .collect();
-            // Records grouped by region in parallel, then appended region by region.
-            let (records, starts, boxes) = spill::records_by_region(&chunk, &ids, origins);
-            for (b, x) in bounds.iter_mut().zip(&boxes) {
-                *b = b.union(x);
-            }
-            let rs = spill::record_size(chunk.attributes.len());
-            // A send fails only when the writer stopped on an error (reported
-            // when it is joined below).
-            send.send((records, starts, rs))
-                .map_err(|_| anyhow::anyhow!("writing the temporary files stopped"))
-        });
-        // The writer ends once the last records are sent.
-        drop(send);
-        let writers = writer
-            .join()
-            .map_err(|_| anyhow::anyhow!("the temporary file writer panicked"))??;
-        fed?;
-        writers
-            .into_iter()
-            .zip(bounds.iter().zip(origins))
-            .map(|(w, (b, origin))| {
-                let (path, points) = w.finish()?;
-                Ok(Spilled {
-                    path,
-                    points,
-                    bounds: *b,
-                    origin: *origin,
-                })
-            })
-            .collect()
-    })
-}
-
-/// The region whose box is nearest to cell `c` (for cells the sample missed).
-fn nearest_region(regions: &[Region], c: [usize; 3]) -> usize {
-    let dist = |r: &Region| -> usize {
-        (0..3)
-            .map(|a| {
-                if c[a] < r.lo[a] {
-                    r.lo[a] - c[a]
-                } else if c[a] >= r.hi[a] {
-                    c[a] + 1 - r.hi[a]
-                } else {
-                    0
-                }
-            })
-            .sum()
-    };
-    (0..regions.len())
-        .min_by_key(|&i| dist(&regions[i]))
-        .unwrap_or(0)
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    /// Points whose x is their position in the stream.
-    fn run(from: u64, count: u64, step: u64) -> PointColumns {
-        let x: Vec<f64> = (0..count).map(|i| (from + i * step) as f64).collect();
-        PointColumns {
-            y: vec![0.0; x.len()],
-            z: vec![0.0; x.len()],
-            x,
-            attributes: Vec::new(),
-        }
-    }
-
-    /// A stream read whole, then sampled one point in ten: the sample is even
-    /// over the stream's positions, not crowded where it was read whole.
-    #[test]
-    fn weighted_sample_is_even_over_the_stream() {
-        let mut s = Sample::new(4096);
-        s.add(&run(0, 30_000, 1), 1);
-        s.add(&run(30_000, 27_000, 10), 10);
-        assert_eq!(s.seen, 300_000);
-        let mut bins = [0usize; 10];
-        for p in &s.pts {
-            bins[(p[0] / 30_000.0) as usize] += 1;
-        }
-        let mean = s.pts.len() as f64 / 10.0;
-        assert!(
-            bins.iter().all(|&b| (b as f64 - mean).abs() < 0.05 * mean),
-            "{bins:?}"
-        );
-        // Unweighted, it keeps exactly every stride-th point.
-        let mut s = Sample::new(1000);
-        s.add(&run(0, 5000, 1), 1);
-        assert!(s.pts.iter().all(|p| (p[0] as u64).is_multiple_of(s.stride)));
-        assert_eq!(s.pts.len() as u64, 5000 / s.stride);
-    }
 }
