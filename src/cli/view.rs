@@ -15,7 +15,7 @@ use std::time::Instant;
 pub struct ViewArgs {
     /// A part (.tif) or a directory of parts.
     pub path: PathBuf,
-    /// Viewpoint as yaw,pitch[,distance] in degrees (and world units) around the
+    /// Viewpoint as `yaw,pitch[,distance]` in degrees (and world units) around the
     /// centre of the bounds; the default fits the whole cloud in view.
     #[arg(long, allow_hyphen_values = true)]
     pub view: Option<String>,

@@ -361,7 +361,7 @@ fn lsd_sort(s: &mut [u64], scratch: &mut Vec<u64>, base: u64, low: u32, bits: u3
 /// order) so that for every level `k` in `1..levels` the first slots of the aligned
 /// blocks of `4^k` slots hold an even sample of the points.
 ///
-/// Level 1 is chosen like a voxel grid ([`select`]), so sparse parts (vegetation,
+/// Level 1 is chosen like a voxel grid (`select`), so sparse parts (vegetation,
 /// walls, a single flight line) keep as many neighbours as dense ones; each chosen
 /// point then leads a block of four with the next three unchosen ones along the
 /// curve. This happens inside each level-0 tile, so every tile still holds the same
