@@ -44,6 +44,12 @@ pub fn record_size(attributes: usize) -> usize {
     12 + 4 * attributes
 }
 
+/// An I/O error on a temporary file, naming it (the disk that fills up is the
+/// one beside the output, which the user may not expect to need room).
+fn named(path: &Path, e: std::io::Error) -> std::io::Error {
+    std::io::Error::new(e.kind(), format!("temporary file {}: {e}", path.display()))
+}
+
 /// Appends points to one region file.
 pub struct SpillWriter {
     pub path: PathBuf,
@@ -53,7 +59,7 @@ pub struct SpillWriter {
 
 impl SpillWriter {
     pub fn create(path: PathBuf, buffer: usize) -> std::io::Result<SpillWriter> {
-        let f = File::create(&path)?;
+        let f = File::create(&path).map_err(|e| named(&path, e))?;
         Ok(SpillWriter {
             path,
             out: BufWriter::with_capacity(buffer.max(4096), f),
@@ -64,11 +70,13 @@ impl SpillWriter {
     /// Appends `count` records already encoded (see [`records_by_region`]).
     pub fn push_records(&mut self, records: &[u8], count: u64) -> std::io::Result<()> {
         self.points += count;
-        self.out.write_all(records)
+        self.out
+            .write_all(records)
+            .map_err(|e| named(&self.path, e))
     }
 
     pub fn finish(mut self) -> std::io::Result<(PathBuf, u64)> {
-        self.out.flush()?;
+        self.out.flush().map_err(|e| named(&self.path, e))?;
         Ok((self.path, self.points))
     }
 }
@@ -140,7 +148,7 @@ impl SpillReader {
     pub fn open(path: &Path, attributes: usize) -> std::io::Result<SpillReader> {
         Ok(SpillReader {
             path: path.to_path_buf(),
-            file: File::open(path)?,
+            file: File::open(path).map_err(|e| named(path, e))?,
             rs: record_size(attributes),
             buf: Vec::new(),
         })
@@ -165,7 +173,7 @@ impl SpillReader {
                 Ok(0) => break,
                 Ok(k) => got += k,
                 Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
-                Err(e) => return Err(e),
+                Err(e) => return Err(named(&self.path, e)),
             }
         }
         if got % self.rs != 0 {
@@ -269,5 +277,17 @@ mod tests {
                 }
             }
         }
+    }
+
+    /// Failures on temporary files name the file.
+    #[test]
+    fn errors_name_the_temporary_file() {
+        let dir = tempfile::tempdir().unwrap();
+        let missing = dir.path().join("no-such-dir").join("region-00001.bin");
+        let e = SpillWriter::create(missing.clone(), 4096).err().unwrap();
+        assert!(e.to_string().contains("temporary file"), "{e}");
+        assert!(e.to_string().contains("region-00001.bin"), "{e}");
+        let e = SpillReader::open(&missing, 1).err().unwrap();
+        assert!(e.to_string().contains("region-00001.bin"), "{e}");
     }
 }
