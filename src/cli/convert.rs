@@ -22,8 +22,11 @@ pub struct Args {
     /// bounds resident memory and decides how many points one part (image) holds.
     #[arg(long, value_parser = budget::parse_size)]
     pub memory: Option<u64>,
-    /// spatial: non-overlapping spatial parts (two passes over the input);
-    /// stream: the paper's single pass, parts in file order.
+    /// spatial: non-overlapping spatial parts (one pass when the input fits one
+    /// part; else a first pass that reads a sample, about 4 M points, to place the
+    /// parts, and a second that reads every point into temporary files beside the
+    /// output, 12 bytes a point plus 4 per attribute); stream: the paper's single
+    /// pass, parts in file order.
     #[arg(long, default_value = "spatial", value_parser = ["spatial", "stream"])]
     pub partition: String,
     /// Tile compression: none (fastest to load), deflate or zstd.
