@@ -90,17 +90,27 @@ impl PointColumns {
 
     /// An empty set with the same attribute names and offsets as `self`.
     pub fn empty_like(&self) -> Self {
+        self.map_columns(|_| Vec::new(), |_| Vec::new())
+    }
+
+    /// A set with the same attribute names and offsets, each coordinate column
+    /// made by `xyz` and each attribute column by `attr` from `self`'s.
+    fn map_columns(
+        &self,
+        xyz: impl Fn(&[f64]) -> Vec<f64>,
+        attr: impl Fn(&[f32]) -> Vec<f32>,
+    ) -> Self {
         Self {
-            x: Vec::new(),
-            y: Vec::new(),
-            z: Vec::new(),
+            x: xyz(&self.x),
+            y: xyz(&self.y),
+            z: xyz(&self.z),
             attributes: self
                 .attributes
                 .iter()
                 .map(|a| Attribute {
                     name: a.name.clone(),
                     offset: a.offset,
-                    values: Vec::new(),
+                    values: attr(&a.values),
                 })
                 .collect(),
         }
@@ -108,21 +118,11 @@ impl PointColumns {
 
     /// Every `n`-th point (the first, the `n + 1`-th...), as a new set.
     pub fn every_nth(&self, n: usize) -> Self {
-        let pick = |v: &[f64]| v.iter().step_by(n.max(1)).copied().collect();
-        Self {
-            x: pick(&self.x),
-            y: pick(&self.y),
-            z: pick(&self.z),
-            attributes: self
-                .attributes
-                .iter()
-                .map(|a| Attribute {
-                    name: a.name.clone(),
-                    offset: a.offset,
-                    values: a.values.iter().step_by(n.max(1)).copied().collect(),
-                })
-                .collect(),
-        }
+        let n = n.max(1);
+        self.map_columns(
+            |v| v.iter().step_by(n).copied().collect(),
+            |v| v.iter().step_by(n).copied().collect(),
+        )
     }
 
     /// Checks that every column has the same length; readers call this before
@@ -215,5 +215,35 @@ impl PointColumns {
             }
         }
         Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn every_nth_keeps_every_column_in_step() {
+        let c = PointColumns {
+            x: (0..10).map(f64::from).collect(),
+            y: (0..10).map(|i| f64::from(i) * 2.0).collect(),
+            z: vec![5.0; 10],
+            attributes: vec![Attribute {
+                name: "intensity".into(),
+                offset: 3.0,
+                values: (0..10).map(|i| i as f32).collect(),
+            }],
+        };
+        let t = c.every_nth(4);
+        assert_eq!(t.x, [0.0, 4.0, 8.0]);
+        assert_eq!(t.y, [0.0, 8.0, 16.0]);
+        assert_eq!(t.z, [5.0; 3]);
+        assert_eq!(t.attributes[0].values, [0.0, 4.0, 8.0]);
+        assert_eq!(
+            (t.attributes[0].name.as_str(), t.attributes[0].offset),
+            ("intensity", 3.0)
+        );
+        assert!(c.empty_like().is_empty());
+        assert_eq!(c.every_nth(0).len(), 10);
     }
 }

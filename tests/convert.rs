@@ -47,6 +47,27 @@ fn dataset_points(path: &Path) -> Vec<[i64; 3]> {
     all
 }
 
+/// The points of an input file as (x, y, z) rounded to 0.1 mm, sorted.
+fn file_points(path: &Path) -> Vec<[i64; 3]> {
+    let (_, all, _) = pcimg::ingest::read_all(path, &ReadOptions::default()).unwrap();
+    let mut v: Vec<[i64; 3]> = (0..all.len())
+        .map(|i| [all.x[i], all.y[i], all.z[i]].map(|v| (v * 1e4).round() as i64))
+        .collect();
+    v.sort();
+    v
+}
+
+/// The largest difference (in 0.1 mm) between matching points of two sorted
+/// lists, which must be as long.
+fn worst_offset(got: &[[i64; 3]], want: &[[i64; 3]]) -> i64 {
+    assert_eq!(got.len(), want.len());
+    got.iter()
+        .zip(want)
+        .map(|(a, b)| (0..3).map(|k| (a[k] - b[k]).abs()).max().unwrap_or(0))
+        .max()
+        .unwrap_or(0)
+}
+
 fn entries(dir: &Path) -> Vec<String> {
     let mut v: Vec<String> = std::fs::read_dir(dir)
         .unwrap()
@@ -128,14 +149,8 @@ fn budget_far_below_input_gives_spatial_parts_with_every_point() {
         })
         .collect();
     want.sort();
-    let got = dataset_points(&out);
-    assert_eq!(got.len(), want.len());
-    let off = got
-        .iter()
-        .zip(&want)
-        .filter(|(a, b)| (0..3).any(|k| (a[k] - b[k]).abs() > 1))
-        .count();
-    assert_eq!(off, 0, "points differ beyond 0.1 mm");
+    let worst = worst_offset(&dataset_points(&out), &want);
+    assert!(worst <= 1, "points differ by {worst} x 0.1 mm");
     // Parts do not overlap: each pair is separated on some axis.
     let ds = Dataset::open(&out).unwrap();
     for (i, a) in ds.parts.iter().enumerate() {
@@ -264,19 +279,8 @@ fn underestimated_regions_are_split_within_budget() {
     );
     assert!(s.parts.iter().all(|p| p.points <= s.points_per_part));
     assert_eq!(s.parts.iter().map(|p| p.points).sum::<u64>(), 650_000);
-    let (_, all, _) = pcimg::ingest::read_all(&input, &ReadOptions::default()).unwrap();
-    let mut want: Vec<[i64; 3]> = (0..all.len())
-        .map(|i| [all.x[i], all.y[i], all.z[i]].map(|v| (v * 1e4).round() as i64))
-        .collect();
-    want.sort();
-    let got = dataset_points(&out);
-    assert_eq!(got.len(), want.len());
-    let off = got
-        .iter()
-        .zip(&want)
-        .filter(|(a, b)| (0..3).any(|k| (a[k] - b[k]).abs() > 1))
-        .count();
-    assert_eq!(off, 0, "points differ beyond 0.1 mm");
+    let worst = worst_offset(&dataset_points(&out), &file_points(&input));
+    assert!(worst <= 1, "points differ by {worst} x 0.1 mm");
     assert_eq!(entries(dir.path()), ["dense.pcimg", "dense.xyz"]);
 }
 
@@ -313,20 +317,8 @@ fn points_far_outside_the_sample_are_kept_to_a_millimetre() {
         "{}",
         s.max_quantization_error
     );
-    let got = dataset_points(&out);
-    let (_, all, _) = pcimg::ingest::read_all(&input, &ReadOptions::default()).unwrap();
-    let mut want: Vec<[i64; 3]> = (0..all.len())
-        .map(|i| [all.x[i], all.y[i], all.z[i]].map(|v| (v * 1e4).round() as i64))
-        .collect();
-    want.sort();
-    assert_eq!(got.len(), want.len());
-    let worst = got
-        .iter()
-        .zip(&want)
-        .map(|(a, b)| (0..3).map(|k| (a[k] - b[k]).abs()).max().unwrap_or(0))
-        .max()
-        .unwrap_or(0);
-    assert!(worst <= 10, "a point moved {} x 0.1 mm", worst);
+    let worst = worst_offset(&dataset_points(&out), &file_points(&input));
+    assert!(worst <= 10, "a point moved {worst} x 0.1 mm");
 }
 
 #[test]

@@ -416,19 +416,22 @@ fn convert_with(
                 let tmp = spill::TempDir::beside(&o.output, "pcimg-spill")?;
                 let t_partition = begin();
                 let mut origins: Vec<[f64; 3]> = regions.iter().map(|r| r.centre(&grid)).collect();
-                let mut files = distribute(
-                    &mut reader,
-                    input,
-                    &read,
-                    o,
-                    progress,
-                    &grid,
-                    &regions,
-                    &cell_region,
-                    &origins,
-                    &like,
-                    &tmp.path,
-                )?;
+                let mut spill_with = |origins: &[[f64; 3]]| {
+                    distribute(
+                        &mut reader,
+                        input,
+                        &read,
+                        o,
+                        progress,
+                        &grid,
+                        &regions,
+                        &cell_region,
+                        origins,
+                        &like,
+                        &tmp.path,
+                    )
+                };
+                let mut files = spill_with(&origins)?;
                 // Points the sample never saw can lie far outside their region's
                 // box. Where f32 then lost 1 mm around the box's centre but would
                 // not around the centre of the region's own bounds, the pass is
@@ -444,19 +447,7 @@ fn convert_with(
                             *origin = f.bounds.center();
                         }
                     }
-                    files = distribute(
-                        &mut reader,
-                        input,
-                        &read,
-                        o,
-                        progress,
-                        &grid,
-                        &regions,
-                        &cell_region,
-                        &origins,
-                        &like,
-                        &tmp.path,
-                    )?;
+                    files = spill_with(&origins)?;
                 }
                 pass("partition", t_partition);
                 total = files.iter().map(|f| f.points).sum();
