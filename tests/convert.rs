@@ -68,6 +68,20 @@ fn worst_offset(got: &[[i64; 3]], want: &[[i64; 3]]) -> i64 {
         .unwrap_or(0)
 }
 
+/// Parts do not overlap: each pair is separated on some axis.
+fn assert_parts_disjoint(path: &Path) {
+    let ds = Dataset::open(path).unwrap();
+    for (i, a) in ds.parts.iter().enumerate() {
+        for b in &ds.parts[i + 1..] {
+            let (a, b) = (a.meta.bounds, b.meta.bounds);
+            assert!(
+                (0..3).any(|k| a.max[k] <= b.min[k] || b.max[k] <= a.min[k]),
+                "parts overlap: {a:?} {b:?}"
+            );
+        }
+    }
+}
+
 fn entries(dir: &Path) -> Vec<String> {
     let mut v: Vec<String> = std::fs::read_dir(dir)
         .unwrap()
@@ -151,17 +165,7 @@ fn budget_far_below_input_gives_spatial_parts_with_every_point() {
     want.sort();
     let worst = worst_offset(&dataset_points(&out), &want);
     assert!(worst <= 1, "points differ by {worst} x 0.1 mm");
-    // Parts do not overlap: each pair is separated on some axis.
-    let ds = Dataset::open(&out).unwrap();
-    for (i, a) in ds.parts.iter().enumerate() {
-        for b in &ds.parts[i + 1..] {
-            let (a, b) = (a.meta.bounds, b.meta.bounds);
-            assert!(
-                (0..3).any(|k| a.max[k] <= b.min[k] || b.max[k] <= a.min[k]),
-                "parts overlap: {a:?} {b:?}"
-            );
-        }
-    }
+    assert_parts_disjoint(&out);
     // No temporary files left beside the output.
     assert_eq!(entries(dir.path()), ["scan.pcimg", "scan.xyz"]);
 }
@@ -222,16 +226,7 @@ fn sampled_first_pass_keeps_every_point_within_budget() {
         assert!(t.parts.len() >= 4, "{} parts", t.parts.len());
         // The same points, only grouped differently.
         assert_eq!(dataset_points(&sampled), dataset_points(&whole));
-        let ds = Dataset::open(&sampled).unwrap();
-        for (i, a) in ds.parts.iter().enumerate() {
-            for b in &ds.parts[i + 1..] {
-                let (a, b) = (a.meta.bounds, b.meta.bounds);
-                assert!(
-                    (0..3).any(|k| a.max[k] <= b.min[k] || b.max[k] <= a.min[k]),
-                    "parts overlap: {a:?} {b:?}"
-                );
-            }
-        }
+        assert_parts_disjoint(&sampled);
         std::fs::remove_dir_all(&whole).unwrap();
         std::fs::remove_dir_all(&sampled).unwrap();
     }
