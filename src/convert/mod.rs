@@ -374,11 +374,11 @@ fn convert_with(
                     }
                     // More than one part: the rest of this pass only places the
                     // regions, and a sample of it does (pass 2 reads every point).
-                    let done = reader.bytes_done().max(1);
-                    let left = info.file_bytes.saturating_sub(done);
-                    let rest = left as f64 * total as f64 / done as f64;
-                    let sample = o.sample_points.max(MIN_SAMPLE) as f64;
-                    let every = (rest / sample) as u64;
+                    let read_bytes = reader.bytes_done().max(1);
+                    let left = info.file_bytes.saturating_sub(read_bytes);
+                    let rest = left as f64 * total as f64 / read_bytes as f64;
+                    let wanted = o.sample_points.max(MIN_SAMPLE) as f64;
+                    let every = (rest / wanted) as u64;
                     if every >= 2 && reader.sample_rest(every) {
                         weight = every;
                     }
@@ -496,6 +496,7 @@ fn convert_with(
                         }
                         let subs = partition::split(&grid, per_part);
                         let map = partition::cell_regions(&grid, &subs);
+                        drop(blocks);
                         let mut blocks = spill::SpillReader::open(&f.path, nattr)?;
                         splits += 1;
                         let tag = format!("split{splits}");

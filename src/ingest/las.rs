@@ -12,10 +12,12 @@
 //! * Reading: `las::Reader` is not `Send`, so it lives on a decoder thread that
 //!   reads chunks with `fill_points` and converts them to columns one chunk ahead
 //!   of the consumer (a bounded channel of one chunk). The thread starts with the
-//!   first read, so opening a file for its header decodes nothing. LAS records are decoded in
-//!   small batches that stay in cache; LAZ uses the `laz-parallel` decompressor
-//!   (chunks decompressed with rayon) in large batches, falling back to the
-//!   sequential one when the file has no chunk table. A panic in the decoder (the
+//!   first read, so opening a file for its header decodes nothing. LAS records
+//!   are decoded in small batches that stay in cache; LAZ uses the `laz-parallel`
+//!   decompressor (chunks decompressed with rayon) in large batches, falling back
+//!   to the sequential one when the file has no chunk table. Sampling
+//!   ([`PointReader::sample_rest`]) seeks through the chunk table, so a file
+//!   without one reads every point. A panic in the decoder (the
 //!   `laz` crate can panic on corrupt data) is caught and reported as an error;
 //!   the default panic hook still prints its message to stderr.
 //! * Truncation: an uncompressed file shorter than its header declares is refused
