@@ -2,8 +2,8 @@
 # The paper's storage experiment (Du & Li 2009, Table 1) at full size:
 # 47,756,566 points of "x y z intensity" text, converted with 3 bands (x y z) and
 # with 4 bands, under --memory 256MiB and under the default budget; plus the same
-# points as LAS. Prints wall time, M points/s, MB/s of input and peak resident memory
-# (GNU time) for each run.
+# points as LAS and as LAZ. Prints wall time, M points/s, MB/s of input and peak
+# resident memory (GNU time) for each run.
 #
 #   bash bench/convert.sh            # full size (needs ~5 GB in $DIR)
 #   N=5000000 bash bench/convert.sh  # a quick run
@@ -22,6 +22,7 @@ echo "points: $N"
 ORDER=${ORDER:-scan}
 [ -f "$DIR/$ORDER-$N.xyz" ] || $BIN synth -n "$N" --order "$ORDER" -o "$DIR/$ORDER-$N.xyz"
 [ -f "$DIR/$ORDER-$N.las" ] || $BIN synth -n "$N" --order "$ORDER" -o "$DIR/$ORDER-$N.las"
+[ -f "$DIR/$ORDER-$N.laz" ] || $BIN synth -n "$N" --order "$ORDER" -o "$DIR/$ORDER-$N.laz"
 echo "input order: $ORDER"
 
 # Each configuration runs $REPS times (default 3); the line gives the median wall
@@ -64,4 +65,5 @@ run "text, 4 bands, default memory" "$DIR/$ORDER-$N.xyz"
 run "text, 4 bands, stream, 256MiB" "$DIR/$ORDER-$N.xyz" --memory 256MiB --partition stream
 run "las, 4+ bands, --memory 256MiB" "$DIR/$ORDER-$N.las" --memory 256MiB
 run "las, 4+ bands, default memory" "$DIR/$ORDER-$N.las"
+run "laz, 4+ bands, --memory 256MiB" "$DIR/$ORDER-$N.laz" --memory 256MiB
 rm -rf "$DIR/out"

@@ -309,7 +309,7 @@ pub fn write_text_in_order(
 }
 
 /// Writes `n` points of the scene as LAS 1.2 (point format 1: intensity, GPS time),
-/// scale 1 mm, atomically.
+/// scale 1 mm, atomically; compressed (LAZ) when `path` ends in `.laz`.
 pub fn write_las(path: &std::path::Path, n: u64, seed: u64) -> std::io::Result<u64> {
     write_las_in_order(path, n, seed, Order::Random)
 }
@@ -328,6 +328,9 @@ pub fn write_las_in_order(
     let res = (|| -> std::io::Result<()> {
         let mut b = las::Builder::from((1, 2));
         b.point_format = las::point::Format::new(1).map_err(err)?;
+        b.point_format.is_compressed = path
+            .extension()
+            .is_some_and(|e| e.eq_ignore_ascii_case("laz"));
         let t = |o| las::Transform {
             scale: 0.001,
             offset: o,
@@ -338,7 +341,9 @@ pub fn write_las_in_order(
             z: t(SCENE_ORIGIN[2]),
         };
         let header = b.into_header().map_err(err)?;
-        let mut w = las::Writer::from_path(&tmp, header).map_err(err)?;
+        // (`Writer::from_path` would pick compression from the temporary name.)
+        let file = std::io::BufWriter::new(std::fs::File::create(&tmp)?);
+        let mut w = las::Writer::new(file, header).map_err(err)?;
         let mut start = 0;
         while start < n {
             let end = (start + WRITE_BLOCK).min(n);

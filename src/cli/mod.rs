@@ -42,7 +42,7 @@ pub enum Command {
     Render(render::Args),
     /// Print one frame inline in the terminal (kitty, sixel, iTerm2, half-blocks).
     Preview(preview::Args),
-    /// Write a deterministic synthetic scan as text or LAS.
+    /// Write a deterministic synthetic scan as text, LAS or LAZ.
     Synth(synth::Args),
 }
 

@@ -1,5 +1,5 @@
-//! `pcimg synth`: writes a deterministic synthetic scan as text or LAS, for tests
-//! and benchmarks.
+//! `pcimg synth`: writes a deterministic synthetic scan as text, LAS or LAZ, for
+//! tests and benchmarks.
 
 use std::path::PathBuf;
 
@@ -8,7 +8,8 @@ pub struct Args {
     /// Number of points.
     #[arg(short = 'n', long, default_value_t = 1_000_000)]
     pub points: u64,
-    /// Output file: .xyz/.txt (x y z intensity text, the paper's input) or .las.
+    /// Output file: .xyz/.txt (x y z intensity text, the paper's input), .las or
+    /// .laz (compressed LAS).
     #[arg(short, long)]
     pub output: PathBuf,
     /// Seed: the same seed and count always give the same points.
@@ -38,10 +39,10 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         .unwrap_or_default();
     let t = std::time::Instant::now();
     let bytes = match ext.as_str() {
-        "las" => crate::synth::write_las_in_order(&a.output, a.points, a.seed, a.order),
+        "las" | "laz" => crate::synth::write_las_in_order(&a.output, a.points, a.seed, a.order),
         "xyz" | "txt" => crate::synth::write_text_in_order(&a.output, a.points, a.seed, a.order),
         _ => anyhow::bail!(
-            "{}: unknown output format (use .xyz, .txt or .las)",
+            "{}: unknown output format (use .xyz, .txt, .las or .laz)",
             a.output.display()
         ),
     }
