@@ -55,9 +55,9 @@ impl Sample {
     }
 }
 
-/// Default [`super::ConvertOptions::sample_points`]: twice the points the region sample
-/// keeps, so every sampled window contributes (measured: regions within ±10% of
-/// their estimate on the benchmark scan).
+/// Default [`super::ConvertOptions::sample_points`]: twice the points the region
+/// sample keeps, so every sampled window contributes (measured: regions within
+/// ±10% of their estimate on the benchmark scan).
 pub const DEFAULT_SAMPLE_POINTS: u64 = 1 << 22;
 
 /// The fewest points a sample reads, whatever `sample_points` asks (fewer would

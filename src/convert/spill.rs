@@ -1,7 +1,8 @@
 //! Temporary per-region files of the spatial partitioning: points appended in input
 //! order as fixed-size records (x y z as f32 relative to the region's origin, then
 //! the f32 attributes: the values the part will store, so 16 bytes a point with
-//! one attribute), read back a block at a time when the region becomes a part. The directory holding them is removed on drop:
+//! one attribute), read back a block at a time when the region becomes a part.
+//! The directory holding them is removed on drop:
 //! on success, on error, and when Ctrl-C unwinds the conversion.
 
 use crate::points::{Attribute, Bounds, PointColumns};
