@@ -1,11 +1,16 @@
 //! Store throughput: writing 10 M points (sort + layout + pyramid + write; points in
 //! random order, and in scan order for uncompressed parts) and
-//! reading level 0 and level 2 back, uncompressed and Deflate, from the page cache.
+//! reading level 0 and level 2 back, uncompressed and Deflate, from the page cache;
+//! and filling a part's builder from a spatial conversion's temporary region file
+//! (2.5 M points, x y z intensity: a part of `--memory 256MiB`), through decoded
+//! `f64` columns against straight from the packed records.
 //!
-//! `cargo bench --bench store` (set `PCIMG_BENCH_POINTS` for another size).
+//! `cargo bench --bench store` (set `PCIMG_BENCH_POINTS` for another size;
+//! `cargo bench --bench store -- read-back` for the builder fill alone).
 
 use criterion::{Criterion, Throughput, criterion_group, criterion_main};
-use pcimg::store::{Compression, Part, WriteOptions, write_part};
+use pcimg::convert::spill::{SpillReader, SpillWriter, records_by_region};
+use pcimg::store::{Compression, Part, PartBuilder, WriteOptions, write_part};
 use std::time::{Duration, Instant};
 
 fn points() -> u64 {
@@ -69,5 +74,50 @@ fn bench(c: &mut Criterion) {
     g.finish();
 }
 
-criterion_group!(benches, bench);
+/// A part's worth of points spilled as a region file, then read back into a
+/// builder: as `f64` columns pushed (decode, then convert) and as packed records.
+fn read_back(c: &mut Criterion) {
+    let n = 2_500_000u64;
+    let cloud = pcimg::synth::scene_in_order(n, 1, pcimg::synth::Order::Scan);
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("region.bin");
+    let origin = cloud.bounds().center();
+    let (records, _, _) = records_by_region(&cloud, &vec![0u32; n as usize], &[origin]);
+    let mut w = SpillWriter::create(path.clone(), 1 << 20).unwrap();
+    w.push_records(&records, n).unwrap();
+    w.finish().unwrap();
+    let like = cloud.empty_like();
+    let names: Vec<(String, f64)> = like
+        .attributes
+        .iter()
+        .map(|a| (a.name.clone(), a.offset))
+        .collect();
+    let part = dir.path().join("part.tif");
+    let mut g = c.benchmark_group("read-back");
+    g.sample_size(20).measurement_time(Duration::from_secs(10));
+    g.throughput(Throughput::Elements(n));
+    g.bench_function("columns", |b| {
+        b.iter(|| {
+            let mut r = SpillReader::open(&path, 1).unwrap();
+            let mut p = PartBuilder::new(origin, None, n as usize);
+            while let Some(c) = r.next_block(&like, usize::MAX, origin).unwrap() {
+                p.push(&part, &c).unwrap();
+            }
+            p
+        })
+    });
+    g.bench_function("packed", |b| {
+        b.iter(|| {
+            let mut r = SpillReader::open(&path, 1).unwrap();
+            let mut p = PartBuilder::new(origin, None, n as usize);
+            while let Some(rec) = r.next_records(usize::MAX).unwrap() {
+                p.push_packed(&part, rec, &names).unwrap();
+            }
+            p
+        })
+    });
+    g.finish();
+}
+
+criterion_group!(benches, read_back, bench);
 criterion_main!(benches);

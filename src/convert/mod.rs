@@ -461,6 +461,11 @@ fn convert_with(
                 let mut done = 0u64;
                 let mut splits = 0usize;
                 let nattr = like.attributes.len();
+                let names: Vec<(String, f64)> = like
+                    .attributes
+                    .iter()
+                    .map(|a| (a.name.clone(), a.offset))
+                    .collect();
                 let mut stack: Vec<(Spilled, bool)> =
                     files.into_iter().rev().map(|f| (f, false)).collect();
                 while let Some((f, split)) = stack.pop() {
@@ -479,8 +484,8 @@ fn convert_with(
                     if f.points <= per_part {
                         let t_back = begin();
                         let mut b = new_part();
-                        while let Some(c) = blocks.next_block(&like, usize::MAX, f.origin)? {
-                            b.push(&part_path(parts.len()), &c)?;
+                        while let Some(r) = blocks.next_records(usize::MAX)? {
+                            b.push_packed(&part_path(parts.len()), r, &names)?;
                         }
                         drop(blocks);
                         let _ = std::fs::remove_file(&f.path);
@@ -520,8 +525,8 @@ fn convert_with(
                     } else {
                         let mut b = new_part();
                         let room = |b: &store::PartBuilder| per_part as usize - b.len();
-                        while let Some(c) = blocks.next_block(&like, room(&b), f.origin)? {
-                            b.push(&part_path(parts.len()), &c)?;
+                        while let Some(r) = blocks.next_records(room(&b))? {
+                            b.push_packed(&part_path(parts.len()), r, &names)?;
                             if room(&b) == 0 {
                                 write_built(std::mem::replace(&mut b, new_part()), &mut parts)?;
                             }

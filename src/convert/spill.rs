@@ -42,7 +42,7 @@ impl Drop for TempDir {
 
 /// Bytes of one record with `attributes` attribute columns.
 pub fn record_size(attributes: usize) -> usize {
-    12 + 4 * attributes
+    crate::store::builder::packed_size(attributes)
 }
 
 /// An I/O error on a temporary file, naming it (the disk that fills up is the
@@ -155,16 +155,9 @@ impl SpillReader {
         })
     }
 
-    /// The next block of at most `max` points (`None` at the end), coordinates
-    /// made absolute again from the region's `origin` (exactly: the store, given
-    /// the same origin, recovers the `f32` values the file holds), with the
-    /// attribute names and offsets of `like`.
-    pub fn next_block(
-        &mut self,
-        like: &PointColumns,
-        max: usize,
-        origin: [f64; 3],
-    ) -> std::io::Result<Option<PointColumns>> {
+    /// The next block of at most `max` whole records (`None` at the end), as
+    /// written: the packed records of [`crate::store::PartBuilder::push_packed`].
+    pub fn next_records(&mut self, max: usize) -> std::io::Result<Option<&[u8]>> {
         use std::io::Read;
         let want = max.min(BLOCK_BYTES / self.rs).max(1) * self.rs;
         self.buf.resize(want, 0);
@@ -183,10 +176,23 @@ impl SpillReader {
                 self.path.display()
             )));
         }
-        if got == 0 {
-            return Ok(None);
-        }
-        Ok(Some(decode(&self.buf[..got], self.rs, like, origin)))
+        Ok((got > 0).then(|| &self.buf[..got]))
+    }
+
+    /// The next block of at most `max` points (`None` at the end), coordinates
+    /// made absolute again from the region's `origin` (exactly: the store, given
+    /// the same origin, recovers the `f32` values the file holds), with the
+    /// attribute names and offsets of `like`.
+    pub fn next_block(
+        &mut self,
+        like: &PointColumns,
+        max: usize,
+        origin: [f64; 3],
+    ) -> std::io::Result<Option<PointColumns>> {
+        let rs = self.rs;
+        Ok(self
+            .next_records(max)?
+            .map(|bytes| decode(bytes, rs, like, origin)))
     }
 }
 

@@ -109,14 +109,9 @@ impl PartBuilder {
         Ok(())
     }
 
-    /// Appends the positions of `c`, checking them and its attributes' names and
-    /// offsets.
-    fn push_positions(&mut self, path: &Path, c: &PointColumns) -> Result<()> {
-        let this: Vec<(String, f64)> = c
-            .attributes
-            .iter()
-            .map(|a| (a.name.clone(), a.offset))
-            .collect();
+    /// Checks that `this` (attribute names and offsets) matches the part's
+    /// attributes and that `len` more points fit a part; true for the first push.
+    fn admit(&self, path: &Path, this: &[(String, f64)], len: usize) -> Result<bool> {
         let first = self.is_empty() && self.attributes.is_empty();
         if !first && this != self.attributes {
             return Err(StoreError::new(
@@ -124,7 +119,6 @@ impl PartBuilder {
                 "the chunks of a part differ in their attribute columns or offsets",
             ));
         }
-        let len = c.len();
         let base = self.pos.len();
         if (base + len) as u64 > u32::MAX as u64 {
             return Err(StoreError::new(
@@ -135,15 +129,33 @@ impl PartBuilder {
                 ),
             ));
         }
+        Ok(first)
+    }
+
+    /// The bounds every point must lie in (all space when none were given).
+    fn limits(&self) -> ([f64; 3], [f64; 3]) {
+        match self.expect {
+            Some(b) => (b.min, b.max),
+            None => ([f64::NEG_INFINITY; 3], [f64::INFINITY; 3]),
+        }
+    }
+
+    /// Appends the positions of `c`, checking them and its attributes' names and
+    /// offsets.
+    fn push_positions(&mut self, path: &Path, c: &PointColumns) -> Result<()> {
+        let this: Vec<(String, f64)> = c
+            .attributes
+            .iter()
+            .map(|a| (a.name.clone(), a.offset))
+            .collect();
+        let len = c.len();
+        let first = self.admit(path, &this, len)?;
+        let base = self.pos.len();
         // Relative positions and the chunk's bounds in one pass; a NaN fails
         // every comparison, so `ok` also catches it.
         self.pos.reserve(len);
+        let (origin, (lo, hi)) = (self.origin, self.limits());
         let dst = &mut self.pos.spare_capacity_mut()[..len];
-        let origin = self.origin;
-        let (lo, hi) = match self.expect {
-            Some(b) => (b.min, b.max),
-            None => ([f64::NEG_INFINITY; 3], [f64::INFINITY; 3]),
-        };
         let (ok, b) = dst
             .par_chunks_mut(PIECE)
             .enumerate()
@@ -173,21 +185,7 @@ impl PartBuilder {
                 !(0..3).all(|a| p[a].is_finite() && p[a] >= lo[a] && p[a] <= hi[a])
             };
             let i = (0..len).find(|&i| bad(i)).unwrap_or(0);
-            let what = if [c.x[i], c.y[i], c.z[i]].iter().all(|v| v.is_finite()) {
-                "lies outside the bounds given for the part"
-            } else {
-                "has a coordinate that is not a finite number"
-            };
-            return Err(StoreError::new(
-                path,
-                format!(
-                    "point {} {what} ({}, {}, {})",
-                    base + i,
-                    c.x[i],
-                    c.y[i],
-                    c.z[i]
-                ),
-            ));
+            return Err(bad_point(path, base + i, [c.x[i], c.y[i], c.z[i]]));
         }
         // SAFETY: every slot base..base + len was written above.
         unsafe { self.pos.set_len(base + len) };
@@ -195,6 +193,106 @@ impl PartBuilder {
         if first {
             self.attributes = this;
         }
+        Ok(())
+    }
+
+    /// Appends points given as packed records of [`packed_size`]`(m)` bytes,
+    /// little-endian: x y z as `f32` relative to this builder's origin, then the
+    /// values of the m `attributes` (names and offsets). The values are stored as
+    /// given, so records written around the same origin come back exactly, with
+    /// no conversion through `f64`. Checks as [`PartBuilder::push`] does; on an
+    /// error the builder is unchanged.
+    pub fn push_packed(
+        &mut self,
+        path: &Path,
+        records: &[u8],
+        attributes: &[(String, f64)],
+    ) -> Result<()> {
+        let m = attributes.len();
+        let rs = packed_size(m);
+        if records.len() % rs != 0 {
+            return Err(StoreError::new(
+                path,
+                format!("{} bytes are not whole {rs}-byte records", records.len()),
+            ));
+        }
+        let len = records.len() / rs;
+        let first = self.admit(path, attributes, len)?;
+        let base = self.pos.len();
+        let (origin, (lo, hi)) = (self.origin, self.limits());
+        let point = |r: &[u8]| [0, 1, 2].map(|a| origin[a] + f64::from(f32_at(r, 4 * a)));
+        self.pos.reserve(len);
+        if m > 0 && self.rows.capacity() == 0 {
+            self.rows = crate::bigvec::with_capacity(self.pos.capacity() * m);
+        }
+        self.rows.reserve(len * m);
+        let rows_at = self.rows.len();
+        let pos = &mut self.pos.spare_capacity_mut()[..len];
+        let rows = &mut self.rows.spare_capacity_mut()[..len * m];
+        // Each piece's rows (empty ones when there are no attributes).
+        let pieces = len.div_ceil(PIECE);
+        let mut row_pieces: Vec<&mut [std::mem::MaybeUninit<f32>]> = Vec::with_capacity(pieces);
+        if m > 0 {
+            row_pieces.extend(rows.chunks_mut(PIECE * m));
+        } else {
+            row_pieces.resize_with(pieces, || &mut []);
+        }
+        let (ok, b, ranges) = records
+            .par_chunks(PIECE * rs)
+            .zip(pos.par_chunks_mut(PIECE))
+            .zip(row_pieces)
+            .map(|((recs, pos), rows)| {
+                let piece = Piece {
+                    recs,
+                    pos,
+                    rows,
+                    origin,
+                    lo,
+                    hi,
+                };
+                match m {
+                    0 => piece.unpack::<0>(),
+                    1 => piece.unpack::<1>(),
+                    2 => piece.unpack::<2>(),
+                    3 => piece.unpack::<3>(),
+                    4 => piece.unpack::<4>(),
+                    5 => piece.unpack::<5>(),
+                    6 => piece.unpack::<6>(),
+                    7 => piece.unpack::<7>(),
+                    8 => piece.unpack::<8>(),
+                    _ => piece.unpack_any(m),
+                }
+            })
+            .reduce(
+                || (true, Bounds::EMPTY, vec![EMPTY_RANGE; m]),
+                |x, y| (x.0 & y.0, x.1.union(&y.1), widen(&x.2, &y.2)),
+            );
+        if !ok {
+            let bad =
+                |p: [f64; 3]| !(0..3).all(|a| p[a].is_finite() && p[a] >= lo[a] && p[a] <= hi[a]);
+            let (i, p) = records
+                .chunks_exact(rs)
+                .map(point)
+                .enumerate()
+                .find(|&(_, p)| bad(p))
+                .unwrap_or((0, [f64::NAN; 3]));
+            return Err(bad_point(path, base + i, p));
+        }
+        // SAFETY: the pieces wrote every slot base..base + len of the positions
+        // and rows_at..rows_at + len * m of the rows.
+        unsafe {
+            self.pos.set_len(base + len);
+            self.rows.set_len(rows_at + len * m);
+        }
+        self.bounds = self.bounds.union(&b);
+        if first {
+            self.attributes = attributes.to_vec();
+        }
+        self.ranges = if self.ranges.is_empty() {
+            ranges
+        } else {
+            widen(&self.ranges, &ranges)
+        };
         Ok(())
     }
 
@@ -239,6 +337,105 @@ impl PartBuilder {
             widen(&self.ranges, &ranges)
         };
     }
+}
+
+/// The `f32` at byte `o` of `r`, little-endian.
+#[inline(always)]
+fn f32_at(r: &[u8], o: usize) -> f32 {
+    f32::from_le_bytes([r[o], r[o + 1], r[o + 2], r[o + 3]])
+}
+
+/// One parallel piece of [`PartBuilder::push_packed`]: its records and the slots
+/// its positions and rows go to.
+struct Piece<'a> {
+    recs: &'a [u8],
+    pos: &'a mut [std::mem::MaybeUninit<[f32; 3]>],
+    rows: &'a mut [std::mem::MaybeUninit<f32>],
+    origin: [f64; 3],
+    lo: [f64; 3],
+    hi: [f64; 3],
+}
+
+/// A piece's result: all points valid, their bounds, each attribute's range.
+type Unpacked = (bool, Bounds, Vec<(f32, f32)>);
+
+impl Piece<'_> {
+    /// The piece's positions: stored as given; checked and bounded in `f64`.
+    fn positions(&mut self, rs: usize) -> (bool, Bounds) {
+        let mut ok = true;
+        let mut b = Bounds::EMPTY;
+        for (r, d) in self.recs.chunks_exact(rs).zip(self.pos.iter_mut()) {
+            let q = [f32_at(r, 0), f32_at(r, 4), f32_at(r, 8)];
+            d.write(q);
+            for a in 0..3 {
+                let p = self.origin[a] + f64::from(q[a]);
+                // `&`, not `&&`: no branches in the loop.
+                ok &= (p >= self.lo[a]) & (p <= self.hi[a]) & p.is_finite();
+                b.min[a] = b.min[a].min(p);
+                b.max[a] = b.max[a].max(p);
+            }
+        }
+        (ok, b)
+    }
+
+    /// [`Piece::positions`], then the `M` attribute values of each record as one
+    /// row, with their ranges.
+    fn unpack<const M: usize>(mut self) -> Unpacked {
+        let rs = packed_size(M);
+        let (ok, b) = self.positions(rs);
+        let mut lo = [f32::INFINITY; M];
+        let mut hi = [f32::NEG_INFINITY; M];
+        for (r, row) in self
+            .recs
+            .chunks_exact(rs)
+            .zip(self.rows.chunks_exact_mut(M.max(1)))
+        {
+            for j in 0..M {
+                let v = f32_at(r, 12 + 4 * j);
+                row[j].write(v);
+                lo[j] = lo[j].min(v);
+                hi[j] = hi[j].max(v);
+            }
+        }
+        (ok, b, (0..M).map(|j| (lo[j], hi[j])).collect())
+    }
+
+    /// [`Piece::unpack`] for any number of attributes.
+    fn unpack_any(mut self, m: usize) -> Unpacked {
+        let rs = packed_size(m);
+        let (ok, b) = self.positions(rs);
+        let mut ranges = vec![EMPTY_RANGE; m];
+        for (r, row) in self
+            .recs
+            .chunks_exact(rs)
+            .zip(self.rows.chunks_exact_mut(m))
+        {
+            for (j, (v, range)) in row.iter_mut().zip(&mut ranges).enumerate() {
+                let x = f32_at(r, 12 + 4 * j);
+                v.write(x);
+                *range = (range.0.min(x), range.1.max(x));
+            }
+        }
+        (ok, b, ranges)
+    }
+}
+
+/// Bytes of one record of [`PartBuilder::push_packed`] with `m` attributes.
+pub fn packed_size(m: usize) -> usize {
+    12 + 4 * m
+}
+
+/// The error for point `i` at `p`: not finite, or outside the expected bounds.
+fn bad_point(path: &Path, i: usize, p: [f64; 3]) -> StoreError {
+    let what = if p.iter().all(|v| v.is_finite()) {
+        "lies outside the bounds given for the part"
+    } else {
+        "has a coordinate that is not a finite number"
+    };
+    StoreError::new(
+        path,
+        format!("point {i} {what} ({}, {}, {})", p[0], p[1], p[2]),
+    )
 }
 
 /// A range no value has widened yet.
@@ -345,5 +542,79 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(e.contains("point 1 lies outside"), "{e}");
+    }
+
+    /// `c`'s points packed around `origin`, as a spill file holds them.
+    fn packed(c: &PointColumns, origin: [f64; 3]) -> Vec<u8> {
+        let mut out = Vec::new();
+        for i in 0..c.len() {
+            for (a, v) in [c.x[i], c.y[i], c.z[i]].iter().enumerate() {
+                out.extend_from_slice(&((v - origin[a]) as f32).to_le_bytes());
+            }
+            for a in &c.attributes {
+                out.extend_from_slice(&a.values[i].to_le_bytes());
+            }
+        }
+        out
+    }
+
+    #[test]
+    fn packed_records_fill_the_builder_as_columns_do() {
+        let p = Path::new("part.tif");
+        let origin = [10.0, 20.0, 0.0];
+        let a = chunk(&[11.0, 12.0, 10.5], &[1.0, 2.0, -4.0], 5.0);
+        let b = chunk(&[9.0], &[3.0], 5.0);
+        let names: Vec<(String, f64)> = a
+            .attributes
+            .iter()
+            .map(|t| (t.name.clone(), t.offset))
+            .collect();
+        let mut cols = PartBuilder::new(origin, None, 0);
+        cols.push(p, &a).unwrap();
+        cols.push(p, &b).unwrap();
+        let mut recs = PartBuilder::new(origin, None, 0);
+        recs.push_packed(p, &packed(&a, origin), &names).unwrap();
+        recs.push_packed(p, &packed(&b, origin), &names).unwrap();
+        assert_eq!((&recs.pos, &recs.rows), (&cols.pos, &cols.rows));
+        assert_eq!(
+            (&recs.ranges, &recs.attributes),
+            (&cols.ranges, &cols.attributes)
+        );
+        assert_eq!(
+            (recs.bounds.min, recs.bounds.max),
+            (cols.bounds.min, cols.bounds.max)
+        );
+        // No attributes: positions only.
+        let mut bare = PartBuilder::new(origin, None, 0);
+        let xyz = PointColumns {
+            attributes: vec![],
+            ..a.clone()
+        };
+        bare.push_packed(p, &packed(&xyz, origin), &[]).unwrap();
+        assert_eq!((bare.len(), bare.rows.len()), (3, 0));
+        // A partial record, other attributes, a NaN, a point outside the expected
+        // bounds: refused, and the builder keeps what it had.
+        let bytes = packed(&b, origin);
+        let e = recs
+            .push_packed(p, &bytes[..bytes.len() - 1], &names)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("part.tif") && e.contains("whole 20-byte records"),
+            "{e}"
+        );
+        let mut other = names.clone();
+        other[1].1 = 6.0;
+        let e = recs.push_packed(p, &bytes, &other).unwrap_err().to_string();
+        assert!(e.contains("offsets"), "{e}");
+        let nan = packed(&chunk(&[1.0, f64::NAN], &[1.0, 2.0], 5.0), origin);
+        let e = recs.push_packed(p, &nan, &names).unwrap_err().to_string();
+        assert!(e.contains("point 5 ") && e.contains("not a finite"), "{e}");
+        assert_eq!((recs.len(), recs.rows.len()), (4, 8));
+        let mut tight = PartBuilder::new(origin, Some(cols.bounds()), 0);
+        let far = packed(&chunk(&[10.0, 13.0], &[1.0, 1.0], 5.0), origin);
+        let e = tight.push_packed(p, &far, &names).unwrap_err().to_string();
+        assert!(e.contains("point 1 lies outside"), "{e}");
+        assert!(tight.is_empty());
     }
 }
