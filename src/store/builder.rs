@@ -210,7 +210,7 @@ impl PartBuilder {
     ) -> Result<()> {
         let m = attributes.len();
         let rs = packed_size(m);
-        if records.len() % rs != 0 {
+        if !records.len().is_multiple_of(rs) {
             return Err(StoreError::new(
                 path,
                 format!("{} bytes are not whole {rs}-byte records", records.len()),
