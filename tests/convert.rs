@@ -516,3 +516,49 @@ fn command_line_convert_and_info_json() {
     assert!(!o.status.success());
     assert!(String::from_utf8_lossy(&o.stderr).contains("nope.las"));
 }
+
+#[test]
+fn force_replaces_only_what_pcimg_wrote() {
+    let dir = tempfile::tempdir().unwrap();
+    let exe = env!("CARGO_BIN_EXE_pcimg");
+    let sb = dir.path().join("sb");
+    std::fs::create_dir(&sb).unwrap();
+    pcimg::synth::write_text(&sb.join("in.xyz"), 2_000, 1).unwrap();
+    std::fs::write(sb.join("other.txt"), "keep").unwrap();
+    pcimg::synth::write_text(&dir.path().join("top.xyz"), 2_000, 1).unwrap();
+    let docs = sb.join("docs");
+    std::fs::create_dir(&docs).unwrap();
+    std::fs::write(docs.join("important.txt"), "keep").unwrap();
+    let run = |args: &[&str]| {
+        let o = Command::new(exe)
+            .current_dir(&sb)
+            .args(["convert", "-q", "--force"])
+            .args(args)
+            .output()
+            .unwrap();
+        (
+            o.status.success(),
+            String::from_utf8_lossy(&o.stderr).into_owned(),
+        )
+    };
+    let before = entries(&sb);
+    for (args, want) in [
+        (&["in.xyz", "-o", "."][..], "holds the input"),
+        (&["../top.xyz", "-o", "."][..], "working directory"),
+        (&["in.xyz", "-o", "docs"][..], "not a pcimg dataset"),
+        (&["in.xyz", "-o", "in.xyz"][..], "is the input"),
+        (&["in.xyz", "-o", "../sb"][..], "holds the input"),
+        (&["in.xyz", "-o", "other.txt"][..], "is a file"),
+    ] {
+        let (ok, err) = run(args);
+        assert!(!ok && err.contains(want), "{args:?}: {err}");
+        assert_eq!(entries(&sb), before, "{args:?} changed the directory");
+        assert_eq!(entries(&docs), ["important.txt"]);
+    }
+    // A dataset pcimg wrote is replaced.
+    for _ in 0..2 {
+        let (ok, err) = run(&["in.xyz", "-o", "out.pcimg"]);
+        assert!(ok, "{err}");
+    }
+    assert_eq!(entries(&sb.join("out.pcimg")), ["part-00000.tif"]);
+}

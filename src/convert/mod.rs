@@ -5,6 +5,7 @@
 
 pub mod budget;
 mod distribute;
+mod output;
 pub mod partition;
 mod sample;
 pub mod spill;
@@ -184,12 +185,8 @@ fn convert_with(
     early: bool,
 ) -> Result<ConvertSummary> {
     let start = Instant::now();
-    if o.output.exists() && !o.force {
-        anyhow::bail!(
-            "{}: already exists (use --force to replace it)",
-            o.output.display()
-        );
-    }
+    let as_file = output_is_file(&o.output);
+    output::check(input, &o.output, as_file, o.force)?;
     let mut read = o.read.clone();
     let opened = ingest::open(input, &read)?;
     let info = opened.info().clone();
@@ -202,7 +199,6 @@ fn convert_with(
     read.chunk_points = read.chunk_points.min((per_part / 8).max(1 << 16) as usize);
     drop(opened);
     let mut reader = ingest::open(input, &read)?;
-    let as_file = output_is_file(&o.output);
     let write_opts = WriteOptions {
         compression: o.compression,
         layout: o.layout,

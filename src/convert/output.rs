@@ -1,0 +1,124 @@
+//! Whether a conversion may write its output path: it must not exist (or
+//! `--force` must be given), and even with `--force` it must not be the input,
+//! hold the input or the working directory, or be a directory other than a
+//! pcimg dataset: replacing an output removes it, so only what pcimg itself
+//! wrote may be removed.
+
+use anyhow::{Result, bail};
+use std::path::Path;
+
+/// Checks that converting `input` may write `output` (a `.tif` file when
+/// `as_file`, else a directory of parts), replacing it only with `force`.
+pub fn check(input: &Path, output: &Path, as_file: bool, force: bool) -> Result<()> {
+    let shown = output.display();
+    let meta = match std::fs::symlink_metadata(output) {
+        Ok(m) => m,
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(()),
+        Err(e) => bail!("{shown}: cannot inspect the output path: {e}"),
+    };
+    if !force {
+        bail!("{shown}: already exists (use --force to replace it)");
+    }
+    let out = output.canonicalize()?;
+    if let Ok(inp) = input.canonicalize() {
+        if inp == out {
+            bail!("{shown}: the output is the input file; choose another output");
+        }
+        if inp.starts_with(&out) {
+            bail!("{shown}: holds the input file; refusing to replace it");
+        }
+    }
+    if let Ok(cwd) = std::env::current_dir().and_then(|d| d.canonicalize()) {
+        if cwd.starts_with(&out) {
+            bail!("{shown}: is the working directory or holds it; refusing to replace it");
+        }
+    }
+    if meta.file_type().is_symlink() {
+        bail!("{shown}: is a symbolic link; refusing to replace it");
+    }
+    match (meta.is_dir(), as_file) {
+        (true, true) => bail!(
+            "{shown}: is a directory, and a .tif output is a single file; choose another output"
+        ),
+        (false, false) => bail!(
+            "{shown}: is a file, and this output is a directory of parts (name a .tif file \
+             for a single part); choose another output"
+        ),
+        (true, false) => check_dataset_dir(output),
+        (false, true) => Ok(()),
+    }
+}
+
+/// A directory `--force` may replace: empty, or holding pcimg parts only.
+fn check_dataset_dir(dir: &Path) -> Result<()> {
+    let shown = dir.display();
+    let refuse = |what: String| -> Result<()> {
+        bail!(
+            "{shown}: is not a pcimg dataset ({what}); refusing to replace it: choose \
+             another output, or remove it yourself"
+        )
+    };
+    for entry in std::fs::read_dir(dir)? {
+        let entry = entry?;
+        let path = entry.path();
+        let name = crate::text::sanitize(&entry.file_name().to_string_lossy());
+        if !entry.file_type()?.is_file() {
+            return refuse(format!("it holds {name}, which is not a file"));
+        }
+        if crate::store::Part::open(&path).is_err() {
+            return refuse(format!("it holds {name}, which is not a pcimg part"));
+        }
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn refused(input: &Path, output: &Path, as_file: bool) -> String {
+        check(input, output, as_file, true).unwrap_err().to_string()
+    }
+
+    #[test]
+    fn force_never_replaces_the_input_or_what_pcimg_did_not_write() {
+        let dir = tempfile::tempdir().unwrap();
+        let d = dir.path();
+        let input = d.join("in.xyz");
+        std::fs::write(&input, "1 2 3\n").unwrap();
+        // Absent: fine, with or without --force.
+        check(&input, &d.join("new.pcimg"), false, false).unwrap();
+        // Present without --force.
+        let e = check(&input, &input, false, false).unwrap_err().to_string();
+        assert!(e.contains("--force"), "{e}");
+        // The input itself, as a file or a directory output.
+        assert!(refused(&input, &input, false).contains("is the input"));
+        assert!(refused(&input, &input, true).contains("is the input"));
+        // A directory that holds the input.
+        assert!(refused(&input, d, false).contains("holds the input"));
+        // A directory of other things.
+        let docs = d.join("docs");
+        std::fs::create_dir(&docs).unwrap();
+        std::fs::write(docs.join("notes.txt"), "keep").unwrap();
+        let e = refused(&input, &docs, false);
+        assert!(
+            e.contains("not a pcimg dataset") && e.contains("notes.txt"),
+            "{e}"
+        );
+        std::fs::remove_file(docs.join("notes.txt")).unwrap();
+        std::fs::create_dir(docs.join("sub")).unwrap();
+        assert!(refused(&input, &docs, false).contains("sub, which is not a file"));
+        std::fs::remove_dir(docs.join("sub")).unwrap();
+        // An empty directory may be replaced, but not by a single .tif.
+        check(&input, &docs, false, true).unwrap();
+        assert!(refused(&input, &docs, true).contains("is a directory"));
+        // A file where a directory of parts would go.
+        let file = d.join("x.pcimg");
+        std::fs::write(&file, "x").unwrap();
+        assert!(refused(&input, &file, false).contains("is a file"));
+        // A .tif file may be replaced.
+        let tif = d.join("a.tif");
+        std::fs::write(&tif, "x").unwrap();
+        check(&input, &tif, true, true).unwrap();
+    }
+}
