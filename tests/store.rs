@@ -255,6 +255,26 @@ fn nan_coordinates_are_refused_and_nothing_is_left() {
     assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 0);
 }
 
+#[test]
+fn a_cancelled_write_stops_and_leaves_nothing() {
+    let dir = tempfile::tempdir().unwrap();
+    let c = random_cloud(100_000, 1, 0);
+    let path = dir.path().join("part.tif");
+    let cancel = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(true));
+    let opts = WriteOptions {
+        cancel: Some(cancel.clone()),
+        ..Default::default()
+    };
+    let e = write_part(&path, &c, &opts).unwrap_err();
+    assert!(
+        e.to_string().contains(pcimg::store::writer::INTERRUPTED),
+        "{e}"
+    );
+    assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 0);
+    cancel.store(false, std::sync::atomic::Ordering::Relaxed);
+    write_part(&path, &c, &opts).unwrap();
+}
+
 // ---- bad files -----------------------------------------------------------------
 
 fn good_file(dir: &Path) -> (std::path::PathBuf, Vec<u8>) {

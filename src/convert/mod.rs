@@ -116,9 +116,12 @@ pub type Result<T> = anyhow::Result<T>;
 /// f32 keeps 1 mm up to this distance from a part's origin (half-ulp ≤ 1 mm).
 pub const F32_MM_RADIUS: f64 = 0.001 * (1u64 << 24) as f64;
 
+/// The error of a conversion stopped by [`ConvertOptions::cancel`].
+const INTERRUPTED: &str = "interrupted: nothing was written";
+
 fn check_cancel(o: &ConvertOptions) -> Result<()> {
     if o.cancel.load(Ordering::Relaxed) {
-        anyhow::bail!("interrupted: nothing was written");
+        anyhow::bail!(INTERRUPTED);
     }
     Ok(())
 }
@@ -164,7 +167,7 @@ pub fn convert(
     o: &ConvertOptions,
     progress: &dyn Progress,
 ) -> Result<ConvertSummary> {
-    match convert_with(input, o, progress, true) {
+    let r = match convert_with(input, o, progress, true) {
         Err(e) if e.downcast_ref::<OriginTooFar>().is_some() => {
             progress.note(
                 "the points reach too far from the centre of the header's bounds or of the \
@@ -172,6 +175,11 @@ pub fn convert(
             );
             convert_with(input, o, progress, false)
         }
+        r => r,
+    };
+    // Whatever stopped a conversion that was asked to stop, it was the request.
+    match r {
+        Err(_) if o.cancel.load(Ordering::Relaxed) => anyhow::bail!(INTERRUPTED),
         r => r,
     }
 }
@@ -205,6 +213,7 @@ fn convert_with(
         source: input.file_name().map(|n| n.to_string_lossy().into_owned()),
         crs: info.crs_wkt.clone(),
         force_bigtiff: false,
+        cancel: Some(o.cancel.clone()),
     };
     progress.phase("read", info.file_bytes, "bytes");
 

@@ -17,6 +17,8 @@ use rayon::prelude::*;
 use std::fs::File;
 use std::io::{Seek, Write};
 use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
 use tiff::encoder::{TiffEncoder, TiffKind, TiffKindBig, TiffKindStandard};
 use tiff::tags::Tag;
 
@@ -31,7 +33,21 @@ pub struct WriteOptions {
     pub crs: Option<String>,
     /// Write BigTIFF even when classic TIFF would do.
     pub force_bigtiff: bool,
+    /// When set (Ctrl-C), the write stops at the next tile batch or phase with an
+    /// error, and its temporary file is removed.
+    pub cancel: Option<Arc<AtomicBool>>,
 }
+
+impl WriteOptions {
+    fn cancelled(&self) -> bool {
+        self.cancel
+            .as_ref()
+            .is_some_and(|c| c.load(Ordering::Relaxed))
+    }
+}
+
+/// The message of a write stopped by [`WriteOptions::cancel`].
+pub const INTERRUPTED: &str = "interrupted";
 
 /// What was written.
 #[derive(Debug, Clone)]
@@ -479,7 +495,16 @@ fn write(
     mut ph: Phases,
     opts: &WriteOptions,
 ) -> Result<PartSummary> {
+    let stop = || {
+        if opts.cancelled() {
+            Err(StoreError::new(path, INTERRUPTED))
+        } else {
+            Ok(())
+        }
+    };
+    stop()?;
     let a = arrange(path, part, opts.layout, &mut ph)?;
+    stop()?;
     let index = tile_index(&a);
     let xml = metadata_xml(&a, opts, &index);
     ph.mark("tile index");
@@ -499,7 +524,10 @@ fn write(
     let file = File::create(&tmp_path)
         .map_err(|e| StoreError::new(path, format!("cannot create {}: {e}", tmp_path.display())))?;
     let mut w = Out::new(&file);
-    let io = |e: tiff::TiffError| StoreError::new(path, format!("write failed: {e}"));
+    let io = |e: tiff::TiffError| match e {
+        _ if opts.cancelled() => StoreError::new(path, INTERRUPTED),
+        e => StoreError::new(path, format!("write failed: {e}")),
+    };
     if bigtiff {
         encode::<TiffKindBig>(&mut w, &a, opts, &xml, &index, true).map_err(io)?
     } else {
@@ -513,6 +541,7 @@ fn write(
     drop(w);
     drop(file);
     ph.mark("tiles+write");
+    stop()?;
     std::fs::rename(&tmp_path, path).map_err(|e| {
         StoreError::new(
             path,
@@ -693,6 +722,9 @@ fn encode<K: TiffKind>(
             (0..filled * per_tile)
                 .into_par_iter()
                 .try_for_each(|j| -> std::io::Result<()> {
+                    if opts.cancelled() {
+                        return Err(std::io::ErrorKind::Interrupted.into());
+                    }
                     let (t, group) = (j / per_tile, j % per_tile);
                     let tile = (t, tiles[t].index);
                     for (b, e) in encode_job(a, &lut, level, tile, group, Compression::None) {
@@ -714,6 +746,7 @@ fn encode<K: TiffKind>(
         } else {
             encode_batches(
                 &mut dir,
+                opts,
                 a,
                 &lut,
                 level,
@@ -771,6 +804,7 @@ fn encode<K: TiffKind>(
 #[allow(clippy::too_many_arguments)]
 fn encode_batches<K: TiffKind>(
     dir: &mut tiff::encoder::DirectoryEncoder<'_, &mut Out, K>,
+    opts: &WriteOptions,
     a: &Arranged,
     lut: &[u32],
     level: usize,
@@ -808,6 +842,9 @@ fn encode_batches<K: TiffKind>(
             }
         });
         for batch in rx {
+            if opts.cancelled() {
+                return Err(std::io::Error::from(std::io::ErrorKind::Interrupted).into());
+            }
             for (t, b, e) in &batch {
                 let bytes: &[u8] = match e {
                     Encoded::Raw(v) => bytemuck::cast_slice(v),
