@@ -28,10 +28,10 @@ pub fn check(input: &Path, output: &Path, as_file: bool, force: bool) -> Result<
             bail!("{shown}: holds the input file; refusing to replace it");
         }
     }
-    if let Ok(cwd) = std::env::current_dir().and_then(|d| d.canonicalize()) {
-        if cwd.starts_with(&out) {
-            bail!("{shown}: is the working directory or holds it; refusing to replace it");
-        }
+    if let Ok(cwd) = std::env::current_dir().and_then(|d| d.canonicalize())
+        && cwd.starts_with(&out)
+    {
+        bail!("{shown}: is the working directory or holds it; refusing to replace it");
     }
     if meta.file_type().is_symlink() {
         bail!("{shown}: is a symbolic link; refusing to replace it");
