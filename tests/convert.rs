@@ -271,7 +271,7 @@ fn underestimated_regions_are_split_within_budget() {
     assert_eq!(entries(dir.path()), ["dense.pcimg", "dense.xyz"]);
 }
 
-/// A point the sample missed, 20 km beyond the rest, lands in an edge region whose
+/// A point the sample missed, 40 km beyond the rest, lands in an edge region whose
 /// box centre f32 cannot hold them to 1 mm from: the regions are spilled again
 /// around their own centres, and every point is stored within 1 mm.
 #[test]
@@ -286,7 +286,7 @@ fn points_far_outside_the_sample_are_kept_to_a_millimetre() {
         writeln!(text, "{x:.3} {y:.3} {:.3} 1", (i % 7) as f64 * 0.1).unwrap();
     }
     // The last line, which no sampled piece reaches here.
-    text.push_str("20000.125 50.5 1.5 9\n");
+    text.push_str("40000.125 50.5 1.5 9\n");
     std::fs::write(&input, &text).unwrap();
     let out = dir.path().join("far.pcimg");
     let mut o = opts(out.clone(), 64 << 20);
@@ -387,7 +387,7 @@ fn first_window_far_from_the_rest_is_read_again() {
     let input = dir.path().join("long.xyz");
     let mut text = String::new();
     for i in 0..5000 {
-        let x = if i < 1000 { 0.0 } else { 29_990.0 } + (i % 10) as f64;
+        let x = if i < 1000 { 0.0 } else { 59_990.0 } + (i % 10) as f64;
         text.push_str(&format!("{x} {} {}\n", i % 7, i % 3));
     }
     std::fs::write(&input, text).unwrap();
@@ -398,7 +398,7 @@ fn first_window_far_from_the_rest_is_read_again() {
     assert_eq!(s.points, 5000);
     let part = &Dataset::open(&out).unwrap().parts[0];
     assert!(
-        (part.meta.origin[0] - 14_999.5).abs() < 1e-9,
+        (part.meta.origin[0] - 29_999.5).abs() < 1e-9,
         "{:?}",
         part.meta.origin
     );

@@ -113,8 +113,19 @@ impl ConvertSummary {
 /// Errors say which file and what went wrong.
 pub type Result<T> = anyhow::Result<T>;
 
-/// f32 keeps 1 mm up to this distance from a part's origin (half-ulp ≤ 1 mm).
-pub const F32_MM_RADIUS: f64 = 0.001 * (1u64 << 24) as f64;
+/// f32 keeps 1 mm (coordinates in metres) below this distance from a part's
+/// origin: under 2^15 an f32's spacing is at most 2^-9, so rounding moves a value
+/// by at most 2^-10 ≈ 0.98 mm; from 2^15 on, by up to 1.95 mm.
+pub const F32_MM_RADIUS: f64 = (1u64 << 15) as f64;
+
+/// The largest rounding error of an f32 holding a value of magnitude `reach`
+/// (half its spacing there).
+fn f32_rounding(reach: f64) -> f64 {
+    if reach < f32::MIN_POSITIVE as f64 {
+        return 0.0;
+    }
+    2f64.powi(reach.log2().floor() as i32 - 24)
+}
 
 /// The error of a conversion stopped by [`ConvertOptions::cancel`].
 const INTERRUPTED: &str = "interrupted: nothing was written";
@@ -264,8 +275,8 @@ fn convert_with(
     let write_built = |b: store::PartBuilder, parts: &mut Vec<PartSummary>| -> Result<()> {
         check_cancel(o)?;
         let (bounds, origin) = (b.bounds(), b.origin());
-        if reach(&bounds, origin) > F32_MM_RADIUS
-            && reach(&bounds, bounds.center()) <= F32_MM_RADIUS
+        if reach(&bounds, origin) >= F32_MM_RADIUS
+            && reach(&bounds, bounds.center()) < F32_MM_RADIUS
         {
             return Err(OriginTooFar.into());
         }
@@ -442,8 +453,8 @@ fn convert_with(
                 // not around the centre of the region's own bounds, the pass is
                 // run again around those centres (the parts' own check then holds).
                 let far = |f: &Spilled| {
-                    reach(&f.bounds, f.origin) > F32_MM_RADIUS
-                        && reach(&f.bounds, f.bounds.center()) <= F32_MM_RADIUS
+                    reach(&f.bounds, f.origin) >= F32_MM_RADIUS
+                        && reach(&f.bounds, f.bounds.center()) < F32_MM_RADIUS
                 };
                 if files.iter().any(far) {
                     progress.note("points lie far outside their regions: partitioning again");
@@ -619,16 +630,17 @@ fn reach(b: &Bounds, origin: [f64; 3]) -> f64 {
 /// Refuses a part whose points lie farther from its origin than f32 keeps 1 mm.
 fn check_precision(b: &Bounds, origin: [f64; 3], part: usize, allow_lossy: bool) -> Result<()> {
     let reach = reach(b, origin);
-    if reach > F32_MM_RADIUS && !allow_lossy {
-        let err_mm = reach * f32::EPSILON as f64 / 2.0 * 1000.0;
+    if reach >= F32_MM_RADIUS && !allow_lossy {
         anyhow::bail!(
             "part {} spans {:.1} km: stored as f32 relative to a point {:.1} km from its \
-             farthest points, coordinates would lose up to {:.1} mm; use a smaller --memory \
-             (spatial parts are then smaller), or --allow-lossy to accept it",
+             farthest points, coordinates would move by up to {:.2} mm (f32 keeps 1 mm within \
+             {:.1} km); use --allow-lossy to accept it, or, when the input holds more points \
+             than one part, a smaller --memory (spatial parts are then smaller)",
             part + 1,
             b.extent().iter().fold(0f64, |m, &e| m.max(e)) / 1000.0,
             reach / 1000.0,
-            err_mm
+            f32_rounding(reach) * 1000.0,
+            F32_MM_RADIUS / 1000.0
         );
     }
     Ok(())

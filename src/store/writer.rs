@@ -480,7 +480,7 @@ pub fn write_part_owned(
 
 /// Writes the points collected in `part` as one part at `path` (replacing an
 /// existing file atomically). `part`'s origin should be near the centre of its
-/// points: f32 keeps 1 mm up to 16.7 km from it.
+/// points: f32 keeps 1 mm up to 32.7 km from it.
 pub fn write_part_built(
     path: &Path,
     part: PartBuilder,
