@@ -562,3 +562,40 @@ fn force_replaces_only_what_pcimg_wrote() {
     }
     assert_eq!(entries(&sb.join("out.pcimg")), ["part-00000.tif"]);
 }
+
+/// The colour scale is decided on the file's first 65,536 points, whatever
+/// `--memory` makes of the reader's windows: parts of a small budget scale as one
+/// part does (before, the first window decided, and its size followed the budget).
+#[test]
+fn colour_scale_does_not_depend_on_memory() {
+    use std::fmt::Write as _;
+    let dir = tempfile::tempdir().unwrap();
+    let input = dir.path().join("rgb.xyz");
+    let mut text = String::from("x y z red green blue\n");
+    for i in 0..400_000u32 {
+        let c = if i < 100_000 { 200 } else { 60_000 };
+        writeln!(text, "{} {} {} {c} {c} {c}", i % 700, i / 700, i % 3).unwrap();
+    }
+    std::fs::write(&input, &text).unwrap();
+    let red = |memory: u64| -> (f64, f64) {
+        let out = dir.path().join(format!("m{memory}.pcimg"));
+        convert::convert(&input, &opts(out.clone(), memory), &Quiet).unwrap();
+        let ds = Dataset::open(&out).unwrap();
+        ds.parts
+            .iter()
+            .map(|p| {
+                p.bands
+                    .iter()
+                    .find(|b| b.name == "red")
+                    .unwrap()
+                    .range
+                    .unwrap()
+            })
+            .fold((f64::MAX, f64::MIN), |a, r| (a.0.min(r.0), a.1.max(r.1)))
+    };
+    let one = red(1 << 30);
+    let many = red(32 << 20);
+    assert_eq!(one, many);
+    // The first 65,536 points say 8-bit; later values beyond 255 are clamped.
+    assert_eq!(one, (200.0, 255.0));
+}

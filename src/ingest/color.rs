@@ -1,7 +1,8 @@
 //! Colour scaling: every reader delivers `red`, `green` and `blue` on a 0–255 scale.
 //!
-//! The rule, decided once per file from the first chunk (a sample of up to
-//! `chunk_points` points, 4 M by default) and then applied to every chunk:
+//! The rule, decided once per file from its first [`DECIDE_POINTS`] points (the
+//! first chunk's; readers' chunks are at least that large, so the decision does
+//! not depend on `--memory`) and then applied to every chunk:
 //!
 //! * any colour value above 255 → the file holds 16-bit colour: divide by 257
 //!   (65535 → 255);
@@ -13,6 +14,9 @@
 //!
 //! After scaling, values are clamped to 0–255, so a later chunk that breaks the
 //! pattern of the first cannot leave the range.
+
+/// Points whose colour decides a file's scale.
+pub const DECIDE_POINTS: usize = 1 << 16;
 
 /// How colour values of one file are mapped to 0–255.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -116,7 +120,8 @@ mod tests {
 }
 
 /// Applies the colour rule to the `red`/`green`/`blue` attributes of each chunk,
-/// deciding the scale on the first chunk that has colour values.
+/// deciding the scale on the first [`DECIDE_POINTS`] points of the first chunk
+/// that has colour values.
 #[derive(Debug, Clone)]
 pub struct ColorNormalizer {
     float_source: bool,
@@ -146,11 +151,12 @@ impl ColorNormalizer {
                 if cols.is_empty() {
                     return;
                 }
+                let n = cols.len().min(DECIDE_POINTS);
                 let s = ColorScale::detect(
                     cols.attributes
                         .iter()
                         .filter(|a| is_color(&a.name))
-                        .map(|a| &a.values[..]),
+                        .map(|a| &a.values[..n]),
                     self.float_source,
                 );
                 self.scale = Some(s);
