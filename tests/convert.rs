@@ -440,6 +440,8 @@ fn bad_inputs_are_clear_errors_and_leave_nothing() {
         ("bad.xyz", b"1 2 3\n4 5 6\n7 oops 9\n".to_vec(), "line 3"),
         ("nan.xyz", b"1 2 3\n4 nan 6\n".to_vec(), "line 2"),
         ("empty.xyz", Vec::new(), "empty"),
+        ("gap.csv", b"x,y,z,i,c\n1,2,3,,5\n".to_vec(), "line 2: a column is empty"),
+        ("mac.xyz", b"1 2 3\r4 5 6\r".to_vec(), "carriage return alone"),
         ("points.unknown", b"1 2 3\n".to_vec(), "unknown input format"),
         (
             "short.ply",

@@ -213,6 +213,8 @@ enum LineFault {
     NotANumber,
     Columns(usize),
     NonFinite,
+    /// Two delimiters (`,` or `;`) in a row: a column left empty.
+    EmptyField,
 }
 
 impl LineFault {
@@ -221,6 +223,7 @@ impl LineFault {
             LineFault::NotANumber => "not a number".into(),
             LineFault::Columns(found) => format!("expected {ncols} columns, found {found}"),
             LineFault::NonFinite => "coordinate is not finite (NaN or infinity)".into(),
+            LineFault::EmptyField => "a column is empty (two delimiters in a row)".into(),
         }
     }
 }
@@ -309,8 +312,14 @@ fn parse_piece(
                 }
             }
             let before = i;
+            let mut delimiters = 0u32;
             while i < n && is_sep(buf[i]) {
+                delimiters += matches!(buf[i], b',' | b';') as u32;
                 i += 1;
+            }
+            if delimiters > 1 {
+                fault = Some(LineFault::EmptyField);
+                break;
             }
             if i >= n || buf[i] == b'\n' {
                 break;

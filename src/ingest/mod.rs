@@ -223,6 +223,23 @@ pub fn canonical_name(name: &str) -> String {
     }
 }
 
+/// [`canonical_name`] of every name of one file's columns or properties, except
+/// that the one-letter `r`, `g` and `b` name colour only when all three are there
+/// (a lone `b` column keeps its name and its values).
+pub fn canonical_names<S: AsRef<str>>(raw: &[S]) -> Vec<String> {
+    let low: Vec<String> = raw
+        .iter()
+        .map(|s| s.as_ref().trim().to_ascii_lowercase())
+        .collect();
+    let triple = ["r", "g", "b"].iter().all(|c| low.iter().any(|n| n == c));
+    low.iter()
+        .map(|n| match n.as_str() {
+            "r" | "g" | "b" if !triple => n.clone(),
+            _ => canonical_name(n),
+        })
+        .collect()
+}
+
 /// Opens and memory-maps a file, refusing empty files.
 pub(crate) fn map_file(path: &Path) -> Result<memmap2::Mmap, IngestError> {
     let f = std::fs::File::open(path).map_err(|e| IngestError::io(path, "cannot open", e))?;
@@ -324,5 +341,7 @@ mod tests {
         assert_eq!(canonical_name("R"), "red");
         assert_eq!(canonical_name("Intensity"), "intensity");
         assert_eq!(canonical_name("Label"), "label");
+        assert_eq!(canonical_names(&["x", "b", "I"]), ["x", "b", "intensity"]);
+        assert_eq!(canonical_names(&["R", "g", "b"]), ["red", "green", "blue"]);
     }
 }

@@ -3,7 +3,7 @@
 //!
 //! * The `vertex` element (or, failing that, a `point` element) gives the points:
 //!   it must have scalar `x`, `y`, `z` properties of any type; every other scalar
-//!   property becomes an attribute named by [`canonical_name`] (so `red`,
+//!   property becomes an attribute named by [`super::canonical_names`] (so `red`,
 //!   `diffuse_red` → `red`, `scalar_intensity` → `intensity`, others lower-cased).
 //! * Other elements (faces, edges...) are skipped: in binary files those before
 //!   the vertex element are skipped by size (item by item when they have list
@@ -25,7 +25,7 @@ use rayon::prelude::*;
 use super::color::{ColorNormalizer, is_color};
 use super::error::IngestError;
 use super::lines::{Layout, LineEngine, LineReader, Role};
-use super::{PointReader, ReadOptions, SourceInfo, canonical_name};
+use super::{PointReader, ReadOptions, SourceInfo, canonical_names};
 use crate::points::{Attribute, PointColumns};
 
 /// A PLY scalar type.
@@ -277,7 +277,8 @@ fn plan_vertex(path: &Path, h: &Header) -> Result<VertexPlan, IngestError> {
     let mut off = 0usize;
     let mut float_color = false;
     let mut u8_color = true;
-    for p in &el.props {
+    let canonical = canonical_names(&el.props.iter().map(|p| &p.name).collect::<Vec<_>>());
+    for (p, canonical) in el.props.iter().zip(canonical) {
         let PropKind::Scalar(s) = p.kind else {
             return Err(IngestError::format(
                 path,
@@ -287,7 +288,7 @@ fn plan_vertex(path: &Path, h: &Header) -> Result<VertexPlan, IngestError> {
                 ),
             ));
         };
-        let mut name = canonical_name(&p.name);
+        let mut name = canonical;
         if names.contains(&name) {
             name = p.name.to_ascii_lowercase();
         }

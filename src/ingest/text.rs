@@ -30,7 +30,7 @@ use std::path::Path;
 use super::color::ColorNormalizer;
 use super::error::IngestError;
 use super::lines::{Layout, LineEngine, LineReader, is_sep, sample_bytes_per_line};
-use super::{ReadOptions, SourceInfo, canonical_name};
+use super::{ReadOptions, SourceInfo, canonical_names};
 
 /// Splits a line into tokens (separators as in the data).
 fn tokens(line: &[u8]) -> impl Iterator<Item = &[u8]> {
@@ -71,13 +71,14 @@ fn strip_comment_marker(line: &[u8]) -> &[u8] {
 }
 
 fn header_names(line: &[u8]) -> Vec<String> {
-    tokens(strip_comment_marker(line))
+    let raw: Vec<String> = tokens(strip_comment_marker(line))
         .map(|t| {
             let s = String::from_utf8_lossy(t);
-            let s = s.trim_matches(|c| c == '"' || c == '\'' || c == '/' || c == '#');
-            canonical_name(s)
+            s.trim_matches(|c| c == '"' || c == '\'' || c == '/' || c == '#')
+                .to_string()
         })
-        .collect()
+        .collect();
+    canonical_names(&raw)
 }
 
 fn has_xyz(names: &[String]) -> bool {
@@ -152,6 +153,15 @@ impl TextReader {
         } else {
             0
         };
+        // Lines ended by CR alone (classic Mac OS) would read as one long line.
+        let head = &data[start..data.len().min(start + (1 << 20))];
+        if !head.contains(&b'\n') && head.iter().filter(|&&c| c == b'\r').take(2).count() > 1 {
+            return Err(IngestError::format(
+                path,
+                "lines end in a carriage return alone (classic Mac OS line ends); convert \
+                 them first, e.g. tr '\\r' '\\n' < in > out",
+            ));
+        }
         let pre = scan_preamble(data, start);
         let Some((ncols, first_line, (fs, fe))) = pre.first_data else {
             return Err(IngestError::format(
@@ -161,9 +171,10 @@ impl TextReader {
         };
         let first_text = &data[fs..fe];
         let layout = if let Some(spec) = &opts.columns {
-            let names: Vec<String> = tokens(spec.as_bytes())
-                .map(|t| canonical_name(&String::from_utf8_lossy(t)))
+            let raw: Vec<String> = tokens(spec.as_bytes())
+                .map(|t| String::from_utf8_lossy(t).into_owned())
                 .collect();
+            let names = canonical_names(&raw);
             let layout = Layout::from_names(&names).map_err(|m| {
                 IngestError::format(path, format!("bad column layout '{}': {m}", spec))
             })?;
