@@ -23,6 +23,10 @@ impl Attribute {
     }
 }
 
+/// Most attribute columns (bands besides x y z) a point may carry: every band of
+/// every level costs at least one 256 KiB tile, and readers refuse wider inputs.
+pub const MAX_ATTRIBUTES: usize = 64;
+
 /// A set of points as columns of equal length.
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct PointColumns {

@@ -601,3 +601,34 @@ fn colour_scale_does_not_depend_on_memory() {
     // The first 65,536 points say 8-bit; later values beyond 255 are clamped.
     assert_eq!(one, (200.0, 255.0));
 }
+
+/// Notes reach stderr when it is not a terminal (a log, a pipe); an input wider
+/// than pcimg stores is refused by name.
+#[test]
+fn notes_reach_a_piped_stderr_and_wide_inputs_are_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let exe = env!("CARGO_BIN_EXE_pcimg");
+    let input = dir.path().join("s.xyz");
+    pcimg::synth::write_text(&input, 50_000, 1).unwrap();
+    let o = Command::new(exe)
+        .args(["convert", "--memory", "8MiB"])
+        .arg(&input)
+        .output()
+        .unwrap();
+    assert!(o.status.success());
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(err.contains("--memory 8.0 MiB is below 64.0 MiB"), "{err}");
+    let wide = dir.path().join("wide.xyz");
+    std::fs::write(&wide, format!("1 2 3{}\n", " 4".repeat(65))).unwrap();
+    let o = Command::new(exe)
+        .arg("convert")
+        .arg(&wide)
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        !o.status.success() && err.contains("wide.xyz: 65 attribute columns"),
+        "{err}"
+    );
+    assert!(!dir.path().join("wide.pcimg").exists());
+}

@@ -8,7 +8,7 @@ use crate::text::{bytes, count, sanitize};
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 use std::path::PathBuf;
 use std::sync::Arc;
-use std::sync::atomic::AtomicBool;
+use std::sync::atomic::{AtomicBool, Ordering};
 
 #[derive(Debug, clap::Args)]
 pub struct Args {
@@ -62,34 +62,47 @@ pub struct Args {
 struct Bars {
     bar: ProgressBar,
     quiet: bool,
+    /// Whether the phase counts points (else input bytes).
+    points: AtomicBool,
 }
 
 impl Progress for Bars {
     fn phase(&self, name: &str, total: u64, unit: &'static str) {
-        self.bar.reset();
-        self.bar.set_length(total);
-        self.bar.set_position(0);
-        let style = if unit == "bytes" {
-            "{prefix:>9} [{bar:30}] {binary_bytes}/{binary_total_bytes} {msg} ({eta})"
+        // Everything but the style first: the bar is drawn once the style is set.
+        let points = unit != "bytes";
+        self.points.store(points, Ordering::Relaxed);
+        let style = if points {
+            "{prefix:>9} [{bar:30}] {human_pos}/{human_len} points, {msg} (ETA {eta})"
         } else {
-            "{prefix:>9} [{bar:30}] {pos}/{len} points {msg} ({eta})"
+            "{prefix:>9} [{bar:30}] {binary_bytes}/{binary_total_bytes}, {msg} (ETA {eta})"
         };
+        self.bar.set_prefix(name.to_string());
+        self.bar.set_message("starting");
+        self.bar.set_length(total);
+        self.bar.reset();
         if let Ok(s) = ProgressStyle::with_template(style) {
             self.bar.set_style(s.progress_chars("=> "));
         }
-        self.bar.set_prefix(name.to_string());
     }
     fn advance(&self, done: u64, points: u64) {
-        self.bar.set_position(done);
         let secs = self.bar.elapsed().as_secs_f64().max(1e-3);
-        self.bar.set_message(format!(
-            "{} points, {:.1} M points/s",
-            count(points),
-            points as f64 / secs / 1e6
-        ));
+        let rate = points as f64 / secs / 1e6;
+        self.bar
+            .set_message(if self.points.load(Ordering::Relaxed) {
+                format!("{rate:.1} M points/s")
+            } else {
+                format!("{} points, {rate:.1} M points/s", count(points))
+            });
+        self.bar.set_position(done);
     }
     fn note(&self, msg: &str) {
-        if !self.quiet {
+        if self.quiet {
+            return;
+        }
+        // A hidden bar (stderr not a terminal) prints nothing: write the line.
+        if self.bar.is_hidden() {
+            eprintln!("{msg}");
+        } else {
             self.bar.println(msg);
         }
     }
@@ -130,13 +143,18 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         cancel,
         sample_points: convert::DEFAULT_SAMPLE_POINTS,
     };
-    let bar = ProgressBar::with_draw_target(None, ProgressDrawTarget::stderr());
-    if a.quiet {
-        bar.set_draw_target(ProgressDrawTarget::hidden());
+    let bar = ProgressBar::with_draw_target(None, ProgressDrawTarget::hidden());
+    // Until the first phase: no bar, only notes.
+    if let Ok(s) = ProgressStyle::with_template("") {
+        bar.set_style(s);
+    }
+    if !a.quiet {
+        bar.set_draw_target(ProgressDrawTarget::stderr());
     }
     let bars = Bars {
         bar,
         quiet: a.quiet,
+        points: AtomicBool::new(false),
     };
     let result = convert::convert(&a.input, &opts, &bars);
     bars.bar.finish_and_clear();

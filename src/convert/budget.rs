@@ -30,6 +30,11 @@ pub fn parse_size(s: &str) -> Result<u64, String> {
     Ok(bytes as u64)
 }
 
+/// The smallest budget a conversion keeps to: below it, its fixed needs (the
+/// region sample, the count grid, reader windows of at least 65,536 points) come
+/// to more than the budget, so parts are sized to it but resident memory is not.
+pub const MIN_KEPT: u64 = 64 << 20;
+
 /// Memory the system reports as available (`MemAvailable` of /proc/meminfo).
 pub fn available_memory() -> Option<u64> {
     let text = std::fs::read_to_string("/proc/meminfo").ok()?;

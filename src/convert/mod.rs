@@ -206,6 +206,14 @@ fn convert_with(
     let start = Instant::now();
     let as_file = output_is_file(&o.output);
     output::check(input, &o.output, as_file, o.force)?;
+    if o.memory < budget::MIN_KEPT && early {
+        progress.note(&format!(
+            "--memory {} is below {}: parts are sized to it, but the converter's fixed \
+             needs (about 90 MiB) will exceed it",
+            crate::text::bytes(o.memory),
+            crate::text::bytes(budget::MIN_KEPT)
+        ));
+    }
     let mut read = o.read.clone();
     let opened = ingest::open(input, &read)?;
     let info = opened.info().clone();

@@ -135,7 +135,7 @@ pub fn records_by_region(
 }
 
 /// Most attribute columns a spill record carries.
-pub const MAX_ATTRIBUTES: usize = 64;
+pub const MAX_ATTRIBUTES: usize = crate::points::MAX_ATTRIBUTES;
 
 /// Reads a region file back a block of records at a time.
 pub struct SpillReader {

@@ -179,11 +179,27 @@ pub fn open(path: &Path, opts: &ReadOptions) -> Result<Box<dyn PointReader>, Ing
             "a column layout (--columns) applies only to text inputs",
         ));
     }
-    Ok(match kind {
+    let reader: Box<dyn PointReader> = match kind {
         InputKind::Text => Box::new(text::TextReader::open(path, opts)?),
         InputKind::Ply => ply::open(path, opts)?,
         InputKind::Las => las::open(path, opts)?,
-    })
+    };
+    let attributes = reader.info().attribute_names.len();
+    if attributes > crate::points::MAX_ATTRIBUTES {
+        return Err(IngestError::format(
+            path,
+            format!(
+                "{attributes} attribute columns besides x y z; pcimg stores at most {}{}",
+                crate::points::MAX_ATTRIBUTES,
+                if kind == InputKind::Text {
+                    " (--columns with _ skips columns)"
+                } else {
+                    ""
+                }
+            ),
+        ));
+    }
+    Ok(reader)
 }
 
 /// Reads a whole file into memory: for small inputs and tests.
