@@ -193,6 +193,30 @@ pub(crate) fn open_header(path: &Path) -> Result<Opened, IngestError> {
         }))
         .map_err(|_| IngestError::binary(path, 0, "the LAS header is corrupt"))?
         .map_err(|e| las_err(path, 0, "cannot read the LAS header and VLRs", e))?;
+        // Scale factors and offsets (header bytes 131.. and 155..): a zero or
+        // non-finite scale would turn every coordinate into one value or NaN.
+        let scales = [raw.x_scale_factor, raw.y_scale_factor, raw.z_scale_factor];
+        let offsets = [raw.x_offset, raw.y_offset, raw.z_offset];
+        for (a, axis) in ["x", "y", "z"].iter().enumerate() {
+            if !scales[a].is_finite() || scales[a] == 0.0 {
+                return Err(IngestError::binary(
+                    path,
+                    131 + 8 * a as u64,
+                    format!(
+                        "the header's {axis} scale factor is {}; it must be a finite, non-zero \
+                         number",
+                        scales[a]
+                    ),
+                ));
+            }
+            if !offsets[a].is_finite() {
+                return Err(IngestError::binary(
+                    path,
+                    155 + 8 * a as u64,
+                    format!("the header's {axis} offset is {}", offsets[a]),
+                ));
+            }
+        }
         let format = *header.point_format();
         let version = header.version();
         let n = header.number_of_points();
@@ -767,5 +791,31 @@ mod tests {
         let q = d.path().join("junk.las");
         std::fs::write(&q, b"this is not a las file at all, no sir").unwrap();
         assert!(read_all(&q, &ReadOptions::default()).is_err());
+    }
+
+    #[test]
+    fn zero_or_nan_scale_factors_are_errors() {
+        let d = tempfile::tempdir().unwrap();
+        let p = d.path().join("s.las");
+        write_las(&p, 100, false, false);
+        let data = std::fs::read(&p).unwrap();
+        for (at, v, want) in [
+            (139usize, 0.0f64, "y scale factor is 0"),
+            (131, f64::NAN, "x scale factor is NaN"),
+        ] {
+            let mut bad = data.clone();
+            bad[at..at + 8].copy_from_slice(&v.to_le_bytes());
+            let q = d.path().join("bad.las");
+            std::fs::write(&q, &bad).unwrap();
+            let e = read_all(&q, &ReadOptions::default())
+                .unwrap_err()
+                .to_string();
+            assert!(
+                e.contains("bad.las")
+                    && e.contains(&format!("byte offset {at}"))
+                    && e.contains(want),
+                "{e}"
+            );
+        }
     }
 }
