@@ -255,6 +255,16 @@ pub fn write_text(path: &std::path::Path, n: u64, seed: u64) -> std::io::Result<
     write_text_in_order(path, n, seed, Order::Random)
 }
 
+/// The name a synthetic file is written under until complete: hidden, beside
+/// it, and this process's own (`.NAME.PID.tmp`), so no user file is touched.
+pub fn temp_path(path: &std::path::Path) -> std::path::PathBuf {
+    let name = path
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_else(|| "synth".into());
+    path.with_file_name(format!(".{name}.{}.tmp", std::process::id()))
+}
+
 /// [`write_text`] with the points listed in `order`.
 pub fn write_text_in_order(
     path: &std::path::Path,
@@ -265,7 +275,7 @@ pub fn write_text_in_order(
     use std::io::Write;
     let perm = file_permutation(n, seed, order)?;
     let at = |i: u64| perm.as_ref().map_or(i, |p| p[i as usize] as u64);
-    let tmp = path.with_extension("partial");
+    let tmp = temp_path(path);
     let mut out = std::io::BufWriter::with_capacity(1 << 20, std::fs::File::create(&tmp)?);
     let mut bytes = 0u64;
     let res = (|| {
@@ -324,7 +334,7 @@ pub fn write_las_in_order(
     let perm = file_permutation(n, seed, order)?;
     let at = |i: u64| perm.as_ref().map_or(i, |p| p[i as usize] as u64);
     let err = |e: las::Error| std::io::Error::other(e.to_string());
-    let tmp = path.with_extension("partial");
+    let tmp = temp_path(path);
     let res = (|| -> std::io::Result<()> {
         let mut b = las::Builder::from((1, 2));
         b.point_format = las::point::Format::new(1).map_err(err)?;
@@ -357,6 +367,9 @@ pub fn write_las_in_order(
                     y: SCENE_ORIGIN[1] + p[1],
                     z: SCENE_ORIGIN[2] + p[2],
                     intensity: inten.round() as u16,
+                    // One return a pulse (LAS numbers returns from 1).
+                    return_number: 1,
+                    number_of_returns: 1,
                     gps_time: Some(1.0e8 + (start + k as u64) as f64 * 1e-5),
                     ..Default::default()
                 })
@@ -387,5 +400,26 @@ mod file_tests {
             String::from_utf8(b).unwrap(),
             "0.000 0.000 1.500 -12.346 637179.220 "
         );
+    }
+
+    #[test]
+    fn las_points_are_single_returns_and_no_temporary_file_is_left() {
+        let d = tempfile::tempdir().unwrap();
+        let p = d.path().join("s.las");
+        // A user's file with the name the old temporary had is not touched.
+        std::fs::write(d.path().join("s.partial"), "mine").unwrap();
+        super::write_las(&p, 1000, 1).unwrap();
+        let (_, cols, _) = crate::ingest::read_all(&p, &Default::default()).unwrap();
+        for name in ["return_number", "number_of_returns"] {
+            let a = cols.attributes.iter().find(|a| a.name == name).unwrap();
+            assert!(a.values.iter().all(|&v| v == 1.0), "{name}");
+        }
+        let mut names: Vec<String> = std::fs::read_dir(d.path())
+            .unwrap()
+            .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+            .collect();
+        names.sort();
+        assert_eq!(names, ["s.las", "s.partial"]);
+        assert_eq!(std::fs::read(d.path().join("s.partial")).unwrap(), b"mine");
     }
 }

@@ -31,6 +31,21 @@ pub fn run(a: Args) -> anyhow::Result<()> {
             a.output.display()
         );
     }
+    if a.output.is_dir() {
+        anyhow::bail!("{}: is a directory", a.output.display());
+    }
+    if a.points == 0 {
+        anyhow::bail!("-n 0: a scan needs at least one point");
+    }
+    {
+        // Ctrl-C: remove the unfinished file, then stop as the signal would.
+        let tmp = crate::synth::temp_path(&a.output);
+        let _ = ctrlc::set_handler(move || {
+            let _ = std::fs::remove_file(&tmp);
+            eprintln!("interrupted: nothing was written");
+            std::process::exit(130);
+        });
+    }
     let ext = a
         .output
         .extension()
