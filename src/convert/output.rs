@@ -1,5 +1,5 @@
-//! Whether a conversion may write its output path: it must not exist (or
-//! `--force` must be given), and even with `--force` it must not be the input,
+//! Whether a conversion may write its output path: its directory must exist, it
+//! must not (or `--force` must be given), and even with `--force` it must not be the input,
 //! hold the input or the working directory, or be a directory other than a
 //! pcimg dataset: replacing an output removes it, so only what pcimg itself
 //! wrote may be removed.
@@ -11,6 +11,16 @@ use std::path::Path;
 /// `as_file`, else a directory of parts), replacing it only with `force`.
 pub fn check(input: &Path, output: &Path, as_file: bool, force: bool) -> Result<()> {
     let shown = output.display();
+    let parent = output
+        .parent()
+        .filter(|p| !p.as_os_str().is_empty())
+        .unwrap_or(Path::new("."));
+    if !parent.is_dir() {
+        bail!(
+            "{shown}: the directory {} does not exist (create it first)",
+            parent.display()
+        );
+    }
     let meta = match std::fs::symlink_metadata(output) {
         Ok(m) => m,
         Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(()),
@@ -86,8 +96,10 @@ mod tests {
         let d = dir.path();
         let input = d.join("in.xyz");
         std::fs::write(&input, "1 2 3\n").unwrap();
-        // Absent: fine, with or without --force.
+        // Absent: fine, with or without --force; but not in a missing directory.
         check(&input, &d.join("new.pcimg"), false, false).unwrap();
+        let e = check(&input, &d.join("no/new.tif"), true, false).unwrap_err().to_string();
+        assert!(e.contains("does not exist"), "{e}");
         // Present without --force.
         let e = check(&input, &input, false, false).unwrap_err().to_string();
         assert!(e.contains("--force"), "{e}");
