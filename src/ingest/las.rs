@@ -145,7 +145,16 @@ fn crs_of(h: &las::Header) -> Option<String> {
 }
 
 fn las_err(path: &Path, offset: u64, what: &str, e: impl std::fmt::Display) -> IngestError {
-    IngestError::binary(path, offset, format!("{what}: {e}"))
+    IngestError::binary(path, offset, format!("{what}: {}", tidy(&e.to_string())))
+}
+
+/// The `las` crate's error text in the words of the rest of pcimg's messages.
+fn tidy(msg: &str) -> String {
+    let msg = msg.strip_prefix("IoError: ").unwrap_or(msg);
+    if msg.contains("failed to fill whole buffer") {
+        return "the file ends too early (truncated or cut off)".into();
+    }
+    msg.replace("format point format", "point format")
 }
 
 /// A LAS/LAZ file whose header has been read and checked.
@@ -183,6 +192,22 @@ pub(crate) fn open_header(path: &Path) -> Result<Opened, IngestError> {
         if file_len == 0 {
             return Err(IngestError::format(path, "the file is empty"));
         }
+        let mut magic = [0u8; 4];
+        let got = file
+            .read(&mut magic)
+            .map_err(|e| IngestError::io(path, "cannot read", e))?;
+        if &magic[..got] != b"LASF" {
+            return Err(IngestError::binary(
+                path,
+                0,
+                format!(
+                    "not a LAS file: it starts with \"{}\", not \"LASF\"",
+                    crate::text::sanitize(&String::from_utf8_lossy(&magic[..got]))
+                ),
+            ));
+        }
+        file.seek(SeekFrom::Start(0))
+            .map_err(|e| IngestError::io(path, "cannot seek", e))?;
         let raw = las::raw::Header::read_from(&mut BufReader::new(&mut file))
             .map_err(|e| las_err(path, 0, "cannot read the LAS header", e))?;
         file.seek(SeekFrom::Start(0))
