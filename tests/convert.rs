@@ -581,7 +581,9 @@ fn colour_scale_does_not_depend_on_memory() {
     std::fs::write(&input, &text).unwrap();
     let red = |memory: u64| -> (f64, f64) {
         let out = dir.path().join(format!("m{memory}.pcimg"));
-        convert::convert(&input, &opts(out.clone(), memory), &Quiet).unwrap();
+        let s = convert::convert(&input, &opts(out.clone(), memory), &Quiet).unwrap();
+        // Every channel of the 300,000 later points was clamped, and is counted.
+        assert_eq!(s.clamped_colours, 900_000);
         let ds = Dataset::open(&out).unwrap();
         ds.parts
             .iter()

@@ -185,6 +185,14 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         levels,
         bytes(s.bytes())
     );
+    if s.clamped_colours > 0 {
+        println!(
+            "  {} colour value(s) did not fit the colour scale the input's first {} points show \
+             and were clamped to 0-255",
+            count(s.clamped_colours),
+            count(crate::ingest::color::DECIDE_POINTS as u64)
+        );
+    }
     if s.skipped > 0 {
         println!("  skipped {} malformed line(s)", count(s.skipped));
     }

@@ -82,6 +82,9 @@ pub struct ConvertSummary {
     pub input_bytes: u64,
     pub points: u64,
     pub skipped: u64,
+    /// Colour values beyond the colour scale decided on the input's first points,
+    /// clamped to 0–255.
+    pub clamped_colours: u64,
     pub parts: Vec<PartSummary>,
     pub points_per_part: u64,
     pub elapsed: Duration,
@@ -605,6 +608,7 @@ fn convert_with(
         input_bytes: info.file_bytes,
         points: total,
         skipped: reader.skipped(),
+        clamped_colours: reader.clamped_colours(),
         parts,
         points_per_part: per_part,
         elapsed: start.elapsed(),

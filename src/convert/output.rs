@@ -98,7 +98,9 @@ mod tests {
         std::fs::write(&input, "1 2 3\n").unwrap();
         // Absent: fine, with or without --force; but not in a missing directory.
         check(&input, &d.join("new.pcimg"), false, false).unwrap();
-        let e = check(&input, &d.join("no/new.tif"), true, false).unwrap_err().to_string();
+        let e = check(&input, &d.join("no/new.tif"), true, false)
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("does not exist"), "{e}");
         // Present without --force.
         let e = check(&input, &input, false, false).unwrap_err().to_string();

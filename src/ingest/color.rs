@@ -18,6 +18,9 @@
 /// Points whose colour decides a file's scale.
 pub const DECIDE_POINTS: usize = 1 << 16;
 
+use std::sync::Arc;
+use std::sync::atomic::{AtomicU64, Ordering};
+
 /// How colour values of one file are mapped to 0–255.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum ColorScale {
@@ -59,19 +62,27 @@ impl ColorScale {
         }
     }
 
-    /// Scales a column in place and clamps it to 0–255.
-    pub fn apply(self, values: &mut [f32]) {
+    /// Scales a column in place and clamps it to 0–255; how many values the clamp
+    /// changed (the scale did not fit them).
+    pub fn apply(self, values: &mut [f32]) -> u64 {
         let f = match self {
             ColorScale::Identity => 1.0,
             ColorScale::From16Bit => 1.0 / 257.0,
             ColorScale::FromUnit => 255.0,
         };
         use rayon::prelude::*;
-        values.par_chunks_mut(1 << 16).for_each(|c| {
-            for v in c {
-                *v = (*v * f).clamp(0.0, 255.0);
-            }
-        });
+        values
+            .par_chunks_mut(1 << 16)
+            .map(|c| {
+                let mut clamped = 0u64;
+                for v in c {
+                    let s = *v * f;
+                    *v = s.clamp(0.0, 255.0);
+                    clamped += (*v != s && !s.is_nan()) as u64;
+                }
+                clamped
+            })
+            .sum()
     }
 }
 
@@ -111,11 +122,14 @@ mod tests {
         let ints: Vec<f32> = vec![0.0, 1.0];
         assert_eq!(ColorScale::detect([&ints[..]], false), ColorScale::Identity);
         let mut v = sixteen.clone();
-        ColorScale::From16Bit.apply(&mut v);
+        assert_eq!(ColorScale::From16Bit.apply(&mut v), 0);
         assert_eq!(v, vec![0.0, 40.0, 255.0]);
         let mut v = vec![0.5f32, 2.0];
-        ColorScale::FromUnit.apply(&mut v);
+        assert_eq!(ColorScale::FromUnit.apply(&mut v), 1);
         assert_eq!(v, vec![127.5, 255.0]);
+        let mut v = vec![200.0f32, 60_000.0, -1.0];
+        assert_eq!(ColorScale::Identity.apply(&mut v), 2);
+        assert_eq!(v, vec![200.0, 255.0, 0.0]);
     }
 }
 
@@ -126,6 +140,9 @@ mod tests {
 pub struct ColorNormalizer {
     float_source: bool,
     scale: Option<ColorScale>,
+    /// Values so far outside the decided scale, clamped to 0–255 (shared, so a
+    /// reader can report it while a decoder thread owns the normalizer).
+    clamped: Arc<AtomicU64>,
 }
 
 impl ColorNormalizer {
@@ -133,7 +150,13 @@ impl ColorNormalizer {
         Self {
             float_source,
             scale: None,
+            clamped: Arc::default(),
         }
+    }
+
+    /// The count of clamped values, shared with this normalizer.
+    pub fn clamped(&self) -> Arc<AtomicU64> {
+        self.clamped.clone()
     }
 
     /// The scale decided so far (`None` before the first chunk with colour).
@@ -164,7 +187,8 @@ impl ColorNormalizer {
             }
         };
         for a in cols.attributes.iter_mut().filter(|a| is_color(&a.name)) {
-            scale.apply(&mut a.values);
+            let n = scale.apply(&mut a.values);
+            self.clamped.fetch_add(n, Ordering::Relaxed);
         }
     }
 }

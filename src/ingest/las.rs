@@ -85,6 +85,8 @@ pub struct LasReader {
     /// The sampling rate asked for (1: none), to thin a whole chunk the decoder
     /// had decoded before it saw the request.
     thin: u64,
+    /// The decoder's count of clamped colour values.
+    clamped: Arc<AtomicU64>,
 }
 
 /// The attribute names for a point format.
@@ -341,6 +343,8 @@ impl LasReader {
         let pos2 = pos.clone();
         let every = Arc::new(AtomicU64::new(1));
         let every2 = every.clone();
+        let colors = ColorNormalizer::new(false);
+        let clamped = colors.clamped();
         // The decoder starts with the first read, so a reader opened only for its
         // header decodes nothing.
         let spawn = move || -> Result<Receiver<Msg>, IngestError> {
@@ -351,7 +355,7 @@ impl LasReader {
                 .spawn(move || {
                     let tx2 = tx.clone();
                     let r = std::panic::catch_unwind(std::panic::AssertUnwindSafe(move || {
-                        decode(p, tracked, chunk, n, tx2, every2)
+                        decode(p, tracked, chunk, n, tx2, every2, colors)
                     }));
                     if r.is_err() {
                         let _ = tx.send(Msg::Err(IngestError::binary(
@@ -372,6 +376,7 @@ impl LasReader {
             finished: false,
             every,
             thin: 1,
+            clamped,
         })
     }
 }
@@ -386,6 +391,7 @@ fn decode(
     total: u64,
     tx: SyncSender<Msg>,
     every: Arc<AtomicU64>,
+    mut colors: ColorNormalizer,
 ) {
     let pos = file.pos.clone();
     let err_at = |what: &str, e: &dyn std::fmt::Display| {
@@ -433,7 +439,6 @@ fn decode(
     };
     let mut done = 0u64;
     let mut gps_offset: Option<f64> = None;
-    let mut colors = ColorNormalizer::new(false);
     while done < total {
         let mut want = chunk.min(total - done);
         let mut span = want;
@@ -594,6 +599,10 @@ impl PointReader for LasReader {
 
     fn skipped(&self) -> u64 {
         0
+    }
+
+    fn clamped_colours(&self) -> u64 {
+        self.clamped.load(Ordering::Relaxed)
     }
 
     fn sample_rest(&mut self, every: u64) -> bool {

@@ -326,6 +326,12 @@ impl PointReader for RecordReader {
         0
     }
 
+    fn clamped_colours(&self) -> u64 {
+        self.colors
+            .clamped()
+            .load(std::sync::atomic::Ordering::Relaxed)
+    }
+
     fn sample_rest(&mut self, every: u64) -> bool {
         self.every = every.clamp(1, 1 << 20) as usize;
         self.every > 1

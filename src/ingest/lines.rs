@@ -774,6 +774,13 @@ impl super::PointReader for LineReader {
         self.engine.skipped
     }
 
+    fn clamped_colours(&self) -> u64 {
+        self.engine
+            .colors
+            .clamped()
+            .load(std::sync::atomic::Ordering::Relaxed)
+    }
+
     fn sample_rest(&mut self, every: u64) -> bool {
         self.engine.sample_rest(every)
     }

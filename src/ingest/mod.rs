@@ -92,6 +92,11 @@ pub trait PointReader: Send {
     fn bytes_done(&self) -> u64;
     /// Number of malformed lines skipped so far (with `skip_invalid`).
     fn skipped(&self) -> u64;
+    /// Colour values so far that did not fit the file's colour scale (decided on
+    /// its first points, see [`color`]) and were clamped to 0–255.
+    fn clamped_colours(&self) -> u64 {
+        0
+    }
     /// For a pass that only estimates where the points lie: from here on deliver
     /// about one point in `every`, read as pieces spread evenly over the rest of
     /// the input. Malformed records in those pieces may be skipped silently (a

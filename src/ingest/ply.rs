@@ -736,6 +736,12 @@ impl PointReader for BinaryPly {
     fn skipped(&self) -> u64 {
         self.skipped
     }
+
+    fn clamped_colours(&self) -> u64 {
+        self.colors.as_ref().map_or(0, |c| {
+            c.clamped().load(std::sync::atomic::Ordering::Relaxed)
+        })
+    }
 }
 
 impl BinaryPly {
