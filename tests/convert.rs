@@ -442,6 +442,7 @@ fn bad_inputs_are_clear_errors_and_leave_nothing() {
         ("empty.xyz", Vec::new(), "empty"),
         ("gap.csv", b"x,y,z,i,c\n1,2,3,,5\n".to_vec(), "line 2: a column is empty"),
         ("mac.xyz", b"1 2 3\r4 5 6\r".to_vec(), "carriage return alone"),
+        ("comma.xyz", b"1,5 2,25 -3,0\n".to_vec(), "line 1: the numbers use decimal commas"),
         ("points.unknown", b"1 2 3\n".to_vec(), "unknown input format"),
         (
             "short.ply",

@@ -81,6 +81,23 @@ fn header_names(line: &[u8]) -> Vec<String> {
     canonical_names(&raw)
 }
 
+/// Whether a line's numbers are written with decimal commas ("1,5 2,25 -3,0"):
+/// whitespace separates at least three fields, each digits, one comma, digits.
+fn decimal_commas(line: &[u8]) -> bool {
+    let fields: Vec<&[u8]> = line
+        .split(|c| c.is_ascii_whitespace())
+        .filter(|f| !f.is_empty())
+        .collect();
+    let decimal = |f: &[u8]| {
+        let f = f.strip_prefix(b"-").unwrap_or(f);
+        let mut halves = f.split(|&c| c == b',');
+        let digits =
+            |h: Option<&[u8]>| h.is_some_and(|h| !h.is_empty() && h.iter().all(u8::is_ascii_digit));
+        digits(halves.next()) && digits(halves.next()) && halves.next().is_none()
+    };
+    fields.len() >= 3 && fields.iter().all(|f| decimal(f))
+}
+
 fn has_xyz(names: &[String]) -> bool {
     ["x", "y", "z"].iter().all(|c| names.iter().any(|n| n == c))
 }
@@ -170,6 +187,15 @@ impl TextReader {
             ));
         };
         let first_text = &data[fs..fe];
+        if decimal_commas(first_text) {
+            return Err(IngestError::line(
+                path,
+                first_line,
+                "the numbers use decimal commas (1,5 for 1.5), which pcimg does not read: \
+                 convert them to decimal points first",
+                first_text,
+            ));
+        }
         let layout = if let Some(spec) = &opts.columns {
             let raw: Vec<String> = tokens(spec.as_bytes())
                 .map(|t| String::from_utf8_lossy(t).into_owned())
