@@ -546,8 +546,9 @@ fn force_replaces_only_what_pcimg_wrote() {
     };
     let before = entries(&sb);
     for (args, want) in [
-        (&["in.xyz", "-o", "."][..], "holds the input"),
-        (&["../top.xyz", "-o", "."][..], "working directory"),
+        (&["in.xyz", "-o", "."][..], "name the output"),
+        (&["../top.xyz", "-o", "../sb"][..], "working directory"),
+        (&["in.xyz", "-o", "docs/."][..], "not a pcimg dataset"),
         (&["in.xyz", "-o", "docs"][..], "not a pcimg dataset"),
         (&["in.xyz", "-o", "in.xyz"][..], "is the input"),
         (&["in.xyz", "-o", "../sb"][..], "holds the input"),

@@ -181,6 +181,10 @@ pub fn convert(
     o: &ConvertOptions,
     progress: &dyn Progress,
 ) -> Result<ConvertSummary> {
+    let o = &ConvertOptions {
+        output: output::resolve(&o.output)?,
+        ..o.clone()
+    };
     let r = match convert_with(input, o, progress, true) {
         Err(e) if e.downcast_ref::<OriginTooFar>().is_some() => {
             progress.note(

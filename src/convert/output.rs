@@ -5,7 +5,28 @@
 //! wrote may be removed.
 
 use anyhow::{Result, bail};
-use std::path::Path;
+use std::path::{Component, Path, PathBuf};
+
+/// The output path as a conversion uses it: its last component a name (not `.`,
+/// `..` or a root), trailing slashes and `.` components dropped, and its
+/// directory resolved when the path climbs with `..`, so that `X/.`, `X/` and
+/// `X/../X` all mean `X` and no later step runs through the output itself.
+pub fn resolve(output: &Path) -> Result<PathBuf> {
+    let shown = output.display();
+    let Some(name) = output.file_name() else {
+        bail!("{shown}: name the output (a .tif file or a directory to create), not . or .. or /");
+    };
+    let Some(parent) = output.parent().filter(|p| !p.as_os_str().is_empty()) else {
+        return Ok(PathBuf::from(name));
+    };
+    if parent.components().any(|c| c == Component::ParentDir) {
+        let real = parent
+            .canonicalize()
+            .map_err(|e| anyhow::anyhow!("{shown}: cannot resolve {}: {e}", parent.display()))?;
+        return Ok(real.join(name));
+    }
+    Ok(parent.join(name))
+}
 
 /// Checks that converting `input` may write `output` (a `.tif` file when
 /// `as_file`, else a directory of parts), replacing it only with `force`.
@@ -15,11 +36,14 @@ pub fn check(input: &Path, output: &Path, as_file: bool, force: bool) -> Result<
         .parent()
         .filter(|p| !p.as_os_str().is_empty())
         .unwrap_or(Path::new("."));
-    if !parent.is_dir() {
+    if !parent.exists() {
         bail!(
             "{shown}: the directory {} does not exist (create it first)",
             parent.display()
         );
+    }
+    if !parent.is_dir() {
+        bail!("{shown}: {} is not a directory", parent.display());
     }
     let meta = match std::fs::symlink_metadata(output) {
         Ok(m) => m,
@@ -29,7 +53,12 @@ pub fn check(input: &Path, output: &Path, as_file: bool, force: bool) -> Result<
     if !force {
         bail!("{shown}: already exists (use --force to replace it)");
     }
-    let out = output.canonicalize()?;
+    if meta.file_type().is_symlink() {
+        bail!("{shown}: is a symbolic link; refusing to replace it");
+    }
+    let out = output
+        .canonicalize()
+        .map_err(|e| anyhow::anyhow!("{shown}: cannot resolve the output path: {e}"))?;
     if let Ok(inp) = input.canonicalize() {
         if inp == out {
             bail!("{shown}: the output is the input file; choose another output");
@@ -42,9 +71,6 @@ pub fn check(input: &Path, output: &Path, as_file: bool, force: bool) -> Result<
         && cwd.starts_with(&out)
     {
         bail!("{shown}: is the working directory or holds it; refusing to replace it");
-    }
-    if meta.file_type().is_symlink() {
-        bail!("{shown}: is a symbolic link; refusing to replace it");
     }
     match (meta.is_dir(), as_file) {
         (true, true) => bail!(
@@ -130,6 +156,40 @@ mod tests {
         let file = d.join("x.pcimg");
         std::fs::write(&file, "x").unwrap();
         assert!(refused(&input, &file, false).contains("is a file"));
+        // Paths that name the output through itself mean the output.
+        let docs_str = docs.display().to_string();
+        for spelled in [
+            format!("{docs_str}/."),
+            format!("{docs_str}/"),
+            format!("{docs_str}/../docs"),
+        ] {
+            assert_eq!(
+                resolve(Path::new(&spelled)).unwrap().file_name(),
+                docs.file_name()
+            );
+            assert!(
+                resolve(Path::new(&spelled))
+                    .unwrap()
+                    .parent()
+                    .unwrap()
+                    .canonicalize()
+                    .unwrap()
+                    == d.canonicalize().unwrap()
+            );
+        }
+        for bad in [".", "..", "/", "x/.."] {
+            assert!(
+                resolve(Path::new(bad))
+                    .unwrap_err()
+                    .to_string()
+                    .contains("name the output"),
+                "{bad}"
+            );
+        }
+        assert_eq!(
+            resolve(Path::new("out.pcimg")).unwrap(),
+            Path::new("out.pcimg")
+        );
         // A .tif file may be replaced.
         let tif = d.join("a.tif");
         std::fs::write(&tif, "x").unwrap();
