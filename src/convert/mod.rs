@@ -213,18 +213,20 @@ fn convert_with(
     let start = Instant::now();
     let as_file = output_is_file(&o.output);
     output::check(input, &o.output, as_file, o.force)?;
-    if o.memory < budget::MIN_KEPT && early {
-        progress.note(&format!(
-            "--memory {} is below {}: parts are sized to it, but the converter's fixed \
-             needs (about 90 MiB) will exceed it",
-            crate::text::bytes(o.memory),
-            crate::text::bytes(budget::MIN_KEPT)
-        ));
-    }
     let mut read = o.read.clone();
     let opened = ingest::open(input, &read)?;
     let info = opened.info().clone();
     let per_part = budget::points_per_part(o.memory, info.attribute_names.len());
+    if o.memory < budget::MIN_KEPT && early {
+        progress.note(&format!(
+            "--memory {} is below {}, the smallest budget a conversion keeps to: parts \
+             still hold {} points, and the converter's fixed needs (about 90 MiB) exceed \
+             the budget",
+            crate::text::bytes(o.memory),
+            crate::text::bytes(budget::MIN_KEPT),
+            crate::text::count(per_part),
+        ));
+    }
     // Freed large buffers are kept for the next ones (a part's sort keys reuse the
     // input columns' pages, the next part reuses this one's), within a share of
     // the budget.
