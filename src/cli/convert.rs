@@ -7,8 +7,8 @@ use crate::store::{Compression, Layout};
 use crate::text::{bytes, count, sanitize};
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 use std::path::PathBuf;
-use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, Mutex};
 
 #[derive(Debug, clap::Args)]
 pub struct Args {
@@ -58,17 +58,35 @@ pub struct Args {
     pub timings: bool,
 }
 
-/// Progress bars on stderr, one per phase.
+/// Progress bars on stderr, a new one for each phase (so no frame of one phase
+/// is drawn in another's units).
 struct Bars {
-    bar: ProgressBar,
+    bar: Mutex<ProgressBar>,
     quiet: bool,
     /// Whether the phase counts points (else input bytes).
     points: AtomicBool,
 }
 
+impl Bars {
+    fn new(quiet: bool) -> Bars {
+        Bars {
+            bar: Mutex::new(ProgressBar::hidden()),
+            quiet,
+            points: AtomicBool::new(false),
+        }
+    }
+
+    fn bar(&self) -> std::sync::MutexGuard<'_, ProgressBar> {
+        self.bar.lock().unwrap_or_else(|e| e.into_inner())
+    }
+
+    fn finish(&self) {
+        self.bar().finish_and_clear();
+    }
+}
+
 impl Progress for Bars {
     fn phase(&self, name: &str, total: u64, unit: &'static str) {
-        // Everything but the style first: the bar is drawn once the style is set.
         let points = unit != "bytes";
         self.points.store(points, Ordering::Relaxed);
         let style = if points {
@@ -76,34 +94,44 @@ impl Progress for Bars {
         } else {
             "{prefix:>9} [{bar:30}] {binary_bytes}/{binary_total_bytes}, {msg} (ETA {eta})"
         };
-        self.bar.set_prefix(name.to_string());
-        self.bar.set_message("starting");
-        self.bar.set_length(total);
-        self.bar.reset();
+        // A new bar, configured before it is first drawn.
+        let mut bar = self.bar();
+        bar.finish_and_clear();
+        let target = if self.quiet {
+            ProgressDrawTarget::hidden()
+        } else {
+            ProgressDrawTarget::stderr()
+        };
+        let mut next = ProgressBar::with_draw_target(Some(total), target)
+            .with_prefix(name.to_string())
+            .with_message("starting");
         if let Ok(s) = ProgressStyle::with_template(style) {
-            self.bar.set_style(s.progress_chars("=> "));
+            next = next.with_style(s.progress_chars("=> "));
         }
+        *bar = next;
     }
     fn advance(&self, done: u64, points: u64) {
-        let secs = self.bar.elapsed().as_secs_f64().max(1e-3);
+        let bar = self.bar();
+        let secs = bar.elapsed().as_secs_f64().max(1e-3);
         let rate = points as f64 / secs / 1e6;
-        self.bar
-            .set_message(if self.points.load(Ordering::Relaxed) {
-                format!("{rate:.1} M points/s")
-            } else {
-                format!("{} points, {rate:.1} M points/s", count(points))
-            });
-        self.bar.set_position(done);
+        bar.set_message(if self.points.load(Ordering::Relaxed) {
+            format!("{rate:.1} M points/s")
+        } else {
+            format!("{} points, {rate:.1} M points/s", count(points))
+        });
+        bar.set_position(done);
     }
     fn note(&self, msg: &str) {
         if self.quiet {
             return;
         }
-        // A hidden bar (stderr not a terminal) prints nothing: write the line.
-        if self.bar.is_hidden() {
+        let bar = self.bar();
+        // A hidden bar (before the first phase, or stderr not a terminal) prints
+        // nothing: write the line.
+        if bar.is_hidden() {
             eprintln!("{msg}");
         } else {
-            self.bar.println(msg);
+            bar.println(msg);
         }
     }
 }
@@ -143,21 +171,9 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         cancel,
         sample_points: convert::DEFAULT_SAMPLE_POINTS,
     };
-    let bar = ProgressBar::with_draw_target(None, ProgressDrawTarget::hidden());
-    // Until the first phase: no bar, only notes.
-    if let Ok(s) = ProgressStyle::with_template("") {
-        bar.set_style(s);
-    }
-    if !a.quiet {
-        bar.set_draw_target(ProgressDrawTarget::stderr());
-    }
-    let bars = Bars {
-        bar,
-        quiet: a.quiet,
-        points: AtomicBool::new(false),
-    };
+    let bars = Bars::new(a.quiet);
     let result = convert::convert(&a.input, &opts, &bars);
-    bars.bar.finish_and_clear();
+    bars.finish();
     let s = result?;
     if a.quiet {
         return Ok(());

@@ -419,11 +419,14 @@ fn convert_with(
             }
             pass("read", t_read);
             if !overflow {
+                // One part: its sort and tiles are the last phase.
+                progress.phase("write", held_points, "points");
                 if let Some(b) = built.filter(|b| !b.is_empty()) {
                     write_built(b, &mut parts)?;
                 } else if held_points > 0 {
                     write_chunks(held, &bounds, &mut parts)?;
                 }
+                progress.advance(held_points, held_points);
             } else {
                 if as_file {
                     anyhow::bail!(too_many_parts(&o.output, per_part, o.memory));
