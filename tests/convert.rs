@@ -344,9 +344,59 @@ fn precision_is_refused_unless_allowed() {
         .unwrap_err()
         .to_string();
     assert!(e.contains("100.0 km") && e.contains("--allow-lossy"), "{e}");
+    assert!(
+        e.contains("1.95 mm") && e.contains("a directory output"),
+        "{e}"
+    );
     let mut o = opts(dir.path().join("w.tif"), 1 << 30);
     o.allow_lossy = true;
     assert!(convert::convert(&input, &o, &Quiet).is_ok());
+    // Stream parts follow the file: refused, pointing to spatial parts.
+    let mut o = opts(dir.path().join("stream.pcimg"), 1 << 30);
+    o.partition = Partition::Stream;
+    let e = convert::convert(&input, &o, &Quiet)
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("the default spatial partitioning"), "{e}");
+}
+
+/// Points that fit one part but lie in clusters 100 km apart become spatial
+/// parts narrow enough for 1 mm, with no --allow-lossy, whether the input holds
+/// one part's points or many.
+#[test]
+fn wide_inputs_become_parts_that_keep_a_millimetre() {
+    use std::fmt::Write as _;
+    let dir = tempfile::tempdir().unwrap();
+    for (n, memory) in [(5_000u32, 1u64 << 30), (400_000, 64 << 20)] {
+        let input = dir.path().join(format!("clusters{n}.xyz"));
+        let mut text = String::new();
+        for i in 0..n {
+            let x = 500_000.0 + if i % 2 == 0 { 0.0 } else { 100_000.0 } + (i % 97) as f64;
+            writeln!(
+                text,
+                "{x:.3} {:.3} {:.3}",
+                4_000_000.0 + (i % 89) as f64,
+                i % 7
+            )
+            .unwrap();
+        }
+        std::fs::write(&input, &text).unwrap();
+        let out = dir.path().join(format!("clusters{n}.pcimg"));
+        let s = convert::convert(&input, &opts(out.clone(), memory), &Quiet).unwrap();
+        assert!(s.parts.len() >= 2, "{n}: {} part(s)", s.parts.len());
+        assert!(
+            s.max_quantization_error < 1e-3,
+            "{n}: {}",
+            s.max_quantization_error
+        );
+        assert_eq!(s.points, n as u64);
+        assert_eq!(
+            worst_offset(&dataset_points(&out), &file_points(&input)),
+            0,
+            "{n}"
+        );
+        assert_parts_disjoint(&out);
+    }
 }
 
 /// A LAS header's bounds only place the origin of a part collected while reading;

@@ -121,6 +121,15 @@ pub type Result<T> = anyhow::Result<T>;
 /// by at most 2^-10 ≈ 0.98 mm; from 2^15 on, by up to 1.95 mm.
 pub const F32_MM_RADIUS: f64 = (1u64 << 15) as f64;
 
+/// The widest a spatial part may spread on any axis: its points then lie within
+/// [`F32_MM_RADIUS`] of their centre.
+const MAX_EXTENT: f64 = 2.0 * F32_MM_RADIUS;
+
+/// Whether points within `b` spread too wide for one part (see [`MAX_EXTENT`]).
+fn too_wide(b: &Bounds) -> bool {
+    !b.is_empty() && b.extent().iter().any(|&e| e >= MAX_EXTENT)
+}
+
 /// The largest rounding error of an f32 holding a value of magnitude `reach`
 /// (half its spacing there).
 fn f32_rounding(reach: f64) -> f64 {
@@ -282,7 +291,7 @@ fn convert_with(
                         parts: &mut Vec<PartSummary>|
      -> Result<()> {
         check_cancel(o)?;
-        check_precision(bounds, bounds.center(), parts.len(), o.allow_lossy)?;
+        check_precision(bounds, bounds.center(), parts.len(), o, as_file)?;
         let s =
             store::write_part_owned(&part_path(parts.len()), chunks, Some(*bounds), &write_opts)?;
         record(s, parts);
@@ -297,7 +306,7 @@ fn convert_with(
         {
             return Err(OriginTooFar.into());
         }
-        check_precision(&bounds, origin, parts.len(), o.allow_lossy)?;
+        check_precision(&bounds, origin, parts.len(), o, as_file)?;
         let s = store::write_part_built(&part_path(parts.len()), b, &write_opts)?;
         record(s, parts);
         Ok(())
@@ -418,6 +427,15 @@ fn convert_with(
                 }
             }
             pass("read", t_read);
+            // Points that fit one part but spread wider than f32 keeps 1 mm across
+            // are partitioned all the same (into a directory of parts).
+            if !overflow && !as_file && too_wide(&bounds) {
+                overflow = true;
+                built = None;
+                for c in held.drain(..) {
+                    sample.add(&c, 1);
+                }
+            }
             if !overflow {
                 // One part: its sort and tiles are the last phase.
                 progress.phase("write", held_points, "points");
@@ -439,7 +457,7 @@ fn convert_with(
                 }
                 let scale = sample.seen as f64 / sample.pts.len().max(1) as f64;
                 let target = ((per_part as f64 * 0.85) / scale).max(1.0) as u64;
-                let regions = partition::split(&grid, target);
+                let regions = partition::split(&grid, target, MAX_EXTENT);
                 let cell_region = partition::cell_regions(&grid, &regions);
                 progress.note(&format!(
                     "{}{} points over {} spatial regions",
@@ -451,7 +469,10 @@ fn convert_with(
                 // stored relative to the centre of the region's box of cells.
                 let tmp = spill::TempDir::beside(&o.output, "pcimg-spill")?;
                 let t_partition = begin();
-                let mut origins: Vec<[f64; 3]> = regions.iter().map(|r| r.centre(&grid)).collect();
+                let mut origins: Vec<[f64; 3]> = regions
+                    .iter()
+                    .map(|r| partition::occupied(&grid, *r).centre(&grid))
+                    .collect();
                 let mut spill_with = |origins: &[[f64; 3]]| {
                     distribute(
                         &mut reader,
@@ -535,7 +556,7 @@ fn convert_with(
                                 grid.add([c.x[i], c.y[i], c.z[i]]);
                             }
                         }
-                        let subs = partition::split(&grid, per_part);
+                        let subs = partition::split(&grid, per_part, MAX_EXTENT);
                         let map = partition::cell_regions(&grid, &subs);
                         drop(blocks);
                         let mut blocks = spill::SpillReader::open(&f.path, nattr)?;
@@ -649,14 +670,27 @@ fn reach(b: &Bounds, origin: [f64; 3]) -> f64 {
 }
 
 /// Refuses a part whose points lie farther from its origin than f32 keeps 1 mm.
-fn check_precision(b: &Bounds, origin: [f64; 3], part: usize, allow_lossy: bool) -> Result<()> {
+fn check_precision(
+    b: &Bounds,
+    origin: [f64; 3],
+    part: usize,
+    o: &ConvertOptions,
+    as_file: bool,
+) -> Result<()> {
     let reach = reach(b, origin);
-    if reach >= F32_MM_RADIUS && !allow_lossy {
+    if reach >= F32_MM_RADIUS && !o.allow_lossy {
+        // What would split the points into parts narrow enough.
+        let instead = if as_file {
+            ", or a directory output (-o NAME.pcimg): spatial parts are then kept narrow enough"
+        } else if o.partition == Partition::Stream {
+            ", or the default spatial partitioning: its parts are kept narrow enough"
+        } else {
+            ""
+        };
         anyhow::bail!(
             "part {} spans {:.1} km: stored as f32 relative to a point {:.1} km from its \
              farthest points, coordinates would move by up to {:.2} mm (f32 keeps 1 mm within \
-             {:.1} km); use --allow-lossy to accept it, or, when the input holds more points \
-             than one part, a smaller --memory (spatial parts are then smaller)",
+             {:.1} km); use --allow-lossy to accept it{instead}",
             part + 1,
             b.extent().iter().fold(0f64, |m, &e| m.max(e)) / 1000.0,
             reach / 1000.0,

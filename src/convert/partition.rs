@@ -116,9 +116,12 @@ impl Region {
 
 /// Splits the grid into regions of at most `max_points` each (where cells allow):
 /// recursively along the box's longest populated axis, at the slab that leaves
-/// each side a whole number of parts' worth of points. Empty
+/// each side a whole number of parts' worth of points. A region whose occupied
+/// cells span `max_extent` or more (world units) on an axis is halved there too,
+/// whatever its count, so every part's points lie within `max_extent / 2` of
+/// their centre (f32's 1 mm reach; see [`occupied`] for that centre). Empty
 /// regions are dropped.
-pub fn split(grid: &CountGrid, max_points: u64) -> Vec<Region> {
+pub fn split(grid: &CountGrid, max_points: u64, max_extent: f64) -> Vec<Region> {
     let mut out = Vec::new();
     let mut stack = vec![Region {
         lo: [0; 3],
@@ -129,12 +132,22 @@ pub fn split(grid: &CountGrid, max_points: u64) -> Vec<Region> {
         if r.points == 0 {
             continue;
         }
+        let e = grid.bounds.extent();
+        if let Some((a, cut)) = too_wide(grid, &r, max_extent) {
+            let (mut left, mut right) = (r, r);
+            left.hi[a] = cut;
+            right.lo[a] = cut;
+            left.points = grid.count_box(left.lo, left.hi);
+            right.points = r.points - left.points;
+            stack.push(right);
+            stack.push(left);
+            continue;
+        }
         if r.points <= max_points {
             out.push(r);
             continue;
         }
         // Longest axis in world units that is more than one cell thick.
-        let e = grid.bounds.extent();
         let axis = (0..3).filter(|&a| r.hi[a] - r.lo[a] > 1).max_by(|&a, &b| {
             let la = (r.hi[a] - r.lo[a]) as f64 * e[a] / grid.dims[a] as f64;
             let lb = (r.hi[b] - r.lo[b]) as f64 * e[b] / grid.dims[b] as f64;
@@ -174,6 +187,40 @@ pub fn split(grid: &CountGrid, max_points: u64) -> Vec<Region> {
     out
 }
 
+/// `r` shrunk to the cells that hold its points: the box whose centre a part's
+/// origin should be (a region's own box may reach far past its points).
+pub fn occupied(grid: &CountGrid, mut r: Region) -> Region {
+    for a in 0..3 {
+        let slabs = grid.slabs(r.lo, r.hi, a);
+        if let (Some(first), Some(last)) = (
+            slabs.iter().position(|&c| c > 0),
+            slabs.iter().rposition(|&c| c > 0),
+        ) {
+            r.hi[a] = r.lo[a] + last + 1;
+            r.lo[a] += first;
+        }
+    }
+    r
+}
+
+/// The axis on which `r`'s occupied cells span `max_extent` or more (world units)
+/// and the cell to cut at (the middle of the occupied span), if any axis does and
+/// its span is more than one cell.
+fn too_wide(grid: &CountGrid, r: &Region, max_extent: f64) -> Option<(usize, usize)> {
+    let e = grid.bounds.extent();
+    (0..3).find_map(|a| {
+        let cell = e[a] / grid.dims[a] as f64;
+        if (r.hi[a] - r.lo[a]) as f64 * cell < max_extent {
+            return None;
+        }
+        let slabs = grid.slabs(r.lo, r.hi, a);
+        let first = slabs.iter().position(|&c| c > 0)?;
+        let last = slabs.iter().rposition(|&c| c > 0)?;
+        let span = (last + 1 - first) as f64 * cell;
+        (span >= max_extent && last > first).then(|| (a, r.lo[a] + (first + last + 1) / 2))
+    })
+}
+
 /// For each cell, the index of its region (`u32::MAX` for cells of no region).
 pub fn cell_regions(grid: &CountGrid, regions: &[Region]) -> Vec<u32> {
     let mut map = vec![u32::MAX; grid.counts.len()];
@@ -207,7 +254,7 @@ mod tests {
             let s = if r.f64() < 0.7 { 0.2 } else { 1.0 };
             g.add([r.f64() * 100.0 * s, r.f64() * 50.0 * s, r.f64() * 10.0]);
         }
-        let regions = split(&g, 30_000);
+        let regions = split(&g, 30_000, f64::INFINITY);
         assert_eq!(regions.iter().map(|r| r.points).sum::<u64>(), n);
         assert!(regions.iter().all(|r| r.points <= 30_000));
         assert!(
@@ -230,6 +277,31 @@ mod tests {
     }
 
     #[test]
+    fn regions_wider_than_the_limit_are_halved_whatever_their_count() {
+        // Two clusters 100 units apart: one region by count, two by extent.
+        let b = Bounds {
+            min: [0.0; 3],
+            max: [100.0, 1.0, 1.0],
+        };
+        let mut g = CountGrid::new(b);
+        for i in 0..1000 {
+            let x = if i % 2 == 0 { 0.5 } else { 99.5 };
+            g.add([x, 0.5, 0.5]);
+        }
+        assert_eq!(split(&g, 10_000, f64::INFINITY).len(), 1);
+        let regions = split(&g, 10_000, 40.0);
+        assert_eq!(regions.len(), 2);
+        assert_eq!(regions.iter().map(|r| r.points).sum::<u64>(), 1000);
+        let cell = 100.0 / g.dims[0] as f64;
+        for r in &regions {
+            let slabs = g.slabs(r.lo, r.hi, 0);
+            let first = slabs.iter().position(|&c| c > 0).unwrap();
+            let last = slabs.iter().rposition(|&c| c > 0).unwrap();
+            assert!(((last + 1 - first) as f64) * cell < 40.0);
+        }
+    }
+
+    #[test]
     fn flat_and_degenerate_bounds() {
         let b = Bounds {
             min: [5.0; 3],
@@ -239,7 +311,7 @@ mod tests {
         for _ in 0..10 {
             g.add([5.0; 3]);
         }
-        let regions = split(&g, 3);
+        let regions = split(&g, 3, f64::INFINITY);
         assert_eq!(regions.len(), 1);
         assert_eq!(regions[0].points, 10);
     }
