@@ -217,7 +217,7 @@ fn too_wide(grid: &CountGrid, r: &Region, max_extent: f64) -> Option<(usize, usi
         let first = slabs.iter().position(|&c| c > 0)?;
         let last = slabs.iter().rposition(|&c| c > 0)?;
         let span = (last + 1 - first) as f64 * cell;
-        (span >= max_extent && last > first).then(|| (a, r.lo[a] + (first + last + 1) / 2))
+        (span >= max_extent && last > first).then(|| (a, r.lo[a] + (first + last).div_ceil(2)))
     })
 }
 
