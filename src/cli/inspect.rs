@@ -52,19 +52,14 @@ pub fn no_device_select() {
 
 pub fn run(a: Args) -> anyhow::Result<()> {
     no_device_select();
-    if !a.view.path.exists() {
-        anyhow::bail!(
-            "{}: no such file or directory",
-            crate::text::sanitize(&a.view.path.display().to_string())
-        );
-    }
+    // The dataset first: a wrong path is the error to report, terminal or not.
+    let ds = Arc::new(Dataset::open(&a.view.path)?);
     if !have_terminal() {
         anyhow::bail!(
             "the inspector needs a terminal (stdin and stdout are not one here): use `pcimg info {0}` for a report, `pcimg render {0} -o frame.png` for an image",
             a.view.path.display()
         );
     }
-    let ds = Arc::new(Dataset::open(&a.view.path)?);
     open(ds, &a)
 }
 

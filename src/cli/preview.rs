@@ -20,13 +20,14 @@ pub struct Args {
 }
 
 pub fn run(a: Args) -> anyhow::Result<()> {
+    // The dataset first: a wrong path is the error to report, terminal or not.
+    let ds = Arc::new(Dataset::open(&a.view.path)?);
     if !std::io::stdout().is_terminal() {
         anyhow::bail!(
             "stdout is not a terminal, so there is nowhere to draw: use `pcimg render {} -o frame.png` for a file",
             a.view.path.display()
         );
     }
-    let ds = Arc::new(Dataset::open(&a.view.path)?);
     let cam = view::camera_for(&a.view, &ds)?;
     let (cols, rows, px) = term::terminal_pixels();
     let cols = a.cols.unwrap_or(cols).max(10);

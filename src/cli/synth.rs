@@ -42,8 +42,8 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         let tmp = crate::synth::temp_path(&a.output);
         let _ = ctrlc::set_handler(move || {
             let _ = std::fs::remove_file(&tmp);
-            eprintln!("interrupted: nothing was written");
-            std::process::exit(130);
+            eprintln!("pcimg: interrupted: nothing was written");
+            std::process::exit(1);
         });
     }
     let ext = a

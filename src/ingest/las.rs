@@ -198,6 +198,13 @@ pub(crate) fn open_header(path: &Path) -> Result<Opened, IngestError> {
         let got = file
             .read(&mut magic)
             .map_err(|e| IngestError::io(path, "cannot read", e))?;
+        if got < 4 && b"LASF".starts_with(&magic[..got]) {
+            return Err(IngestError::binary(
+                path,
+                got as u64,
+                "truncated file: it ends inside the LAS signature",
+            ));
+        }
         if &magic[..got] != b"LASF" {
             return Err(IngestError::binary(
                 path,
