@@ -466,7 +466,7 @@ fn convert_with(
                     regions.len()
                 ));
                 // Pass 2: distribute points into one temporary file per region,
-                // stored relative to the centre of the region's box of cells.
+                // stored relative to the centre of the region's occupied cells.
                 let tmp = spill::TempDir::beside(&o.output, "pcimg-spill")?;
                 let t_partition = begin();
                 let mut origins: Vec<[f64; 3]> = regions
