@@ -245,14 +245,17 @@ pub fn canonical_name(name: &str) -> String {
 }
 
 /// [`canonical_name`] of every name of one file's columns or properties, except
-/// that the one-letter `r`, `g` and `b` name colour only when all three are there
-/// (a lone `b` column keeps its name and its values).
+/// that the one-letter `r`, `g` and `b` name colour only when all three channels
+/// are named (by letter or name; a lone `b` column keeps its name and values).
 pub fn canonical_names<S: AsRef<str>>(raw: &[S]) -> Vec<String> {
     let low: Vec<String> = raw
         .iter()
         .map(|s| s.as_ref().trim().to_ascii_lowercase())
         .collect();
-    let triple = ["r", "g", "b"].iter().all(|c| low.iter().any(|n| n == c));
+    // Every channel named, by its letter or any colour name ("x y z red g blue").
+    let triple = ["red", "green", "blue"]
+        .iter()
+        .all(|c| low.iter().any(|n| color::color_name(n) == Some(*c)));
     low.iter()
         .map(|n| match n.as_str() {
             "r" | "g" | "b" if !triple => n.clone(),
@@ -364,5 +367,9 @@ mod tests {
         assert_eq!(canonical_name("Label"), "label");
         assert_eq!(canonical_names(&["x", "b", "I"]), ["x", "b", "intensity"]);
         assert_eq!(canonical_names(&["R", "g", "b"]), ["red", "green", "blue"]);
+        assert_eq!(
+            canonical_names(&["red", "g", "Blue"]),
+            ["red", "green", "blue"]
+        );
     }
 }
