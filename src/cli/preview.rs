@@ -4,6 +4,7 @@
 use super::view::{self, ViewArgs};
 use crate::store::Dataset;
 use crate::term::{self, Protocol};
+use crate::tui::protocol::Graphics;
 use std::io::IsTerminal;
 use std::sync::Arc;
 
@@ -28,6 +29,17 @@ pub fn run(a: Args) -> anyhow::Result<()> {
             a.view.path.display()
         );
     }
+    // Auto is decided from the environment, as the inspector decides it: never
+    // by asking the terminal (one that does not answer would hang the command).
+    let protocol = match crate::tui::protocol::choose(
+        a.protocol,
+        &crate::tui::protocol::TerminalEnv::from_process(),
+    ) {
+        Graphics::Kitty => Protocol::Kitty,
+        Graphics::Sixel => Protocol::Sixel,
+        Graphics::Iterm2 => Protocol::Iterm,
+        Graphics::Halfblocks => Protocol::Halfblocks,
+    };
     let cam = view::camera_for(&a.view, &ds)?;
     let (cols, rows, px) = term::terminal_pixels();
     let cols = a.cols.unwrap_or(cols).max(10);
@@ -37,13 +49,13 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         .map(|(w, h)| (w / cols.max(1) as u32, h / (rows + 3) as u32))
         .filter(|&(w, h)| w > 0 && h > 0)
         .unwrap_or((8, 16));
-    let (w, h) = if a.protocol == Protocol::Halfblocks {
+    let (w, h) = if protocol == Protocol::Halfblocks {
         (cols as u32, rows as u32 * 2)
     } else {
         (cols as u32 * cw, rows as u32 * ch)
     };
     let (frame, report) = view::render_once(ds, &a.view, &cam, w, h)?;
-    term::print_frame(&frame, a.protocol, cols, rows)?;
+    term::print_frame(&frame, protocol, cols, rows)?;
     println!("{}", view::describe(&report));
     Ok(())
 }
