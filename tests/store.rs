@@ -372,6 +372,40 @@ fn missing_metadata_and_wrong_bands_are_refused() {
     );
     let e = open_err(dir.path(), "names.tif", &b);
     assert!(e.contains("expected 'x'"), "{e}");
+
+    // Bounds that are not finite, or inverted: refused (they would cull all).
+    for (name, value, want) in [
+        (
+            "nanbounds.tif",
+            "nan nan nan",
+            "BOUNDS_MIN is not three finite numbers",
+        ),
+        (
+            "inverted.tif",
+            "1e30 1e30 1e30",
+            "BOUNDS_MIN lies above BOUNDS_MAX",
+        ),
+    ] {
+        let mut b = bytes.clone();
+        set_item(&mut b, "BOUNDS_MIN", value);
+        let e = open_err(dir.path(), name, &b);
+        assert!(e.contains(want), "{name}: {e}");
+    }
+}
+
+/// Overwrites the value of metadata item `name` with `value`, padded with spaces
+/// to the old value's length.
+fn set_item(bytes: &mut [u8], name: &str, value: &str) {
+    let key = format!("name=\"{name}\">");
+    let at = bytes
+        .windows(key.len())
+        .position(|w| w == key.as_bytes())
+        .expect("item present")
+        + key.len();
+    let len = bytes[at..].iter().position(|&c| c == b'<').unwrap();
+    assert!(value.len() <= len, "{value} does not fit {len} bytes");
+    let padded = format!("{value:len$}");
+    bytes[at..at + len].copy_from_slice(padded.as_bytes());
 }
 
 #[test]

@@ -27,6 +27,9 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     let (frame, report) = view::render_once(ds, &a.view, &cam, a.width, a.height)?;
     frame.save_png(&a.output)?;
     eprintln!("{}", view::describe(&report));
-    eprintln!("wrote {}", a.output.display());
+    eprintln!(
+        "wrote {}",
+        crate::text::sanitize(&a.output.display().to_string())
+    );
     Ok(())
 }

@@ -192,14 +192,32 @@ fn parse_meta(items: &BTreeMap<String, String>) -> std::result::Result<PartMeta,
         .split_whitespace()
         .map(str::parse)
         .collect();
+    let finite = |k: &str| -> std::result::Result<[f64; 3], String> {
+        let v = v3(k)?;
+        if v.iter().all(|c| c.is_finite()) {
+            Ok(v)
+        } else {
+            Err(format!("metadata {k} is not three finite numbers"))
+        }
+    };
+    // (A part without points has empty bounds: +inf and -inf.)
+    let corner = |k: &str| if point_count > 0 { finite(k) } else { v3(k) };
+    let bounds = Bounds {
+        min: corner(key::BOUNDS_MIN)?,
+        max: corner(key::BOUNDS_MAX)?,
+    };
+    if point_count > 0 && (0..3).any(|a| bounds.min[a] > bounds.max[a]) {
+        return Err(format!(
+            "metadata {} lies above {} on some axis",
+            key::BOUNDS_MIN,
+            key::BOUNDS_MAX
+        ));
+    }
     Ok(PartMeta {
         format_version,
         point_count,
-        origin: v3(key::ORIGIN)?,
-        bounds: Bounds {
-            min: v3(key::BOUNDS_MIN)?,
-            max: v3(key::BOUNDS_MAX)?,
-        },
+        origin: finite(key::ORIGIN)?,
+        bounds,
         level_points: level_points
             .map_err(|_| format!("metadata {} is not a list of counts", key::LEVEL_POINTS))?,
         layout: items.get(key::LAYOUT).cloned().unwrap_or_default(),
@@ -529,15 +547,20 @@ impl Part {
                 // add up to the level's count.
                 let sum: u64 = li.tiles.iter().map(|t| t.points as u64).sum();
                 let expected = meta.level_points.get(k).copied();
-                if li.tiles.iter().any(|t| t.points as u64 > pixels)
-                    || expected.is_some_and(|e| e != sum)
-                    || sum > meta.point_count
-                {
+                if li.tiles.iter().any(|t| t.points as u64 > pixels) {
                     return Err(format!(
-                        "the tile index of level {k} disagrees with the image ({sum} points, metadata says {})",
+                        "the tile index of level {k} gives a tile more points than its \
+                         {pixels} pixels"
+                    ));
+                }
+                if expected.is_some_and(|e| e != sum) || sum > meta.point_count {
+                    return Err(format!(
+                        "the tile index of level {k} disagrees with the metadata: its tiles \
+                         hold {sum} points, the metadata says {} for the level and {} in all",
                         expected
                             .map(|e| e.to_string())
-                            .unwrap_or_else(|| "nothing".into())
+                            .unwrap_or_else(|| "nothing".into()),
+                        meta.point_count
                     ));
                 }
                 level.indexed = true;
