@@ -111,6 +111,12 @@ fn view_mode_never_exceeds_the_budget_and_refines_near_tiles() {
         u64::MAX,
     );
     assert_eq!(sel.levels.map(|l| l.0), Some(0));
+    // A budget below the coarsest tile still draws one tile (the nearest), not
+    // an empty frame.
+    let cam = Camera::fit(&b);
+    let sel = lod::select(&ds, &cam, 800, 600, LodMode::View { budget: 1 }, u64::MAX);
+    assert_eq!(sel.tiles.len(), 1, "{:?}", sel.levels);
+    assert_eq!(sel.points, sel.tiles[0].points);
 }
 
 #[test]

@@ -148,7 +148,7 @@ pub fn describe(r: &FrameReport) -> String {
     );
     if s.dropped_tiles > 0 {
         line.push_str(&format!(
-            "; gave up loading {} tiles ({} points) for the memory budget",
+            "; gave up loading {} tiles ({} points) for the point or memory budget",
             s.dropped_tiles,
             crate::text::count(s.dropped_points)
         ));

@@ -46,7 +46,7 @@ pub struct Selection {
     pub points: u64,
     /// Tiles left out because they lie outside the view.
     pub culled: usize,
-    /// Tiles (and their points) given up for the memory budget.
+    /// Tiles (and their points) given up for the memory or the point budget.
     pub dropped_tiles: usize,
     pub dropped_points: u64,
     /// The finest and coarsest level drawn.
@@ -258,7 +258,10 @@ pub fn select(
     let mut bytes = 0u64;
     for t in chosen {
         let cost = t.points * BYTES_PER_LOADED_POINT;
-        if bytes + cost > memory_budget || sel.points + t.points > point_cap {
+        // The nearest tile is drawn even beyond the point budget: a budget below
+        // the coarsest tile would otherwise draw nothing at all.
+        let over_points = sel.points + t.points > point_cap && !sel.tiles.is_empty();
+        if bytes + cost > memory_budget || over_points {
             sel.dropped_tiles += 1;
             sel.dropped_points += t.points;
             continue;
