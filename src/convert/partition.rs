@@ -191,16 +191,21 @@ pub fn split(grid: &CountGrid, max_points: u64, max_extent: f64) -> Vec<Region> 
 /// origin should be (a region's own box may reach far past its points).
 pub fn occupied(grid: &CountGrid, mut r: Region) -> Region {
     for a in 0..3 {
-        let slabs = grid.slabs(r.lo, r.hi, a);
-        if let (Some(first), Some(last)) = (
-            slabs.iter().position(|&c| c > 0),
-            slabs.iter().rposition(|&c| c > 0),
-        ) {
+        if let Some((first, last)) = occupied_slabs(grid, &r, a) {
             r.hi[a] = r.lo[a] + last + 1;
             r.lo[a] += first;
         }
     }
     r
+}
+
+/// The first and last slab of `r` along axis `a` that hold points (offsets from
+/// `r.lo[a]`), if any does.
+fn occupied_slabs(grid: &CountGrid, r: &Region, a: usize) -> Option<(usize, usize)> {
+    let slabs = grid.slabs(r.lo, r.hi, a);
+    let first = slabs.iter().position(|&c| c > 0)?;
+    let last = slabs.iter().rposition(|&c| c > 0)?;
+    Some((first, last))
 }
 
 /// The axis on which `r`'s occupied cells span `max_extent` or more (world units)
@@ -213,9 +218,7 @@ fn too_wide(grid: &CountGrid, r: &Region, max_extent: f64) -> Option<(usize, usi
         if (r.hi[a] - r.lo[a]) as f64 * cell < max_extent {
             return None;
         }
-        let slabs = grid.slabs(r.lo, r.hi, a);
-        let first = slabs.iter().position(|&c| c > 0)?;
-        let last = slabs.iter().rposition(|&c| c > 0)?;
+        let (first, last) = occupied_slabs(grid, r, a)?;
         let span = (last + 1 - first) as f64 * cell;
         (span >= max_extent && last > first).then(|| (a, r.lo[a] + (first + last).div_ceil(2)))
     })
@@ -294,9 +297,7 @@ mod tests {
         assert_eq!(regions.iter().map(|r| r.points).sum::<u64>(), 1000);
         let cell = 100.0 / g.dims[0] as f64;
         for r in &regions {
-            let slabs = g.slabs(r.lo, r.hi, 0);
-            let first = slabs.iter().position(|&c| c > 0).unwrap();
-            let last = slabs.iter().rposition(|&c| c > 0).unwrap();
+            let (first, last) = occupied_slabs(&g, r, 0).unwrap();
             assert!(((last + 1 - first) as f64) * cell < 40.0);
         }
     }
