@@ -34,14 +34,8 @@ pub(super) fn distribute(
     like: &PointColumns,
     dir: &Path,
 ) -> Result<Vec<Spilled>> {
-    if like.attributes.len() > spill::MAX_ATTRIBUTES {
-        anyhow::bail!(
-            "{}: {} attributes; pcimg stores at most {}",
-            input.display(),
-            like.attributes.len(),
-            spill::MAX_ATTRIBUTES
-        );
-    }
+    // (`ingest::open` refuses more attributes than a record carries:
+    // `points::MAX_ATTRIBUTES`.)
     *reader = ingest::open(input, read)?;
     progress.phase("partition", reader.info().file_bytes, "bytes");
     let mut seen = 0u64;

@@ -134,9 +134,6 @@ pub fn records_by_region(
     (out, bounds, boxes)
 }
 
-/// Most attribute columns a spill record carries.
-pub const MAX_ATTRIBUTES: usize = crate::points::MAX_ATTRIBUTES;
-
 /// Reads a region file back a block of records at a time.
 pub struct SpillReader {
     path: PathBuf,
