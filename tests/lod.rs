@@ -205,3 +205,61 @@ fn background_loader_delivers_requested_tiles_without_blocking() {
     }
     assert_eq!(small.stats().tiles, 1, "the unwanted tile was evicted");
 }
+
+#[test]
+fn unreadable_tiles_are_not_retried_and_coarser_tiles_stand_in() {
+    use pcimg::store::Compression;
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("z.tif");
+    let opts = WriteOptions {
+        compression: Compression::Deflate,
+        ..Default::default()
+    };
+    write_part(&path, &pcimg::synth::scene(400_000, 3), &opts).unwrap();
+    // Corrupt the first band of every level-0 tile.
+    let mut bytes = std::fs::read(&path).unwrap();
+    let t = pcimg::store::ifd::Tiff::parse(&bytes).unwrap();
+    let offsets = t.uints(&bytes, &t.ifds[0], 324).unwrap().unwrap();
+    let counts = t.uints(&bytes, &t.ifds[0], 325).unwrap().unwrap();
+    let first_band = offsets.len() / 4;
+    for (&o, &n) in offsets.iter().zip(&counts).take(first_band) {
+        for b in &mut bytes[o as usize..(o + n.min(16)) as usize] {
+            *b ^= 0x5a;
+        }
+    }
+    std::fs::write(&path, &bytes).unwrap();
+    let ds = Arc::new(Dataset::open(&path).unwrap());
+    assert!(ds.parts[0].levels.len() >= 3);
+    let cam = Camera::fit(&ds.bounds());
+    let pick = |level| lod::select(&ds, &cam, 800, 600, LodMode::Fixed(level), u64::MAX).tiles;
+    let (fine, coarse) = (pick(0), pick(1));
+    assert!(fine.len() > coarse.len() && !coarse.is_empty());
+    let cache = TileCache::new(ds.clone(), 1 << 30, 2);
+    let wait = |what: &dyn Fn() -> bool| {
+        let deadline = std::time::Instant::now() + std::time::Duration::from_secs(30);
+        while !what() {
+            assert!(std::time::Instant::now() < deadline, "timed out");
+            let _ = cache
+                .arrivals
+                .recv_timeout(std::time::Duration::from_millis(20));
+        }
+    };
+    cache.request(&coarse);
+    wait(&|| cache.has_all(&coarse));
+    assert!(cache.stand_ins(&coarse).is_empty(), "nothing is missing");
+    // Every level-0 tile fails, once; the level-1 tiles stand in for them.
+    cache.request(&fine);
+    wait(&|| cache.unreadable(&fine) == fine.len());
+    let errors = cache.take_errors();
+    assert_eq!(errors.len(), fine.len(), "{errors:?}");
+    assert!(errors[0].contains("z.tif"), "{}", errors[0]);
+    let mut stand: Vec<_> = cache.stand_ins(&fine).iter().map(|t| t.key).collect();
+    let mut want: Vec<_> = coarse.iter().map(lod::TileKey::from).collect();
+    stand.sort();
+    want.sort();
+    assert_eq!(stand, want);
+    cache.request(&fine);
+    std::thread::sleep(std::time::Duration::from_millis(200));
+    assert!(cache.take_errors().is_empty(), "unreadable tiles were asked for again");
+    assert_eq!(cache.stats().pending, 0);
+}

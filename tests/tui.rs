@@ -113,6 +113,28 @@ fn panels_list_parts_bands_and_levels() {
 }
 
 #[test]
+fn the_parts_list_scrolls_to_the_selected_part() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path().join("many");
+    std::fs::create_dir_all(&d).unwrap();
+    for i in 0..12 {
+        let pts = pcimg::synth::scene(3_000, i + 1);
+        let path = d.join(format!("part-{i:02}.tif"));
+        store::write_part(&path, &pts, &WriteOptions::default()).unwrap();
+    }
+    let mut app = app_for(&d);
+    let text = screen(&app, None).join("\n");
+    assert!(text.contains("part-00.tif") && text.contains("parts (1/12)"), "{text}");
+    assert!(!text.contains("part-11.tif"), "12 parts cannot all fit:\n{text}");
+    for _ in 0..11 {
+        press(&mut app, KeyCode::Tab);
+    }
+    let text = screen(&app, None).join("\n");
+    assert!(text.contains("parts (12/12)"), "{text}");
+    assert!(text.contains("part-11.tif"), "the selected part is off screen:\n{text}");
+}
+
+#[test]
 fn keys_pin_levels_and_cycle_colours_in_the_status_line() {
     let dir = tempfile::tempdir().unwrap();
     let path = two_parts(dir.path(), None);

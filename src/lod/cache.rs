@@ -1,7 +1,9 @@
 //! The tile cache: tiles of (part, level, tile) loaded through the store by worker
 //! threads, kept under a memory budget (least recently used out). Callers ask for a
 //! selection and never wait: tiles arrive as workers finish, and requests for tiles
-//! no longer wanted are skipped.
+//! no longer wanted are skipped. A tile that fails to load is remembered and not
+//! asked for again; while a tile is missing, a cached coarser tile covering it
+//! can stand in.
 
 use super::select::TileRef;
 use crate::store::Dataset;
@@ -117,6 +119,8 @@ struct State {
     bytes: u64,
     clock: u64,
     errors: Vec<String>,
+    /// Tiles that failed to load (never queued again).
+    failed: HashSet<TileKey>,
 }
 
 /// Counters for the status line.
@@ -196,7 +200,10 @@ impl TileCache {
                                 drop(s);
                                 let _ = tx.send(key);
                             }
-                            Err(e) => s.errors.push(e),
+                            Err(e) => {
+                                s.failed.insert(key);
+                                s.errors.push(e);
+                            }
                         }
                     }
                 })
@@ -229,7 +236,7 @@ impl TileCache {
             let k = TileKey::from(t);
             if let Some(e) = s.tiles.get_mut(&k) {
                 e.last_used = clock;
-            } else if !s.queued.contains(&k) {
+            } else if !s.queued.contains(&k) && !s.failed.contains(&k) {
                 s.queued.insert(k);
                 if let Some(j) = &self.jobs {
                     let _ = j.send(k);
@@ -247,6 +254,62 @@ impl TileCache {
             .iter()
             .filter_map(|t| s.tiles.get(&TileKey::from(t)).map(|e| e.tile.clone()))
             .collect()
+    }
+
+    /// How many of `tiles` failed to load (they are not asked for again).
+    pub fn unreadable(&self, tiles: &[TileRef]) -> usize {
+        self.state
+            .lock()
+            .map(|s| {
+                tiles
+                    .iter()
+                    .filter(|t| s.failed.contains(&TileKey::from(*t)))
+                    .count()
+            })
+            .unwrap_or(0)
+    }
+
+    /// For tiles of `tiles` not cached (loading, or unreadable), the nearest
+    /// cached coarser tile covering each, once each: tile (col, row) of a level is
+    /// covered by tile (col/2, row/2) of the next, whose pixels are a
+    /// nearest-neighbour sample of it. Drawn meanwhile, they keep the view whole.
+    pub fn stand_ins(&self, tiles: &[TileRef]) -> Vec<Arc<LoadedTile>> {
+        let Ok(mut s) = self.state.lock() else {
+            return Vec::new();
+        };
+        s.clock += 1;
+        let clock = s.clock;
+        let mut found: HashSet<TileKey> = HashSet::new();
+        for t in tiles {
+            let key = TileKey::from(t);
+            if s.tiles.contains_key(&key) {
+                continue;
+            }
+            let Some(part) = self.ds.parts.get(t.part) else {
+                continue;
+            };
+            let Some(level) = part.levels.get(t.level) else {
+                continue;
+            };
+            let across = level.tiles_across.max(1);
+            let (mut col, mut row) = (t.tile % across, t.tile / across);
+            for coarser in part.levels.iter().skip(t.level + 1) {
+                (col, row) = (col / 2, row / 2);
+                let k = TileKey {
+                    part: t.part,
+                    level: coarser.index,
+                    tile: row * coarser.tiles_across.max(1) + col,
+                };
+                if let Some(e) = s.tiles.get_mut(&k) {
+                    e.last_used = clock;
+                    found.insert(k);
+                    break;
+                }
+            }
+        }
+        let mut keys: Vec<TileKey> = found.into_iter().collect();
+        keys.sort();
+        keys.iter().map(|k| s.tiles[k].tile.clone()).collect()
     }
 
     /// Loads the tiles now (in parallel) and returns them all: for one-shot renders.

@@ -125,8 +125,10 @@ pub struct FrameStatus {
     pub levels: Option<(usize, usize)>,
     pub points: u64,
     pub tiles: usize,
-    /// Tiles of the selection still loading.
+    /// Tiles of the selection still loading (coarser cached tiles stand in).
     pub pending: usize,
+    /// Tiles of the selection that failed to load.
+    pub unreadable: usize,
     pub select_ms: f64,
     pub load_ms: f64,
     pub render_ms: f64,
@@ -275,6 +277,9 @@ impl App {
         );
         if f.pending > 0 {
             s.push_str(&format!(" | loading {} tiles", f.pending));
+        }
+        if f.unreadable > 0 {
+            s.push_str(&format!(" | {} tiles unreadable", f.unreadable));
         }
         s
     }

@@ -12,7 +12,7 @@ use ratatui::Frame;
 use ratatui::layout::{Constraint, Layout, Rect};
 use ratatui::style::{Color, Modifier, Style, Stylize};
 use ratatui::text::{Line, Span};
-use ratatui::widgets::{Block, Cell, Clear, Gauge, Paragraph, Row, Table};
+use ratatui::widgets::{Block, Cell, Clear, Gauge, Paragraph, Row, Table, TableState};
 use ratatui_image::Image;
 use ratatui_image::protocol::Protocol;
 
@@ -120,8 +120,7 @@ fn draw_parts(f: &mut Frame, app: &App, area: Rect) {
         .dataset
         .parts
         .iter()
-        .enumerate()
-        .map(|(i, p)| {
+        .map(|p| {
             let name = p
                 .path
                 .file_name()
@@ -132,17 +131,12 @@ fn draw_parts(f: &mut Frame, app: &App, area: Rect) {
                 "{:.0}..{:.0} {:.0}..{:.0} {:.0}..{:.0}",
                 b.min[0], b.max[0], b.min[1], b.max[1], b.min[2], b.max[2]
             );
-            let row = Row::new(vec![
+            Row::new(vec![
                 Cell::from(sanitize(&name)),
                 Cell::from(count(p.meta.point_count)),
                 Cell::from(bounds),
                 Cell::from(bytes(p.file_bytes)),
-            ]);
-            if i == app.part {
-                row.style(Style::new().reversed())
-            } else {
-                row
-            }
+            ])
         })
         .collect();
     let part = app.dataset.parts.get(app.part);
@@ -154,7 +148,13 @@ fn draw_parts(f: &mut Frame, app: &App, area: Rect) {
         .and_then(|p| p.meta.crs.as_deref())
         .map(sanitize)
         .unwrap_or_else(|| "-".into());
-    let block = Block::bordered().title(title(" parts "));
+    let n = app.dataset.parts.len();
+    let heading = if n > 1 {
+        format!(" parts ({}/{n}) ", app.part + 1)
+    } else {
+        " parts ".to_string()
+    };
+    let block = Block::bordered().title(title(&heading));
     let inner = block.inner(area);
     f.render_widget(block, area);
     let [table_area, detail] =
@@ -168,8 +168,11 @@ fn draw_parts(f: &mut Frame, app: &App, area: Rect) {
             Constraint::Length(10),
         ],
     )
-    .header(header(&["file", "points", "bounds (x y z)", "bytes"]));
-    f.render_widget(table, table_area);
+    .header(header(&["file", "points", "bounds (x y z)", "bytes"]))
+    .row_highlight_style(Style::new().reversed());
+    // The table scrolls to keep the selected part in view.
+    let mut state = TableState::new().with_selected(Some(app.part));
+    f.render_stateful_widget(table, table_area, &mut state);
     f.render_widget(
         Paragraph::new(format!("source {source} · crs {crs}")).dark_gray(),
         detail,

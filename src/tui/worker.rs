@@ -256,8 +256,15 @@ impl Worker {
         let sel = lod::select(&self.ds, &req.camera, width, height, s.lod_mode(), s.memory);
         let select_ms = ms(t);
         self.cache.request(&sel.tiles);
-        let tiles = self.cache.ready(&sel.tiles);
-        let pending = sel.tiles.len() - tiles.len();
+        let mut tiles = self.cache.ready(&sel.tiles);
+        let unreadable = self.cache.unreadable(&sel.tiles);
+        let pending = sel.tiles.len() - tiles.len() - unreadable;
+        if tiles.len() < sel.tiles.len() {
+            // Coarser tiles already in memory stand in for those still missing.
+            let have: std::collections::HashSet<TileKey> = tiles.iter().map(|t| t.key).collect();
+            let extra = self.cache.stand_ins(&sel.tiles);
+            tiles.extend(extra.into_iter().filter(|t| !have.contains(&t.key)));
+        }
         // Load time: from the request that found tiles missing until all arrived.
         let load_ms = if pending > 0 {
             ms(*self.loading_since.get_or_insert(received))
@@ -320,6 +327,7 @@ impl Worker {
             points,
             tiles: tiles.len(),
             pending,
+            unreadable,
             select_ms,
             load_ms,
             render_ms,
