@@ -260,6 +260,9 @@ fn unreadable_tiles_are_not_retried_and_coarser_tiles_stand_in() {
     assert_eq!(stand, want);
     cache.request(&fine);
     std::thread::sleep(std::time::Duration::from_millis(200));
-    assert!(cache.take_errors().is_empty(), "unreadable tiles were asked for again");
+    assert!(
+        cache.take_errors().is_empty(),
+        "unreadable tiles were asked for again"
+    );
     assert_eq!(cache.stats().pending, 0);
 }

@@ -115,6 +115,10 @@ pub enum Effect {
     Render,
     /// Save the current frame.
     Save,
+    /// Stop until the shell continues the process (Ctrl-Z).
+    Suspend,
+    /// Clear and draw everything again.
+    Repaint,
     Quit,
 }
 
@@ -192,6 +196,8 @@ impl App {
         let top = self.max_levels() - 1;
         match cmd {
             Interrupt => return Effect::Quit,
+            Suspend => return Effect::Suspend,
+            Repaint => return Effect::Repaint,
             Quit if self.show_help => {
                 self.show_help = false;
                 return Effect::Redraw;
@@ -289,11 +295,15 @@ impl App {
     pub fn timing_line(&self) -> String {
         let f = &self.frame;
         format!(
-            "load {:.0} · render {:.0} · encode {:.0} ms | {:.1} fps | {}",
+            "load {:.0} · render {:.0} · encode {:.0} ms | {} | {}",
             f.load_ms,
             f.render_ms,
             f.encode_ms,
-            self.fps,
+            if self.fps > 0.0 {
+                format!("{:.1} fps", self.fps)
+            } else {
+                "idle".to_string()
+            },
             // "wgpu Vulkan: llvmpipe (LLVM 15.0.6, 256 bits) (Mesa …)" → "wgpu Vulkan: llvmpipe".
             crate::text::sanitize(match f.renderer.split_once(" (") {
                 Some((short, _)) if f.renderer.starts_with("wgpu") => short,

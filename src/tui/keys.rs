@@ -34,6 +34,10 @@ pub enum Command {
     Quit,
     /// Ctrl-C: quits at once.
     Interrupt,
+    /// Ctrl-Z: hands the terminal back to the shell until `fg`.
+    Suspend,
+    /// Ctrl-L: draws the whole screen again.
+    Repaint,
 }
 
 /// The command for a key press, if any. Releases and repeats of non-movement
@@ -47,6 +51,10 @@ pub fn command_for(key: KeyEvent) -> Option<Command> {
     use Command::*;
     Some(match key.code {
         KeyCode::Char('c') | KeyCode::Char('C') if ctrl => Interrupt,
+        KeyCode::Char('z') | KeyCode::Char('Z') if ctrl => Suspend,
+        KeyCode::Char('l') | KeyCode::Char('L') if ctrl => Repaint,
+        // Other control chords are not the plain letter's command.
+        KeyCode::Char(_) if ctrl => return None,
         KeyCode::Char('q') | KeyCode::Esc => Quit,
         KeyCode::Left if shift => Pan(-1, 0),
         KeyCode::Right if shift => Pan(1, 0),
@@ -101,6 +109,10 @@ pub const HELP: &[(&str, &str)] = &[
     ("s", "save the current frame as PNG"),
     ("Tab / n", "select the next part"),
     ("?", "this help (q or Esc closes it)"),
+    (
+        "Ctrl-Z / Ctrl-L",
+        "suspend to the shell (fg resumes) / repaint",
+    ),
     ("q / Esc / Ctrl-C", "quit"),
 ];
 
@@ -140,6 +152,16 @@ mod tests {
             Some(Command::NextPart)
         );
         assert_eq!(command_for(key(KeyCode::Char('x'), none)), None);
+        let ctrl = KeyModifiers::CONTROL;
+        assert_eq!(
+            command_for(key(KeyCode::Char('z'), ctrl)),
+            Some(Command::Suspend)
+        );
+        assert_eq!(
+            command_for(key(KeyCode::Char('l'), ctrl)),
+            Some(Command::Repaint)
+        );
+        assert_eq!(command_for(key(KeyCode::Char('s'), ctrl)), None);
         let mut release = key(KeyCode::Char('q'), none);
         release.kind = KeyEventKind::Release;
         assert_eq!(command_for(release), None);

@@ -102,7 +102,6 @@ fn event_loop(
     cell_pixels: (u32, u32),
 ) -> anyhow::Result<()> {
     use crossterm::event::{self, Event};
-    let term = &mut session.terminal;
     let mut shown = Shown::default();
     let (msg_tx, msg_rx): (Sender<String>, Receiver<String>) = channel();
     let mut seq = 0u64;
@@ -115,7 +114,7 @@ fn event_loop(
         if STOP.load(Ordering::SeqCst) {
             return Ok(());
         }
-        let size = term.size()?;
+        let size = session.terminal.size()?;
         let cells = ui::areas(Rect::new(0, 0, size.width, size.height), app).view_inner;
         let cells = (cells.width, cells.height);
         if cells != requested_cells {
@@ -136,12 +135,29 @@ fn event_loop(
         if help_shown && !app.show_help && protocol::image_in_one_cell(graphics) {
             // The help was drawn over the image's skipped cells; ratatui would not
             // send those again, so its text would stay. Redraw everything once.
-            term.clear()?;
+            session.terminal.clear()?;
             dirty = true;
         }
         help_shown = app.show_help;
+        // Frames per second over the last two seconds: 0 (shown as idle) once
+        // frames stop coming.
+        let now = Instant::now();
+        while shown
+            .arrivals
+            .front()
+            .is_some_and(|t| now - *t > Duration::from_secs(2))
+        {
+            shown.arrivals.pop_front();
+        }
+        let rate = fps(&shown.arrivals);
+        if rate != app.fps {
+            app.fps = rate;
+            dirty = true;
+        }
         if dirty {
-            term.draw(|f| ui::draw(f, app, shown.image.as_ref()))?;
+            session
+                .terminal
+                .draw(|f| ui::draw(f, app, shown.image.as_ref()))?;
             dirty = false;
         }
         if terminal::hung_up() {
@@ -164,6 +180,14 @@ fn event_loop(
                                 save_frame(shown.frame.clone(), saved, msg_tx.clone());
                                 app.message = "saving the frame…".into();
                             }
+                            Effect::Suspend => {
+                                session.suspend()?;
+                                want_frame = true;
+                            }
+                            Effect::Repaint => {
+                                session.terminal.clear()?;
+                                want_frame = true;
+                            }
                             Effect::Redraw | Effect::None => {}
                         }
                         dirty = true;
@@ -176,16 +200,7 @@ fn event_loop(
         loop {
             match worker.try_recv() {
                 Ok(Some(Report::Frame(f))) => {
-                    let now = Instant::now();
-                    shown.arrivals.push_back(now);
-                    while shown
-                        .arrivals
-                        .front()
-                        .is_some_and(|t| now - *t > Duration::from_secs(2))
-                    {
-                        shown.arrivals.pop_front();
-                    }
-                    app.fps = fps(&shown.arrivals);
+                    shown.arrivals.push_back(Instant::now());
                     app.frame = f.status;
                     shown.image = Some(f.image);
                     shown.frame = Some(f.frame);

@@ -56,6 +56,24 @@ impl Session {
     }
 }
 
+impl Session {
+    /// Ctrl-Z: raw mode delivers it as a key, so the shell's job control is done
+    /// here: the terminal is restored, the process stops itself (SIGTSTP), and once
+    /// continued (`fg`) the inspector's mode is entered again and the screen
+    /// cleared for a full redraw.
+    pub fn suspend(&mut self) -> anyhow::Result<()> {
+        restore();
+        // SAFETY: raising a signal at this process; SIGTSTP's default action stops
+        // it, and `raise` returns once it is continued.
+        unsafe { libc::raise(libc::SIGTSTP) };
+        ACTIVE.store(true, Ordering::SeqCst);
+        enable_raw_mode()?;
+        execute!(stdout(), EnterAlternateScreen, Hide)?;
+        self.terminal.clear()?;
+        Ok(())
+    }
+}
+
 impl Drop for Session {
     fn drop(&mut self) {
         restore();
