@@ -403,8 +403,36 @@ impl Camera {
 
     /// Parses a camera from JSON; missing fields take their defaults.
     pub fn from_json(s: &str) -> Result<Camera, CameraError> {
+        Camera::from_json_over(s, &Camera::default())
+    }
+
+    /// A camera from JSON whose fields override those of `base` (a partial
+    /// camera such as `{"yaw": 1.2}` keeps the rest of `base`). Unknown fields
+    /// and non-finite values are errors.
+    pub fn from_json_over(s: &str, base: &Camera) -> Result<Camera, CameraError> {
+        let bad = |e: &dyn std::fmt::Display| CameraError(format!("bad camera JSON: {e}"));
+        let given: serde_json::Value = serde_json::from_str(s).map_err(|e| bad(&e))?;
+        let serde_json::Value::Object(given) = given else {
+            return Err(bad(&"expected an object such as {\"yaw\": 0.5}"));
+        };
+        let serde_json::Value::Object(mut merged) =
+            serde_json::to_value(base).map_err(|e| bad(&e))?
+        else {
+            return Err(bad(&"the camera is not an object"));
+        };
+        for (k, v) in given {
+            if !merged.contains_key(&k) {
+                let known: Vec<&str> = merged.keys().map(String::as_str).collect();
+                return Err(bad(&format!(
+                    "unknown field '{}' (fields: {})",
+                    crate::text::sanitize(&k),
+                    known.join(", ")
+                )));
+            }
+            merged.insert(k, v);
+        }
         let c: Camera =
-            serde_json::from_str(s).map_err(|e| CameraError(format!("bad camera JSON: {e}")))?;
+            serde_json::from_value(serde_json::Value::Object(merged)).map_err(|e| bad(&e))?;
         let finite = [c.yaw, c.pitch, c.distance, c.fov_y, c.aspect, c.near, c.far]
             .iter()
             .all(|v| v.is_finite())
@@ -591,6 +619,17 @@ mod tests {
         assert_eq!(partial.mode, CameraMode::Fly);
         assert_eq!(partial.yaw, 1.0);
         assert!(Camera::from_json("{nope").is_err());
+        // Fields left out keep the base camera's; unknown ones are refused.
+        let over = Camera::from_json_over(r#"{"yaw": 0.25}"#, &cam).unwrap();
+        assert_eq!(over.yaw, 0.25);
+        assert_eq!((over.target, over.distance), (cam.target, cam.distance));
+        let e = Camera::from_json_over(r#"{"yaww": 0.25}"#, &cam).unwrap_err();
+        assert!(
+            e.0.contains("unknown field 'yaww'") && e.0.contains("yaw"),
+            "{e}"
+        );
+        assert!(Camera::from_json_over("[1, 2]", &cam).is_err());
+        assert!(Camera::from_json_over(r#"{"yaw": "left"}"#, &cam).is_err());
         let v = parse_view("30, -45, 120").unwrap();
         assert_eq!(v.distance, Some(120.0));
         let v2: ViewSpec = "10,20".parse().unwrap();

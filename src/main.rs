@@ -3,6 +3,13 @@
 use clap::Parser;
 
 fn main() -> std::process::ExitCode {
+    // A closed pipe (`pcimg info X | head`) ends the process quietly, as it ends
+    // other command-line tools, instead of a panic in `println!`.
+    #[cfg(unix)]
+    // SAFETY: restoring a signal's default action, before any thread exists.
+    unsafe {
+        libc::signal(libc::SIGPIPE, libc::SIG_DFL);
+    }
     let cli = pcimg::cli::Cli::parse();
     match pcimg::cli::run(cli) {
         Ok(()) => std::process::ExitCode::SUCCESS,

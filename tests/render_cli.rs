@@ -180,4 +180,29 @@ fn refusals_are_clear() {
         .output()
         .unwrap();
     assert!(String::from_utf8_lossy(&o.stderr).contains("plaid"));
+    // A level the dataset does not have, a misspelt camera field, an output
+    // that is not a PNG and a zero budget: each refused before anything is
+    // written, naming what is wrong.
+    let refused = |args: &[&str], says: &[&str]| {
+        let o = exe().arg("render").arg(&ds).args(args).output().unwrap();
+        let e = String::from_utf8_lossy(&o.stderr);
+        assert!(!o.status.success(), "{args:?} succeeded");
+        for s in says {
+            assert!(e.contains(s), "{args:?}: {e}");
+        }
+    };
+    let out = dir.path().join("x.png");
+    let out = out.to_str().unwrap();
+    refused(
+        &["--lod", "9", "-o", out],
+        &["--lod 9", "levels 0 (finest) to 1"],
+    );
+    refused(
+        &["--camera", r#"{"yaww": 1}"#, "-o", out],
+        &["unknown field 'yaww'"],
+    );
+    refused(&["--budget", "0", "-o", out], &["--budget"]);
+    let jpg = dir.path().join("x.jpg");
+    refused(&["-o", jpg.to_str().unwrap()], &["PNG only"]);
+    assert!(!jpg.exists() && !Path::new(out).exists());
 }

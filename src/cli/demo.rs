@@ -6,10 +6,14 @@ use std::path::PathBuf;
 
 #[derive(Debug, clap::Args)]
 pub struct Args {
-    /// Points in the synthetic scan.
-    #[arg(short = 'n', long, default_value_t = 2_000_000)]
+    /// Points in the synthetic scan, 1 to 50,000,000 (the demo builds them in
+    /// memory; for more, `pcimg synth` a file and `pcimg convert` it).
+    #[arg(short = 'n', long, default_value_t = 2_000_000,
+          value_parser = clap::value_parser!(u64).range(1..=50_000_000))]
     pub points: u64,
-    /// Keep the dataset in this directory instead of a temporary one.
+    /// Keep the dataset in this directory (as DIR/demo.tif) instead of a
+    /// temporary one; a demo.tif already there is replaced only if an earlier
+    /// demo wrote it.
     #[arg(long)]
     pub keep: Option<PathBuf>,
     /// Image protocol of the inspector: auto, kitty, sixel, iterm or halfblocks.
@@ -23,16 +27,27 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     let tmp;
     let dir = match &a.keep {
         Some(d) => {
-            std::fs::create_dir_all(d)?;
+            if d.exists() && !d.is_dir() {
+                anyhow::bail!("--keep {}: not a directory", d.display());
+            }
+            std::fs::create_dir_all(d)
+                .map_err(|e| anyhow::anyhow!("--keep {}: {e}", d.display()))?;
             d.clone()
         }
         None => {
             tmp = std::env::temp_dir().join(format!("pcimg-demo-{}", std::process::id()));
-            std::fs::create_dir_all(&tmp)?;
+            std::fs::create_dir_all(&tmp)
+                .map_err(|e| anyhow::anyhow!("cannot create {}: {e}", tmp.display()))?;
             tmp.clone()
         }
     };
     let path = dir.join("demo.tif");
+    if a.keep.is_some() && std::fs::symlink_metadata(&path).is_ok() && !earlier_demo(&path) {
+        anyhow::bail!(
+            "{} exists and is not a dataset an earlier demo wrote: keep the demo in another directory",
+            path.display()
+        );
+    }
     eprintln!(
         "pcimg demo: generating {} synthetic points…",
         crate::text::count(a.points)
@@ -40,7 +55,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     let t = std::time::Instant::now();
     let pts = crate::synth::scene(a.points, 1);
     let opts = WriteOptions {
-        source: Some("pcimg synth".into()),
+        source: Some(DEMO_SOURCE.into()),
         ..Default::default()
     };
     let s = store::write_part(&path, &pts, &opts)?;
@@ -51,31 +66,43 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         t.elapsed().as_secs_f64()
     );
     let ds = store::Dataset::open(&path)?;
-    let shown = if interactive {
+    let temporary = a.keep.is_none().then_some(dir.as_path());
+    if interactive {
         let mut args = super::inspect::defaults(&path);
         args.protocol = a.protocol;
-        super::inspect::open(std::sync::Arc::new(ds), &args)
-    } else {
-        print!(
-            "{}",
-            super::info::render_text(&super::info::report(&ds, false))
-        );
-        match &a.keep {
-            Some(_) => println!(
-                "(stdout is not a terminal, so the inspector did not open: look at the dataset with \
-                 `pcimg render {0} -o frame.png` or `pcimg preview {0}`)",
-                path.display()
-            ),
-            None => println!(
-                "(stdout is not a terminal, so the inspector did not open. Keep the dataset with \
-                 `pcimg demo --keep DIR`, then look at it with `pcimg render DIR/demo.tif -o frame.png` \
-                 or `pcimg preview DIR/demo.tif`.)"
-            ),
+        let shown = super::inspect::open(std::sync::Arc::new(ds), &args, temporary);
+        if let Some(t) = temporary {
+            let _ = std::fs::remove_dir_all(t);
         }
-        Ok(())
-    };
-    if a.keep.is_none() {
-        let _ = std::fs::remove_dir_all(&dir);
+        return shown;
     }
-    shown
+    let mut report = super::info::render_text(&super::info::report(&ds, false));
+    report.push_str(&match &a.keep {
+        Some(_) => format!(
+            "(stdout is not a terminal, so the inspector did not open: look at the dataset with \
+             `pcimg render {0} -o frame.png` or `pcimg preview {0}`)\n",
+            path.display()
+        ),
+        None => "(stdout is not a terminal, so the inspector did not open. Keep the dataset with \
+                 `pcimg demo --keep DIR`, then look at it with `pcimg render DIR/demo.tif -o frame.png` \
+                 or `pcimg preview DIR/demo.tif`.)\n"
+            .to_string(),
+    });
+    // Removed before printing: a reader that closes the pipe early ends the process.
+    drop(ds);
+    if let Some(t) = temporary {
+        let _ = std::fs::remove_dir_all(t);
+    }
+    print!("{report}");
+    Ok(())
 }
+
+/// Whether `path` is a part an earlier `pcimg demo` wrote (its source is the
+/// synthetic scene).
+fn earlier_demo(path: &std::path::Path) -> bool {
+    crate::store::Part::open(path)
+        .is_ok_and(|p| matches!(p.meta.source.as_deref(), Some(DEMO_SOURCE | "pcimg synth")))
+}
+
+/// The source the demo's dataset records.
+const DEMO_SOURCE: &str = "pcimg demo";

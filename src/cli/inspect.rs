@@ -20,9 +20,9 @@ pub struct Args {
     /// sixel, iterm or halfblocks.
     #[arg(long, default_value = "auto")]
     pub protocol: Protocol,
-    /// Threads loading tiles.
-    #[arg(long, default_value_t = 2)]
-    pub load_threads: usize,
+    /// Threads loading tiles (1 to 64).
+    #[arg(long, default_value_t = 2, value_parser = clap::value_parser!(u16).range(1..=64))]
+    pub load_threads: u16,
 }
 
 /// The inspector's arguments with every default, for `path`.
@@ -60,14 +60,16 @@ pub fn run(a: Args) -> anyhow::Result<()> {
             a.view.path.display()
         );
     }
-    open(ds, &a)
+    open(ds, &a, None)
 }
 
-/// Opens the inspector on an already opened dataset.
-pub fn open(ds: Arc<Dataset>, a: &Args) -> anyhow::Result<()> {
+/// Opens the inspector on an already opened dataset (`temporary`: a directory
+/// to remove should the process be ended by force). With `--print-camera`, the
+/// camera the session ended with is printed on stderr, for `render --camera`.
+pub fn open(ds: Arc<Dataset>, a: &Args, temporary: Option<&Path>) -> anyhow::Result<()> {
     no_device_select();
     let v = &a.view;
-    let lod = match view::parse_lod(&v.lod, v.budget)? {
+    let lod = match view::lod_for(&v.lod, v.budget, &ds)? {
         crate::lod::LodMode::View { .. } => LodChoice::View,
         crate::lod::LodMode::Distance => LodChoice::Distance,
         crate::lod::LodMode::Fixed(k) => LodChoice::Pinned(k),
@@ -82,14 +84,19 @@ pub fn open(ds: Arc<Dataset>, a: &Args) -> anyhow::Result<()> {
     };
     let renderer: RendererChoice = v.renderer.parse()?;
     let camera = view::camera_for(v, &ds)?;
-    tui::run(
+    let last = tui::run(
         ds,
         InspectOptions {
             protocol: a.protocol,
             renderer,
             camera,
             settings,
-            load_threads: a.load_threads,
+            load_threads: a.load_threads as usize,
+            temporary: temporary.map(Path::to_path_buf),
         },
-    )
+    )?;
+    if v.print_camera {
+        eprintln!("{}", last.to_json());
+    }
+    Ok(())
 }

@@ -41,21 +41,66 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         Graphics::Halfblocks => Protocol::Halfblocks,
     };
     let cam = view::camera_for(&a.view, &ds)?;
-    let (cols, rows, px) = term::terminal_pixels();
-    let cols = a.cols.unwrap_or(cols).max(10);
-    let rows = rows.saturating_sub(3).max(5);
-    // Cell size from the terminal when it says, else 8×16 pixels.
-    let (cw, ch) = px
-        .map(|(w, h)| (w / cols.max(1) as u32, h / (rows + 3) as u32))
-        .filter(|&(w, h)| w > 0 && h > 0)
-        .unwrap_or((8, 16));
-    let (w, h) = if protocol == Protocol::Halfblocks {
-        (cols as u32, rows as u32 * 2)
-    } else {
-        (cols as u32 * cw, rows as u32 * ch)
-    };
+    if a.view.print_camera {
+        eprintln!("{}", cam.to_json());
+    }
+    let (term_cols, term_rows, px) = term::terminal_pixels();
+    let (cols, rows, w, h) = frame_size((term_cols, term_rows), px, a.cols, protocol);
     let (frame, report) = view::render_once(ds, &a.view, &cam, w, h)?;
     term::print_frame(&frame, protocol, cols, rows)?;
     println!("{}", view::describe(&report));
     Ok(())
+}
+
+/// The picture in cells and pixels: `want` columns (the terminal's width when
+/// not given, never wider, at least 10) by the terminal's rows less three for the
+/// report, at the terminal's cell size in pixels (8×16 when it does not say);
+/// half-blocks are one pixel wide and two high a cell.
+fn frame_size(
+    (term_cols, term_rows): (u16, u16),
+    px: Option<(u32, u32)>,
+    want: Option<u16>,
+    protocol: Protocol,
+) -> (u16, u16, u32, u32) {
+    let (cw, ch) = px
+        .map(|(w, h)| (w / term_cols.max(1) as u32, h / term_rows.max(1) as u32))
+        .filter(|&(w, h)| w > 0 && h > 0)
+        .unwrap_or((8, 16));
+    let cols = want.unwrap_or(term_cols).min(term_cols.max(10)).max(10);
+    let rows = term_rows.saturating_sub(3).max(5);
+    if protocol == Protocol::Halfblocks {
+        (cols, rows, cols as u32, rows as u32 * 2)
+    } else {
+        (cols, rows, cols as u32 * cw, rows as u32 * ch)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn columns_narrow_the_picture_at_the_terminals_cell_size() {
+        // 100×40 cells of 10×20 pixels.
+        let px = Some((1000, 800));
+        assert_eq!(
+            frame_size((100, 40), px, None, Protocol::Sixel),
+            (100, 37, 1000, 740)
+        );
+        assert_eq!(
+            frame_size((100, 40), px, Some(40), Protocol::Sixel),
+            (40, 37, 400, 740)
+        );
+        // Never wider than the terminal, never narrower than 10 columns.
+        assert_eq!(frame_size((100, 40), px, Some(300), Protocol::Kitty).0, 100);
+        assert_eq!(frame_size((100, 40), px, Some(3), Protocol::Kitty).0, 10);
+        assert_eq!(
+            frame_size((100, 40), None, Some(40), Protocol::Halfblocks),
+            (40, 37, 40, 74)
+        );
+        assert_eq!(
+            frame_size((100, 40), None, None, Protocol::Iterm),
+            (100, 37, 800, 592)
+        );
+    }
 }

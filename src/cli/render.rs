@@ -9,16 +9,28 @@ use std::sync::Arc;
 pub struct Args {
     #[command(flatten)]
     pub view: ViewArgs,
-    /// Output PNG.
+    /// Output PNG (the only format written; its name must end in .png).
     #[arg(short, long)]
     pub output: PathBuf,
-    #[arg(long, default_value_t = 1280)]
+    /// Frame width in pixels (1 to 16384).
+    #[arg(long, default_value_t = 1280, value_parser = clap::value_parser!(u32).range(1..=16384))]
     pub width: u32,
-    #[arg(long, default_value_t = 720)]
+    /// Frame height in pixels (1 to 16384).
+    #[arg(long, default_value_t = 720, value_parser = clap::value_parser!(u32).range(1..=16384))]
     pub height: u32,
 }
 
 pub fn run(a: Args) -> anyhow::Result<()> {
+    let png = a
+        .output
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("png"));
+    if !png {
+        anyhow::bail!(
+            "-o {}: frames are written as PNG only: name the file NAME.png",
+            crate::text::sanitize(&a.output.display().to_string())
+        );
+    }
     let ds = Arc::new(Dataset::open(&a.view.path)?);
     let cam = view::camera_for(&a.view, &ds)?;
     if a.view.print_camera {

@@ -19,15 +19,18 @@ pub struct ViewArgs {
     /// centre of the bounds; the default fits the whole cloud in view.
     #[arg(long, allow_hyphen_values = true)]
     pub view: Option<String>,
-    /// A full camera as JSON (as printed with --print-camera).
+    /// A camera as JSON, as --print-camera prints it; fields left out keep the
+    /// fitted default's values, unknown fields are an error.
     #[arg(long, conflicts_with = "view")]
     pub camera: Option<String>,
     /// Level of detail: view (per tile, under --budget), distance (the paper's
     /// rule, one level for all parts) or a level number (0 = finest).
     #[arg(long, default_value = "view")]
     pub lod: String,
-    /// Point budget for --lod view.
-    #[arg(long, default_value_t = 2_000_000)]
+    /// Point budget for --lod view (at least 1,000; the nearest tile is drawn
+    /// whatever the budget).
+    #[arg(long, default_value_t = 2_000_000,
+          value_parser = clap::value_parser!(u64).range(1_000..))]
     pub budget: u64,
     /// Colour: rgb, intensity, height, level or part (rgb falls back to intensity,
     /// then height, when the data has no colour).
@@ -61,12 +64,30 @@ pub fn parse_lod(s: &str, budget: u64) -> anyhow::Result<LodMode> {
     })
 }
 
+/// Parses `--lod` for `ds`: a level number must be one of its levels (parts
+/// with fewer levels draw their coarsest).
+pub fn lod_for(s: &str, budget: u64, ds: &Dataset) -> anyhow::Result<LodMode> {
+    let mode = parse_lod(s, budget)?;
+    if let LodMode::Fixed(k) = mode {
+        let levels = ds.parts.iter().map(|p| p.levels.len()).max().unwrap_or(1);
+        if k >= levels {
+            anyhow::bail!(
+                "--lod {k}: {} has levels 0 (finest) to {}",
+                ds.path.display(),
+                levels.saturating_sub(1)
+            );
+        }
+    }
+    Ok(mode)
+}
+
 /// The camera for a dataset from `--camera`, `--view` or the fitted default.
 pub fn camera_for(a: &ViewArgs, ds: &Dataset) -> anyhow::Result<Camera> {
     let bounds = ds.bounds();
+    let fitted = Camera::fit(&bounds);
     let mut cam = match &a.camera {
-        Some(json) => Camera::from_json(json)?,
-        None => Camera::fit(&bounds),
+        Some(json) => Camera::from_json_over(json, &fitted)?,
+        None => fitted,
     };
     if let Some(v) = &a.view {
         cam.apply_view(&camera::parse_view(v)?);
@@ -93,7 +114,7 @@ pub fn render_once(
     width: u32,
     height: u32,
 ) -> anyhow::Result<(Frame, FrameReport)> {
-    let mode = parse_lod(&a.lod, a.budget)?;
+    let mode = lod_for(&a.lod, a.budget, &ds)?;
     let color: ColorMode = a.color.parse()?;
     let choice: RendererChoice = a.renderer.parse()?;
     let t = Instant::now();

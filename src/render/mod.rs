@@ -191,14 +191,23 @@ impl Frame {
                 self.height
             )));
         }
-        image::save_buffer(
-            path,
+        // Written under a temporary name and renamed: no half-written PNG is left.
+        let name = path.file_name().unwrap_or_default().to_string_lossy();
+        let tmp = path.with_file_name(format!(".{name}.{}.tmp", std::process::id()));
+        let fail = |e: &dyn std::fmt::Display| {
+            let _ = std::fs::remove_file(&tmp);
+            RenderError::Io(format!("cannot save {}: {e}", path.display()))
+        };
+        image::save_buffer_with_format(
+            &tmp,
             &self.rgba,
             self.width,
             self.height,
             image::ExtendedColorType::Rgba8,
+            image::ImageFormat::Png,
         )
-        .map_err(|e| RenderError::Io(format!("cannot save {}: {e}", path.display())))
+        .map_err(|e| fail(&e))?;
+        std::fs::rename(&tmp, path).map_err(|e| fail(&e))
     }
 }
 

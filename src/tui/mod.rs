@@ -30,7 +30,7 @@ use std::time::{Duration, Instant};
 use worker::{RenderWorker, Report, Request, WorkerOptions};
 
 /// How the inspector starts.
-#[derive(Debug, Clone, Copy)]
+#[derive(Debug, Clone)]
 pub struct InspectOptions {
     /// `--protocol`.
     pub protocol: crate::term::Protocol,
@@ -39,19 +39,25 @@ pub struct InspectOptions {
     pub settings: Settings,
     /// Tile loading threads.
     pub load_threads: usize,
+    /// A temporary directory to remove should the process have to be ended by
+    /// force (a terminal gone while reading it): `demo`'s dataset.
+    pub temporary: Option<PathBuf>,
 }
 
 /// Set by SIGTERM / SIGHUP: the loop ends and the terminal is restored.
 static STOP: AtomicBool = AtomicBool::new(false);
 /// Set when the event loop has returned (the signal handler's watchdog stands down).
 static LOOP_ENDED: AtomicBool = AtomicBool::new(false);
+/// [`InspectOptions::temporary`], for the forced exit.
+static TEMPORARY: std::sync::Mutex<Option<PathBuf>> = std::sync::Mutex::new(None);
 
 /// How long the loop waits for a key before looking for finished frames.
 const POLL: Duration = Duration::from_millis(8);
 
 /// Runs the inspector on `ds` until the user quits; the terminal is restored on
 /// every exit path.
-pub fn run(ds: Arc<Dataset>, opts: InspectOptions) -> anyhow::Result<()> {
+/// Runs the inspector until the user quits; returns the camera it ended with.
+pub fn run(ds: Arc<Dataset>, opts: InspectOptions) -> anyhow::Result<Camera> {
     let env = protocol::TerminalEnv::from_process();
     let graphics = protocol::choose(opts.protocol, &env);
     let cell_pixels = protocol::cell_pixels(graphics);
@@ -63,10 +69,16 @@ pub fn run(ds: Arc<Dataset>, opts: InspectOptions) -> anyhow::Result<()> {
         std::thread::sleep(Duration::from_secs(1));
         if !LOOP_ENDED.load(Ordering::SeqCst) {
             terminal::restore();
+            if let Some(dir) = TEMPORARY.lock().ok().and_then(|mut t| t.take()) {
+                let _ = std::fs::remove_dir_all(dir);
+            }
             std::process::exit(130);
         }
     });
 
+    if let Ok(mut t) = TEMPORARY.lock() {
+        t.clone_from(&opts.temporary);
+    }
     let worker = RenderWorker::spawn(
         ds.clone(),
         WorkerOptions {
@@ -83,7 +95,7 @@ pub fn run(ds: Arc<Dataset>, opts: InspectOptions) -> anyhow::Result<()> {
     let result = event_loop(&mut session, &mut app, &worker, graphics, cell_pixels);
     LOOP_ENDED.store(true, Ordering::SeqCst);
     drop(session);
-    result
+    result.map(|()| app.camera)
 }
 
 /// What the view pane shows now.
