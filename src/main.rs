@@ -10,7 +10,12 @@ fn main() -> std::process::ExitCode {
     unsafe {
         libc::signal(libc::SIGPIPE, libc::SIG_DFL);
     }
-    let cli = pcimg::cli::Cli::parse();
+    let args: Vec<std::ffi::OsString> = std::env::args_os().collect();
+    if let Some(msg) = pcimg::cli::misspelt_command(&args) {
+        eprintln!("pcimg: {msg}");
+        return std::process::ExitCode::from(2);
+    }
+    let cli = pcimg::cli::Cli::parse_from(args);
     match pcimg::cli::run(cli) {
         Ok(()) => std::process::ExitCode::SUCCESS,
         Err(e) => {

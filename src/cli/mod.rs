@@ -46,6 +46,50 @@ pub enum Command {
     Synth(synth::Args),
 }
 
+/// The commands' names, for [`misspelt_command`].
+const COMMANDS: [&str; 7] = [
+    "info", "convert", "inspect", "demo", "render", "preview", "synth",
+];
+
+/// When the first argument is neither a command nor an existing path but is
+/// within two edits of a command's name (`pcimg conver x.xyz`), the message to
+/// print instead of clap's, which would take it for a dataset path.
+pub fn misspelt_command(args: &[std::ffi::OsString]) -> Option<String> {
+    let first = args.get(1)?.to_str()?;
+    if first.starts_with('-') || COMMANDS.contains(&first) || std::path::Path::new(first).exists() {
+        return None;
+    }
+    let best = COMMANDS
+        .iter()
+        .map(|c| (edit_distance(first, c), *c))
+        .min()?;
+    (best.0 <= 2).then(|| {
+        format!(
+            "no command '{}' (and no such file): did you mean `pcimg {}`? See `pcimg --help`.",
+            crate::text::sanitize(first),
+            best.1
+        )
+    })
+}
+
+/// Levenshtein distance between two short strings.
+fn edit_distance(a: &str, b: &str) -> usize {
+    let b: Vec<char> = b.chars().collect();
+    let mut row: Vec<usize> = (0..=b.len()).collect();
+    for (i, ca) in a.chars().enumerate() {
+        let mut prev = row[0];
+        row[0] = i + 1;
+        for (j, cb) in b.iter().enumerate() {
+            let here = row[j + 1];
+            row[j + 1] = (prev + usize::from(ca != *cb))
+                .min(row[j] + 1)
+                .min(here + 1);
+            prev = here;
+        }
+    }
+    row[b.len()]
+}
+
 /// Runs the parsed command.
 pub fn run(cli: Cli) -> anyhow::Result<()> {
     let Some(command) = cli.command else {
@@ -62,5 +106,34 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Render(a) => render::run(a),
         Command::Preview(a) => preview::run(a),
         Command::Synth(a) => synth::run(a),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn misspelt_commands_are_named() {
+        let args = |v: &[&str]| {
+            v.iter()
+                .map(Into::into)
+                .collect::<Vec<std::ffi::OsString>>()
+        };
+        let m = misspelt_command(&args(&["pcimg", "conver", "x.xyz"])).unwrap();
+        assert!(
+            m.contains("'conver'") && m.contains("`pcimg convert`"),
+            "{m}"
+        );
+        assert!(
+            misspelt_command(&args(&["pcimg", "infoo"]))
+                .unwrap()
+                .contains("pcimg info")
+        );
+        assert_eq!(misspelt_command(&args(&["pcimg", "convert", "x"])), None);
+        assert_eq!(misspelt_command(&args(&["pcimg", "--help"])), None);
+        assert_eq!(misspelt_command(&args(&["pcimg", "city.pcimg"])), None);
+        assert_eq!(misspelt_command(&args(&["pcimg", "."])), None);
+        assert_eq!(edit_distance("kitten", "sitting"), 3);
     }
 }

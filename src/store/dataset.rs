@@ -24,6 +24,10 @@ fn is_part_file(p: &Path) -> bool {
     !hidden && matches!(ext.as_deref(), Some("tif" | "tiff"))
 }
 
+/// Extensions of the point clouds `pcimg convert` reads (named when one is
+/// opened as a dataset).
+const POINT_CLOUD_EXTENSIONS: [&str; 8] = ["las", "laz", "xyz", "txt", "csv", "asc", "pts", "ply"];
+
 impl Dataset {
     /// Opens a `.tif` part or a directory of them (sorted by name).
     pub fn open(path: &Path) -> Result<Dataset> {
@@ -44,6 +48,21 @@ impl Dataset {
                 .map(|f| Part::open(f))
                 .collect::<Result<Vec<_>>>()?
         } else {
+            let cloud = path
+                .extension()
+                .and_then(|e| e.to_str())
+                .map(str::to_ascii_lowercase)
+                .filter(|e| POINT_CLOUD_EXTENSIONS.contains(&e.as_str()));
+            if let Some(ext) = cloud {
+                return Err(StoreError::new(
+                    path,
+                    format!(
+                        "a point cloud (.{ext}), not an image dataset: convert it first, e.g. \
+                         `pcimg convert {0} -o {0}.pcimg`",
+                        crate::text::sanitize(&path.display().to_string())
+                    ),
+                ));
+            }
             vec![Part::open(path)?]
         };
         Ok(Dataset {
