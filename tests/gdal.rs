@@ -222,6 +222,47 @@ fn gdal_rewritten_file_still_opens_with_the_same_points() {
 }
 
 #[test]
+fn awkward_metadata_text_reads_the_same_in_gdal_and_back() {
+    if !gdal() {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let src = dir.path().join("src.tif");
+    let opts = WriteOptions {
+        source: Some("R&D <v2> é\x1b[2J.las".into()),
+        crs: Some(r#"PROJCS["NAD83 / x",UNIT["foot",0.3048]]"#.into()),
+        ..Default::default()
+    };
+    write_part(&src, &common::random_cloud(5_000, 7, 0), &opts).unwrap();
+    let info = run("gdalinfo", &[src.to_str().unwrap()]);
+    assert!(info.contains("SOURCE=R&D <v2> é\u{FFFD}[2J.las"), "{info}");
+    assert!(
+        !info.contains('\x1b'),
+        "a control character reached GDAL's output"
+    );
+    assert!(
+        info.contains(r#"PROJCS["NAD83 / x",UNIT["foot",0.3048]]"#),
+        "{info}"
+    );
+    // And what GDAL writes back reads the same in pcimg.
+    let dst = dir.path().join("rewritten.tif");
+    run(
+        "gdal_translate",
+        &[
+            "-q",
+            "-co",
+            "TILED=YES",
+            src.to_str().unwrap(),
+            dst.to_str().unwrap(),
+        ],
+    );
+    let (a, b) = (Part::open(&src).unwrap(), Part::open(&dst).unwrap());
+    assert_eq!(b.meta.source, a.meta.source);
+    assert_eq!(b.meta.crs, a.meta.crs);
+    assert_eq!(b.meta.source.as_deref(), Some("R&D <v2> é\u{FFFD}[2J.las"));
+}
+
+#[test]
 fn fewer_bands_are_refused() {
     if !gdal() {
         return;

@@ -70,6 +70,29 @@ fn escape(s: &str) -> String {
     o
 }
 
+/// An item's value as GDAL writes it: control characters (but newline and tab)
+/// replaced, so no reader's terminal is driven by them; then XML-escaped twice,
+/// as GDAL does (once by `CPLEscapeString`, once by its XML writer).
+fn escape_value(s: &str) -> String {
+    let clean: String = s
+        .chars()
+        .map(|c| {
+            if c.is_control() && c != '\n' && c != '\t' {
+                '\u{FFFD}'
+            } else {
+                c
+            }
+        })
+        .collect();
+    escape(&escape(&clean))
+}
+
+/// An item's value as GDAL reads it: unescaped twice (files written with one
+/// escape read the same, but for a literal entity in the text).
+fn unescape_value(s: &str) -> String {
+    unescape(&unescape(s))
+}
+
 fn unescape(s: &str) -> String {
     let mut o = String::with_capacity(s.len());
     let mut rest = s;
@@ -126,7 +149,7 @@ pub fn to_xml(items: &[Item]) -> String {
             s.push_str(&format!(" role=\"{}\"", escape(r)));
         }
         s.push('>');
-        s.push_str(&escape(&it.value));
+        s.push_str(&escape_value(&it.value));
         s.push_str("</Item>\n");
     }
     s.push_str("</GDALMetadata>\n");
@@ -172,7 +195,7 @@ pub fn from_xml(xml: &str) -> Result<Vec<Item>, String> {
         let end = rest
             .find("</Item>")
             .ok_or("missing </Item> in GDAL_METADATA")?;
-        let value = unescape(&rest[..end]);
+        let value = unescape_value(&rest[..end]);
         rest = &rest[end + 7..];
         let name = attr(tag, "name").ok_or("an <Item> without a name in GDAL_METADATA")?;
         items.push(Item {
@@ -342,10 +365,19 @@ mod tests {
                 domain: Some("pcimg".into()),
                 ..Item::dataset("TILE_INDEX", "QUJD")
             },
-            Item::dataset("CTRL", "bell\x07 Zürich"),
+            Item::dataset("CTRL", "bell\x07 Zürich\nline"),
         ];
-        let back = from_xml(&to_xml(&items)).unwrap();
+        let xml = to_xml(&items);
+        // Escaped twice, as GDAL writes values: `&` is `&amp;amp;`.
+        assert!(xml.contains("a&amp;lt;b&amp;gt;&amp;amp;"), "{xml}");
+        let mut back = from_xml(&xml).unwrap();
+        // Control characters but newline do not survive the write.
+        assert_eq!(back[3].value, "bell\u{FFFD} Zürich\nline");
+        back[3].value = items[3].value.clone();
         assert_eq!(back, items);
+        // A value escaped once (files from before) reads the same.
+        let once = "<GDALMetadata><Item name=\"S\">a&lt;b&amp;c</Item></GDALMetadata>";
+        assert_eq!(from_xml(once).unwrap()[0].value, "a<b&c");
     }
 
     #[test]
