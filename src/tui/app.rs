@@ -212,6 +212,11 @@ impl App {
                 self.part = (self.part + 1) % self.dataset.parts.len().max(1);
                 return Effect::Redraw;
             }
+            PreviousPart => {
+                let n = self.dataset.parts.len().max(1);
+                self.part = (self.part + n - 1) % n;
+                return Effect::Redraw;
+            }
             Orbit(dy, dp) => self
                 .camera
                 .rotate(dy as f64 * ORBIT_STEP, dp as f64 * ORBIT_STEP),
@@ -407,6 +412,11 @@ mod tests {
         );
         assert!(!a.show_help);
         assert_eq!(a.apply(Command::NextPart), Effect::Redraw);
+        let after_next = a.part;
+        a.apply(Command::PreviousPart);
+        a.apply(Command::PreviousPart);
+        let n = a.dataset.parts.len();
+        assert_eq!(a.part, (after_next + 2 * n - 2) % n);
         assert_eq!(a.part, 0, "one part wraps around");
         assert_eq!(a.apply(Command::SaveFrame), Effect::Save);
         assert_eq!(a.apply(Command::Quit), Effect::Quit);

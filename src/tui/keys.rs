@@ -29,6 +29,7 @@ pub enum Command {
     ToggleDistanceRule,
     SaveFrame,
     NextPart,
+    PreviousPart,
     ToggleHelp,
     /// `q` or Esc: closes the help if it is open, else quits.
     Quit,
@@ -84,6 +85,7 @@ pub fn command_for(key: KeyEvent) -> Option<Command> {
         KeyCode::Char('B') => BudgetUp,
         KeyCode::Char('m') => ToggleDistanceRule,
         KeyCode::Tab | KeyCode::Char('n') => NextPart,
+        KeyCode::BackTab => PreviousPart,
         KeyCode::Char('?') => ToggleHelp,
         _ => return None,
     })
@@ -107,7 +109,7 @@ pub const HELP: &[(&str, &str)] = &[
     ("p", "point size 1 → 2 → 3"),
     ("e", "eye-dome lighting on / off"),
     ("s", "save the current frame as PNG"),
-    ("Tab / n", "select the next part"),
+    ("Tab / n, Shift-Tab", "select the next / previous part"),
     ("?", "this help (q or Esc closes it)"),
     (
         "Ctrl-Z / Ctrl-L",
@@ -152,6 +154,10 @@ mod tests {
             Some(Command::NextPart)
         );
         assert_eq!(command_for(key(KeyCode::Char('x'), none)), None);
+        assert_eq!(
+            command_for(key(KeyCode::BackTab, KeyModifiers::SHIFT)),
+            Some(Command::PreviousPart)
+        );
         let ctrl = KeyModifiers::CONTROL;
         assert_eq!(
             command_for(key(KeyCode::Char('z'), ctrl)),
