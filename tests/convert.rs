@@ -600,9 +600,9 @@ fn force_replaces_only_what_pcimg_wrote() {
         (&["../top.xyz", "-o", "../sb"][..], "working directory"),
         (&["in.xyz", "-o", "docs/."][..], "not a pcimg dataset"),
         (&["in.xyz", "-o", "docs"][..], "not a pcimg dataset"),
-        (&["in.xyz", "-o", "in.xyz"][..], "is the input"),
+        (&["in.xyz", "-o", "in.xyz"][..], "not .xyz"),
         (&["in.xyz", "-o", "../sb"][..], "holds the input"),
-        (&["in.xyz", "-o", "other.txt"][..], "is a file"),
+        (&["in.xyz", "-o", "other.txt"][..], "not .txt"),
     ] {
         let (ok, err) = run(args);
         assert!(!ok && err.contains(want), "{args:?}: {err}");

@@ -49,7 +49,7 @@ pub struct Args {
     /// Accept parts so large that f32 cannot keep 1 mm.
     #[arg(long)]
     pub allow_lossy: bool,
-    /// No progress bars or summary.
+    /// No progress bars or summary (with --timings, the summary is printed).
     #[arg(short, long)]
     pub quiet: bool,
     /// Also print the wall time of each phase (passes over the input, and the
@@ -175,7 +175,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     let result = convert::convert(&a.input, &opts, &bars);
     bars.finish();
     let s = result?;
-    if a.quiet {
+    if a.quiet && !a.timings {
         return Ok(());
     }
     let secs = s.elapsed.as_secs_f64().max(1e-9);

@@ -7,6 +7,13 @@
 use anyhow::{Result, bail};
 use std::path::{Component, Path, PathBuf};
 
+/// Extensions an output is refused with: other image formats and point clouds
+/// (a directory of parts would be made under such a name).
+const NOT_A_DATASET: [&str; 14] = [
+    "png", "jpg", "jpeg", "gif", "bmp", "webp", "las", "laz", "xyz", "txt", "csv", "asc", "pts",
+    "ply",
+];
+
 /// The output path as a conversion uses it: its last component a name (not `.`,
 /// `..` or a root), trailing slashes and `.` components dropped, and its
 /// directory resolved when the path climbs with `..`, so that `X/.`, `X/` and
@@ -16,6 +23,16 @@ pub fn resolve(output: &Path) -> Result<PathBuf> {
     let Some(name) = output.file_name() else {
         bail!("{shown}: name the output (a .tif file or a directory to create), not . or .. or /");
     };
+    let ext = output
+        .extension()
+        .and_then(|e| e.to_str())
+        .map(str::to_ascii_lowercase);
+    if let Some(ext) = ext.filter(|e| NOT_A_DATASET.contains(&e.as_str())) {
+        bail!(
+            "{shown}: a dataset is a .tif file or a directory of parts, not .{ext}: \
+             name it e.g. NAME.tif or NAME.pcimg"
+        );
+    }
     let Some(parent) = output.parent().filter(|p| !p.as_os_str().is_empty()) else {
         return Ok(PathBuf::from(name));
     };
@@ -190,6 +207,10 @@ mod tests {
             resolve(Path::new("out.pcimg")).unwrap(),
             Path::new("out.pcimg")
         );
+        for bad in ["frame.png", "d/scan.LAZ", "x.xyz"] {
+            let e = resolve(Path::new(bad)).unwrap_err().to_string();
+            assert!(e.contains("not .") && e.contains("NAME.tif"), "{bad}: {e}");
+        }
         // A .tif file may be replaced.
         let tif = d.join("a.tif");
         std::fs::write(&tif, "x").unwrap();

@@ -133,6 +133,8 @@ pub struct FrameStatus {
     pub pending: usize,
     /// Tiles of the selection that failed to load.
     pub unreadable: usize,
+    /// Tiles in view given up for the point or memory budget.
+    pub dropped: usize,
     pub select_ms: f64,
     pub load_ms: f64,
     pub render_ms: f64,
@@ -275,7 +277,8 @@ impl App {
         let levels = match f.levels {
             Some((lo, hi)) if lo == hi => format!("level {lo}"),
             Some((lo, hi)) => format!("levels {lo}-{hi}"),
-            None => "no frame yet".into(),
+            None if f.renderer.is_empty() => "no frame yet".into(),
+            None => "nothing drawn".into(),
         };
         let mut s = format!(
             "{} | {levels} | {} pts / {} | {} | size {}{}",
@@ -288,6 +291,13 @@ impl App {
         );
         if f.pending > 0 {
             s.push_str(&format!(" | loading {} tiles", f.pending));
+        }
+        if f.dropped > 0 {
+            s.push_str(&format!(
+                " | {} tiles given up for the budgets (memory {})",
+                f.dropped,
+                crate::text::bytes(self.settings.memory)
+            ));
         }
         if f.unreadable > 0 {
             s.push_str(&format!(" | {} tiles unreadable", f.unreadable));
@@ -359,6 +369,29 @@ mod tests {
         a.apply(Command::PinLevel(0));
         a.apply(Command::Automatic);
         assert_eq!(a.settings.lod, LodChoice::View);
+    }
+
+    #[test]
+    fn the_status_line_says_why_nothing_is_drawn() {
+        let (_d, mut a) = app();
+        assert!(a.status_line().contains("no frame yet"));
+        a.frame = FrameStatus {
+            renderer: "cpu".into(),
+            dropped: 3,
+            unreadable: 2,
+            pending: 1,
+            ..Default::default()
+        };
+        let s = a.status_line();
+        assert!(s.contains("nothing drawn"), "{s}");
+        assert!(s.contains("3 tiles given up for the budgets"), "{s}");
+        assert!(
+            s.contains("loading 1 tiles") && s.contains("2 tiles unreadable"),
+            "{s}"
+        );
+        assert!(a.timing_line().contains("idle"));
+        a.fps = 12.5;
+        assert!(a.timing_line().contains("12.5 fps"));
     }
 
     #[test]

@@ -328,6 +328,7 @@ impl Worker {
             tiles: tiles.len(),
             pending,
             unreadable,
+            dropped: sel.dropped_tiles,
             select_ms,
             load_ms,
             render_ms,
