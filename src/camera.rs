@@ -121,6 +121,11 @@ pub fn parse_view(s: &str) -> Result<ViewSpec, CameraError> {
             return Err(bad("not finite"));
         }
     }
+    if v[1].abs() > 90.0 {
+        return Err(bad(
+            "pitch must be within -90 (looking straight down) and 90",
+        ));
+    }
     let distance = if parts.len() == 3 {
         if v[2] <= 0.0 {
             return Err(bad("distance must be positive"));
@@ -638,6 +643,8 @@ mod tests {
         assert!(parse_view("a,b").is_err());
         assert!(parse_view("1,2,-3").is_err());
         assert!(parse_view("1,2,3,4").is_err());
+        assert!(parse_view("45,180").unwrap_err().0.contains("pitch"));
+        assert!(parse_view("45,-90").is_ok());
         let mut c = cam;
         c.apply_view(&v);
         assert!((c.yaw - 30f64.to_radians()).abs() < 1e-12);

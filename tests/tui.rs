@@ -83,6 +83,11 @@ fn panels_list_parts_bands_and_levels() {
         "{text}"
     );
     assert!(text.contains("source synthetic scan"), "{text}");
+    // The selected part's bounds in full, the others' extents in the table.
+    assert!(
+        text.contains("bounds x ") && text.contains("extent x×y×z"),
+        "{text}"
+    );
     for band in &app.dataset.parts[0].bands {
         assert!(
             text.contains(&band.name),

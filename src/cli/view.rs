@@ -16,7 +16,9 @@ pub struct ViewArgs {
     /// A part (.tif) or a directory of parts.
     pub path: PathBuf,
     /// Viewpoint as `yaw,pitch[,distance]` in degrees (and world units) around the
-    /// centre of the bounds; the default fits the whole cloud in view.
+    /// centre of the bounds: yaw from +x, pitch -90 (straight down) to 90 (within
+    /// 0.1° of either pole the view stops); the default fits the whole cloud in
+    /// view.
     #[arg(long, allow_hyphen_values = true)]
     pub view: Option<String>,
     /// A camera as JSON, as --print-camera prints it; fields left out keep the

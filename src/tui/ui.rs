@@ -45,7 +45,7 @@ pub fn areas(area: Rect, app: &App) -> Areas {
     let n_parts = app.dataset.parts.len() as u16;
     let n_bands = part.map_or(0, |p| p.bands.len()) as u16;
     let [parts, bands, levels, memory] = Layout::vertical([
-        Constraint::Length(n_parts.min(8) + 4),
+        Constraint::Length(n_parts.min(8) + 5),
         Constraint::Length(n_bands + 3),
         Constraint::Min(4),
         Constraint::Length(4),
@@ -127,14 +127,16 @@ fn draw_parts(f: &mut Frame, app: &App, area: Rect) {
                 .map(|n| n.to_string_lossy().into_owned())
                 .unwrap_or_else(|| p.path.display().to_string());
             let b = &p.meta.bounds;
-            let bounds = format!(
-                "{:.0}..{:.0} {:.0}..{:.0} {:.0}..{:.0}",
-                b.min[0], b.max[0], b.min[1], b.max[1], b.min[2], b.max[2]
+            let extent = format!(
+                "{}×{}×{}",
+                short_extent(b.max[0] - b.min[0]),
+                short_extent(b.max[1] - b.min[1]),
+                short_extent(b.max[2] - b.min[2])
             );
             Row::new(vec![
                 Cell::from(sanitize(&name)),
                 Cell::from(count(p.meta.point_count)),
-                Cell::from(bounds),
+                Cell::from(extent),
                 Cell::from(bytes(p.file_bytes)),
             ])
         })
@@ -157,8 +159,12 @@ fn draw_parts(f: &mut Frame, app: &App, area: Rect) {
     let block = Block::bordered().title(title(&heading));
     let inner = block.inner(area);
     f.render_widget(block, area);
-    let [table_area, detail] =
-        Layout::vertical([Constraint::Min(1), Constraint::Length(1)]).areas(inner);
+    let [table_area, bounds_line, detail] = Layout::vertical([
+        Constraint::Min(1),
+        Constraint::Length(1),
+        Constraint::Length(1),
+    ])
+    .areas(inner);
     let table = Table::new(
         rows,
         [
@@ -168,15 +174,54 @@ fn draw_parts(f: &mut Frame, app: &App, area: Rect) {
             Constraint::Length(10),
         ],
     )
-    .header(header(&["file", "points", "bounds (x y z)", "bytes"]))
+    .header(header(&["file", "points", "extent x×y×z", "bytes"]))
     .row_highlight_style(Style::new().reversed());
     // The table scrolls to keep the selected part in view.
     let mut state = TableState::new().with_selected(Some(app.part));
     f.render_stateful_widget(table, table_area, &mut state);
+    // The selected part's bounds in full (the table shows each part's extent).
+    let bounds = part.map_or_else(
+        || "-".to_string(),
+        |p| {
+            let b = &p.meta.bounds;
+            (0..3)
+                .map(|a| {
+                    let c = |v: f64| {
+                        if v.abs() >= 1e4 {
+                            format!("{v:.0}")
+                        } else if v.abs() >= 100.0 {
+                            format!("{v:.1}")
+                        } else {
+                            format!("{v:.2}")
+                        }
+                    };
+                    format!("{} {}..{}", ["x", "y", "z"][a], c(b.min[a]), c(b.max[a]))
+                })
+                .collect::<Vec<_>>()
+                .join("  ")
+        },
+    );
+    f.render_widget(Paragraph::new(format!("bounds {bounds}")), bounds_line);
     f.render_widget(
         Paragraph::new(format!("source {source} · crs {crs}")).dark_gray(),
         detail,
     );
+}
+
+/// A length in at most about 6 characters: `405`, `12.5`, `1.2k`, `3.4M`.
+fn short_extent(v: f64) -> String {
+    let a = v.abs();
+    if !a.is_finite() {
+        "-".into()
+    } else if a >= 1e6 {
+        format!("{:.1}M", v / 1e6)
+    } else if a >= 1e4 {
+        format!("{:.1}k", v / 1e3)
+    } else if a >= 100.0 {
+        format!("{v:.0}")
+    } else {
+        format!("{v:.1}")
+    }
 }
 
 /// A value in at most about 9 characters: 3 decimals for small magnitudes, fewer
