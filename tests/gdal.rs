@@ -263,6 +263,40 @@ fn awkward_metadata_text_reads_the_same_in_gdal_and_back() {
 }
 
 #[test]
+fn overviews_recomputed_in_place_lose_the_index() {
+    if !gdal() {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let src = write(dir.path(), "src.tif", 300_000, Compression::None);
+    let a = Part::open(&src).unwrap();
+    assert!(a.levels.len() >= 3 && a.levels.iter().all(|l| l.indexed));
+    // gdaladdo on the file itself keeps pcimg's IFDs (and their Software tag)
+    // but fills the overviews with averages: no longer pcimg's points.
+    run(
+        "gdaladdo",
+        &["-q", "-r", "average", src.to_str().unwrap(), "2", "4"],
+    );
+    let b = Part::open(&src).unwrap();
+    assert!(b.levels[0].indexed, "level 0 is untouched");
+    assert!(
+        b.levels[1..].iter().all(|l| !l.indexed),
+        "averaged overviews are still trusted"
+    );
+    // GDAL's nearest-neighbour keeps the same pixel of each block as pcimg: the
+    // recomputed overviews are pcimg's own, and stay trusted.
+    let src = write(dir.path(), "nn.tif", 300_000, Compression::None);
+    let before = Part::open(&src).unwrap().read_level(1, &[0, 1, 2]).unwrap();
+    run(
+        "gdaladdo",
+        &["-q", "-r", "nearest", src.to_str().unwrap(), "2", "4"],
+    );
+    let c = Part::open(&src).unwrap();
+    assert!(c.levels.iter().all(|l| l.indexed));
+    assert_eq!(c.read_level(1, &[0, 1, 2]).unwrap().columns, before.columns);
+}
+
+#[test]
 fn fewer_bands_are_refused() {
     if !gdal() {
         return;

@@ -384,6 +384,21 @@ impl Part {
                 meta.point_count, pixels0
             )));
         }
+        // Overviews recomputed in place (`gdaladdo -r average` on a pcimg file keeps
+        // its IFDs and their Software tag) are caught by their pixels.
+        let pyramid_ok: Vec<bool> = (0..levels.len())
+            .map(|k| {
+                meta.layout == spec::layout::PAPER
+                    || overview_samples_level0(
+                        data,
+                        tiff.little_endian,
+                        &levels[0],
+                        &levels[k],
+                        k,
+                        meta.point_count,
+                    )
+            })
+            .collect();
         let mut lut_cache: BTreeMap<u32, Arc<Vec<u32>>> = BTreeMap::new();
         for (k, level) in levels.iter_mut().enumerate() {
             level.index = k;
@@ -403,7 +418,7 @@ impl Part {
                         .clone(),
                 );
             }
-            let own = ifds_software(&tiff, data, &ifds, level.width);
+            let own = ifds_software(&tiff, data, &ifds, level.width) && pyramid_ok[k];
             Self::attach_index(level, index.as_deref(), k, own, &meta).map_err(err)?;
         }
         Ok(Part {
@@ -928,6 +943,58 @@ impl Part {
 }
 
 /// Whether the IFD of the level `width` wide was written by pcimg.
+/// Whether level `k`'s first pixels along the Z-curve (`j` = 0..4) are level 0's
+/// pixels `j · 4^k` in the x band, as pcimg's nearest-neighbour pyramid makes
+/// them. Checked straight from the map where tiles are uncompressed, planar and
+/// in native byte order (a few 4-byte reads); other files are taken as they
+/// claim.
+fn overview_samples_level0(
+    data: &[u8],
+    little_endian: bool,
+    l0: &Level,
+    lk: &Level,
+    k: usize,
+    points: u64,
+) -> bool {
+    let plain = |l: &Level| {
+        l.compression == 1
+            && l.planar_separate
+            && l.tile_width == l.tile_height
+            && l.tile_width.is_power_of_two()
+    };
+    if k == 0
+        || k >= 32
+        || little_endian != cfg!(target_endian = "little")
+        || !plain(l0)
+        || !plain(lk)
+    {
+        return true;
+    }
+    // The x value at Z-index `z` of a level, if its tile is stored.
+    let at = |l: &Level, z: u64| -> Option<u32> {
+        let (px, py) = super::zorder::z_pixel(z);
+        let tw = l.tile_width;
+        if px >= l.width || py >= l.height {
+            return None;
+        }
+        let chunk = ((py / tw) * l.tiles_across + px / tw) as usize;
+        let (off, len) = (*l.offsets.get(chunk)?, *l.counts.get(chunk)?);
+        let within = ((py % tw) as u64 * tw as u64 + (px % tw) as u64) * 4;
+        if within + 4 > len {
+            return None;
+        }
+        let o = (off + within) as usize;
+        Some(u32::from_le_bytes(data.get(o..o + 4)?.try_into().ok()?))
+    };
+    let step = 1u64 << (2 * k);
+    (0..4u64)
+        .take_while(|j| j * step < points)
+        .all(|j| match (at(lk, j), at(l0, j * step)) {
+            (Some(a), Some(b)) => a == b,
+            _ => true,
+        })
+}
+
 fn ifds_software(tiff: &Tiff, data: &[u8], ifds: &[&Ifd], width: u32) -> bool {
     ifds.iter().any(|ifd| {
         tiff.uint(data, ifd, tag::IMAGE_WIDTH).ok().flatten() == Some(width as u64)
