@@ -71,13 +71,25 @@ fn strip_comment_marker(line: &[u8]) -> &[u8] {
 }
 
 fn header_names(line: &[u8]) -> Vec<String> {
-    let raw: Vec<String> = tokens(strip_comment_marker(line))
-        .map(|t| {
-            let s = String::from_utf8_lossy(t);
-            s.trim_matches(|c| c == '"' || c == '\'' || c == '/' || c == '#')
-                .to_string()
-        })
-        .collect();
+    let line = strip_comment_marker(line);
+    let clean = |t: &[u8]| {
+        let s = String::from_utf8_lossy(t);
+        let s = s
+            .trim()
+            .trim_matches(|c| c == '"' || c == '\'' || c == '/' || c == '#');
+        // A name with spaces inside ("my col" in a CSV) becomes one word.
+        s.split_whitespace().collect::<Vec<_>>().join("_")
+    };
+    // A header with commas or semicolons is split on them only, so names may
+    // hold spaces; otherwise on any separator.
+    let raw: Vec<String> = if line.iter().any(|&b| b == b',' || b == b';') {
+        line.split(|&b| b == b',' || b == b';')
+            .map(clean)
+            .filter(|n| !n.is_empty())
+            .collect()
+    } else {
+        tokens(line).map(clean).collect()
+    };
     canonical_names(&raw)
 }
 
@@ -352,6 +364,11 @@ mod tests {
         let (c, names, _) = read(&p, &ReadOptions::default()).unwrap();
         assert_eq!(names, ["red", "green", "blue"]);
         assert_eq!(attr(&c, "red"), [4.0]);
+        // Names with spaces in a CSV header stay one column each.
+        let p = write(&d, "s.csv", "x, y, z, my col ,Point Source\n1,2,3,4,5\n");
+        let (c, names, _) = read(&p, &ReadOptions::default()).unwrap();
+        assert_eq!(names, ["my_col", "point_source"]);
+        assert_eq!(attr(&c, "point_source"), [5.0]);
         // Header without x y z names: first three are coordinates.
         let p = write(&d, "e.txt", "east north up amp\n1 2 3 4\n");
         assert_eq!(read(&p, &ReadOptions::default()).unwrap().1, ["amp"]);
