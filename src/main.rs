@@ -3,13 +3,6 @@
 use clap::Parser;
 
 fn main() -> std::process::ExitCode {
-    // A closed pipe (`pcimg info X | head`) ends the process quietly, as it ends
-    // other command-line tools, instead of a panic in `println!`.
-    #[cfg(unix)]
-    // SAFETY: restoring a signal's default action, before any thread exists.
-    unsafe {
-        libc::signal(libc::SIGPIPE, libc::SIG_DFL);
-    }
     let args: Vec<std::ffi::OsString> = std::env::args_os().collect();
     if let Some(msg) = pcimg::cli::misspelt_command(&args) {
         eprintln!("pcimg: {msg}");
@@ -18,6 +11,8 @@ fn main() -> std::process::ExitCode {
     let cli = pcimg::cli::Cli::parse_from(args);
     match pcimg::cli::run(cli) {
         Ok(()) => std::process::ExitCode::SUCCESS,
+        // A reader that closed stdout (`pcimg info X | head`): nothing to say.
+        Err(e) if e.is::<pcimg::cli::ClosedPipe>() => std::process::ExitCode::from(141),
         Err(e) => {
             eprintln!(
                 "pcimg: {}",

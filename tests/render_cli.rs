@@ -154,6 +154,24 @@ fn camera_json_round_trip_and_levels() {
 }
 
 #[test]
+fn a_closed_stdout_ends_info_quietly() {
+    let dir = tempfile::tempdir().unwrap();
+    let ds = autzen(dir.path());
+    let mut child = exe()
+        .args(["info", "--tiles", "--json"])
+        .arg(&ds)
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    drop(child.stdout.take());
+    let o = child.wait_with_output().unwrap();
+    let e = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(141), "{e}");
+    assert!(e.is_empty(), "{e}");
+}
+
+#[test]
 fn refusals_are_clear() {
     let dir = tempfile::tempdir().unwrap();
     let ds = autzen(dir.path());

@@ -178,6 +178,8 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     if a.quiet && !a.timings {
         return Ok(());
     }
+    use std::fmt::Write as _;
+    let mut out = String::new();
     let secs = s.elapsed.as_secs_f64().max(1e-9);
     let levels = s
         .parts
@@ -185,14 +187,16 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         .map(|p| p.level_points.len())
         .max()
         .unwrap_or(0);
-    println!(
+    writeln!(
+        out,
         "converted {} ({}, {}) -> {}",
         sanitize(&s.input.display().to_string()),
         sanitize(&s.format),
         bytes(s.input_bytes),
         sanitize(&s.output.display().to_string())
-    );
-    println!(
+    )?;
+    writeln!(
+        out,
         "  {} points in {} part(s) of at most {} points (--memory {}), up to {} levels, {}",
         count(s.points),
         s.parts.len(),
@@ -200,38 +204,43 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         bytes(opts.memory),
         levels,
         bytes(s.bytes())
-    );
+    )?;
     if s.clamped_colours > 0 {
-        println!(
+        writeln!(
+            out,
             "  {} colour value(s) did not fit the colour scale the input's first {} points show \
              and were clamped to 0-255",
             count(s.clamped_colours),
             count(crate::ingest::color::DECIDE_POINTS as u64)
-        );
+        )?;
     }
     if s.skipped > 0 {
-        println!("  skipped {} malformed line(s)", count(s.skipped));
+        writeln!(out, "  skipped {} malformed line(s)", count(s.skipped))?;
     }
-    println!(
+    writeln!(
+        out,
         "  {:.2} s: {:.2} M points/s, {:.0} MB/s of input",
         secs,
         s.points as f64 / secs / 1e6,
         s.input_bytes as f64 / secs / 1e6
-    );
-    println!(
+    )?;
+    writeln!(
+        out,
         "  stored coordinates within {:.4} mm of the source",
         s.max_quantization_error * 1000.0
-    );
+    )?;
     if a.timings {
-        println!("  phases (wall time):");
+        writeln!(out, "  phases (wall time):")?;
         for (name, d) in &s.phases {
             let t = d.as_secs_f64();
-            println!("    {name:<32} {t:7.2} s  {:5.1}%", t / secs * 100.0);
+            writeln!(out, "    {name:<32} {t:7.2} s  {:5.1}%", t / secs * 100.0)?;
         }
-        println!(
+        writeln!(
+            out,
             "  large buffers mapped fresh: {} (the rest reused)",
             crate::text::bytes(crate::alloc::fresh_bytes() as u64)
-        );
+        )?;
     }
+    super::print_out(&out)?;
     Ok(())
 }

@@ -3,6 +3,8 @@
 
 use crate::store::{self, WriteOptions};
 use std::path::PathBuf;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
 
 #[derive(Debug, clap::Args)]
 pub struct Args {
@@ -24,7 +26,9 @@ pub struct Args {
 pub fn run(a: Args) -> anyhow::Result<()> {
     super::inspect::no_device_select();
     let interactive = super::inspect::have_terminal();
-    let tmp;
+    // The temporary directory (unless --keep) has an unpredictable name and is
+    // removed when `tmp` drops: on return, on error and on a panic.
+    let mut tmp: Option<TempDir> = None;
     let dir = match &a.keep {
         Some(d) => {
             if d.exists() && !d.is_dir() {
@@ -35,10 +39,10 @@ pub fn run(a: Args) -> anyhow::Result<()> {
             d.clone()
         }
         None => {
-            tmp = std::env::temp_dir().join(format!("pcimg-demo-{}", std::process::id()));
-            std::fs::create_dir_all(&tmp)
-                .map_err(|e| anyhow::anyhow!("cannot create {}: {e}", tmp.display()))?;
-            tmp.clone()
+            let t = TempDir::create()?;
+            let d = t.path().to_path_buf();
+            tmp = Some(t);
+            d
         }
     };
     let path = dir.join("demo.tif");
@@ -48,6 +52,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
             path.display()
         );
     }
+    let cancel = on_interrupt(tmp.as_ref().map(|t| t.path().to_path_buf()));
     eprintln!(
         "pcimg demo: generating {} synthetic points…",
         crate::text::count(a.points)
@@ -56,9 +61,11 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     let pts = crate::synth::scene(a.points, 1);
     let opts = WriteOptions {
         source: Some(DEMO_SOURCE.into()),
+        cancel: Some(cancel),
         ..Default::default()
     };
     let s = store::write_part(&path, &pts, &opts)?;
+    drop(pts);
     eprintln!(
         "pcimg demo: wrote {} ({}) in {:.2} s",
         path.display(),
@@ -66,15 +73,11 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         t.elapsed().as_secs_f64()
     );
     let ds = store::Dataset::open(&path)?;
-    let temporary = a.keep.is_none().then_some(dir.as_path());
     if interactive {
         let mut args = super::inspect::defaults(&path);
         args.protocol = a.protocol;
-        let shown = super::inspect::open(std::sync::Arc::new(ds), &args, temporary);
-        if let Some(t) = temporary {
-            let _ = std::fs::remove_dir_all(t);
-        }
-        return shown;
+        let temporary = tmp.as_ref().map(|t| t.path());
+        return super::inspect::open(std::sync::Arc::new(ds), &args, temporary);
     }
     let mut report = super::info::render_text(&super::info::report(&ds, false));
     report.push_str(&match &a.keep {
@@ -88,13 +91,66 @@ pub fn run(a: Args) -> anyhow::Result<()> {
                  or `pcimg preview DIR/demo.tif`.)\n"
             .to_string(),
     });
-    // Removed before printing: a reader that closes the pipe early ends the process.
+    // Removed before printing: a reader that closes the pipe early ends the command.
     drop(ds);
-    if let Some(t) = temporary {
-        let _ = std::fs::remove_dir_all(t);
+    drop(tmp);
+    super::print_out(&report)
+}
+
+/// Ctrl-C, SIGTERM, SIGHUP: passed on to the inspector while it runs; before
+/// that, the returned flag stops the write (which removes its file), and should
+/// the command not end within 5 s (still generating points) the temporary
+/// directory is removed and the process ends.
+fn on_interrupt(temporary: Option<std::path::PathBuf>) -> Arc<AtomicBool> {
+    let cancel = Arc::new(AtomicBool::new(false));
+    let flag = cancel.clone();
+    let _ = ctrlc::set_handler(move || {
+        if crate::tui::running() {
+            crate::tui::on_signal();
+            return;
+        }
+        flag.store(true, Ordering::SeqCst);
+        std::thread::sleep(std::time::Duration::from_secs(5));
+        if let Some(t) = &temporary {
+            let _ = std::fs::remove_dir_all(t);
+        }
+        eprintln!("pcimg: interrupted: nothing was kept");
+        std::process::exit(130);
+    });
+    cancel
+}
+
+/// The demo's temporary directory, removed when dropped.
+struct TempDir(PathBuf);
+
+impl TempDir {
+    /// A new directory `pcimg-demo-PID-NANOS` in the system's temporary
+    /// directory (created with `create_dir`: never an existing one, never its
+    /// missing parents).
+    fn create() -> anyhow::Result<TempDir> {
+        let nanos = std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .map_or(0, |d| d.subsec_nanos());
+        let path =
+            std::env::temp_dir().join(format!("pcimg-demo-{}-{nanos:08x}", std::process::id()));
+        std::fs::create_dir(&path).map_err(|e| {
+            anyhow::anyhow!(
+                "cannot create the temporary directory {}: {e}",
+                path.display()
+            )
+        })?;
+        Ok(TempDir(path))
     }
-    print!("{report}");
-    Ok(())
+
+    fn path(&self) -> &std::path::Path {
+        &self.0
+    }
+}
+
+impl Drop for TempDir {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_dir_all(&self.0);
+    }
 }
 
 /// Whether `path` is a part an earlier `pcimg demo` wrote (its source is the

@@ -269,9 +269,9 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     let ds = Dataset::open(&a.path)?;
     let r = report(&ds, a.tiles);
     if a.json {
-        println!("{}", serde_json::to_string_pretty(&r)?);
+        super::print_out(&format!("{}\n", serde_json::to_string_pretty(&r)?))?;
     } else {
-        print!("{}", render_text(&r));
+        super::print_out(&render_text(&r))?;
     }
     Ok(())
 }

@@ -46,9 +46,27 @@ pub enum Command {
     Synth(synth::Args),
 }
 
+/// stdout was closed by its reader (`pcimg info X | head`): the command ends
+/// quietly (exit status 141, as a shell reports a command that SIGPIPE ended).
+#[derive(Debug, thiserror::Error)]
+#[error("stdout was closed")]
+pub struct ClosedPipe;
+
+/// Writes `text` to stdout. A closed pipe is [`ClosedPipe`], not a panic: the
+/// process keeps SIGPIPE ignored (Rust's default) so that a closed stderr or
+/// stdout never kills a conversion before it cleans up.
+pub fn print_out(text: &str) -> anyhow::Result<()> {
+    use std::io::Write;
+    let mut out = std::io::stdout().lock();
+    match out.write_all(text.as_bytes()).and_then(|()| out.flush()) {
+        Err(e) if e.kind() == std::io::ErrorKind::BrokenPipe => Err(ClosedPipe.into()),
+        r => Ok(r?),
+    }
+}
+
 /// The commands' names, for [`misspelt_command`].
-const COMMANDS: [&str; 7] = [
-    "info", "convert", "inspect", "demo", "render", "preview", "synth",
+const COMMANDS: [&str; 8] = [
+    "info", "convert", "inspect", "demo", "render", "preview", "synth", "help",
 ];
 
 /// When the first argument is neither a command nor an existing path but is
@@ -59,9 +77,10 @@ pub fn misspelt_command(args: &[std::ffi::OsString]) -> Option<String> {
     if first.starts_with('-') || COMMANDS.contains(&first) || std::path::Path::new(first).exists() {
         return None;
     }
+    let lower = first.to_ascii_lowercase();
     let best = COMMANDS
         .iter()
-        .map(|c| (edit_distance(first, c), *c))
+        .map(|c| (edit_distance(&lower, c), *c))
         .min()?;
     (best.0 <= 2).then(|| {
         format!(
@@ -135,5 +154,15 @@ mod tests {
         assert_eq!(misspelt_command(&args(&["pcimg", "city.pcimg"])), None);
         assert_eq!(misspelt_command(&args(&["pcimg", "."])), None);
         assert_eq!(edit_distance("kitten", "sitting"), 3);
+        assert!(
+            misspelt_command(&args(&["pcimg", "INFO"]))
+                .unwrap()
+                .contains("pcimg info")
+        );
+        assert!(
+            misspelt_command(&args(&["pcimg", "hlep"]))
+                .unwrap()
+                .contains("pcimg help")
+        );
     }
 }

@@ -15,8 +15,9 @@ pub struct Args {
     /// Image protocol: auto, kitty, sixel, iterm or halfblocks.
     #[arg(long, default_value = "auto")]
     pub protocol: Protocol,
-    /// Width in terminal columns (default: the terminal's width).
-    #[arg(long)]
+    /// Width in terminal columns, at least 10 (default, and at most: the
+    /// terminal's width).
+    #[arg(long, value_parser = clap::value_parser!(u16).range(10..))]
     pub cols: Option<u16>,
 }
 
@@ -48,7 +49,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     let (cols, rows, w, h) = frame_size((term_cols, term_rows), px, a.cols, protocol);
     let (frame, report) = view::render_once(ds, &a.view, &cam, w, h)?;
     term::print_frame(&frame, protocol, cols, rows)?;
-    println!("{}", view::describe(&report));
+    super::print_out(&format!("{}\n", view::describe(&report)))?;
     Ok(())
 }
 

@@ -7,11 +7,12 @@
 use anyhow::{Result, bail};
 use std::path::{Component, Path, PathBuf};
 
-/// Extensions an output is refused with: other image formats and point clouds
-/// (a directory of parts would be made under such a name).
-const NOT_A_DATASET: [&str; 14] = [
-    "png", "jpg", "jpeg", "gif", "bmp", "webp", "las", "laz", "xyz", "txt", "csv", "asc", "pts",
-    "ply",
+/// Extensions an output is refused with: other image formats, point clouds and
+/// common file types (a directory of parts would be made under such a name).
+const NOT_A_DATASET: [&str; 27] = [
+    "png", "jpg", "jpeg", "gif", "bmp", "webp", "jp2", "tga", "exr", "las", "laz", "xyz", "txt",
+    "csv", "asc", "pts", "ply", "e57", "pcd", "xyzrgb", "xyzn", "obj", "zip", "gz", "json", "bin",
+    "md",
 ];
 
 /// The output path as a conversion uses it: its last component a name (not `.`,

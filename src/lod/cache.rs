@@ -203,6 +203,9 @@ impl TileCache {
                             Err(e) => {
                                 s.failed.insert(key);
                                 s.errors.push(e);
+                                drop(s);
+                                // Its outcome is news too: the view stops waiting.
+                                let _ = tx.send(key);
                             }
                         }
                     }
@@ -312,7 +315,10 @@ impl TileCache {
         keys.iter().map(|k| s.tiles[k].tile.clone()).collect()
     }
 
-    /// Loads the tiles now (in parallel) and returns them all: for one-shot renders.
+    /// Loads the tiles now (in parallel) and returns them all: for one-shot
+    /// renders, and the tiles an interface wants before its first frame. They
+    /// are kept in the cache (under its budget) like tiles loaded in the
+    /// background.
     pub fn load_all(&self, tiles: &[TileRef]) -> Result<Vec<Arc<LoadedTile>>, String> {
         use rayon::prelude::*;
         let ds: &Dataset = &self.ds;
@@ -324,6 +330,24 @@ impl TileCache {
             self.loads.fetch_add(1, Ordering::Relaxed);
             self.load_us
                 .fetch_add((t.load_ms * 1e3) as u64, Ordering::Relaxed);
+        }
+        if let Ok(mut s) = self.state.lock() {
+            for t in &out {
+                s.clock += 1;
+                let last_used = s.clock;
+                if s.tiles.contains_key(&t.key) {
+                    continue;
+                }
+                s.bytes += t.bytes();
+                s.tiles.insert(
+                    t.key,
+                    Entry {
+                        tile: t.clone(),
+                        last_used,
+                    },
+                );
+            }
+            evict(&mut s, self.budget);
         }
         Ok(out)
     }

@@ -28,6 +28,28 @@ fn is_part_file(p: &Path) -> bool {
 /// opened as a dataset).
 const POINT_CLOUD_EXTENSIONS: [&str; 8] = ["las", "laz", "xyz", "txt", "csv", "asc", "pts", "ply"];
 
+/// Whether the file begins as a TIFF does (a part renamed `.txt` is a part).
+fn starts_like_tiff(path: &Path) -> bool {
+    use std::io::Read;
+    let mut head = [0u8; 4];
+    std::fs::File::open(path)
+        .and_then(|mut f| f.read_exact(&mut head))
+        .is_ok_and(|()| matches!(&head, b"II*\0" | b"MM\0*" | b"II+\0" | b"MM\0+"))
+}
+
+/// `s` as one shell word (quoted when it holds anything but plain characters),
+/// sanitized for the terminal.
+fn shell_quoted(s: &str) -> String {
+    let s = crate::text::sanitize(s);
+    if s.chars()
+        .all(|c| c.is_ascii_alphanumeric() || "-_./+,:@".contains(c))
+    {
+        s
+    } else {
+        format!("'{}'", s.replace('\'', "'\\''"))
+    }
+}
+
 impl Dataset {
     /// Opens a `.tif` part or a directory of them (sorted by name).
     pub fn open(path: &Path) -> Result<Dataset> {
@@ -53,13 +75,18 @@ impl Dataset {
                 .and_then(|e| e.to_str())
                 .map(str::to_ascii_lowercase)
                 .filter(|e| POINT_CLOUD_EXTENSIONS.contains(&e.as_str()));
-            if let Some(ext) = cloud {
+            if let Some(ext) = cloud.filter(|_| !starts_like_tiff(path)) {
+                let stem = path
+                    .file_stem()
+                    .map(|s| s.to_string_lossy().into_owned())
+                    .unwrap_or_else(|| "cloud".into());
                 return Err(StoreError::new(
                     path,
                     format!(
                         "a point cloud (.{ext}), not an image dataset: convert it first, e.g. \
-                         `pcimg convert {0} -o {0}.pcimg`",
-                        crate::text::sanitize(&path.display().to_string())
+                         `pcimg convert {} -o {}`",
+                        shell_quoted(&path.display().to_string()),
+                        shell_quoted(&format!("{stem}.pcimg"))
                     ),
                 ));
             }

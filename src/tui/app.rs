@@ -294,9 +294,8 @@ impl App {
         }
         if f.dropped > 0 {
             s.push_str(&format!(
-                " | {} tiles given up for the budgets (memory {})",
-                f.dropped,
-                crate::text::bytes(self.settings.memory)
+                " | {} tiles given up for the point or memory budget",
+                f.dropped
             ));
         }
         if f.unreadable > 0 {
@@ -384,7 +383,10 @@ mod tests {
         };
         let s = a.status_line();
         assert!(s.contains("nothing drawn"), "{s}");
-        assert!(s.contains("3 tiles given up for the budgets"), "{s}");
+        assert!(
+            s.contains("3 tiles given up for the point or memory budget"),
+            "{s}"
+        );
         assert!(
             s.contains("loading 1 tiles") && s.contains("2 tiles unreadable"),
             "{s}"

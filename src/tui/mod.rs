@@ -48,33 +48,24 @@ pub struct InspectOptions {
 static STOP: AtomicBool = AtomicBool::new(false);
 /// Set when the event loop has returned (the signal handler's watchdog stands down).
 static LOOP_ENDED: AtomicBool = AtomicBool::new(false);
+/// Whether the inspector's loop runs now (for [`on_signal`]'s callers).
+static RUNNING: AtomicBool = AtomicBool::new(false);
 /// [`InspectOptions::temporary`], for the forced exit.
 static TEMPORARY: std::sync::Mutex<Option<PathBuf>> = std::sync::Mutex::new(None);
 
 /// How long the loop waits for a key before looking for finished frames.
 const POLL: Duration = Duration::from_millis(8);
 
-/// Runs the inspector on `ds` until the user quits; the terminal is restored on
-/// every exit path.
-/// Runs the inspector until the user quits; returns the camera it ended with.
+/// Runs the inspector on `ds` until the user quits (the terminal is restored on
+/// every exit path); returns the camera it ended with.
 pub fn run(ds: Arc<Dataset>, opts: InspectOptions) -> anyhow::Result<Camera> {
     let env = protocol::TerminalEnv::from_process();
     let graphics = protocol::choose(opts.protocol, &env);
     let cell_pixels = protocol::cell_pixels(graphics);
-    // Termination signals end the loop (the first handler of the process wins).
-    // Should the loop not get there within a second (stuck in a read from a
-    // terminal that is gone), the process ends anyway.
-    let _ = ctrlc::set_handler(|| {
-        STOP.store(true, Ordering::SeqCst);
-        std::thread::sleep(Duration::from_secs(1));
-        if !LOOP_ENDED.load(Ordering::SeqCst) {
-            terminal::restore();
-            if let Some(dir) = TEMPORARY.lock().ok().and_then(|mut t| t.take()) {
-                let _ = std::fs::remove_dir_all(dir);
-            }
-            std::process::exit(130);
-        }
-    });
+    // Termination signals end the loop (the first handler of the process wins;
+    // a command that installs its own first forwards to [`on_signal`]).
+    let _ = ctrlc::set_handler(on_signal);
+    RUNNING.store(true, Ordering::SeqCst);
 
     if let Ok(mut t) = TEMPORARY.lock() {
         t.clone_from(&opts.temporary);
@@ -94,8 +85,31 @@ pub fn run(ds: Arc<Dataset>, opts: InspectOptions) -> anyhow::Result<Camera> {
     let mut session = terminal::Session::enter(graphics == protocol::Graphics::Kitty)?;
     let result = event_loop(&mut session, &mut app, &worker, graphics, cell_pixels);
     LOOP_ENDED.store(true, Ordering::SeqCst);
+    RUNNING.store(false, Ordering::SeqCst);
     drop(session);
     result.map(|()| app.camera)
+}
+
+/// Whether the inspector runs now: a signal handler installed by a command
+/// before it (`demo`) passes termination signals on to [`on_signal`] then.
+pub fn running() -> bool {
+    RUNNING.load(Ordering::SeqCst)
+}
+
+/// SIGINT, SIGTERM, SIGHUP while the inspector runs: the loop ends and the
+/// terminal is restored. Should the loop not get there within a second (stuck in
+/// a read from a terminal that is gone), the terminal is restored, the temporary
+/// directory removed, and the process ends.
+pub fn on_signal() {
+    STOP.store(true, Ordering::SeqCst);
+    std::thread::sleep(Duration::from_secs(1));
+    if !LOOP_ENDED.load(Ordering::SeqCst) {
+        terminal::restore();
+        if let Some(dir) = TEMPORARY.lock().ok().and_then(|mut t| t.take()) {
+            let _ = std::fs::remove_dir_all(dir);
+        }
+        std::process::exit(130);
+    }
 }
 
 /// What the view pane shows now.

@@ -24,7 +24,9 @@ static HOOK: Once = Once::new();
 
 /// The terminal in the inspector's mode; dropping it restores the terminal.
 pub struct Session {
-    pub terminal: Terminal<CrosstermBackend<Stdout>>,
+    /// Dropped by the session's own `Drop` (not at all when the terminal is
+    /// gone: ratatui's drop would print to it, and that print panics).
+    pub terminal: std::mem::ManuallyDrop<Terminal<CrosstermBackend<Stdout>>>,
 }
 
 impl Session {
@@ -47,7 +49,9 @@ impl Session {
             Ok(t)
         };
         match setup() {
-            Ok(terminal) => Ok(Session { terminal }),
+            Ok(terminal) => Ok(Session {
+                terminal: std::mem::ManuallyDrop::new(terminal),
+            }),
             Err(e) => {
                 restore();
                 Err(e)
@@ -77,6 +81,10 @@ impl Session {
 impl Drop for Session {
     fn drop(&mut self) {
         restore();
+        if !hung_up() {
+            // SAFETY: dropped once, here; the field is never used after.
+            unsafe { std::mem::ManuallyDrop::drop(&mut self.terminal) };
+        }
     }
 }
 
