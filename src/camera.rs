@@ -446,6 +446,21 @@ impl Camera {
         if !finite {
             return Err(CameraError("bad camera JSON: non-finite value".into()));
         }
+        let check = |ok: bool, what: &str| if ok { Ok(()) } else { Err(bad(&what)) };
+        check(c.distance > 0.0, "distance must be positive")?;
+        check(
+            c.fov_y > 0.0 && c.fov_y < std::f64::consts::PI,
+            "fov_y must be between 0 and pi radians",
+        )?;
+        check(c.aspect > 0.0, "aspect must be positive")?;
+        check(
+            c.pitch.abs() <= std::f64::consts::FRAC_PI_2,
+            "pitch must be within -pi/2 and pi/2 radians",
+        )?;
+        check(
+            c.near > 0.0 && c.far > c.near,
+            "near and far must satisfy 0 < near < far",
+        )?;
         Ok(c)
     }
 }
@@ -635,6 +650,16 @@ mod tests {
         );
         assert!(Camera::from_json_over("[1, 2]", &cam).is_err());
         assert!(Camera::from_json_over(r#"{"yaw": "left"}"#, &cam).is_err());
+        for (json, says) in [
+            (r#"{"distance": -5}"#, "distance"),
+            (r#"{"fov_y": 0}"#, "fov_y"),
+            (r#"{"aspect": 0}"#, "aspect"),
+            (r#"{"pitch": 2}"#, "pitch"),
+            (r#"{"near": 10, "far": 1}"#, "near"),
+        ] {
+            let e = Camera::from_json_over(json, &cam).unwrap_err();
+            assert!(e.0.contains(says), "{json}: {e}");
+        }
         let v = parse_view("30, -45, 120").unwrap();
         assert_eq!(v.distance, Some(120.0));
         let v2: ViewSpec = "10,20".parse().unwrap();
