@@ -22,6 +22,14 @@ fn run(cmd: &str, args: &[&str]) -> String {
     String::from_utf8_lossy(&out.stdout).into_owned()
 }
 
+/// `gdal_translate -q OPTIONS SRC DST`.
+fn translate(src: &Path, dst: &Path, options: &[&str]) {
+    let mut args = vec!["-q"];
+    args.extend_from_slice(options);
+    args.extend([src.to_str().unwrap(), dst.to_str().unwrap()]);
+    run("gdal_translate", &args);
+}
+
 fn write(dir: &Path, name: &str, n: usize, c: Compression) -> std::path::PathBuf {
     let path = dir.join(name);
     let opts = WriteOptions {
@@ -174,18 +182,16 @@ fn gdal_rewritten_file_still_opens_with_the_same_points() {
     let dir = tempfile::tempdir().unwrap();
     let src = write(dir.path(), "src.tif", 200_000, Compression::None);
     let dst = dir.path().join("rewritten.tif");
-    run(
-        "gdal_translate",
+    translate(
+        &src,
+        &dst,
         &[
-            "-q",
             "-co",
             "TILED=YES",
             "-co",
             "COMPRESS=DEFLATE",
             "-co",
             "PREDICTOR=3",
-            src.to_str().unwrap(),
-            dst.to_str().unwrap(),
         ],
     );
     run(
@@ -246,16 +252,7 @@ fn awkward_metadata_text_reads_the_same_in_gdal_and_back() {
     );
     // And what GDAL writes back reads the same in pcimg.
     let dst = dir.path().join("rewritten.tif");
-    run(
-        "gdal_translate",
-        &[
-            "-q",
-            "-co",
-            "TILED=YES",
-            src.to_str().unwrap(),
-            dst.to_str().unwrap(),
-        ],
-    );
+    translate(&src, &dst, &["-co", "TILED=YES"]);
     let (a, b) = (Part::open(&src).unwrap(), Part::open(&dst).unwrap());
     assert_eq!(b.meta.source, a.meta.source);
     assert_eq!(b.meta.crs, a.meta.crs);
@@ -304,18 +301,7 @@ fn fewer_bands_are_refused() {
     let dir = tempfile::tempdir().unwrap();
     let src = write(dir.path(), "src.tif", 1000, Compression::None);
     let dst = dir.path().join("two.tif");
-    run(
-        "gdal_translate",
-        &[
-            "-q",
-            "-b",
-            "1",
-            "-b",
-            "2",
-            src.to_str().unwrap(),
-            dst.to_str().unwrap(),
-        ],
-    );
+    translate(&src, &dst, &["-b", "1", "-b", "2"]);
     let e = Part::open(&dst).unwrap_err().to_string();
     assert!(e.contains("two.tif"), "{e}");
     assert!(e.contains("2 band") || e.contains("lists 5 bands"), "{e}");
