@@ -55,8 +55,8 @@ pub struct ViewArgs {
     pub print_camera: bool,
 }
 
-/// Parses `--lod`.
-pub fn parse_lod(s: &str, budget: u64) -> anyhow::Result<LodMode> {
+/// Parses `--lod` (see [`lod_for`]).
+fn parse_lod(s: &str, budget: u64) -> anyhow::Result<LodMode> {
     Ok(match s.trim().to_ascii_lowercase().as_str() {
         "view" => LodMode::View { budget },
         "distance" => LodMode::Distance,

@@ -186,16 +186,12 @@ fn draw_parts(f: &mut Frame, app: &App, area: Rect) {
             let b = &p.meta.bounds;
             (0..3)
                 .map(|a| {
-                    let c = |v: f64| {
-                        if v.abs() >= 1e4 {
-                            format!("{v:.0}")
-                        } else if v.abs() >= 100.0 {
-                            format!("{v:.1}")
-                        } else {
-                            format!("{v:.2}")
-                        }
-                    };
-                    format!("{} {}..{}", ["x", "y", "z"][a], c(b.min[a]), c(b.max[a]))
+                    format!(
+                        "{} {}..{}",
+                        ["x", "y", "z"][a],
+                        coordinate(b.min[a]),
+                        coordinate(b.max[a])
+                    )
                 })
                 .collect::<Vec<_>>()
                 .join("  ")
@@ -206,6 +202,18 @@ fn draw_parts(f: &mut Frame, app: &App, area: Rect) {
         Paragraph::new(format!("source {source} · crs {crs}")).dark_gray(),
         detail,
     );
+}
+
+/// A coordinate for the bounds line: whole units from 10,000 up (georeferenced
+/// eastings and northings), else one or two decimals.
+fn coordinate(v: f64) -> String {
+    if v.abs() >= 1e4 {
+        format!("{v:.0}")
+    } else if v.abs() >= 100.0 {
+        format!("{v:.1}")
+    } else {
+        format!("{v:.2}")
+    }
 }
 
 /// A length in at most about 6 characters: `405`, `12.5`, `1.2k`, `3.4M`.
