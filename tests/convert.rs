@@ -530,6 +530,38 @@ fn bad_inputs_are_clear_errors_and_leave_nothing() {
 }
 
 #[test]
+fn a_closed_stderr_does_not_stop_a_conversion() {
+    let dir = tempfile::tempdir().unwrap();
+    let exe = env!("CARGO_BIN_EXE_pcimg");
+    let input = dir.path().join("s.xyz");
+    let st = Command::new(exe)
+        .args(["synth", "-n", "300000", "-o"])
+        .arg(&input)
+        .status()
+        .unwrap();
+    assert!(st.success());
+    // A budget below 64 MiB prints a note on stderr first: its reader is gone.
+    let out = dir.path().join("s.pcimg");
+    let mut child = Command::new(exe)
+        .args(["convert", "--memory", "8MiB", "-o"])
+        .arg(&out)
+        .arg(&input)
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    drop(child.stderr.take());
+    assert!(child.wait().unwrap().success());
+    let ds = pcimg::store::Dataset::open(&out).unwrap();
+    assert_eq!(ds.points(), 300_000);
+    assert_eq!(
+        entries(dir.path()),
+        ["s.pcimg", "s.xyz"],
+        "temporary files left"
+    );
+}
+
+#[test]
 fn command_line_convert_and_info_json() {
     let dir = tempfile::tempdir().unwrap();
     let exe = env!("CARGO_BIN_EXE_pcimg");

@@ -129,7 +129,7 @@ impl Progress for Bars {
         // A hidden bar (before the first phase, or stderr not a terminal) prints
         // nothing: write the line.
         if bar.is_hidden() {
-            eprintln!("{msg}");
+            note!("{msg}");
         } else {
             bar.println(msg);
         }

@@ -53,7 +53,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         );
     }
     let cancel = on_interrupt(tmp.as_ref().map(|t| t.path().to_path_buf()));
-    eprintln!(
+    note!(
         "pcimg demo: generating {} synthetic points…",
         crate::text::count(a.points)
     );
@@ -66,7 +66,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     };
     let s = store::write_part(&path, &pts, &opts)?;
     drop(pts);
-    eprintln!(
+    note!(
         "pcimg demo: wrote {} ({}) in {:.2} s",
         path.display(),
         crate::text::bytes(s.bytes),
@@ -114,7 +114,7 @@ fn on_interrupt(temporary: Option<std::path::PathBuf>) -> Arc<AtomicBool> {
         if let Some(t) = &temporary {
             let _ = std::fs::remove_dir_all(t);
         }
-        eprintln!("pcimg: interrupted: nothing was kept");
+        note!("pcimg: interrupted: nothing was kept");
         std::process::exit(130);
     });
     cancel

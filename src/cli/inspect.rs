@@ -96,7 +96,7 @@ pub fn open(ds: Arc<Dataset>, a: &Args, temporary: Option<&Path>) -> anyhow::Res
         },
     )?;
     if v.print_camera {
-        eprintln!("{}", last.to_json());
+        note!("{}", last.to_json());
     }
     Ok(())
 }

@@ -1,5 +1,14 @@
 //! The command line: one file per command; `main.rs` only parses and dispatches.
 
+/// `eprintln!` that never panics: a message to a closed stderr (`2>&1 | head`)
+/// is dropped, and the command goes on (and cleans up) instead of panicking.
+macro_rules! note {
+    ($($arg:tt)*) => {{
+        use std::io::Write as _;
+        let _ = writeln!(std::io::stderr(), $($arg)*);
+    }};
+}
+
 pub mod convert;
 pub mod demo;
 pub mod info;

@@ -43,7 +43,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     };
     let cam = view::camera_for(&a.view, &ds)?;
     if a.view.print_camera {
-        eprintln!("{}", cam.to_json());
+        note!("{}", cam.to_json());
     }
     let (term_cols, term_rows, px) = term::terminal_pixels();
     let (cols, rows, w, h) = frame_size((term_cols, term_rows), px, a.cols, protocol);

@@ -34,12 +34,12 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     let ds = Arc::new(Dataset::open(&a.view.path)?);
     let cam = view::camera_for(&a.view, &ds)?;
     if a.view.print_camera {
-        eprintln!("{}", cam.to_json());
+        note!("{}", cam.to_json());
     }
     let (frame, report) = view::render_once(ds, &a.view, &cam, a.width, a.height)?;
     frame.save_png(&a.output)?;
-    eprintln!("{}", view::describe(&report));
-    eprintln!(
+    note!("{}", view::describe(&report));
+    note!(
         "wrote {}",
         crate::text::sanitize(&a.output.display().to_string())
     );

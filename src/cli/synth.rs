@@ -42,7 +42,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         let tmp = crate::synth::temp_path(&a.output);
         let _ = ctrlc::set_handler(move || {
             let _ = std::fs::remove_file(&tmp);
-            eprintln!("pcimg: interrupted: nothing was written");
+            note!("pcimg: interrupted: nothing was written");
             std::process::exit(1);
         });
     }
@@ -62,7 +62,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         ),
     }
     .map_err(|e| anyhow::anyhow!("{}: {e}", a.output.display()))?;
-    eprintln!(
+    note!(
         "wrote {} points to {} ({}) in {:.1} s",
         crate::text::count(a.points),
         a.output.display(),
