@@ -31,6 +31,13 @@ pub fn run(a: Args) -> anyhow::Result<()> {
             crate::text::sanitize(&a.output.display().to_string())
         );
     }
+    // Ctrl-C, SIGTERM, SIGHUP: nothing half-written stays (a large frame takes
+    // seconds to encode).
+    let tmp = crate::render::png_temporary(&a.output);
+    let _ = ctrlc::set_handler(move || {
+        let _ = std::fs::remove_file(&tmp);
+        std::process::exit(130);
+    });
     let ds = Arc::new(Dataset::open(&a.view.path)?);
     let cam = view::camera_for(&a.view, &ds)?;
     if a.view.print_camera {

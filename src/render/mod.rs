@@ -192,8 +192,7 @@ impl Frame {
             )));
         }
         // Written under a temporary name and renamed: no half-written PNG is left.
-        let name = path.file_name().unwrap_or_default().to_string_lossy();
-        let tmp = path.with_file_name(format!(".{name}.{}.tmp", std::process::id()));
+        let tmp = png_temporary(path);
         let fail = |e: &dyn std::fmt::Display| {
             let _ = std::fs::remove_file(&tmp);
             RenderError::Io(format!("cannot save {}: {e}", path.display()))
@@ -209,6 +208,14 @@ impl Frame {
         .map_err(|e| fail(&e))?;
         std::fs::rename(&tmp, path).map_err(|e| fail(&e))
     }
+}
+
+/// Where [`Frame::save_png`] writes before renaming to `path`
+/// (`.NAME.PID.tmp` beside it): a caller that ends the process on a signal
+/// removes it.
+pub fn png_temporary(path: &std::path::Path) -> std::path::PathBuf {
+    let name = path.file_name().unwrap_or_default().to_string_lossy();
+    path.with_file_name(format!(".{name}.{}.tmp", std::process::id()))
 }
 
 impl From<crate::camera::CameraError> for RenderError {
