@@ -529,17 +529,23 @@ fn bad_inputs_are_clear_errors_and_leave_nothing() {
     assert!(e.to_string().contains("--force"), "{e}");
 }
 
+/// `pcimg synth -n N -o DIR/NAME`, through the binary.
+fn synth(dir: &Path, name: &str, n: u64) -> PathBuf {
+    let path = dir.join(name);
+    let st = Command::new(env!("CARGO_BIN_EXE_pcimg"))
+        .args(["synth", "-n", &n.to_string(), "-o"])
+        .arg(&path)
+        .status()
+        .unwrap();
+    assert!(st.success());
+    path
+}
+
 #[test]
 fn a_closed_stderr_does_not_stop_a_conversion() {
     let dir = tempfile::tempdir().unwrap();
     let exe = env!("CARGO_BIN_EXE_pcimg");
-    let input = dir.path().join("s.xyz");
-    let st = Command::new(exe)
-        .args(["synth", "-n", "300000", "-o"])
-        .arg(&input)
-        .status()
-        .unwrap();
-    assert!(st.success());
+    let input = synth(dir.path(), "s.xyz", 300_000);
     // A budget below 64 MiB prints a note on stderr first: its reader is gone.
     let out = dir.path().join("s.pcimg");
     let mut child = Command::new(exe)
@@ -565,13 +571,7 @@ fn a_closed_stderr_does_not_stop_a_conversion() {
 fn command_line_convert_and_info_json() {
     let dir = tempfile::tempdir().unwrap();
     let exe = env!("CARGO_BIN_EXE_pcimg");
-    let input = dir.path().join("s.las");
-    let st = Command::new(exe)
-        .args(["synth", "-n", "200000", "-o"])
-        .arg(&input)
-        .status()
-        .unwrap();
-    assert!(st.success());
+    let input = synth(dir.path(), "s.las", 200_000);
     let out = dir.path().join("s.pcimg");
     let o = Command::new(exe)
         .args(["convert", "--memory", "48MiB", "--compression", "zstd"])
