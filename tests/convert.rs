@@ -718,3 +718,141 @@ fn notes_reach_a_piped_stderr_and_wide_inputs_are_refused() {
     );
     assert!(!dir.path().join("wide.pcimg").exists());
 }
+
+/// Several files (a survey's tiles) become one dataset: every point of every file
+/// once, in disjoint spatial parts, through a sampled first pass that runs across
+/// the files; mixed formats with the same attributes are fine.
+#[test]
+fn several_files_become_one_dataset() {
+    use pcimg::synth::Order;
+    let dir = tempfile::tempdir().unwrap();
+    let whole = dir.path().join("whole.xyz");
+    pcimg::synth::write_text_in_order(&whole, 300_000, 7, Order::Scan).unwrap();
+    // Three text tiles cut at arbitrary lines, and two LAS files.
+    let text = std::fs::read(&whole).unwrap();
+    let line_after = |at: usize| at + text[at..].iter().position(|&c| c == b'\n').unwrap() + 1;
+    let cuts = [
+        0,
+        line_after(text.len() * 31 / 100),
+        line_after(text.len() * 77 / 100),
+        text.len(),
+    ];
+    let mut tiles = Vec::new();
+    for (k, w) in cuts.windows(2).enumerate() {
+        let p = dir.path().join(format!("tile{k}.xyz"));
+        std::fs::write(&p, &text[w[0]..w[1]]).unwrap();
+        tiles.push(p);
+    }
+    let las: Vec<PathBuf> = [("a.las", 150_000), ("b.laz", 250_000)]
+        .iter()
+        .map(|(name, n)| {
+            let p = dir.path().join(name);
+            pcimg::synth::write_las_in_order(&p, *n, 3, Order::Scan).unwrap();
+            p
+        })
+        .collect();
+    for (files, n) in [(&tiles, 300_000u64), (&las, 400_000)] {
+        let out = dir.path().join("out.pcimg");
+        let mut o = opts(out.clone(), 64 << 20);
+        o.sample_points = 20_000;
+        let notes = Notes::default();
+        let s = convert::convert_files(files, &o, &notes).unwrap();
+        let notes = notes.0.into_inner().unwrap();
+        assert!(notes.iter().any(|l| l.starts_with("about ")), "{notes:?}");
+        assert_eq!(s.points, n);
+        assert_eq!(s.inputs, *files);
+        assert!(s.parts.len() >= 2, "{} parts", s.parts.len());
+        assert!(s.parts.iter().all(|p| p.points <= s.points_per_part));
+        let mut want: Vec<[i64; 3]> = files.iter().flat_map(|f| file_points(f)).collect();
+        want.sort();
+        assert!(worst_offset(&dataset_points(&out), &want) <= 1);
+        assert_parts_disjoint(&out);
+        // The parts name the files they come from.
+        let ds = Dataset::open(&out).unwrap();
+        let source = ds.parts[0].meta.source.clone().unwrap_or_default();
+        assert!(
+            source.contains(&format!("({} files)", files.len())),
+            "{source}"
+        );
+        std::fs::remove_dir_all(&out).unwrap();
+    }
+}
+
+/// Files that cannot make one dataset are refused before any work, naming both
+/// files; a bad line in a later file names that file and its line.
+#[test]
+fn several_files_that_disagree_are_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let xyzi = d.join("a.xyz");
+    std::fs::write(&xyzi, "1 2 3 10\n4 5 6 20\n").unwrap();
+    let xyz = d.join("b.xyz");
+    std::fs::write(&xyz, "1 2 3\n4 5 6\n").unwrap();
+    let out = d.join("out.pcimg");
+    let e = convert::convert_files(
+        &[xyzi.clone(), xyz.clone()],
+        &opts(out.clone(), 1 << 30),
+        &Quiet,
+    )
+    .unwrap_err()
+    .to_string();
+    assert!(
+        e.contains("b.xyz") && e.contains("a.xyz") && e.contains("attributes"),
+        "{e}"
+    );
+    let e = convert::convert_files(
+        &[xyzi.clone(), d.join(".").join("a.xyz")],
+        &opts(out.clone(), 1 << 30),
+        &Quiet,
+    )
+    .unwrap_err()
+    .to_string();
+    assert!(e.contains("given twice"), "{e}");
+    let bad = d.join("c.xyz");
+    std::fs::write(&bad, "1 2 3 10\n4 5 six 20\n").unwrap();
+    let e = convert::convert_files(&[xyzi.clone(), bad], &opts(out.clone(), 1 << 30), &Quiet)
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("c.xyz: line 2"), "{e}");
+    assert!(!out.exists());
+    assert_eq!(entries(d), ["a.xyz", "b.xyz", "c.xyz"]);
+}
+
+/// The command line takes several files or a directory (its point-cloud files,
+/// hidden ones and others left out); a directory's dataset goes beside it, and
+/// several files need -o.
+#[test]
+fn command_line_takes_files_and_directories() {
+    let dir = tempfile::tempdir().unwrap();
+    let exe = env!("CARGO_BIN_EXE_pcimg");
+    let tiles = dir.path().join("tiles");
+    std::fs::create_dir(&tiles).unwrap();
+    std::fs::write(tiles.join("t1.xyz"), "1 2 3 10\n4 5 6 20\n").unwrap();
+    std::fs::write(tiles.join("t2.XYZ"), "7 8 9 30\n").unwrap();
+    std::fs::write(tiles.join(".hidden.xyz"), "not a point\n").unwrap();
+    std::fs::write(tiles.join("notes.md"), "# survey\n").unwrap();
+    let run = |args: &[&str]| {
+        Command::new(exe)
+            .current_dir(dir.path())
+            .args(args)
+            .output()
+            .unwrap()
+    };
+    let o = run(&["convert", "tiles/"]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let text = String::from_utf8_lossy(&o.stdout);
+    assert!(
+        text.contains("3 points") && text.contains("2 files"),
+        "{text}"
+    );
+    assert!(dir.path().join("tiles.pcimg").is_dir());
+    let o = run(&["convert", "tiles/t1.xyz", "tiles/t2.XYZ"]);
+    assert!(!o.status.success());
+    assert!(String::from_utf8_lossy(&o.stderr).contains("-o"));
+    let o = run(&["convert", "tiles/t1.xyz", "tiles/t2.XYZ", "-o", "two.tif"]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    std::fs::create_dir(dir.path().join("empty")).unwrap();
+    let o = run(&["convert", "empty"]);
+    assert!(!o.status.success());
+    assert!(String::from_utf8_lossy(&o.stderr).contains("no point-cloud files"));
+}

@@ -6,16 +6,21 @@ use crate::ingest::ReadOptions;
 use crate::store::{Compression, Layout};
 use crate::text::{bytes, count, sanitize};
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
-use std::path::PathBuf;
+use std::path::{Component, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
 
 #[derive(Debug, clap::Args)]
 pub struct Args {
-    /// Input point cloud: .xyz .txt .csv .asc .pts (text), .ply, .las, .laz.
-    pub input: PathBuf,
-    /// Output: a directory of parts (default: INPUT with extension .pcimg), or a
-    /// single .tif when the input fits one part.
+    /// Input point cloud(s): .xyz .txt .csv .asc .pts (text), .ply, .las, .laz.
+    /// Several files (tiles of one survey, `tiles/*.laz`) or a directory (its
+    /// point-cloud files, in name order) become one dataset; they must carry the
+    /// same attributes and coordinate reference system.
+    #[arg(required = true, num_args = 1.., value_name = "INPUT")]
+    pub inputs: Vec<PathBuf>,
+    /// Output: a directory of parts (default: INPUT with extension .pcimg, for a
+    /// directory DIR.pcimg beside it; several files need -o), or a single .tif
+    /// when the input fits one part.
     #[arg(short, long)]
     pub output: Option<PathBuf>,
     /// Memory budget, e.g. 256MiB or 4G (default: half the available memory). It
@@ -136,11 +141,80 @@ impl Progress for Bars {
     }
 }
 
+/// The input files: each argument, or a directory's point-cloud files in name
+/// order (not its subdirectories).
+fn input_files(args: &[PathBuf]) -> anyhow::Result<Vec<PathBuf>> {
+    let mut files = Vec::new();
+    for a in args {
+        if !a.is_dir() {
+            files.push(a.clone());
+            continue;
+        }
+        let shown = sanitize(&a.display().to_string());
+        let mut here: Vec<PathBuf> = std::fs::read_dir(a)
+            .map_err(|e| anyhow::anyhow!("{shown}: cannot list the directory: {e}"))?
+            .filter_map(|e| e.ok().map(|e| e.path()))
+            .filter(|p| p.is_file() && is_point_cloud(p))
+            .collect();
+        if here.is_empty() {
+            anyhow::bail!(
+                "{shown}: a directory with no point-cloud files (.xyz .txt .csv .asc .pts .ply \
+                 .las .laz) in it"
+            );
+        }
+        here.sort();
+        files.extend(here);
+    }
+    Ok(files)
+}
+
+/// Whether `p` has a point-cloud extension (hidden files excluded).
+fn is_point_cloud(p: &std::path::Path) -> bool {
+    let hidden = p
+        .file_name()
+        .is_some_and(|n| n.to_string_lossy().starts_with('.'));
+    let ext = p
+        .extension()
+        .map(|e| e.to_string_lossy().to_ascii_lowercase())
+        .unwrap_or_default();
+    !hidden
+        && (matches!(ext.as_str(), "ply" | "las" | "laz")
+            || crate::ingest::TEXT_EXTENSIONS.contains(&ext.as_str()))
+}
+
+/// The default output: `INPUT.pcimg` beside one file or directory.
+fn default_output(args: &[PathBuf]) -> anyhow::Result<PathBuf> {
+    match args {
+        [one] if one.is_dir() => {
+            // The directory's own name (`tiles/` → `tiles.pcimg` beside it).
+            let named = one
+                .components()
+                .rev()
+                .find(|c| !matches!(c, Component::CurDir));
+            match named {
+                Some(Component::Normal(name)) => {
+                    let mut out = PathBuf::from(name);
+                    out.set_extension("pcimg");
+                    let parent = one.components().as_path().parent();
+                    Ok(parent.map_or(out.clone(), |p| p.join(&out)))
+                }
+                _ => anyhow::bail!(
+                    "{}: name the output with -o",
+                    sanitize(&one.display().to_string())
+                ),
+            }
+        }
+        [one] => Ok(one.with_extension("pcimg")),
+        _ => anyhow::bail!("{} inputs: name the output with -o", args.len()),
+    }
+}
+
 pub fn run(a: Args) -> anyhow::Result<()> {
-    let output = a
-        .output
-        .clone()
-        .unwrap_or_else(|| a.input.with_extension("pcimg"));
+    let output = match a.output.clone() {
+        Some(o) => o,
+        None => default_output(&a.inputs)?,
+    };
+    let inputs = input_files(&a.inputs)?;
     let cancel = Arc::new(AtomicBool::new(false));
     {
         let c = cancel.clone();
@@ -172,7 +246,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         sample_points: convert::DEFAULT_SAMPLE_POINTS,
     };
     let bars = Bars::new(a.quiet);
-    let result = convert::convert(&a.input, &opts, &bars);
+    let result = convert::convert_files(&inputs, &opts, &bars);
     bars.finish();
     let s = result?;
     if a.quiet && !a.timings {
@@ -187,10 +261,20 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         .map(|p| p.level_points.len())
         .max()
         .unwrap_or(0);
+    let shown = |p: &PathBuf| sanitize(&p.display().to_string());
+    let (from, files) = match s.inputs.as_slice() {
+        [first, .., last] => (
+            format!("{} … {}", shown(first), shown(last)),
+            format!("{} files, ", s.inputs.len()),
+        ),
+        [one] => (shown(one), String::new()),
+        [] => (String::new(), String::new()),
+    };
     writeln!(
         out,
-        "converted {} ({}, {}) -> {}",
-        sanitize(&s.input.display().to_string()),
+        "converted {} ({}{}, {}) -> {}",
+        from,
+        files,
         sanitize(&s.format),
         bytes(s.input_bytes),
         sanitize(&s.output.display().to_string())
@@ -208,9 +292,14 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     if s.clamped_colours > 0 {
         writeln!(
             out,
-            "  {} colour value(s) did not fit the colour scale the input's first {} points show \
+            "  {} colour value(s) did not fit the colour scale {} first {} points show \
              and were clamped to 0-255",
             count(s.clamped_colours),
+            if s.inputs.len() > 1 {
+                "each file's"
+            } else {
+                "the input's"
+            },
             count(crate::ingest::color::DECIDE_POINTS as u64)
         )?;
     }

@@ -23,7 +23,7 @@ pub(super) struct Spilled {
 #[allow(clippy::too_many_arguments)]
 pub(super) fn distribute(
     reader: &mut Box<dyn PointReader>,
-    input: &Path,
+    inputs: &[PathBuf],
     read: &ReadOptions,
     o: &ConvertOptions,
     progress: &dyn Progress,
@@ -36,7 +36,7 @@ pub(super) fn distribute(
 ) -> Result<Vec<Spilled>> {
     // (`ingest::open` refuses more attributes than a record carries:
     // `points::MAX_ATTRIBUTES`.)
-    *reader = ingest::open(input, read)?;
+    *reader = ingest::multi::open_all(inputs, read)?;
     progress.phase("partition", reader.info().file_bytes, "bytes");
     let mut seen = 0u64;
     let reader = &mut **reader;

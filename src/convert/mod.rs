@@ -76,7 +76,8 @@ impl Progress for Quiet {
 /// What a conversion did.
 #[derive(Debug, Clone)]
 pub struct ConvertSummary {
-    pub input: PathBuf,
+    /// The input files, in the order read.
+    pub inputs: Vec<PathBuf>,
     pub output: PathBuf,
     pub format: String,
     pub input_bytes: u64,
@@ -190,17 +191,30 @@ pub fn convert(
     o: &ConvertOptions,
     progress: &dyn Progress,
 ) -> Result<ConvertSummary> {
+    convert_files(&[input.to_path_buf()], o, progress)
+}
+
+/// Converts input files, read one after the other as one point cloud, into one
+/// dataset (`ingest::multi`: they must carry the same attributes and CRS).
+pub fn convert_files(
+    inputs: &[PathBuf],
+    o: &ConvertOptions,
+    progress: &dyn Progress,
+) -> Result<ConvertSummary> {
+    if inputs.is_empty() {
+        anyhow::bail!("no input files");
+    }
     let o = &ConvertOptions {
         output: output::resolve(&o.output)?,
         ..o.clone()
     };
-    let r = match convert_with(input, o, progress, true) {
+    let r = match convert_with(inputs, o, progress, true) {
         Err(e) if e.downcast_ref::<OriginTooFar>().is_some() => {
             progress.note(
                 "the points reach too far from the centre of the header's bounds or of the \
                  first window: reading the input again around their own centre",
             );
-            convert_with(input, o, progress, false)
+            convert_with(inputs, o, progress, false)
         }
         r => r,
     };
@@ -211,19 +225,37 @@ pub fn convert(
     }
 }
 
+/// The `SOURCE` of parts made from `inputs`: the file name, or the first and last
+/// names and the count.
+fn source_name(inputs: &[PathBuf]) -> Option<String> {
+    let name = |p: &PathBuf| p.file_name().map(|n| n.to_string_lossy().into_owned());
+    match inputs {
+        [one] => name(one),
+        [first, .., last] => Some(format!(
+            "{} … {} ({} files)",
+            name(first)?,
+            name(last)?,
+            inputs.len()
+        )),
+        [] => None,
+    }
+}
+
 /// [`convert`]; with `early`, a single part is collected while reading (see
 /// [`OriginTooFar`]).
 fn convert_with(
-    input: &Path,
+    inputs: &[PathBuf],
     o: &ConvertOptions,
     progress: &dyn Progress,
     early: bool,
 ) -> Result<ConvertSummary> {
     let start = Instant::now();
     let as_file = output_is_file(&o.output);
-    output::check(input, &o.output, as_file, o.force)?;
+    for input in inputs {
+        output::check(input, &o.output, as_file, o.force)?;
+    }
     let mut read = o.read.clone();
-    let opened = ingest::open(input, &read)?;
+    let opened = ingest::multi::open_all(inputs, &read)?;
     let info = opened.info().clone();
     let per_part = budget::points_per_part(o.memory, info.attribute_names.len());
     if o.memory < budget::MIN_KEPT && early {
@@ -243,11 +275,11 @@ fn convert_with(
     // Reader windows are a small share of the budget.
     read.chunk_points = read.chunk_points.min((per_part / 8).max(1 << 16) as usize);
     drop(opened);
-    let mut reader = ingest::open(input, &read)?;
+    let mut reader = ingest::multi::open_all(inputs, &read)?;
     let write_opts = WriteOptions {
         compression: o.compression,
         layout: o.layout,
-        source: input.file_name().map(|n| n.to_string_lossy().into_owned()),
+        source: source_name(inputs),
         crs: info.crs_wkt.clone(),
         force_bigtiff: false,
         cancel: Some(o.cancel.clone()),
@@ -476,7 +508,7 @@ fn convert_with(
                 let mut spill_with = |origins: &[[f64; 3]]| {
                     distribute(
                         &mut reader,
-                        input,
+                        inputs,
                         &read,
                         o,
                         progress,
@@ -601,7 +633,15 @@ fn convert_with(
         }
     }
     if total == 0 {
-        anyhow::bail!("{}: no points in the input", input.display());
+        match inputs {
+            [one] => anyhow::bail!("{}: no points in the input", one.display()),
+            _ => anyhow::bail!(
+                "{} … {}: no points in the {} input files",
+                inputs[0].display(),
+                inputs[inputs.len() - 1].display(),
+                inputs.len()
+            ),
+        }
     }
     // Publish: move the staged parts into place.
     let t_publish = begin();
@@ -632,7 +672,7 @@ fn convert_with(
         .map(|p| p.max_quantization_error)
         .fold(0.0, f64::max);
     Ok(ConvertSummary {
-        input: input.to_path_buf(),
+        inputs: inputs.to_vec(),
         output: o.output.clone(),
         format: info.format.clone(),
         input_bytes: info.file_bytes,

@@ -95,7 +95,7 @@ impl IngestError {
     }
 }
 
-fn show_path(p: &Path) -> String {
+pub(crate) fn show_path(p: &Path) -> String {
     crate::text::sanitize(&p.display().to_string())
 }
 

@@ -24,6 +24,7 @@ pub mod error;
 pub mod las;
 pub mod las_records;
 pub(crate) mod lines;
+pub mod multi;
 pub mod ply;
 pub mod text;
 

@@ -1,0 +1,288 @@
+//! Several input files read as one stream of points (`pcimg convert tiles/*.laz`):
+//! surveys come as hundreds of tiles, and a dataset should not be split where the
+//! tiling happened to cut.
+//!
+//! * Every file is opened once up front (headers only, no points decoded) so that a
+//!   mismatch is reported before hours of work: the files must carry the same
+//!   attributes in the same order, and no two may declare different coordinate
+//!   reference systems. Each error names both files.
+//! * Then the files are read one after the other, one reader open at a time; each
+//!   reader's own errors name its file (and line or byte offset).
+//! * Each file keeps its own colour scale and GPS-time offset; the converter brings
+//!   chunks to the first chunk's offsets (`convert::normalize`).
+//! * Sampling ([`PointReader::sample_rest`]) applies to the current file and every
+//!   later one; it is refused when any of them cannot sample (PLY).
+
+use std::collections::HashSet;
+use std::path::{Path, PathBuf};
+
+use super::{IngestError, InputKind, PointReader, ReadOptions, SourceInfo, detect, open};
+use crate::points::PointColumns;
+
+/// Reads `paths` in order as one input.
+pub struct MultiReader {
+    paths: Vec<PathBuf>,
+    kinds: Vec<InputKind>,
+    sizes: Vec<u64>,
+    opts: ReadOptions,
+    info: SourceInfo,
+    /// Index of the file `current` reads.
+    at: usize,
+    current: Option<Box<dyn PointReader>>,
+    /// Bytes of the files already finished.
+    bytes_before: u64,
+    skipped_before: u64,
+    clamped_before: u64,
+    /// Sampling rate asked for, applied to every file opened from now on.
+    every: Option<u64>,
+}
+
+/// Opens `paths` as one input: the file itself when there is one, else a
+/// [`MultiReader`] over them (see the module documentation for the checks).
+pub fn open_all(
+    paths: &[PathBuf],
+    opts: &ReadOptions,
+) -> Result<Box<dyn PointReader>, IngestError> {
+    match paths {
+        [] => Err(IngestError::format(Path::new("-"), "no input files")),
+        [one] => open(one, opts),
+        _ => Ok(Box::new(MultiReader::open(paths, opts)?)),
+    }
+}
+
+impl MultiReader {
+    pub fn open(paths: &[PathBuf], opts: &ReadOptions) -> Result<MultiReader, IngestError> {
+        let mut seen = HashSet::new();
+        let mut infos: Vec<SourceInfo> = Vec::with_capacity(paths.len());
+        let mut kinds = Vec::with_capacity(paths.len());
+        for p in paths {
+            let key = p.canonicalize().unwrap_or_else(|_| p.clone());
+            if !seen.insert(key) {
+                return Err(IngestError::format(p, "given twice as an input"));
+            }
+            kinds.push(detect(p)?);
+            // A reader opened for its header decodes nothing (text: the first
+            // lines, for the column layout).
+            infos.push(open(p, opts)?.info().clone());
+        }
+        let info = merge(&infos)?;
+        Ok(MultiReader {
+            paths: paths.to_vec(),
+            kinds,
+            sizes: infos.iter().map(|i| i.file_bytes).collect(),
+            opts: opts.clone(),
+            info,
+            at: 0,
+            current: None,
+            bytes_before: 0,
+            skipped_before: 0,
+            clamped_before: 0,
+            every: None,
+        })
+    }
+
+    /// Opens file `at` (applying the sampling rate asked for so far).
+    fn open_current(&mut self) -> Result<(), IngestError> {
+        let mut r = open(&self.paths[self.at], &self.opts)?;
+        let names = &r.info().attribute_names;
+        if *names != self.info.attribute_names {
+            // The file changed since it was checked.
+            return Err(differ(
+                &self.paths[self.at],
+                names,
+                &self.paths[0],
+                &self.info.attribute_names,
+            ));
+        }
+        if let Some(every) = self.every {
+            r.sample_rest(every);
+        }
+        self.current = Some(r);
+        Ok(())
+    }
+
+    /// Closes the current file, adding its counts to those before.
+    fn finish_current(&mut self) {
+        if let Some(r) = self.current.take() {
+            self.skipped_before += r.skipped();
+            self.clamped_before += r.clamped_colours();
+        }
+        self.bytes_before += self.sizes[self.at];
+        self.at += 1;
+    }
+}
+
+/// The files' infos as one: checks that they agree.
+fn merge(infos: &[SourceInfo]) -> Result<SourceInfo, IngestError> {
+    let first = &infos[0];
+    let mut crs: Option<(&Path, &String)> = None;
+    for i in infos {
+        if i.attribute_names != first.attribute_names {
+            return Err(differ(
+                &i.path,
+                &i.attribute_names,
+                &first.path,
+                &first.attribute_names,
+            ));
+        }
+        if let Some(c) = &i.crs_wkt {
+            match crs {
+                Some((p, known)) if known != c => {
+                    return Err(IngestError::format(
+                        &i.path,
+                        format!(
+                            "its coordinate reference system differs from that of {} \
+                             (a dataset has one; convert them separately, or reproject first)",
+                            super::error::show_path(p)
+                        ),
+                    ));
+                }
+                Some(_) => {}
+                None => crs = Some((&i.path, c)),
+            }
+        }
+    }
+    let formats: Vec<&str> = {
+        let mut f: Vec<&str> = Vec::new();
+        for i in infos {
+            if !f.contains(&i.format.as_str()) {
+                f.push(&i.format);
+            }
+        }
+        f
+    };
+    let all = |f: &dyn Fn(&SourceInfo) -> bool| infos.iter().all(f);
+    Ok(SourceInfo {
+        path: first.path.clone(),
+        format: formats.join(", "),
+        declared_points: all(&|i| i.declared_points.is_some())
+            .then(|| infos.iter().filter_map(|i| i.declared_points).sum()),
+        declared_bounds: all(&|i| i.declared_bounds.is_some()).then(|| {
+            infos
+                .iter()
+                .filter_map(|i| i.declared_bounds)
+                .fold(crate::points::Bounds::EMPTY, |a, b| a.union(&b))
+        }),
+        crs_wkt: crs.map(|(_, c)| c.clone()),
+        attribute_names: first.attribute_names.clone(),
+        file_bytes: infos.iter().map(|i| i.file_bytes).sum(),
+    })
+}
+
+fn differ(path: &Path, names: &[String], other: &Path, other_names: &[String]) -> IngestError {
+    let list = |n: &[String]| {
+        if n.is_empty() {
+            "none".to_string()
+        } else {
+            crate::text::sanitize(&n.join(", "))
+        }
+    };
+    IngestError::format(
+        path,
+        format!(
+            "its attributes ({}) differ from those of {} ({}): the files of one dataset \
+             must carry the same attributes; convert them separately",
+            list(names),
+            super::error::show_path(other),
+            list(other_names)
+        ),
+    )
+}
+
+impl PointReader for MultiReader {
+    fn info(&self) -> &SourceInfo {
+        &self.info
+    }
+
+    fn next_chunk(&mut self) -> Result<Option<PointColumns>, IngestError> {
+        while self.at < self.paths.len() {
+            if self.current.is_none() {
+                self.open_current()?;
+            }
+            if let Some(r) = self.current.as_mut()
+                && let Some(c) = r.next_chunk()?
+            {
+                return Ok(Some(c));
+            }
+            self.finish_current();
+        }
+        Ok(None)
+    }
+
+    fn bytes_done(&self) -> u64 {
+        self.bytes_before + self.current.as_ref().map_or(0, |r| r.bytes_done())
+    }
+
+    fn skipped(&self) -> u64 {
+        self.skipped_before + self.current.as_ref().map_or(0, |r| r.skipped())
+    }
+
+    fn clamped_colours(&self) -> u64 {
+        self.clamped_before + self.current.as_ref().map_or(0, |r| r.clamped_colours())
+    }
+
+    fn sample_rest(&mut self, every: u64) -> bool {
+        // PLY readers deliver every point: then none samples, so that every point
+        // stands for the same number of points.
+        if every < 2 || self.kinds[self.at.min(self.kinds.len() - 1)..].contains(&InputKind::Ply) {
+            return false;
+        }
+        if let Some(r) = self.current.as_mut() {
+            r.sample_rest(every);
+        }
+        self.every = Some(every);
+        true
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn info(path: &str, names: &[&str], crs: Option<&str>) -> SourceInfo {
+        SourceInfo {
+            path: PathBuf::from(path),
+            format: "las 1.4".into(),
+            declared_points: Some(10),
+            declared_bounds: None,
+            crs_wkt: crs.map(String::from),
+            attribute_names: names.iter().map(|s| s.to_string()).collect(),
+            file_bytes: 100,
+        }
+    }
+
+    #[test]
+    fn infos_merge_when_they_agree() {
+        let m = merge(&[
+            info("a.las", &["intensity"], None),
+            info("b.las", &["intensity"], Some("EPSG:2992")),
+            info("c.las", &["intensity"], Some("EPSG:2992")),
+        ])
+        .unwrap();
+        assert_eq!(m.crs_wkt.as_deref(), Some("EPSG:2992"));
+        assert_eq!((m.declared_points, m.file_bytes), (Some(30), 300));
+        assert_eq!(m.format, "las 1.4");
+    }
+
+    #[test]
+    fn differing_crs_or_attributes_name_both_files() {
+        let e = merge(&[
+            info("a.las", &["intensity"], Some("EPSG:2992")),
+            info("b.las", &["intensity"], None),
+            info("c.las", &["intensity"], Some("EPSG:32610")),
+        ])
+        .unwrap_err()
+        .to_string();
+        assert!(
+            e.starts_with("c.las:") && e.contains("a.las") && e.contains("reference system"),
+            "{e}"
+        );
+        let e = merge(&[
+            info("a.las", &["intensity"], None),
+            info("b.las", &[], None),
+        ])
+        .unwrap_err()
+        .to_string();
+        assert!(e.contains("(none)") && e.contains("(intensity)"), "{e}");
+    }
+}
