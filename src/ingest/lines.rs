@@ -448,6 +448,9 @@ pub(crate) struct LineEngine {
     pub line: u64,
     /// For ASCII PLY: vertex lines still to read.
     pub lines_left: Option<u64>,
+    /// For ASCII PLY: the elements after the vertex element (name, lines), checked
+    /// to be whole once the vertices are read (a file cut short there is an error).
+    pub after: Vec<(String, u64)>,
     pub skip_invalid: bool,
     pub allow_count_lines: bool,
     pub chunk_points: usize,
@@ -561,6 +564,46 @@ impl LineEngine {
         Ok(None)
     }
 
+    /// Checks (once) that the lines of the elements after the vertex element are
+    /// all there.
+    fn check_after(&mut self, data: &[u8], end: usize) -> Result<(), IngestError> {
+        let after = std::mem::take(&mut self.after);
+        let wanted: u64 = after.iter().map(|(_, n)| n).sum();
+        if wanted == 0 {
+            return Ok(());
+        }
+        let rest = &data[self.pos.min(end)..end];
+        let newlines = memchr::memchr_iter(b'\n', rest)
+            .take(wanted as usize)
+            .count() as u64;
+        // A last line without its newline counts too.
+        let tail = rest.len() > 0 && rest[rest.len() - 1] != b'\n';
+        let have = newlines + (newlines < wanted && tail) as u64;
+        if have >= wanted {
+            return Ok(());
+        }
+        let mut before = 0;
+        let (name, _) = after
+            .iter()
+            .find(|(_, n)| {
+                before += n;
+                before > have
+            })
+            .unwrap_or(&after[after.len() - 1]);
+        Err(IngestError::line(
+            &self.path,
+            self.line + have,
+            format!(
+                "truncated file: the file ends inside element '{}' ({} of the {} lines \
+                 the header declares after the vertices are missing)",
+                crate::text::sanitize(name),
+                wanted - have,
+                wanted
+            ),
+            b"",
+        ))
+    }
+
     pub(crate) fn next_chunk(&mut self, data: &[u8]) -> Result<Option<PointColumns>, IngestError> {
         let end = self.end.min(data.len());
         if let Some(p) = self.pending.pop_front() {
@@ -571,6 +614,7 @@ impl LineEngine {
         }
         loop {
             if self.lines_left == Some(0) {
+                self.check_after(data, end)?;
                 return Ok(None);
             }
             if self.pos >= end {

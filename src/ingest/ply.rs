@@ -7,14 +7,16 @@
 //!   `diffuse_red` → `red`, `scalar_intensity` → `intensity`, others lower-cased).
 //! * Other elements (faces, edges...) are skipped: in binary files those before
 //!   the vertex element are skipped by size (item by item when they have list
-//!   properties); those after it are never read. In ASCII files the lines of the
+//!   properties); those after it are only checked to be whole. In ASCII files the lines of the
 //!   elements before the vertex element are skipped and only the vertex lines are
 //!   parsed, with the parallel line engine (`ingest::lines`) that the text reader uses.
 //! * Binary vertices are read by a fixed-stride decoder over the memory map with a
 //!   precomputed byte offset per property, byte-swapped for big-endian, in
 //!   parallel over each window with rayon.
 //! * A file shorter than its header declares is an error naming the byte offset
-//!   (binary) or the line (ASCII).
+//!   (binary) or the line (ASCII), also when it ends inside the elements after the
+//!   vertices (binary: checked at open, list items walked; ASCII: their lines
+//!   counted once the vertices are read).
 
 use crate::bigvec;
 use std::path::Path;
@@ -365,6 +367,10 @@ pub fn open(path: &Path, opts: &ReadOptions) -> Result<Box<dyn PointReader>, Ing
             end: map.len(),
             line,
             lines_left: Some(count),
+            after: header.elements[plan.element + 1..]
+                .iter()
+                .map(|e| (e.name.clone(), e.count))
+                .collect(),
             skip_invalid: opts.skip_invalid,
             allow_count_lines: false,
             chunk_points: opts.chunk_points,
@@ -398,6 +404,12 @@ pub fn open(path: &Path, opts: &ReadOptions) -> Result<Box<dyn PointReader>, Ing
                 map.len()
             ),
         ));
+    }
+    // The elements after the vertices are never read, but a file cut short inside
+    // them is truncated all the same.
+    let mut end = needed;
+    for el in &header.elements[plan.element + 1..] {
+        end = skip_binary_element(path, &map, end, el, be)?;
     }
     Ok(Box::new(BinaryPly {
         info,
@@ -902,6 +914,35 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(s.contains("acut.ply") && s.contains("line"), "{s}");
+    }
+
+    /// A file cut short inside the element after the vertices (here two edges) is
+    /// truncated too, though its vertices are whole; a last line without its
+    /// newline is not a cut.
+    #[test]
+    fn truncated_after_the_vertices() {
+        let d = tempfile::tempdir().unwrap();
+        let p = write_ply(&d, "b.ply", "binary_big_endian", false, 100);
+        let data = std::fs::read(&p).unwrap();
+        let q = d.path().join("bcut.ply");
+        std::fs::write(&q, &data[..data.len() - 3]).unwrap();
+        let e = read_all(&q, &ReadOptions::default()).unwrap_err();
+        assert_eq!(e.byte_offset(), Some(data.len() as u64 - 3));
+        assert!(e.to_string().contains("inside element 'edge'"), "{e}");
+        let p = write_ply(&d, "a.ply", "ascii", false, 100);
+        let text = std::fs::read_to_string(&p).unwrap();
+        let q = d.path().join("acut.ply");
+        std::fs::write(&q, text.strip_suffix("1 2\n").unwrap()).unwrap();
+        let e = read_all(&q, &ReadOptions::default())
+            .unwrap_err()
+            .to_string();
+        // Header (16 lines), one face, 100 vertices, one edge: line 119 is missing.
+        assert!(
+            e.contains("acut.ply: line 119") && e.contains("'edge' (1 of the 2"),
+            "{e}"
+        );
+        std::fs::write(&q, text.strip_suffix('\n').unwrap()).unwrap();
+        assert_eq!(read_all(&q, &ReadOptions::default()).unwrap().1.len(), 100);
     }
 
     #[test]

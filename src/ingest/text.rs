@@ -260,6 +260,7 @@ impl TextReader {
             end: data.len(),
             line: pre.data_line,
             lines_left: None,
+            after: Vec::new(),
             skip_invalid: opts.skip_invalid,
             allow_count_lines: ext_pts || pre.count.is_some(),
             chunk_points: opts.chunk_points,
