@@ -54,6 +54,9 @@ struct Preamble {
     /// 1-based line number at `data_start`.
     data_line: u64,
     header: Option<Vec<String>>,
+    /// The header is the last comment line before the data (`# x y z i`), which
+    /// may be a remark rather than a header: ignored when it does not fit.
+    header_is_comment: bool,
     count: Option<u64>,
     /// Token count, 1-based line number and bytes of the first data line.
     first_data: Option<(usize, u64, (usize, usize))>,
@@ -94,7 +97,9 @@ fn header_names(line: &[u8]) -> Vec<String> {
 }
 
 /// Whether a line's numbers are written with decimal commas ("1,5 2,25 -3,0"):
-/// whitespace separates at least three fields, each digits, one comma, digits.
+/// whitespace separates at least three fields, each digits, one comma, digits; or
+/// whitespace or semicolons separate fields of which one is ("1,5;2,25;-3,0",
+/// "637000,123 6010900,456 20,030 96").
 fn decimal_commas(line: &[u8]) -> bool {
     let fields: Vec<&[u8]> = line
         .split(|c| c.is_ascii_whitespace())
@@ -107,7 +112,14 @@ fn decimal_commas(line: &[u8]) -> bool {
             |h: Option<&[u8]>| h.is_some_and(|h| !h.is_empty() && h.iter().all(u8::is_ascii_digit));
         digits(halves.next()) && digits(halves.next()) && halves.next().is_none()
     };
-    fields.len() >= 3 && fields.iter().all(|f| decimal(f))
+    // Fields apart from commas: when they are several, a comma inside one
+    // ("1,5 2,25" or "1,5;2,25") is a decimal comma, not a separator.
+    let parts: Vec<&[u8]> = line
+        .split(|&c| c.is_ascii_whitespace() || c == b';')
+        .filter(|f| !f.is_empty())
+        .collect();
+    (fields.len() >= 3 && fields.iter().all(|f| decimal(f)))
+        || (parts.len() >= 2 && parts.iter().any(|f| decimal(f)))
 }
 
 fn has_xyz(names: &[String]) -> bool {
@@ -160,6 +172,7 @@ fn scan_preamble(data: &[u8], start: usize) -> Preamble {
                 pre.first_data = Some((toks.len(), line_no, (pos, end)));
                 if pre.header.is_none() {
                     pre.header = last_comment.take();
+                    pre.header_is_comment = pre.header.is_some();
                 }
                 break;
             }
@@ -238,9 +251,28 @@ impl TextReader {
                 ));
             }
             match &pre.header {
-                Some(h) if h.len() == ncols && has_xyz(h) => {
-                    Layout::from_names(h).unwrap_or_else(|_| Layout::positional(ncols))
+                // A header that does not fit the lines would put values under the
+                // wrong names (x and y swapped, colours invented): refused.
+                Some(h) if h.len() != ncols && pre.header_is_comment => Layout::positional(ncols),
+                Some(h) if h.len() != ncols => {
+                    return Err(IngestError::line(
+                        path,
+                        first_line,
+                        format!(
+                            "the header line names {} column(s) ({}) but the first point line \
+                             has {ncols}: name the columns with --columns",
+                            h.len(),
+                            crate::text::sanitize(&h.join(" "))
+                        ),
+                        first_text,
+                    ));
                 }
+                Some(h) if has_xyz(h) => Layout::from_names(h).map_err(|m| {
+                    IngestError::format(
+                        path,
+                        format!("the header line's columns: {m}; name them with --columns"),
+                    )
+                })?,
                 Some(h) if h.len() == ncols => {
                     let mut names: Vec<String> = vec!["x".into(), "y".into(), "z".into()];
                     names.extend(h[3..].iter().cloned());
@@ -293,6 +325,58 @@ mod tests {
         let p = dir.path().join(name);
         std::fs::write(&p, body).unwrap();
         p
+    }
+
+    /// Decimal commas are refused wherever a comma sits inside a field that other
+    /// separators delimit; ordinary comma-separated lines are not mistaken for them.
+    #[test]
+    fn decimal_commas_are_refused_not_misread() {
+        for line in [
+            "1,5 2,25 -3,0",
+            "637000,123 6010900,456 20,030 96",
+            "1,5;2,25;-3,0",
+            "1;2,5;3",
+        ] {
+            assert!(super::decimal_commas(line.as_bytes()), "{line}");
+        }
+        for line in [
+            "1,2,3",
+            "1.5,2.5,3.5",
+            "1,2, 3",
+            "1, 2, 3",
+            "1;2;3",
+            "1 2 3 4",
+        ] {
+            assert!(!super::decimal_commas(line.as_bytes()), "{line}");
+        }
+    }
+
+    /// A header whose names do not match the columns is refused (it would put
+    /// values under the wrong names); a comment that does not fit is ignored.
+    #[test]
+    fn headers_that_do_not_fit_the_columns() {
+        let d = tempfile::tempdir().unwrap();
+        let p = write(&d, "h.xyz", "y x z\n1 2 3 4 5 6 7\n");
+        let e = read(&p, &ReadOptions::default()).unwrap_err().to_string();
+        assert!(
+            e.contains("h.xyz: line 2") && e.contains("names 3 column(s) (y x z)"),
+            "{e}"
+        );
+        let opts = ReadOptions {
+            columns: Some("y x z i r g b".into()),
+            ..Default::default()
+        };
+        let (c, names, _) = read(&p, &opts).unwrap();
+        assert_eq!((c.x[0], c.y[0], names.len()), (2.0, 1.0, 4));
+        let p = write(&d, "c.xyz", "# x y z in metres\n1 2 3 4\n");
+        let (c, names, _) = read(&p, &ReadOptions::default()).unwrap();
+        assert_eq!((c.len(), names), (1, vec!["intensity".to_string()]));
+        let p = write(&d, "dup.csv", "x,y,z,x\n1,2,3,4\n");
+        let e = read(&p, &ReadOptions::default()).unwrap_err().to_string();
+        assert!(
+            e.contains("appears twice") && e.contains("--columns"),
+            "{e}"
+        );
     }
 
     fn read(
