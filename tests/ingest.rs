@@ -63,8 +63,10 @@ fn autzen_laz() {
         .iter()
         .find(|a| a.name == "gps_time")
         .unwrap();
-    assert!(t.offset > 0.0);
-    assert_eq!(t.values[0], 0.0);
+    // (The offset is the first times' median, a whole second: the stored values
+    // are small, so f32 keeps fine steps.)
+    assert!(t.offset > 0.0 && t.offset.fract() == 0.0);
+    assert!(t.values.iter().take(4096).all(|v| v.abs() < 1e4));
 }
 
 #[test]

@@ -2,7 +2,9 @@
 //!
 //! * Columns: x y z (scaled and offset to `f64`), `intensity`, `return_number`,
 //!   `number_of_returns`, `classification`, `gps_time` (formats with time; its
-//!   offset is the first point's time so `f32` keeps sub-millisecond steps),
+//!   offset is the median of the first 4,096 points' times (see
+//!   `ingest::attribute_offset`), so `f32` keeps steps of 1 ms or finer within
+//!   2.3 hours of it),
 //!   `red` `green` `blue` (formats with colour; 0–255 by the rule in
 //!   [`super::color`]: 16-bit colour is divided by 257 unless every value of the
 //!   first chunk is ≤ 255, i.e. 8-bit values stored in 16-bit fields), `nir`.
@@ -534,10 +536,17 @@ fn append_columns(pd: &las::PointData, cols: &mut PointColumns, gps_offset: &mut
         a.values.extend(pd.classification().map(f32::from));
     }
     if let Some(t) = pd.gps_time() {
-        let mut t = t.peekable();
         let off = match gps_offset {
             Some(o) => *o,
-            None => *gps_offset.insert(t.peek().copied().unwrap_or(0.0)),
+            None => {
+                let mut first: Vec<f64> = pd
+                    .gps_time()
+                    .into_iter()
+                    .flatten()
+                    .take(super::OFFSET_SAMPLE)
+                    .collect();
+                *gps_offset.insert(super::attribute_offset(&mut first, true))
+            }
         };
         if let Some(a) = next() {
             a.offset = off;

@@ -199,8 +199,15 @@ impl RecordReader {
                 )
             })?;
         let gps_offset = match fields.gps {
-            Some(g) if total > 0 => f64_at(&map[start..start + stride], g),
-            _ => 0.0,
+            Some(g) => {
+                let first = total.min(super::OFFSET_SAMPLE);
+                let mut t: Vec<f64> = map[start..start + first * stride]
+                    .chunks_exact(stride)
+                    .map(|r| f64_at(r, g))
+                    .collect();
+                super::attribute_offset(&mut t, true)
+            }
+            None => 0.0,
         };
         Ok(RecordReader {
             info: o.info,

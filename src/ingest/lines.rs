@@ -40,6 +40,9 @@ pub(crate) enum Role {
 pub(crate) struct Layout {
     pub roles: Vec<Role>,
     pub attr_names: Vec<String>,
+    /// Each attribute's offset (values are stored relative to it; see
+    /// [`super::attribute_offset`]), zero until [`Layout::decide_offsets`].
+    pub offsets: Vec<f64>,
 }
 
 impl Layout {
@@ -76,7 +79,12 @@ impl Layout {
         if !seen.iter().all(|&s| s) {
             return Err("the columns must include x, y and z".into());
         }
-        Ok(Layout { roles, attr_names })
+        let offsets = vec![0.0; attr_names.len()];
+        Ok(Layout {
+            roles,
+            attr_names,
+            offsets,
+        })
     }
 
     /// The default layout for `n` columns (n ≥ 3).
@@ -103,11 +111,52 @@ impl Layout {
         Layout::from_names(&names).unwrap_or(Layout {
             roles: vec![Role::X, Role::Y, Role::Z],
             attr_names: Vec::new(),
+            offsets: Vec::new(),
         })
     }
 
     pub(crate) fn ncols(&self) -> usize {
         self.roles.len()
+    }
+
+    /// Decides the attributes' offsets from the first point lines of `data` (up
+    /// to [`super::OFFSET_SAMPLE`] of them and `max_lines`; lines that are not
+    /// points are passed).
+    pub(crate) fn decide_offsets(&mut self, data: &[u8], max_lines: u64) {
+        let mut seen: Vec<Vec<f64>> = vec![Vec::new(); self.attr_names.len()];
+        let mut vals = Vec::with_capacity(self.ncols());
+        let lines = (super::OFFSET_SAMPLE as u64).min(max_lines) as usize;
+        for line in data.split(|&c| c == b'\n').take(lines) {
+            vals.clear();
+            let mut rest = line;
+            loop {
+                let skip = rest.iter().position(|&c| !is_sep(c)).unwrap_or(rest.len());
+                rest = &rest[skip..];
+                if rest.is_empty() {
+                    break;
+                }
+                match parse_number(rest) {
+                    Some((v, used)) if used > 0 => {
+                        vals.push(v);
+                        rest = &rest[used..];
+                    }
+                    _ => break,
+                }
+            }
+            if vals.len() != self.ncols() || !rest.is_empty() {
+                continue;
+            }
+            for (c, role) in self.roles.iter().enumerate() {
+                if let Role::Attr(a) = *role {
+                    seen[a].push(vals[c]);
+                }
+            }
+        }
+        self.offsets = seen
+            .iter_mut()
+            .zip(&self.attr_names)
+            .map(|(v, name)| super::attribute_offset(v, name == "gps_time"))
+            .collect();
     }
 }
 
@@ -351,7 +400,7 @@ fn parse_piece(
                     // (An attribute written for a line that turns out invalid is
                     // overwritten by the next point.)
                     Role::Attr(a) => {
-                        out.attrs[a][k].write(vals[c] as f32);
+                        out.attrs[a][k].write((vals[c] - layout.offsets[a]) as f32);
                     }
                     Role::Skip => {}
                 }
@@ -577,7 +626,7 @@ impl LineEngine {
             .take(wanted as usize)
             .count() as u64;
         // A last line without its newline counts too.
-        let tail = rest.len() > 0 && rest[rest.len() - 1] != b'\n';
+        let tail = rest.last().is_some_and(|&c| c != b'\n');
         let have = newlines + (newlines < wanted && tail) as u64;
         if have >= wanted {
             return Ok(());
@@ -772,7 +821,12 @@ impl LineEngine {
                 .attr_names
                 .iter()
                 .zip(attrs)
-                .map(|(n, v)| Attribute::new(n.clone(), v))
+                .zip(&layout.offsets)
+                .map(|((n, values), &offset)| Attribute {
+                    name: n.clone(),
+                    offset,
+                    values,
+                })
                 .collect(),
         };
         Ok((Some(cols), lines, skipped))

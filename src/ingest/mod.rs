@@ -119,6 +119,33 @@ pub(crate) fn mix(mut v: u64) -> u64 {
     v ^ (v >> 31)
 }
 
+/// Values of an attribute that decide its offset (the first ones read).
+pub(crate) const OFFSET_SAMPLE: usize = 4096;
+
+/// Magnitude from which an attribute is stored relative to an offset: `f32` steps
+/// are 1/128 there (GPS times near 3e8 would lose up to 16 s without one).
+const OFFSET_FROM: f64 = 65536.0;
+
+/// The offset to store an attribute relative to, from its first values: their
+/// median rounded to a whole number (robust to an odd first value, such as a
+/// GPS time of 0 before the real ones), or 0 when the values are small (then
+/// `f32` keeps them as they are). `always`: use the median whatever its size
+/// (GPS time, whose steps matter at any magnitude).
+pub(crate) fn attribute_offset(values: &mut Vec<f64>, always: bool) -> f64 {
+    values.retain(|v| v.is_finite());
+    if values.is_empty() {
+        return 0.0;
+    }
+    let mid = values.len() / 2;
+    let (_, m, _) = values.select_nth_unstable_by(mid, f64::total_cmp);
+    let m = m.round();
+    if always || m.abs() >= OFFSET_FROM {
+        m
+    } else {
+        0.0
+    }
+}
+
 /// The input formats.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum InputKind {

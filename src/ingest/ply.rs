@@ -360,9 +360,11 @@ pub fn open(path: &Path, opts: &ReadOptions) -> Result<Box<dyn PointReader>, Ing
                 line += 1;
             }
         }
+        let mut layout = plan.layout.clone();
+        layout.decide_offsets(&map[pos.min(map.len())..], count);
         let engine = LineEngine {
             path: path.to_path_buf(),
-            layout: plan.layout.clone(),
+            layout,
             pos,
             end: map.len(),
             line,
@@ -411,6 +413,23 @@ pub fn open(path: &Path, opts: &ReadOptions) -> Result<Box<dyn PointReader>, Ing
     for el in &header.elements[plan.element + 1..] {
         end = skip_binary_element(path, &map, end, el, be)?;
     }
+    // Attribute offsets from the first vertices.
+    let mut plan = plan;
+    let first = count.min(super::OFFSET_SAMPLE as u64) as usize;
+    let recs = &map[pos as usize..pos as usize + first * plan.stride];
+    let mut offsets = vec![0.0; plan.layout.attr_names.len()];
+    for &(off, s, role) in &plan.fields {
+        if let Role::Attr(a) = role {
+            let mut v = vec![0f64; first];
+            if be {
+                decode_column::<true, f64>(recs, plan.stride, off, s, &mut v, 0.0);
+            } else {
+                decode_column::<false, f64>(recs, plan.stride, off, s, &mut v, 0.0);
+            }
+            offsets[a] = super::attribute_offset(&mut v, plan.layout.attr_names[a] == "gps_time");
+        }
+    }
+    plan.layout.offsets = offsets;
     Ok(Box::new(BinaryPly {
         info,
         map,
@@ -560,6 +579,7 @@ fn decode_column<const BE: bool, O: OutValue>(
     off: usize,
     s: Scalar,
     out: &mut [O],
+    offset: f64,
 ) {
     macro_rules! col {
         ($t:ty, $n:expr) => {
@@ -572,7 +592,7 @@ fn decode_column<const BE: bool, O: OutValue>(
                     } else {
                         <$t>::from_le_bytes(a)
                     };
-                    *o = O::from_f64(v as f64);
+                    *o = O::from_f64(v as f64 - offset);
                 }
             }
         };
@@ -595,6 +615,7 @@ fn decode_task<const BE: bool>(
     data: &[u8],
     stride: usize,
     fields: &[(usize, Scalar, Role)],
+    offsets: &[f64],
     t: Task<'_>,
 ) -> bool {
     let Task {
@@ -609,12 +630,13 @@ fn decode_task<const BE: bool>(
     };
     for &(off, s, role) in fields {
         match role {
-            Role::X => decode_column::<BE, f64>(recs, stride, off, s, x),
-            Role::Y => decode_column::<BE, f64>(recs, stride, off, s, y),
-            Role::Z => decode_column::<BE, f64>(recs, stride, off, s, z),
+            Role::X => decode_column::<BE, f64>(recs, stride, off, s, x, 0.0),
+            Role::Y => decode_column::<BE, f64>(recs, stride, off, s, y, 0.0),
+            Role::Z => decode_column::<BE, f64>(recs, stride, off, s, z, 0.0),
             Role::Attr(a) => {
                 if let Some(col) = attrs.get_mut(a) {
-                    decode_column::<BE, f32>(recs, stride, off, s, col);
+                    let offset = offsets.get(a).copied().unwrap_or(0.0);
+                    decode_column::<BE, f32>(recs, stride, off, s, col, offset);
                 }
             }
             Role::Skip => {}
@@ -651,7 +673,12 @@ impl BinaryPly {
                 .layout
                 .attr_names
                 .iter()
-                .map(|a| Attribute::new(a.clone(), bigvec::zeroed(n)))
+                .zip(&self.plan.layout.offsets)
+                .map(|(a, &offset)| Attribute {
+                    name: a.clone(),
+                    offset,
+                    values: bigvec::zeroed(n),
+                })
                 .collect(),
         };
         let threads = rayon::current_num_threads().max(1);
@@ -681,16 +708,17 @@ impl BinaryPly {
             }
         }
         let fields = &self.plan.fields;
+        let offsets = &self.plan.layout.offsets;
         // Every task runs (no short-circuit): `all_finite` is a reduction.
         let all_finite = if self.be {
             tasks
                 .into_par_iter()
-                .map(|t| decode_task::<true>(data, stride, fields, t))
+                .map(|t| decode_task::<true>(data, stride, fields, offsets, t))
                 .reduce(|| true, |a, b| a && b)
         } else {
             tasks
                 .into_par_iter()
-                .map(|t| decode_task::<false>(data, stride, fields, t))
+                .map(|t| decode_task::<false>(data, stride, fields, offsets, t))
                 .reduce(|| true, |a, b| a && b)
         };
         self.done += n as u64;
@@ -914,6 +942,35 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(s.contains("acut.ply") && s.contains("line"), "{s}");
+    }
+
+    /// A large attribute (a double GPS time) is stored relative to an offset, in
+    /// binary and ASCII files alike.
+    #[test]
+    fn large_attributes_get_an_offset() {
+        let d = tempfile::tempdir().unwrap();
+        let times: Vec<f64> = (0..50).map(|i| 3.0e8 + 0.000123 + i as f64 * 0.5).collect();
+        let head = "ply\nformat binary_little_endian 1.0\nelement vertex 50\nproperty float x\n\
+                    property float y\nproperty float z\nproperty double gps_time\nend_header\n";
+        let mut bin = head.as_bytes().to_vec();
+        let mut ascii = head.replace("binary_little_endian", "ascii");
+        for t in &times {
+            for v in [1f32, 2.0, 3.0] {
+                bin.extend_from_slice(&v.to_le_bytes());
+            }
+            bin.extend_from_slice(&t.to_le_bytes());
+            ascii.push_str(&format!("1 2 3 {t:.6}\n"));
+        }
+        for (name, body) in [("b.ply", bin), ("a.ply", ascii.into_bytes())] {
+            let p = d.path().join(name);
+            std::fs::write(&p, body).unwrap();
+            let (_, c, _) = read_all(&p, &ReadOptions::default()).unwrap();
+            let a = &c.attributes[0];
+            assert_eq!(a.offset, 3.0e8 + 13.0, "{name}");
+            for (v, t) in a.values.iter().zip(&times) {
+                assert!((a.offset + *v as f64 - t).abs() < 1e-5, "{name}");
+            }
+        }
     }
 
     /// A file cut short inside the element after the vertices (here two edges) is

@@ -122,6 +122,25 @@ fn decimal_commas(line: &[u8]) -> bool {
         || (parts.len() >= 2 && parts.iter().any(|f| decimal(f)))
 }
 
+/// Whether two commas or semicolons follow each other with only blanks between
+/// them (`1,2,,4`): an empty field.
+fn has_empty_field(line: &[u8]) -> bool {
+    let mut delimiters = 0;
+    for &c in line {
+        match c {
+            b',' | b';' => {
+                delimiters += 1;
+                if delimiters > 1 {
+                    return true;
+                }
+            }
+            b' ' | b'\t' | b'\r' => {}
+            _ => delimiters = 0,
+        }
+    }
+    false
+}
+
 fn has_xyz(names: &[String]) -> bool {
     ["x", "y", "z"].iter().all(|c| names.iter().any(|n| n == c))
 }
@@ -221,7 +240,7 @@ impl TextReader {
                 first_text,
             ));
         }
-        let layout = if let Some(spec) = &opts.columns {
+        let mut layout = if let Some(spec) = &opts.columns {
             let raw: Vec<String> = tokens(spec.as_bytes())
                 .map(|t| String::from_utf8_lossy(t).into_owned())
                 .collect();
@@ -254,7 +273,8 @@ impl TextReader {
                 // A header that does not fit the lines would put values under the
                 // wrong names (x and y swapped, colours invented): refused.
                 Some(h) if h.len() != ncols && pre.header_is_comment => Layout::positional(ncols),
-                Some(h) if h.len() != ncols => {
+                // (An empty field miscounts the line: the engine reports it.)
+                Some(h) if h.len() != ncols && !has_empty_field(first_text) => {
                     return Err(IngestError::line(
                         path,
                         first_line,
@@ -285,6 +305,7 @@ impl TextReader {
             .extension()
             .and_then(|e| e.to_str())
             .is_some_and(|e| e.eq_ignore_ascii_case("pts"));
+        layout.decide_offsets(&data[pre.data_start..], u64::MAX);
         let engine = LineEngine {
             path: path.to_path_buf(),
             layout: layout.clone(),
@@ -325,6 +346,36 @@ mod tests {
         let p = dir.path().join(name);
         std::fs::write(&p, body).unwrap();
         p
+    }
+
+    /// Large attribute values (GPS times near 3e8) are stored relative to an
+    /// offset, so f32 keeps their microseconds' millisecond; small ones are not.
+    #[test]
+    fn large_attributes_get_an_offset() {
+        let d = tempfile::tempdir().unwrap();
+        let mut body = String::from("X,Y,Z,GPS_Time,Classification\n");
+        // An odd first time (0) does not decide the offset.
+        body.push_str("1,2,3,0,2\n");
+        for i in 0..100 {
+            body.push_str(&format!(
+                "1,2,3,{:.6},2\n",
+                305002000.006393 + i as f64 * 0.25
+            ));
+        }
+        let p = write(&d, "t.csv", &body);
+        let (c, names, _) = read(&p, &ReadOptions::default()).unwrap();
+        assert_eq!(names, ["gps_time", "classification"]);
+        let (t, class) = (&c.attributes[0], &c.attributes[1]);
+        assert_eq!((t.offset, class.offset), (305002000.0 + 12.0, 0.0));
+        for i in 0..100 {
+            let got = t.offset + t.values[i + 1] as f64;
+            assert!(
+                (got - (305002000.006393 + i as f64 * 0.25)).abs() < 1e-5,
+                "{got}"
+            );
+        }
+        // (The odd one is as far from the offset as f32 steps of 32 s allow.)
+        assert!((t.offset + t.values[0] as f64).abs() <= 16.0);
     }
 
     /// Decimal commas are refused wherever a comma sits inside a field that other
