@@ -856,3 +856,42 @@ fn command_line_takes_files_and_directories() {
     assert!(!o.status.success());
     assert!(String::from_utf8_lossy(&o.stderr).contains("no point-cloud files"));
 }
+
+/// A point far outside the rest (100 km) that the sample does not see still gets
+/// a part of its own: no part is refused for precision, every point is kept to a
+/// millimetre, wherever the point lies in the file.
+#[test]
+fn a_far_point_the_sample_misses_gets_its_own_part() {
+    let dir = tempfile::tempdir().unwrap();
+    let base = dir.path().join("base.xyz");
+    pcimg::synth::write_text(&base, 300_000, 11).unwrap();
+    let text = std::fs::read_to_string(&base).unwrap();
+    let lines: Vec<&str> = text.lines().collect();
+    for at in [1_000, 150_001, 299_000] {
+        let mut body = lines[..at].join("\n");
+        body.push_str("\n737000.000 6011000.000 20.000 50\n");
+        body.push_str(&lines[at..].join("\n"));
+        body.push('\n');
+        let input = dir.path().join("far.xyz");
+        std::fs::write(&input, body).unwrap();
+        let out = dir.path().join("far.pcimg");
+        let mut o = opts(out.clone(), 64 << 20);
+        o.sample_points = 20_000;
+        let s = convert::convert(&input, &o, &Quiet).unwrap();
+        assert_eq!(s.points, 300_001);
+        assert!(
+            s.max_quantization_error < 0.001,
+            "{}",
+            s.max_quantization_error
+        );
+        assert!(worst_offset(&dataset_points(&out), &file_points(&input)) <= 1);
+        let ds = Dataset::open(&out).unwrap();
+        assert!(
+            ds.parts
+                .iter()
+                .any(|p| p.meta.bounds.min[0] > 700_000.0 && p.meta.point_count == 1),
+            "the far point has no part of its own"
+        );
+        std::fs::remove_dir_all(&out).unwrap();
+    }
+}

@@ -482,15 +482,24 @@ fn convert_with(
                     anyhow::bail!(too_many_parts(&o.output, per_part, o.memory));
                 }
                 let like = like.unwrap_or_default();
-                // Regions from the sample, with margin for its error.
-                let mut grid = CountGrid::new(bounds);
-                for p in &sample.pts {
-                    grid.add(*p);
-                }
+                // Regions from the sample (and `extra` points: see below), with
+                // margin for its error, and the origin of each.
                 let scale = sample.seen as f64 / sample.pts.len().max(1) as f64;
                 let target = ((per_part as f64 * 0.85) / scale).max(1.0) as u64;
-                let regions = partition::split(&grid, target, MAX_EXTENT);
-                let cell_region = partition::cell_regions(&grid, &regions);
+                let plan = |bounds: Bounds, extra: &[[f64; 3]]| {
+                    let mut grid = CountGrid::new(bounds);
+                    for p in sample.pts.iter().chain(extra) {
+                        grid.add(*p);
+                    }
+                    let regions = partition::split(&grid, target, MAX_EXTENT);
+                    let cell_region = partition::cell_regions(&grid, &regions);
+                    let origins: Vec<[f64; 3]> = regions
+                        .iter()
+                        .map(|r| partition::occupied(&grid, *r).centre(&grid))
+                        .collect();
+                    (grid, regions, cell_region, origins)
+                };
+                let (mut grid, mut regions, mut cell_region, mut origins) = plan(bounds, &[]);
                 progress.note(&format!(
                     "{}{} points over {} spatial regions",
                     if weight > 1 { "about " } else { "" },
@@ -501,26 +510,45 @@ fn convert_with(
                 // stored relative to the centre of the region's occupied cells.
                 let tmp = spill::TempDir::beside(&o.output, "pcimg-spill")?;
                 let t_partition = begin();
-                let mut origins: Vec<[f64; 3]> = regions
-                    .iter()
-                    .map(|r| partition::occupied(&grid, *r).centre(&grid))
-                    .collect();
-                let mut spill_with = |origins: &[[f64; 3]]| {
+                let spill_with = |reader: &mut Box<dyn ingest::PointReader>,
+                                  grid: &CountGrid,
+                                  regions: &[partition::Region],
+                                  cell_region: &[u32],
+                                  origins: &[[f64; 3]]| {
                     distribute(
-                        &mut reader,
+                        reader,
                         inputs,
                         &read,
                         o,
                         progress,
-                        &grid,
-                        &regions,
-                        &cell_region,
+                        grid,
+                        regions,
+                        cell_region,
                         origins,
                         &like,
                         &tmp.path,
                     )
                 };
-                let mut files = spill_with(&origins)?;
+                let mut files = spill_with(&mut reader, &grid, &regions, &cell_region, &origins)?;
+                // Points far outside the bounds the sample saw join the nearest
+                // region, which can then spread wider than f32 keeps 1 mm across
+                // wherever its origin. The regions are then placed again over
+                // every point's bounds, the corners of each region's bounds
+                // counted as points (so far points get regions of their own).
+                let wide = |f: &Spilled| reach(&f.bounds, f.bounds.center()) >= F32_MM_RADIUS;
+                if files.iter().any(wide) {
+                    progress.note(
+                        "points lie far outside the bounds the sample saw: partitioning again",
+                    );
+                    let all = files.iter().fold(Bounds::EMPTY, |a, f| a.union(&f.bounds));
+                    let corners: Vec<[f64; 3]> = files
+                        .iter()
+                        .filter(|f| !f.bounds.is_empty())
+                        .flat_map(|f| [f.bounds.min, f.bounds.max])
+                        .collect();
+                    (grid, regions, cell_region, origins) = plan(all, &corners);
+                    files = spill_with(&mut reader, &grid, &regions, &cell_region, &origins)?;
+                }
                 // Points the sample never saw can lie far outside their region's
                 // box. Where f32 then lost 1 mm around the box's centre but would
                 // not around the centre of the region's own bounds, the pass is
@@ -536,7 +564,7 @@ fn convert_with(
                             *origin = f.bounds.center();
                         }
                     }
-                    files = spill_with(&origins)?;
+                    files = spill_with(&mut reader, &grid, &regions, &cell_region, &origins)?;
                 }
                 pass("partition", t_partition);
                 total = files.iter().map(|f| f.points).sum();
