@@ -400,32 +400,41 @@ fn wide_inputs_become_parts_that_keep_a_millimetre() {
 }
 
 /// A LAS header's bounds only place the origin of a part collected while reading;
-/// when they are wrong (here 200 km wide around 400 m of points) the input is read
+/// when they are wrong (200 km wide around 400 m of points, or 400 m of bounds
+/// 20 km off, which f32 would keep to 1 mm but not to 0.01) the input is read
 /// again and converted around its true centre, every point kept.
 #[test]
 fn wrong_header_bounds_are_not_trusted() {
     let dir = tempfile::tempdir().unwrap();
     let good = dir.path().join("good.las");
     pcimg::synth::write_las(&good, 50_000, 3).unwrap();
-    let mut bytes = std::fs::read(&good).unwrap();
-    // Max X (byte 179) and Min X (187) of the public header block.
-    let min_x = f64::from_le_bytes(bytes[187..195].try_into().unwrap());
-    bytes[179..187].copy_from_slice(&(min_x + 200_000.0).to_le_bytes());
-    let bad = dir.path().join("bad.las");
-    std::fs::write(&bad, &bytes).unwrap();
-    let (a, b) = (dir.path().join("a.tif"), dir.path().join("b.tif"));
+    let a = dir.path().join("a.tif");
     let sa = convert::convert(&good, &opts(a.clone(), 1 << 30), &Quiet).unwrap();
-    let sb = convert::convert(&bad, &opts(b.clone(), 1 << 30), &Quiet).unwrap();
-    assert_eq!((sa.points, sb.points), (50_000, 50_000));
-    assert_eq!(dataset_points(&a), dataset_points(&b));
-    let part = &Dataset::open(&b).unwrap().parts[0];
-    let centre = part.meta.bounds.center();
-    assert!((0..3).all(|k| (part.meta.origin[k] - centre[k]).abs() < 1e-6));
-    assert!(
-        sb.max_quantization_error < 1e-4,
-        "{}",
-        sb.max_quantization_error
-    );
+    // Max X (byte 179), Min X (187), Max Y (195) and Min Y (203) of the header.
+    let header = std::fs::read(&good).unwrap();
+    let at = |o: usize| f64::from_le_bytes(header[o..o + 8].try_into().unwrap());
+    let wide = [(179, at(187) + 200_000.0)];
+    let shifted = [179, 187, 195, 203].map(|o| (o, at(o) + 20_000.0));
+    for (k, edits) in [&wide[..], &shifted[..]].into_iter().enumerate() {
+        let mut bytes = header.clone();
+        for &(o, v) in edits {
+            bytes[o..o + 8].copy_from_slice(&v.to_le_bytes());
+        }
+        let bad = dir.path().join(format!("bad{k}.las"));
+        std::fs::write(&bad, &bytes).unwrap();
+        let b = dir.path().join(format!("b{k}.tif"));
+        let sb = convert::convert(&bad, &opts(b.clone(), 1 << 30), &Quiet).unwrap();
+        assert_eq!((sa.points, sb.points), (50_000, 50_000));
+        assert_eq!(dataset_points(&a), dataset_points(&b));
+        let part = &Dataset::open(&b).unwrap().parts[0];
+        let centre = part.meta.bounds.center();
+        assert!((0..3).all(|k| (part.meta.origin[k] - centre[k]).abs() < 1e-6));
+        assert!(
+            sb.max_quantization_error < 1e-5,
+            "{}",
+            sb.max_quantization_error
+        );
+    }
 }
 
 /// Text declares no bounds: a part is collected around its first window's centre.

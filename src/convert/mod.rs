@@ -172,8 +172,9 @@ fn normalize(chunk: &mut PointColumns, like: &PointColumns) {
 
 /// The part collected while reading, around the centre of the input's declared
 /// bounds or of its first window, reaches farther from it than f32 keeps 1 mm,
-/// though not from its own centre: the conversion starts over, holding the points
-/// as read until their bounds are known.
+/// though not from its own centre; or loses 0.1 mm or more there, over 4 times
+/// what its own centre would (a wrong header): the conversion starts over, holding
+/// the points as read until their bounds are known.
 #[derive(Debug)]
 struct OriginTooFar;
 
@@ -211,8 +212,9 @@ pub fn convert_files(
     let r = match convert_with(inputs, o, progress, true) {
         Err(e) if e.downcast_ref::<OriginTooFar>().is_some() => {
             progress.note(
-                "the points reach too far from the centre of the header's bounds or of the \
-                 first window: reading the input again around their own centre",
+                "the points lie too far from the centre of the header's bounds or of the \
+                 first window for f32 to keep their precision: reading the input again \
+                 around their own centre",
             );
             convert_with(inputs, o, progress, false)
         }
@@ -333,9 +335,9 @@ fn convert_with(
     let write_built = |b: store::PartBuilder, parts: &mut Vec<PartSummary>| -> Result<()> {
         check_cancel(o)?;
         let (bounds, origin) = (b.bounds(), b.origin());
-        if reach(&bounds, origin) >= F32_MM_RADIUS
-            && reach(&bounds, bounds.center()) < F32_MM_RADIUS
-        {
+        let (here, best) = (reach(&bounds, origin), reach(&bounds, bounds.center()));
+        let costly = f32_rounding(here) >= 1e-4 && f32_rounding(here) > 4.0 * f32_rounding(best);
+        if (here >= F32_MM_RADIUS && best < F32_MM_RADIUS) || costly {
             return Err(OriginTooFar.into());
         }
         check_precision(&bounds, origin, parts.len(), o, as_file)?;
