@@ -166,6 +166,16 @@ fn budget_far_below_input_gives_spatial_parts_with_every_point() {
     let worst = worst_offset(&dataset_points(&out), &want);
     assert!(worst <= 1, "points differ by {worst} x 0.1 mm");
     assert_parts_disjoint(&out);
+    // Regions written whole (none was split again) record their points' source
+    // bounds, exactly.
+    assert!(s.phases.iter().all(|(name, _)| name != "split"));
+    let ds = Dataset::open(&out).unwrap();
+    let got = ds
+        .parts
+        .iter()
+        .fold(pcimg::points::Bounds::EMPTY, |b, p| b.union(&p.meta.bounds));
+    let (_, read, _) = pcimg::ingest::read_all(&input, &ReadOptions::default()).unwrap();
+    assert_eq!(got, read.bounds());
     // No temporary files left beside the output.
     assert_eq!(entries(dir.path()), ["scan.pcimg", "scan.xyz"]);
 }

@@ -606,6 +606,8 @@ fn convert_with(
                         while let Some(r) = blocks.next_records(usize::MAX)? {
                             b.push_packed(&part_path(parts.len()), r, &names)?;
                         }
+                        // The region's bounds, kept in f64 while spilling.
+                        b.set_source_bounds(f.bounds);
                         drop(blocks);
                         let _ = std::fs::remove_file(&f.path);
                         pass("read back", t_back);

@@ -65,6 +65,21 @@ impl PartBuilder {
         self.bounds
     }
 
+    /// Records `b`, the bounds of the points' source coordinates, as the part's
+    /// bounds: points pushed as f32 offsets (`push_packed`) are bounded from those,
+    /// which lie within the quantization error of the source. Ignored unless `b`
+    /// holds the bounds so far to within that error.
+    pub fn set_source_bounds(&mut self, b: Bounds) {
+        let tolerance = super::writer::quantization_bound(&b, self.origin) * 2.0 + 1e-9;
+        let close = (0..3).all(|a| {
+            (b.min[a] - self.bounds.min[a]).abs() <= tolerance
+                && (b.max[a] - self.bounds.max[a]).abs() <= tolerance
+        });
+        if close {
+            self.bounds = b;
+        }
+    }
+
     /// Appends the points of `c`; `path` names the part in errors. Every chunk must
     /// have the attributes (names and offsets) of the first; coordinates must be
     /// finite (and inside the expected bounds, if any). On an error the builder
