@@ -17,21 +17,14 @@ if [ $# -lt 4 ]; then
 fi
 ROUNDS=$1 A=$2 B=$3 INPUT=$4
 shift 4
+source "$(dirname "$0")/lib.sh"
 OUT=$(mktemp -d)
 trap 'rm -rf "$OUT"' EXIT
 LOG="$OUT/runs.txt"
 for _ in $(seq "$ROUNDS"); do
-  for bin in "$A" "$B"; do
-    rm -rf "$OUT/out"
-    sync
-    /usr/bin/time -f "%e %U %S %M" -o "$OUT/t.txt" "$bin" convert "$INPUT" -o "$OUT/out" -q "$@"
-    read -r wall user sys kib < "$OUT/t.txt"
-    which=$([ "$bin" = "$A" ] && echo old || echo new)
-    printf '%s  wall %6.2f s  user %6.2f s  sys %6.2f s  peak %6.0f MiB\n' \
-      "$which" "$wall" "$user" "$sys" "$((kib / 1024))" | tee -a "$LOG"
-  done
+  run_convert old "$LOG" "$OUT" "$A" "$INPUT" "$@"
+  run_convert new "$LOG" "$OUT" "$B" "$INPUT" "$@"
 done
-median() { sort -g | awk '{ v[NR] = $1 } END { print (NR % 2) ? v[(NR + 1) / 2] : (v[NR / 2] + v[NR / 2 + 1]) / 2 }'; }
-old=$(awk '$1 == "old" { print $3 }' "$LOG" | median)
-new=$(awk '$1 == "new" { print $3 }' "$LOG" | median)
+old=$(median_wall old "$LOG")
+new=$(median_wall new "$LOG")
 awk -v o="$old" -v n="$new" 'BEGIN { printf "median wall: old %.2f s, new %.2f s, new/old %.2f\n", o, n, n / o }'

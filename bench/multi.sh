@@ -11,9 +11,10 @@ if [ $# -lt 3 ]; then
   sed -n 2,9p "$0"
   exit 2
 fi
-ROUNDS=$1 K=$2 INPUT=$3
+ROUNDS=$1 K=$2 INPUT=$(realpath "$3")
 shift 3
 cd "$(dirname "$0")/.."
+source bench/lib.sh
 cargo build --release -q
 BIN=$PWD/target/release/pcimg
 OUT=$(mktemp -d)
@@ -22,17 +23,9 @@ mkdir "$OUT/pieces"
 (cd "$OUT/pieces" && split -n "l/$K" -d --additional-suffix=.xyz "$INPUT" piece)
 LOG="$OUT/runs.txt"
 for _ in $(seq "$ROUNDS"); do
-  for which in one pieces; do
-    rm -rf "$OUT/out"
-    sync
-    if [ "$which" = one ]; then in=$INPUT; else in=$OUT/pieces; fi
-    /usr/bin/time -f "%e %U %S %M" -o "$OUT/t.txt" "$BIN" convert "$in" -o "$OUT/out" -q "$@"
-    read -r wall user sys kib < "$OUT/t.txt"
-    printf '%-6s  wall %6.2f s  user %6.2f s  sys %6.2f s  peak %6.0f MiB\n' \
-      "$which" "$wall" "$user" "$sys" "$((kib / 1024))" | tee -a "$LOG"
-  done
+  run_convert one "$LOG" "$OUT" "$BIN" "$INPUT" "$@"
+  run_convert pieces "$LOG" "$OUT" "$BIN" "$OUT/pieces" "$@"
 done
-median() { sort -g | awk '{ v[NR] = $1 } END { print (NR % 2) ? v[(NR + 1) / 2] : (v[NR / 2] + v[NR / 2 + 1]) / 2 }'; }
-one=$(awk '$1 == "one" { print $3 }' "$LOG" | median)
-pieces=$(awk '$1 == "pieces" { print $3 }' "$LOG" | median)
+one=$(median_wall one "$LOG")
+pieces=$(median_wall pieces "$LOG")
 awk -v o="$one" -v p="$pieces" -v k="$K" 'BEGIN { printf "median wall: one file %.2f s, %d pieces %.2f s, pieces/one %.2f\n", o, k, p, p / o }'
