@@ -849,6 +849,8 @@ fn command_line_takes_files_and_directories() {
     std::fs::write(tiles.join("t1.xyz"), "1 2 3 10\n4 5 6 20\n").unwrap();
     std::fs::write(tiles.join("t2.XYZ"), "7 8 9 30\n").unwrap();
     std::fs::write(tiles.join(".hidden.xyz"), "not a point\n").unwrap();
+    // An empty tile holds no points: left out.
+    std::fs::write(tiles.join("t0.xyz"), "").unwrap();
     std::fs::write(tiles.join("notes.md"), "# survey\n").unwrap();
     let run = |args: &[&str]| {
         Command::new(exe)
@@ -861,7 +863,7 @@ fn command_line_takes_files_and_directories() {
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let text = String::from_utf8_lossy(&o.stdout);
     assert!(
-        text.contains("3 points") && text.contains("2 files"),
+        text.contains("3 points") && text.contains("3 files"),
         "{text}"
     );
     assert!(dir.path().join("tiles.pcimg").is_dir());
@@ -870,34 +872,48 @@ fn command_line_takes_files_and_directories() {
     assert!(String::from_utf8_lossy(&o.stderr).contains("-o"));
     let o = run(&["convert", "tiles/t1.xyz", "tiles/t2.XYZ", "-o", "two.tif"]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    // A directory's name is kept whole in its dataset's name.
+    std::fs::create_dir(dir.path().join("survey.2020")).unwrap();
+    std::fs::copy(tiles.join("t1.xyz"), dir.path().join("survey.2020/a.xyz")).unwrap();
+    let o = run(&["convert", "survey.2020"]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(dir.path().join("survey.2020.pcimg").is_dir());
     std::fs::create_dir(dir.path().join("empty")).unwrap();
     let o = run(&["convert", "empty"]);
     assert!(!o.status.success());
     assert!(String::from_utf8_lossy(&o.stderr).contains("no point-cloud files"));
 }
 
-/// A point far outside the rest (100 km) that the sample does not see still gets
-/// a part of its own: no part is refused for precision, every point is kept to a
-/// millimetre, wherever the point lies in the file.
+/// Points far outside the rest (70 and 140 km off on one side) that the sample
+/// does not see still get parts of their own: no part is refused for precision,
+/// every point is kept to a millimetre, wherever the points lie in the file.
 #[test]
-fn a_far_point_the_sample_misses_gets_its_own_part() {
+fn far_points_the_sample_misses_get_their_own_parts() {
     let dir = tempfile::tempdir().unwrap();
     let base = dir.path().join("base.xyz");
     pcimg::synth::write_text(&base, 300_000, 11).unwrap();
     let text = std::fs::read_to_string(&base).unwrap();
     let lines: Vec<&str> = text.lines().collect();
-    for at in [1_000, 150_001, 299_000] {
+    // (The first ~190,000 points fill pass 1's first part and are all in the
+    // sample; the sample only misses points after them.)
+    let mut repartitioned = 0;
+    for at in [200_500, 230_001, 260_002, 298_000] {
         let mut body = lines[..at].join("\n");
-        body.push_str("\n737000.000 6011000.000 20.000 50\n");
-        body.push_str(&lines[at..].join("\n"));
+        body.push_str("\n777000.000 6011000.000 20.000 50\n");
+        body.push_str(&lines[at..at + 500].join("\n"));
+        body.push_str("\n707000.000 6011000.000 20.000 50\n");
+        body.push_str(&lines[at + 500..].join("\n"));
         body.push('\n');
         let input = dir.path().join("far.xyz");
         std::fs::write(&input, body).unwrap();
         let out = dir.path().join("far.pcimg");
         let mut o = opts(out.clone(), 64 << 20);
         o.sample_points = 20_000;
-        let s = convert::convert(&input, &o, &Quiet).unwrap();
-        assert_eq!(s.points, 300_001);
+        let notes = Notes::default();
+        let s = convert::convert(&input, &o, &notes).unwrap();
+        let notes = notes.0.into_inner().unwrap();
+        repartitioned += notes.iter().any(|n| n.contains("partitioning again")) as usize;
+        assert_eq!(s.points, 300_002);
         assert!(
             s.max_quantization_error < 0.001,
             "{}",
@@ -905,12 +921,73 @@ fn a_far_point_the_sample_misses_gets_its_own_part() {
         );
         assert!(worst_offset(&dataset_points(&out), &file_points(&input)) <= 1);
         let ds = Dataset::open(&out).unwrap();
-        assert!(
-            ds.parts
-                .iter()
-                .any(|p| p.meta.bounds.min[0] > 700_000.0 && p.meta.point_count == 1),
-            "the far point has no part of its own"
-        );
+        for x in [707_000.0, 777_000.0] {
+            assert!(
+                ds.parts
+                    .iter()
+                    .any(|p| p.meta.bounds.min[0] == x && p.meta.point_count == 1),
+                "the point at x = {x} has no part of its own"
+            );
+        }
         std::fs::remove_dir_all(&out).unwrap();
     }
+    assert!(
+        repartitioned > 0,
+        "the sample saw the far points every time"
+    );
+}
+
+/// Files whose attribute offsets differ widely (GPS times a month apart) are
+/// stored around one offset; the precision that costs is said. An empty LAS tile
+/// (no points, zero bounds) does not make its header bounds count.
+#[test]
+fn several_files_note_what_one_offset_costs() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let (a, b) = (d.join("a.xyz"), d.join("b.xyz"));
+    let lines = |t0: f64| -> String {
+        (0..100)
+            .map(|i| format!("{} 2 3 {:.6}\n", i, t0 + i as f64 * 0.001))
+            .collect()
+    };
+    std::fs::write(&a, format!("x y z gps_time\n{}", lines(3.0e8))).unwrap();
+    std::fs::write(&b, format!("x y z gps_time\n{}", lines(3.026e8))).unwrap();
+    let notes = Notes::default();
+    let s = convert::convert_files(
+        &[a.clone(), b.clone()],
+        &opts(d.join("ab.tif"), 1 << 30),
+        &notes,
+    )
+    .unwrap();
+    assert_eq!(s.points, 200);
+    let notes = notes.0.into_inner().unwrap();
+    assert!(
+        notes
+            .iter()
+            .any(|n| n.starts_with("gps_time: the input files' values lie up to 2,600,")),
+        "{notes:?}"
+    );
+    // Close offsets: nothing to say.
+    let notes = Notes::default();
+    std::fs::write(&b, format!("x y z gps_time\n{}", lines(3.0e8 + 60.0))).unwrap();
+    convert::convert_files(&[a, b], &opts(d.join("ab2.tif"), 1 << 30), &notes).unwrap();
+    let notes = notes.0.into_inner().unwrap();
+    assert!(!notes.iter().any(|n| n.contains("offset")), "{notes:?}");
+    // An empty LAS tile between two others.
+    let z1 = synth(d, "z1.las", 20_000);
+    let z2 = synth(d, "z2.las", 20_000);
+    let z0 = d.join("z0.las");
+    let mut h = las::Builder::from((1, 2));
+    h.point_format = las::point::Format::new(1).unwrap();
+    let w = las::Writer::from_path(&z0, h.into_header().unwrap()).unwrap();
+    drop(w);
+    // Its header's bounds: all zero, as writers leave them.
+    let mut bytes = std::fs::read(&z0).unwrap();
+    bytes[179..227].fill(0);
+    std::fs::write(&z0, bytes).unwrap();
+    let notes = Notes::default();
+    let s = convert::convert_files(&[z1, z0, z2], &opts(d.join("z.tif"), 1 << 30), &notes).unwrap();
+    assert_eq!(s.points, 40_000);
+    let notes = notes.0.into_inner().unwrap();
+    assert!(!notes.iter().any(|n| n.contains("again")), "{notes:?}");
 }

@@ -193,8 +193,10 @@ fn default_output(args: &[PathBuf]) -> anyhow::Result<PathBuf> {
                 .find(|c| !matches!(c, Component::CurDir));
             match named {
                 Some(Component::Normal(name)) => {
-                    let mut out = PathBuf::from(name);
-                    out.set_extension("pcimg");
+                    // Appended, not set: `survey.2020/` → `survey.2020.pcimg`.
+                    let mut out = name.to_owned();
+                    out.push(".pcimg");
+                    let out = PathBuf::from(out);
                     let parent = one.components().as_path().parent();
                     Ok(parent.map_or(out.clone(), |p| p.join(&out)))
                 }

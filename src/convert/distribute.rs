@@ -33,6 +33,7 @@ pub(super) fn distribute(
     origins: &[[f64; 3]],
     like: &PointColumns,
     dir: &Path,
+    rebased: &std::cell::Cell<bool>,
 ) -> Result<Vec<Spilled>> {
     // (`ingest::open` refuses more attributes than a record carries:
     // `points::MAX_ATTRIBUTES`.)
@@ -51,7 +52,7 @@ pub(super) fn distribute(
         |sink| {
             while let Some(mut chunk) = reader.next_chunk()? {
                 check_cancel(o)?;
-                normalize(&mut chunk, like);
+                normalize(&mut chunk, like, progress, rebased);
                 seen += chunk.len() as u64;
                 sink(chunk)?;
                 progress.advance(reader.bytes_done(), seen);

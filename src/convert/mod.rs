@@ -19,6 +19,7 @@ use crate::points::{Bounds, PointColumns};
 use crate::store::{self, Compression, Layout, PartSummary, WriteOptions};
 use partition::CountGrid;
 use rayon::prelude::*;
+use std::cell::Cell;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -157,15 +158,38 @@ fn output_is_file(p: &Path) -> bool {
         .is_some_and(|e| matches!(e.to_ascii_lowercase().as_str(), "tif" | "tiff"))
 }
 
-/// Brings a chunk's attribute offsets to those of `like` (readers may change them).
-fn normalize(chunk: &mut PointColumns, like: &PointColumns) {
+/// Brings a chunk's attribute offsets to those of `like` (each input file decides
+/// its own: see `ingest::attribute_offset`). Where the values then lie so far
+/// from the common offset that f32 keeps only steps of a millisecond (GPS
+/// seconds) or coarser, says so once through `progress` (`noted`).
+fn normalize(
+    chunk: &mut PointColumns,
+    like: &PointColumns,
+    progress: &dyn Progress,
+    noted: &Cell<bool>,
+) {
     for (a, r) in chunk.attributes.iter_mut().zip(&like.attributes) {
         if a.offset != r.offset {
             let shift = a.offset - r.offset;
-            a.values
+            let far = a
+                .values
                 .par_iter_mut()
-                .for_each(|v| *v = (*v as f64 + shift) as f32);
+                .map(|v| {
+                    *v = (*v as f64 + shift) as f32;
+                    v.abs()
+                })
+                .reduce(|| 0.0, f32::max);
             a.offset = r.offset;
+            let step = 2.0 * f32_rounding(far as f64);
+            if step >= 1e-3 && !noted.replace(true) {
+                progress.note(&format!(
+                    "{}: the input files' values lie up to {} apart; stored as f32 around one \
+                     offset they keep steps of {} (convert the files separately for finer)",
+                    crate::text::sanitize(&a.name),
+                    crate::text::count(far as u64),
+                    step
+                ));
+            }
         }
     }
 }
@@ -351,6 +375,8 @@ fn convert_with(
     };
 
     let mut total = 0u64;
+    // Whether attribute values were noted to lose precision on a common offset.
+    let rebased = Cell::new(false);
     // A pass starts with the clock and the write time so far; its time is the
     // wall time since, less the parts written meanwhile.
     let begin = || (Instant::now(), written.get());
@@ -369,7 +395,7 @@ fn convert_with(
                 total += chunk.len() as u64;
                 progress.advance(reader.bytes_done(), total);
                 let a = acc.get_or_insert_with(|| chunk.empty_like());
-                normalize(&mut chunk, a);
+                normalize(&mut chunk, a, progress, &rebased);
                 // Fill the current part up to the budget; the rest starts the next.
                 // A full part is written once more points arrive (so an input of
                 // exactly one part's size still fits a single-file output).
@@ -414,7 +440,7 @@ fn convert_with(
                 total += chunk.len() as u64 * weight;
                 progress.advance(reader.bytes_done(), total);
                 let l = like.get_or_insert_with(|| chunk.empty_like());
-                normalize(&mut chunk, l);
+                normalize(&mut chunk, l, progress, &rebased);
                 let here = chunk.bounds();
                 bounds = bounds.union(&here);
                 // The sample is only needed once the points overflow one part.
@@ -488,10 +514,13 @@ fn convert_with(
                 // margin for its error, and the origin of each.
                 let scale = sample.seen as f64 / sample.pts.len().max(1) as f64;
                 let target = ((per_part as f64 * 0.85) / scale).max(1.0) as u64;
-                let plan = |bounds: Bounds, extra: &[[f64; 3]]| {
+                let plan = |bounds: Bounds, occupied: &[bool]| {
                     let mut grid = CountGrid::new(bounds);
-                    for p in sample.pts.iter().chain(extra) {
+                    for p in &sample.pts {
                         grid.add(*p);
+                    }
+                    for (c, _) in grid.counts.iter_mut().zip(occupied).filter(|(_, o)| **o) {
+                        *c = (*c).max(1);
                     }
                     let regions = partition::split(&grid, target, MAX_EXTENT);
                     let cell_region = partition::cell_regions(&grid, &regions);
@@ -502,6 +531,7 @@ fn convert_with(
                     (grid, regions, cell_region, origins)
                 };
                 let (mut grid, mut regions, mut cell_region, mut origins) = plan(bounds, &[]);
+                let nattr = like.attributes.len();
                 progress.note(&format!(
                     "{}{} points over {} spatial regions",
                     if weight > 1 { "about " } else { "" },
@@ -529,26 +559,35 @@ fn convert_with(
                         origins,
                         &like,
                         &tmp.path,
+                        &rebased,
                     )
                 };
                 let mut files = spill_with(&mut reader, &grid, &regions, &cell_region, &origins)?;
                 // Points far outside the bounds the sample saw join the nearest
                 // region, which can then spread wider than f32 keeps 1 mm across
                 // wherever its origin. The regions are then placed again over
-                // every point's bounds, the corners of each region's bounds
-                // counted as points (so far points get regions of their own).
+                // every point's bounds, every grid cell that holds a point of
+                // such a region counted as occupied (read back from its file:
+                // its f32 offsets place points well enough for that), so the far
+                // points get regions of their own.
                 let wide = |f: &Spilled| reach(&f.bounds, f.bounds.center()) >= F32_MM_RADIUS;
                 if files.iter().any(wide) {
                     progress.note(
                         "points lie far outside the bounds the sample saw: partitioning again",
                     );
                     let all = files.iter().fold(Bounds::EMPTY, |a, f| a.union(&f.bounds));
-                    let corners: Vec<[f64; 3]> = files
-                        .iter()
-                        .filter(|f| !f.bounds.is_empty())
-                        .flat_map(|f| [f.bounds.min, f.bounds.max])
-                        .collect();
-                    (grid, regions, cell_region, origins) = plan(all, &corners);
+                    let probe = CountGrid::new(all);
+                    let mut occupied = vec![false; probe.counts.len()];
+                    for f in files.iter().filter(|f| wide(f)) {
+                        let mut blocks = spill::SpillReader::open(&f.path, nattr)?;
+                        while let Some(c) = blocks.next_block(&like, 1 << 20, f.origin)? {
+                            check_cancel(o)?;
+                            for i in 0..c.len() {
+                                occupied[probe.index(probe.cell([c.x[i], c.y[i], c.z[i]]))] = true;
+                            }
+                        }
+                    }
+                    (grid, regions, cell_region, origins) = plan(all, &occupied);
                     files = spill_with(&mut reader, &grid, &regions, &cell_region, &origins)?;
                 }
                 // Points the sample never saw can lie far outside their region's
@@ -579,7 +618,6 @@ fn convert_with(
                 progress.phase("write", total, "points");
                 let mut done = 0u64;
                 let mut splits = 0usize;
-                let nattr = like.attributes.len();
                 let names: Vec<(String, f64)> = like
                     .attributes
                     .iter()

@@ -621,13 +621,13 @@ impl LineEngine {
         if wanted == 0 {
             return Ok(());
         }
+        // Lines with something on them (a blank line is not an item).
         let rest = &data[self.pos.min(end)..end];
-        let newlines = memchr::memchr_iter(b'\n', rest)
+        let have = rest
+            .split(|&c| c == b'\n')
+            .filter(|l| !l.trim_ascii().is_empty())
             .take(wanted as usize)
             .count() as u64;
-        // A last line without its newline counts too.
-        let tail = rest.last().is_some_and(|&c| c != b'\n');
-        let have = newlines + (newlines < wanted && tail) as u64;
         if have >= wanted {
             return Ok(());
         }
@@ -639,9 +639,12 @@ impl LineEngine {
                 before > have
             })
             .unwrap_or(&after[after.len() - 1]);
+        // The file ends on the line after its last one.
+        let lines = memchr::memchr_iter(b'\n', rest).count() as u64
+            + rest.last().is_some_and(|&c| c != b'\n') as u64;
         Err(IngestError::line(
             &self.path,
-            self.line + have,
+            self.line + lines,
             format!(
                 "truncated file: the file ends inside element '{}' ({} of the {} lines \
                  the header declares after the vertices are missing)",

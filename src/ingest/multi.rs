@@ -5,7 +5,8 @@
 //! * Every file is opened once up front (headers only, no points decoded) so that a
 //!   mismatch is reported before hours of work: the files must carry the same
 //!   attributes in the same order, and no two may declare different coordinate
-//!   reference systems. Each error names both files.
+//!   reference systems (compared word by word). Each error names both files.
+//!   Empty (zero-byte) files are left out.
 //! * Then the files are read one after the other, one reader open at a time; each
 //!   reader's own errors name its file (and line or byte offset).
 //! * Each file keeps its own colour scale and GPS-time offset; the converter brings
@@ -52,6 +53,18 @@ pub fn open_all(
 
 impl MultiReader {
     pub fn open(paths: &[PathBuf], opts: &ReadOptions) -> Result<MultiReader, IngestError> {
+        // Empty files (a tile with nothing in it) hold no points: left out, unless
+        // every file is empty (then the first one's error says so).
+        let sized: Vec<PathBuf> = paths
+            .iter()
+            .filter(|p| std::fs::metadata(p).map_or(true, |m| m.len() > 0))
+            .cloned()
+            .collect();
+        let paths = if sized.is_empty() {
+            &paths[..1]
+        } else {
+            &sized[..]
+        };
         let mut seen = HashSet::new();
         let mut infos: Vec<SourceInfo> = Vec::with_capacity(paths.len());
         let mut kinds = Vec::with_capacity(paths.len());
@@ -126,8 +139,9 @@ fn merge(infos: &[SourceInfo]) -> Result<SourceInfo, IngestError> {
             ));
         }
         if let Some(c) = &i.crs_wkt {
+            let words = |s: &str| s.split_whitespace().collect::<Vec<_>>().join(" ");
             match crs {
-                Some((p, known)) if known != c => {
+                Some((p, known)) if words(known) != words(c) => {
                     return Err(IngestError::format(
                         &i.path,
                         format!(
@@ -157,12 +171,17 @@ fn merge(infos: &[SourceInfo]) -> Result<SourceInfo, IngestError> {
         format: formats.join(", "),
         declared_points: all(&|i| i.declared_points.is_some())
             .then(|| infos.iter().filter_map(|i| i.declared_points).sum()),
-        declared_bounds: all(&|i| i.declared_bounds.is_some()).then(|| {
-            infos
-                .iter()
-                .filter_map(|i| i.declared_bounds)
-                .fold(crate::points::Bounds::EMPTY, |a, b| a.union(&b))
-        }),
+        // (A file that declares no points declares no bounds either, whatever
+        // its header holds.)
+        declared_bounds: all(&|i| i.declared_bounds.is_some() || i.declared_points == Some(0))
+            .then(|| {
+                infos
+                    .iter()
+                    .filter(|i| i.declared_points != Some(0))
+                    .filter_map(|i| i.declared_bounds)
+                    .fold(crate::points::Bounds::EMPTY, |a, b| a.union(&b))
+            })
+            .filter(|b| !b.is_empty()),
         crs_wkt: crs.map(|(_, c)| c.clone()),
         attribute_names: first.attribute_names.clone(),
         file_bytes: infos.iter().map(|i| i.file_bytes).sum(),

@@ -1000,6 +1000,12 @@ mod tests {
         );
         std::fs::write(&q, text.strip_suffix('\n').unwrap()).unwrap();
         assert_eq!(read_all(&q, &ReadOptions::default()).unwrap().1.len(), 100);
+        // A blank line is not an item.
+        std::fs::write(&q, text.replace("1 2\n", "\n")).unwrap();
+        let e = read_all(&q, &ReadOptions::default())
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("'edge' (1 of the 2"), "{e}");
     }
 
     #[test]

@@ -118,8 +118,12 @@ fn decimal_commas(line: &[u8]) -> bool {
         .split(|&c| c.is_ascii_whitespace() || c == b';')
         .filter(|f| !f.is_empty())
         .collect();
+    // Commas next to blanks ("10,20, 30,40") separate fields.
+    let spaced = line.windows(2).any(|w| {
+        (w[0] == b',' && w[1].is_ascii_whitespace()) || (w[1] == b',' && w[0].is_ascii_whitespace())
+    });
     (fields.len() >= 3 && fields.iter().all(|f| decimal(f)))
-        || (parts.len() >= 2 && parts.iter().any(|f| decimal(f)))
+        || (!spaced && parts.len() >= 2 && parts.iter().any(|f| decimal(f)))
 }
 
 /// Whether two commas or semicolons follow each other with only blanks between
