@@ -37,9 +37,10 @@ pub struct Args {
     /// Tile compression: none (fastest to load), deflate or zstd.
     #[arg(long, default_value = "none", value_parser = Compression::parse)]
     pub compression: Compression,
-    /// Point layout: hilbert (Hilbert order, centroid representatives: even levels)
-    /// or paper (as Du & Li 2009: file order, row-major image, every other row and
-    /// column per level).
+    /// Point layout: hilbert (Hilbert order, centroid representatives: every level
+    /// a spatially even sample) or paper (as Du & Li 2009: file order, row-major
+    /// image, every other row and column per level; converts about twice as fast,
+    /// but its coarser levels thin the cloud as unevenly as the file's order).
     #[arg(long, default_value = "hilbert", value_parser = ["hilbert", "paper"])]
     pub layout: String,
     /// Text columns, e.g. "x y z intensity r g b"; "_" skips a column.
