@@ -15,8 +15,8 @@
 //!   parallel over each window with rayon.
 //! * A file shorter than its header declares is an error naming the byte offset
 //!   (binary) or the line (ASCII), also when it ends inside the elements after the
-//!   vertices (binary: checked at open, list items walked; ASCII: their lines
-//!   counted once the vertices are read).
+//!   vertices (checked once the vertices are read: binary items walked, list
+//!   lengths included; ASCII lines counted).
 
 use crate::bigvec;
 use std::path::Path;
@@ -407,12 +407,6 @@ pub fn open(path: &Path, opts: &ReadOptions) -> Result<Box<dyn PointReader>, Ing
             ),
         ));
     }
-    // The elements after the vertices are never read, but a file cut short inside
-    // them is truncated all the same.
-    let mut end = needed;
-    for el in &header.elements[plan.element + 1..] {
-        end = skip_binary_element(path, &map, end, el, be)?;
-    }
     // Attribute offsets from the first vertices.
     let mut plan = plan;
     let first = count.min(super::OFFSET_SAMPLE as u64) as usize;
@@ -430,6 +424,7 @@ pub fn open(path: &Path, opts: &ReadOptions) -> Result<Box<dyn PointReader>, Ing
         }
     }
     plan.layout.offsets = offsets;
+    let after = header.elements[plan.element + 1..].to_vec();
     Ok(Box::new(BinaryPly {
         info,
         map,
@@ -443,6 +438,7 @@ pub fn open(path: &Path, opts: &ReadOptions) -> Result<Box<dyn PointReader>, Ing
         skip_invalid: opts.skip_invalid,
         skipped: 0,
         released: 0,
+        after,
     }))
 }
 
@@ -519,6 +515,9 @@ struct BinaryPly {
     skip_invalid: bool,
     skipped: u64,
     released: usize,
+    /// The elements after the vertex element: never read, but walked once the
+    /// vertices are, since a file cut short inside them is truncated all the same.
+    after: Vec<Element>,
 }
 
 /// Whether point `i` has finite coordinates.
@@ -652,6 +651,10 @@ impl BinaryPly {
     /// Reads the next window; `Some(empty)` when every point of it was skipped.
     fn next_window(&mut self) -> Result<Option<PointColumns>, IngestError> {
         if self.done >= self.count {
+            let mut end = (self.start + self.count as usize * self.plan.stride) as u64;
+            for el in std::mem::take(&mut self.after) {
+                end = skip_binary_element(&self.info.path, &self.map, end, &el, self.be)?;
+            }
             return Ok(None);
         }
         let n = (self.count - self.done).min(self.chunk_points as u64) as usize;
