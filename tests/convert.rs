@@ -863,7 +863,7 @@ fn command_line_takes_files_and_directories() {
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let text = String::from_utf8_lossy(&o.stdout);
     assert!(
-        text.contains("3 points") && text.contains("3 files"),
+        text.contains("3 points") && text.contains("3 files, 1 empty left out"),
         "{text}"
     );
     assert!(dir.path().join("tiles.pcimg").is_dir());

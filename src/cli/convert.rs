@@ -266,10 +266,22 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         .unwrap_or(0);
     let shown = |p: &PathBuf| sanitize(&p.display().to_string());
     let (from, files) = match s.inputs.as_slice() {
-        [first, .., last] => (
-            format!("{} … {}", shown(first), shown(last)),
-            format!("{} files, ", s.inputs.len()),
-        ),
+        [first, .., last] => {
+            let empty = s
+                .inputs
+                .iter()
+                .filter(|p| std::fs::metadata(p).is_ok_and(|m| m.len() == 0))
+                .count();
+            let left_out = if empty > 0 {
+                format!(", {empty} empty left out")
+            } else {
+                String::new()
+            };
+            (
+                format!("{} … {}", shown(first), shown(last)),
+                format!("{} files{left_out}, ", s.inputs.len()),
+            )
+        }
         [one] => (shown(one), String::new()),
         [] => (String::new(), String::new()),
     };

@@ -105,7 +105,12 @@ pub(crate) fn excerpt(raw: &[u8]) -> String {
     let cut = &raw[..raw.len().min(EXCERPT_CHARS * 4)];
     let s = String::from_utf8_lossy(cut);
     let s = s.trim_end_matches(['\n', '\r']);
-    let mut out: String = s.chars().take(EXCERPT_CHARS).collect();
+    // (Tabs separate columns: shown as a space, not as a replaced control.)
+    let mut out: String = s
+        .chars()
+        .take(EXCERPT_CHARS)
+        .map(|c| if c == '\t' { ' ' } else { c })
+        .collect();
     let truncated = s.chars().count() > EXCERPT_CHARS || cut.len() < raw.len();
     out = crate::text::sanitize(&out);
     if truncated {
@@ -126,6 +131,7 @@ mod tests {
         assert!(e.ends_with('…'));
         let e = excerpt(b"1 2 \x1b[2J3\r\n");
         assert!(!e.chars().any(|c| c.is_control()));
+        assert_eq!(excerpt(b"1\t2\t3\n"), "1 2 3");
         assert!(e.starts_with("1 2 "));
     }
 

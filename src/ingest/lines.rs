@@ -264,6 +264,8 @@ enum LineFault {
     NonFinite,
     /// Two delimiters (`,` or `;`) in a row: a column left empty.
     EmptyField,
+    /// A blank or comment line where every line is an item (ASCII PLY).
+    NotAnItem,
 }
 
 impl LineFault {
@@ -273,6 +275,11 @@ impl LineFault {
             LineFault::Columns(found) => format!("expected {ncols} columns, found {found}"),
             LineFault::NonFinite => "coordinate is not finite (NaN or infinity)".into(),
             LineFault::EmptyField => "a column is empty (two delimiters in a row)".into(),
+            LineFault::NotAnItem => {
+                "a blank or comment line where the header declares a vertex (PLY has one \
+                 vertex a line)"
+                    .into()
+            }
         }
     }
 }
@@ -307,12 +314,15 @@ fn count_lines(buf: &[u8]) -> usize {
 }
 
 /// Parses the lines of `buf` (which ends at a line boundary or at the end of data)
-/// into `out`, which has a slot for every line.
+/// into `out`, which has a slot for every line. With `items` (ASCII PLY, whose
+/// header counts the vertex lines) a blank or comment line is an error even when
+/// skipping invalid lines: passed over, it would take a vertex's place in the count.
 fn parse_piece(
     buf: &[u8],
     layout: &Layout,
     skip_invalid: bool,
     allow_count_lines: bool,
+    items: bool,
     out: &mut Out,
 ) -> Piece {
     let ncols = layout.ncols();
@@ -330,12 +340,18 @@ fn parse_piece(
             break;
         }
         let c = buf[i];
+        let comment = c == b'#' || (c == b'/' && i + 1 < n && buf[i + 1] == b'/');
+        if items && (c == b'\n' || comment) {
+            let end = memchr::memchr(b'\n', &buf[line_start..]).map_or(n, |k| line_start + k);
+            p.error = Some((p.lines, LineFault::NotAnItem, line_start, end));
+            break;
+        }
         if c == b'\n' {
             p.lines += 1;
             i += 1;
             continue;
         }
-        if c == b'#' || (c == b'/' && i + 1 < n && buf[i + 1] == b'/') {
+        if comment {
             i = match memchr::memchr(b'\n', &buf[i..]) {
                 Some(k) => i + k + 1,
                 None => n,
@@ -757,6 +773,7 @@ impl LineEngine {
     ) -> Result<(Option<PointColumns>, u64, u64), IngestError> {
         let layout = &self.layout;
         let count = self.allow_count_lines;
+        let items = self.lines_left.is_some();
         // A slot per line, so the pieces parse straight into the window's columns.
         let slots: Vec<usize> = ranges.par_iter().map(|r| count_lines(r)).collect();
         let total_slots: usize = slots.iter().sum();
@@ -789,7 +806,7 @@ impl LineEngine {
             ranges
                 .par_iter()
                 .zip(outs)
-                .map(|(r, mut o)| parse_piece(r, layout, skip, count, &mut o))
+                .map(|(r, mut o)| parse_piece(r, layout, skip, count, items, &mut o))
                 .collect()
         };
         let mut lines = 0u64;

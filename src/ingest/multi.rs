@@ -5,7 +5,7 @@
 //! * Every file is opened once up front (headers only, no points decoded) so that a
 //!   mismatch is reported before hours of work: the files must carry the same
 //!   attributes in the same order, and no two may declare different coordinate
-//!   reference systems (compared word by word). Each error names both files.
+//!   reference systems (compared without the whitespace outside quoted names). Each error names both files.
 //!   Empty (zero-byte) files are left out.
 //! * Then the files are read one after the other, one reader open at a time; each
 //!   reader's own errors name its file (and line or byte offset).
@@ -139,9 +139,8 @@ fn merge(infos: &[SourceInfo]) -> Result<SourceInfo, IngestError> {
             ));
         }
         if let Some(c) = &i.crs_wkt {
-            let words = |s: &str| s.split_whitespace().collect::<Vec<_>>().join(" ");
             match crs {
-                Some((p, known)) if words(known) != words(c) => {
+                Some((p, known)) if crs_key(known) != crs_key(c) => {
                     return Err(IngestError::format(
                         &i.path,
                         format!(
@@ -186,6 +185,18 @@ fn merge(infos: &[SourceInfo]) -> Result<SourceInfo, IngestError> {
         attribute_names: first.attribute_names.clone(),
         file_bytes: infos.iter().map(|i| i.file_bytes).sum(),
     })
+}
+
+/// A CRS as compared: WKT without the whitespace outside its quoted names (pretty
+/// printed and compact WKT are the same CRS).
+fn crs_key(s: &str) -> String {
+    let mut quoted = false;
+    s.chars()
+        .filter(|&c| {
+            quoted ^= c == '"';
+            quoted || !c.is_whitespace()
+        })
+        .collect()
 }
 
 fn differ(path: &Path, names: &[String], other: &Path, other_names: &[String]) -> IngestError {
@@ -279,6 +290,16 @@ mod tests {
         ])
         .unwrap();
         assert_eq!(m.crs_wkt.as_deref(), Some("EPSG:2992"));
+        // Pretty-printed and compact WKT are one CRS; a name that differs is not.
+        let wkt = |s: &str| info("w.las", &["intensity"], Some(s));
+        assert!(
+            merge(&[
+                wkt(r#"GEOGCS["WGS 84",DATUM["x"]]"#),
+                wkt("GEOGCS[\"WGS 84\",\n  DATUM[ \"x\" ] ]")
+            ])
+            .is_ok()
+        );
+        assert!(merge(&[wkt(r#"GEOGCS["WGS 84"]"#), wkt(r#"GEOGCS["WGS  84"]"#)]).is_err());
         assert_eq!((m.declared_points, m.file_bytes), (Some(30), 300));
         assert_eq!(m.format, "las 1.4");
     }

@@ -976,6 +976,33 @@ mod tests {
         }
     }
 
+    /// A blank or comment line among ASCII vertices is an error, even when skipping
+    /// invalid lines: counted as a vertex, it pushed the last vertex out unseen.
+    #[test]
+    fn blank_lines_among_ascii_vertices_are_errors() {
+        let d = tempfile::tempdir().unwrap();
+        let head = "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\n\
+                    property float z\nend_header\n";
+        for (name, body) in [
+            ("blank.ply", "1 2 3\n\n4 5 6\n7 8 9\n"),
+            ("hash.ply", "1 2 3\n# c\n4 5 6\n7 8 9\n"),
+        ] {
+            let p = d.path().join(name);
+            std::fs::write(&p, format!("{head}{body}")).unwrap();
+            for skip_invalid in [false, true] {
+                let opts = ReadOptions {
+                    skip_invalid,
+                    ..Default::default()
+                };
+                let e = read_all(&p, &opts).unwrap_err().to_string();
+                assert!(
+                    e.contains(&format!("{name}: line 9: a blank or comment line")),
+                    "{e}"
+                );
+            }
+        }
+    }
+
     /// A file cut short inside the element after the vertices (here two edges) is
     /// truncated too, though its vertices are whole; a last line without its
     /// newline is not a cut.

@@ -86,10 +86,15 @@ fn header_names(line: &[u8]) -> Vec<String> {
     // A header with commas or semicolons is split on them only, so names may
     // hold spaces; otherwise on any separator.
     let raw: Vec<String> = if line.iter().any(|&b| b == b',' || b == b';') {
-        line.split(|&b| b == b',' || b == b';')
-            .map(clean)
-            .filter(|n| !n.is_empty())
-            .collect()
+        // (Not inside double quotes: `"area (1,000 m2)"` is one name.)
+        let mut quoted = false;
+        line.split(|&b| {
+            quoted ^= b == b'"';
+            !quoted && (b == b',' || b == b';')
+        })
+        .map(clean)
+        .filter(|n| !n.is_empty())
+        .collect()
     } else {
         tokens(line).map(clean).collect()
     };
@@ -172,8 +177,12 @@ fn scan_preamble(data: &[u8], start: usize) -> Preamble {
         } else {
             let toks: Vec<&[u8]> = tokens(t).collect();
             let numeric = toks.iter().all(|t| token_number(t).is_some());
+            // A line that starts with a number is a point line, a bad one if the
+            // rest is not numbers ("1,2,3 # note"): the engine reports it, rather
+            // than it being taken for a header and its point lost.
+            let starts_numeric = toks.first().is_some_and(|t| token_number(t).is_some());
             if !numeric {
-                if !seen_content {
+                if !seen_content && !starts_numeric {
                     pre.header = Some(header_names(t));
                     pre.data_start = next;
                     pre.data_line = line_no + 1;
@@ -426,6 +435,15 @@ mod tests {
         let p = write(&d, "c.xyz", "# x y z in metres\n1 2 3 4\n");
         let (c, names, _) = read(&p, &ReadOptions::default()).unwrap();
         assert_eq!((c.len(), names), (1, vec!["intensity".to_string()]));
+        // A quoted name may hold a comma.
+        let p = write(&d, "q.csv", "x,y,z,\"area (1,000 m2)\"\n1,2,3,4\n");
+        let (_, names, _) = read(&p, &ReadOptions::default()).unwrap();
+        assert_eq!(names, ["area_(1,000_m2)"]);
+        // A first line that starts with numbers is a point line, not a header:
+        // its trailing note is reported, not its point lost.
+        let p = write(&d, "note.csv", "1,2,3 # note\n4,5,6\n");
+        let e = read(&p, &ReadOptions::default()).unwrap_err().to_string();
+        assert!(e.contains("note.csv: line 1: not a number"), "{e}");
         let p = write(&d, "dup.csv", "x,y,z,x\n1,2,3,4\n");
         let e = read(&p, &ReadOptions::default()).unwrap_err().to_string();
         assert!(
