@@ -174,13 +174,7 @@ fn is_point_cloud(p: &std::path::Path) -> bool {
     let hidden = p
         .file_name()
         .is_some_and(|n| n.to_string_lossy().starts_with('.'));
-    let ext = p
-        .extension()
-        .map(|e| e.to_string_lossy().to_ascii_lowercase())
-        .unwrap_or_default();
-    !hidden
-        && (matches!(ext.as_str(), "ply" | "las" | "laz")
-            || crate::ingest::TEXT_EXTENSIONS.contains(&ext.as_str()))
+    !hidden && crate::ingest::kind_by_extension(p).is_some()
 }
 
 /// The default output: `INPUT.pcimg` beside one file or directory.
@@ -270,7 +264,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
             let empty = s
                 .inputs
                 .iter()
-                .filter(|p| std::fs::metadata(p).is_ok_and(|m| m.len() == 0))
+                .filter(|p| crate::ingest::multi::is_empty_file(p))
                 .count();
             let left_out = if empty > 0 {
                 format!(", {empty} empty left out")

@@ -157,6 +157,17 @@ pub enum InputKind {
 /// Extensions read as text.
 pub const TEXT_EXTENSIONS: &[&str] = &["xyz", "txt", "csv", "asc", "pts"];
 
+/// The format a file's extension names (any case), if it names one.
+pub fn kind_by_extension(path: &Path) -> Option<InputKind> {
+    let ext = path.extension()?.to_str()?.to_ascii_lowercase();
+    match ext.as_str() {
+        "ply" => Some(InputKind::Ply),
+        "las" | "laz" => Some(InputKind::Las),
+        e if TEXT_EXTENSIONS.contains(&e) => Some(InputKind::Text),
+        _ => None,
+    }
+}
+
 /// Detects the format of `path` from its first bytes, then its extension.
 pub fn detect(path: &Path) -> Result<InputKind, IngestError> {
     let mut magic = [0u8; 4];
@@ -176,15 +187,15 @@ pub fn detect(path: &Path) -> Result<InputKind, IngestError> {
     if n == 4 && &magic == b"LASF" {
         return Ok(InputKind::Las);
     }
+    if let Some(kind) = kind_by_extension(path) {
+        return Ok(kind);
+    }
     let ext = path
         .extension()
         .and_then(|e| e.to_str())
         .map(|e| e.to_ascii_lowercase())
         .unwrap_or_default();
     match ext.as_str() {
-        "ply" => Ok(InputKind::Ply),
-        "las" | "laz" => Ok(InputKind::Las),
-        e if TEXT_EXTENSIONS.contains(&e) => Ok(InputKind::Text),
         "" => Err(IngestError::format(
             path,
             "unknown input format: no file extension and no recognised signature \

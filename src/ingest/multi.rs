@@ -20,6 +20,11 @@ use std::path::{Path, PathBuf};
 use super::{IngestError, InputKind, PointReader, ReadOptions, SourceInfo, detect, open};
 use crate::points::PointColumns;
 
+/// Whether `path` is an empty (zero-byte) file: one [`MultiReader`] leaves out.
+pub fn is_empty_file(path: &Path) -> bool {
+    std::fs::metadata(path).is_ok_and(|m| m.is_file() && m.len() == 0)
+}
+
 /// Reads `paths` in order as one input.
 pub struct MultiReader {
     paths: Vec<PathBuf>,
@@ -57,7 +62,7 @@ impl MultiReader {
         // every file is empty (then the first one's error says so).
         let sized: Vec<PathBuf> = paths
             .iter()
-            .filter(|p| std::fs::metadata(p).map_or(true, |m| m.len() > 0))
+            .filter(|p| !is_empty_file(p))
             .cloned()
             .collect();
         let paths = if sized.is_empty() {
