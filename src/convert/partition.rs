@@ -10,6 +10,9 @@ pub struct CountGrid {
     pub bounds: Bounds,
     pub dims: [usize; 3],
     pub counts: Vec<u64>,
+    /// Cells per world unit on each axis (0 on a flat axis): a multiplication
+    /// per axis where a division cost a tenth of the distributing pass.
+    scale: [f64; 3],
 }
 
 /// Cells in the grid (about 2 M: 16 MiB of counts).
@@ -28,24 +31,24 @@ impl CountGrid {
             let a = (0..3).max_by_key(|&a| dims[a]).unwrap_or(0);
             dims[a] = dims[a].div_ceil(2);
         }
+        let scale = [0, 1, 2].map(|a| {
+            let e = bounds.max[a] - bounds.min[a];
+            if e > 0.0 { dims[a] as f64 / e } else { 0.0 }
+        });
         CountGrid {
             bounds,
             dims,
             counts: vec![0; dims.iter().product()],
+            scale,
         }
     }
 
     /// Cell coordinates of a point.
     #[inline]
     pub fn cell(&self, p: [f64; 3]) -> [usize; 3] {
-        [0, 1, 2].map(|a| {
-            let e = self.bounds.max[a] - self.bounds.min[a];
-            if e <= 0.0 {
-                return 0;
-            }
-            let f = (p[a] - self.bounds.min[a]) / e;
-            ((f * self.dims[a] as f64) as usize).min(self.dims[a] - 1)
-        })
+        // (`as` saturates: points below the bounds, and NaN, land in cell 0.)
+        [0, 1, 2]
+            .map(|a| (((p[a] - self.bounds.min[a]) * self.scale[a]) as usize).min(self.dims[a] - 1))
     }
 
     #[inline]

@@ -1,9 +1,9 @@
 //! The output file of a part as the TIFF encoder sees it: a buffered, seekable
 //! writer that can leave a hole (a run of bytes the encoder counts but does not
-//! write), which worker threads then fill with positioned writes (`pwrite`) in
-//! parallel. Uncompressed tiles have known sizes, so a level's tile data is
-//! reserved as one hole and the rayon pool encodes and writes tiles into it;
-//! through the encoder alone one thread did all of the writing.
+//! write), which is then filled with positioned writes (`pwrite`). Uncompressed
+//! tiles have known sizes, so a level's tile data is reserved as one hole: the
+//! rayon pool encodes the tiles and one writer thread writes them into it
+//! (`writer::write_tiles`), while the encoder's own thread goes on.
 
 use std::cell::Cell;
 use std::fs::File;
@@ -100,7 +100,7 @@ fn bad_seek() -> io::Error {
     io::Error::new(io::ErrorKind::InvalidInput, "seek before the start")
 }
 
-/// Writes all of `data` at `offset` of `file` (callable from several threads).
+/// Writes all of `data` at `offset` of `file` (callable from any thread).
 pub fn write_all_at(file: &File, data: &[u8], offset: u64) -> io::Result<()> {
     #[cfg(unix)]
     {
