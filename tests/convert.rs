@@ -27,6 +27,7 @@ fn opts(output: PathBuf, memory: u64) -> ConvertOptions {
         allow_lossy: false,
         cancel: Arc::new(AtomicBool::new(false)),
         sample_points: convert::DEFAULT_SAMPLE_POINTS,
+        io: pcimg::store::TileIo::Auto,
     }
 }
 

@@ -6,7 +6,7 @@ mod common;
 use common::random_cloud;
 use pcimg::points::PointColumns;
 use pcimg::store::zorder::Geometry;
-use pcimg::store::{Compression, Dataset, Part, WriteOptions, write_part};
+use pcimg::store::{Compression, Dataset, Part, TileIo, WriteOptions, write_part};
 use proptest::prelude::*;
 use std::collections::HashMap;
 use std::path::Path;
@@ -146,6 +146,47 @@ proptest! {
     ) {
         check_round_trip(&random_cloud(n, seed, dup), comp);
     }
+}
+
+/// Tiles written around the page cache (`O_DIRECT`), through it, and as `auto`
+/// picks, give the same bytes, on the temporary directory's file system and on
+/// tmpfs (`/dev/shm`, where a direct write may be refused and fall back); and the
+/// direct file reads back whole.
+#[test]
+fn direct_and_buffered_writes_give_the_same_file() {
+    // Three levels and a partial last tile; 4 bands.
+    let c = random_cloud(300_000, 1, 7);
+    let mut dirs = vec![tempfile::tempdir().unwrap()];
+    if Path::new("/dev/shm").is_dir() {
+        dirs.push(tempfile::tempdir_in("/dev/shm").unwrap());
+    }
+    for dir in &dirs {
+        let bytes: Vec<Vec<u8>> = [TileIo::Direct, TileIo::Buffered, TileIo::Auto]
+            .iter()
+            .enumerate()
+            .map(|(k, &io)| {
+                let path = dir.path().join(format!("p{k}.tif"));
+                let opts = WriteOptions {
+                    io,
+                    ..Default::default()
+                };
+                let s = write_part(&path, &c, &opts).unwrap();
+                // (Direct only where the file system took it: not asserted.)
+                if io != TileIo::Direct {
+                    assert!(!s.direct, "{io:?} wrote around the page cache");
+                }
+                std::fs::read(&path).unwrap()
+            })
+            .collect();
+        assert!(bytes[0] == bytes[1], "direct and buffered files differ");
+        assert!(bytes[2] == bytes[1], "auto and buffered files differ");
+        let part = Part::open(&dir.path().join("p0.tif")).unwrap();
+        assert_eq!(part.meta.point_count, 300_000);
+        assert_eq!(read_rows(&part, 0).len(), 300_000);
+    }
+    assert!(TileIo::Auto.direct_for(pcimg::store::out::DIRECT_MIN));
+    assert!(!TileIo::Auto.direct_for(pcimg::store::out::DIRECT_MIN - 1));
+    assert!(TileIo::parse("sideways").is_err());
 }
 
 #[test]

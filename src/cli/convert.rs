@@ -3,7 +3,7 @@
 
 use crate::convert::{self, ConvertOptions, Partition, Progress, budget};
 use crate::ingest::ReadOptions;
-use crate::store::{Compression, Layout};
+use crate::store::{self, Compression, Layout};
 use crate::text::{bytes, count, sanitize};
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 use std::path::{Component, PathBuf};
@@ -55,6 +55,14 @@ pub struct Args {
     /// Accept parts so large that f32 cannot keep 1 mm.
     #[arg(long)]
     pub allow_lossy: bool,
+    /// How uncompressed tiles are written: direct (straight to the disk, O_DIRECT
+    /// where the file system allows: no CPU spent copying them into the page
+    /// cache, whose pages a VM's host may have taken back, and your page cache,
+    /// your input's pages among them, left alone), buffered (through the page
+    /// cache: sooner done on a slow disk, which is written later), or auto:
+    /// direct for parts of 256 MiB and more, buffered below.
+    #[arg(long, default_value = "auto", value_parser = store::TileIo::parse)]
+    pub io: store::TileIo,
     /// No progress bars or summary (with --timings, the summary is printed).
     #[arg(short, long)]
     pub quiet: bool,
@@ -241,6 +249,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         allow_lossy: a.allow_lossy,
         cancel,
         sample_points: convert::DEFAULT_SAMPLE_POINTS,
+        io: a.io,
     };
     let bars = Bars::new(a.quiet);
     let result = convert::convert_files(&inputs, &opts, &bars);
@@ -337,6 +346,12 @@ pub fn run(a: Args) -> anyhow::Result<()> {
             out,
             "  large buffers mapped fresh: {} (the rest reused)",
             crate::text::bytes(crate::alloc::fresh_bytes() as u64)
+        )?;
+        let direct = s.parts.iter().filter(|p| p.direct).count();
+        writeln!(
+            out,
+            "  tile data written around the page cache: {direct} of {} part(s)",
+            s.parts.len()
         )?;
     }
     super::print_out(&out)?;

@@ -54,6 +54,8 @@ pub struct ConvertOptions {
     /// of the first pass (which only places the regions) reads a sample of about
     /// this many points instead of every point ([`DEFAULT_SAMPLE_POINTS`]).
     pub sample_points: u64,
+    /// How the parts' uncompressed tile data is written.
+    pub io: store::TileIo,
 }
 
 /// Receives progress; the command line draws bars from it.
@@ -309,6 +311,7 @@ fn convert_with(
         crs: info.crs_wkt.clone(),
         force_bigtiff: false,
         cancel: Some(o.cancel.clone()),
+        io: o.io,
     };
     progress.phase("read", info.file_bytes, "bytes");
 

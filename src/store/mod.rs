@@ -16,6 +16,7 @@ pub use builder::PartBuilder;
 pub use codec::Compression;
 pub use error::StoreError;
 pub use layout::Layout;
+pub use out::TileIo;
 pub use writer::{
     PartSummary, WriteOptions, write_part, write_part_built, write_part_chunks, write_part_owned,
 };

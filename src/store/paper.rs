@@ -7,7 +7,7 @@
 use super::error::{Result, StoreError};
 use super::metadata::{LevelIndex, TileEntry};
 use super::reader::{Part, Points};
-use super::spec::{TILE_PIXELS, TILE_SIZE};
+use super::spec::TILE_SIZE;
 use super::zorder::Geometry;
 use crate::points::Bounds;
 use rayon::prelude::*;
@@ -138,8 +138,8 @@ pub(super) fn tile_pixels(
     g: Geometry,
     level: usize,
     t: u32,
-) -> Vec<f32> {
-    let mut buf = vec![f32::NAN; TILE_PIXELS];
+) -> super::out::TileBuf {
+    let mut buf = super::out::TileBuf::filled(f32::NAN);
     let w = g.size(0);
     let across = g.tiles_across(level);
     let (x0, y0) = ((t % across) * TILE_SIZE, (t / across) * TILE_SIZE);
