@@ -23,7 +23,7 @@ pub enum IngestError {
         error: std::io::Error,
     },
     /// A line of a line-oriented input could not be read.
-    #[error("{}: line {line}: {msg}: \"{text}\"", show_path(path))]
+    #[error("{}: line {line}: {msg}{}", show_path(path), quoted(text))]
     Line {
         path: PathBuf,
         /// 1-based line number.
@@ -92,6 +92,15 @@ impl IngestError {
             IngestError::Binary { offset, .. } => Some(*offset),
             _ => None,
         }
+    }
+}
+
+/// `: "text"`, or nothing for no text (an error at the end of the file).
+fn quoted(text: &str) -> String {
+    if text.is_empty() {
+        String::new()
+    } else {
+        format!(": \"{text}\"")
     }
 }
 

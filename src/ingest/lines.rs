@@ -292,6 +292,8 @@ struct Piece {
     /// Lines consumed (complete or not) up to the end of the piece or the error.
     lines: u64,
     skipped: u64,
+    /// Points that the piece's PTS count lines declare.
+    declared: u64,
     /// First invalid line when not skipping: (0-based line index within the piece,
     /// fault, byte range of the line within the piece).
     error: Option<(u64, LineFault, usize, usize)>,
@@ -402,6 +404,7 @@ fn parse_piece(
                     i += 1;
                 }
                 p.lines += 1;
+                p.declared = p.declared.saturating_add(vals[0] as u64);
                 continue;
             }
             fault = Some(LineFault::Columns(col));
@@ -529,6 +532,24 @@ pub(crate) struct LineEngine {
     /// Sampling (text only, see [`LineEngine::sample_rest`]): each window is read
     /// from pieces spread over a stretch this many times its size.
     pub sample: Option<u64>,
+    /// PTS: the points that the file's count lines declare (the first, then those
+    /// of the scans it concatenates), when it starts with one; a full read that
+    /// finds fewer is an error (a file cut at a line's end).
+    pub declared: Option<u64>,
+    /// Point lines read so far (points and skipped lines), in a full read.
+    pub point_lines: u64,
+}
+
+/// One parsed window or set of pieces.
+struct Parsed {
+    /// The points, or None if there were none.
+    cols: Option<PointColumns>,
+    /// Lines consumed.
+    lines: u64,
+    /// Lines skipped as invalid.
+    skipped: u64,
+    /// Points that count lines among them declare.
+    declared: u64,
 }
 
 /// Cuts `cols` into chunks of at most `n` points (`n` ≥ 1), in order, copying
@@ -616,7 +637,7 @@ impl LineEngine {
                 }
             }
             let parsed: usize = ranges.iter().map(|r| r.len()).sum();
-            let (cols, lines, _) = self.parse_ranges(&ranges, true)?;
+            let Parsed { cols, lines, .. } = self.parse_ranges(&ranges, true)?;
             self.pos = stretch_end;
             if lines > 0 {
                 self.bytes_per_line = (parsed as f64 / lines as f64).max(1.0);
@@ -694,6 +715,20 @@ impl LineEngine {
                         b"",
                     ));
                 }
+                if let Some(d) = self.declared.filter(|&d| self.point_lines < d) {
+                    return Err(IngestError::line(
+                        &self.path,
+                        self.line,
+                        format!(
+                            "the file ends after {} of the {} points its count line(s) \
+                             declare (truncated?); to read what is there, delete the \
+                             count line at the top",
+                            crate::text::count(self.point_lines),
+                            crate::text::count(d)
+                        ),
+                        b"",
+                    ));
+                }
                 return Ok(None);
             }
             let target =
@@ -714,8 +749,17 @@ impl LineEngine {
                 }
             }
             let win_len = win_end - self.pos;
-            let (cols, lines, skipped) = self.parse_window(&data[self.pos..win_end])?;
+            let Parsed {
+                cols,
+                lines,
+                skipped,
+                declared,
+            } = self.parse_window(&data[self.pos..win_end])?;
             self.pos = win_end;
+            self.point_lines += cols.as_ref().map_or(0, |c| c.len() as u64) + skipped;
+            if let Some(d) = self.declared.as_mut() {
+                *d = d.saturating_add(declared);
+            }
             self.line += lines;
             self.skipped += skipped;
             if let Some(left) = self.lines_left.as_mut() {
@@ -735,9 +779,8 @@ impl LineEngine {
         }
     }
 
-    /// Parses one window of whole lines: (points or None if the window had none,
-    /// lines consumed, lines skipped).
-    fn parse_window(&self, w: &[u8]) -> Result<(Option<PointColumns>, u64, u64), IngestError> {
+    /// Parses one window of whole lines.
+    fn parse_window(&self, w: &[u8]) -> Result<Parsed, IngestError> {
         // Cut the window into pieces at line boundaries.
         let threads = rayon::current_num_threads().max(1);
         let max_pieces = if threads == 1 { 1 } else { threads * 4 };
@@ -764,13 +807,8 @@ impl LineEngine {
     }
 
     /// Parses `ranges` (each whole lines, in order, the first starting at line
-    /// `self.line`) in parallel into one set of columns: (points or None if there
-    /// were none, lines consumed, lines skipped).
-    fn parse_ranges(
-        &self,
-        ranges: &[&[u8]],
-        skip: bool,
-    ) -> Result<(Option<PointColumns>, u64, u64), IngestError> {
+    /// `self.line`) in parallel into one set of columns.
+    fn parse_ranges(&self, ranges: &[&[u8]], skip: bool) -> Result<Parsed, IngestError> {
         let layout = &self.layout;
         let count = self.allow_count_lines;
         let items = self.lines_left.is_some();
@@ -811,6 +849,9 @@ impl LineEngine {
         };
         let mut lines = 0u64;
         let mut skipped = 0u64;
+        let declared = pieces
+            .iter()
+            .fold(0u64, |a, p| a.saturating_add(p.declared));
         for (k, p) in pieces.iter().enumerate() {
             if let Some((idx, fault, s, e)) = p.error {
                 return Err(IngestError::line(
@@ -825,7 +866,12 @@ impl LineEngine {
         }
         let points: Vec<usize> = pieces.iter().map(|p| p.points).collect();
         if points.iter().sum::<usize>() == 0 {
-            return Ok((None, lines, skipped));
+            return Ok(Parsed {
+                cols: None,
+                lines,
+                skipped,
+                declared,
+            });
         }
         close_gaps(&mut x, &slots, &points);
         close_gaps(&mut y, &slots, &points);
@@ -849,7 +895,12 @@ impl LineEngine {
                 })
                 .collect(),
         };
-        Ok((Some(cols), lines, skipped))
+        Ok(Parsed {
+            cols: Some(cols),
+            lines,
+            skipped,
+            declared,
+        })
     }
 }
 

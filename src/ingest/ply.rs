@@ -381,6 +381,8 @@ pub fn open(path: &Path, opts: &ReadOptions) -> Result<Box<dyn PointReader>, Ing
             colors: ColorNormalizer::new(plan.float_color),
             pending: Default::default(),
             sample: None,
+            declared: None,
+            point_lines: 0,
         };
         return Ok(Box::new(LineReader::new(info, map, engine)));
     }

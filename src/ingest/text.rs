@@ -13,7 +13,9 @@
 //!   `red green blue`, ...). Without x/y/z among the names the first three columns
 //!   are the coordinates;
 //! * PTS: a first line holding a single integer is the point count; later
-//!   single-integer lines (PTS files that concatenate scans) are skipped too;
+//!   single-integer lines (PTS files that concatenate scans) are skipped too, and
+//!   counted: a file that holds fewer points than its count lines declare is an
+//!   error (cut short at a line's end; more points are read);
 //! * column layout, unless given by [`ReadOptions::columns`]: 3 → x y z,
 //!   4 → x y z intensity, 6 → x y z r g b, 7 → x y z intensity r g b (the PTS
 //!   convention), otherwise x y z col3 col4 ... (0-based column index);
@@ -335,6 +337,8 @@ impl TextReader {
             colors: ColorNormalizer::new(false),
             pending: Default::default(),
             sample: None,
+            declared: pre.count,
+            point_lines: 0,
         };
         let info = SourceInfo {
             path: path.to_path_buf(),
@@ -606,6 +610,49 @@ mod tests {
         // NaN in an attribute is a value, not an invalid line.
         let p = write(&d, "attr.xyz", "1 2 3 nan\n");
         assert!(attr(&read(&p, &ReadOptions::default()).unwrap().0, "intensity")[0].is_nan());
+    }
+
+    /// A PTS file's count lines (the first, and one per concatenated scan) are
+    /// checked against the points a full read finds: fewer is a truncated file.
+    #[test]
+    fn pts_count_lines_catch_truncation() {
+        let d = tempfile::tempdir().unwrap();
+        let ok = |name: &str, body: &str, n: usize| {
+            let p = write(&d, name, body);
+            let (c, _, _) = read(&p, &ReadOptions::default()).unwrap();
+            assert_eq!(c.len(), n, "{body:?}");
+        };
+        ok("whole.pts", "2\n1 2 3\n4 5 6\n", 2);
+        ok("scans.pts", "2\n1 2 3\n4 5 6\n1\n7 8 9\n", 3);
+        // More points than declared: read (a count written before filtering).
+        ok("more.pts", "1\n1 2 3\n4 5 6\n", 2);
+        // No count line at the top: nothing to check.
+        ok("none.pts", "1 2 3\n4 5 6\n", 2);
+        let short = |name: &str, body: &str, msg: &str| {
+            let p = write(&d, name, body);
+            let e = read(&p, &ReadOptions::default()).unwrap_err().to_string();
+            assert!(e.contains(msg) && e.contains(name), "{e}");
+        };
+        short("cut.pts", "3\n1 2 3\n4 5 6\n", "after 2 of the 3 points");
+        short(
+            "cut2.xyz",
+            "2\n1 2 3\n4 5 6\n3\n7 8 9\n",
+            "after 3 of the 5 points",
+        );
+        // A skipped invalid line still was a point line of the count.
+        let p = write(&d, "skip.pts", "3\n1 2 3\nbad\n4 5 6\n");
+        let opts = ReadOptions {
+            skip_invalid: true,
+            ..Default::default()
+        };
+        let (c, _, skipped) = read(&p, &opts).unwrap();
+        assert_eq!((c.len(), skipped), (2, 1));
+        // Long enough for several windows and pieces.
+        let mut body = String::from("100000\n");
+        for i in 0..99_999 {
+            body.push_str(&format!("{i} 1 2\n"));
+        }
+        short("big.pts", &body, "after 99,999 of the 100,000 points");
     }
 
     #[test]
