@@ -192,9 +192,14 @@ fn merge(infos: &[SourceInfo]) -> Result<SourceInfo, IngestError> {
     })
 }
 
-/// A CRS as compared: WKT without the whitespace outside its quoted names (pretty
-/// printed and compact WKT are the same CRS).
+/// A CRS as compared: `EPSG:<code>` when it is one, or WKT naming its EPSG code
+/// at the top level (LAS 1.4 tiles carry WKT where LAS 1.2 tiles of the same
+/// survey carry the code in GeoTIFF keys); else the WKT without the whitespace
+/// outside its quoted names (pretty printed and compact WKT are the same CRS).
 fn crs_key(s: &str) -> String {
+    if let Some(code) = epsg_code(s) {
+        return format!("EPSG:{code}");
+    }
     let mut quoted = false;
     s.chars()
         .filter(|&c| {
@@ -202,6 +207,60 @@ fn crs_key(s: &str) -> String {
             quoted || !c.is_whitespace()
         })
         .collect()
+}
+
+/// The EPSG code of `EPSG:<n>`, or the one a WKT (1 or 2) gives its CRS as a
+/// whole: the last `AUTHORITY["EPSG","n"]` or `ID["EPSG",n]` directly inside the
+/// outermost node (the codes of nested nodes, a datum's say, are not the CRS's).
+fn epsg_code(s: &str) -> Option<u64> {
+    let t = s.trim();
+    if let Some(n) = t
+        .get(..5)
+        .filter(|p| p.eq_ignore_ascii_case("EPSG:"))
+        .and_then(|_| t[5..].trim().parse().ok())
+    {
+        return Some(n);
+    }
+    let b = t.as_bytes();
+    let (mut depth, mut quoted, mut found) = (0usize, false, None);
+    let mut word_start = 0;
+    for (i, &c) in b.iter().enumerate() {
+        if quoted {
+            quoted = c != b'"';
+            continue;
+        }
+        match c {
+            b'"' => quoted = true,
+            b'[' | b'(' => {
+                depth += 1;
+                let word = t[word_start..i].trim();
+                if depth == 2
+                    && (word.eq_ignore_ascii_case("AUTHORITY") || word.eq_ignore_ascii_case("ID"))
+                {
+                    found = authority_code(&t[i + 1..]).or(found);
+                }
+            }
+            b']' | b')' => depth = depth.saturating_sub(1),
+            _ => {}
+        }
+        if matches!(c, b'[' | b'(' | b']' | b')' | b',') {
+            word_start = i + 1;
+        }
+    }
+    found
+}
+
+/// The code of an authority node's body `"EPSG","2992"]` (or `"EPSG",2992]`).
+fn authority_code(body: &str) -> Option<u64> {
+    let end = body.find([']', ')'])?;
+    let mut parts = body[..end]
+        .split(',')
+        .map(|p| p.trim().trim_matches('"').trim());
+    let name = parts.next()?;
+    let code = parts.next()?;
+    name.eq_ignore_ascii_case("EPSG")
+        .then(|| code.parse().ok())
+        .flatten()
 }
 
 fn differ(path: &Path, names: &[String], other: &Path, other_names: &[String]) -> IngestError {
@@ -307,6 +366,43 @@ mod tests {
         assert!(merge(&[wkt(r#"GEOGCS["WGS 84"]"#), wkt(r#"GEOGCS["WGS  84"]"#)]).is_err());
         assert_eq!((m.declared_points, m.file_bytes), (Some(30), 300));
         assert_eq!(m.format, "las 1.4");
+    }
+
+    /// A WKT naming its EPSG code at the top level is that code's CRS; a code of a
+    /// nested node (the base geographic CRS) is not.
+    #[test]
+    fn wkt_and_epsg_codes_compare_by_the_top_level_code() {
+        let oregon = r#"PROJCS["NAD83 / Oregon GIC Lambert (ft)",
+            GEOGCS["NAD83",DATUM["North_American_Datum_1983",AUTHORITY["EPSG","6269"]],
+                AUTHORITY["EPSG","4269"]],
+            UNIT["foot",0.3048,AUTHORITY["EPSG","9002"]],
+            AUTHORITY["EPSG","2992"]]"#;
+        assert_eq!(epsg_code(oregon), Some(2992));
+        assert_eq!(epsg_code("epsg: 2992"), Some(2992));
+        let wkt2 = r#"PROJCRS["WGS 84 / UTM zone 10N",BASEGEOGCRS["WGS 84",ID["EPSG",4326]],
+            ID["EPSG",32610]]"#;
+        assert_eq!(epsg_code(wkt2), Some(32610));
+        let no_top = r#"PROJCS["local",GEOGCS["NAD83",AUTHORITY["EPSG","4269"]]]"#;
+        assert_eq!(epsg_code(no_top), None);
+        // A quoted name holding brackets does not confuse the depth.
+        let tricky =
+            r#"PROJCS["a [b] (c)",GEOGCS["x",AUTHORITY["EPSG","4269"]],AUTHORITY["EPSG","26910"]]"#;
+        assert_eq!(epsg_code(tricky), Some(26910));
+        let ok = merge(&[
+            info("a.las", &["intensity"], Some("EPSG:2992")),
+            info("b.las", &["intensity"], Some(oregon)),
+        ]);
+        assert!(ok.is_ok());
+        for other in ["EPSG:4269", no_top] {
+            assert!(
+                merge(&[
+                    info("a.las", &["intensity"], Some(other)),
+                    info("b.las", &["intensity"], Some(oregon)),
+                ])
+                .is_err(),
+                "{other}"
+            );
+        }
     }
 
     #[test]
