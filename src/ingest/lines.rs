@@ -516,9 +516,10 @@ pub(crate) struct LineEngine {
     pub line: u64,
     /// For ASCII PLY: vertex lines still to read.
     pub lines_left: Option<u64>,
-    /// For ASCII PLY: the elements after the vertex element (name, lines), checked
-    /// to be whole once the vertices are read (a file cut short there is an error).
-    pub after: Vec<(String, u64)>,
+    /// For ASCII PLY: the elements after the vertex element (name, lines, and
+    /// which of its properties are lists), checked to be whole once the vertices
+    /// are read (a file cut short there is an error).
+    pub after: Vec<(String, u64, Vec<bool>)>,
     pub skip_invalid: bool,
     pub allow_count_lines: bool,
     pub chunk_points: usize,
@@ -576,6 +577,28 @@ fn cut_chunks(mut cols: PointColumns, n: usize) -> Vec<PointColumns> {
     tails.push(cols);
     tails.reverse();
     tails
+}
+
+/// Whether an ASCII PLY item line holds every value of its element's properties
+/// (`lists[k]`: property k is a list, whose first value counts its items).
+fn item_is_whole(line: &[u8], lists: &[bool]) -> bool {
+    let mut toks = line
+        .split(|c| c.is_ascii_whitespace())
+        .filter(|t| !t.is_empty());
+    for &list in lists {
+        let Some(t) = toks.next() else { return false };
+        if list {
+            let n = std::str::from_utf8(t)
+                .ok()
+                .and_then(|s| s.parse::<f64>().ok())
+                .filter(|v| *v >= 0.0 && v.fract() == 0.0);
+            let Some(n) = n else { return false };
+            if toks.by_ref().take(n as usize).count() < n as usize {
+                return false;
+            }
+        }
+    }
+    true
 }
 
 impl LineEngine {
@@ -654,31 +677,53 @@ impl LineEngine {
     /// all there.
     fn check_after(&mut self, data: &[u8], end: usize) -> Result<(), IngestError> {
         let after = std::mem::take(&mut self.after);
-        let wanted: u64 = after.iter().map(|(_, n)| n).sum();
+        let wanted: u64 = after.iter().map(|(_, n, _)| n).sum();
         if wanted == 0 {
             return Ok(());
         }
         // Lines with something on them (a blank line is not an item).
         let rest = &data[self.pos.min(end)..end];
-        let have = rest
+        let mut have = 0u64;
+        let mut last: &[u8] = b"";
+        for l in rest
             .split(|&c| c == b'\n')
             .filter(|l| !l.trim_ascii().is_empty())
             .take(wanted as usize)
-            .count() as u64;
+        {
+            have += 1;
+            last = l;
+        }
+        // The file ends on the line after its last one.
+        let lines = memchr::memchr_iter(b'\n', rest).count() as u64
+            + rest.last().is_some_and(|&c| c != b'\n') as u64;
         if have >= wanted {
-            return Ok(());
+            // Every line is there; the last could still be cut inside (a file
+            // cut short mid-line): it must hold its element's values.
+            let Some((name, _, lists)) = after.iter().rev().find(|(_, n, _)| *n > 0) else {
+                return Ok(());
+            };
+            if item_is_whole(last, lists) {
+                return Ok(());
+            }
+            return Err(IngestError::line(
+                &self.path,
+                self.line + lines,
+                format!(
+                    "truncated file: the last line of element '{}' ends before the values \
+                     its properties declare",
+                    crate::text::sanitize(name)
+                ),
+                last,
+            ));
         }
         let mut before = 0;
-        let (name, _) = after
+        let (name, _, _) = after
             .iter()
-            .find(|(_, n)| {
+            .find(|(_, n, _)| {
                 before += n;
                 before > have
             })
             .unwrap_or(&after[after.len() - 1]);
-        // The file ends on the line after its last one.
-        let lines = memchr::memchr_iter(b'\n', rest).count() as u64
-            + rest.last().is_some_and(|&c| c != b'\n') as u64;
         Err(IngestError::line(
             &self.path,
             self.line + lines,

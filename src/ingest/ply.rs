@@ -16,7 +16,8 @@
 //! * A file shorter than its header declares is an error naming the byte offset
 //!   (binary) or the line (ASCII), also when it ends inside the elements after the
 //!   vertices (checked once the vertices are read: binary items walked, list
-//!   lengths included; ASCII lines counted).
+//!   lengths included; ASCII lines counted, and the last one's values, list
+//!   lengths included, so a file cut inside its last line is caught too).
 
 use crate::bigvec;
 use std::path::Path;
@@ -371,7 +372,14 @@ pub fn open(path: &Path, opts: &ReadOptions) -> Result<Box<dyn PointReader>, Ing
             lines_left: Some(count),
             after: header.elements[plan.element + 1..]
                 .iter()
-                .map(|e| (e.name.clone(), e.count))
+                .map(|e| {
+                    let lists = e
+                        .props
+                        .iter()
+                        .map(|p| matches!(p.kind, PropKind::List { .. }))
+                        .collect();
+                    (e.name.clone(), e.count, lists)
+                })
                 .collect(),
             skip_invalid: opts.skip_invalid,
             allow_count_lines: false,
@@ -1038,6 +1046,35 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(e.contains("'edge' (1 of the 2"), "{e}");
+        // Cut inside the last line: its values are counted too.
+        std::fs::write(&q, text.strip_suffix("2\n").unwrap()).unwrap();
+        let e = read_all(&q, &ReadOptions::default())
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("last line of element 'edge'"), "{e}");
+        let faces = |tail: &str| {
+            format!(
+                "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\n\
+                 property float y\nproperty float z\nelement face 2\n\
+                 property list uchar int vertex_indices\nproperty uchar flag\nend_header\n\
+                 0 0 0\n1 0 0\n0 1 0\n3 0 1 2 7\n{tail}"
+            )
+        };
+        for (tail, whole) in [
+            ("4 0 1 2 0 9\n", true),
+            ("4 0 1 2 0 9", true),
+            ("4 0 1 2 0 9 \n\n", true),
+            ("4 0 1 2 0", false),
+            ("4 0 1 2", false),
+            ("4", false),
+        ] {
+            std::fs::write(&q, faces(tail)).unwrap();
+            let r = read_all(&q, &ReadOptions::default());
+            assert_eq!(r.is_ok(), whole, "{tail:?}");
+            if let Err(e) = r {
+                assert!(e.to_string().contains("'face' ends before"), "{e}");
+            }
+        }
     }
 
     #[test]
