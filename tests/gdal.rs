@@ -174,6 +174,69 @@ fn gdallocationinfo_reads_our_values() {
     assert!(out.trim().eq_ignore_ascii_case("nan"), "{out}");
 }
 
+/// Every pixel of every level, compressed or not, as GDAL decodes it
+/// (`gdal_translate` of the level to raw ENVI floats) is pcimg's value at that
+/// pixel's Z-order rank, and NaN past the last point.
+#[test]
+fn gdal_decodes_every_pixel_of_every_level() {
+    if !gdal() {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let n = 300_000;
+    for c in [Compression::Zstd, Compression::Deflate, Compression::None] {
+        let path = write(dir.path(), &format!("all-{}.tif", c.name()), n, c);
+        let part = Part::open(&path).unwrap();
+        let g = pcimg::store::zorder::Geometry::for_points(n as u64);
+        assert!(g.levels() >= 3, "the test wants overviews");
+        for level in 0..g.levels() {
+            let raw = dir.path().join(format!("l{level}-{}.bin", c.name()));
+            let mut opts = vec!["-of", "ENVI", "-ot", "Float32"];
+            let ovr = (level as i64 - 1).to_string();
+            if level > 0 {
+                opts.extend(["-ovr", ovr.as_str()]);
+            }
+            translate(&path, &raw, &opts);
+            let bytes = std::fs::read(&raw).unwrap();
+            let side = g.size(level) as usize;
+            let nb = bytes.len() / (4 * side * side);
+            assert_eq!(bytes.len(), 4 * nb * side * side, "level {level}");
+            assert_eq!(nb, 5, "x y z and the cloud's two attributes");
+            let ours = part
+                .read_level(level, &(0..nb).collect::<Vec<_>>())
+                .unwrap();
+            let value = |band: usize, px: u32, py: u32| {
+                let at = 4 * (band * side * side + py as usize * side + px as usize);
+                f32::from_ne_bytes(bytes[at..at + 4].try_into().unwrap())
+            };
+            let points = g.level_points(level) as usize;
+            assert_eq!(ours.len(), points);
+            let mut filled = vec![false; side * side];
+            for r in 0..points {
+                let (px, py) = z_pixel(r as u64);
+                filled[py as usize * side + px as usize] = true;
+                for band in 0..nb {
+                    let v = value(band, px, py);
+                    assert_eq!(
+                        v.to_bits(),
+                        ours.columns[band][r].to_bits(),
+                        "{c:?} level {level} rank {r} band {band}"
+                    );
+                }
+            }
+            for (i, f) in filled.iter().enumerate() {
+                if !f {
+                    let (px, py) = ((i % side) as u32, (i / side) as u32);
+                    assert!(
+                        value(0, px, py).is_nan(),
+                        "{c:?} level {level} empty pixel {i}"
+                    );
+                }
+            }
+        }
+    }
+}
+
 #[test]
 fn gdal_rewritten_file_still_opens_with_the_same_points() {
     if !gdal() {
