@@ -31,7 +31,7 @@ fn main() {
         let phases: Vec<String> = s
             .phases
             .iter()
-            .map(|(n, d)| format!("{n} {:.0} ms", d.as_secs_f64() * 1e3))
+            .map(|(n, d)| format!("{n} {:.0} ms", d.wall.as_secs_f64() * 1e3))
             .collect();
         println!(
             "{:.2} s, CPU {:.2} s (user {user:.2}, sys {sys:.2}) ({:.1} M points/s): {}",

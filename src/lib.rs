@@ -22,6 +22,7 @@ pub mod alloc {
 pub mod bigvec;
 pub mod camera;
 pub mod cli;
+pub mod clock;
 pub mod convert;
 pub mod ingest;
 pub mod lod;

@@ -66,8 +66,8 @@ pub struct Args {
     /// No progress bars or summary (with --timings, the summary is printed).
     #[arg(short, long)]
     pub quiet: bool,
-    /// Also print the wall time of each phase (passes over the input, and the
-    /// store's phases summed over parts).
+    /// Also print the wall and CPU time of each phase (passes over the input, and
+    /// the store's phases summed over parts).
     #[arg(long)]
     pub timings: bool,
 }
@@ -337,10 +337,19 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         s.max_quantization_error * 1000.0
     )?;
     if a.timings {
-        writeln!(out, "  phases (wall time):")?;
+        writeln!(
+            out,
+            "  phases (wall time, its share, and CPU time: user and system, all threads):"
+        )?;
         for (name, d) in &s.phases {
-            let t = d.as_secs_f64();
-            writeln!(out, "    {name:<32} {t:7.2} s  {:5.1}%", t / secs * 100.0)?;
+            let t = d.wall.as_secs_f64();
+            writeln!(
+                out,
+                "    {name:<32} {t:7.2} s  {:5.1}%  CPU {:6.2} s = {:.1} cores",
+                t / secs * 100.0,
+                d.cpu.as_secs_f64(),
+                d.cores()
+            )?;
         }
         writeln!(
             out,

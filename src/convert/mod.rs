@@ -14,6 +14,7 @@ use distribute::{Spilled, distribute, spill_all};
 pub use sample::DEFAULT_SAMPLE_POINTS;
 use sample::{MIN_SAMPLE, Sample};
 
+use crate::clock::{Span, Stamp};
 use crate::ingest::{self, ReadOptions};
 use crate::points::{Bounds, PointColumns};
 use crate::store::{self, Compression, Layout, PartSummary, WriteOptions};
@@ -93,19 +94,19 @@ pub struct ConvertSummary {
     pub points_per_part: u64,
     pub elapsed: Duration,
     pub max_quantization_error: f64,
-    /// Wall time per phase, in first-seen order: the passes over the input, then
-    /// the store's phases summed over parts.
-    pub phases: Vec<(String, Duration)>,
+    /// Wall and CPU time per phase, in first-seen order: the passes over the
+    /// input, then the store's phases summed over parts.
+    pub phases: Vec<(String, Span)>,
 }
 
-/// Wall time per named phase, summed, in first-seen order.
+/// Wall and CPU time per named phase, summed, in first-seen order.
 #[derive(Default)]
-struct Timings(Vec<(String, Duration)>);
+struct Timings(Vec<(String, Span)>);
 
 impl Timings {
-    fn add(&mut self, name: &str, d: Duration) {
+    fn add(&mut self, name: &str, d: Span) {
         match self.0.iter_mut().find(|(n, _)| n == name) {
-            Some((_, t)) => *t += d,
+            Some((_, t)) => *t = *t + d,
             None => self.0.push((name.to_string(), d)),
         }
     }
@@ -328,8 +329,8 @@ fn convert_with(
     };
     let mut parts: Vec<PartSummary> = Vec::new();
     let timings = std::cell::RefCell::new(Timings::default());
-    // Wall time spent writing parts so far (passes report their time less this).
-    let written = std::cell::Cell::new(Duration::ZERO);
+    // Time spent writing parts so far (passes report their time less this).
+    let written = std::cell::Cell::new(Span::default());
     // Notes a written part: its timings and a progress line.
     let record = |s: PartSummary, parts: &mut Vec<PartSummary>| {
         for (name, d) in &s.phases {
@@ -382,9 +383,9 @@ fn convert_with(
     let rebased = Cell::new(false);
     // A pass starts with the clock and the write time so far; its time is the
     // wall time since, less the parts written meanwhile.
-    let begin = || (Instant::now(), written.get());
-    let pass = |name: &str, (since, before): (Instant, Duration)| {
-        let writes = written.get() - before;
+    let begin = || (Stamp::now(), written.get());
+    let pass = |name: &str, (since, before): (Stamp, Span)| {
+        let writes = written.get().saturating_sub(before);
         timings
             .borrow_mut()
             .add(name, since.elapsed().saturating_sub(writes));

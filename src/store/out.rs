@@ -2,8 +2,8 @@
 //! writer that can leave a hole (a run of bytes the encoder counts but does not
 //! write), which is then filled with positioned writes (`pwrite`). Uncompressed
 //! tiles have known sizes, so a level's tile data is reserved as one hole: the
-//! rayon pool encodes the tiles and one writer thread writes them into it
-//! (`writer::write_tiles`), while the encoder's own thread goes on.
+//! rayon pool encodes the tiles and two writer threads write them into it
+//! (`writer::write_tiles`).
 
 use std::cell::Cell;
 use std::fs::File;
@@ -207,7 +207,8 @@ impl Drop for TileBuf {
 /// How uncompressed tile data reaches the file.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub enum TileIo {
-    /// Direct for parts of at least [`DIRECT_MIN`] bytes, buffered below.
+    /// Direct for parts of at least [`DIRECT_MIN`] bytes of tile data, buffered
+    /// below.
     #[default]
     Auto,
     /// Around the page cache (`O_DIRECT`) where the file system allows.

@@ -12,6 +12,7 @@ use super::paper;
 use super::spec::{self, TILE_PIXELS, TILE_SIZE, key, tag};
 use super::zorder::{Geometry, tile_z_to_raster};
 use crate::bigvec;
+use crate::clock::{Span, Stamp};
 use crate::points::{Bounds, PointColumns};
 use rayon::prelude::*;
 use std::fs::File;
@@ -65,27 +66,26 @@ pub struct PartSummary {
     pub bigtiff: bool,
     /// Whether the tile data went to the disk around the page cache (`TileIo`).
     pub direct: bool,
-    /// Wall time of each phase of the write, in order.
-    pub phases: Vec<(&'static str, std::time::Duration)>,
+    /// Wall and CPU time of each phase of the write, in order.
+    pub phases: Vec<(&'static str, Span)>,
 }
 
-/// Records the wall time of consecutive phases.
+/// Records the wall and CPU time of consecutive phases.
 struct Phases {
-    last: std::time::Instant,
-    list: Vec<(&'static str, std::time::Duration)>,
+    last: Stamp,
+    list: Vec<(&'static str, Span)>,
 }
 
 impl Phases {
     fn new() -> Self {
         Phases {
-            last: std::time::Instant::now(),
+            last: Stamp::now(),
             list: Vec::new(),
         }
     }
     fn mark(&mut self, name: &'static str) {
-        let now = std::time::Instant::now();
-        self.list.push((name, now - self.last));
-        self.last = now;
+        self.list.push((name, self.last.elapsed()));
+        self.last = Stamp::now();
     }
 }
 
@@ -410,17 +410,19 @@ fn level_points(index: &[LevelIndex]) -> Vec<u64> {
 /// Upper bound of the file size, to choose between classic TIFF and BigTIFF.
 fn size_estimate(a: &Arranged, xml: &str) -> u64 {
     let g = a.geometry;
-    let per_tile = (TILE_PIXELS * 4) as u64 * a.names.len() as u64;
     // Compressed tiles can exceed raw size slightly: allow 1%.
-    let data: u64 = (0..g.levels())
-        .map(|l| g.filled_tiles(l) * per_tile)
-        .sum::<u64>()
-        * 101
-        / 100;
+    let data = tile_bytes(a) * 101 / 100;
     let tags: u64 = (0..g.levels())
         .map(|l| (g.tiles_across(l) as u64).pow(2) * a.names.len() as u64 * 16 + 4096)
         .sum();
     data + tags + xml.len() as u64
+}
+
+/// Bytes of the part's tile data, uncompressed: every level's filled tiles.
+fn tile_bytes(a: &Arranged) -> u64 {
+    let g = a.geometry;
+    let per_tile = (TILE_PIXELS * 4) as u64 * a.names.len() as u64;
+    (0..g.levels()).map(|l| g.filled_tiles(l) * per_tile).sum()
 }
 
 /// Removes the temporary file unless the write completed.
@@ -512,8 +514,7 @@ fn write(
     let index = tile_index(&a);
     let xml = metadata_xml(&a, opts, &index);
     ph.mark("tile index");
-    let estimate = size_estimate(&a, &xml);
-    let bigtiff = opts.force_bigtiff || estimate >= u32::MAX as u64 - (64 << 20);
+    let bigtiff = opts.force_bigtiff || size_estimate(&a, &xml) >= u32::MAX as u64 - (64 << 20);
     let file_name = path
         .file_name()
         .ok_or_else(|| StoreError::new(path, "output path has no file name"))?;
@@ -528,7 +529,7 @@ fn write(
     };
     let file = File::create(&tmp_path)
         .map_err(|e| StoreError::new(path, format!("cannot create {}: {e}", tmp_path.display())))?;
-    let direct = opts.compression == Compression::None && opts.io.direct_for(estimate);
+    let direct = opts.compression == Compression::None && opts.io.direct_for(tile_bytes(&a));
     let tiles = TileWriter::new(&file, &tmp_path, direct);
     let mut w = Out::new(&file);
     let io = |e: tiff::TiffError| match e {
@@ -832,24 +833,37 @@ where
     let depth = 4 * rayon::current_num_threads();
     let (tx, rx) = std::sync::mpsc::sync_channel::<Vec<(u64, TileBuf)>>(depth);
     let rx = std::sync::Mutex::new(rx);
+    // Set once a write failed: the encoders stop, the writers only drain.
+    let failed = AtomicBool::new(false);
     std::thread::scope(|scope| {
         let writers: Vec<_> = (0..WRITERS)
             .map(|_| {
-                let rx = &rx;
+                let (rx, failed) = (&rx, &failed);
                 scope.spawn(move || -> std::io::Result<()> {
+                    let mut error = None;
+                    // Until every sender is gone: a writer that stopped receiving
+                    // would leave the encoders blocked on a full queue for good.
                     loop {
-                        // (The lock is held only to take the next batch; a
-                        // poisoned one means the other writer panicked.)
-                        let next = match rx.lock() {
-                            Ok(r) => r.recv(),
-                            Err(_) => return Ok(()),
-                        };
-                        let Ok(batch) = next else { return Ok(()) };
-                        for (at, v) in batch {
-                            out.write(&v, at)?;
-                            out::recycle(v);
+                        // (The lock is held only to take the next batch.)
+                        let next = rx.lock().unwrap_or_else(|p| p.into_inner()).recv();
+                        let Ok(batch) = next else { break };
+                        if failed.load(Ordering::Relaxed) {
+                            continue; // drained, not written
+                        }
+                        let wrote = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+                            for (at, v) in batch {
+                                out.write(&v, at)?;
+                                out::recycle(v);
+                            }
+                            Ok(())
+                        }))
+                        .unwrap_or_else(|_| Err(std::io::Error::other("a tile writer panicked")));
+                        if let Err(e) = wrote {
+                            failed.store(true, Ordering::Relaxed);
+                            error.get_or_insert(e);
                         }
                     }
+                    error.map_or(Ok(()), Err)
                 })
             })
             .collect();
@@ -857,7 +871,10 @@ where
             if opts.cancelled() {
                 return Err(std::io::ErrorKind::Interrupted.into());
             }
-            // A send fails only once both writers stopped on errors (joined below).
+            if failed.load(Ordering::Relaxed) {
+                // The writers' error is the one reported (below).
+                return Err(std::io::Error::other("the tile writers stopped"));
+            }
             tx.send(batch)
                 .map_err(|_| std::io::Error::other("the tile writers stopped"))
         });
@@ -933,4 +950,47 @@ fn encode_batches<K: TiffKind>(
         }
         Ok(())
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Writes that fail (a file opened read-only) end the tile writing with the
+    /// writers' error, however many tiles are still to come: the encoders must not
+    /// block on a queue that nobody drains.
+    #[test]
+    fn failing_writes_end_the_tiles_with_their_error() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("ro.bin");
+        std::fs::write(&path, b"").unwrap();
+        let ro = File::open(&path).unwrap();
+        let out = TileWriter::new(&ro, &path, false);
+        let opts = WriteOptions::default();
+        let jobs = (0..500u64)
+            .into_par_iter()
+            .map(|j| vec![(j * (TILE_PIXELS as u64 * 4), TileBuf::filled(1.0))]);
+        let e = write_tiles(&out, &opts, jobs).unwrap_err();
+        assert_ne!(e.to_string(), "the tile writers stopped", "{e}");
+        assert_eq!(e.raw_os_error(), Some(libc::EBADF), "{e}");
+        // And through a writable file every tile lands where it was sent.
+        let rw = std::fs::OpenOptions::new().write(true).open(&path).unwrap();
+        let out = TileWriter::new(&rw, &path, true);
+        let jobs = (0..40u64).into_par_iter().map(|j| {
+            let mut t = TileBuf::filled(j as f32);
+            t[1] = -(j as f32);
+            vec![(j * (TILE_PIXELS as u64 * 4), t)]
+        });
+        write_tiles(&out, &opts, jobs).unwrap();
+        drop(out);
+        let bytes = std::fs::read(&path).unwrap();
+        assert_eq!(bytes.len(), 40 * TILE_PIXELS * 4);
+        let v: &[f32] = bytemuck::cast_slice(&bytes);
+        for (j, t) in v.chunks_exact(TILE_PIXELS).enumerate() {
+            assert_eq!(
+                (t[0], t[1], t[TILE_PIXELS - 1]),
+                (j as f32, -(j as f32), j as f32)
+            );
+        }
+    }
 }
