@@ -343,12 +343,17 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         )?;
         for (name, d) in &s.phases {
             let t = d.wall.as_secs_f64();
+            // (Below the CPU clock's resolution a ratio means nothing.)
+            let cores = if t >= 0.05 {
+                format!(" = {:.1} cores", d.cores())
+            } else {
+                String::new()
+            };
             writeln!(
                 out,
-                "    {name:<32} {t:7.2} s  {:5.1}%  CPU {:6.2} s = {:.1} cores",
+                "    {name:<32} {t:7.2} s  {:5.1}%  CPU {:6.2} s{cores}",
                 t / secs * 100.0,
                 d.cpu.as_secs_f64(),
-                d.cores()
             )?;
         }
         writeln!(
