@@ -171,8 +171,9 @@ fn direct_and_buffered_writes_give_the_same_file() {
                     ..Default::default()
                 };
                 let s = write_part(&path, &c, &opts).unwrap();
-                // (Direct only where the file system took it: not asserted.)
-                if io != TileIo::Direct {
+                // (Direct only where the file system took it, and in auto once
+                // the page cache proved slow: not asserted.)
+                if io == TileIo::Buffered {
                     assert!(!s.direct, "{io:?} wrote around the page cache");
                 }
                 std::fs::read(&path).unwrap()
@@ -184,8 +185,6 @@ fn direct_and_buffered_writes_give_the_same_file() {
         assert_eq!(part.meta.point_count, 300_000);
         assert_eq!(read_rows(&part, 0).len(), 300_000);
     }
-    assert!(TileIo::Auto.direct_for(pcimg::store::out::DIRECT_MIN));
-    assert!(!TileIo::Auto.direct_for(pcimg::store::out::DIRECT_MIN - 1));
     assert!(TileIo::parse("sideways").is_err());
 }
 

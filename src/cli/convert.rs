@@ -55,12 +55,13 @@ pub struct Args {
     /// Accept parts so large that f32 cannot keep 1 mm.
     #[arg(long)]
     pub allow_lossy: bool,
-    /// How uncompressed tiles are written: direct (straight to the disk, O_DIRECT
-    /// where the file system allows: no CPU spent copying them into the page
-    /// cache, whose pages a VM's host may have taken back, and your page cache,
-    /// your input's pages among them, left alone), buffered (through the page
-    /// cache: sooner done on a slow disk, which is written later), or auto:
-    /// direct for parts of 256 MiB and more, buffered below.
+    /// How uncompressed tiles are written: buffered (through the page cache, the
+    /// disk written later), direct (straight to the disk, O_DIRECT where the file
+    /// system allows: no CPU spent copying, and your page cache, your input's
+    /// pages among them, left alone), or auto: buffered while the page cache takes
+    /// the tiles at 1.5 GB/s or more, then direct (on a VM whose host takes freed
+    /// memory back, copying into the page cache can run at a third of the disk's
+    /// speed).
     #[arg(long, default_value = "auto", value_parser = store::TileIo::parse)]
     pub io: store::TileIo,
     /// No progress bars or summary (with --timings, the summary is printed).

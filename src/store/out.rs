@@ -207,8 +207,8 @@ impl Drop for TileBuf {
 /// How uncompressed tile data reaches the file.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub enum TileIo {
-    /// Direct for parts of at least [`DIRECT_MIN`] bytes of tile data, buffered
-    /// below.
+    /// Through the page cache while it takes data faster than [`SLOW_CACHE`],
+    /// then around it (see [`TileWriter`]).
     #[default]
     Auto,
     /// Around the page cache (`O_DIRECT`) where the file system allows.
@@ -216,12 +216,6 @@ pub enum TileIo {
     /// Through the page cache.
     Buffered,
 }
-
-/// Parts from this size on are written directly in [`TileIo::Auto`]. Smaller
-/// ones are buffered: copying them into warm page cache (4.6 GB/s on the VM)
-/// beats the disk's 1.25 GB/s, and they fit the kernel's dirty-page allowance,
-/// while gigabytes copied into pages the host took back cost seconds of CPU.
-pub const DIRECT_MIN: u64 = 256 << 20;
 
 impl TileIo {
     /// Parses `auto`, `direct` or `buffered` (the command line's `--io`).
@@ -233,51 +227,70 @@ impl TileIo {
             _ => Err(format!("'{s}': expected auto, direct or buffered")),
         }
     }
-
-    /// Whether a part of `bytes` is written directly.
-    pub fn direct_for(self, bytes: u64) -> bool {
-        match self {
-            TileIo::Auto => bytes >= DIRECT_MIN,
-            TileIo::Direct => true,
-            TileIo::Buffered => false,
-        }
-    }
 }
 
-/// Writes tile data at aligned offsets: through a second handle opened with
-/// `O_DIRECT` where the file system allows it, so tile data goes from the
-/// encoder's buffers to the disk without a copy into the page cache, else
-/// through the ordinary handle. (On the 2-core VM a buffered write of 2 GiB costs
-/// 0.5 s of CPU when the page cache has warm pages to reuse and 5 s when the
-/// host took them back, as it has after any pause; direct writes run at the
-/// disk's 1.2 GB/s and leave the CPU to the encoders. They also leave the
-/// user's page cache, their input's pages say, in place.)
+/// In [`TileIo::Auto`], buffered writes slower than this (bytes a second of
+/// copying into the page cache) switch the process to direct writes. On the VM the
+/// copy runs at 4.6 GB/s into pages freed moments ago and at 0.3-0.7 GB/s into
+/// pages the host has taken back (as it has after any pause), where a direct write
+/// runs at the disk's 1.25 GB/s with no CPU.
+pub const SLOW_CACHE: f64 = 1.5e9;
+
+/// Buffered bytes timed before [`TileIo::Auto`] judges the page cache.
+const JUDGE_BYTES: u64 = 32 << 20;
+
+/// Set once [`TileIo::Auto`] found the page cache slow: later parts start direct.
+static CACHE_SLOW: std::sync::atomic::AtomicBool = std::sync::atomic::AtomicBool::new(false);
+
+/// Writes tile data at aligned offsets, through the page cache or around it
+/// (`O_DIRECT`, through a second handle, straight from the encoder's buffers to
+/// the disk), as [`TileIo`] says. In `Auto` the buffered writes are timed and,
+/// when the page cache proves slower than [`SLOW_CACHE`], the rest go direct (and
+/// so do later parts'): a buffered write of 2 GiB costs 0.5 s of CPU into warm
+/// pages and 5 s into pages the host took back. A direct write the file system
+/// refuses falls back to buffered writes, for good.
 pub struct TileWriter<'f> {
     buffered: &'f File,
     direct: Option<File>,
-    /// Set once the file system refused a direct write: the rest go buffered.
-    refused: std::sync::atomic::AtomicBool,
+    mode: TileIo,
+    /// Whether writes go direct now.
+    going_direct: std::sync::atomic::AtomicBool,
+    /// Buffered writes one at a time, timed: (bytes, seconds) since the last
+    /// judgement. (The kernel serializes buffered writes to one file anyway.)
+    timed: std::sync::Mutex<(u64, f64)>,
 }
 
 impl<'f> TileWriter<'f> {
-    /// `direct`: whether to try `O_DIRECT` on `path` (the file behind `buffered`).
-    pub fn new(buffered: &'f File, path: &std::path::Path, direct: bool) -> TileWriter<'f> {
+    /// A writer for `buffered`, the file at `path`, in `mode`.
+    pub fn new(buffered: &'f File, path: &std::path::Path, mode: TileIo) -> TileWriter<'f> {
+        use std::sync::atomic::Ordering::Relaxed;
+        let direct = match mode {
+            TileIo::Buffered => None,
+            _ => open_direct(path),
+        };
+        let start_direct = match mode {
+            TileIo::Direct => true,
+            TileIo::Auto => CACHE_SLOW.load(Relaxed),
+            TileIo::Buffered => false,
+        };
         TileWriter {
+            going_direct: (start_direct && direct.is_some()).into(),
             buffered,
-            direct: if direct { open_direct(path) } else { None },
-            refused: false.into(),
+            direct,
+            mode,
+            timed: std::sync::Mutex::new((0, 0.0)),
         }
     }
 
-    /// Whether tile data goes around the page cache.
+    /// Whether tile data goes around the page cache now.
     pub fn is_direct(&self) -> bool {
-        self.direct.is_some() && !self.refused.load(std::sync::atomic::Ordering::Relaxed)
+        self.going_direct.load(std::sync::atomic::Ordering::Relaxed)
     }
 
     /// Writes `tile` at `offset` (a multiple of [`DIRECT_ALIGN`]; callable from
-    /// several threads). A direct write the file system refuses falls back to the
-    /// buffered handle, for good.
+    /// several threads).
     pub fn write(&self, tile: &[f32], offset: u64) -> io::Result<()> {
+        use std::sync::atomic::Ordering::Relaxed;
         let bytes: &[u8] = bytemuck::cast_slice(tile);
         if let Some(d) = self.direct.as_ref().filter(|_| self.is_direct()) {
             let aligned = offset.is_multiple_of(DIRECT_ALIGN as u64)
@@ -287,14 +300,30 @@ impl<'f> TileWriter<'f> {
                 match write_all_at(d, bytes, offset) {
                     Ok(()) => return Ok(()),
                     Err(e) if e.raw_os_error() == Some(libc::EINVAL) => {
-                        self.refused
-                            .store(true, std::sync::atomic::Ordering::Relaxed);
+                        self.going_direct.store(false, Relaxed);
                     }
                     Err(e) => return Err(e),
                 }
+            } else {
+                return write_all_at(self.buffered, bytes, offset);
             }
         }
-        write_all_at(self.buffered, bytes, offset)
+        if self.mode != TileIo::Auto || self.direct.is_none() {
+            return write_all_at(self.buffered, bytes, offset);
+        }
+        let mut timed = self.timed.lock().unwrap_or_else(|p| p.into_inner());
+        let t = std::time::Instant::now();
+        write_all_at(self.buffered, bytes, offset)?;
+        timed.0 += bytes.len() as u64;
+        timed.1 += t.elapsed().as_secs_f64();
+        if timed.0 >= JUDGE_BYTES {
+            if (timed.0 as f64) < SLOW_CACHE * timed.1 {
+                CACHE_SLOW.store(true, Relaxed);
+                self.going_direct.store(true, Relaxed);
+            }
+            *timed = (0, 0.0);
+        }
+        Ok(())
     }
 }
 

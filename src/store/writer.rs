@@ -64,7 +64,8 @@ pub struct PartSummary {
     /// Largest difference between a source coordinate and its stored value.
     pub max_quantization_error: f64,
     pub bigtiff: bool,
-    /// Whether the tile data went to the disk around the page cache (`TileIo`).
+    /// Whether the tile data went to the disk around the page cache (`TileIo`), at
+    /// the end of the write.
     pub direct: bool,
     /// Wall and CPU time of each phase of the write, in order.
     pub phases: Vec<(&'static str, Span)>,
@@ -529,8 +530,11 @@ fn write(
     };
     let file = File::create(&tmp_path)
         .map_err(|e| StoreError::new(path, format!("cannot create {}: {e}", tmp_path.display())))?;
-    let direct = opts.compression == Compression::None && opts.io.direct_for(tile_bytes(&a));
-    let tiles = TileWriter::new(&file, &tmp_path, direct);
+    let io = match opts.compression {
+        Compression::None => opts.io,
+        _ => TileIo::Buffered,
+    };
+    let tiles = TileWriter::new(&file, &tmp_path, io);
     let mut w = Out::new(&file);
     let io = |e: tiff::TiffError| match e {
         _ if opts.cancelled() => StoreError::new(path, INTERRUPTED),
@@ -965,7 +969,7 @@ mod tests {
         let path = dir.path().join("ro.bin");
         std::fs::write(&path, b"").unwrap();
         let ro = File::open(&path).unwrap();
-        let out = TileWriter::new(&ro, &path, false);
+        let out = TileWriter::new(&ro, &path, TileIo::Buffered);
         let opts = WriteOptions::default();
         let jobs = (0..500u64)
             .into_par_iter()
@@ -975,7 +979,7 @@ mod tests {
         assert_eq!(e.raw_os_error(), Some(libc::EBADF), "{e}");
         // And through a writable file every tile lands where it was sent.
         let rw = std::fs::OpenOptions::new().write(true).open(&path).unwrap();
-        let out = TileWriter::new(&rw, &path, true);
+        let out = TileWriter::new(&rw, &path, TileIo::Direct);
         let jobs = (0..40u64).into_par_iter().map(|j| {
             let mut t = TileBuf::filled(j as f32);
             t[1] = -(j as f32);
