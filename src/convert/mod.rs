@@ -327,6 +327,17 @@ fn convert_with(
         Some(d) => d.path.join(format!("part-{k:05}.tif")),
         None => o.output.clone(),
     };
+    // A store error names the part where the user will look for it: the staging
+    // directory is gone by the time the message is read.
+    let public = |mut e: store::StoreError| -> anyhow::Error {
+        if let Some(rel) = staging
+            .as_ref()
+            .and_then(|d| e.path.strip_prefix(&d.path).ok())
+        {
+            e.path = o.output.join(rel);
+        }
+        e.into()
+    };
     let mut parts: Vec<PartSummary> = Vec::new();
     let timings = std::cell::RefCell::new(Timings::default());
     // Time spent writing parts so far (passes report their time less this).
@@ -355,7 +366,8 @@ fn convert_with(
         check_cancel(o)?;
         check_precision(bounds, bounds.center(), parts.len(), o, as_file)?;
         let s =
-            store::write_part_owned(&part_path(parts.len()), chunks, Some(*bounds), &write_opts)?;
+            store::write_part_owned(&part_path(parts.len()), chunks, Some(*bounds), &write_opts)
+                .map_err(public)?;
         record(s, parts);
         Ok(())
     };
@@ -369,7 +381,7 @@ fn convert_with(
             return Err(OriginTooFar.into());
         }
         check_precision(&bounds, origin, parts.len(), o, as_file)?;
-        let s = store::write_part_built(&part_path(parts.len()), b, &write_opts)?;
+        let s = store::write_part_built(&part_path(parts.len()), b, &write_opts).map_err(public)?;
         record(s, parts);
         Ok(())
     };
@@ -465,7 +477,7 @@ fn convert_with(
                             let expect = info.declared_points.unwrap_or(0).min(per_part);
                             store::PartBuilder::new(centre, None, expect as usize)
                         });
-                        b.push(&part_path(0), &chunk)?;
+                        b.push(&part_path(0), &chunk).map_err(public)?;
                     } else {
                         held.push(chunk);
                     }
@@ -646,7 +658,8 @@ fn convert_with(
                         let t_back = begin();
                         let mut b = new_part();
                         while let Some(r) = blocks.next_records(usize::MAX)? {
-                            b.push_packed(&part_path(parts.len()), r, &names)?;
+                            b.push_packed(&part_path(parts.len()), r, &names)
+                                .map_err(public)?;
                         }
                         // The region's bounds, kept in f64 while spilling.
                         b.set_source_bounds(f.bounds);
@@ -689,7 +702,8 @@ fn convert_with(
                         let mut b = new_part();
                         let room = |b: &store::PartBuilder| per_part as usize - b.len();
                         while let Some(r) = blocks.next_records(room(&b))? {
-                            b.push_packed(&part_path(parts.len()), r, &names)?;
+                            b.push_packed(&part_path(parts.len()), r, &names)
+                                .map_err(public)?;
                             if room(&b) == 0 {
                                 write_built(std::mem::replace(&mut b, new_part()), &mut parts)?;
                             }

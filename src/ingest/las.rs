@@ -132,13 +132,14 @@ fn crs_of(h: &las::Header) -> Option<String> {
     }
     match h.get_geotiff_crs() {
         Ok(Some(g)) => {
-            let code = g
-                .get_projected_crs_geo_key_value()
-                .filter(|&c| (1024..=32766).contains(&c))
-                .or_else(|| {
-                    g.get_geodetic_crs_geo_key_value()
-                        .filter(|&c| (1024..=32766).contains(&c))
-                });
+            // A projected key, user-defined (32767) included, says the CRS is
+            // projected: its geographic base's code is not the CRS.
+            let code = match g.get_projected_crs_geo_key_value() {
+                Some(p) => Some(p).filter(|&c| (1024..=32766).contains(&c)),
+                None => g
+                    .get_geodetic_crs_geo_key_value()
+                    .filter(|&c| (1024..=32766).contains(&c)),
+            };
             Some(match code {
                 Some(c) => format!("EPSG:{c}"),
                 None => "GeoTIFF keys (user-defined CRS)".to_string(),
@@ -683,6 +684,38 @@ mod tests {
             .unwrap();
         }
         w.close().unwrap();
+    }
+
+    /// GeoTIFF keys: the projected code, else the geographic one; a user-defined
+    /// projected CRS is not its geographic base's code.
+    #[test]
+    fn geotiff_keys_give_the_crs() {
+        let crs = |keys: &[(u16, u16)]| {
+            let mut data: Vec<u16> = vec![1, 1, 0, keys.len() as u16];
+            for &(k, v) in keys {
+                data.extend([k, 0, 1, v]);
+            }
+            let mut b = las::Builder::default();
+            b.vlrs.push(las::Vlr {
+                user_id: "LASF_Projection".into(),
+                record_id: 34735,
+                description: String::new(),
+                data: data.iter().flat_map(|v| v.to_le_bytes()).collect(),
+            });
+            super::crs_of(&b.into_header().unwrap())
+        };
+        const GEOGRAPHIC: u16 = 2048;
+        const PROJECTED: u16 = 3072;
+        assert_eq!(
+            crs(&[(GEOGRAPHIC, 4269), (PROJECTED, 26910)]).as_deref(),
+            Some("EPSG:26910")
+        );
+        assert_eq!(crs(&[(GEOGRAPHIC, 4326)]).as_deref(), Some("EPSG:4326"));
+        assert_eq!(
+            crs(&[(GEOGRAPHIC, 4269), (PROJECTED, 32767)]).as_deref(),
+            Some("GeoTIFF keys (user-defined CRS)")
+        );
+        assert_eq!(crs(&[]).as_deref(), Some("GeoTIFF keys (user-defined CRS)"));
     }
 
     fn values<'a>(c: &'a crate::points::PointColumns, n: &str) -> &'a crate::points::Attribute {

@@ -766,8 +766,8 @@ impl LineEngine {
                         self.line,
                         format!(
                             "the file ends after {} of the {} points its count line(s) \
-                             declare (truncated?); to read what is there, delete the \
-                             count line at the top",
+                             declare (truncated?); to read what is there, correct the \
+                             count line(s)",
                             crate::text::count(self.point_lines),
                             crate::text::count(d)
                         ),
