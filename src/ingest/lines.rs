@@ -693,9 +693,11 @@ impl LineEngine {
             have += 1;
             last = l;
         }
-        // The file ends on the line after its last one.
-        let lines = memchr::memchr_iter(b'\n', rest).count() as u64
-            + rest.last().is_some_and(|&c| c != b'\n') as u64;
+        // The file ends on the line after its last one (counted for errors only).
+        let lines = || {
+            memchr::memchr_iter(b'\n', rest).count() as u64
+                + rest.last().is_some_and(|&c| c != b'\n') as u64
+        };
         if have >= wanted {
             // Every line is there; the last could still be cut inside (a file
             // cut short mid-line): it must hold its element's values.
@@ -707,7 +709,7 @@ impl LineEngine {
             }
             return Err(IngestError::line(
                 &self.path,
-                self.line + lines,
+                self.line + lines(),
                 format!(
                     "truncated file: the last line of element '{}' ends before the values \
                      its properties declare",
@@ -726,7 +728,7 @@ impl LineEngine {
             .unwrap_or(&after[after.len() - 1]);
         Err(IngestError::line(
             &self.path,
-            self.line + lines,
+            self.line + lines(),
             format!(
                 "truncated file: the file ends inside element '{}' ({} of the {} lines \
                  the header declares after the vertices are missing)",
