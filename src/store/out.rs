@@ -2,8 +2,9 @@
 //! writer that can leave a hole (a run of bytes the encoder counts but does not
 //! write), which is then filled with positioned writes (`pwrite`). Uncompressed
 //! tiles have known sizes, so a level's tile data is reserved as one hole: the
-//! rayon pool encodes the tiles and two writer threads write them into it
-//! (`writer::write_tiles`).
+//! rayon pool encodes the tiles and writer threads write them into it
+//! (`writer::write_tiles`), through the page cache or around it ([`TileWriter`],
+//! from aligned [`TileBuf`]s).
 
 use std::cell::Cell;
 use std::fs::File;
