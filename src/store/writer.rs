@@ -411,19 +411,17 @@ fn level_points(index: &[LevelIndex]) -> Vec<u64> {
 /// Upper bound of the file size, to choose between classic TIFF and BigTIFF.
 fn size_estimate(a: &Arranged, xml: &str) -> u64 {
     let g = a.geometry;
+    let per_tile = (TILE_PIXELS * 4) as u64 * a.names.len() as u64;
     // Compressed tiles can exceed raw size slightly: allow 1%.
-    let data = tile_bytes(a) * 101 / 100;
+    let data: u64 = (0..g.levels())
+        .map(|l| g.filled_tiles(l) * per_tile)
+        .sum::<u64>()
+        * 101
+        / 100;
     let tags: u64 = (0..g.levels())
         .map(|l| (g.tiles_across(l) as u64).pow(2) * a.names.len() as u64 * 16 + 4096)
         .sum();
     data + tags + xml.len() as u64
-}
-
-/// Bytes of the part's tile data, uncompressed: every level's filled tiles.
-fn tile_bytes(a: &Arranged) -> u64 {
-    let g = a.geometry;
-    let per_tile = (TILE_PIXELS * 4) as u64 * a.names.len() as u64;
-    (0..g.levels()).map(|l| g.filled_tiles(l) * per_tile).sum()
 }
 
 /// Removes the temporary file unless the write completed.
