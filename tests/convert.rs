@@ -331,6 +331,14 @@ fn stream_partition_keeps_file_order() {
     let s = convert::convert(&input, &o, &Quiet).unwrap();
     assert_eq!(s.points, 300_000);
     assert!(s.parts.len() >= 2);
+    // The pass over the input comes first in the timings, though parts were
+    // written while it ran.
+    assert_eq!(
+        s.phases.first().map(|(n, _)| n.as_str()),
+        Some("read"),
+        "{:?}",
+        s.phases
+    );
     // Part k holds points [k * per_part, ...) of the file, in file order (paper layout).
     let ds = Dataset::open(&out).unwrap();
     let pts = pcimg::synth::scene(300_000, 5);

@@ -405,6 +405,8 @@ fn convert_with(
     let t_read = begin();
     match o.partition {
         Partition::Stream => {
+            // Parts are written while the input is read: the pass is listed first.
+            timings.borrow_mut().add("read", Span::default());
             let mut acc: Option<PointColumns> = None;
             while let Some(mut chunk) = reader.next_chunk()? {
                 check_cancel(o)?;

@@ -328,6 +328,110 @@ impl<'f> TileWriter<'f> {
     }
 }
 
+impl TileWriter<'_> {
+    /// Writes `tiles`, which lie back to back in the file from `offset` (a
+    /// multiple of [`DIRECT_ALIGN`]), with one system call where it can: the
+    /// disk takes 1.5 GB/s in 256 KiB direct writes and 2.0-2.2 GB/s in 1-4 MiB
+    /// ones (`dd oflag=direct` on the VM).
+    pub fn write_run(&self, tiles: &[&[f32]], offset: u64) -> io::Result<()> {
+        use std::sync::atomic::Ordering::Relaxed;
+        if tiles.len() < 2 {
+            return tiles.first().map_or(Ok(()), |t| self.write(t, offset));
+        }
+        let timed = self.mode == TileIo::Auto && self.direct.is_some() && !self.is_direct();
+        let direct = self.direct.as_ref().filter(|_| self.is_direct());
+        let file = direct.unwrap_or(self.buffered);
+        // (Buffered writes in Auto are timed one at a time, as in `write`.)
+        let mut lock = timed.then(|| self.timed.lock().unwrap_or_else(|p| p.into_inner()));
+        let t = std::time::Instant::now();
+        match write_vectored_all_at(file, tiles, offset) {
+            Ok(()) => {}
+            Err(e) if direct.is_some() && e.raw_os_error() == Some(libc::EINVAL) => {
+                // The file system refuses direct writes: buffered from here on.
+                self.going_direct.store(false, Relaxed);
+                drop(lock);
+                return self.write_run(tiles, offset);
+            }
+            Err(e) => return Err(e),
+        }
+        if let Some(timed) = lock.as_deref_mut() {
+            let bytes: u64 = tiles.iter().map(|t| 4 * t.len() as u64).sum();
+            timed.0 += bytes;
+            timed.1 += t.elapsed().as_secs_f64();
+            if timed.0 >= JUDGE_BYTES {
+                if (timed.0 as f64) < SLOW_CACHE * timed.1 {
+                    CACHE_SLOW.store(true, Relaxed);
+                    self.going_direct.store(true, Relaxed);
+                }
+                *timed = (0, 0.0);
+            }
+        }
+        Ok(())
+    }
+}
+
+/// Writes the slices `parts`, back to back, at `offset` of `file` (`pwritev`;
+/// what a short write leaves is written piece by piece).
+#[cfg(unix)]
+fn write_vectored_all_at(file: &File, parts: &[&[f32]], offset: u64) -> io::Result<()> {
+    use std::os::unix::io::AsRawFd;
+    let iov: Vec<libc::iovec> = parts
+        .iter()
+        .map(|p| libc::iovec {
+            iov_base: p.as_ptr() as *mut libc::c_void,
+            iov_len: std::mem::size_of_val(*p),
+        })
+        .collect();
+    let total: usize = iov.iter().map(|v| v.iov_len).sum();
+    let done = loop {
+        // SAFETY: every iovec points at a live slice of its length, only read.
+        let n = unsafe {
+            libc::pwritev(
+                file.as_raw_fd(),
+                iov.as_ptr(),
+                iov.len().min(libc::c_int::MAX as usize) as libc::c_int,
+                offset as libc::off_t,
+            )
+        };
+        if n >= 0 {
+            break n as usize;
+        }
+        let e = io::Error::last_os_error();
+        if e.kind() != io::ErrorKind::Interrupted {
+            return Err(e);
+        }
+    };
+    if done == total {
+        return Ok(());
+    }
+    if done == 0 {
+        return Err(io::ErrorKind::WriteZero.into());
+    }
+    // A short write: the rest, slice by slice.
+    let mut at = 0usize;
+    for p in parts {
+        let bytes: &[u8] = bytemuck::cast_slice(p);
+        let end = at + bytes.len();
+        if end > done {
+            let skip = done.saturating_sub(at);
+            write_all_at(file, &bytes[skip..], offset + (at + skip) as u64)?;
+        }
+        at = end;
+    }
+    Ok(())
+}
+
+#[cfg(not(unix))]
+fn write_vectored_all_at(file: &File, parts: &[&[f32]], offset: u64) -> io::Result<()> {
+    let mut at = offset;
+    for p in parts {
+        let bytes: &[u8] = bytemuck::cast_slice(p);
+        write_all_at(file, bytes, at)?;
+        at += bytes.len() as u64;
+    }
+    Ok(())
+}
+
 /// `path` opened for writing with `O_DIRECT`, if the system and file system allow.
 #[cfg(target_os = "linux")]
 fn open_direct(path: &std::path::Path) -> Option<File> {
