@@ -141,6 +141,21 @@ unsafe impl Send for TileBuf {}
 unsafe impl Sync for TileBuf {}
 
 impl TileBuf {
+    /// A tile whose every sample the caller will overwrite: a recycled buffer
+    /// as it is (its old samples), or a fresh zeroed one; no fill.
+    pub fn reused() -> TileBuf {
+        if let Some(t) = FREE_TILES.lock().ok().and_then(|mut f| f.pop()) {
+            return t;
+        }
+        let layout = Self::layout();
+        // SAFETY: the layout has a non-zero size; zeroed memory is valid f32s.
+        let raw = unsafe { std::alloc::alloc_zeroed(layout) } as *mut f32;
+        let Some(ptr) = std::ptr::NonNull::new(raw) else {
+            std::alloc::handle_alloc_error(layout)
+        };
+        TileBuf { ptr }
+    }
+
     fn layout() -> std::alloc::Layout {
         // (Sizes are constants: TILE_PIXELS * 4 bytes, aligned to 4 KiB.)
         std::alloc::Layout::from_size_align(TILE_PIXELS * 4, DIRECT_ALIGN)

@@ -591,7 +591,12 @@ const BATCH_TILES: usize = 8;
 /// tile) at their row-major pixels; the rest stays NaN.
 #[inline]
 fn scatter_tile(lut: &[u32], count: usize, value: impl Fn(usize) -> f32) -> TileBuf {
-    let mut buf = TileBuf::filled(f32::NAN);
+    // A full tile writes every pixel (the table is a permutation): no NaN fill.
+    let mut buf = if count == TILE_PIXELS {
+        TileBuf::reused()
+    } else {
+        TileBuf::filled(f32::NAN)
+    };
     for (i, &to) in lut[..count].iter().enumerate() {
         buf[to as usize] = value(i);
     }
