@@ -164,7 +164,7 @@ fn decode_window(rec: &[u8], f: &Fields, gps_offset: f64, out: Out<'_>) {
 /// Reader of uncompressed LAS files.
 pub struct RecordReader {
     info: SourceInfo,
-    map: memmap2::Mmap,
+    map: std::sync::Arc<memmap2::Mmap>,
     fields: Fields,
     start: usize,
     total: usize,
@@ -176,11 +176,14 @@ pub struct RecordReader {
     /// Records per record delivered: 1, or more once sampling (see
     /// [`PointReader::sample_rest`]).
     every: usize,
+    /// Reading the next chunk's records ahead of the decoders (while every
+    /// record is read).
+    ahead: Option<super::ahead::ReadAhead>,
 }
 
 impl RecordReader {
     pub(crate) fn new(path: &Path, o: Opened, opts: &ReadOptions) -> Result<Self, IngestError> {
-        let map = super::map_file(path)?;
+        let map = std::sync::Arc::new(super::map_file(path)?);
         let stride = o.record_len as usize;
         let fields = Fields::new(path, o.header.point_format(), stride, &o.header)?;
         let total = o.header.number_of_points() as usize;
@@ -209,6 +212,11 @@ impl RecordReader {
             }
             None => 0.0,
         };
+        let ahead = super::ahead::ReadAhead::start(
+            map.clone(),
+            start as u64,
+            (start + total * stride) as u64,
+        );
         Ok(RecordReader {
             info: o.info,
             map,
@@ -221,6 +229,7 @@ impl RecordReader {
             colors: ColorNormalizer::new(false),
             released: 0,
             every: 1,
+            ahead,
         })
     }
 }
@@ -270,6 +279,10 @@ impl PointReader for RecordReader {
         }
         let f = self.fields;
         let first = self.start + self.done * f.stride;
+        // This chunk and the next are asked for while this one is decoded.
+        if let Some(a) = &self.ahead {
+            a.want((first + 2 * self.chunk * f.stride) as u64);
+        }
         let bytes = &self.map[first..first + stretch * f.stride];
         let gps_offset = self.gps_offset;
         // When sampling, each window sits at a random place in its slot of the
@@ -341,6 +354,10 @@ impl PointReader for RecordReader {
 
     fn sample_rest(&mut self, every: u64) -> bool {
         self.every = every.clamp(1, 1 << 20) as usize;
+        // Sampled windows are sparse: reading everything ahead would be waste.
+        if self.every > 1 {
+            self.ahead = None;
+        }
         self.every > 1
     }
 }

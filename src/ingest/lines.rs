@@ -955,18 +955,27 @@ impl LineEngine {
 /// memory map, the line engine over it, and the consumed-page release.
 pub struct LineReader {
     pub(crate) info: super::SourceInfo,
-    pub(crate) map: memmap2::Mmap,
+    pub(crate) map: std::sync::Arc<memmap2::Mmap>,
     pub(crate) engine: LineEngine,
     pub(crate) released: usize,
+    /// Reading ahead of the parsers while every line is read.
+    ahead: Option<super::ahead::ReadAhead>,
+    /// Bytes the last chunk took (how far ahead to read).
+    last_chunk: usize,
 }
 
 impl LineReader {
     pub(crate) fn new(info: super::SourceInfo, map: memmap2::Mmap, engine: LineEngine) -> Self {
+        let map = std::sync::Arc::new(map);
+        let ahead =
+            super::ahead::ReadAhead::start(map.clone(), engine.pos as u64, map.len() as u64);
         LineReader {
             info,
             map,
             engine,
             released: 0,
+            ahead,
+            last_chunk: 0,
         }
     }
 }
@@ -977,7 +986,16 @@ impl super::PointReader for LineReader {
     }
 
     fn next_chunk(&mut self) -> Result<Option<PointColumns>, IngestError> {
+        // This chunk and the next are asked for while this one is parsed (the
+        // first chunk's size is not known: 8 MiB). Pages read ahead are mapped,
+        // so they count in the resident size: the span follows the chunks,
+        // which the memory budget sizes.
+        let from = self.engine.pos;
+        if let Some(a) = &self.ahead {
+            a.want((from + 2 * self.last_chunk.max(4 << 20)) as u64);
+        }
         let r = self.engine.next_chunk(&self.map);
+        self.last_chunk = self.engine.pos.saturating_sub(from);
         super::release_consumed(&self.map, &mut self.released, self.engine.pos);
         r
     }
@@ -998,7 +1016,12 @@ impl super::PointReader for LineReader {
     }
 
     fn sample_rest(&mut self, every: u64) -> bool {
-        self.engine.sample_rest(every)
+        let sampling = self.engine.sample_rest(every);
+        // Sampled windows are sparse: reading everything ahead would be waste.
+        if sampling {
+            self.ahead = None;
+        }
+        sampling
     }
 }
 

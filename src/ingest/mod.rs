@@ -19,6 +19,7 @@
 //!   one chunk ahead on its own thread. Pages of a memory map already consumed are
 //!   released as reading advances.
 
+pub mod ahead;
 pub mod color;
 pub mod error;
 pub mod las;
@@ -326,7 +327,7 @@ pub(crate) fn map_file(path: &Path) -> Result<memmap2::Mmap, IngestError> {
 /// the resident size of a reader stays about one window even on an input larger
 /// than memory (the pages stay in the page cache; the kernel reclaims them).
 pub(crate) fn release_consumed(map: &memmap2::Mmap, released: &mut usize, upto: usize) {
-    const STEP: usize = 64 << 20;
+    const STEP: usize = 16 << 20;
     let upto = upto.min(map.len());
     if upto < *released + STEP && upto < map.len() {
         return;

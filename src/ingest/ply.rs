@@ -435,9 +435,16 @@ pub fn open(path: &Path, opts: &ReadOptions) -> Result<Box<dyn PointReader>, Ing
     }
     plan.layout.offsets = offsets;
     let after = header.elements[plan.element + 1..].to_vec();
+    let map = std::sync::Arc::new(map);
+    let ahead = super::ahead::ReadAhead::start(
+        map.clone(),
+        pos,
+        pos.saturating_add(count.saturating_mul(plan.stride as u64)),
+    );
     Ok(Box::new(BinaryPly {
         info,
         map,
+        ahead,
         start: pos as usize,
         count,
         done: 0,
@@ -514,7 +521,9 @@ fn skip_binary_element(
 /// Binary PLY: fixed-stride records.
 struct BinaryPly {
     info: SourceInfo,
-    map: Mmap,
+    map: std::sync::Arc<Mmap>,
+    /// Reading the next chunk's records ahead of the decoders.
+    ahead: Option<super::ahead::ReadAhead>,
     start: usize,
     count: u64,
     done: u64,
@@ -670,6 +679,10 @@ impl BinaryPly {
         let n = (self.count - self.done).min(self.chunk_points as u64) as usize;
         let stride = self.plan.stride;
         let from = self.start + self.done as usize * stride;
+        // This chunk and the next are asked for while this one is decoded.
+        if let Some(a) = &self.ahead {
+            a.want((from + 2 * n * stride) as u64);
+        }
         let Some(data) = self.map.get(from..from + n * stride) else {
             return Err(IngestError::binary(
                 self.path_ref(),
