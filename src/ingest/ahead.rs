@@ -15,6 +15,9 @@ use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 /// Bytes faulted in at a time.
 const STEP: u64 = 16 << 20;
 
+/// Inputs of at most this many bytes are not read ahead.
+const SMALL: u64 = 2 * STEP;
+
 /// A read-ahead thread over one mapping; stopped when dropped.
 pub struct ReadAhead {
     shared: Arc<Shared>,
@@ -58,6 +61,56 @@ impl ReadAhead {
         if let Some(t) = &self.thread {
             t.thread().unpark();
         }
+    }
+}
+
+/// A [`ReadAhead`] started at the first [`Ahead::want`]: a reader opened only
+/// for its header (several input files are, up front) starts no thread.
+pub struct Ahead {
+    map: Arc<Mmap>,
+    start: u64,
+    end: u64,
+    state: State,
+}
+
+enum State {
+    Idle,
+    Running(ReadAhead),
+    Off,
+}
+
+impl Ahead {
+    /// Reading ahead in `map` from byte `start` up to `end`, once asked; not at
+    /// all for a stretch of at most [`SMALL`] (a thread a file cost more than it
+    /// saved on 500 files of 130 kB: 1.37-1.66 s against 1.10-1.17 s).
+    pub fn new(map: Arc<Mmap>, start: u64, end: u64) -> Ahead {
+        let small = end.saturating_sub(start) <= SMALL;
+        Ahead {
+            map,
+            start,
+            end,
+            state: if small { State::Off } else { State::Idle },
+        }
+    }
+
+    /// Asks for the file up to byte `upto` to be read (the thread starts now
+    /// if it has not).
+    pub fn want(&mut self, upto: u64) {
+        if let State::Idle = self.state {
+            self.state = match ReadAhead::start(self.map.clone(), self.start, self.end) {
+                Some(r) => State::Running(r),
+                None => State::Off,
+            };
+        }
+        if let State::Running(r) = &self.state {
+            r.want(upto);
+        }
+    }
+
+    /// No more reading ahead (the reader samples from here on: its windows are
+    /// sparse).
+    pub fn stop(&mut self) {
+        self.state = State::Off;
     }
 }
 

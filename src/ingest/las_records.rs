@@ -178,7 +178,7 @@ pub struct RecordReader {
     every: usize,
     /// Reading the next chunk's records ahead of the decoders (while every
     /// record is read).
-    ahead: Option<super::ahead::ReadAhead>,
+    ahead: super::ahead::Ahead,
 }
 
 impl RecordReader {
@@ -212,11 +212,8 @@ impl RecordReader {
             }
             None => 0.0,
         };
-        let ahead = super::ahead::ReadAhead::start(
-            map.clone(),
-            start as u64,
-            (start + total * stride) as u64,
-        );
+        let ahead =
+            super::ahead::Ahead::new(map.clone(), start as u64, (start + total * stride) as u64);
         Ok(RecordReader {
             info: o.info,
             map,
@@ -280,8 +277,8 @@ impl PointReader for RecordReader {
         let f = self.fields;
         let first = self.start + self.done * f.stride;
         // This chunk and the next are asked for while this one is decoded.
-        if let Some(a) = &self.ahead {
-            a.want((first + 2 * self.chunk * f.stride) as u64);
+        if self.every == 1 {
+            self.ahead.want((first + 2 * self.chunk * f.stride) as u64);
         }
         let bytes = &self.map[first..first + stretch * f.stride];
         let gps_offset = self.gps_offset;
@@ -356,7 +353,7 @@ impl PointReader for RecordReader {
         self.every = every.clamp(1, 1 << 20) as usize;
         // Sampled windows are sparse: reading everything ahead would be waste.
         if self.every > 1 {
-            self.ahead = None;
+            self.ahead.stop();
         }
         self.every > 1
     }

@@ -959,7 +959,7 @@ pub struct LineReader {
     pub(crate) engine: LineEngine,
     pub(crate) released: usize,
     /// Reading ahead of the parsers while every line is read.
-    ahead: Option<super::ahead::ReadAhead>,
+    ahead: super::ahead::Ahead,
     /// Bytes the last chunk took (how far ahead to read).
     last_chunk: usize,
 }
@@ -967,8 +967,7 @@ pub struct LineReader {
 impl LineReader {
     pub(crate) fn new(info: super::SourceInfo, map: memmap2::Mmap, engine: LineEngine) -> Self {
         let map = std::sync::Arc::new(map);
-        let ahead =
-            super::ahead::ReadAhead::start(map.clone(), engine.pos as u64, map.len() as u64);
+        let ahead = super::ahead::Ahead::new(map.clone(), engine.pos as u64, map.len() as u64);
         LineReader {
             info,
             map,
@@ -991,9 +990,8 @@ impl super::PointReader for LineReader {
         // so they count in the resident size: the span follows the chunks,
         // which the memory budget sizes.
         let from = self.engine.pos;
-        if let Some(a) = &self.ahead {
-            a.want((from + 2 * self.last_chunk.max(4 << 20)) as u64);
-        }
+        self.ahead
+            .want((from + 2 * self.last_chunk.max(4 << 20)) as u64);
         let r = self.engine.next_chunk(&self.map);
         self.last_chunk = self.engine.pos.saturating_sub(from);
         super::release_consumed(&self.map, &mut self.released, self.engine.pos);
@@ -1019,7 +1017,7 @@ impl super::PointReader for LineReader {
         let sampling = self.engine.sample_rest(every);
         // Sampled windows are sparse: reading everything ahead would be waste.
         if sampling {
-            self.ahead = None;
+            self.ahead.stop();
         }
         sampling
     }

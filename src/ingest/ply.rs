@@ -436,7 +436,7 @@ pub fn open(path: &Path, opts: &ReadOptions) -> Result<Box<dyn PointReader>, Ing
     plan.layout.offsets = offsets;
     let after = header.elements[plan.element + 1..].to_vec();
     let map = std::sync::Arc::new(map);
-    let ahead = super::ahead::ReadAhead::start(
+    let ahead = super::ahead::Ahead::new(
         map.clone(),
         pos,
         pos.saturating_add(count.saturating_mul(plan.stride as u64)),
@@ -523,7 +523,7 @@ struct BinaryPly {
     info: SourceInfo,
     map: std::sync::Arc<Mmap>,
     /// Reading the next chunk's records ahead of the decoders.
-    ahead: Option<super::ahead::ReadAhead>,
+    ahead: super::ahead::Ahead,
     start: usize,
     count: u64,
     done: u64,
@@ -680,9 +680,7 @@ impl BinaryPly {
         let stride = self.plan.stride;
         let from = self.start + self.done as usize * stride;
         // This chunk and the next are asked for while this one is decoded.
-        if let Some(a) = &self.ahead {
-            a.want((from + 2 * n * stride) as u64);
-        }
+        self.ahead.want((from + 2 * n * stride) as u64);
         let Some(data) = self.map.get(from..from + n * stride) else {
             return Err(IngestError::binary(
                 self.path_ref(),
