@@ -36,6 +36,25 @@ pub struct PointColumns {
     pub attributes: Vec<Attribute>,
 }
 
+/// Attribute values that a reader can produce again for any point, from where the
+/// input itself keeps them (an uncompressed LAS file's memory map), so a part need
+/// not hold a copy: the store then asks for the rows of one tile's points at a time.
+///
+/// Point `i` is the `i`-th point the reader delivered; a row is the values of the
+/// reader's attributes in their order, exactly as its chunks deliver them (offsets
+/// included: `Attribute::offset` is the chunks' own).
+pub trait RowSource: Send + Sync {
+    /// Points it can give rows for.
+    fn len(&self) -> usize;
+    fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+    /// Values in a row (the reader's attributes).
+    fn width(&self) -> usize;
+    /// Appends the rows of points `idx` (each below [`RowSource::len`]) to `out`.
+    fn gather(&self, idx: &[u32], out: &mut Vec<f32>);
+}
+
 /// Axis-aligned bounds in source coordinates.
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Bounds {

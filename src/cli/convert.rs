@@ -368,6 +368,12 @@ pub fn run(a: Args) -> anyhow::Result<()> {
             "  tile data written around the page cache: {direct} of {} part(s)",
             s.parts.len()
         )?;
+        let mapped = s.parts.iter().filter(|p| p.rows_from_input).count();
+        writeln!(
+            out,
+            "  attribute rows read from the input's map, not copied: {mapped} of {} part(s)",
+            s.parts.len()
+        )?;
     }
     super::print_out(&out)?;
     Ok(())

@@ -477,7 +477,13 @@ fn convert_with(
                         let b = built.get_or_insert_with(|| {
                             let centre = info.declared_bounds.unwrap_or(here).center();
                             let expect = info.declared_points.unwrap_or(0).min(per_part);
-                            store::PartBuilder::new(centre, None, expect as usize)
+                            let mut b = store::PartBuilder::new(centre, None, expect as usize);
+                            // Attribute rows the reader can give again (LAS) are
+                            // not copied: the tiles take them from the input.
+                            if let Some(rows) = reader.row_source() {
+                                b.rows_from(rows);
+                            }
+                            b
                         });
                         b.push(&part_path(0), &chunk).map_err(public)?;
                     } else {

@@ -62,14 +62,25 @@ impl ColorScale {
         }
     }
 
-    /// Scales a column in place and clamps it to 0–255; how many values the clamp
-    /// changed (the scale did not fit them).
-    pub fn apply(self, values: &mut [f32]) -> u64 {
-        let f = match self {
+    /// The factor a value is scaled by.
+    fn factor(self) -> f32 {
+        match self {
             ColorScale::Identity => 1.0,
             ColorScale::From16Bit => 1.0 / 257.0,
             ColorScale::FromUnit => 255.0,
-        };
+        }
+    }
+
+    /// One value scaled and clamped, as [`ColorScale::apply`] does it.
+    #[inline]
+    pub fn one(self, v: f32) -> f32 {
+        (v * self.factor()).clamp(0.0, 255.0)
+    }
+
+    /// Scales a column in place and clamps it to 0–255; how many values the clamp
+    /// changed (the scale did not fit them).
+    pub fn apply(self, values: &mut [f32]) -> u64 {
+        let f = self.factor();
         use rayon::prelude::*;
         values
             .par_chunks_mut(1 << 16)

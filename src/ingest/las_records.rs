@@ -3,13 +3,15 @@
 //! in cache, decoded in parallel (rayon) into disjoint slices of the chunk's
 //! columns. The columns and their meaning are exactly those of the `las`-crate
 //! path in [`super::las`] (which still reads LAZ): the tests compare the two.
+//! The same map gives any record's attributes again ([`LasRows`]), so a part
+//! need not hold a copy of them.
 
-use super::color::ColorNormalizer;
+use super::color::{ColorNormalizer, ColorScale};
 use super::error::IngestError;
 use super::las::Opened;
 use super::{PointReader, ReadOptions, SourceInfo};
 use crate::bigvec;
-use crate::points::{Attribute, PointColumns};
+use crate::points::{Attribute, PointColumns, RowSource};
 use rayon::prelude::*;
 use std::mem::MaybeUninit;
 use std::path::Path;
@@ -158,6 +160,101 @@ fn decode_window(rec: &[u8], f: &Fields, gps_offset: f64, out: Out<'_>) {
     // over would be NaN rather than unwritten memory.
     for col in next {
         col.fill(MaybeUninit::new(f32::NAN));
+    }
+}
+
+/// Attribute values of one record, in [`decode_window`]'s column order, into
+/// `row` (NaN for columns beyond the record's fields), colour scaled by `colour`.
+#[inline]
+fn decode_row(
+    r: &[u8],
+    f: &Fields,
+    gps_offset: f64,
+    colour: ColorScale,
+    row: &mut [MaybeUninit<f32>],
+) {
+    let mut k = 0;
+    let mut put = |v: f32| {
+        if let Some(slot) = row.get_mut(k) {
+            slot.write(v);
+        }
+        k += 1;
+    };
+    put(f32::from(u16_at(r, 12)));
+    if f.extended {
+        put(f32::from(r[14] & 15));
+        put(f32::from((r[14] >> 4) & 15));
+        put(f32::from(r[16]));
+    } else {
+        put(f32::from(r[14] & 7));
+        put(f32::from((r[14] >> 3) & 7));
+        put(f32::from(r[15] & 0b0001_1111));
+    }
+    if let Some(g) = f.gps {
+        put((f64_at(r, g) - gps_offset) as f32);
+    }
+    if let Some(c) = f.rgb {
+        for j in 0..3 {
+            put(colour.one(f32::from(u16_at(r, c + 2 * j))));
+        }
+    }
+    if let Some(n) = f.nir {
+        put(f32::from(u16_at(r, n)));
+    }
+    if let Some(rest) = row.get_mut(k..) {
+        rest.fill(MaybeUninit::new(f32::NAN));
+    }
+}
+
+/// The attribute rows of an uncompressed LAS file's records, decoded from its
+/// memory map on demand: a record's values exactly as [`RecordReader`]'s chunks
+/// deliver them (same offsets, same colour scale).
+struct LasRows {
+    map: std::sync::Arc<memmap2::Mmap>,
+    start: usize,
+    total: usize,
+    fields: Fields,
+    gps_offset: f64,
+    colour: ColorScale,
+    width: usize,
+}
+
+impl RowSource for LasRows {
+    fn len(&self) -> usize {
+        self.total
+    }
+
+    fn width(&self) -> usize {
+        self.width
+    }
+
+    fn gather(&self, idx: &[u32], out: &mut Vec<f32>) {
+        let stride = self.fields.stride;
+        let recs = &self.map[self.start..self.start + self.total * stride];
+        let m = self.width;
+        let at = out.len();
+        out.reserve(idx.len() * m);
+        let dst = &mut out.spare_capacity_mut()[..idx.len() * m];
+        for (k, (&i, row)) in idx.iter().zip(dst.chunks_exact_mut(m.max(1))).enumerate() {
+            // The records lie in file order, the indices in curve order: nearly
+            // every record misses the cache.
+            // A record may straddle two cache lines: both are asked for.
+            if let Some(&ahead) = idx.get(k + bigvec::PREFETCH_AHEAD) {
+                let r = ahead as usize * stride;
+                bigvec::prefetch(recs, r);
+                bigvec::prefetch(recs, r + stride - 1);
+            }
+            let r = i as usize * stride;
+            decode_row(
+                &recs[r..r + stride],
+                &self.fields,
+                self.gps_offset,
+                self.colour,
+                row,
+            );
+        }
+        // SAFETY: `decode_row` wrote every value of every row (m of each).
+        unsafe { out.set_len(at + idx.len() * m) };
     }
 }
 
@@ -349,6 +446,32 @@ impl PointReader for RecordReader {
             .load(std::sync::atomic::Ordering::Relaxed)
     }
 
+    fn row_source(&self) -> Option<std::sync::Arc<dyn RowSource>> {
+        let m = self.info.attribute_names.len();
+        let colour = match (self.fields.rgb, self.colors.scale()) {
+            (None, _) => ColorScale::Identity,
+            (Some(_), Some(s)) => s,
+            // The colour scale is not decided yet (no chunk read).
+            (Some(_), None) => return None,
+        };
+        // While a part's tiles are written its records are mapped: they take the
+        // place of the f64 columns the memory budget counts for each point
+        // (`convert::budget::bytes_per_point`), so larger records (extra bytes)
+        // are copied as usual.
+        if self.every != 1 || self.fields.stride > 24 + 4 * m {
+            return None;
+        }
+        Some(std::sync::Arc::new(LasRows {
+            map: self.map.clone(),
+            start: self.start,
+            total: self.total,
+            fields: self.fields,
+            gps_offset: self.gps_offset,
+            colour,
+            width: m,
+        }))
+    }
+
     fn sample_rest(&mut self, every: u64) -> bool {
         self.every = every.clamp(1, 1 << 20) as usize;
         // Sampled windows are sparse: reading everything ahead would be waste.
@@ -460,6 +583,70 @@ mod tests {
                 assert!(a.values == b.values, "format {format} {}", a.name);
             }
         }
+    }
+
+    /// Rows given again from the map equal the chunks' values, bit for bit, in
+    /// any order, for every point format without waveforms (16-bit colour scaled
+    /// as the chunks are).
+    #[test]
+    fn rows_from_the_map_match_the_chunks() {
+        let dir = tempfile::tempdir().unwrap();
+        let n = 40_000;
+        let opts = ReadOptions {
+            chunk_points: 17_000,
+            ..Default::default()
+        };
+        for format in 0..=10u8 {
+            let path = dir.path().join(format!("f{format}.las"));
+            write(&path, format, n);
+            let mut r = open(&path, &opts).unwrap();
+            if [2, 3, 5, 7, 8, 10].contains(&format) {
+                assert!(
+                    r.row_source().is_none(),
+                    "format {format}: colour scale undecided"
+                );
+            }
+            let first = r.next_chunk().unwrap().unwrap();
+            // Waveform packets make records larger than the columns they would
+            // save: those are copied.
+            if [4, 5, 9, 10].contains(&format) {
+                assert!(r.row_source().is_none(), "format {format}");
+                continue;
+            }
+            let src = r.row_source().expect("uncompressed LAS gives its rows");
+            let mut all = first;
+            while let Some(c) = r.next_chunk().unwrap() {
+                all.append(&c).unwrap();
+            }
+            let m = all.attributes.len();
+            assert_eq!((src.len(), src.width()), (n, m), "format {format}");
+            // A scattered order, as a tile's points come.
+            let idx: Vec<u32> = (0..n as u64)
+                .map(|i| (i * 7919 % n as u64) as u32)
+                .collect();
+            let mut rows = vec![1.5f32];
+            src.gather(&idx, &mut rows);
+            assert_eq!(rows.len(), 1 + n * m);
+            for (k, &i) in idx.iter().enumerate() {
+                for (j, a) in all.attributes.iter().enumerate() {
+                    let (got, want) = (rows[1 + k * m + j], a.values[i as usize]);
+                    assert_eq!(got.to_bits(), want.to_bits(), "format {format} {}", a.name);
+                }
+            }
+        }
+    }
+
+    /// A sampling reader's rows are not every point's: it offers none.
+    #[test]
+    fn a_sampling_reader_offers_no_rows() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("s.las");
+        write(&path, 1, 5_000);
+        let mut r = open(&path, &ReadOptions::default()).unwrap();
+        r.next_chunk().unwrap();
+        assert!(r.row_source().is_some());
+        assert!(r.sample_rest(4));
+        assert!(r.row_source().is_none());
     }
 
     #[test]

@@ -34,7 +34,7 @@ use std::path::{Path, PathBuf};
 
 pub use error::IngestError;
 
-use crate::points::PointColumns;
+use crate::points::{PointColumns, RowSource};
 
 /// What a reader knows about its source before reading points.
 #[derive(Debug, Clone, PartialEq)]
@@ -107,6 +107,14 @@ pub trait PointReader: Send {
     fn sample_rest(&mut self, every: u64) -> bool {
         let _ = every;
         false
+    }
+    /// The attribute rows of every point this reader delivers, given again on
+    /// demand from the input itself (see [`RowSource`]): for a caller that would
+    /// otherwise hold a copy of them. Asked for after the first chunk (which
+    /// settles the colour scale) and before sampling; `None` where the reader
+    /// cannot (only uncompressed LAS can).
+    fn row_source(&self) -> Option<std::sync::Arc<dyn RowSource>> {
+        None
     }
 }
 

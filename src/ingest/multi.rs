@@ -315,6 +315,14 @@ impl PointReader for MultiReader {
         self.clamped_before + self.current.as_ref().map_or(0, |r| r.clamped_colours())
     }
 
+    fn row_source(&self) -> Option<std::sync::Arc<dyn crate::points::RowSource>> {
+        // One file's rows only: point indices run over every file.
+        if self.paths.len() != 1 {
+            return None;
+        }
+        self.current.as_ref().and_then(|r| r.row_source())
+    }
+
     fn sample_rest(&mut self, every: u64) -> bool {
         // PLY readers deliver every point: then none samples, so that every point
         // stands for the same number of points.

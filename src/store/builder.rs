@@ -3,12 +3,15 @@
 //! advance, and the attributes interleaved point by point (one row of values a
 //! point). A pushed chunk is converted at once, so the caller can drop it: a
 //! reader's `f64` window is never held for the whole part, and its memory is
-//! reused for the next window.
+//! reused for the next window. Where the reader can give the attribute rows again
+//! ([`RowSource`]), the builder keeps only their ranges and the writer asks the
+//! source for each tile's rows.
 
 use super::error::{Result, StoreError};
-use crate::points::{Attribute, Bounds, PointColumns};
+use crate::points::{Attribute, Bounds, PointColumns, RowSource};
 use rayon::prelude::*;
 use std::path::Path;
+use std::sync::Arc;
 
 /// One part's points, relative to `origin`, ready for [`super::writer`].
 pub struct PartBuilder {
@@ -18,6 +21,8 @@ pub struct PartBuilder {
     pub(super) pos: Vec<[f32; 3]>,
     /// `attributes.len()` values a point, in the order of `attributes`.
     pub(super) rows: Vec<f32>,
+    /// Where the rows come from instead, when the part holds none.
+    pub(super) source: Option<Arc<dyn RowSource>>,
     /// Attribute names and offsets, from the first chunk.
     pub(super) attributes: Vec<(String, f64)>,
     /// Each attribute's smallest and largest stored value (NaN ignored; one
@@ -40,6 +45,7 @@ impl PartBuilder {
             expect,
             pos: crate::bigvec::with_capacity(capacity),
             rows: Vec::new(),
+            source: None,
             attributes: Vec::new(),
             ranges: Vec::new(),
             bounds: Bounds::EMPTY,
@@ -80,6 +86,17 @@ impl PartBuilder {
         }
     }
 
+    /// Takes the attribute rows from `src` when the part is written instead of
+    /// holding them: pushed chunks then add their positions and widen their
+    /// attributes' ranges, and nothing else. The points pushed must be the
+    /// source's points 0, 1, 2, ... in order (the writer checks their count and
+    /// the row width). Ignored once points were pushed.
+    pub fn rows_from(&mut self, src: Arc<dyn RowSource>) {
+        if self.is_empty() && self.rows.is_empty() {
+            self.source = Some(src);
+        }
+    }
+
     /// Appends the points of `c`; `path` names the part in errors. Every chunk must
     /// have the attributes (names and offsets) of the first; coordinates must be
     /// finite (and inside the expected bounds, if any). On an error the builder
@@ -113,10 +130,12 @@ impl PartBuilder {
         }
         let m = self.attributes.len();
         let want = (self.pos.len() - len) * m;
-        if self.rows.capacity() == 0 {
-            self.rows = crate::bigvec::with_capacity(want);
-        } else {
-            self.rows.reserve_exact(want);
+        if self.source.is_none() {
+            if self.rows.capacity() == 0 {
+                self.rows = crate::bigvec::with_capacity(want);
+            } else {
+                self.rows.reserve_exact(want);
+            }
         }
         for (a, n) in attrs {
             self.push_rows(&a, n);
@@ -225,6 +244,13 @@ impl PartBuilder {
     ) -> Result<()> {
         let m = attributes.len();
         let rs = packed_size(m);
+        if self.source.is_some() {
+            return Err(StoreError::new(
+                path,
+                "packed records carry their own attribute rows: this part takes them from \
+                 its reader",
+            ));
+        }
         if !records.len().is_multiple_of(rs) {
             return Err(StoreError::new(
                 path,
@@ -316,6 +342,23 @@ impl PartBuilder {
     fn push_rows(&mut self, attrs: &[Attribute], len: usize) {
         let m = attrs.len();
         if m == 0 {
+            return;
+        }
+        if self.source.is_some() {
+            // The rows stay with the source: only their ranges are kept.
+            let ranges = attrs
+                .par_iter()
+                .map(|a| {
+                    a.values[..len]
+                        .iter()
+                        .fold(EMPTY_RANGE, |r, &v| (r.0.min(v), r.1.max(v)))
+                })
+                .collect();
+            self.ranges = if self.ranges.is_empty() {
+                ranges
+            } else {
+                widen(&self.ranges, &ranges)
+            };
             return;
         }
         let at = self.rows.len();

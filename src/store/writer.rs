@@ -13,7 +13,7 @@ use super::spec::{self, TILE_PIXELS, TILE_SIZE, key, tag};
 use super::zorder::{Geometry, tile_z_to_raster};
 use crate::bigvec;
 use crate::clock::{Span, Stamp};
-use crate::points::{Bounds, PointColumns};
+use crate::points::{Bounds, PointColumns, RowSource};
 use rayon::prelude::*;
 use std::fs::File;
 use std::io::{Seek, Write};
@@ -67,6 +67,9 @@ pub struct PartSummary {
     /// Whether the tile data went to the disk around the page cache (`TileIo`), at
     /// the end of the write.
     pub direct: bool,
+    /// Whether the attribute rows were read from the input ([`RowSource`]) rather
+    /// than from a copy the part held.
+    pub rows_from_input: bool,
     /// Wall and CPU time of each phase of the write, in order.
     pub phases: Vec<(&'static str, Span)>,
 }
@@ -113,6 +116,13 @@ pub fn quantization_bound(bounds: &Bounds, origin: [f64; 3]) -> f64 {
         .fold(0.0, f64::max)
 }
 
+/// A part's attribute rows: held (interleaved, in input order), or given again by
+/// the reader a tile at a time.
+enum Rows {
+    Held(Vec<f32>),
+    Source(Arc<dyn RowSource>),
+}
+
 /// A part in image order, ready to be tiled. Positions stay interleaved (`x y z`
 /// bands 0–2 are read straight out of them by the tile encoder, which saves a
 /// pass over every point); attributes stay in input order as rows (`m` values a
@@ -125,7 +135,7 @@ struct Arranged {
     /// whose order is the input's).
     perm: Vec<u32>,
     /// Bands 3 and up, interleaved, in input order.
-    rows: Vec<f32>,
+    rows: Rows,
     m: usize,
     /// Each attribute's smallest and largest value.
     ranges: Vec<(f32, f32)>,
@@ -202,12 +212,38 @@ fn arrange(path: &Path, part: PartBuilder, layout: Layout, ph: &mut Phases) -> R
         origin,
         pos,
         rows,
+        source,
         attributes,
         ranges,
         bounds,
         ..
     } = part;
     let n = pos.len();
+    let rows = match source {
+        None => Rows::Held(rows),
+        Some(src) if src.len() != n || src.width() != attributes.len() => {
+            return Err(StoreError::new(
+                path,
+                format!(
+                    "the reader's attribute rows ({} points of {} values) do not match the \
+                     part ({n} points of {} values)",
+                    src.len(),
+                    src.width(),
+                    attributes.len()
+                ),
+            ));
+        }
+        // The paper's layout reads rows in input order: they are taken at once.
+        Some(src) if layout == Layout::Paper => {
+            let mut held = crate::bigvec::with_capacity(n * attributes.len());
+            let idx: Vec<u32> = (0..n as u32).collect();
+            for c in idx.chunks(1 << 16) {
+                src.gather(c, &mut held);
+            }
+            Rows::Held(held)
+        }
+        Some(src) => Rows::Source(src),
+    };
     let mut names: Vec<String> = spec::COORDINATE_BANDS
         .iter()
         .map(|s| s.to_string())
@@ -573,6 +609,7 @@ fn write(
         max_quantization_error: a.max_error,
         bigtiff,
         direct,
+        rows_from_input: matches!(a.rows, Rows::Source(_)),
         phases: ph.list,
     })
 }
@@ -629,8 +666,12 @@ fn encode_job(
         c => Encoded::Bytes(codec::encode(&buf, TILE_SIZE as usize, c)),
     };
     if a.layout == Layout::Paper {
-        // The paper's layout: input order, row-major (`paper.rs`).
-        let rows = &a.rows;
+        // The paper's layout: input order, row-major (`paper.rs`; its rows are
+        // always held).
+        let rows: &[f32] = match &a.rows {
+            Rows::Held(r) => r,
+            Rows::Source(_) => &[],
+        };
         return match group {
             0..3 => vec![(
                 group,
@@ -653,19 +694,28 @@ fn encode_job(
     // a point for all its attributes), then each band scattered from them.
     let mut gathered: Vec<f32> = Vec::with_capacity(count * m);
     let at = |i: usize| a.perm[(base + i) * stride] as usize;
+    let rows: &[f32] = match &a.rows {
+        Rows::Held(rows) => rows,
+        Rows::Source(src) => {
+            let idx: Vec<u32> = (0..count).map(|i| a.perm[(base + i) * stride]).collect();
+            src.gather(&idx, &mut gathered);
+            &[]
+        }
+    };
     match m {
-        1 => gather_rows::<1>(&a.rows, count, at, &mut gathered),
-        2 => gather_rows::<2>(&a.rows, count, at, &mut gathered),
-        3 => gather_rows::<3>(&a.rows, count, at, &mut gathered),
-        4 => gather_rows::<4>(&a.rows, count, at, &mut gathered),
-        5 => gather_rows::<5>(&a.rows, count, at, &mut gathered),
-        6 => gather_rows::<6>(&a.rows, count, at, &mut gathered),
-        7 => gather_rows::<7>(&a.rows, count, at, &mut gathered),
-        8 => gather_rows::<8>(&a.rows, count, at, &mut gathered),
+        _ if rows.is_empty() => {}
+        1 => gather_rows::<1>(rows, count, at, &mut gathered),
+        2 => gather_rows::<2>(rows, count, at, &mut gathered),
+        3 => gather_rows::<3>(rows, count, at, &mut gathered),
+        4 => gather_rows::<4>(rows, count, at, &mut gathered),
+        5 => gather_rows::<5>(rows, count, at, &mut gathered),
+        6 => gather_rows::<6>(rows, count, at, &mut gathered),
+        7 => gather_rows::<7>(rows, count, at, &mut gathered),
+        8 => gather_rows::<8>(rows, count, at, &mut gathered),
         _ => {
             for i in 0..count {
                 let src = at(i) * m;
-                gathered.extend_from_slice(&a.rows[src..src + m]);
+                gathered.extend_from_slice(&rows[src..src + m]);
             }
         }
     }
@@ -994,6 +1044,83 @@ fn encode_batches<K: TiffKind>(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Rows kept in a `Vec`, given again on demand.
+    struct VecRows(Vec<f32>, usize);
+
+    impl RowSource for VecRows {
+        fn len(&self) -> usize {
+            self.0.len() / self.1
+        }
+        fn width(&self) -> usize {
+            self.1
+        }
+        fn gather(&self, idx: &[u32], out: &mut Vec<f32>) {
+            for &i in idx {
+                let r = i as usize * self.1;
+                out.extend_from_slice(&self.0[r..r + self.1]);
+            }
+        }
+    }
+
+    /// A part whose rows come from a [`RowSource`] is the same file, byte for
+    /// byte, as one holding them, in either layout; a source of another length is
+    /// an error naming the part.
+    #[test]
+    fn rows_from_a_source_write_the_same_file() {
+        let dir = tempfile::tempdir().unwrap();
+        let n = 70_000;
+        let mut r = crate::synth::Rng::new(5);
+        let mut c = PointColumns {
+            x: (0..n).map(|_| 1000.0 + r.f64() * 50.0).collect(),
+            y: (0..n).map(|_| 2000.0 + r.f64() * 50.0).collect(),
+            z: (0..n).map(|_| r.f64() * 10.0).collect(),
+            attributes: Vec::new(),
+        };
+        for (k, name) in ["intensity", "gps_time"].iter().enumerate() {
+            let mut a = crate::points::Attribute::new(
+                *name,
+                (0..n).map(|i| (i * (k + 3) % 977) as f32).collect(),
+            );
+            a.offset = k as f64 * 1e6;
+            c.attributes.push(a);
+        }
+        let rows: Vec<f32> = (0..n)
+            .flat_map(|i| c.attributes.iter().map(move |a| a.values[i]))
+            .collect();
+        for layout in [Layout::Hilbert, Layout::Paper] {
+            let opts = WriteOptions {
+                layout,
+                ..WriteOptions::default()
+            };
+            let write = |name: &str, src: Option<VecRows>| {
+                let path = dir.path().join(name);
+                let mut b = PartBuilder::new([1025.0, 2025.0, 5.0], None, n);
+                if let Some(s) = src {
+                    b.rows_from(Arc::new(s));
+                }
+                for k in 0..7 {
+                    let (from, to) = (k * n / 7, (k + 1) * n / 7);
+                    let mut part = c.empty_like();
+                    part.append_range(&c, from, to);
+                    b.push(&path, &part).unwrap();
+                }
+                write_part_built(&path, b, &opts).map(|s| (s, std::fs::read(&path).unwrap()))
+            };
+            let (held, a) = write("held.tif", None).unwrap();
+            let (mapped, b) = write("mapped.tif", Some(VecRows(rows.clone(), 2))).unwrap();
+            assert!(!held.rows_from_input);
+            assert_eq!(mapped.rows_from_input, layout == Layout::Hilbert);
+            assert!(a == b, "{layout:?}: the files differ");
+            let e = write(
+                "short.tif",
+                Some(VecRows(rows[..rows.len() - 2].to_vec(), 2)),
+            )
+            .expect_err("a short source is an error");
+            assert!(e.to_string().contains("short.tif"), "{e}");
+            assert!(!dir.path().join("short.tif").exists());
+        }
+    }
 
     /// Writes that fail (a file opened read-only) end the tile writing with the
     /// writers' error, however many tiles are still to come: the encoders must not
