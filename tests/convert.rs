@@ -1004,7 +1004,7 @@ fn several_files_note_what_one_offset_costs() {
 /// An uncompressed LAS part takes its attribute rows from the input's memory map
 /// (`RowSource`) instead of a copy; LAZ is decoded into a copy as before. The same
 /// points from either give the same values in every band of every level, in the
-/// Hilbert layout and in the paper's.
+/// Hilbert layout and in the paper's, with compressed tiles too.
 #[test]
 fn las_rows_read_from_the_input_match_a_held_copy() {
     use pcimg::synth::Order;
@@ -1014,15 +1014,20 @@ fn las_rows_read_from_the_input_match_a_held_copy() {
     let laz = dir.path().join("scan.laz");
     pcimg::synth::write_las_in_order(&las, n, 11, Order::Scan).unwrap();
     pcimg::synth::write_las_in_order(&laz, n, 11, Order::Scan).unwrap();
-    for layout in [Layout::Hilbert, Layout::Paper] {
+    for (layout, compression) in [
+        (Layout::Hilbert, Compression::None),
+        (Layout::Paper, Compression::None),
+        (Layout::Hilbert, Compression::Zstd),
+    ] {
         let read = |input: &Path| {
             let out = dir.path().join(format!(
-                "{}-{}.tif",
+                "{}-{}-{compression:?}.tif",
                 input.file_name().unwrap().to_string_lossy(),
                 layout.name()
             ));
             let mut o = opts(out.clone(), 1 << 30);
             o.layout = layout;
+            o.compression = compression;
             let s = convert::convert(input, &o, &Quiet).unwrap();
             let las = input.extension().is_some_and(|e| e == "las");
             assert_eq!(
