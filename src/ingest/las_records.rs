@@ -557,18 +557,32 @@ mod tests {
         all
     }
 
-    #[test]
-    fn every_point_format_matches_the_las_crate() {
-        let dir = tempfile::tempdir().unwrap();
-        // More points than a window, read in chunks that do not divide it.
-        let n = 40_000;
+    /// Points in each file of [`every_format`].
+    const N: usize = 40_000;
+
+    /// A file of [`N`] points in every point format 0–10 (in `dir`), and options
+    /// that read them in chunks of more points than a window, not dividing it.
+    fn every_format(dir: &std::path::Path) -> (ReadOptions, Vec<(u8, std::path::PathBuf)>) {
         let opts = ReadOptions {
             chunk_points: 17_000,
             ..Default::default()
         };
-        for format in 0..=10u8 {
-            let path = dir.path().join(format!("f{format}.las"));
-            write(&path, format, n);
+        let files = (0..=10u8)
+            .map(|format| {
+                let path = dir.join(format!("f{format}.las"));
+                write(&path, format, N);
+                (format, path)
+            })
+            .collect();
+        (opts, files)
+    }
+
+    #[test]
+    fn every_point_format_matches_the_las_crate() {
+        let dir = tempfile::tempdir().unwrap();
+        let (opts, files) = every_format(dir.path());
+        let n = N;
+        for (format, path) in files {
             let ours = drain(open(&path, &opts).unwrap());
             let theirs = drain(Box::new(LasReader::open(&path, &opts).unwrap()));
             assert_eq!(ours.len(), n, "format {format}");
@@ -591,14 +605,9 @@ mod tests {
     #[test]
     fn rows_from_the_map_match_the_chunks() {
         let dir = tempfile::tempdir().unwrap();
-        let n = 40_000;
-        let opts = ReadOptions {
-            chunk_points: 17_000,
-            ..Default::default()
-        };
-        for format in 0..=10u8 {
-            let path = dir.path().join(format!("f{format}.las"));
-            write(&path, format, n);
+        let (opts, files) = every_format(dir.path());
+        let n = N;
+        for (format, path) in files {
             let mut r = open(&path, &opts).unwrap();
             if [2, 3, 5, 7, 8, 10].contains(&format) {
                 assert!(
