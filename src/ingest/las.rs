@@ -142,10 +142,35 @@ fn crs_of(h: &las::Header) -> Option<String> {
             };
             Some(match code {
                 Some(c) => format!("EPSG:{c}"),
-                None => "GeoTIFF keys (user-defined CRS)".to_string(),
+                None => user_defined(&g),
             })
         }
         _ => None,
+    }
+}
+
+/// A user-defined CRS in GeoTIFF keys, named by every key and its value (in key
+/// order), so that two files compare equal only when their keys do: without an
+/// EPSG code the keys are the definition.
+fn user_defined(g: &las::crs::GeoTiffCrs) -> String {
+    use las::crs::GeoTiffData;
+    let mut keys: Vec<&las::crs::GeoTiffKeyEntry> = g.entries.iter().collect();
+    keys.sort_by_key(|k| k.id);
+    let values: Vec<String> = keys
+        .iter()
+        .map(|k| match &k.data {
+            GeoTiffData::U16(v) => format!("{}={v}", k.id),
+            GeoTiffData::String(t) => format!("{}={t:?}", k.id),
+            GeoTiffData::Doubles(d) => {
+                let d: Vec<String> = d.iter().map(|v| v.to_string()).collect();
+                format!("{}={}", k.id, d.join("/"))
+            }
+        })
+        .collect();
+    if values.is_empty() {
+        "GeoTIFF keys (user-defined CRS)".to_string()
+    } else {
+        format!("GeoTIFF keys (user-defined CRS: {})", values.join(", "))
     }
 }
 
@@ -687,7 +712,7 @@ mod tests {
     }
 
     /// GeoTIFF keys: the projected code, else the geographic one; a user-defined
-    /// projected CRS is not its geographic base's code.
+    /// projected CRS is not its geographic base's code, and is named by its keys.
     #[test]
     fn geotiff_keys_give_the_crs() {
         let crs = |keys: &[(u16, u16)]| {
@@ -711,9 +736,14 @@ mod tests {
             Some("EPSG:26910")
         );
         assert_eq!(crs(&[(GEOGRAPHIC, 4326)]).as_deref(), Some("EPSG:4326"));
+        // User-defined: named by its keys, so two differing definitions differ.
         assert_eq!(
-            crs(&[(GEOGRAPHIC, 4269), (PROJECTED, 32767)]).as_deref(),
-            Some("GeoTIFF keys (user-defined CRS)")
+            crs(&[(PROJECTED, 32767), (GEOGRAPHIC, 4269)]).as_deref(),
+            Some("GeoTIFF keys (user-defined CRS: 2048=4269, 3072=32767)")
+        );
+        assert_ne!(
+            crs(&[(GEOGRAPHIC, 4269), (PROJECTED, 32767), (3076, 9001)]),
+            crs(&[(GEOGRAPHIC, 4269), (PROJECTED, 32767), (3076, 9002)])
         );
         assert_eq!(crs(&[]).as_deref(), Some("GeoTIFF keys (user-defined CRS)"));
     }
