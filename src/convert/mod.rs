@@ -313,6 +313,14 @@ fn convert_with(
         force_bigtiff: false,
         cancel: Some(o.cancel.clone()),
         io: o.io,
+        release_pool: false,
+    };
+    // The single part of a conversion gives the allocator's pool back before its
+    // tiles: nothing after it would reuse that memory.
+    let last_part = Cell::new(false);
+    let opts_now = || WriteOptions {
+        release_pool: last_part.get(),
+        ..write_opts.clone()
     };
     progress.phase("read", info.file_bytes, "bytes");
 
@@ -366,7 +374,7 @@ fn convert_with(
         check_cancel(o)?;
         check_precision(bounds, bounds.center(), parts.len(), o, as_file)?;
         let s =
-            store::write_part_owned(&part_path(parts.len()), chunks, Some(*bounds), &write_opts)
+            store::write_part_owned(&part_path(parts.len()), chunks, Some(*bounds), &opts_now())
                 .map_err(public)?;
         record(s, parts);
         Ok(())
@@ -381,7 +389,7 @@ fn convert_with(
             return Err(OriginTooFar.into());
         }
         check_precision(&bounds, origin, parts.len(), o, as_file)?;
-        let s = store::write_part_built(&part_path(parts.len()), b, &write_opts).map_err(public)?;
+        let s = store::write_part_built(&part_path(parts.len()), b, &opts_now()).map_err(public)?;
         record(s, parts);
         Ok(())
     };
@@ -523,6 +531,7 @@ fn convert_with(
             if !overflow {
                 // One part: its sort and tiles are the last phase.
                 progress.phase("write", held_points, "points");
+                last_part.set(true);
                 if let Some(b) = built.filter(|b| !b.is_empty()) {
                     write_built(b, &mut parts)?;
                 } else if held_points > 0 {

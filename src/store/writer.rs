@@ -39,6 +39,10 @@ pub struct WriteOptions {
     pub cancel: Option<Arc<AtomicBool>>,
     /// How uncompressed tile data is written (`out::TileWriter`).
     pub io: TileIo,
+    /// Hands the allocator's pooled blocks back to the kernel once the points are
+    /// arranged (`alloc::release_pool`): for the last part of a conversion, whose
+    /// tiles need no large buffers and after which nothing would reuse them.
+    pub release_pool: bool,
 }
 
 impl WriteOptions {
@@ -546,6 +550,9 @@ fn write(
     stop()?;
     let a = arrange(path, part, opts.layout, &mut ph)?;
     stop()?;
+    if opts.release_pool {
+        crate::alloc::release_pool();
+    }
     let index = tile_index(&a);
     let xml = metadata_xml(&a, opts, &index);
     ph.mark("tile index");
