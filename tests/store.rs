@@ -188,6 +188,53 @@ fn direct_and_buffered_writes_give_the_same_file() {
     assert!(TileIo::parse("sideways").is_err());
 }
 
+/// Uncompressed parts write level 0 while the points are arranged, in the order
+/// the tiles were arranged, and point each image tile at its place; compressed
+/// parts encode level 0 afterwards, in image order. Both read back the same,
+/// level by level in image order, with tiles that the coarse levels reorder.
+#[test]
+fn level_zero_written_while_arranging_reads_as_a_compressed_part() {
+    // 22 tiles and a partial one: levels 9..=11 of the layout move whole tiles.
+    let c = random_cloud(22 * 65_536 + 1_234, 5, 0);
+    let dir = tempfile::tempdir().unwrap();
+    let parts: Vec<Part> = [Compression::None, Compression::Zstd]
+        .iter()
+        .map(|&compression| {
+            let path = dir.path().join(format!("{compression:?}.tif"));
+            let opts = WriteOptions {
+                compression,
+                ..Default::default()
+            };
+            write_part(&path, &c, &opts).unwrap();
+            Part::open(&path).unwrap()
+        })
+        .collect();
+    // The level-0 tiles are not stored in image order (else this proves nothing):
+    // band 0's tile offsets (raster order in the TIFF) taken in Z-order.
+    let file = std::fs::File::open(dir.path().join("None.tif")).unwrap();
+    let mut tiff = tiff::decoder::Decoder::new(file).unwrap();
+    let raster = tiff.get_tag_u64_vec(tiff::tags::Tag::TileOffsets).unwrap();
+    let z: Vec<u64> = parts[0].levels[0]
+        .tiles
+        .iter()
+        .map(|t| raster[t.index as usize])
+        .collect();
+    assert_eq!(z.len(), 23);
+    assert!(!z.is_sorted(), "level 0's tiles are stored in image order");
+    for k in 0..parts[0].levels.len() {
+        let bands: Vec<usize> = (0..parts[0].bands.len()).collect();
+        let [a, b] = [0, 1].map(|p| parts[p].read_level(k, &bands).unwrap());
+        assert_eq!(a.len(), b.len(), "level {k}");
+        for band in 0..bands.len() {
+            let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+            assert!(
+                bits(&a.columns[band]) == bits(&b.columns[band]),
+                "level {k} band {band} differs"
+            );
+        }
+    }
+}
+
 #[test]
 fn all_points_equal() {
     let mut c = random_cloud(1000, 1, 0);

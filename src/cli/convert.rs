@@ -352,7 +352,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
             };
             writeln!(
                 out,
-                "    {name:<32} {t:7.2} s  {:5.1}%  CPU {:6.2} s{cores}",
+                "    {name:<38} {t:7.2} s  {:5.1}%  CPU {:6.2} s{cores}",
                 t / secs * 100.0,
                 d.cpu.as_secs_f64(),
             )?;

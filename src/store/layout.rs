@@ -371,6 +371,9 @@ fn lsd_sort(s: &mut [u64], scratch: &mut Vec<u64>, base: u64, low: u32, bits: u3
 /// nested and the filled slots a prefix.
 /// `lo`, `hi`: the bounds of `pos` (the writer has them; the grid is built from
 /// them rather than from another pass over the points).
+///
+/// (The writer uses [`gather_representatives`], which leaves the tiles where they
+/// are and returns their order; this moves them.)
 pub fn choose_representatives(
     pos: &mut [[f32; 3]],
     perm: &mut [u32],
@@ -389,28 +392,53 @@ pub fn choose_representatives(
             sc.pos.extend_from_slice(p);
             arrange_tile(sc, p, i, &grid, levels);
         });
-    centroid_levels(pos, perm, TILE_LEVELS + 1, levels);
+    let order = tile_order(pos, levels);
+    let p = in_tile_order(pos, &order);
+    let i = in_tile_order(perm, &order);
+    pos.copy_from_slice(&p);
+    perm.copy_from_slice(&i);
 }
+
+/// The tiles of `v` (runs of [`TILE_PIXELS`]) in `order`.
+fn in_tile_order<T: Copy>(v: &[T], order: &[u32]) -> Vec<T> {
+    let tiles: Vec<&[T]> = v.chunks(TILE_PIXELS).collect();
+    order
+        .iter()
+        .flat_map(|&t| tiles[t as usize])
+        .copied()
+        .collect()
+}
+
+/// What [`gather_representatives`] calls with each arranged tile: its number,
+/// its points and their source indices.
+pub type OnTile<'a> = dyn Fn(usize, &[[f32; 3]], &[u32]) + Sync + 'a;
 
 /// [`choose_representatives`] fused with the gather that puts the points in curve
 /// order: `perm` holds the indices of `src` in Hilbert order and is rearranged;
-/// the result is the points in that final order. Each tile is gathered into
-/// scratch, arranged there (levels up to the tile's own block size, all in cache)
-/// and written once.
+/// the result is the points in that order. Each tile is gathered into scratch,
+/// arranged there (levels up to the tile's own block size, all in cache) and
+/// written once; `on_tile(t, points, indices)` then sees tile `t` as it will be
+/// stored (the writer encodes and writes level 0 from it while it is in cache).
+///
+/// The levels above a tile only reorder whole tiles: they are not moved but
+/// returned as the tile order (the `t`-th tile of the final order is tile
+/// `order[t]` of the result; the partial last tile, if any, stays last).
 pub fn gather_representatives(
     src: &[[f32; 3]],
     perm: &mut [u32],
     levels: usize,
     lo: [f32; 3],
     hi: [f32; 3],
-) -> Vec<[f32; 3]> {
+    on_tile: &OnTile<'_>,
+) -> (Vec<[f32; 3]>, Vec<u32>) {
     let n = perm.len();
     let mut out: Vec<[f32; 3]> = crate::bigvec::with_capacity(n);
     let grid = Grid::new(lo, hi);
     out.spare_capacity_mut()[..n]
         .par_chunks_mut(TILE_PIXELS)
         .zip(perm.par_chunks_mut(TILE_PIXELS))
-        .for_each_init(Scratch::default, |sc, (o, i)| {
+        .enumerate()
+        .for_each_init(Scratch::default, |sc, (t, (o, i))| {
             sc.pos.clear();
             sc.pos.extend(i.iter().map(|&k| src[k as usize]));
             // SAFETY: `[f32; 3]` has no invalid bit patterns to fear and
@@ -418,13 +446,12 @@ pub fn gather_representatives(
             let o =
                 unsafe { &mut *(o as *mut [std::mem::MaybeUninit<[f32; 3]>] as *mut [[f32; 3]]) };
             arrange_tile(sc, o, i, &grid, levels);
+            on_tile(t, o, i);
         });
     // SAFETY: every tile chunk of the n slots was written above.
     unsafe { out.set_len(n) };
-    if levels >= 2 {
-        centroid_levels(&mut out, perm, TILE_LEVELS + 1, levels);
-    }
-    out
+    let order = tile_order(&out, levels);
+    (out, order)
 }
 
 /// Levels whose blocks fit in one tile (block 4^k ≤ tile pixels): arranged tile by
@@ -740,17 +767,33 @@ fn select(pts: &[[f32; 3]], quota: usize, grid: &Grid) -> Vec<bool> {
     chosen
 }
 
-/// Levels `from..levels`: in each block, the sub-block whose first point (its
-/// representative) is nearest the centroid of the four representatives is swapped,
-/// whole, to the front. (The centroid of the representatives, not of all points:
-/// after level 1 a block's other points need not sit around its representative.)
-fn centroid_levels(pos: &mut [[f32; 3]], perm: &mut [u32], from: usize, levels: usize) {
-    for level in from..levels {
-        let block = 1usize << (2 * level);
-        pos.par_chunks_mut(block)
-            .zip(perm.par_chunks_mut(block))
-            .for_each(|(chunk, idx)| centroid_block(chunk, idx, level));
+/// Levels `TILE_LEVELS + 1..levels`, whose sub-blocks are whole tiles, by the
+/// centroid rule ([`leading_sub_block`]) on the tiles' order rather than on their
+/// points: `pos` holds whole arranged tiles, and the result is the order in which
+/// they are stored (see [`gather_representatives`]).
+fn tile_order(pos: &[[f32; 3]], levels: usize) -> Vec<u32> {
+    let n = pos.len();
+    let mut order: Vec<u32> = (0..n.div_ceil(TILE_PIXELS) as u32).collect();
+    for level in TILE_LEVELS + 1..levels {
+        // Tiles per sub-block, and points per sub-block.
+        let sub = 1usize << (2 * (level - 1 - TILE_LEVELS));
+        let sub_points = sub * TILE_PIXELS;
+        for (b, block) in order.chunks_mut(4 * sub).enumerate() {
+            let len = (n - b * 4 * sub_points).min(4 * sub_points);
+            let count = len.div_ceil(sub_points);
+            if count < 2 {
+                continue;
+            }
+            let full = (len / sub_points).max(1);
+            let first = |j: usize| pos[block[j * sub] as usize * TILE_PIXELS];
+            let best = leading_sub_block(count, full, first);
+            if best > 0 {
+                let (head, tail) = block.split_at_mut(best * sub);
+                head[..sub].swap_with_slice(&mut tail[..sub]);
+            }
+        }
     }
+    order
 }
 
 /// One level of the centroid rule over a run of whole blocks (a tile).
@@ -769,7 +812,24 @@ fn centroid_block(chunk: &mut [[f32; 3]], idx: &mut [u32], level: usize) {
     if count < 2 {
         return;
     }
-    let first = |j: usize| chunk[j * sub];
+    let full = (chunk.len() / sub).max(1);
+    let best = leading_sub_block(count, full, |j| chunk[j * sub]);
+    if best > 0 {
+        let (head, tail) = chunk.split_at_mut(best * sub);
+        head[..sub].swap_with_slice(&mut tail[..sub]);
+        let (head, tail) = idx.split_at_mut(best * sub);
+        head[..sub].swap_with_slice(&mut tail[..sub]);
+    }
+}
+
+/// The centroid rule: of a block's `count` sub-blocks, whose first points
+/// (representatives) are `first(0..count)`, the one whose representative is
+/// nearest the centroid of the representatives leads the block. (The centroid of
+/// the representatives, not of all points: after level 1 a block's other points
+/// need not sit around its representative.) Only the `full` first sub-blocks may
+/// move (sub-block 0 is where they go).
+#[inline]
+fn leading_sub_block(count: usize, full: usize, first: impl Fn(usize) -> [f32; 3]) -> usize {
     let mut c = [0f32; 3];
     for j in 0..count {
         for a in 0..3 {
@@ -778,17 +838,9 @@ fn centroid_block(chunk: &mut [[f32; 3]], idx: &mut [u32], level: usize) {
     }
     let c = c.map(|v| v / count as f32);
     let d = |p: [f32; 3]| (p[0] - c[0]).powi(2) + (p[1] - c[1]).powi(2) + (p[2] - c[2]).powi(2);
-    // Only full sub-blocks may move (sub-block 0 is where they go).
-    let full = (chunk.len() / sub).max(1);
-    let best = (0..full)
+    (0..full)
         .min_by(|&i, &j| d(first(i)).total_cmp(&d(first(j))))
-        .unwrap_or(0);
-    if best > 0 {
-        let (head, tail) = chunk.split_at_mut(best * sub);
-        head[..sub].swap_with_slice(&mut tail[..sub]);
-        let (head, tail) = idx.split_at_mut(best * sub);
-        head[..sub].swap_with_slice(&mut tail[..sub]);
-    }
+        .unwrap_or(0)
 }
 
 #[cfg(test)]
@@ -1013,6 +1065,55 @@ mod tests {
         );
         for (p, &i) in sorted.iter().zip(&perm) {
             assert_eq!(*p, pos[i as usize], "positions move with their indices");
+        }
+    }
+
+    /// The tile order that `gather_representatives` returns is the centroid rule
+    /// applied by moving whole tiles level by level, as `centroid_block` does
+    /// within a tile (checked against that, with a partial last tile); and
+    /// `on_tile` saw every tile once, as it was stored.
+    #[test]
+    fn tile_order_is_the_centroid_rule_on_whole_tiles() {
+        let mut r = crate::synth::Rng::new(3);
+        // Levels 9..=11 reorder tiles: blocks of 4 and of 16 tiles.
+        let n = 21 * TILE_PIXELS + 777;
+        let pos: Vec<[f32; 3]> = (0..n)
+            .map(|_| {
+                [
+                    r.f64() as f32 * 100.0,
+                    r.f64().powi(2) as f32 * 100.0,
+                    r.f64() as f32 * 5.0,
+                ]
+            })
+            .collect();
+        let (lo, hi) = ([0.0; 3], [100.0, 100.0, 5.0]);
+        let mut perm = hilbert_order(&pos, lo, hi);
+        let levels = representative_levels(n);
+        assert!(levels > TILE_LEVELS + 2, "{levels}");
+        let seen = std::sync::Mutex::new(Vec::new());
+        let on_tile = |t: usize, p: &[[f32; 3]], i: &[u32]| {
+            seen.lock().unwrap().push((t, p.to_vec(), i.to_vec()));
+        };
+        let (out, order) = gather_representatives(&pos, &mut perm, levels, lo, hi, &on_tile);
+        let (mut want, mut want_perm) = (out.clone(), perm.clone());
+        for level in TILE_LEVELS + 1..levels {
+            let block = 1usize << (2 * level);
+            for (c, i) in want.chunks_mut(block).zip(want_perm.chunks_mut(block)) {
+                centroid_block(c, i, level);
+            }
+        }
+        let identity: Vec<u32> = (0..n.div_ceil(TILE_PIXELS) as u32).collect();
+        assert_ne!(order, identity, "no tile moved");
+        assert!(in_tile_order(&out, &order) == want);
+        assert!(in_tile_order(&perm, &order) == want_perm);
+        let mut seen = seen.into_inner().unwrap();
+        seen.sort_by_key(|s| s.0);
+        assert_eq!(seen.len(), identity.len());
+        for ((t, p, i), (o, k)) in seen
+            .iter()
+            .zip(out.chunks(TILE_PIXELS).zip(perm.chunks(TILE_PIXELS)))
+        {
+            assert!(p == o && i == k, "tile {t}");
         }
     }
 

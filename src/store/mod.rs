@@ -8,6 +8,7 @@ pub mod layout;
 pub mod metadata;
 pub mod out;
 pub mod paper;
+pub mod sink;
 pub mod spec;
 pub mod writer;
 pub mod zorder;

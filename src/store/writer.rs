@@ -9,6 +9,7 @@ use super::layout::{self, Layout};
 use super::metadata::{self, Item, LevelIndex, TileEntry};
 use super::out::{self, Out, TileBuf, TileIo, TileWriter};
 use super::paper;
+use super::sink::{self, TileSink};
 use super::spec::{self, TILE_PIXELS, TILE_SIZE, key, tag};
 use super::zorder::{Geometry, tile_z_to_raster};
 use crate::bigvec;
@@ -134,10 +135,19 @@ enum Rows {
 struct Arranged {
     geometry: Geometry,
     layout: Layout,
+    /// Positions, whole level-0 tiles in stored order (see `tile_order`).
     pos: Vec<[f32; 3]>,
-    /// Source index of each slot in image order (empty for the paper layout,
-    /// whose order is the input's).
+    /// Source index of each slot of `pos` (empty for the paper layout, whose
+    /// order is the input's).
     perm: Vec<u32>,
+    /// The image order of the tiles of `pos` and `perm`: image tile `t` (Z-rank,
+    /// level 0) is their tile `tile_order[t]` (empty: the same order). See
+    /// [`Arranged::slot`].
+    tile_order: Vec<u32>,
+    /// Where level 0's tiles were written while the points were arranged (tile
+    /// `tile_order[t]`'s bands from this offset on, band-interleaved as
+    /// `encode` lays them out), if they were.
+    level0_at: Option<u64>,
     /// Bands 3 and up, interleaved, in input order.
     rows: Rows,
     m: usize,
@@ -149,6 +159,33 @@ struct Arranged {
     bounds: Bounds,
     max_error: f64,
 }
+
+impl Arranged {
+    /// The index in `pos` and `perm` of image slot `s` (level 0, Z-order).
+    #[inline]
+    fn slot(&self, s: usize) -> usize {
+        match self.tile_order.get(s / TILE_PIXELS) {
+            Some(&t) => t as usize * TILE_PIXELS + s % TILE_PIXELS,
+            None => s,
+        }
+    }
+}
+
+/// Level 0 written while the points are arranged (`arrange`): each tile is
+/// encoded as soon as it is arranged, in cache, and its bands are sent to `sink`
+/// for the file from byte `start` on, so the disk writes most of the file while
+/// the rest is still being arranged.
+struct Level0<'a, 's> {
+    sink: &'a TileSink<'s>,
+    start: u64,
+}
+
+/// Where level 0's tile data begins in an uncompressed file: the TIFF header (8
+/// or 16 bytes) padded to the direct-write alignment, as `encode` writes it.
+const LEVEL0_AT: u64 = out::DIRECT_ALIGN as u64;
+
+/// Bytes of one band's tile, uncompressed.
+const TILE_BYTES: u64 = (TILE_PIXELS * 4) as u64;
 
 fn band_name(raw: &str) -> String {
     let s: String = raw
@@ -211,7 +248,13 @@ fn scan_bounds(path: &Path, chunks: &[PointColumns]) -> Result<Bounds> {
     })
 }
 
-fn arrange(path: &Path, part: PartBuilder, layout: Layout, ph: &mut Phases) -> Result<Arranged> {
+fn arrange(
+    path: &Path,
+    part: PartBuilder,
+    layout: Layout,
+    ph: &mut Phases,
+    level0: Option<&Level0>,
+) -> Result<Arranged> {
     let PartBuilder {
         origin,
         pos,
@@ -271,25 +314,43 @@ fn arrange(path: &Path, part: PartBuilder, layout: Layout, ph: &mut Phases) -> R
     let geometry = Geometry::for_points(n as u64);
     ph.mark("validate+origin");
     // Points in image order: positions (sorted) and their source indices.
-    let (pos, perm): (Vec<[f32; 3]>, Vec<u32>) = match layout {
+    let m = attributes.len();
+    let (pos, perm, tile_order) = match layout {
         Layout::Hilbert => {
             let lo = [0, 1, 2].map(|a| (bounds.min[a] - origin[a]) as f32);
             let hi = [0, 1, 2].map(|a| (bounds.max[a] - origin[a]) as f32);
-            let perm = layout::hilbert_order(&pos, lo, hi);
+            let mut perm = layout::hilbert_order(&pos, lo, hi);
             ph.mark("hilbert sort");
-            let mut perm = perm;
-            let sorted = layout::gather_representatives(
-                &pos,
-                &mut perm,
-                layout::representative_levels(n),
-                lo,
-                hi,
-            );
+            let lut = tile_z_to_raster(spec::TILE_LOG2);
+            let nb = 3 + m;
+            // Level 0 of tile t, as `encode` would write it, from the arranged
+            // tile while it is in cache.
+            let on_tile = |t: usize, o: &[[f32; 3]], i: &[u32]| {
+                let Some(l0) = level0.filter(|l| !l.sink.stopped()) else {
+                    return;
+                };
+                let at = |b: usize| l0.start + (t * nb + b) as u64 * TILE_BYTES;
+                let batch = (0..groups(m))
+                    .flat_map(|group| {
+                        hilbert_bands(&lut, o.len(), group, |k| o[k], |k| i[k], &rows, m)
+                    })
+                    .map(|(b, buf)| (at(b), buf))
+                    .collect();
+                // A refusal (cancelled, a failed write) is kept by the sink.
+                let _ = l0.sink.send(batch);
+            };
+            let levels = layout::representative_levels(n);
+            let (sorted, order) =
+                layout::gather_representatives(&pos, &mut perm, levels, lo, hi, &on_tile);
             drop(pos);
-            ph.mark("gather+representatives");
-            (sorted, perm)
+            ph.mark(if level0.is_some() {
+                "gather+representatives+level 0"
+            } else {
+                "gather+representatives"
+            });
+            (sorted, perm, order)
         }
-        Layout::Paper => (pos, Vec::new()),
+        Layout::Paper => (pos, Vec::new(), Vec::new()),
     };
     let mut offsets = origin.to_vec();
     offsets.extend(attributes.iter().map(|(_, o)| *o));
@@ -298,8 +359,10 @@ fn arrange(path: &Path, part: PartBuilder, layout: Layout, ph: &mut Phases) -> R
         layout,
         pos,
         perm,
+        tile_order,
+        level0_at: level0.map(|l| l.start),
         rows,
-        m: attributes.len(),
+        m,
         ranges,
         names,
         offsets,
@@ -321,7 +384,7 @@ fn tile_index(a: &Arranged) -> Vec<LevelIndex> {
     let level0: Vec<Bounds> = (0..g.filled_tiles(0) as usize)
         .into_par_iter()
         .map(|t| {
-            let s = t * TILE_PIXELS;
+            let s = a.slot(t * TILE_PIXELS);
             let e = (s + TILE_PIXELS).min(a.pos.len());
             let mut lo = [f32::INFINITY; 3];
             let mut hi = [f32::NEG_INFINITY; 3];
@@ -548,15 +611,6 @@ fn write(
         }
     };
     stop()?;
-    let a = arrange(path, part, opts.layout, &mut ph)?;
-    stop()?;
-    if opts.release_pool {
-        crate::alloc::release_pool();
-    }
-    let index = tile_index(&a);
-    let xml = metadata_xml(&a, opts, &index);
-    ph.mark("tile index");
-    let bigtiff = opts.force_bigtiff || size_estimate(&a, &xml) >= u32::MAX as u64 - (64 << 20);
     let file_name = path
         .file_name()
         .ok_or_else(|| StoreError::new(path, "output path has no file name"))?;
@@ -576,6 +630,36 @@ fn write(
         _ => TileIo::Buffered,
     };
     let tiles = TileWriter::new(&file, &tmp_path, io);
+    // Uncompressed tiles of the Hilbert layout have their place in the file
+    // before the rest is known: level 0 (three quarters of the file) is written
+    // while the points are arranged, so the disk works while the CPU does.
+    let a = if opts.layout == Layout::Hilbert && opts.compression == Compression::None {
+        let cancelled = || opts.cancelled();
+        let (a, written) = sink::with_sink(&tiles, &cancelled, |sink| {
+            let level0 = Level0 {
+                sink,
+                start: LEVEL0_AT,
+            };
+            arrange(path, part, opts.layout, &mut ph, Some(&level0))
+        });
+        let a = a?;
+        written.map_err(|e| match e {
+            _ if opts.cancelled() => StoreError::new(path, INTERRUPTED),
+            e => StoreError::new(path, format!("write failed: {e}")),
+        })?;
+        ph.mark("level 0 written");
+        a
+    } else {
+        arrange(path, part, opts.layout, &mut ph, None)?
+    };
+    stop()?;
+    if opts.release_pool {
+        crate::alloc::release_pool();
+    }
+    let index = tile_index(&a);
+    let xml = metadata_xml(&a, opts, &index);
+    ph.mark("tile index");
+    let bigtiff = opts.force_bigtiff || size_estimate(&a, &xml) >= u32::MAX as u64 - (64 << 20);
     let mut w = Out::new(&file);
     let io = |e: tiff::TiffError| match e {
         _ if opts.cancelled() => StoreError::new(path, INTERRUPTED),
@@ -647,10 +731,11 @@ fn scatter_tile(lut: &[u32], count: usize, value: impl Fn(usize) -> f32) -> Tile
     buf
 }
 
-/// The parallel jobs of a level's tile `t`: one per coordinate band, and one for
-/// all attribute bands together (their values are gathered a point at a time).
-fn groups(a: &Arranged) -> usize {
-    3 + usize::from(a.m > 0)
+/// The parallel jobs of a level's tile `t` with `m` attributes: one per
+/// coordinate band, and one for all attribute bands together (their values are
+/// gathered a point at a time).
+fn groups(m: usize) -> usize {
+    3 + usize::from(m > 0)
 }
 
 /// Encodes job `group` (see [`groups`]) of tile `t` (Z-rank; `raster`: its raster
@@ -692,19 +777,45 @@ fn encode_job(
                 .collect(),
         };
     }
+    let at = |i: usize| a.slot((base + i) * stride);
+    let (pos, perm) = (&a.pos, &a.perm);
+    hilbert_bands(
+        lut,
+        count,
+        group,
+        |i| pos[at(i)],
+        |i| perm[at(i)],
+        &a.rows,
+        m,
+    )
+    .into_iter()
+    .map(|(b, buf)| (b, done(buf)))
+    .collect()
+}
+
+/// The bands of job `group` (see [`groups`]) of one tile of the Hilbert layout
+/// whose `count` points, in Z-order within the tile, are `pos(0..count)` with
+/// source indices `idx(0..count)`: (band, tile) pairs.
+fn hilbert_bands(
+    lut: &[u32],
+    count: usize,
+    group: usize,
+    pos: impl Fn(usize) -> [f32; 3],
+    idx: impl Fn(usize) -> u32,
+    rows: &Rows,
+    m: usize,
+) -> Vec<(usize, TileBuf)> {
     if group < 3 {
-        let pos = &a.pos;
-        let buf = scatter_tile(lut, count, |i| pos[(base + i) * stride][group]);
-        return vec![(group, done(buf))];
+        return vec![(group, scatter_tile(lut, count, |i| pos(i)[group]))];
     }
     // The tile's attribute rows, gathered through the permutation (one cache miss
     // a point for all its attributes), then each band scattered from them.
     let mut gathered: Vec<f32> = Vec::with_capacity(count * m);
-    let at = |i: usize| a.perm[(base + i) * stride] as usize;
-    let rows: &[f32] = match &a.rows {
+    let at = |i: usize| idx(i) as usize;
+    let rows: &[f32] = match rows {
         Rows::Held(rows) => rows,
         Rows::Source(src) => {
-            let idx: Vec<u32> = (0..count).map(|i| a.perm[(base + i) * stride]).collect();
+            let idx: Vec<u32> = (0..count).map(&idx).collect();
             src.gather(&idx, &mut gathered);
             &[]
         }
@@ -727,12 +838,7 @@ fn encode_job(
         }
     }
     (0..m)
-        .map(|k| {
-            (
-                3 + k,
-                done(scatter_tile(lut, count, |i| gathered[i * m + k])),
-            )
-        })
+        .map(|k| (3 + k, scatter_tile(lut, count, |i| gathered[i * m + k])))
         .collect()
 }
 
@@ -793,18 +899,32 @@ fn encode<K: TiffKind>(
         if opts.compression == Compression::None {
             // Every tile is TILE_PIXELS samples: the level's tile data is reserved
             // as one hole (tile t's band b at slot t * nb + b) and the tiles are
-            // encoded and written into it by the rayon pool.
-            const BYTES: u64 = (TILE_PIXELS * 4) as u64;
+            // encoded and written into it by the rayon pool. Level 0 may have
+            // been written already, while the points were arranged: its slot of
+            // image tile t is then tile_order[t].
+            const BYTES: u64 = TILE_BYTES;
             let jobs = filled * nb;
             let len = jobs as u64 * BYTES;
             hole.set(len);
             let start = out::reserve(len, |piece| dir.write_data(piece))?;
             debug_assert_eq!(hole.get(), 0);
-            let per_tile = groups(a);
-            write_tiles(
+            let written = a.level0_at.filter(|_| level == 0);
+            if let Some(at) = written.filter(|&at| at != start) {
+                return Err(tiff::TiffError::IoError(std::io::Error::other(format!(
+                    "level 0 was written from byte {at} but belongs at byte {start}"
+                ))));
+            }
+            let per_tile = groups(a.m);
+            let cancelled = || opts.cancelled();
+            let jobs = if written.is_some() {
+                0
+            } else {
+                filled * per_tile
+            };
+            sink::write_tiles(
                 tile_writer,
-                opts,
-                (0..filled * per_tile).into_par_iter().map(|j| {
+                &cancelled,
+                (0..jobs).into_par_iter().map(|j| {
                     let (t, group) = (j / per_tile, j % per_tile);
                     let tile = (t, tiles[t].index);
                     encode_job(a, &lut, level, tile, group, Compression::None)
@@ -819,9 +939,13 @@ fn encode<K: TiffKind>(
                 }),
             )?;
             for (t, tile) in tiles.iter().enumerate() {
+                let slot = match written {
+                    Some(_) => a.tile_order.get(t).map_or(t, |&s| s as usize),
+                    None => t,
+                };
                 for b in 0..nb {
                     let r = tile.index as usize;
-                    offsets[b * per_band + r] = start + (t * nb + b) as u64 * BYTES;
+                    offsets[b * per_band + r] = start + (slot * nb + b) as u64 * BYTES;
                     counts[b * per_band + r] = BYTES;
                 }
             }
@@ -880,113 +1004,6 @@ fn encode<K: TiffKind>(
     Ok(())
 }
 
-/// Writes the tiles that the parallel iterator `jobs` encodes (each job: tiles
-/// and their file offsets) on writer threads of their own, while the rayon pool
-/// encodes the next ones. Not from the workers: the kernel takes the file's lock
-/// for every buffered write (ext4, XFS), so parallel buffered writes to one file
-/// only queue, and a queued worker spins on the lock instead of encoding (a fifth
-/// of a LAS conversion's CPU time in `perf`). Two writers while writes go
-/// direct: a direct write waits for the disk, and two in flight reach its full
-/// rate (1.25 GB/s on the VM against 0.9 for one at a time).
-fn write_tiles<J>(out: &TileWriter, opts: &WriteOptions, jobs: J) -> std::io::Result<()>
-where
-    J: ParallelIterator<Item = Vec<(u64, TileBuf)>>,
-{
-    const WRITERS: usize = 2;
-    // Tiles a writer takes at once, so that neighbours in the file are written
-    // together (16 band tiles: 4 MiB).
-    const RUN_TILES: usize = 16;
-    const TILE_BYTES: u64 = (TILE_PIXELS * 4) as u64;
-    // Tiles in flight: a few per worker (256 KiB a band tile).
-    let depth = 4 * rayon::current_num_threads();
-    let (tx, rx) = std::sync::mpsc::sync_channel::<Vec<(u64, TileBuf)>>(depth);
-    let rx = std::sync::Mutex::new(rx);
-    // Set once a write failed: the encoders stop, the writers only drain.
-    let failed = AtomicBool::new(false);
-    // Set once every tile was sent.
-    let done = AtomicBool::new(false);
-    std::thread::scope(|scope| {
-        let writers: Vec<_> = (0..WRITERS)
-            .map(|k| {
-                let (rx, failed, done) = (&rx, &failed, &done);
-                scope.spawn(move || -> std::io::Result<()> {
-                    let mut error = None;
-                    // Until every sender is gone: a writer that stopped receiving
-                    // would leave the encoders blocked on a full queue for good.
-                    loop {
-                        // The second writer helps only with direct writes: two
-                        // buffered writers only queue on the kernel's lock
-                        // (measured 8% slower than one on a text conversion).
-                        if k > 0 && !out.is_direct() {
-                            if done.load(Ordering::Acquire) {
-                                break; // the first writer drains the rest
-                            }
-                            std::thread::sleep(std::time::Duration::from_millis(1));
-                            continue;
-                        }
-                        // The next batch and those already waiting, up to
-                        // RUN_TILES tiles (the lock is held only to take them).
-                        let mut batch = {
-                            let rx = rx.lock().unwrap_or_else(|p| p.into_inner());
-                            let Ok(mut batch) = rx.recv() else { break };
-                            while batch.len() < RUN_TILES {
-                                match rx.try_recv() {
-                                    Ok(more) => batch.extend(more),
-                                    Err(_) => break,
-                                }
-                            }
-                            batch
-                        };
-                        if failed.load(Ordering::Relaxed) {
-                            continue; // drained, not written
-                        }
-                        let wrote = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
-                            // Tiles back to back in the file go in one write.
-                            batch.sort_unstable_by_key(|(at, _)| *at);
-                            for run in batch.chunk_by(|a, b| a.0 + TILE_BYTES == b.0) {
-                                let tiles: Vec<&[f32]> = run.iter().map(|(_, v)| &v[..]).collect();
-                                out.write_run(&tiles, run[0].0)?;
-                            }
-                            for (_, v) in batch {
-                                out::recycle(v);
-                            }
-                            Ok(())
-                        }))
-                        .unwrap_or_else(|_| Err(std::io::Error::other("a tile writer panicked")));
-                        if let Err(e) = wrote {
-                            failed.store(true, Ordering::Relaxed);
-                            error.get_or_insert(e);
-                        }
-                    }
-                    error.map_or(Ok(()), Err)
-                })
-            })
-            .collect();
-        let sent = jobs.try_for_each_with(tx, |tx, batch| -> std::io::Result<()> {
-            if opts.cancelled() {
-                return Err(std::io::ErrorKind::Interrupted.into());
-            }
-            if failed.load(Ordering::Relaxed) {
-                // The writers' error is the one reported (below).
-                return Err(std::io::Error::other("the tile writers stopped"));
-            }
-            tx.send(batch)
-                .map_err(|_| std::io::Error::other("the tile writers stopped"))
-        });
-        done.store(true, Ordering::Release);
-        // Every sender is dropped by now, so the writers end after the last tile;
-        // their own errors are the ones to report.
-        let mut written = Ok(());
-        for w in writers {
-            let r = w
-                .join()
-                .unwrap_or_else(|_| Err(std::io::Error::other("a tile writer panicked")));
-            written = written.and(r);
-        }
-        written.and(sent)
-    })
-}
-
 /// Compressed tiles (sizes known only once encoded): encoded in batches on the
 /// rayon pool by a producer thread while this thread writes the previous batch,
 /// so encoding and the copy into the page cache overlap.
@@ -1010,7 +1027,7 @@ fn encode_batches<K: TiffKind>(
         scope.spawn(move || {
             for start in (0..filled).step_by(BATCH_TILES) {
                 let end = (start + BATCH_TILES).min(filled);
-                let per_tile = groups(a);
+                let per_tile = groups(a.m);
                 let jobs: Vec<(usize, usize)> = (start..end)
                     .flat_map(|t| (0..per_tile).map(move |g| (t, g)))
                     .collect();
@@ -1126,89 +1143,6 @@ mod tests {
             .expect_err("a short source is an error");
             assert!(e.to_string().contains("short.tif"), "{e}");
             assert!(!dir.path().join("short.tif").exists());
-        }
-    }
-
-    /// Writes that fail (a file opened read-only) end the tile writing with the
-    /// writers' error, however many tiles are still to come: the encoders must not
-    /// block on a queue that nobody drains.
-    #[test]
-    fn failing_writes_end_the_tiles_with_their_error() {
-        let dir = tempfile::tempdir().unwrap();
-        let path = dir.path().join("ro.bin");
-        std::fs::write(&path, b"").unwrap();
-        let ro = File::open(&path).unwrap();
-        let out = TileWriter::new(&ro, &path, TileIo::Buffered);
-        let opts = WriteOptions::default();
-        let jobs = (0..500u64)
-            .into_par_iter()
-            .map(|j| vec![(j * (TILE_PIXELS as u64 * 4), TileBuf::filled(1.0))]);
-        let e = write_tiles(&out, &opts, jobs).unwrap_err();
-        assert_ne!(e.to_string(), "the tile writers stopped", "{e}");
-        assert_eq!(e.raw_os_error(), Some(libc::EBADF), "{e}");
-        // And through a writable file every tile lands where it was sent.
-        let rw = std::fs::OpenOptions::new().write(true).open(&path).unwrap();
-        let out = TileWriter::new(&rw, &path, TileIo::Direct);
-        let jobs = (0..40u64).into_par_iter().map(|j| {
-            let mut t = TileBuf::filled(j as f32);
-            t[1] = -(j as f32);
-            vec![(j * (TILE_PIXELS as u64 * 4), t)]
-        });
-        write_tiles(&out, &opts, jobs).unwrap();
-        drop(out);
-        let bytes = std::fs::read(&path).unwrap();
-        assert_eq!(bytes.len(), 40 * TILE_PIXELS * 4);
-        let v: &[f32] = bytemuck::cast_slice(&bytes);
-        for (j, t) in v.chunks_exact(TILE_PIXELS).enumerate() {
-            assert_eq!(
-                (t[0], t[1], t[TILE_PIXELS - 1]),
-                (j as f32, -(j as f32), j as f32)
-            );
-        }
-    }
-
-    /// Tiles are written in runs of neighbours (several jobs' tiles together, in
-    /// any order they were sent): every tile lands at its own offset and the
-    /// slots nobody wrote stay zero, through the page cache, around it, and in
-    /// the adaptive mode.
-    #[test]
-    fn tiles_written_in_runs_land_at_their_offsets() {
-        const TILE: u64 = TILE_PIXELS as u64 * 4;
-        for mode in [TileIo::Buffered, TileIo::Direct, TileIo::Auto] {
-            let dir = tempfile::tempdir().unwrap();
-            let path = dir.path().join("runs.bin");
-            let f = File::create(&path).unwrap();
-            let out = TileWriter::new(&f, &path, mode);
-            // Job j sends slots 4j+2, 4j, 4j+1 (out of order); 4j+3 is left empty,
-            // so runs are at most three tiles long.
-            let jobs = (0..60u64).into_par_iter().map(|j| {
-                [2, 0, 1]
-                    .map(|k| {
-                        let slot = 4 * j + k;
-                        let mut t = TileBuf::filled(slot as f32 + 0.5);
-                        t[7] = -(slot as f32);
-                        (slot * TILE, t)
-                    })
-                    .into_iter()
-                    .collect::<Vec<_>>()
-            });
-            write_tiles(&out, &WriteOptions::default(), jobs).unwrap();
-            drop(out);
-            let bytes = std::fs::read(&path).unwrap();
-            assert_eq!(bytes.len() as u64, (4 * 59 + 3) * TILE, "{mode:?}");
-            let v: &[f32] = bytemuck::cast_slice(&bytes);
-            for (slot, t) in v.chunks_exact(TILE_PIXELS).enumerate() {
-                let want = if slot % 4 == 3 {
-                    (0.0, 0.0, 0.0)
-                } else {
-                    (slot as f32 + 0.5, -(slot as f32), slot as f32 + 0.5)
-                };
-                assert_eq!(
-                    (t[0], t[7], t[TILE_PIXELS - 1]),
-                    want,
-                    "{mode:?} slot {slot}"
-                );
-            }
         }
     }
 }
