@@ -144,6 +144,9 @@ struct Arranged {
     /// level 0) is their tile `tile_order[t]` (empty: the same order). See
     /// [`Arranged::slot`].
     tile_order: Vec<u32>,
+    /// Bounds of the stored coordinates of each tile of `pos` (as stored, before
+    /// `tile_order`), found while arranging (empty for the paper layout).
+    tile_bounds: Vec<Option<[[f32; 3]; 2]>>,
     /// Where level 0's tiles were written while the points were arranged (tile
     /// `tile_order[t]`'s bands from this offset on, band-interleaved as
     /// `encode` lays them out), if they were.
@@ -315,6 +318,7 @@ fn arrange(
     ph.mark("validate+origin");
     // Points in image order: positions (sorted) and their source indices.
     let m = attributes.len();
+    let mut tile_bounds = Vec::new();
     let (pos, perm, tile_order) = match layout {
         Layout::Hilbert => {
             let lo = [0, 1, 2].map(|a| (bounds.min[a] - origin[a]) as f32);
@@ -323,9 +327,20 @@ fn arrange(
             ph.mark("hilbert sort");
             let lut = tile_z_to_raster(spec::TILE_LOG2);
             let nb = 3 + m;
-            // Level 0 of tile t, as `encode` would write it, from the arranged
-            // tile while it is in cache.
+            // The bounds of arranged tile t and (when `level0`) its level-0 bands
+            // as `encode` would write them, while the tile is in cache.
+            let found: Vec<std::sync::OnceLock<[[f32; 3]; 2]>> = (0..n.div_ceil(TILE_PIXELS))
+                .map(|_| Default::default())
+                .collect();
             let on_tile = |t: usize, o: &[[f32; 3]], i: &[u32]| {
+                let mut b = [[f32::INFINITY; 3], [f32::NEG_INFINITY; 3]];
+                for p in o {
+                    for ax in 0..3 {
+                        b[0][ax] = b[0][ax].min(p[ax]);
+                        b[1][ax] = b[1][ax].max(p[ax]);
+                    }
+                }
+                let _ = found[t].set(b);
                 let Some(l0) = level0.filter(|l| !l.sink.stopped()) else {
                     return;
                 };
@@ -343,6 +358,7 @@ fn arrange(
             let (sorted, order) =
                 layout::gather_representatives(&pos, &mut perm, levels, lo, hi, &on_tile);
             drop(pos);
+            tile_bounds = found.into_iter().map(|b| b.into_inner()).collect();
             ph.mark(if level0.is_some() {
                 "gather+representatives+level 0"
             } else {
@@ -360,6 +376,7 @@ fn arrange(
         pos,
         perm,
         tile_order,
+        tile_bounds,
         level0_at: level0.map(|l| l.start),
         rows,
         m,
@@ -381,22 +398,16 @@ fn tile_index(a: &Arranged) -> Vec<LevelIndex> {
     }
     let o = a.origin;
     let mut levels: Vec<LevelIndex> = Vec::with_capacity(g.levels());
+    // Level 0 from the bounds found while arranging, taken in image order.
     let level0: Vec<Bounds> = (0..g.filled_tiles(0) as usize)
-        .into_par_iter()
         .map(|t| {
-            let s = a.slot(t * TILE_PIXELS);
-            let e = (s + TILE_PIXELS).min(a.pos.len());
-            let mut lo = [f32::INFINITY; 3];
-            let mut hi = [f32::NEG_INFINITY; 3];
-            for p in &a.pos[s..e] {
-                for ax in 0..3 {
-                    lo[ax] = lo[ax].min(p[ax]);
-                    hi[ax] = hi[ax].max(p[ax]);
-                }
-            }
-            Bounds {
-                min: [0, 1, 2].map(|ax| o[ax] + lo[ax] as f64),
-                max: [0, 1, 2].map(|ax| o[ax] + hi[ax] as f64),
+            let stored = a.slot(t * TILE_PIXELS) / TILE_PIXELS;
+            match a.tile_bounds.get(stored).copied().flatten() {
+                Some([lo, hi]) => Bounds {
+                    min: [0, 1, 2].map(|ax| o[ax] + lo[ax] as f64),
+                    max: [0, 1, 2].map(|ax| o[ax] + hi[ax] as f64),
+                },
+                None => Bounds::EMPTY,
             }
         })
         .collect();
