@@ -140,20 +140,28 @@ pub(super) fn tile_pixels(
     t: u32,
 ) -> super::out::TileBuf {
     let mut buf = super::out::TileBuf::filled(f32::NAN);
+    tile_sources(g, level, t, |pixel, i| buf[pixel] = value(i));
+    buf
+}
+
+/// Calls `visit(pixel, i)` for every pixel of the tile of raster index `t` of
+/// `level` that holds a point (row-major pixel index within the tile; `i`: the
+/// input point there), in raster order, so in ascending `i`.
+pub(super) fn tile_sources(g: Geometry, level: usize, t: u32, mut visit: impl FnMut(usize, usize)) {
     let w = g.size(0);
     let across = g.tiles_across(level);
     let (x0, y0) = ((t % across) * TILE_SIZE, (t / across) * TILE_SIZE);
-    for (y, out) in buf.chunks_exact_mut(TILE_SIZE as usize).enumerate() {
-        let c = row_points(g, level, x0, y0 + y as u32) as usize;
+    for y in 0..TILE_SIZE {
+        let c = row_points(g, level, x0, y0 + y) as usize;
         if c == 0 {
             break;
         }
-        let s = source(w, level, x0, y0 + y as u32) as usize;
-        for (j, o) in out[..c].iter_mut().enumerate() {
-            *o = value(s + (j << level));
+        let s = source(w, level, x0, y0 + y) as usize;
+        let row = (y * TILE_SIZE) as usize;
+        for j in 0..c {
+            visit(row + j, s + (j << level));
         }
     }
-    buf
 }
 
 /// A decoded tile: one plane per band (x first), and the width of its rows.

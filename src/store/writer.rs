@@ -283,15 +283,6 @@ fn arrange(
                 ),
             ));
         }
-        // The paper's layout reads rows in input order: they are taken at once.
-        Some(src) if layout == Layout::Paper => {
-            let mut held = crate::bigvec::with_capacity(n * attributes.len());
-            let idx: Vec<u32> = (0..n as u32).collect();
-            for c in idx.chunks(1 << 16) {
-                src.gather(c, &mut held);
-            }
-            Rows::Held(held)
-        }
         Some(src) => Rows::Source(src),
     };
     let mut names: Vec<String> = spec::COORDINATE_BANDS
@@ -769,23 +760,38 @@ fn encode_job(
         c => Encoded::Bytes(codec::encode(&buf, TILE_SIZE as usize, c)),
     };
     if a.layout == Layout::Paper {
-        // The paper's layout: input order, row-major (`paper.rs`; its rows are
-        // always held).
-        let rows: &[f32] = match &a.rows {
-            Rows::Held(r) => r,
-            Rows::Source(_) => &[],
-        };
-        return match group {
-            0..3 => vec![(
+        // The paper's layout: input order, row-major (`paper.rs`).
+        return match (group, &a.rows) {
+            (0..3, _) => vec![(
                 group,
                 done(paper::tile_pixels(|i| a.pos[i][group], g, level, raster)),
             )],
-            _ => (0..m)
+            (_, Rows::Held(rows)) => (0..m)
                 .map(|k| {
                     let buf = paper::tile_pixels(|i| rows[i * m + k], g, level, raster);
                     (3 + k, done(buf))
                 })
                 .collect(),
+            (_, Rows::Source(src)) => {
+                // The tile's rows from the source (runs of neighbouring records,
+                // in input order), then each band placed from them.
+                let (mut pixels, mut idx) = (Vec::new(), Vec::new());
+                paper::tile_sources(g, level, raster, |px, i| {
+                    pixels.push(px as u32);
+                    idx.push(i as u32);
+                });
+                let mut rows = Vec::with_capacity(idx.len() * m);
+                src.gather(&idx, &mut rows);
+                (0..m)
+                    .map(|k| {
+                        let mut buf = TileBuf::filled(f32::NAN);
+                        for (j, &px) in pixels.iter().enumerate() {
+                            buf[px as usize] = rows[j * m + k];
+                        }
+                        (3 + k, done(buf))
+                    })
+                    .collect()
+            }
         };
     }
     let at = |i: usize| a.slot((base + i) * stride);
