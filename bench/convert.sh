@@ -2,7 +2,7 @@
 # The paper's storage experiment (Du & Li 2009, Table 1) at full size:
 # 47,756,566 points of "x y z intensity" text, converted with 3 bands (x y z) and
 # with 4 bands, under --memory 256MiB and under the default budget; plus the same
-# points as LAS and as LAZ. Prints wall time, M points/s, MB/s of input and peak
+# points as LAS (also in the paper's own layout) and as LAZ. Prints wall time, M points/s, MB/s of input and peak
 # resident memory (GNU time) for each run.
 #
 #   bash bench/convert.sh            # full size (needs ~5 GB in $DIR)
@@ -65,5 +65,6 @@ run "text, 4 bands, default memory" "$DIR/$ORDER-$N.xyz"
 run "text, 4 bands, stream, 256MiB" "$DIR/$ORDER-$N.xyz" --memory 256MiB --partition stream
 run "las, 4+ bands, --memory 256MiB" "$DIR/$ORDER-$N.las" --memory 256MiB
 run "las, 4+ bands, default memory" "$DIR/$ORDER-$N.las"
+run "las, paper layout, default memory" "$DIR/$ORDER-$N.las" --layout paper
 run "laz, 4+ bands, --memory 256MiB" "$DIR/$ORDER-$N.laz" --memory 256MiB
 rm -rf "$DIR/out"
