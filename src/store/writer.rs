@@ -307,7 +307,8 @@ fn arrange(
     let max_error = quantization_bound(&bounds, origin);
     let geometry = Geometry::for_points(n as u64);
     ph.mark("validate+origin");
-    // Points in image order: positions (sorted) and their source indices.
+    // Points in image order, tile by tile (the tiles themselves in the order
+    // `tile_order` gives): positions and their source indices.
     let m = attributes.len();
     let mut tile_bounds = Vec::new();
     let (pos, perm, tile_order) = match layout {
