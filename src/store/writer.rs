@@ -1152,7 +1152,7 @@ mod tests {
             let (held, a) = write("held.tif", None).unwrap();
             let (mapped, b) = write("mapped.tif", Some(VecRows(rows.clone(), 2))).unwrap();
             assert!(!held.rows_from_input);
-            assert_eq!(mapped.rows_from_input, layout == Layout::Hilbert);
+            assert!(mapped.rows_from_input, "{layout:?}: rows were copied");
             assert!(a == b, "{layout:?}: the files differ");
             let e = write(
                 "short.tif",
