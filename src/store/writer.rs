@@ -1105,6 +1105,56 @@ mod tests {
         }
     }
 
+    /// Rows that raise a cancel flag once the writer starts gathering them: for
+    /// a Hilbert part, while level 0 is written during the arrangement.
+    struct CancellingRows(VecRows, Arc<AtomicBool>);
+
+    impl RowSource for CancellingRows {
+        fn len(&self) -> usize {
+            self.0.len()
+        }
+        fn width(&self) -> usize {
+            self.0.width()
+        }
+        fn gather(&self, idx: &[u32], out: &mut Vec<f32>) {
+            self.1.store(true, Ordering::Relaxed);
+            self.0.gather(idx, out)
+        }
+    }
+
+    /// Ctrl-C while level 0 is being written (the points still being arranged)
+    /// stops the write as interrupted and leaves no file, temporary or final.
+    #[test]
+    fn a_write_cancelled_while_arranging_leaves_nothing() {
+        let dir = tempfile::tempdir().unwrap();
+        let n = 5 * TILE_PIXELS + 99;
+        let mut r = crate::synth::Rng::new(4);
+        let mut c = PointColumns::default();
+        for _ in 0..n {
+            c.x.push(r.f64() * 100.0);
+            c.y.push(r.f64() * 100.0);
+            c.z.push(r.f64());
+        }
+        c.attributes
+            .push(crate::points::Attribute::new("intensity", vec![1.0; n]));
+        let cancel = Arc::new(AtomicBool::new(false));
+        let opts = WriteOptions {
+            cancel: Some(cancel.clone()),
+            ..WriteOptions::default()
+        };
+        let path = dir.path().join("part.tif");
+        let mut b = PartBuilder::new([50.0, 50.0, 0.5], None, n);
+        b.rows_from(Arc::new(CancellingRows(
+            VecRows(vec![1.0; n], 1),
+            cancel.clone(),
+        )));
+        b.push(&path, &c).unwrap();
+        let e = write_part_built(&path, b, &opts).unwrap_err();
+        assert!(e.to_string().contains(INTERRUPTED), "{e}");
+        let left: Vec<_> = std::fs::read_dir(dir.path()).unwrap().collect();
+        assert!(left.is_empty(), "{left:?}");
+    }
+
     /// A part whose rows come from a [`RowSource`] is the same file, byte for
     /// byte, as one holding them, in either layout; a source of another length is
     /// an error naming the part.
