@@ -157,15 +157,18 @@ fn camera_json_round_trip_and_levels() {
 fn a_closed_stdout_ends_info_quietly() {
     let dir = tempfile::tempdir().unwrap();
     let ds = autzen(dir.path());
-    let mut child = exe()
+    // A pipe whose reading end is closed before pcimg starts: its first write
+    // fails, however fast it runs. (Closing the end after the spawn raced with
+    // pcimg writing all of its output into the pipe's buffer first.)
+    let (reader, writer) = std::io::pipe().unwrap();
+    drop(reader);
+    let o = exe()
         .args(["info", "--tiles", "--json"])
         .arg(&ds)
-        .stdout(std::process::Stdio::piped())
+        .stdout(writer)
         .stderr(std::process::Stdio::piped())
-        .spawn()
+        .output()
         .unwrap();
-    drop(child.stdout.take());
-    let o = child.wait_with_output().unwrap();
     let e = String::from_utf8_lossy(&o.stderr);
     assert_eq!(o.status.code(), Some(141), "{e}");
     assert!(e.is_empty(), "{e}");
