@@ -86,6 +86,15 @@ impl PartBuilder {
         }
     }
 
+    /// Widens the attributes' ranges by `ranges` (one per attribute).
+    fn widen_ranges(&mut self, ranges: Vec<(f32, f32)>) {
+        self.ranges = if self.ranges.is_empty() {
+            ranges
+        } else {
+            widen(&self.ranges, &ranges)
+        };
+    }
+
     /// Takes the attribute rows from `src` when the part is written instead of
     /// holding them: pushed chunks then add their positions and widen their
     /// attributes' ranges, and nothing else. The points pushed must be the
@@ -329,11 +338,7 @@ impl PartBuilder {
         if first {
             self.attributes = attributes.to_vec();
         }
-        self.ranges = if self.ranges.is_empty() {
-            ranges
-        } else {
-            widen(&self.ranges, &ranges)
-        };
+        self.widen_ranges(ranges);
         Ok(())
     }
 
@@ -354,11 +359,7 @@ impl PartBuilder {
                         .fold(EMPTY_RANGE, |r, &v| (r.0.min(v), r.1.max(v)))
                 })
                 .collect();
-            self.ranges = if self.ranges.is_empty() {
-                ranges
-            } else {
-                widen(&self.ranges, &ranges)
-            };
+            self.widen_ranges(ranges);
             return;
         }
         let at = self.rows.len();
@@ -389,11 +390,7 @@ impl PartBuilder {
             .reduce(|| vec![EMPTY_RANGE; m], |a, b| widen(&a, &b));
         // SAFETY: every slot at..at + len * m was written above.
         unsafe { self.rows.set_len(at + len * m) };
-        self.ranges = if self.ranges.is_empty() {
-            ranges
-        } else {
-            widen(&self.ranges, &ranges)
-        };
+        self.widen_ranges(ranges);
     }
 }
 

@@ -299,7 +299,7 @@ pub fn sort_indexed(v: &mut Vec<u64>, low_bits: u32) {
     *v = out;
 }
 
-/// Levels over which [`choose_representatives`] runs for `n` points: every level
+/// Levels over which [`gather_representatives`] runs for `n` points: every level
 /// whose blocks can hold more than one sub-block, beyond the stored pyramid too, so
 /// any stride-`4^k` subset of a stored level (of its last tile, say) is even as well.
 pub fn representative_levels(n: usize) -> usize {
@@ -357,9 +357,14 @@ fn lsd_sort(s: &mut [u64], scratch: &mut Vec<u64>, base: u64, low: u32, bits: u3
     }
 }
 
-/// Rearranges points (`pos` and their source indices `perm`, already in Hilbert
-/// order) so that for every level `k` in `1..levels` the first slots of the aligned
-/// blocks of `4^k` slots hold an even sample of the points.
+/// What [`gather_representatives`] calls with each arranged tile: its number,
+/// its points and their source indices.
+pub type OnTile<'a> = dyn Fn(usize, &[[f32; 3]], &[u32]) + Sync + 'a;
+
+/// Gathers the points `src[perm[..]]` (`perm`: indices of `src` in Hilbert order)
+/// and arranges them so that for every level `k` in `1..levels` the first slots
+/// of the aligned blocks of `4^k` slots hold an even sample of the points;
+/// `perm` is rearranged the same way.
 ///
 /// Level 1 is chosen like a voxel grid (`select`), so sparse parts (vegetation,
 /// walls, a single flight line) keep as many neighbours as dense ones; each chosen
@@ -369,60 +374,16 @@ fn lsd_sort(s: &mut [u64], scratch: &mut Vec<u64>, base: u64, low: u32, bits: u3
 /// first point is nearest the block's centroid comes first (measured as good as any
 /// density rule there, once level 1 has evened the density out). The pyramid stays
 /// nested and the filled slots a prefix.
-/// `lo`, `hi`: the bounds of `pos` (the writer has them; the grid is built from
-/// them rather than from another pass over the points).
+/// `lo`, `hi`: the bounds of the points (the writer has them; the grid is built
+/// from them rather than from another pass over the points).
 ///
-/// (The writer uses [`gather_representatives`], which leaves the tiles where they
-/// are and returns their order; this moves them.)
-pub fn choose_representatives(
-    pos: &mut [[f32; 3]],
-    perm: &mut [u32],
-    levels: usize,
-    lo: [f32; 3],
-    hi: [f32; 3],
-) {
-    if pos.len() < 2 || levels < 2 {
-        return;
-    }
-    let grid = Grid::new(lo, hi);
-    pos.par_chunks_mut(TILE_PIXELS)
-        .zip(perm.par_chunks_mut(TILE_PIXELS))
-        .for_each_init(Scratch::default, |sc, (p, i)| {
-            sc.pos.clear();
-            sc.pos.extend_from_slice(p);
-            arrange_tile(sc, p, i, &grid, levels);
-        });
-    let order = tile_order(pos, levels);
-    let p = in_tile_order(pos, &order);
-    let i = in_tile_order(perm, &order);
-    pos.copy_from_slice(&p);
-    perm.copy_from_slice(&i);
-}
-
-/// The tiles of `v` (runs of [`TILE_PIXELS`]) in `order`.
-fn in_tile_order<T: Copy>(v: &[T], order: &[u32]) -> Vec<T> {
-    let tiles: Vec<&[T]> = v.chunks(TILE_PIXELS).collect();
-    order
-        .iter()
-        .flat_map(|&t| tiles[t as usize])
-        .copied()
-        .collect()
-}
-
-/// What [`gather_representatives`] calls with each arranged tile: its number,
-/// its points and their source indices.
-pub type OnTile<'a> = dyn Fn(usize, &[[f32; 3]], &[u32]) + Sync + 'a;
-
-/// [`choose_representatives`] fused with the gather that puts the points in curve
-/// order: `perm` holds the indices of `src` in Hilbert order and is rearranged;
-/// the result is the points in that order. Each tile is gathered into scratch,
-/// arranged there (levels up to the tile's own block size, all in cache) and
-/// written once; `on_tile(t, points, indices)` then sees tile `t` as it will be
-/// stored (the writer encodes and writes level 0 from it while it is in cache).
-///
-/// The levels above a tile only reorder whole tiles: they are not moved but
-/// returned as the tile order (the `t`-th tile of the final order is tile
-/// `order[t]` of the result; the partial last tile, if any, stays last).
+/// Each tile is gathered into scratch, arranged there (levels up to the tile's
+/// own block size, all in cache) and written once; `on_tile(t, points, indices)`
+/// then sees tile `t` as it will be stored (the writer encodes and writes level 0
+/// from it while it is in cache). The levels above a tile only reorder whole
+/// tiles: they are not moved but returned as the tile order (the `t`-th tile of
+/// the final order is tile `order[t]` of the result; the partial last tile, if
+/// any, stays last).
 pub fn gather_representatives(
     src: &[[f32; 3]],
     perm: &mut [u32],
@@ -847,11 +808,31 @@ fn leading_sub_block(count: usize, full: usize, first: impl Fn(usize) -> [f32; 3
 mod tests {
     use super::*;
 
-    /// [`choose_representatives`] with the bounds taken from the points.
+    /// [`gather_representatives`] of points already in curve order (`pos`, with
+    /// source indices `perm`), the bounds taken from the points, and the tiles
+    /// put in their order.
     fn representatives(pos: &mut [[f32; 3]], perm: &mut [u32], levels: usize) {
         let lo = [0, 1, 2].map(|a| pos.iter().map(|p| p[a]).fold(f32::INFINITY, f32::min));
         let hi = [0, 1, 2].map(|a| pos.iter().map(|p| p[a]).fold(f32::NEG_INFINITY, f32::max));
-        choose_representatives(pos, perm, levels, lo, hi);
+        let src = pos.to_vec();
+        let mut local: Vec<u32> = (0..pos.len() as u32).collect();
+        let (out, order) = gather_representatives(&src, &mut local, levels, lo, hi, &|_, _, _| {});
+        pos.copy_from_slice(&in_tile_order(&out, &order));
+        let moved: Vec<u32> = in_tile_order(&local, &order)
+            .iter()
+            .map(|&k| perm[k as usize])
+            .collect();
+        perm.copy_from_slice(&moved);
+    }
+
+    /// The tiles of `v` (runs of [`TILE_PIXELS`]) in `order`.
+    fn in_tile_order<T: Copy>(v: &[T], order: &[u32]) -> Vec<T> {
+        let tiles: Vec<&[T]> = v.chunks(TILE_PIXELS).collect();
+        order
+            .iter()
+            .flat_map(|&t| tiles[t as usize])
+            .copied()
+            .collect()
     }
 
     #[test]

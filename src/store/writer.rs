@@ -128,6 +128,33 @@ enum Rows {
     Source(Arc<dyn RowSource>),
 }
 
+impl Rows {
+    /// Appends the rows (`m` values each) of points `idx` to `out`.
+    fn gather(&self, idx: &[u32], m: usize, out: &mut Vec<f32>) {
+        let rows = match self {
+            Rows::Source(src) => return src.gather(idx, out),
+            Rows::Held(rows) => rows,
+        };
+        match m {
+            0 => {}
+            1 => gather_rows::<1>(rows, idx, out),
+            2 => gather_rows::<2>(rows, idx, out),
+            3 => gather_rows::<3>(rows, idx, out),
+            4 => gather_rows::<4>(rows, idx, out),
+            5 => gather_rows::<5>(rows, idx, out),
+            6 => gather_rows::<6>(rows, idx, out),
+            7 => gather_rows::<7>(rows, idx, out),
+            8 => gather_rows::<8>(rows, idx, out),
+            _ => {
+                for &i in idx {
+                    let at = i as usize * m;
+                    out.extend_from_slice(&rows[at..at + m]);
+                }
+            }
+        }
+    }
+}
+
 /// A part in image order, ready to be tiled. Positions stay interleaved (`x y z`
 /// bands 0–2 are read straight out of them by the tile encoder, which saves a
 /// pass over every point); attributes stay in input order as rows (`m` values a
@@ -147,10 +174,10 @@ struct Arranged {
     /// Bounds of the stored coordinates of each tile of `pos` (as stored, before
     /// `tile_order`), found while arranging (empty for the paper layout).
     tile_bounds: Vec<Option<[[f32; 3]; 2]>>,
-    /// Where level 0's tiles were written while the points were arranged (tile
-    /// `tile_order[t]`'s bands from this offset on, band-interleaved as
-    /// `encode` lays them out), if they were.
-    level0_at: Option<u64>,
+    /// Whether level 0's tiles were written while the points were arranged
+    /// (tile `tile_order[t]`'s bands from [`LEVEL0_AT`] on, band-interleaved as
+    /// `encode` lays them out).
+    level0_written: bool,
     /// Bands 3 and up, interleaved, in input order.
     rows: Rows,
     m: usize,
@@ -164,23 +191,17 @@ struct Arranged {
 }
 
 impl Arranged {
+    /// The tile of `pos` and `perm` that holds level 0's image tile `t` (Z-rank).
+    #[inline]
+    fn stored_tile(&self, t: usize) -> usize {
+        self.tile_order.get(t).map_or(t, |&s| s as usize)
+    }
+
     /// The index in `pos` and `perm` of image slot `s` (level 0, Z-order).
     #[inline]
     fn slot(&self, s: usize) -> usize {
-        match self.tile_order.get(s / TILE_PIXELS) {
-            Some(&t) => t as usize * TILE_PIXELS + s % TILE_PIXELS,
-            None => s,
-        }
+        self.stored_tile(s / TILE_PIXELS) * TILE_PIXELS + s % TILE_PIXELS
     }
-}
-
-/// Level 0 written while the points are arranged (`arrange`): each tile is
-/// encoded as soon as it is arranged, in cache, and its bands are sent to `sink`
-/// for the file from byte `start` on, so the disk writes most of the file while
-/// the rest is still being arranged.
-struct Level0<'a, 's> {
-    sink: &'a TileSink<'s>,
-    start: u64,
 }
 
 /// Where level 0's tile data begins in an uncompressed file: the TIFF header (8
@@ -251,12 +272,16 @@ fn scan_bounds(path: &Path, chunks: &[PointColumns]) -> Result<Bounds> {
     })
 }
 
+/// Sorts and arranges `part`'s points for `layout`. Given `level0` (Hilbert
+/// layout, uncompressed), each tile's level-0 bands are encoded as soon as the
+/// tile is arranged, in cache, and sent there for the file from [`LEVEL0_AT`] on,
+/// so the disk writes most of the file while the rest is still being arranged.
 fn arrange(
     path: &Path,
     part: PartBuilder,
     layout: Layout,
     ph: &mut Phases,
-    level0: Option<&Level0>,
+    level0: Option<&TileSink>,
 ) -> Result<Arranged> {
     let PartBuilder {
         origin,
@@ -333,10 +358,10 @@ fn arrange(
                     }
                 }
                 let _ = found[t].set(b);
-                let Some(l0) = level0.filter(|l| !l.sink.stopped()) else {
+                let Some(sink) = level0.filter(|s| !s.stopped()) else {
                     return;
                 };
-                let at = |b: usize| l0.start + (t * nb + b) as u64 * TILE_BYTES;
+                let at = |b: usize| LEVEL0_AT + (t * nb + b) as u64 * TILE_BYTES;
                 let batch = (0..groups(m))
                     .flat_map(|group| {
                         hilbert_bands(&lut, o.len(), group, |k| o[k], |k| i[k], &rows, m)
@@ -344,7 +369,7 @@ fn arrange(
                     .map(|(b, buf)| (at(b), buf))
                     .collect();
                 // A refusal (cancelled, a failed write) is kept by the sink.
-                let _ = l0.sink.send(batch);
+                let _ = sink.send(batch);
             };
             let levels = layout::representative_levels(n);
             let (sorted, order) =
@@ -369,7 +394,7 @@ fn arrange(
         perm,
         tile_order,
         tile_bounds,
-        level0_at: level0.map(|l| l.start),
+        level0_written: level0.is_some(),
         rows,
         m,
         ranges,
@@ -392,16 +417,15 @@ fn tile_index(a: &Arranged) -> Vec<LevelIndex> {
     let mut levels: Vec<LevelIndex> = Vec::with_capacity(g.levels());
     // Level 0 from the bounds found while arranging, taken in image order.
     let level0: Vec<Bounds> = (0..g.filled_tiles(0) as usize)
-        .map(|t| {
-            let stored = a.slot(t * TILE_PIXELS) / TILE_PIXELS;
-            match a.tile_bounds.get(stored).copied().flatten() {
+        .map(
+            |t| match a.tile_bounds.get(a.stored_tile(t)).copied().flatten() {
                 Some([lo, hi]) => Bounds {
                     min: [0, 1, 2].map(|ax| o[ax] + lo[ax] as f64),
                     max: [0, 1, 2].map(|ax| o[ax] + hi[ax] as f64),
                 },
                 None => Bounds::EMPTY,
-            }
-        })
+            },
+        )
         .collect();
     let mut prev = level0;
     for level in 0..g.levels() {
@@ -639,11 +663,7 @@ fn write(
     let a = if opts.layout == Layout::Hilbert && opts.compression == Compression::None {
         let cancelled = || opts.cancelled();
         let (a, written) = sink::with_sink(&tiles, &cancelled, |sink| {
-            let level0 = Level0 {
-                sink,
-                start: LEVEL0_AT,
-            };
-            arrange(path, part, opts.layout, &mut ph, Some(&level0))
+            arrange(path, part, opts.layout, &mut ph, Some(sink))
         });
         let a = a?;
         written.map_err(|e| match e {
@@ -762,38 +782,28 @@ fn encode_job(
     };
     if a.layout == Layout::Paper {
         // The paper's layout: input order, row-major (`paper.rs`).
-        return match (group, &a.rows) {
-            (0..3, _) => vec![(
-                group,
-                done(paper::tile_pixels(|i| a.pos[i][group], g, level, raster)),
-            )],
-            (_, Rows::Held(rows)) => (0..m)
-                .map(|k| {
-                    let buf = paper::tile_pixels(|i| rows[i * m + k], g, level, raster);
-                    (3 + k, done(buf))
-                })
-                .collect(),
-            (_, Rows::Source(src)) => {
-                // The tile's rows from the source (runs of neighbouring records,
-                // in input order), then each band placed from them.
-                let (mut pixels, mut idx) = (Vec::new(), Vec::new());
-                paper::tile_sources(g, level, raster, |px, i| {
-                    pixels.push(px as u32);
-                    idx.push(i as u32);
-                });
-                let mut rows = Vec::with_capacity(idx.len() * m);
-                src.gather(&idx, &mut rows);
-                (0..m)
-                    .map(|k| {
-                        let mut buf = TileBuf::filled(f32::NAN);
-                        for (j, &px) in pixels.iter().enumerate() {
-                            buf[px as usize] = rows[j * m + k];
-                        }
-                        (3 + k, done(buf))
-                    })
-                    .collect()
-            }
-        };
+        if group < 3 {
+            let buf = paper::tile_pixels(|i| a.pos[i][group], g, level, raster);
+            return vec![(group, done(buf))];
+        }
+        // The tile's rows (runs of neighbouring points, in input order), then
+        // each band placed from them.
+        let (mut pixels, mut idx) = (Vec::new(), Vec::new());
+        paper::tile_sources(g, level, raster, |px, i| {
+            pixels.push(px as u32);
+            idx.push(i as u32);
+        });
+        let mut rows = Vec::with_capacity(idx.len() * m);
+        a.rows.gather(&idx, m, &mut rows);
+        return (0..m)
+            .map(|k| {
+                let mut buf = TileBuf::filled(f32::NAN);
+                for (j, &px) in pixels.iter().enumerate() {
+                    buf[px as usize] = rows[j * m + k];
+                }
+                (3 + k, done(buf))
+            })
+            .collect();
     }
     let at = |i: usize| a.slot((base + i) * stride);
     let (pos, perm) = (&a.pos, &a.perm);
@@ -828,53 +838,24 @@ fn hilbert_bands(
     }
     // The tile's attribute rows, gathered through the permutation (one cache miss
     // a point for all its attributes), then each band scattered from them.
+    let idx: Vec<u32> = (0..count).map(idx).collect();
     let mut gathered: Vec<f32> = Vec::with_capacity(count * m);
-    let at = |i: usize| idx(i) as usize;
-    let rows: &[f32] = match rows {
-        Rows::Held(rows) => rows,
-        Rows::Source(src) => {
-            let idx: Vec<u32> = (0..count).map(&idx).collect();
-            src.gather(&idx, &mut gathered);
-            &[]
-        }
-    };
-    match m {
-        _ if rows.is_empty() => {}
-        1 => gather_rows::<1>(rows, count, at, &mut gathered),
-        2 => gather_rows::<2>(rows, count, at, &mut gathered),
-        3 => gather_rows::<3>(rows, count, at, &mut gathered),
-        4 => gather_rows::<4>(rows, count, at, &mut gathered),
-        5 => gather_rows::<5>(rows, count, at, &mut gathered),
-        6 => gather_rows::<6>(rows, count, at, &mut gathered),
-        7 => gather_rows::<7>(rows, count, at, &mut gathered),
-        8 => gather_rows::<8>(rows, count, at, &mut gathered),
-        _ => {
-            for i in 0..count {
-                let src = at(i) * m;
-                gathered.extend_from_slice(&rows[src..src + m]);
-            }
-        }
-    }
+    rows.gather(&idx, m, &mut gathered);
     (0..m)
         .map(|k| (3 + k, scatter_tile(lut, count, |i| gathered[i * m + k])))
         .collect()
 }
 
-/// Appends rows `at(0..count)` of `rows` (`M` values each) to `out`, prefetching
-/// ahead (the rows are in input order, so nearly every one misses the cache).
+/// Appends rows `idx` of `rows` (`M` values each) to `out`, prefetching ahead
+/// (the rows are in input order, so nearly every one misses the cache).
 #[inline]
-fn gather_rows<const M: usize>(
-    rows: &[f32],
-    count: usize,
-    at: impl Fn(usize) -> usize,
-    out: &mut Vec<f32>,
-) {
+fn gather_rows<const M: usize>(rows: &[f32], idx: &[u32], out: &mut Vec<f32>) {
     let rows: &[[f32; M]] = bytemuck::cast_slice(rows);
-    for i in 0..count {
-        if i + bigvec::PREFETCH_AHEAD < count {
-            bigvec::prefetch(rows, at(i + bigvec::PREFETCH_AHEAD));
+    for (k, &i) in idx.iter().enumerate() {
+        if let Some(&ahead) = idx.get(k + bigvec::PREFETCH_AHEAD) {
+            bigvec::prefetch(rows, ahead as usize);
         }
-        out.extend_from_slice(&rows[at(i)]);
+        out.extend_from_slice(&rows[i as usize]);
     }
 }
 
@@ -926,19 +907,15 @@ fn encode<K: TiffKind>(
             hole.set(len);
             let start = out::reserve(len, |piece| dir.write_data(piece))?;
             debug_assert_eq!(hole.get(), 0);
-            let written = a.level0_at.filter(|_| level == 0);
-            if let Some(at) = written.filter(|&at| at != start) {
+            let written = a.level0_written && level == 0;
+            if written && start != LEVEL0_AT {
                 return Err(tiff::TiffError::IoError(std::io::Error::other(format!(
-                    "level 0 was written from byte {at} but belongs at byte {start}"
+                    "level 0 was written from byte {LEVEL0_AT} but belongs at byte {start}"
                 ))));
             }
             let per_tile = groups(a.m);
             let cancelled = || opts.cancelled();
-            let jobs = if written.is_some() {
-                0
-            } else {
-                filled * per_tile
-            };
+            let jobs = if written { 0 } else { filled * per_tile };
             sink::write_tiles(
                 tile_writer,
                 &cancelled,
@@ -957,10 +934,7 @@ fn encode<K: TiffKind>(
                 }),
             )?;
             for (t, tile) in tiles.iter().enumerate() {
-                let slot = match written {
-                    Some(_) => a.tile_order.get(t).map_or(t, |&s| s as usize),
-                    None => t,
-                };
+                let slot = if written { a.stored_tile(t) } else { t };
                 for b in 0..nb {
                     let r = tile.index as usize;
                     offsets[b * per_band + r] = start + (slot * nb + b) as u64 * BYTES;
