@@ -117,6 +117,61 @@ struct Out<'a> {
     attrs: Vec<&'a mut [MaybeUninit<f32>]>,
 }
 
+/// One attribute of a record: where it lies and how it becomes a value.
+#[derive(Debug, Clone, Copy)]
+enum Field {
+    /// A little-endian `u16` at this byte (intensity, colour, NIR).
+    U16(usize),
+    /// `(byte >> shift) & mask` of this byte (returns, classification).
+    Bits(usize, u8, u8),
+    /// GPS time: the `f64` at this byte, less the reader's GPS offset.
+    Gps(usize),
+}
+
+impl Field {
+    #[inline]
+    fn value(self, r: &[u8], gps_offset: f64) -> f32 {
+        match self {
+            Field::U16(at) => f32::from(u16_at(r, at)),
+            Field::Bits(at, shift, mask) => f32::from((r[at] >> shift) & mask),
+            Field::Gps(at) => (f64_at(r, at) - gps_offset) as f32,
+        }
+    }
+}
+
+impl Fields {
+    /// The record's attributes in the order of the columns (`las::attribute_names`),
+    /// each with whether it is a colour channel (which a colour scale applies to).
+    fn attributes(&self) -> Vec<(Field, bool)> {
+        let mut v = vec![(Field::U16(12), false)];
+        if self.extended {
+            v.extend(
+                [
+                    Field::Bits(14, 0, 15),
+                    Field::Bits(14, 4, 15),
+                    Field::Bits(16, 0, 0xff),
+                ]
+                .map(|f| (f, false)),
+            );
+        } else {
+            v.extend(
+                [
+                    Field::Bits(14, 0, 7),
+                    Field::Bits(14, 3, 7),
+                    Field::Bits(15, 0, 0b0001_1111),
+                ]
+                .map(|f| (f, false)),
+            );
+        }
+        v.extend(self.gps.map(|g| (Field::Gps(g), false)));
+        if let Some(c) = self.rgb {
+            v.extend((0..3).map(|j| (Field::U16(c + 2 * j), true)));
+        }
+        v.extend(self.nir.map(|n| (Field::U16(n), false)));
+        v
+    }
+}
+
 /// Decodes the records `rec` (a whole number of records) into `out`.
 fn decode_window(rec: &[u8], f: &Fields, gps_offset: f64, out: Out<'_>) {
     let records = || rec.chunks_exact(f.stride);
@@ -127,82 +182,44 @@ fn decode_window(rec: &[u8], f: &Fields, gps_offset: f64, out: Out<'_>) {
             v.write(scale * f64::from(i32_at(r, 4 * axis)) + offset);
         }
     }
-    let mut next = attrs.iter_mut();
-    let mut column = |value: &dyn Fn(&[u8]) -> f32| {
-        if let Some(col) = next.next() {
+    let fields = f.attributes();
+    for (k, col) in attrs.iter_mut().enumerate() {
+        let fill = |col: &mut [MaybeUninit<f32>], value: &dyn Fn(&[u8]) -> f32| {
             for (v, r) in col.iter_mut().zip(records()) {
                 v.write(value(r));
             }
+        };
+        // A loop per kind of field, each with its constants fixed.
+        match fields.get(k).map(|a| a.0) {
+            Some(Field::U16(at)) => fill(col, &|r| f32::from(u16_at(r, at))),
+            Some(Field::Bits(at, shift, mask)) => {
+                fill(col, &|r| f32::from((r[at] >> shift) & mask))
+            }
+            Some(Field::Gps(at)) => fill(col, &|r| (f64_at(r, at) - gps_offset) as f32),
+            // Every column is written (attribute_names lists the fields above); any
+            // left over would be NaN rather than unwritten memory.
+            None => col.fill(MaybeUninit::new(f32::NAN)),
         }
-    };
-    column(&|r| f32::from(u16_at(r, 12)));
-    if f.extended {
-        column(&|r| f32::from(r[14] & 15));
-        column(&|r| f32::from((r[14] >> 4) & 15));
-        column(&|r| f32::from(r[16]));
-    } else {
-        column(&|r| f32::from(r[14] & 7));
-        column(&|r| f32::from((r[14] >> 3) & 7));
-        column(&|r| f32::from(r[15] & 0b0001_1111));
-    }
-    if let Some(g) = f.gps {
-        column(&|r| (f64_at(r, g) - gps_offset) as f32);
-    }
-    if let Some(c) = f.rgb {
-        column(&|r| f32::from(u16_at(r, c)));
-        column(&|r| f32::from(u16_at(r, c + 2)));
-        column(&|r| f32::from(u16_at(r, c + 4)));
-    }
-    if let Some(n) = f.nir {
-        column(&|r| f32::from(u16_at(r, n)));
-    }
-    // Every column is written (attribute_names lists the fields above); any left
-    // over would be NaN rather than unwritten memory.
-    for col in next {
-        col.fill(MaybeUninit::new(f32::NAN));
     }
 }
 
-/// Attribute values of one record, in [`decode_window`]'s column order, into
-/// `row` (NaN for columns beyond the record's fields), colour scaled by `colour`.
+/// Attribute values of one record (`fields`: [`Fields::attributes`]), in
+/// [`decode_window`]'s column order, into `row` (NaN for columns beyond the
+/// record's fields), colour scaled by `colour`.
 #[inline]
 fn decode_row(
     r: &[u8],
-    f: &Fields,
+    fields: &[(Field, bool)],
     gps_offset: f64,
     colour: ColorScale,
     row: &mut [MaybeUninit<f32>],
 ) {
-    let mut k = 0;
-    let mut put = |v: f32| {
-        if let Some(slot) = row.get_mut(k) {
-            slot.write(v);
-        }
-        k += 1;
-    };
-    put(f32::from(u16_at(r, 12)));
-    if f.extended {
-        put(f32::from(r[14] & 15));
-        put(f32::from((r[14] >> 4) & 15));
-        put(f32::from(r[16]));
-    } else {
-        put(f32::from(r[14] & 7));
-        put(f32::from((r[14] >> 3) & 7));
-        put(f32::from(r[15] & 0b0001_1111));
-    }
-    if let Some(g) = f.gps {
-        put((f64_at(r, g) - gps_offset) as f32);
-    }
-    if let Some(c) = f.rgb {
-        for j in 0..3 {
-            put(colour.one(f32::from(u16_at(r, c + 2 * j))));
-        }
-    }
-    if let Some(n) = f.nir {
-        put(f32::from(u16_at(r, n)));
-    }
-    if let Some(rest) = row.get_mut(k..) {
-        rest.fill(MaybeUninit::new(f32::NAN));
+    for (k, slot) in row.iter_mut().enumerate() {
+        slot.write(match fields.get(k) {
+            Some(&(f, false)) => f.value(r, gps_offset),
+            Some(&(f, true)) => colour.one(f.value(r, gps_offset)),
+            None => f32::NAN,
+        });
     }
 }
 
@@ -232,6 +249,7 @@ impl RowSource for LasRows {
         let stride = self.fields.stride;
         let recs = &self.map[self.start..self.start + self.total * stride];
         let m = self.width;
+        let fields = self.fields.attributes();
         let at = out.len();
         out.reserve(idx.len() * m);
         let dst = &mut out.spare_capacity_mut()[..idx.len() * m];
@@ -247,7 +265,7 @@ impl RowSource for LasRows {
             let r = i as usize * stride;
             decode_row(
                 &recs[r..r + stride],
-                &self.fields,
+                &fields,
                 self.gps_offset,
                 self.colour,
                 row,
