@@ -677,55 +677,102 @@ fn select(pts: &[[f32; 3]], quota: usize, grid: &Grid) -> Vec<bool> {
         occupied += hist[depth];
         depth += 1;
     }
-    let mut starts: Vec<usize> = (0..m)
-        .filter(|&i| i == 0 || (cd[i] as usize) < depth)
-        .collect();
-    starts.push(m);
-    let mut sizes: Vec<usize> = starts.windows(2).map(|w| w[1] - w[0]).collect();
-    let (mut shares, mut order) = (Vec::new(), Vec::new());
-    share(quota as f64, &sizes, &mut shares, &mut order);
-    // Cells are visited depth first in curve order (children pushed last first), so
-    // the weights arrive in order and the runs are cut on the fly.
-    let mut stack: Vec<(usize, usize, f64)> = starts
-        .windows(2)
-        .zip(&shares)
-        .rev()
-        .map(|(r, &x)| (r[0], r[1], x))
-        .collect();
-    let mut runs = Runs::new(quota);
-    while let Some((s, e, w)) = stack.pop() {
+    let mut top = Children::default();
+    top.starts.push(0);
+    top.starts
+        .extend((1..m).filter(|&i| (cd[i] as usize) < depth));
+    top.starts.push(m);
+    let mut d = Descent {
+        pts,
+        cd: &cd,
+        runs: Runs::new(quota),
+        chosen: &mut chosen,
+        below: Vec::new(),
+        order: Vec::new(),
+    };
+    top.share(quota as f64, &mut d.order);
+    // Cells are visited depth first in curve order, so the weights arrive in
+    // order and the runs are cut on the fly.
+    for c in 0..top.shares.len() {
+        d.cell(top.starts[c], top.starts[c + 1], top.shares[c], 0);
+    }
+    let start = d.runs.start;
+    chosen[nearest_centroid(pts, start..m)] = true;
+    chosen
+}
+
+/// The children of one cell of [`select`]'s descent: where each starts (and, last,
+/// where the cell ends), their sizes and their shares of the cell's weight.
+#[derive(Default)]
+struct Children {
+    starts: Vec<usize>,
+    sizes: Vec<usize>,
+    shares: Vec<f64>,
+}
+
+impl Children {
+    /// Shares `total` among the children ([`share`]).
+    fn share(&mut self, total: f64, order: &mut Vec<usize>) {
+        self.sizes.clear();
+        self.sizes
+            .extend(self.starts.windows(2).map(|w| w[1] - w[0]));
+        share(total, &self.sizes, &mut self.shares, order);
+    }
+}
+
+/// [`select`]'s walk down the cells: each cell of weight above one (and below its
+/// point count) is split into its sub-cells, which share its weight; the points of
+/// the others get their weights, in curve order.
+struct Descent<'a> {
+    pts: &'a [[f32; 3]],
+    cd: &'a [u8],
+    runs: Runs,
+    chosen: &'a mut [bool],
+    /// The children of the cells being split, one entry per depth of the descent
+    /// (kept for the next cell at that depth).
+    below: Vec<Children>,
+    order: Vec<usize>,
+}
+
+impl Descent<'_> {
+    /// The points `s..e`, one cell of weight `w`, `depth` splits below the top cells.
+    fn cell(&mut self, s: usize, e: usize, w: f64, depth: usize) {
         let n = e - s;
         if w <= 1.0 || w >= n as f64 {
-            runs.add(pts, &mut chosen, s..e, w.min(n as f64) / n as f64);
-            continue;
+            self.runs
+                .add(self.pts, self.chosen, s..e, w.min(n as f64) / n as f64);
+            return;
         }
-        // The sub-cells: runs split where the common depth is least.
-        let inner = &cd[s + 1..e];
-        let split = inner.iter().copied().min().unwrap_or(u8::MAX);
+        if self.below.len() <= depth {
+            self.below.resize_with(depth + 1, Children::default);
+        }
+        let mut ch = std::mem::take(&mut self.below[depth]);
+        // The sub-cells: runs split where the common depth is least (found in
+        // one pass: a lesser depth drops the splits found so far).
+        ch.starts.clear();
+        ch.starts.push(s);
+        let mut split = u8::MAX;
+        for (i, &d) in self.cd[s + 1..e].iter().enumerate() {
+            if d <= split {
+                if d < split {
+                    split = d;
+                    ch.starts.truncate(1);
+                }
+                ch.starts.push(s + 1 + i);
+            }
+        }
         if split as u32 >= KEY_BITS {
             // Closer than the grid resolves: even shares.
-            runs.add(pts, &mut chosen, s..e, w / n as f64);
-            continue;
+            self.runs.add(self.pts, self.chosen, s..e, w / n as f64);
+        } else {
+            ch.starts.push(e);
+            ch.share(w, &mut self.order);
+            for c in 0..ch.shares.len() {
+                self.cell(ch.starts[c], ch.starts[c + 1], ch.shares[c], depth + 1);
+            }
         }
-        starts.clear();
-        starts.push(s);
-        starts.extend(
-            inner
-                .iter()
-                .enumerate()
-                .filter(|&(_, &d)| d == split)
-                .map(|(i, _)| s + 1 + i),
-        );
-        starts.push(e);
-        sizes.clear();
-        sizes.extend(starts.windows(2).map(|w| w[1] - w[0]));
-        share(w, &sizes, &mut shares, &mut order);
-        for (r, &x) in starts.windows(2).zip(&shares).rev() {
-            stack.push((r[0], r[1], x));
-        }
+        self.below[depth] = ch;
     }
-    chosen[nearest_centroid(pts, runs.start..m)] = true;
-    chosen
 }
 
 /// Levels `TILE_LEVELS + 1..levels`, whose sub-blocks are whole tiles, by the
