@@ -691,11 +691,7 @@ fn select(pts: &[[f32; 3]], quota: usize, grid: &Grid) -> Vec<bool> {
         order: Vec::new(),
     };
     top.share(quota as f64, &mut d.order);
-    // Cells are visited depth first in curve order, so the weights arrive in
-    // order and the runs are cut on the fly.
-    for c in 0..top.shares.len() {
-        d.cell(top.starts[c], top.starts[c + 1], top.shares[c], 0);
-    }
+    d.children(&top, 0);
     let start = d.runs.start;
     chosen[nearest_centroid(pts, start..m)] = true;
     chosen
@@ -767,11 +763,17 @@ impl Descent<'_> {
         } else {
             ch.starts.push(e);
             ch.share(w, &mut self.order);
-            for c in 0..ch.shares.len() {
-                self.cell(ch.starts[c], ch.starts[c + 1], ch.shares[c], depth + 1);
-            }
+            self.children(&ch, depth + 1);
         }
         self.below[depth] = ch;
+    }
+
+    /// The cells `ch`, `depth` splits below the top cells, in curve order, so the
+    /// weights arrive in order and the runs are cut on the fly (depth first).
+    fn children(&mut self, ch: &Children, depth: usize) {
+        for c in 0..ch.shares.len() {
+            self.cell(ch.starts[c], ch.starts[c + 1], ch.shares[c], depth);
+        }
     }
 }
 

@@ -11,7 +11,7 @@
 //! the VM against 0.9 for one at a time).
 
 use super::out::{self, TileBuf, TileWriter};
-use super::spec::TILE_PIXELS;
+use super::spec::TILE_BYTES;
 use rayon::prelude::*;
 use std::io;
 use std::sync::Mutex;
@@ -75,7 +75,6 @@ pub fn with_sink<R>(
     // Tiles a writer takes at once, so that neighbours in the file are written
     // together (16 band tiles: 4 MiB).
     const RUN_TILES: usize = 16;
-    const TILE_BYTES: u64 = (TILE_PIXELS * 4) as u64;
     // Tiles in flight: a few per worker (256 KiB a band tile).
     let depth = 4 * rayon::current_num_threads();
     let (tx, rx) = std::sync::mpsc::sync_channel::<Batch>(depth);
@@ -184,6 +183,7 @@ where
 mod tests {
     use super::*;
     use crate::store::out::TileIo;
+    use crate::store::spec::TILE_PIXELS;
     use std::fs::File;
 
     const NEVER: &(dyn Fn() -> bool + Sync) = &|| false;
@@ -201,7 +201,7 @@ mod tests {
 
         let jobs = (0..500u64)
             .into_par_iter()
-            .map(|j| vec![(j * (TILE_PIXELS as u64 * 4), TileBuf::filled(1.0))]);
+            .map(|j| vec![(j * TILE_BYTES, TileBuf::filled(1.0))]);
         let e = write_tiles(&out, NEVER, jobs).unwrap_err();
         assert_ne!(e.to_string(), "the tile writers stopped", "{e}");
         assert_eq!(e.raw_os_error(), Some(libc::EBADF), "{e}");
@@ -211,7 +211,7 @@ mod tests {
         let jobs = (0..40u64).into_par_iter().map(|j| {
             let mut t = TileBuf::filled(j as f32);
             t[1] = -(j as f32);
-            vec![(j * (TILE_PIXELS as u64 * 4), t)]
+            vec![(j * TILE_BYTES, t)]
         });
         write_tiles(&out, NEVER, jobs).unwrap();
         drop(out);
@@ -232,7 +232,6 @@ mod tests {
     /// the adaptive mode.
     #[test]
     fn tiles_written_in_runs_land_at_their_offsets() {
-        const TILE: u64 = TILE_PIXELS as u64 * 4;
         for mode in [TileIo::Buffered, TileIo::Direct, TileIo::Auto] {
             let dir = tempfile::tempdir().unwrap();
             let path = dir.path().join("runs.bin");
@@ -246,7 +245,7 @@ mod tests {
                         let slot = 4 * j + k;
                         let mut t = TileBuf::filled(slot as f32 + 0.5);
                         t[7] = -(slot as f32);
-                        (slot * TILE, t)
+                        (slot * TILE_BYTES, t)
                     })
                     .into_iter()
                     .collect::<Vec<_>>()
@@ -254,7 +253,7 @@ mod tests {
             write_tiles(&out, NEVER, jobs).unwrap();
             drop(out);
             let bytes = std::fs::read(&path).unwrap();
-            assert_eq!(bytes.len() as u64, (4 * 59 + 3) * TILE, "{mode:?}");
+            assert_eq!(bytes.len() as u64, (4 * 59 + 3) * TILE_BYTES, "{mode:?}");
             let v: &[f32] = bytemuck::cast_slice(&bytes);
             for (slot, t) in v.chunks_exact(TILE_PIXELS).enumerate() {
                 let want = if slot % 4 == 3 {
@@ -286,7 +285,7 @@ mod tests {
             assert!(!sink.stopped());
             stop.store(true, Ordering::Relaxed);
             assert!(sink.stopped());
-            sink.send(vec![(TILE_PIXELS as u64 * 4, TileBuf::filled(2.0))])
+            sink.send(vec![(TILE_BYTES, TileBuf::filled(2.0))])
         });
         assert_eq!(sent.unwrap_err().kind(), io::ErrorKind::Interrupted);
         assert_eq!(written.unwrap_err().kind(), io::ErrorKind::Interrupted);

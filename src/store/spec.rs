@@ -9,6 +9,8 @@ pub const FORMAT_VERSION: u32 = 1;
 pub const TILE_LOG2: u32 = 8;
 pub const TILE_SIZE: u32 = 1 << TILE_LOG2;
 pub const TILE_PIXELS: usize = (TILE_SIZE * TILE_SIZE) as usize;
+/// Bytes of one band's tile, uncompressed (`f32` samples).
+pub const TILE_BYTES: u64 = (TILE_PIXELS * 4) as u64;
 
 /// Bands every part starts with, in this order.
 pub const COORDINATE_BANDS: [&str; 3] = ["x", "y", "z"];

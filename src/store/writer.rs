@@ -10,7 +10,7 @@ use super::metadata::{self, Item, LevelIndex, TileEntry};
 use super::out::{self, Out, TileBuf, TileIo, TileWriter};
 use super::paper;
 use super::sink::{self, TileSink};
-use super::spec::{self, TILE_PIXELS, TILE_SIZE, key, tag};
+use super::spec::{self, TILE_BYTES, TILE_PIXELS, TILE_SIZE, key, tag};
 use super::zorder::{Geometry, tile_z_to_raster};
 use crate::bigvec;
 use crate::clock::{Span, Stamp};
@@ -207,9 +207,6 @@ impl Arranged {
 /// Where level 0's tile data begins in an uncompressed file: the TIFF header (8
 /// or 16 bytes) padded to the direct-write alignment, as `encode` writes it.
 const LEVEL0_AT: u64 = out::DIRECT_ALIGN as u64;
-
-/// Bytes of one band's tile, uncompressed.
-const TILE_BYTES: u64 = (TILE_PIXELS * 4) as u64;
 
 fn band_name(raw: &str) -> String {
     let s: String = raw
@@ -541,7 +538,7 @@ fn level_points(index: &[LevelIndex]) -> Vec<u64> {
 /// Upper bound of the file size, to choose between classic TIFF and BigTIFF.
 fn size_estimate(a: &Arranged, xml: &str) -> u64 {
     let g = a.geometry;
-    let per_tile = (TILE_PIXELS * 4) as u64 * a.names.len() as u64;
+    let per_tile = TILE_BYTES * a.names.len() as u64;
     // Compressed tiles can exceed raw size slightly: allow 1%.
     let data: u64 = (0..g.levels())
         .map(|l| g.filled_tiles(l) * per_tile)
@@ -637,6 +634,14 @@ fn write(
             Ok(())
         }
     };
+    // A write that failed because it was cancelled is reported as interrupted.
+    let write_failed = |e: &dyn std::fmt::Display| {
+        if opts.cancelled() {
+            StoreError::new(path, INTERRUPTED)
+        } else {
+            StoreError::new(path, format!("write failed: {e}"))
+        }
+    };
     stop()?;
     let file_name = path
         .file_name()
@@ -666,10 +671,7 @@ fn write(
             arrange(path, part, opts.layout, &mut ph, Some(sink))
         });
         let a = a?;
-        written.map_err(|e| match e {
-            _ if opts.cancelled() => StoreError::new(path, INTERRUPTED),
-            e => StoreError::new(path, format!("write failed: {e}")),
-        })?;
+        written.map_err(|e| write_failed(&e))?;
         ph.mark("level 0 written");
         a
     } else {
@@ -684,10 +686,7 @@ fn write(
     ph.mark("tile index");
     let bigtiff = opts.force_bigtiff || size_estimate(&a, &xml) >= u32::MAX as u64 - (64 << 20);
     let mut w = Out::new(&file);
-    let io = |e: tiff::TiffError| match e {
-        _ if opts.cancelled() => StoreError::new(path, INTERRUPTED),
-        e => StoreError::new(path, format!("write failed: {e}")),
-    };
+    let io = |e: tiff::TiffError| write_failed(&e);
     if bigtiff {
         encode::<TiffKindBig>(&mut w, &tiles, &a, opts, &xml, &index, true).map_err(io)?
     } else {
@@ -738,8 +737,9 @@ enum Encoded {
 /// batch × bands × 256 KiB are alive at once).
 const BATCH_TILES: usize = 8;
 
-/// Places the `count` samples `value(0..count)` of one tile (Z-order within the
-/// tile) at their row-major pixels; the rest stays NaN.
+/// Places the `count` samples `value(0..count)` of one tile at row-major pixels
+/// `lut[0..count]` (the Z-order table, or the paper layout's pixels); the rest
+/// stays NaN.
 #[inline]
 fn scatter_tile(lut: &[u32], count: usize, value: impl Fn(usize) -> f32) -> TileBuf {
     // A full tile writes every pixel (the table is a permutation): no NaN fill.
@@ -797,10 +797,7 @@ fn encode_job(
         a.rows.gather(&idx, m, &mut rows);
         return (0..m)
             .map(|k| {
-                let mut buf = TileBuf::filled(f32::NAN);
-                for (j, &px) in pixels.iter().enumerate() {
-                    buf[px as usize] = rows[j * m + k];
-                }
+                let buf = scatter_tile(&pixels, pixels.len(), |j| rows[j * m + k]);
                 (3 + k, done(buf))
             })
             .collect();
@@ -901,9 +898,8 @@ fn encode<K: TiffKind>(
             // encoded and written into it by the rayon pool. Level 0 may have
             // been written already, while the points were arranged: its slot of
             // image tile t is then tile_order[t].
-            const BYTES: u64 = TILE_BYTES;
             let jobs = filled * nb;
-            let len = jobs as u64 * BYTES;
+            let len = jobs as u64 * TILE_BYTES;
             hole.set(len);
             let start = out::reserve(len, |piece| dir.write_data(piece))?;
             debug_assert_eq!(hole.get(), 0);
@@ -928,7 +924,7 @@ fn encode<K: TiffKind>(
                             let Encoded::Raw(v) = e else {
                                 unreachable!("uncompressed tiles are raw")
                             };
-                            (start + (t * nb + b) as u64 * BYTES, v)
+                            (start + (t * nb + b) as u64 * TILE_BYTES, v)
                         })
                         .collect::<Vec<_>>()
                 }),
@@ -937,8 +933,8 @@ fn encode<K: TiffKind>(
                 let slot = if written { a.stored_tile(t) } else { t };
                 for b in 0..nb {
                     let r = tile.index as usize;
-                    offsets[b * per_band + r] = start + (slot * nb + b) as u64 * BYTES;
-                    counts[b * per_band + r] = BYTES;
+                    offsets[b * per_band + r] = start + (slot * nb + b) as u64 * TILE_BYTES;
+                    counts[b * per_band + r] = TILE_BYTES;
                 }
             }
         } else {
