@@ -36,9 +36,10 @@ pub struct PointColumns {
     pub attributes: Vec<Attribute>,
 }
 
-/// Attribute values that a reader can produce again for any point, from where the
-/// input itself keeps them (an uncompressed LAS file's memory map), so a part need
-/// not hold a copy: the store then asks for the rows of one tile's points at a time.
+/// Attribute values (and, where it can, coordinates) that a reader can produce again
+/// for any point, from where the input itself keeps them (an uncompressed LAS file's
+/// memory map), so a part need not hold a copy: the store then asks for the rows
+/// (and positions) of one tile's points at a time.
 ///
 /// Point `i` is the `i`-th point the reader delivered; a row is the values of the
 /// reader's attributes in their order, exactly as its chunks deliver them (offsets
@@ -53,6 +54,34 @@ pub trait RowSource: Send + Sync {
     fn width(&self) -> usize;
     /// Appends the rows of points `idx` (each below [`RowSource::len`]) to `out`.
     fn gather(&self, idx: &[u32], out: &mut Vec<f32>);
+    /// Whether it gives the points' coordinates as well ([`RowSource::positions`]).
+    fn has_positions(&self) -> bool {
+        false
+    }
+    /// Appends the coordinates of points `idx` less `origin`, each exactly
+    /// `(c - origin) as f32` of the `f64` coordinate `c` the reader's chunks
+    /// delivered, to `out`; nothing where it has none ([`RowSource::has_positions`]).
+    fn positions(&self, _idx: &[u32], _origin: [f64; 3], _out: &mut Vec<[f32; 3]>) {}
+    /// [`RowSource::positions`] and [`RowSource::gather`] of points `idx`, each
+    /// point read once for both where the source can (the default reads twice).
+    fn positions_and_rows(
+        &self,
+        idx: &[u32],
+        origin: [f64; 3],
+        pos: &mut Vec<[f32; 3]>,
+        rows: &mut Vec<f32>,
+    ) {
+        self.positions(idx, origin, pos);
+        self.gather(idx, rows);
+    }
+    /// [`RowSource::positions`] of the points `range`, in order.
+    fn positions_in(
+        &self,
+        _range: std::ops::Range<usize>,
+        _origin: [f64; 3],
+        _out: &mut Vec<[f32; 3]>,
+    ) {
+    }
 }
 
 /// Axis-aligned bounds in source coordinates.

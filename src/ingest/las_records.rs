@@ -228,6 +228,8 @@ fn decode_row(
 /// deliver them (same offsets, same colour scale).
 struct LasRows {
     map: std::sync::Arc<memmap2::Mmap>,
+    /// The reader's token: it keeps the pages mapped while this lives.
+    _offered: std::sync::Arc<()>,
     start: usize,
     total: usize,
     fields: Fields,
@@ -274,6 +276,92 @@ impl RowSource for LasRows {
         // SAFETY: `decode_row` wrote every value of every row (m of each).
         unsafe { out.set_len(at + idx.len() * m) };
     }
+
+    fn has_positions(&self) -> bool {
+        true
+    }
+
+    fn positions(&self, idx: &[u32], origin: [f64; 3], out: &mut Vec<[f32; 3]>) {
+        let stride = self.fields.stride;
+        let recs = &self.map[self.start..self.start + self.total * stride];
+        let t = self.fields.transforms;
+        out.reserve(idx.len());
+        for (k, &i) in idx.iter().enumerate() {
+            // As in `gather`: nearly every record misses the cache, and the
+            // attribute rows asked for next find it there.
+            if let Some(&ahead) = idx.get(k + bigvec::PREFETCH_AHEAD) {
+                let r = ahead as usize * stride;
+                bigvec::prefetch(recs, r);
+                bigvec::prefetch(recs, r + stride - 1);
+            }
+            let r = i as usize * stride;
+            out.push(relative(&recs[r..r + 12], &t, origin));
+        }
+    }
+
+    fn positions_and_rows(
+        &self,
+        idx: &[u32],
+        origin: [f64; 3],
+        pos: &mut Vec<[f32; 3]>,
+        rows: &mut Vec<f32>,
+    ) {
+        let stride = self.fields.stride;
+        let recs = &self.map[self.start..self.start + self.total * stride];
+        let t = self.fields.transforms;
+        let m = self.width;
+        if m == 0 {
+            return self.positions(idx, origin, pos);
+        }
+        let fields = self.fields.attributes();
+        let at = rows.len();
+        pos.reserve(idx.len());
+        rows.reserve(idx.len() * m);
+        let dst = &mut rows.spare_capacity_mut()[..idx.len() * m];
+        for (k, (&i, row)) in idx.iter().zip(dst.chunks_exact_mut(m.max(1))).enumerate() {
+            if let Some(&ahead) = idx.get(k + bigvec::PREFETCH_AHEAD) {
+                let r = ahead as usize * stride;
+                bigvec::prefetch(recs, r);
+                bigvec::prefetch(recs, r + stride - 1);
+            }
+            let r = &recs[i as usize * stride..(i as usize + 1) * stride];
+            pos.push(relative(r, &t, origin));
+            decode_row(r, &fields, self.gps_offset, self.colour, row);
+        }
+        // SAFETY: `decode_row` wrote every value of every row (m of each).
+        unsafe { rows.set_len(at + idx.len() * m) };
+    }
+
+    fn positions_in(
+        &self,
+        range: std::ops::Range<usize>,
+        origin: [f64; 3],
+        out: &mut Vec<[f32; 3]>,
+    ) {
+        let stride = self.fields.stride;
+        let recs = &self.map[self.start + range.start * stride..self.start + range.end * stride];
+        let t = self.fields.transforms;
+        let at = out.len();
+        out.reserve(range.len());
+        for (d, r) in out.spare_capacity_mut()[..range.len()]
+            .iter_mut()
+            .zip(recs.chunks_exact(stride))
+        {
+            d.write(relative(r, &t, origin));
+        }
+        // SAFETY: one record a slot: all range.len() slots were written.
+        unsafe { out.set_len(at + range.len()) };
+    }
+}
+
+/// A record's coordinates less `origin`, as `f32`: the `f64` value
+/// [`decode_window`] delivers, then the store's rounding.
+#[inline(always)]
+fn relative(r: &[u8], t: &[(f64, f64); 3], origin: [f64; 3]) -> [f32; 3] {
+    // Written out: `[0, 1, 2].map` is not inlined here, and this runs for every
+    // point twice.
+    let c = |a: usize, v: i32| ((t[a].0 * f64::from(v) + t[a].1) - origin[a]) as f32;
+    [c(0, i32_at(r, 0)), c(1, i32_at(r, 4)), c(2, i32_at(r, 8))]
 }
 
 /// Reader of uncompressed LAS files.
@@ -294,6 +382,9 @@ pub struct RecordReader {
     /// Reading the next chunk's records ahead of the decoders (while every
     /// record is read).
     ahead: super::ahead::Ahead,
+    /// Held by every [`LasRows`] given out: while one lives, consumed pages of
+    /// the map stay mapped.
+    offered: std::sync::Arc<()>,
 }
 
 impl RecordReader {
@@ -342,6 +433,7 @@ impl RecordReader {
             released: 0,
             every: 1,
             ahead,
+            offered: std::sync::Arc::new(()),
         })
     }
 }
@@ -424,7 +516,11 @@ impl PointReader for RecordReader {
             unsafe { c.set_len(n) };
         }
         self.done += stretch;
-        super::release_consumed(&self.map, &mut self.released, first + stretch * f.stride);
+        // While a part takes its rows from the map (`row_source`), its records
+        // are read again: their pages stay mapped.
+        if std::sync::Arc::strong_count(&self.offered) == 1 {
+            super::release_consumed(&self.map, &mut self.released, first + stretch * f.stride);
+        }
         let [x, y, z] = xyz;
         let mut cols = PointColumns {
             x,
@@ -481,6 +577,7 @@ impl PointReader for RecordReader {
         }
         Some(std::sync::Arc::new(LasRows {
             map: self.map.clone(),
+            _offered: self.offered.clone(),
             start: self.start,
             total: self.total,
             fields: self.fields,
@@ -660,6 +757,30 @@ mod tests {
                     assert_eq!(got.to_bits(), want.to_bits(), "format {format} {}", a.name);
                 }
             }
+            // Positions as the store would make them from the chunks, gathered,
+            // in a range, and read with the rows.
+            assert!(src.has_positions());
+            let origin = [500_010.5, 4_000_020.25, 3.0];
+            let want = |i: usize| {
+                let p = [all.x[i], all.y[i], all.z[i]];
+                [0, 1, 2].map(|a| ((p[a] - origin[a]) as f32).to_bits())
+            };
+            let bits = |v: &[[f32; 3]]| -> Vec<[u32; 3]> {
+                v.iter().map(|p| p.map(f32::to_bits)).collect()
+            };
+            let mut pos = Vec::new();
+            src.positions(&idx, origin, &mut pos);
+            let expect: Vec<[u32; 3]> = idx.iter().map(|&i| want(i as usize)).collect();
+            assert_eq!(bits(&pos), expect, "format {format}");
+            let (mut both, mut rows2) = (Vec::new(), Vec::new());
+            src.positions_and_rows(&idx, origin, &mut both, &mut rows2);
+            assert_eq!(bits(&both), expect, "format {format}");
+            let row_bits = |v: &[f32]| -> Vec<u32> { v.iter().map(|x| x.to_bits()).collect() };
+            assert_eq!(row_bits(&rows2), row_bits(&rows[1..]), "format {format}");
+            pos.clear();
+            src.positions_in(10..n - 3, origin, &mut pos);
+            let expect: Vec<[u32; 3]> = (10..n - 3).map(want).collect();
+            assert_eq!(bits(&pos), expect, "format {format}");
         }
     }
 

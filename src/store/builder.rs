@@ -18,7 +18,12 @@ pub struct PartBuilder {
     pub(super) origin: [f64; 3],
     /// Every point must lie inside these bounds (checked as points arrive).
     expect: Option<Bounds>,
+    /// The positions, unless the source gives them ([`PartBuilder::rows_from`]).
     pub(super) pos: Vec<[f32; 3]>,
+    /// Points pushed so far.
+    pub(super) count: usize,
+    /// Points expected: `pos`'s capacity once it is first needed.
+    capacity: usize,
     /// `attributes.len()` values a point, in the order of `attributes`.
     pub(super) rows: Vec<f32>,
     /// Where the rows come from instead, when the part holds none.
@@ -43,7 +48,9 @@ impl PartBuilder {
         PartBuilder {
             origin,
             expect,
-            pos: crate::bigvec::with_capacity(capacity),
+            pos: Vec::new(),
+            count: 0,
+            capacity,
             rows: Vec::new(),
             source: None,
             attributes: Vec::new(),
@@ -59,11 +66,24 @@ impl PartBuilder {
 
     /// Points so far.
     pub fn len(&self) -> usize {
-        self.pos.len()
+        self.count
     }
 
     pub fn is_empty(&self) -> bool {
-        self.pos.is_empty()
+        self.count == 0
+    }
+
+    /// Whether the positions stay with the source ([`PartBuilder::rows_from`]).
+    pub(super) fn positions_from_source(&self) -> bool {
+        self.source.as_ref().is_some_and(|s| s.has_positions())
+    }
+
+    /// Makes room for `len` more positions (the expected count at first).
+    fn reserve_positions(&mut self, len: usize) {
+        if self.pos.capacity() == 0 {
+            self.pos = crate::bigvec::with_capacity(self.capacity.max(self.count + len));
+        }
+        self.pos.reserve(len);
     }
 
     /// The bounds of the points so far (`Bounds::EMPTY` when none).
@@ -97,7 +117,9 @@ impl PartBuilder {
 
     /// Takes the attribute rows from `src` when the part is written instead of
     /// holding them: pushed chunks then add their positions and widen their
-    /// attributes' ranges, and nothing else. The points pushed must be the
+    /// attributes' ranges, and nothing else; where `src` gives positions too, the
+    /// pushed chunks are only checked and bounded (the writer asks `src` for the
+    /// positions, which it gives exactly as pushing would). The points pushed must be the
     /// source's points 0, 1, 2, ... in order (the writer checks their count and
     /// the row width). Ignored once points were pushed.
     pub fn rows_from(&mut self, src: Arc<dyn RowSource>) {
@@ -122,7 +144,7 @@ impl PartBuilder {
     /// attribute rows are allocated after all coordinates are freed, so they reuse
     /// that memory. On an error nothing is appended.
     pub fn push_all(&mut self, path: &Path, chunks: Vec<PointColumns>) -> Result<()> {
-        let (len, first, bounds) = (self.pos.len(), self.attributes.clone(), self.bounds);
+        let (len, first, bounds) = (self.count, self.attributes.clone(), self.bounds);
         let mut attrs: Vec<(Vec<Attribute>, usize)> = Vec::with_capacity(chunks.len());
         for mut c in chunks {
             let pushed = c
@@ -131,6 +153,7 @@ impl PartBuilder {
                 .and_then(|_| self.push_positions(path, &c));
             if let Err(e) = pushed {
                 self.pos.truncate(len);
+                self.count = len;
                 self.attributes = first;
                 self.bounds = bounds;
                 return Err(e);
@@ -138,7 +161,7 @@ impl PartBuilder {
             attrs.push((std::mem::take(&mut c.attributes), c.len()));
         }
         let m = self.attributes.len();
-        let want = (self.pos.len() - len) * m;
+        let want = (self.count - len) * m;
         if self.source.is_none() {
             if self.rows.capacity() == 0 {
                 self.rows = crate::bigvec::with_capacity(want);
@@ -162,7 +185,7 @@ impl PartBuilder {
                 "the chunks of a part differ in their attribute columns or offsets",
             ));
         }
-        let base = self.pos.len();
+        let base = self.count;
         if (base + len) as u64 > u32::MAX as u64 {
             return Err(StoreError::new(
                 path,
@@ -193,22 +216,19 @@ impl PartBuilder {
             .collect();
         let len = c.len();
         let first = self.admit(path, &this, len)?;
-        let base = self.pos.len();
-        // Relative positions and the chunk's bounds in one pass; a NaN fails
-        // every comparison, so `ok` also catches it.
-        self.pos.reserve(len);
+        let base = self.count;
         let (origin, (lo, hi)) = (self.origin, self.limits());
-        let dst = &mut self.pos.spare_capacity_mut()[..len];
-        let (ok, b) = dst
-            .par_chunks_mut(PIECE)
-            .enumerate()
-            .map(|(k, d)| {
-                let from = k * PIECE;
+        // Relative positions (unless the source keeps them) and the chunk's
+        // bounds in one pass; a NaN fails every comparison, so `ok` also catches it.
+        let check =
+            |from: usize, to: usize, mut d: Option<&mut [std::mem::MaybeUninit<[f32; 3]>]>| {
                 let mut ok = true;
                 let mut b = Bounds::EMPTY;
-                for (i, d) in d.iter_mut().enumerate() {
-                    let p = [c.x[from + i], c.y[from + i], c.z[from + i]];
-                    d.write([0, 1, 2].map(|a| (p[a] - origin[a]) as f32));
+                for i in from..to {
+                    let p = [c.x[i], c.y[i], c.z[i]];
+                    if let Some(d) = d.as_deref_mut() {
+                        d[i - from].write([0, 1, 2].map(|a| (p[a] - origin[a]) as f32));
+                    }
                     for a in 0..3 {
                         // `&`, not `&&`: no branches in the loop.
                         ok &= (p[a] >= lo[a]) & (p[a] <= hi[a]) & p[a].is_finite();
@@ -217,11 +237,22 @@ impl PartBuilder {
                     }
                 }
                 (ok, b)
-            })
-            .reduce(
-                || (true, Bounds::EMPTY),
-                |x, y| (x.0 & y.0, x.1.union(&y.1)),
-            );
+            };
+        let merge = |x: (bool, Bounds), y: (bool, Bounds)| (x.0 & y.0, x.1.union(&y.1));
+        let keep = !self.positions_from_source();
+        let (ok, b) = if keep {
+            self.reserve_positions(len);
+            let dst = &mut self.pos.spare_capacity_mut()[..len];
+            dst.par_chunks_mut(PIECE)
+                .enumerate()
+                .map(|(k, d)| check(k * PIECE, k * PIECE + d.len(), Some(d)))
+                .reduce(|| (true, Bounds::EMPTY), merge)
+        } else {
+            (0..len.div_ceil(PIECE))
+                .into_par_iter()
+                .map(|k| check(k * PIECE, (k * PIECE + PIECE).min(len), None))
+                .reduce(|| (true, Bounds::EMPTY), merge)
+        };
         if !ok {
             let bad = |i: usize| {
                 let p = [c.x[i], c.y[i], c.z[i]];
@@ -230,8 +261,11 @@ impl PartBuilder {
             let i = (0..len).find(|&i| bad(i)).unwrap_or(0);
             return Err(bad_point(path, base + i, [c.x[i], c.y[i], c.z[i]]));
         }
-        // SAFETY: every slot base..base + len was written above.
-        unsafe { self.pos.set_len(base + len) };
+        if keep {
+            // SAFETY: every slot base..base + len was written above.
+            unsafe { self.pos.set_len(base + len) };
+        }
+        self.count = base + len;
         self.bounds = self.bounds.union(&b);
         if first {
             self.attributes = this;
@@ -268,10 +302,10 @@ impl PartBuilder {
         }
         let len = records.len() / rs;
         let first = self.admit(path, attributes, len)?;
-        let base = self.pos.len();
+        let base = self.count;
         let (origin, (lo, hi)) = (self.origin, self.limits());
         let point = |r: &[u8]| [0, 1, 2].map(|a| origin[a] + f64::from(f32_at(r, 4 * a)));
-        self.pos.reserve(len);
+        self.reserve_positions(len);
         if m > 0 && self.rows.capacity() == 0 {
             self.rows = crate::bigvec::with_capacity(self.pos.capacity() * m);
         }
@@ -334,6 +368,7 @@ impl PartBuilder {
             self.pos.set_len(base + len);
             self.rows.set_len(rows_at + len * m);
         }
+        self.count = base + len;
         self.bounds = self.bounds.union(&b);
         if first {
             self.attributes = attributes.to_vec();
@@ -364,7 +399,7 @@ impl PartBuilder {
         }
         let at = self.rows.len();
         if self.rows.capacity() == 0 {
-            self.rows = crate::bigvec::with_capacity(self.pos.capacity() * m);
+            self.rows = crate::bigvec::with_capacity(self.capacity.max(self.count) * m);
         }
         self.rows.reserve(len * m);
         let dst = &mut self.rows.spare_capacity_mut()[..len * m];

@@ -6,6 +6,7 @@
 
 use super::spec::TILE_PIXELS;
 use crate::bigvec;
+use crate::points::RowSource;
 use rayon::prelude::*;
 use std::sync::OnceLock;
 
@@ -31,6 +32,94 @@ impl Layout {
             Layout::Paper => super::spec::layout::PAPER,
         }
     }
+}
+
+/// Where a part's positions come from for its sort and arrangement: held (`f32`
+/// relative to the part's origin), or given again by the reader's source
+/// ([`RowSource::positions`], the same values), so the part need not hold them.
+#[derive(Clone, Copy)]
+pub enum Positions<'a> {
+    Held(&'a [[f32; 3]]),
+    /// The source and the part's origin; with `rows`, each tile's attribute rows
+    /// are read with its positions (each point read once) and handed to `on_tile`
+    /// ([`TileRows`]).
+    Source {
+        src: &'a dyn RowSource,
+        origin: [f64; 3],
+        rows: bool,
+    },
+}
+
+impl<'a> Positions<'a> {
+    pub fn len(&self) -> usize {
+        match self {
+            Positions::Held(p) => p.len(),
+            Positions::Source { src, .. } => src.len(),
+        }
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    /// The positions of the points `range`: a slice of the held ones, or
+    /// `scratch` filled from the source.
+    pub fn slice<'s>(
+        &self,
+        range: std::ops::Range<usize>,
+        scratch: &'s mut Vec<[f32; 3]>,
+    ) -> &'s [[f32; 3]]
+    where
+        'a: 's,
+    {
+        match *self {
+            Positions::Held(p) => &p[range],
+            Positions::Source { src, origin, .. } => {
+                scratch.clear();
+                let len = range.len();
+                src.positions_in(range, origin, scratch);
+                // A source that gives fewer never makes a slice too short.
+                scratch.resize(len, [f32::NAN; 3]);
+                scratch
+            }
+        }
+    }
+
+    /// Appends the positions of points `idx` to `out`, and their attribute rows
+    /// to `rows` when so asked (`Source` with `rows`): then true.
+    fn gather(&self, idx: &[u32], out: &mut Vec<[f32; 3]>, rows: &mut Vec<f32>) -> bool {
+        match *self {
+            Positions::Held(p) => {
+                out.extend(idx.iter().map(|&k| p[k as usize]));
+                false
+            }
+            Positions::Source {
+                src,
+                origin,
+                rows: with_rows,
+            } => {
+                let want = out.len() + idx.len();
+                let want_rows = rows.len() + idx.len() * src.width();
+                if with_rows {
+                    src.positions_and_rows(idx, origin, out, rows);
+                    rows.resize(want_rows, f32::NAN);
+                } else {
+                    src.positions(idx, origin, out);
+                }
+                // A source that gives fewer never leaves a tile short.
+                out.resize(want, [f32::NAN; 3]);
+                with_rows
+            }
+        }
+    }
+}
+
+/// A tile's attribute rows read with its positions ([`Positions::Source`]): `rows`
+/// holds them in curve order (the source's `width` values a point), and arranged
+/// slot `k` holds the point of row `local[k]`.
+pub struct TileRows<'a> {
+    pub rows: &'a [f32],
+    pub local: &'a [u32],
 }
 
 /// One transition of the Hilbert state machine: the 3-bit digit and the next state.
@@ -149,7 +238,7 @@ fn index_bits(n: usize) -> u32 {
 /// point's index in the rest, so one `u64` sort orders everything; points that
 /// share a truncated key (a cell of 2^-10 of the extent or finer) keep input order.
 /// Only the curve levels that survive the truncation are computed.
-pub fn hilbert_order(pos: &[[f32; 3]], lo: [f32; 3], hi: [f32; 3]) -> Vec<u32> {
+pub fn hilbert_order(pos: Positions<'_>, lo: [f32; 3], hi: [f32; 3]) -> Vec<u32> {
     let n = pos.len();
     let side = (0..3).map(|a| hi[a] - lo[a]).fold(0f32, f32::max) as f64;
     let max = ((1u32 << KEY_BITS) - 1) as f64;
@@ -168,9 +257,9 @@ pub fn hilbert_order(pos: &[[f32; 3]], lo: [f32; 3], hi: [f32; 3]) -> Vec<u32> {
     const CHUNK: usize = 1 << 14;
     packed.spare_capacity_mut()[..n]
         .par_chunks_mut(CHUNK)
-        .zip(pos.par_chunks(CHUNK))
         .enumerate()
-        .for_each(|(c, (out, pts))| {
+        .for_each_init(Vec::new, |scratch, (c, out)| {
+            let pts = pos.slice(c * CHUNK..c * CHUNK + out.len(), scratch);
             let base = (c * CHUNK) as u64;
             // The 63-bit key moved up to bit 63, the index in the low bits.
             let pack = |h: u64, i: usize| ((h << 1) & !mask) | (base + i as u64);
@@ -358,8 +447,8 @@ fn lsd_sort(s: &mut [u64], scratch: &mut Vec<u64>, base: u64, low: u32, bits: u3
 }
 
 /// What [`gather_representatives`] calls with each arranged tile: its number,
-/// its points and their source indices.
-pub type OnTile<'a> = dyn Fn(usize, &[[f32; 3]], &[u32]) + Sync + 'a;
+/// its points, their source indices and, when read with them, their rows.
+pub type OnTile<'a> = dyn Fn(usize, &[[f32; 3]], &[u32], Option<TileRows<'_>>) + Sync + 'a;
 
 /// Gathers the points `src[perm[..]]` (`perm`: indices of `src` in Hilbert order)
 /// and arranges them so that for every level `k` in `1..levels` the first slots
@@ -385,7 +474,7 @@ pub type OnTile<'a> = dyn Fn(usize, &[[f32; 3]], &[u32]) + Sync + 'a;
 /// the final order is tile `order[t]` of the result; the partial last tile, if
 /// any, stays last).
 pub fn gather_representatives(
-    src: &[[f32; 3]],
+    src: Positions<'_>,
     perm: &mut [u32],
     levels: usize,
     lo: [f32; 3],
@@ -399,16 +488,35 @@ pub fn gather_representatives(
         .par_chunks_mut(TILE_PIXELS)
         .zip(perm.par_chunks_mut(TILE_PIXELS))
         .enumerate()
-        .for_each_init(Scratch::default, |sc, (t, (o, i))| {
-            sc.pos.clear();
-            sc.pos.extend(i.iter().map(|&k| src[k as usize]));
-            // SAFETY: `[f32; 3]` has no invalid bit patterns to fear and
-            // `arrange_tile` writes every slot of `o` before anything reads it.
-            let o =
-                unsafe { &mut *(o as *mut [std::mem::MaybeUninit<[f32; 3]>] as *mut [[f32; 3]]) };
-            arrange_tile(sc, o, i, &grid, levels);
-            on_tile(t, o, i);
-        });
+        .for_each_init(
+            || (Scratch::default(), Vec::new(), Vec::new(), Vec::new()),
+            |(sc, rows, local, from), (t, (o, i))| {
+                sc.pos.clear();
+                rows.clear();
+                let with_rows = src.gather(i, &mut sc.pos, rows);
+                // SAFETY: `[f32; 3]` has no invalid bit patterns to fear and
+                // `arrange_tile` writes every slot of `o` before anything reads it.
+                let o = unsafe {
+                    &mut *(o as *mut [std::mem::MaybeUninit<[f32; 3]>] as *mut [[f32; 3]])
+                };
+                if !with_rows {
+                    arrange_tile(sc, o, i, &grid, levels);
+                    return on_tile(t, o, i, None);
+                }
+                // Arranged as the tile's own slots, so the rows read in curve
+                // order are found again; then the source indices follow.
+                local.clear();
+                local.extend(0..i.len() as u32);
+                arrange_tile(sc, o, local, &grid, levels);
+                from.clear();
+                from.extend_from_slice(i);
+                for (d, &l) in i.iter_mut().zip(local.iter()) {
+                    *d = from[l as usize];
+                }
+                let tile = TileRows { rows, local };
+                on_tile(t, o, i, Some(tile));
+            },
+        );
     // SAFETY: every tile chunk of the n slots was written above.
     unsafe { out.set_len(n) };
     let order = tile_order(&out, levels);
@@ -865,7 +973,14 @@ mod tests {
         let hi = [0, 1, 2].map(|a| pos.iter().map(|p| p[a]).fold(f32::NEG_INFINITY, f32::max));
         let src = pos.to_vec();
         let mut local: Vec<u32> = (0..pos.len() as u32).collect();
-        let (out, order) = gather_representatives(&src, &mut local, levels, lo, hi, &|_, _, _| {});
+        let (out, order) = gather_representatives(
+            Positions::Held(&src),
+            &mut local,
+            levels,
+            lo,
+            hi,
+            &|_, _, _, _| {},
+        );
         pos.copy_from_slice(&in_tile_order(&out, &order));
         let moved: Vec<u32> = in_tile_order(&local, &order)
             .iter()
@@ -999,7 +1114,7 @@ mod tests {
                 ]
             })
             .collect();
-        let order = hilbert_order(&pos, [0.0; 3], [100.0, 50.0, 1.0]);
+        let order = hilbert_order(Positions::Held(&pos), [0.0; 3], [100.0, 50.0, 1.0]);
         let mut seen = vec![false; pos.len()];
         for &i in &order {
             seen[i as usize] = true;
@@ -1081,7 +1196,7 @@ mod tests {
             })
             .collect();
         pos.extend(&sparse);
-        let order = hilbert_order(&pos, [0.0; 3], [110.0, 110.0, 0.0]);
+        let order = hilbert_order(Positions::Held(&pos), [0.0; 3], [110.0, 110.0, 0.0]);
         let mut sorted: Vec<[f32; 3]> = order.iter().map(|&i| pos[i as usize]).collect();
         let mut perm = order.clone();
         representatives(&mut sorted, &mut perm, 3);
@@ -1117,14 +1232,15 @@ mod tests {
             })
             .collect();
         let (lo, hi) = ([0.0; 3], [100.0, 100.0, 5.0]);
-        let mut perm = hilbert_order(&pos, lo, hi);
+        let mut perm = hilbert_order(Positions::Held(&pos), lo, hi);
         let levels = representative_levels(n);
         assert!(levels > TILE_LEVELS + 2, "{levels}");
         let seen = std::sync::Mutex::new(Vec::new());
-        let on_tile = |t: usize, p: &[[f32; 3]], i: &[u32]| {
+        let on_tile = |t: usize, p: &[[f32; 3]], i: &[u32], _: Option<TileRows<'_>>| {
             seen.lock().unwrap().push((t, p.to_vec(), i.to_vec()));
         };
-        let (out, order) = gather_representatives(&pos, &mut perm, levels, lo, hi, &on_tile);
+        let (out, order) =
+            gather_representatives(Positions::Held(&pos), &mut perm, levels, lo, hi, &on_tile);
         let (mut want, mut want_perm) = (out.clone(), perm.clone());
         for level in TILE_LEVELS + 1..levels {
             let block = 1usize << (2 * level);
@@ -1160,7 +1276,7 @@ mod tests {
                 ]
             })
             .collect();
-        let order = hilbert_order(&pos, [0.0; 3], [50.0, 50.0, 1.0]);
+        let order = hilbert_order(Positions::Held(&pos), [0.0; 3], [50.0, 50.0, 1.0]);
         let mut sorted: Vec<[f32; 3]> = order.iter().map(|&i| pos[i as usize]).collect();
         let mut perm = order.clone();
         representatives(&mut sorted, &mut perm, representative_levels(n));

@@ -131,25 +131,29 @@ enum Rows {
 impl Rows {
     /// Appends the rows (`m` values each) of points `idx` to `out`.
     fn gather(&self, idx: &[u32], m: usize, out: &mut Vec<f32>) {
-        let rows = match self {
-            Rows::Source(src) => return src.gather(idx, out),
-            Rows::Held(rows) => rows,
-        };
-        match m {
-            0 => {}
-            1 => gather_rows::<1>(rows, idx, out),
-            2 => gather_rows::<2>(rows, idx, out),
-            3 => gather_rows::<3>(rows, idx, out),
-            4 => gather_rows::<4>(rows, idx, out),
-            5 => gather_rows::<5>(rows, idx, out),
-            6 => gather_rows::<6>(rows, idx, out),
-            7 => gather_rows::<7>(rows, idx, out),
-            8 => gather_rows::<8>(rows, idx, out),
-            _ => {
-                for &i in idx {
-                    let at = i as usize * m;
-                    out.extend_from_slice(&rows[at..at + m]);
-                }
+        match self {
+            Rows::Source(src) => src.gather(idx, out),
+            Rows::Held(rows) => gather_held(rows, idx, m, out),
+        }
+    }
+}
+
+/// Appends rows `idx` of `rows` (`m` values each, interleaved) to `out`.
+fn gather_held(rows: &[f32], idx: &[u32], m: usize, out: &mut Vec<f32>) {
+    match m {
+        0 => {}
+        1 => gather_rows::<1>(rows, idx, out),
+        2 => gather_rows::<2>(rows, idx, out),
+        3 => gather_rows::<3>(rows, idx, out),
+        4 => gather_rows::<4>(rows, idx, out),
+        5 => gather_rows::<5>(rows, idx, out),
+        6 => gather_rows::<6>(rows, idx, out),
+        7 => gather_rows::<7>(rows, idx, out),
+        8 => gather_rows::<8>(rows, idx, out),
+        _ => {
+            for &i in idx {
+                let at = i as usize * m;
+                out.extend_from_slice(&rows[at..at + m]);
             }
         }
     }
@@ -280,9 +284,11 @@ fn arrange(
     ph: &mut Phases,
     level0: Option<&TileSink>,
 ) -> Result<Arranged> {
+    let from_source = part.positions_from_source();
     let PartBuilder {
         origin,
         pos,
+        count: n,
         rows,
         source,
         attributes,
@@ -290,7 +296,6 @@ fn arrange(
         bounds,
         ..
     } = part;
-    let n = pos.len();
     let rows = match source {
         None => Rows::Held(rows),
         Some(src) if src.len() != n || src.width() != attributes.len() => {
@@ -306,6 +311,16 @@ fn arrange(
             ));
         }
         Some(src) => Rows::Source(src),
+    };
+    // Positions the source gives again are read from it, the same values; with
+    // them the rows level 0's tiles want (each point read once).
+    let positions = match &rows {
+        Rows::Source(src) if from_source => layout::Positions::Source {
+            src: &**src,
+            origin,
+            rows: level0.is_some() && !attributes.is_empty(),
+        },
+        _ => layout::Positions::Held(&pos),
     };
     let mut names: Vec<String> = spec::COORDINATE_BANDS
         .iter()
@@ -337,7 +352,7 @@ fn arrange(
         Layout::Hilbert => {
             let lo = [0, 1, 2].map(|a| (bounds.min[a] - origin[a]) as f32);
             let hi = [0, 1, 2].map(|a| (bounds.max[a] - origin[a]) as f32);
-            let mut perm = layout::hilbert_order(&pos, lo, hi);
+            let mut perm = layout::hilbert_order(positions, lo, hi);
             ph.mark("hilbert sort");
             let lut = tile_z_to_raster(spec::TILE_LOG2);
             let nb = 3 + m;
@@ -346,7 +361,7 @@ fn arrange(
             let found: Vec<std::sync::OnceLock<[[f32; 3]; 2]>> = (0..n.div_ceil(TILE_PIXELS))
                 .map(|_| Default::default())
                 .collect();
-            let on_tile = |t: usize, o: &[[f32; 3]], i: &[u32]| {
+            let on_tile = |t: usize, o: &[[f32; 3]], i: &[u32], tile: Option<layout::TileRows>| {
                 let mut b = [[f32::INFINITY; 3], [f32::NEG_INFINITY; 3]];
                 for p in o {
                     for ax in 0..3 {
@@ -359,10 +374,14 @@ fn arrange(
                     return;
                 };
                 let at = |b: usize| LEVEL0_AT + (t * nb + b) as u64 * TILE_BYTES;
+                // The attribute rows in slot order: read with the positions, or
+                // gathered now.
+                let fill = |out: &mut Vec<f32>| match &tile {
+                    Some(tr) => gather_held(tr.rows, tr.local, m, out),
+                    None => rows.gather(i, m, out),
+                };
                 let batch = (0..groups(m))
-                    .flat_map(|group| {
-                        hilbert_bands(&lut, o.len(), group, |k| o[k], |k| i[k], &rows, m)
-                    })
+                    .flat_map(|group| hilbert_bands(&lut, o.len(), group, |k| o[k], fill, m))
                     .map(|(b, buf)| (at(b), buf))
                     .collect();
                 // A refusal (cancelled, a failed write) is kept by the sink.
@@ -370,7 +389,7 @@ fn arrange(
             };
             let levels = layout::representative_levels(n);
             let (sorted, order) =
-                layout::gather_representatives(&pos, &mut perm, levels, lo, hi, &on_tile);
+                layout::gather_representatives(positions, &mut perm, levels, lo, hi, &on_tile);
             drop(pos);
             tile_bounds = found.into_iter().map(|b| b.into_inner()).collect();
             ph.mark(if level0.is_some() {
@@ -380,6 +399,7 @@ fn arrange(
             });
             (sorted, perm, order)
         }
+        Layout::Paper if from_source => (held(positions), Vec::new(), Vec::new()),
         Layout::Paper => (pos, Vec::new(), Vec::new()),
     };
     let mut offsets = origin.to_vec();
@@ -401,6 +421,24 @@ fn arrange(
         bounds,
         max_error,
     })
+}
+
+/// All of `p`'s positions, in order, held.
+fn held(p: layout::Positions<'_>) -> Vec<[f32; 3]> {
+    const PIECE: usize = 1 << 14;
+    let mut pos: Vec<[f32; 3]> = bigvec::with_capacity(p.len());
+    pos.spare_capacity_mut()[..p.len()]
+        .par_chunks_mut(PIECE)
+        .enumerate()
+        .for_each_init(Vec::new, |scratch, (k, d)| {
+            let got = p.slice(k * PIECE..k * PIECE + d.len(), scratch);
+            for (d, &v) in d.iter_mut().zip(got) {
+                d.write(v);
+            }
+        });
+    // SAFETY: every piece wrote each of its slots (`slice` gives as many).
+    unsafe { pos.set_len(p.len()) };
+    pos
 }
 
 /// Bounds per tile for every level: level 0 from the stored coordinates, each
@@ -804,30 +842,26 @@ fn encode_job(
     }
     let at = |i: usize| a.slot((base + i) * stride);
     let (pos, perm) = (&a.pos, &a.perm);
-    hilbert_bands(
-        lut,
-        count,
-        group,
-        |i| pos[at(i)],
-        |i| perm[at(i)],
-        &a.rows,
-        m,
-    )
-    .into_iter()
-    .map(|(b, buf)| (b, done(buf)))
-    .collect()
+    let fill = |out: &mut Vec<f32>| {
+        let idx: Vec<u32> = (0..count).map(|i| perm[at(i)]).collect();
+        a.rows.gather(&idx, m, out);
+    };
+    hilbert_bands(lut, count, group, |i| pos[at(i)], fill, m)
+        .into_iter()
+        .map(|(b, buf)| (b, done(buf)))
+        .collect()
 }
 
 /// The bands of job `group` (see [`groups`]) of one tile of the Hilbert layout
-/// whose `count` points, in Z-order within the tile, are `pos(0..count)` with
-/// source indices `idx(0..count)`: (band, tile) pairs.
+/// whose `count` points, in Z-order within the tile, are `pos(0..count)`, and
+/// whose attribute rows (`m` values a point, in the same order) `fill` appends:
+/// (band, tile) pairs.
 fn hilbert_bands(
     lut: &[u32],
     count: usize,
     group: usize,
     pos: impl Fn(usize) -> [f32; 3],
-    idx: impl Fn(usize) -> u32,
-    rows: &Rows,
+    fill: impl Fn(&mut Vec<f32>),
     m: usize,
 ) -> Vec<(usize, TileBuf)> {
     if group < 3 {
@@ -835,9 +869,8 @@ fn hilbert_bands(
     }
     // The tile's attribute rows, gathered through the permutation (one cache miss
     // a point for all its attributes), then each band scattered from them.
-    let idx: Vec<u32> = (0..count).map(idx).collect();
     let mut gathered: Vec<f32> = Vec::with_capacity(count * m);
-    rows.gather(&idx, m, &mut gathered);
+    fill(&mut gathered);
     (0..m)
         .map(|k| (3 + k, scatter_tile(lut, count, |i| gathered[i * m + k])))
         .collect()
@@ -1075,6 +1108,41 @@ mod tests {
         }
     }
 
+    /// Rows and positions given again from `f64` coordinates, as a LAS file's map
+    /// gives them.
+    struct PosRows(VecRows, [Vec<f64>; 3]);
+
+    impl RowSource for PosRows {
+        fn len(&self) -> usize {
+            self.0.len()
+        }
+        fn width(&self) -> usize {
+            self.0.width()
+        }
+        fn gather(&self, idx: &[u32], out: &mut Vec<f32>) {
+            self.0.gather(idx, out)
+        }
+        fn has_positions(&self) -> bool {
+            true
+        }
+        fn positions(&self, idx: &[u32], origin: [f64; 3], out: &mut Vec<[f32; 3]>) {
+            let c = &self.1;
+            out.extend(idx.iter().map(|&i| {
+                let i = i as usize;
+                [0, 1, 2].map(|a| (c[a][i] - origin[a]) as f32)
+            }));
+        }
+        fn positions_in(
+            &self,
+            range: std::ops::Range<usize>,
+            origin: [f64; 3],
+            out: &mut Vec<[f32; 3]>,
+        ) {
+            let idx: Vec<u32> = range.map(|i| i as u32).collect();
+            self.positions(&idx, origin, out);
+        }
+    }
+
     /// Rows that raise a cancel flag once the writer starts gathering them: for
     /// a Hilbert part, while level 0 is written during the arrangement.
     struct CancellingRows(VecRows, Arc<AtomicBool>);
@@ -1181,6 +1249,44 @@ mod tests {
             .expect_err("a short source is an error");
             assert!(e.to_string().contains("short.tif"), "{e}");
             assert!(!dir.path().join("short.tif").exists());
+        }
+        // A source that gives the positions too: the part holds none, and the
+        // file is the same, byte for byte (level 0 written while arranging, with
+        // each tile's rows read with its positions; or compressed afterwards).
+        for (layout, compression) in [
+            (Layout::Hilbert, Compression::None),
+            (Layout::Hilbert, Compression::Zstd),
+            (Layout::Paper, Compression::None),
+        ] {
+            let opts = WriteOptions {
+                layout,
+                compression,
+                ..WriteOptions::default()
+            };
+            let write = |name: &str, src: Option<PosRows>| {
+                let path = dir.path().join(name);
+                let mut b = PartBuilder::new([1025.0, 2025.0, 5.0], None, n);
+                if let Some(s) = src {
+                    b.rows_from(Arc::new(s));
+                    assert!(b.positions_from_source());
+                }
+                for k in 0..7 {
+                    let (from, to) = (k * n / 7, (k + 1) * n / 7);
+                    let mut part = c.empty_like();
+                    part.append_range(&c, from, to);
+                    b.push(&path, &part).unwrap();
+                }
+                assert_eq!(b.pos.is_empty(), b.positions_from_source());
+                write_part_built(&path, b, &opts).unwrap();
+                std::fs::read(&path).unwrap()
+            };
+            let held = write("held.tif", None);
+            let coords = [c.x.clone(), c.y.clone(), c.z.clone()];
+            let given = write("given.tif", Some(PosRows(VecRows(rows.clone(), 2), coords)));
+            assert!(
+                held == given,
+                "{layout:?} {compression:?}: the files differ"
+            );
         }
     }
 }
