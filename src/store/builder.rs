@@ -227,7 +227,8 @@ impl PartBuilder {
                 for i in from..to {
                     let p = [c.x[i], c.y[i], c.z[i]];
                     if let Some(d) = d.as_deref_mut() {
-                        d[i - from].write([0, 1, 2].map(|a| (p[a] - origin[a]) as f32));
+                        let r = |a: usize| (p[a] - origin[a]) as f32;
+                        d[i - from].write([r(0), r(1), r(2)]);
                     }
                     for a in 0..3 {
                         // `&`, not `&&`: no branches in the loop.

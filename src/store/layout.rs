@@ -249,8 +249,10 @@ pub fn hilbert_order(pos: Positions<'_>, lo: [f32; 3], hi: [f32; 3]) -> Vec<u32>
     let levels = ((63 - ib) / 3 + 1).min(KEY_BITS);
     let mut packed: Vec<u64> = bigvec::with_capacity(n);
     let quantize = |p: &[f32; 3]| {
-        let q = [0, 1, 2].map(|a| (((p[a] - lo[a]) as f64 * scale) as u32).min(max as u32));
-        spread3(q[0]) | (spread3(q[1]) << 1) | (spread3(q[2]) << 2)
+        // Written out: `[0, 1, 2].map` is not always inlined, and this runs for
+        // every point.
+        let q = |a: usize| (((p[a] - lo[a]) as f64 * scale) as u32).min(max as u32);
+        spread3(q(0)) | (spread3(q(1)) << 1) | (spread3(q(2)) << 2)
     };
     let t3 = hilbert_table3();
     let steps = levels.div_ceil(3).min(KEY_BITS / 3) as usize;
@@ -446,6 +448,16 @@ fn lsd_sort(s: &mut [u64], scratch: &mut Vec<u64>, base: u64, low: u32, bits: u3
     }
 }
 
+/// Which arranged positions [`gather_representatives`] returns.
+#[derive(Clone, Copy, PartialEq, Eq, Debug)]
+pub enum Keep {
+    /// Every point's, in image order.
+    All,
+    /// Only level 1's (the points of slots 0, 4, 8, ...; slot `s` at `s / 4`):
+    /// for a caller that took level 0 from `on_tile`.
+    Leads,
+}
+
 /// What [`gather_representatives`] calls with each arranged tile: its number,
 /// its points, their source indices and, when read with them, their rows.
 pub type OnTile<'a> = dyn Fn(usize, &[[f32; 3]], &[u32], Option<TileRows<'_>>) + Sync + 'a;
@@ -472,7 +484,8 @@ pub type OnTile<'a> = dyn Fn(usize, &[[f32; 3]], &[u32], Option<TileRows<'_>>) +
 /// from it while it is in cache). The levels above a tile only reorder whole
 /// tiles: they are not moved but returned as the tile order (the `t`-th tile of
 /// the final order is tile `order[t]` of the result; the partial last tile, if
-/// any, stays last).
+/// any, stays last). `keep` says whether the result holds every arranged
+/// position or only level 1's.
 pub fn gather_representatives(
     src: Positions<'_>,
     perm: &mut [u32],
@@ -480,47 +493,82 @@ pub fn gather_representatives(
     lo: [f32; 3],
     hi: [f32; 3],
     on_tile: &OnTile<'_>,
+    keep: Keep,
 ) -> (Vec<[f32; 3]>, Vec<u32>) {
     let n = perm.len();
-    let mut out: Vec<[f32; 3]> = crate::bigvec::with_capacity(n);
+    let every = if keep == Keep::Leads { 4 } else { 1 };
+    let kept = n.div_ceil(every);
+    let mut out: Vec<[f32; 3]> = crate::bigvec::with_capacity(kept);
     let grid = Grid::new(lo, hi);
-    out.spare_capacity_mut()[..n]
-        .par_chunks_mut(TILE_PIXELS)
+    out.spare_capacity_mut()[..kept]
+        .par_chunks_mut(TILE_PIXELS / every)
         .zip(perm.par_chunks_mut(TILE_PIXELS))
         .enumerate()
         .for_each_init(
-            || (Scratch::default(), Vec::new(), Vec::new(), Vec::new()),
-            |(sc, rows, local, from), (t, (o, i))| {
+            || {
+                (
+                    Scratch::default(),
+                    Vec::new(),
+                    Vec::new(),
+                    Vec::new(),
+                    Vec::new(),
+                )
+            },
+            |(sc, rows, local, from, whole), (t, (kept, i))| {
                 sc.pos.clear();
                 rows.clear();
                 let with_rows = src.gather(i, &mut sc.pos, rows);
-                // SAFETY: `[f32; 3]` has no invalid bit patterns to fear and
-                // `arrange_tile` writes every slot of `o` before anything reads it.
-                let o = unsafe {
-                    &mut *(o as *mut [std::mem::MaybeUninit<[f32; 3]>] as *mut [[f32; 3]])
+                let o: &mut [[f32; 3]] = if every == 1 {
+                    // SAFETY: `[f32; 3]` has no invalid bit patterns to fear and
+                    // `arrange_tile` writes every slot of `o` before anything
+                    // reads it.
+                    unsafe {
+                        &mut *(kept as *mut [std::mem::MaybeUninit<[f32; 3]>] as *mut [[f32; 3]])
+                    }
+                } else {
+                    whole.resize(i.len(), [0.0; 3]);
+                    whole
                 };
                 if !with_rows {
                     arrange_tile(sc, o, i, &grid, levels);
-                    return on_tile(t, o, i, None);
+                    on_tile(t, o, i, None);
+                } else {
+                    arrange_with_rows(sc, o, i, (local, from), &grid, levels);
+                    on_tile(t, o, i, Some(TileRows { rows, local }));
                 }
-                // Arranged as the tile's own slots, so the rows read in curve
-                // order are found again; then the source indices follow.
-                local.clear();
-                local.extend(0..i.len() as u32);
-                arrange_tile(sc, o, local, &grid, levels);
-                from.clear();
-                from.extend_from_slice(i);
-                for (d, &l) in i.iter_mut().zip(local.iter()) {
-                    *d = from[l as usize];
+                if every > 1 {
+                    for (k, &p) in kept.iter_mut().zip(o.iter().step_by(every)) {
+                        k.write(p);
+                    }
                 }
-                let tile = TileRows { rows, local };
-                on_tile(t, o, i, Some(tile));
             },
         );
-    // SAFETY: every tile chunk of the n slots was written above.
-    unsafe { out.set_len(n) };
-    let order = tile_order(&out, levels);
+    // SAFETY: every tile's chunk of the kept slots was written above.
+    unsafe { out.set_len(kept) };
+    let tiles = n.div_ceil(TILE_PIXELS);
+    let order = tile_order(n, tiles, |t| out[t * TILE_PIXELS / every], levels);
     (out, order)
+}
+
+/// [`arrange_tile`] of a tile whose rows were read with its positions: arranged as
+/// the tile's own slots (`local`), so that the rows, in curve order, are found
+/// again; then the source indices `idx` follow. `from` is scratch.
+fn arrange_with_rows(
+    sc: &mut Scratch,
+    o: &mut [[f32; 3]],
+    idx: &mut [u32],
+    (local, from): (&mut Vec<u32>, &mut Vec<u32>),
+    grid: &Grid,
+    levels: usize,
+) {
+    local.clear();
+    local.extend(0..idx.len() as u32);
+    arrange_tile(sc, o, local, grid, levels);
+    from.clear();
+    from.extend_from_slice(idx);
+    for (d, &l) in idx.iter_mut().zip(local.iter()) {
+        *d = from[l as usize];
+    }
 }
 
 /// Levels whose blocks fit in one tile (block 4^k ≤ tile pixels): arranged tile by
@@ -605,7 +653,8 @@ impl Grid {
 
     fn cell(&self, p: &[f32; 3]) -> [u32; 3] {
         let max = (1u32 << KEY_BITS) - 1;
-        [0, 1, 2].map(|a| (((p[a] - self.lo[a]) as f64 * self.scale) as u32).min(max))
+        let q = |a: usize| (((p[a] - self.lo[a]) as f64 * self.scale) as u32).min(max);
+        [q(0), q(1), q(2)]
     }
 }
 
@@ -889,9 +938,13 @@ impl Descent<'_> {
 /// centroid rule ([`leading_sub_block`]) on the tiles' order rather than on their
 /// points: `pos` holds whole arranged tiles, and the result is the order in which
 /// they are stored (see [`gather_representatives`]).
-fn tile_order(pos: &[[f32; 3]], levels: usize) -> Vec<u32> {
-    let n = pos.len();
-    let mut order: Vec<u32> = (0..n.div_ceil(TILE_PIXELS) as u32).collect();
+fn tile_order(
+    n: usize,
+    tiles: usize,
+    first_of: impl Fn(usize) -> [f32; 3],
+    levels: usize,
+) -> Vec<u32> {
+    let mut order: Vec<u32> = (0..tiles as u32).collect();
     for level in TILE_LEVELS + 1..levels {
         // Tiles per sub-block, and points per sub-block.
         let sub = 1usize << (2 * (level - 1 - TILE_LEVELS));
@@ -903,7 +956,7 @@ fn tile_order(pos: &[[f32; 3]], levels: usize) -> Vec<u32> {
                 continue;
             }
             let full = (len / sub_points).max(1);
-            let first = |j: usize| pos[block[j * sub] as usize * TILE_PIXELS];
+            let first = |j: usize| first_of(block[j * sub] as usize);
             let best = leading_sub_block(count, full, first);
             if best > 0 {
                 let (head, tail) = block.split_at_mut(best * sub);
@@ -980,6 +1033,7 @@ mod tests {
             lo,
             hi,
             &|_, _, _, _| {},
+            Keep::All,
         );
         pos.copy_from_slice(&in_tile_order(&out, &order));
         let moved: Vec<u32> = in_tile_order(&local, &order)
@@ -1239,8 +1293,30 @@ mod tests {
         let on_tile = |t: usize, p: &[[f32; 3]], i: &[u32], _: Option<TileRows<'_>>| {
             seen.lock().unwrap().push((t, p.to_vec(), i.to_vec()));
         };
-        let (out, order) =
-            gather_representatives(Positions::Held(&pos), &mut perm, levels, lo, hi, &on_tile);
+        let sorted = perm.clone();
+        let (out, order) = gather_representatives(
+            Positions::Held(&pos),
+            &mut perm,
+            levels,
+            lo,
+            hi,
+            &on_tile,
+            Keep::All,
+        );
+        // Keeping level 1's positions only: the same arrangement, every fourth.
+        let mut perm4 = sorted;
+        let (leads, order4) = gather_representatives(
+            Positions::Held(&pos),
+            &mut perm4,
+            levels,
+            lo,
+            hi,
+            &|_, _, _, _| {},
+            Keep::Leads,
+        );
+        assert_eq!((&perm4, &order4), (&perm, &order));
+        let every_fourth: Vec<[f32; 3]> = out.iter().step_by(4).copied().collect();
+        assert!(leads == every_fourth && leads.len() == n.div_ceil(4));
         let (mut want, mut want_perm) = (out.clone(), perm.clone());
         for level in TILE_LEVELS + 1..levels {
             let block = 1usize << (2 * level);

@@ -18,9 +18,10 @@ use crate::points::{Bounds, PointColumns, RowSource};
 use rayon::prelude::*;
 use std::fs::File;
 use std::io::{Seek, Write};
+use std::mem::MaybeUninit;
 use std::path::{Path, PathBuf};
-use std::sync::Arc;
-use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
+use std::sync::{Arc, Mutex};
 use tiff::encoder::{TiffEncoder, TiffKind, TiffKindBig, TiffKindStandard};
 use tiff::tags::Tag;
 
@@ -166,8 +167,10 @@ fn gather_held(rows: &[f32], idx: &[u32], m: usize, out: &mut Vec<f32>) {
 struct Arranged {
     geometry: Geometry,
     layout: Layout,
-    /// Positions, whole level-0 tiles in stored order (see `tile_order`).
+    /// Positions, whole level-0 tiles in stored order (see `tile_order`); with
+    /// `pos_every` 4, only the level-1 points' (slot `s` at `s / 4`).
     pos: Vec<[f32; 3]>,
+    pos_every: usize,
     /// Source index of each slot of `pos` (empty for the paper layout, whose
     /// order is the input's).
     perm: Vec<u32>,
@@ -184,6 +187,10 @@ struct Arranged {
     level0_written: bool,
     /// Bands 3 and up, interleaved, in input order.
     rows: Rows,
+    /// The rows of the level-1 points of `pos` (slots 0, 4, 8, ...: slot `s`'s
+    /// row is row `s / 4`), kept while level 0 was written (else empty): levels
+    /// 1 and up read them.
+    level1_rows: Vec<f32>,
     m: usize,
     /// Each attribute's smallest and largest value.
     ranges: Vec<(f32, f32)>,
@@ -348,6 +355,8 @@ fn arrange(
     // `tile_order` gives): positions and their source indices.
     let m = attributes.len();
     let mut tile_bounds = Vec::new();
+    let mut level1_rows = Vec::new();
+    let mut pos_every = 1;
     let (pos, perm, tile_order) = match layout {
         Layout::Hilbert => {
             let lo = [0, 1, 2].map(|a| (bounds.min[a] - origin[a]) as f32);
@@ -361,6 +370,22 @@ fn arrange(
             let found: Vec<std::sync::OnceLock<[[f32; 3]; 2]>> = (0..n.div_ceil(TILE_PIXELS))
                 .map(|_| Default::default())
                 .collect();
+            // Each tile's level-1 attribute rows (slots 0, 4, 8, ...), kept from
+            // its level-0 rows for the coarser levels (which then gather nothing):
+            // one buffer (huge pages: a fresh 4 KiB page costs more here), a
+            // share of it a tile, taken once.
+            let share = TILE_PIXELS / 4 * m;
+            let mut level1: Vec<f32> = if level0.is_some() {
+                bigvec::with_capacity(found.len() * share)
+            } else {
+                Vec::new()
+            };
+            let shares: Vec<Mutex<Option<&mut [MaybeUninit<f32>]>>> = level1
+                .spare_capacity_mut()
+                .chunks_mut(share.max(1))
+                .map(|c| Mutex::new(Some(c)))
+                .collect();
+            let kept = AtomicUsize::new(0);
             let on_tile = |t: usize, o: &[[f32; 3]], i: &[u32], tile: Option<layout::TileRows>| {
                 let mut b = [[f32::INFINITY; 3], [f32::NEG_INFINITY; 3]];
                 for p in o {
@@ -376,22 +401,54 @@ fn arrange(
                 let at = |b: usize| LEVEL0_AT + (t * nb + b) as u64 * TILE_BYTES;
                 // The attribute rows in slot order: read with the positions, or
                 // gathered now.
-                let fill = |out: &mut Vec<f32>| match &tile {
-                    Some(tr) => gather_held(tr.rows, tr.local, m, out),
-                    None => rows.gather(i, m, out),
-                };
+                let mut slot_rows = Vec::with_capacity(o.len() * m);
+                match &tile {
+                    Some(tr) => gather_held(tr.rows, tr.local, m, &mut slot_rows),
+                    None => rows.gather(i, m, &mut slot_rows),
+                }
+                let mine = shares.get(t).and_then(|s| s.lock().ok()?.take());
+                if let Some(d) = mine {
+                    let mut d = d.chunks_exact_mut(m);
+                    for (r, d) in slot_rows.chunks(4 * m).zip(&mut d) {
+                        for (d, &v) in d.iter_mut().zip(r) {
+                            d.write(v);
+                        }
+                    }
+                    // Past the last tile's points: NaN, as its empty pixels.
+                    d.flatten().for_each(|v| {
+                        v.write(f32::NAN);
+                    });
+                    kept.fetch_add(1, Ordering::Relaxed);
+                }
                 let batch = (0..groups(m))
-                    .flat_map(|group| hilbert_bands(&lut, o.len(), group, |k| o[k], fill, m))
+                    .flat_map(|group| hilbert_bands(&lut, o.len(), group, |k| o[k], &slot_rows, m))
                     .map(|(b, buf)| (at(b), buf))
                     .collect();
                 // A refusal (cancelled, a failed write) is kept by the sink.
                 let _ = sink.send(batch);
             };
             let levels = layout::representative_levels(n);
-            let (sorted, order) =
-                layout::gather_representatives(positions, &mut perm, levels, lo, hi, &on_tile);
+            // Level 0 written from `on_tile`: the coarser levels want level 1's
+            // positions only.
+            let keep = if level0.is_some() {
+                layout::Keep::Leads
+            } else {
+                layout::Keep::All
+            };
+            pos_every = if keep == layout::Keep::Leads { 4 } else { 1 };
+            let (sorted, order) = layout::gather_representatives(
+                positions, &mut perm, levels, lo, hi, &on_tile, keep,
+            );
             drop(pos);
+            let found_tiles = found.len();
             tile_bounds = found.into_iter().map(|b| b.into_inner()).collect();
+            // All tiles' or none (a write stopped early keeps no rows).
+            drop(shares);
+            if m > 0 && kept.into_inner() == found_tiles {
+                // SAFETY: every tile wrote its whole share (rows, then NaN).
+                unsafe { level1.set_len(found_tiles * share) };
+                level1_rows = level1;
+            }
             ph.mark(if level0.is_some() {
                 "gather+representatives+level 0"
             } else {
@@ -412,7 +469,9 @@ fn arrange(
         tile_order,
         tile_bounds,
         level0_written: level0.is_some(),
+        pos_every,
         rows,
+        level1_rows,
         m,
         ranges,
         names,
@@ -842,11 +901,22 @@ fn encode_job(
     }
     let at = |i: usize| a.slot((base + i) * stride);
     let (pos, perm) = (&a.pos, &a.perm);
-    let fill = |out: &mut Vec<f32>| {
-        let idx: Vec<u32> = (0..count).map(|i| perm[at(i)]).collect();
-        a.rows.gather(&idx, m, out);
-    };
-    hilbert_bands(lut, count, group, |i| pos[at(i)], fill, m)
+    let mut rows = Vec::new();
+    if group >= 3 {
+        rows.reserve(count * m);
+        if level > 0 && !a.level1_rows.is_empty() {
+            // Every slot of a coarser level is a level-1 slot (a multiple of 4).
+            for i in 0..count {
+                let r = at(i) / 4 * m;
+                rows.extend_from_slice(&a.level1_rows[r..r + m]);
+            }
+        } else {
+            let idx: Vec<u32> = (0..count).map(|i| perm[at(i)]).collect();
+            a.rows.gather(&idx, m, &mut rows);
+        }
+    }
+    let every = a.pos_every;
+    hilbert_bands(lut, count, group, |i| pos[at(i) / every], &rows, m)
         .into_iter()
         .map(|(b, buf)| (b, done(buf)))
         .collect()
@@ -854,23 +924,19 @@ fn encode_job(
 
 /// The bands of job `group` (see [`groups`]) of one tile of the Hilbert layout
 /// whose `count` points, in Z-order within the tile, are `pos(0..count)`, and
-/// whose attribute rows (`m` values a point, in the same order) `fill` appends:
-/// (band, tile) pairs.
+/// whose attribute rows are `gathered` (`m` values a point, in the same order;
+/// only the attribute job reads them): (band, tile) pairs.
 fn hilbert_bands(
     lut: &[u32],
     count: usize,
     group: usize,
     pos: impl Fn(usize) -> [f32; 3],
-    fill: impl Fn(&mut Vec<f32>),
+    gathered: &[f32],
     m: usize,
 ) -> Vec<(usize, TileBuf)> {
     if group < 3 {
         return vec![(group, scatter_tile(lut, count, |i| pos(i)[group]))];
     }
-    // The tile's attribute rows, gathered through the permutation (one cache miss
-    // a point for all its attributes), then each band scattered from them.
-    let mut gathered: Vec<f32> = Vec::with_capacity(count * m);
-    fill(&mut gathered);
     (0..m)
         .map(|k| (3 + k, scatter_tile(lut, count, |i| gathered[i * m + k])))
         .collect()
