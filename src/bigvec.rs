@@ -113,6 +113,12 @@ pub fn scatter_plan<T: Sync>(
             h
         })
         .collect();
+    plan_from(&hists, buckets)
+}
+
+/// [`scatter_plan`] from each piece's histogram (`hists[p][b]`: items of piece `p`
+/// in bucket `b`).
+pub fn plan_from(hists: &[Vec<u32>], buckets: usize) -> (Vec<Vec<usize>>, Vec<usize>) {
     let mut starts = vec![vec![0usize; buckets]; hists.len()];
     let mut bounds = vec![0usize; buckets + 1];
     let mut at = 0usize;

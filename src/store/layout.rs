@@ -259,22 +259,40 @@ pub fn hilbert_order(pos: Positions<'_>, lo: [f32; 3], hi: [f32; 3]) -> Vec<u32>
     };
     let bmi2 = has_bmi2();
     const CHUNK: usize = 1 << 14;
-    packed.spare_capacity_mut()[..n]
-        .par_chunks_mut(CHUNK)
+    // The keys of each piece of the sort's scatter, a run of CHUNK at a time,
+    // each run counted into the piece's histogram of top digits while in cache.
+    let digit = Digit::top(ib);
+    let piece = scatter_piece(n).next_multiple_of(CHUNK);
+    let hists: Vec<Vec<u32>> = packed.spare_capacity_mut()[..n]
+        .par_chunks_mut(piece)
         .enumerate()
-        .for_each_init(Vec::new, |scratch, (c, out)| {
-            let pts = pos.slice(c * CHUNK..c * CHUNK + out.len(), scratch);
-            let base = (c * CHUNK) as u64;
-            if bmi2 {
-                // SAFETY: the CPU has BMI2 (checked above).
-                unsafe { keys.write_bmi2(pts, out, base) }
-            } else {
-                keys.write::<false>(pts, out, base)
+        .map_init(Vec::new, |scratch, (p, out)| {
+            let mut h = vec![0u32; digit.buckets()];
+            for (c, out) in out.chunks_mut(CHUNK).enumerate() {
+                let first = p * piece + c * CHUNK;
+                let pts = pos.slice(first..first + out.len(), scratch);
+                if bmi2 {
+                    // SAFETY: the CPU has BMI2 (checked above).
+                    unsafe { keys.write_bmi2(pts, out, first as u64) }
+                } else {
+                    keys.write::<false>(pts, out, first as u64)
+                }
+                for k in out.iter() {
+                    // SAFETY: `write` wrote every key of the run.
+                    h[digit.bucket(unsafe { k.assume_init() })] += 1;
+                }
             }
-        });
-    // SAFETY: every chunk wrote each of its slots.
+            h
+        })
+        .collect();
+    // SAFETY: every piece wrote each of its slots.
     unsafe { packed.set_len(n) };
-    sort_indexed(&mut packed, ib);
+    if n < SMALL_SORT {
+        packed.sort_unstable();
+    } else {
+        let plan = bigvec::plan_from(&hists, digit.buckets());
+        scatter_sort(&mut packed, ib, digit, plan, piece);
+    }
     let mut perm = bigvec::with_capacity(n);
     packed
         .par_iter()
@@ -399,13 +417,53 @@ pub fn hilbert_key_top(q: [u32; 3], levels: u32) -> u64 {
 /// Digit width of the sort's scatter passes.
 const RADIX_BITS: u32 = 11;
 
+/// Below this many keys a comparison sort is quicker.
+const SMALL_SORT: usize = 1 << 16;
+
+/// The most significant digit of a sort: the `top`-bit bucket of key `k` is
+/// `(k - base) >> shift`.
+#[derive(Clone, Copy)]
+struct Digit {
+    base: u64,
+    shift: u32,
+    top: u32,
+}
+
+impl Digit {
+    /// The top [`RADIX_BITS`] of the whole key, whose low `low_bits` are an index:
+    /// what [`hilbert_order`] counts while making its keys (a Hilbert key's
+    /// first levels vary over the cube, so no base is needed to spread them).
+    fn top(low_bits: u32) -> Digit {
+        let top = RADIX_BITS.min(64 - low_bits);
+        Digit {
+            base: 0,
+            shift: 64 - top,
+            top,
+        }
+    }
+
+    fn buckets(self) -> usize {
+        1 << self.top
+    }
+
+    #[inline(always)]
+    fn bucket(self, k: u64) -> usize {
+        ((k - self.base) >> self.shift) as usize
+    }
+}
+
+/// Keys per piece of a parallel scatter of `n`.
+fn scatter_piece(n: usize) -> usize {
+    n.div_ceil(rayon::current_num_threads() * 4).max(1 << 14)
+}
+
 /// Sorts `v` ascending, given that its low `low_bits` bits are unique and already
 /// ascending in the current order (they are the element's index), so only the
 /// bits above them need sorting: a parallel most-significant-digit scatter, then
 /// each bucket sorted in cache by stable least-significant-digit passes.
 pub fn sort_indexed(v: &mut Vec<u64>, low_bits: u32) {
     let n = v.len();
-    if n < 1 << 16 {
+    if n < SMALL_SORT {
         v.sort_unstable();
         return;
     }
@@ -422,12 +480,29 @@ pub fn sort_indexed(v: &mut Vec<u64>, low_bits: u32) {
     }
 
     let top = key_bits.min(RADIX_BITS);
-    let shift = low_bits + key_bits - top;
-    let buckets = 1usize << top;
-    let bucket = |k: u64| ((k - kmin) >> shift) as usize;
+    let digit = Digit {
+        base: kmin,
+        shift: low_bits + key_bits - top,
+        top,
+    };
     // Histograms per chunk, then each chunk's start in each bucket.
-    let chunk = n.div_ceil(rayon::current_num_threads() * 4).max(1 << 14);
-    let (mut starts, bounds) = bigvec::scatter_plan(v, chunk, buckets, |&k| bucket(k));
+    let chunk = scatter_piece(n);
+    let plan = bigvec::scatter_plan(v, chunk, digit.buckets(), |&k| digit.bucket(k));
+    scatter_sort(v, low_bits, digit, plan, chunk);
+}
+
+/// The rest of [`sort_indexed`]: `v` scattered by `digit` into buckets as `plan`
+/// says (from [`bigvec::scatter_plan`] over pieces of `chunk`), then each bucket
+/// sorted in cache on the bits between `low_bits` and the digit.
+fn scatter_sort(
+    v: &mut Vec<u64>,
+    low_bits: u32,
+    digit: Digit,
+    (mut starts, bounds): (Vec<Vec<usize>>, Vec<usize>),
+    chunk: usize,
+) {
+    let n = v.len();
+    let bucket = |k: u64| digit.bucket(k);
     let mut out: Vec<u64> = bigvec::with_capacity(n);
     let dst = bigvec::Shared(out.as_mut_ptr());
     v.par_chunks(chunk)
@@ -444,16 +519,16 @@ pub fn sort_indexed(v: &mut Vec<u64>, low_bits: u32) {
     // SAFETY: the scatter wrote every one of the n slots exactly once.
     unsafe { out.set_len(n) };
 
-    let mut slices: Vec<&mut [u64]> = Vec::with_capacity(buckets);
+    let mut slices: Vec<&mut [u64]> = Vec::with_capacity(digit.buckets());
     let mut rest = out.as_mut_slice();
-    for b in 0..buckets {
+    for b in 0..digit.buckets() {
         let (head, tail) = rest.split_at_mut(bounds[b + 1] - bounds[b]);
         slices.push(head);
         rest = tail;
     }
-    let rest_bits = shift - low_bits;
+    let rest_bits = digit.shift.saturating_sub(low_bits);
     slices.par_iter_mut().for_each_init(Vec::new, |scratch, s| {
-        lsd_sort(s, scratch, kmin, low_bits, rest_bits)
+        lsd_sort(s, scratch, digit.base, low_bits, rest_bits)
     });
     *v = out;
 }
@@ -1229,7 +1304,13 @@ mod tests {
     fn keys_with_pdep_are_the_portable_keys() {
         let mut r = crate::synth::Rng::new(11);
         let pts: Vec<[f32; 3]> = (0..10_007)
-            .map(|_| [r.f64() as f32 * 300.0 - 7.0, r.f64() as f32 * 90.0, r.f64() as f32])
+            .map(|_| {
+                [
+                    r.f64() as f32 * 300.0 - 7.0,
+                    r.f64() as f32 * 90.0,
+                    r.f64() as f32,
+                ]
+            })
             .collect();
         let keys = Keys {
             lo: [-7.0, 0.0, 0.0],
@@ -1247,7 +1328,9 @@ mod tests {
             } else {
                 keys.write::<false>(&pts, &mut out, 3);
             }
-            out.iter().map(|k| unsafe { k.assume_init() }).collect::<Vec<u64>>()
+            out.iter()
+                .map(|k| unsafe { k.assume_init() })
+                .collect::<Vec<u64>>()
         };
         let portable = run(false);
         // Spot check against the single-key function.
