@@ -47,8 +47,12 @@ impl CountGrid {
     #[inline]
     pub fn cell(&self, p: [f64; 3]) -> [usize; 3] {
         // (`as` saturates: points below the bounds, and NaN, land in cell 0.)
-        [0, 1, 2]
-            .map(|a| (((p[a] - self.bounds.min[a]) * self.scale[a]) as usize).min(self.dims[a] - 1))
+        // Written out: `[0, 1, 2].map` was not inlined here (3% of a text
+        // conversion within 256 MiB went to its call).
+        let c = |a: usize| {
+            (((p[a] - self.bounds.min[a]) * self.scale[a]) as usize).min(self.dims[a] - 1)
+        };
+        [c(0), c(1), c(2)]
     }
 
     #[inline]
