@@ -491,6 +491,9 @@ fn convert_with(
                             if let Some(rows) = reader.row_source() {
                                 b.rows_from(rows);
                             }
+                            if o.layout == Layout::Paper {
+                                b.hold_positions();
+                            }
                             b
                         });
                         b.push(&part_path(0), &chunk).map_err(public)?;

@@ -24,6 +24,8 @@ pub struct PartBuilder {
     pub(super) count: usize,
     /// Points expected: `pos`'s capacity once it is first needed.
     capacity: usize,
+    /// Positions are held even if the source gives them.
+    hold_positions: bool,
     /// `attributes.len()` values a point, in the order of `attributes`.
     pub(super) rows: Vec<f32>,
     /// Where the rows come from instead, when the part holds none.
@@ -51,6 +53,7 @@ impl PartBuilder {
             pos: Vec::new(),
             count: 0,
             capacity,
+            hold_positions: false,
             rows: Vec::new(),
             source: None,
             attributes: Vec::new(),
@@ -75,7 +78,16 @@ impl PartBuilder {
 
     /// Whether the positions stay with the source ([`PartBuilder::rows_from`]).
     pub(super) fn positions_from_source(&self) -> bool {
-        self.source.as_ref().is_some_and(|s| s.has_positions())
+        !self.hold_positions && self.source.as_ref().is_some_and(|s| s.has_positions())
+    }
+
+    /// Holds the positions even where the source could give them again (the
+    /// paper's layout reads every position in input order: decoding them twice
+    /// would cost a pass).
+    pub fn hold_positions(&mut self) {
+        if self.is_empty() {
+            self.hold_positions = true;
+        }
     }
 
     /// Makes room for `len` more positions (the expected count at first).

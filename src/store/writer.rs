@@ -1391,11 +1391,18 @@ mod tests {
             };
             let held = write("held.tif", None);
             let coords = [c.x.clone(), c.y.clone(), c.z.clone()];
-            let given = write("given.tif", Some(PosRows(VecRows(rows.clone(), 2), coords)));
+            let src = || PosRows(VecRows(rows.clone(), 2), coords.clone());
+            let given = write("given.tif", Some(src()));
             assert!(
                 held == given,
                 "{layout:?} {compression:?}: the files differ"
             );
+            // Told to hold them, the builder keeps the positions all the same.
+            let mut b = PartBuilder::new([1025.0, 2025.0, 5.0], None, n);
+            b.rows_from(Arc::new(src()));
+            b.hold_positions();
+            b.push(Path::new("p.tif"), &c).unwrap();
+            assert!(!b.positions_from_source() && b.pos.len() == n);
         }
     }
 }
