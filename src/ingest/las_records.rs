@@ -256,14 +256,7 @@ impl RowSource for LasRows {
         out.reserve(idx.len() * m);
         let dst = &mut out.spare_capacity_mut()[..idx.len() * m];
         for (k, (&i, row)) in idx.iter().zip(dst.chunks_exact_mut(m.max(1))).enumerate() {
-            // The records lie in file order, the indices in curve order: nearly
-            // every record misses the cache.
-            // A record may straddle two cache lines: both are asked for.
-            if let Some(&ahead) = idx.get(k + bigvec::PREFETCH_AHEAD) {
-                let r = ahead as usize * stride;
-                bigvec::prefetch(recs, r);
-                bigvec::prefetch(recs, r + stride - 1);
-            }
+            prefetch_ahead(recs, idx, k, stride);
             let r = i as usize * stride;
             decode_row(
                 &recs[r..r + stride],
@@ -287,13 +280,7 @@ impl RowSource for LasRows {
         let t = self.fields.transforms;
         out.reserve(idx.len());
         for (k, &i) in idx.iter().enumerate() {
-            // As in `gather`: nearly every record misses the cache, and the
-            // attribute rows asked for next find it there.
-            if let Some(&ahead) = idx.get(k + bigvec::PREFETCH_AHEAD) {
-                let r = ahead as usize * stride;
-                bigvec::prefetch(recs, r);
-                bigvec::prefetch(recs, r + stride - 1);
-            }
+            prefetch_ahead(recs, idx, k, stride);
             let r = i as usize * stride;
             out.push(relative(&recs[r..r + 12], &t, origin));
         }
@@ -319,11 +306,7 @@ impl RowSource for LasRows {
         rows.reserve(idx.len() * m);
         let dst = &mut rows.spare_capacity_mut()[..idx.len() * m];
         for (k, (&i, row)) in idx.iter().zip(dst.chunks_exact_mut(m.max(1))).enumerate() {
-            if let Some(&ahead) = idx.get(k + bigvec::PREFETCH_AHEAD) {
-                let r = ahead as usize * stride;
-                bigvec::prefetch(recs, r);
-                bigvec::prefetch(recs, r + stride - 1);
-            }
+            prefetch_ahead(recs, idx, k, stride);
             let r = &recs[i as usize * stride..(i as usize + 1) * stride];
             pos.push(relative(r, &t, origin));
             decode_row(r, &fields, self.gps_offset, self.colour, row);
@@ -351,6 +334,18 @@ impl RowSource for LasRows {
         }
         // SAFETY: one record a slot: all range.len() slots were written.
         unsafe { out.set_len(at + range.len()) };
+    }
+}
+
+/// Asks for the record of point `idx[k + PREFETCH_AHEAD]` of `recs`: the records
+/// lie in file order, the indices in curve order, so nearly every record misses
+/// the cache. A record may straddle two cache lines: both are asked for.
+#[inline(always)]
+fn prefetch_ahead(recs: &[u8], idx: &[u32], k: usize, stride: usize) {
+    if let Some(&ahead) = idx.get(k + bigvec::PREFETCH_AHEAD) {
+        let r = ahead as usize * stride;
+        bigvec::prefetch(recs, r);
+        bigvec::prefetch(recs, r + stride - 1);
     }
 }
 
