@@ -1403,6 +1403,14 @@ mod tests {
             b.hold_positions();
             b.push(Path::new("p.tif"), &c).unwrap();
             assert!(!b.positions_from_source() && b.pos.len() == n);
+            // Not held, they are checked all the same.
+            let mut b = PartBuilder::new([1025.0, 2025.0, 5.0], None, n);
+            b.rows_from(Arc::new(src()));
+            let mut bad = c.clone();
+            bad.z[n - 2] = f64::NAN;
+            let e = b.push(Path::new("p.tif"), &bad).unwrap_err().to_string();
+            assert!(e.contains(&format!("point {} ", n - 2)), "{e}");
+            assert!(b.is_empty());
         }
     }
 }
