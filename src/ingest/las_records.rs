@@ -177,9 +177,8 @@ fn decode_window(rec: &[u8], f: &Fields, gps_offset: f64, out: Out<'_>) {
     let records = || rec.chunks_exact(f.stride);
     let Out { xyz, mut attrs } = out;
     for (axis, col) in xyz.into_iter().enumerate() {
-        let (scale, offset) = f.transforms[axis];
         for (v, r) in col.iter_mut().zip(records()) {
-            v.write(scale * f64::from(i32_at(r, 4 * axis)) + offset);
+            v.write(coordinate(r, &f.transforms, axis));
         }
     }
     let fields = f.attributes();
@@ -248,26 +247,7 @@ impl RowSource for LasRows {
     }
 
     fn gather(&self, idx: &[u32], out: &mut Vec<f32>) {
-        let stride = self.fields.stride;
-        let recs = &self.map[self.start..self.start + self.total * stride];
-        let m = self.width;
-        let fields = self.fields.attributes();
-        let at = out.len();
-        out.reserve(idx.len() * m);
-        let dst = &mut out.spare_capacity_mut()[..idx.len() * m];
-        for (k, (&i, row)) in idx.iter().zip(dst.chunks_exact_mut(m.max(1))).enumerate() {
-            prefetch_ahead(recs, idx, k, stride);
-            let r = i as usize * stride;
-            decode_row(
-                &recs[r..r + stride],
-                &fields,
-                self.gps_offset,
-                self.colour,
-                row,
-            );
-        }
-        // SAFETY: `decode_row` wrote every value of every row (m of each).
-        unsafe { out.set_len(at + idx.len() * m) };
+        self.positions_and_rows_maybe(idx, None, out);
     }
 
     fn has_positions(&self) -> bool {
@@ -275,15 +255,9 @@ impl RowSource for LasRows {
     }
 
     fn positions(&self, idx: &[u32], origin: [f64; 3], out: &mut Vec<[f32; 3]>) {
-        let stride = self.fields.stride;
-        let recs = &self.map[self.start..self.start + self.total * stride];
         let t = self.fields.transforms;
         out.reserve(idx.len());
-        for (k, &i) in idx.iter().enumerate() {
-            prefetch_ahead(recs, idx, k, stride);
-            let r = i as usize * stride;
-            out.push(relative(&recs[r..r + 12], &t, origin));
-        }
+        self.each_record(idx, |_, r| out.push(relative(r, &t, origin)));
     }
 
     fn positions_and_rows(
@@ -293,26 +267,7 @@ impl RowSource for LasRows {
         pos: &mut Vec<[f32; 3]>,
         rows: &mut Vec<f32>,
     ) {
-        let stride = self.fields.stride;
-        let recs = &self.map[self.start..self.start + self.total * stride];
-        let t = self.fields.transforms;
-        let m = self.width;
-        if m == 0 {
-            return self.positions(idx, origin, pos);
-        }
-        let fields = self.fields.attributes();
-        let at = rows.len();
-        pos.reserve(idx.len());
-        rows.reserve(idx.len() * m);
-        let dst = &mut rows.spare_capacity_mut()[..idx.len() * m];
-        for (k, (&i, row)) in idx.iter().zip(dst.chunks_exact_mut(m.max(1))).enumerate() {
-            prefetch_ahead(recs, idx, k, stride);
-            let r = &recs[i as usize * stride..(i as usize + 1) * stride];
-            pos.push(relative(r, &t, origin));
-            decode_row(r, &fields, self.gps_offset, self.colour, row);
-        }
-        // SAFETY: `decode_row` wrote every value of every row (m of each).
-        unsafe { rows.set_len(at + idx.len() * m) };
+        self.positions_and_rows_maybe(idx, Some((origin, pos)), rows);
     }
 
     fn positions_in(
@@ -337,6 +292,49 @@ impl RowSource for LasRows {
     }
 }
 
+impl LasRows {
+    /// Calls `f(k, record)` with the record of each point `idx[k]`, in turn,
+    /// asking for the records ahead ([`prefetch_ahead`]).
+    #[inline(always)]
+    fn each_record(&self, idx: &[u32], mut f: impl FnMut(usize, &[u8])) {
+        let stride = self.fields.stride;
+        let recs = &self.map[self.start..self.start + self.total * stride];
+        for (k, &i) in idx.iter().enumerate() {
+            prefetch_ahead(recs, idx, k, stride);
+            let r = i as usize * stride;
+            f(k, &recs[r..r + stride]);
+        }
+    }
+
+    /// The rows of points `idx` appended to `rows`, and, given an origin, their
+    /// positions to `pos`: each record read once for both.
+    #[inline(always)]
+    fn positions_and_rows_maybe(
+        &self,
+        idx: &[u32],
+        mut pos: Option<([f64; 3], &mut Vec<[f32; 3]>)>,
+        rows: &mut Vec<f32>,
+    ) {
+        let (t, m) = (self.fields.transforms, self.width);
+        let fields = self.fields.attributes();
+        let at = rows.len();
+        rows.reserve(idx.len() * m);
+        if let Some((_, p)) = pos.as_mut() {
+            p.reserve(idx.len());
+        }
+        let dst = &mut rows.spare_capacity_mut()[..idx.len() * m];
+        self.each_record(idx, |k, r| {
+            if let Some((origin, p)) = pos.as_mut() {
+                p.push(relative(r, &t, *origin));
+            }
+            let row = &mut dst[k * m..(k + 1) * m];
+            decode_row(r, &fields, self.gps_offset, self.colour, row);
+        });
+        // SAFETY: `decode_row` wrote every value of every row (m of each).
+        unsafe { rows.set_len(at + idx.len() * m) };
+    }
+}
+
 /// Asks for the record of point `idx[k + PREFETCH_AHEAD]` of `recs`: the records
 /// lie in file order, the indices in curve order, so nearly every record misses
 /// the cache. A record may straddle two cache lines: both are asked for.
@@ -349,14 +347,22 @@ fn prefetch_ahead(recs: &[u8], idx: &[u32], k: usize, stride: usize) {
     }
 }
 
-/// A record's coordinates less `origin`, as `f32`: the `f64` value
-/// [`decode_window`] delivers, then the store's rounding.
+/// Coordinate `axis` of record `r`: its integer scaled and offset by the
+/// header's transform `t` (what [`decode_window`] delivers).
+#[inline(always)]
+fn coordinate(r: &[u8], t: &[(f64, f64); 3], axis: usize) -> f64 {
+    let (scale, offset) = t[axis];
+    scale * f64::from(i32_at(r, 4 * axis)) + offset
+}
+
+/// A record's coordinates less `origin`, as `f32`: the `f64` values
+/// [`decode_window`] delivers ([`coordinate`]), then the store's rounding.
 #[inline(always)]
 fn relative(r: &[u8], t: &[(f64, f64); 3], origin: [f64; 3]) -> [f32; 3] {
     // Written out: `[0, 1, 2].map` is not inlined here, and this runs for every
     // point twice.
-    let c = |a: usize, v: i32| ((t[a].0 * f64::from(v) + t[a].1) - origin[a]) as f32;
-    [c(0, i32_at(r, 0)), c(1, i32_at(r, 4)), c(2, i32_at(r, 8))]
+    let c = |a: usize| (coordinate(r, t, a) - origin[a]) as f32;
+    [c(0), c(1), c(2)]
 }
 
 /// Reader of uncompressed LAS files.

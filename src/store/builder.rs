@@ -230,24 +230,8 @@ impl PartBuilder {
         let first = self.admit(path, &this, len)?;
         let base = self.count;
         let (origin, (lo, hi)) = (self.origin, self.limits());
-        // Relative positions (unless the source keeps them) and the chunk's
-        // bounds in one pass; a NaN fails every comparison, so `ok` also catches it.
-        let check = |from: usize, to: usize, d: &mut [std::mem::MaybeUninit<[f32; 3]>]| {
-            let mut ok = true;
-            let mut b = Bounds::EMPTY;
-            for i in from..to {
-                let p = [c.x[i], c.y[i], c.z[i]];
-                let r = |a: usize| (p[a] - origin[a]) as f32;
-                d[i - from].write([r(0), r(1), r(2)]);
-                for a in 0..3 {
-                    // `&`, not `&&`: no branches in the loop.
-                    ok &= (p[a] >= lo[a]) & (p[a] <= hi[a]) & p[a].is_finite();
-                    b.min[a] = b.min[a].min(p[a]);
-                    b.max[a] = b.max[a].max(p[a]);
-                }
-            }
-            (ok, b)
-        };
+        // Each piece checked and bounded; its positions made relative, unless the
+        // source keeps them.
         let merge = |x: (bool, Bounds), y: (bool, Bounds)| (x.0 & y.0, x.1.union(&y.1));
         let keep = !self.positions_from_source();
         let (ok, b) = if keep {
@@ -255,27 +239,20 @@ impl PartBuilder {
             let dst = &mut self.pos.spare_capacity_mut()[..len];
             dst.par_chunks_mut(PIECE)
                 .enumerate()
-                .map(|(k, d)| check(k * PIECE, k * PIECE + d.len(), d))
+                .map(|(k, d)| {
+                    let from = k * PIECE;
+                    for (i, d) in d.iter_mut().enumerate() {
+                        let p = [c.x[from + i], c.y[from + i], c.z[from + i]];
+                        let r = |a: usize| (p[a] - origin[a]) as f32;
+                        d.write([r(0), r(1), r(2)]);
+                    }
+                    check_piece(c, from..from + d.len(), lo, hi)
+                })
                 .reduce(|| (true, Bounds::EMPTY), merge)
         } else {
-            // Checked and bounded only: an axis at a time over its column, a
-            // loop that vectorizes.
             (0..len.div_ceil(PIECE))
                 .into_par_iter()
-                .map(|k| {
-                    let r = k * PIECE..(k * PIECE + PIECE).min(len);
-                    let mut ok = true;
-                    let mut b = Bounds::EMPTY;
-                    for (a, col) in [&c.x, &c.y, &c.z].into_iter().enumerate() {
-                        let (lo, hi) = (lo[a], hi[a]);
-                        for &v in &col[r.clone()] {
-                            ok &= (v >= lo) & (v <= hi) & v.is_finite();
-                            b.min[a] = b.min[a].min(v);
-                            b.max[a] = b.max[a].max(v);
-                        }
-                    }
-                    (ok, b)
-                })
+                .map(|k| check_piece(c, k * PIECE..(k * PIECE + PIECE).min(len), lo, hi))
                 .reduce(|| (true, Bounds::EMPTY), merge)
         };
         if !ok {
@@ -452,6 +429,29 @@ impl PartBuilder {
         unsafe { self.rows.set_len(at + len * m) };
         self.widen_ranges(ranges);
     }
+}
+
+/// Whether the points `r` of `c` are finite and inside `lo..=hi`, and their bounds:
+/// an axis at a time over its column, a loop that vectorizes (a NaN fails every
+/// comparison, so `ok` also catches it).
+fn check_piece(
+    c: &PointColumns,
+    r: std::ops::Range<usize>,
+    lo: [f64; 3],
+    hi: [f64; 3],
+) -> (bool, Bounds) {
+    let mut ok = true;
+    let mut b = Bounds::EMPTY;
+    for (a, col) in [&c.x, &c.y, &c.z].into_iter().enumerate() {
+        let (lo, hi) = (lo[a], hi[a]);
+        for &v in &col[r.clone()] {
+            // `&`, not `&&`: no branches in the loop.
+            ok &= (v >= lo) & (v <= hi) & v.is_finite();
+            b.min[a] = b.min[a].min(v);
+            b.max[a] = b.max[a].max(v);
+        }
+    }
+    (ok, b)
 }
 
 /// The `f32` at byte `o` of `r`, little-endian.

@@ -86,6 +86,25 @@ impl<'a> Positions<'a> {
         }
     }
 
+    /// All the positions, in order, held.
+    pub fn to_vec(&self) -> Vec<[f32; 3]> {
+        const PIECE: usize = 1 << 14;
+        let n = self.len();
+        let mut pos: Vec<[f32; 3]> = bigvec::with_capacity(n);
+        pos.spare_capacity_mut()[..n]
+            .par_chunks_mut(PIECE)
+            .enumerate()
+            .for_each_init(Vec::new, |scratch, (k, d)| {
+                let got = self.slice(k * PIECE..k * PIECE + d.len(), scratch);
+                for (d, &v) in d.iter_mut().zip(got) {
+                    d.write(v);
+                }
+            });
+        // SAFETY: every piece wrote each of its slots (`slice` gives as many).
+        unsafe { pos.set_len(n) };
+        pos
+    }
+
     /// Appends the positions of points `idx` to `out`, and their attribute rows
     /// to `rows` when so asked (`Source` with `rows`): then true.
     fn gather(&self, idx: &[u32], out: &mut Vec<[f32; 3]>, rows: &mut Vec<f32>) -> bool {
@@ -688,8 +707,7 @@ pub fn gather_representatives(
         );
     // SAFETY: every tile's chunk of the kept slots was written above.
     unsafe { out.set_len(kept) };
-    let tiles = n.div_ceil(TILE_PIXELS);
-    let order = tile_order(n, tiles, |t| out[t * TILE_PIXELS / every], levels);
+    let order = tile_order(n, |t| out[t * TILE_PIXELS / every], levels);
     (out, order)
 }
 
@@ -1079,15 +1097,11 @@ impl Descent<'_> {
 
 /// Levels `TILE_LEVELS + 1..levels`, whose sub-blocks are whole tiles, by the
 /// centroid rule ([`leading_sub_block`]) on the tiles' order rather than on their
-/// points: `pos` holds whole arranged tiles, and the result is the order in which
-/// they are stored (see [`gather_representatives`]).
-fn tile_order(
-    n: usize,
-    tiles: usize,
-    first_of: impl Fn(usize) -> [f32; 3],
-    levels: usize,
-) -> Vec<u32> {
-    let mut order: Vec<u32> = (0..tiles as u32).collect();
+/// points: of `n` points in arranged tiles, `first_of(t)` is tile `t`'s first
+/// point, and the result is the order in which they are stored (see
+/// [`gather_representatives`]).
+fn tile_order(n: usize, first_of: impl Fn(usize) -> [f32; 3], levels: usize) -> Vec<u32> {
+    let mut order: Vec<u32> = (0..n.div_ceil(TILE_PIXELS) as u32).collect();
     for level in TILE_LEVELS + 1..levels {
         // Tiles per sub-block, and points per sub-block.
         let sub = 1usize << (2 * (level - 1 - TILE_LEVELS));

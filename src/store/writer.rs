@@ -167,10 +167,10 @@ fn gather_held(rows: &[f32], idx: &[u32], m: usize, out: &mut Vec<f32>) {
 struct Arranged {
     geometry: Geometry,
     layout: Layout,
-    /// Positions, whole level-0 tiles in stored order (see `tile_order`); with
-    /// `pos_every` 4, only the level-1 points' (slot `s` at `s / 4`).
+    /// Positions, whole level-0 tiles in stored order (see `tile_order`); when
+    /// level 0 was written while arranging, only the level-1 points' (slot `s`
+    /// at `s / 4`: [`Arranged::pos_every`]).
     pos: Vec<[f32; 3]>,
-    pos_every: usize,
     /// Source index of each slot of `pos` (empty for the paper layout, whose
     /// order is the input's).
     perm: Vec<u32>,
@@ -206,6 +206,12 @@ impl Arranged {
     #[inline]
     fn stored_tile(&self, t: usize) -> usize {
         self.tile_order.get(t).map_or(t, |&s| s as usize)
+    }
+
+    /// Slots per kept position: 4 when level 0 was written while arranging
+    /// (`layout::Keep::Leads`), else 1.
+    fn pos_every(&self) -> usize {
+        if self.level0_written { 4 } else { 1 }
     }
 
     /// The index in `pos` and `perm` of image slot `s` (level 0, Z-order).
@@ -356,7 +362,6 @@ fn arrange(
     let m = attributes.len();
     let mut tile_bounds = Vec::new();
     let mut level1_rows = Vec::new();
-    let mut pos_every = 1;
     let (pos, perm, tile_order) = match layout {
         Layout::Hilbert => {
             let lo = [0, 1, 2].map(|a| (bounds.min[a] - origin[a]) as f32);
@@ -435,7 +440,6 @@ fn arrange(
             } else {
                 layout::Keep::All
             };
-            pos_every = if keep == layout::Keep::Leads { 4 } else { 1 };
             let (sorted, order) = layout::gather_representatives(
                 positions, &mut perm, levels, lo, hi, &on_tile, keep,
             );
@@ -456,7 +460,7 @@ fn arrange(
             });
             (sorted, perm, order)
         }
-        Layout::Paper if from_source => (held(positions), Vec::new(), Vec::new()),
+        Layout::Paper if from_source => (positions.to_vec(), Vec::new(), Vec::new()),
         Layout::Paper => (pos, Vec::new(), Vec::new()),
     };
     let mut offsets = origin.to_vec();
@@ -469,7 +473,6 @@ fn arrange(
         tile_order,
         tile_bounds,
         level0_written: level0.is_some(),
-        pos_every,
         rows,
         level1_rows,
         m,
@@ -480,24 +483,6 @@ fn arrange(
         bounds,
         max_error,
     })
-}
-
-/// All of `p`'s positions, in order, held.
-fn held(p: layout::Positions<'_>) -> Vec<[f32; 3]> {
-    const PIECE: usize = 1 << 14;
-    let mut pos: Vec<[f32; 3]> = bigvec::with_capacity(p.len());
-    pos.spare_capacity_mut()[..p.len()]
-        .par_chunks_mut(PIECE)
-        .enumerate()
-        .for_each_init(Vec::new, |scratch, (k, d)| {
-            let got = p.slice(k * PIECE..k * PIECE + d.len(), scratch);
-            for (d, &v) in d.iter_mut().zip(got) {
-                d.write(v);
-            }
-        });
-    // SAFETY: every piece wrote each of its slots (`slice` gives as many).
-    unsafe { pos.set_len(p.len()) };
-    pos
 }
 
 /// Bounds per tile for every level: level 0 from the stored coordinates, each
@@ -945,7 +930,7 @@ fn encode_job(
             a.rows.gather(&idx, m, &mut rows);
         }
     }
-    let every = a.pos_every;
+    let every = a.pos_every();
     hilbert_bands(lut, count, group, |i| pos[at(i) / every], &rows, m)
         .into_iter()
         .map(|(b, buf)| (b, done(buf)))
