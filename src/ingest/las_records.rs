@@ -128,17 +128,6 @@ enum Field {
     Gps(usize),
 }
 
-impl Field {
-    #[inline]
-    fn value(self, r: &[u8], gps_offset: f64) -> f32 {
-        match self {
-            Field::U16(at) => f32::from(u16_at(r, at)),
-            Field::Bits(at, shift, mask) => f32::from((r[at] >> shift) & mask),
-            Field::Gps(at) => (f64_at(r, at) - gps_offset) as f32,
-        }
-    }
-}
-
 impl Fields {
     /// The record's attributes in the order of the columns (`las::attribute_names`),
     /// each with whether it is a colour channel (which a colour scale applies to).
@@ -183,42 +172,60 @@ fn decode_window(rec: &[u8], f: &Fields, gps_offset: f64, out: Out<'_>) {
     }
     let fields = f.attributes();
     for (k, col) in attrs.iter_mut().enumerate() {
-        let fill = |col: &mut [MaybeUninit<f32>], value: &dyn Fn(&[u8]) -> f32| {
-            for (v, r) in col.iter_mut().zip(records()) {
-                v.write(value(r));
-            }
-        };
-        // A loop per kind of field, each with its constants fixed.
-        match fields.get(k).map(|a| a.0) {
-            Some(Field::U16(at)) => fill(col, &|r| f32::from(u16_at(r, at))),
-            Some(Field::Bits(at, shift, mask)) => {
-                fill(col, &|r| f32::from((r[at] >> shift) & mask))
-            }
-            Some(Field::Gps(at)) => fill(col, &|r| (f64_at(r, at) - gps_offset) as f32),
-            // Every column is written (attribute_names lists the fields above); any
-            // left over would be NaN rather than unwritten memory.
-            None => col.fill(MaybeUninit::new(f32::NAN)),
-        }
+        // Every column is written (attribute_names lists the fields); any left
+        // over would be NaN rather than unwritten memory.
+        fill_field(
+            rec,
+            f.stride,
+            fields.get(k).map(|a| a.0),
+            None,
+            gps_offset,
+            col,
+            1,
+            0,
+        );
     }
 }
 
-/// Attribute values of one record (`fields`: [`Fields::attributes`]), in
-/// [`decode_window`]'s column order, into `row` (NaN for columns beyond the
-/// record's fields), colour scaled by `colour`.
-#[inline]
-fn decode_row(
-    r: &[u8],
-    fields: &[(Field, bool)],
+/// Value `j` of each row of `dst` (`m` values a row, one row a record of `rec`):
+/// `field`'s value (NaN when none), colour scaled by `colour` when given. A loop
+/// per kind of field, each with its constants fixed.
+#[allow(clippy::too_many_arguments)]
+#[inline(always)]
+fn fill_field(
+    rec: &[u8],
+    stride: usize,
+    field: Option<Field>,
+    colour: Option<ColorScale>,
     gps_offset: f64,
-    colour: ColorScale,
-    row: &mut [MaybeUninit<f32>],
+    dst: &mut [MaybeUninit<f32>],
+    m: usize,
+    j: usize,
 ) {
-    for (k, slot) in row.iter_mut().enumerate() {
-        slot.write(match fields.get(k) {
-            Some(&(f, false)) => f.value(r, gps_offset),
-            Some(&(f, true)) => colour.one(f.value(r, gps_offset)),
-            None => f32::NAN,
-        });
+    #[inline(always)]
+    fn fill(
+        rec: &[u8],
+        stride: usize,
+        dst: &mut [MaybeUninit<f32>],
+        m: usize,
+        j: usize,
+        value: impl Fn(&[u8]) -> f32,
+    ) {
+        for (row, r) in dst.chunks_exact_mut(m).zip(rec.chunks_exact(stride)) {
+            row[j].write(value(r));
+        }
+    }
+    let (s, g) = (stride, gps_offset);
+    match (field, colour) {
+        (Some(Field::U16(at)), None) => fill(rec, s, dst, m, j, |r| f32::from(u16_at(r, at))),
+        (Some(Field::U16(at)), Some(c)) => {
+            fill(rec, s, dst, m, j, |r| c.one(f32::from(u16_at(r, at))))
+        }
+        (Some(Field::Bits(at, shift, mask)), _) => {
+            fill(rec, s, dst, m, j, |r| f32::from((r[at] >> shift) & mask))
+        }
+        (Some(Field::Gps(at)), _) => fill(rec, s, dst, m, j, |r| (f64_at(r, at) - g) as f32),
+        (None, _) => fill(rec, s, dst, m, j, |_| f32::NAN),
     }
 }
 
@@ -307,31 +314,68 @@ impl LasRows {
     }
 
     /// The rows of points `idx` appended to `rows`, and, given an origin, their
-    /// positions to `pos`: each record read once for both.
+    /// positions to `pos`: each record read once for both. The records are copied
+    /// out first (the reads that miss the cache, prefetched), then decoded a field
+    /// at a time from the copy, each field's loop with its constants fixed
+    /// ([`decode_rows`]): a record at a time, with a `match` per field, cost twice
+    /// as much.
     #[inline(always)]
     fn positions_and_rows_maybe(
         &self,
         idx: &[u32],
-        mut pos: Option<([f64; 3], &mut Vec<[f32; 3]>)>,
+        pos: Option<([f64; 3], &mut Vec<[f32; 3]>)>,
         rows: &mut Vec<f32>,
     ) {
-        let (t, m) = (self.fields.transforms, self.width);
-        let fields = self.fields.attributes();
-        let at = rows.len();
-        rows.reserve(idx.len() * m);
-        if let Some((_, p)) = pos.as_mut() {
-            p.reserve(idx.len());
-        }
-        let dst = &mut rows.spare_capacity_mut()[..idx.len() * m];
-        self.each_record(idx, |k, r| {
-            if let Some((origin, p)) = pos.as_mut() {
-                p.push(relative(r, &t, *origin));
+        let (t, m, stride) = (self.fields.transforms, self.width, self.fields.stride);
+        let n = idx.len();
+        RECORDS.with_borrow_mut(|buf| {
+            buf.clear();
+            buf.reserve(n * stride);
+            self.each_record(idx, |_, r| buf.extend_from_slice(r));
+            if let Some((origin, p)) = pos {
+                p.extend(buf.chunks_exact(stride).map(|r| relative(r, &t, origin)));
             }
-            let row = &mut dst[k * m..(k + 1) * m];
-            decode_row(r, &fields, self.gps_offset, self.colour, row);
+            let at = rows.len();
+            rows.reserve(n * m);
+            let dst = &mut rows.spare_capacity_mut()[..n * m];
+            decode_rows(buf, &self.fields, self.gps_offset, self.colour, m, dst);
+            // SAFETY: `decode_rows` wrote every value of every row (m of each).
+            unsafe { rows.set_len(at + n * m) };
         });
-        // SAFETY: `decode_row` wrote every value of every row (m of each).
-        unsafe { rows.set_len(at + idx.len() * m) };
+    }
+}
+
+thread_local! {
+    /// [`LasRows`]' copies of the records it gathers, kept between calls.
+    static RECORDS: std::cell::RefCell<Vec<u8>> = const { std::cell::RefCell::new(Vec::new()) };
+}
+
+/// The attribute rows of the records `rec` (a whole number of records) into
+/// `dst` (`m` values a record: [`decode_window`]'s columns, NaN beyond the
+/// record's fields), colour scaled by `colour`: a loop per field, as
+/// [`decode_window`] does.
+fn decode_rows(
+    rec: &[u8],
+    f: &Fields,
+    gps_offset: f64,
+    colour: ColorScale,
+    m: usize,
+    dst: &mut [MaybeUninit<f32>],
+) {
+    let fields = f.attributes();
+    for j in 0..m {
+        let field = fields.get(j);
+        let scale = field.filter(|a| a.1).map(|_| colour);
+        fill_field(
+            rec,
+            f.stride,
+            field.map(|a| a.0),
+            scale,
+            gps_offset,
+            dst,
+            m,
+            j,
+        );
     }
 }
 
