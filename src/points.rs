@@ -84,6 +84,57 @@ pub trait RowSource: Send + Sync {
     }
 }
 
+/// What a first pass keeps of a chunk whose points a [`RowSource`] gives again,
+/// positions and rows: how many, their bounds, the attributes (names and
+/// offsets) with the range of each one's values, and the first point with a
+/// coordinate that is not finite. A reader that gives its rows back can make
+/// this straight from its input, without the chunk's columns.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ChunkExtent {
+    pub len: usize,
+    /// The bounds of the finite coordinates (`Bounds::EMPTY` when none).
+    pub bounds: Bounds,
+    pub attributes: Vec<(String, f64)>,
+    /// Each attribute's smallest and largest value, NaN ignored
+    /// (`(inf, -inf)` when it has none).
+    pub ranges: Vec<(f32, f32)>,
+    /// The first point (its index in the chunk and its coordinates) with a
+    /// coordinate that is NaN or infinite.
+    pub not_finite: Option<(usize, [f64; 3])>,
+}
+
+impl ChunkExtent {
+    /// The extent of the points `c`.
+    pub fn of(c: &PointColumns) -> ChunkExtent {
+        use rayon::prelude::*;
+        let at = |i: usize| [c.x[i], c.y[i], c.z[i]];
+        ChunkExtent {
+            len: c.len(),
+            bounds: c.bounds(),
+            attributes: c
+                .attributes
+                .iter()
+                .map(|a| (a.name.clone(), a.offset))
+                .collect(),
+            ranges: c
+                .attributes
+                .par_iter()
+                .map(|a| {
+                    a.values
+                        .iter()
+                        .fold((f32::INFINITY, f32::NEG_INFINITY), |r, &v| {
+                            (r.0.min(v), r.1.max(v))
+                        })
+                })
+                .collect(),
+            not_finite: (0..c.len())
+                .into_par_iter()
+                .find_first(|&i| !at(i).iter().all(|v| v.is_finite()))
+                .map(|i| (i, at(i))),
+        }
+    }
+}
+
 /// Axis-aligned bounds in source coordinates.
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Bounds {

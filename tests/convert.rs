@@ -418,6 +418,51 @@ fn wide_inputs_become_parts_that_keep_a_millimetre() {
     }
 }
 
+/// An uncompressed LAS file that fits one part is first read for its extent
+/// only (no columns); when its points lie in clusters 100 km apart it is read
+/// again, whole, and partitioned into parts that keep 1 mm, every point kept.
+#[test]
+fn wide_las_fitting_one_part_is_read_again_and_partitioned() {
+    let dir = tempfile::tempdir().unwrap();
+    let input = dir.path().join("clusters.las");
+    let mut b = las::Builder::from((1, 2));
+    b.point_format = las::point::Format::new(1).unwrap();
+    let t = |o| las::Transform {
+        scale: 0.001,
+        offset: o,
+    };
+    b.transforms = las::Vector {
+        x: t(500_000.0),
+        y: t(4_000_000.0),
+        z: t(0.0),
+    };
+    let mut w = las::Writer::from_path(&input, b.into_header().unwrap()).unwrap();
+    let n = 20_000u32;
+    for i in 0..n {
+        w.write_point(las::Point {
+            x: 500_000.0 + if i % 2 == 0 { 0.0 } else { 100_000.0 } + (i % 97) as f64,
+            y: 4_000_000.0 + (i % 89) as f64,
+            z: (i % 7) as f64,
+            intensity: i as u16,
+            gps_time: Some(f64::from(i)),
+            ..Default::default()
+        })
+        .unwrap();
+    }
+    w.close().unwrap();
+    let out = dir.path().join("clusters.pcimg");
+    let s = convert::convert(&input, &opts(out.clone(), 1 << 30), &Quiet).unwrap();
+    assert!(s.parts.len() >= 2, "{} part(s)", s.parts.len());
+    assert!(
+        s.max_quantization_error < 1e-3,
+        "{}",
+        s.max_quantization_error
+    );
+    assert_eq!(s.points, u64::from(n));
+    assert_eq!(worst_offset(&dataset_points(&out), &file_points(&input)), 0);
+    assert_parts_disjoint(&out);
+}
+
 /// A LAS header's bounds only place the origin of a part collected while reading;
 /// when they are wrong (200 km wide around 400 m of points, or 400 m of bounds
 /// 20 km off, which f32 would keep to 1 mm but not to 0.01) the input is read

@@ -236,14 +236,24 @@ pub fn convert_files(
         output: output::resolve(&o.output)?,
         ..o.clone()
     };
-    let r = match convert_with(inputs, o, progress, true) {
+    let r = match convert_with(inputs, o, progress, Collect::Extents) {
+        Err(e) if e.downcast_ref::<NeedColumns>().is_some() => {
+            progress.note(
+                "the points spread wider than f32 keeps 1 mm across: reading the input \
+                 again to partition them",
+            );
+            convert_with(inputs, o, progress, Collect::Early)
+        }
+        r => r,
+    };
+    let r = match r {
         Err(e) if e.downcast_ref::<OriginTooFar>().is_some() => {
             progress.note(
                 "the points lie too far from the centre of the header's bounds or of the \
                  first window for f32 to keep their precision: reading the input again \
                  around their own centre",
             );
-            convert_with(inputs, o, progress, false)
+            convert_with(inputs, o, progress, Collect::Held)
         }
         r => r,
     };
@@ -270,14 +280,42 @@ fn source_name(inputs: &[PathBuf]) -> Option<String> {
     }
 }
 
-/// [`convert`]; with `early`, a single part is collected while reading (see
-/// [`OriginTooFar`]).
+/// How the first pass collects a single part's points (each mode falls back to
+/// the next when it cannot finish: [`NeedColumns`], [`OriginTooFar`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum Collect {
+    /// Where the reader gives every point's position and rows again (an
+    /// uncompressed LAS file that fits one part): only each chunk's extent is
+    /// read ([`ingest::PointReader::next_extent`]), no columns.
+    Extents,
+    /// The points are converted for the store as they arrive.
+    Early,
+    /// The chunks are held as read until their bounds are known.
+    Held,
+}
+
+/// The first pass read only the points' extents ([`Collect::Extents`]) but the
+/// points must be read whole: they spread wider than f32 keeps 1 mm across, so
+/// they are partitioned from a sample of them. The conversion starts over.
+#[derive(Debug)]
+struct NeedColumns;
+
+impl std::fmt::Display for NeedColumns {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str("the points must be read whole to be partitioned")
+    }
+}
+
+impl std::error::Error for NeedColumns {}
+
+/// [`convert`], the first pass collecting a single part as `collect` says.
 fn convert_with(
     inputs: &[PathBuf],
     o: &ConvertOptions,
     progress: &dyn Progress,
-    early: bool,
+    collect: Collect,
 ) -> Result<ConvertSummary> {
+    let early = collect != Collect::Held;
     let start = Instant::now();
     let as_file = output_is_file(&o.output);
     for input in inputs {
@@ -287,7 +325,7 @@ fn convert_with(
     let opened = ingest::multi::open_all(inputs, &read)?;
     let info = opened.info().clone();
     let per_part = budget::points_per_part(o.memory, info.attribute_names.len());
-    if o.memory < budget::MIN_KEPT && early {
+    if o.memory < budget::MIN_KEPT && collect == Collect::Extents {
         progress.note(&format!(
             "--memory {} is below {}, the smallest budget a conversion keeps to: parts \
              still hold {} points, and the converter's fixed needs (about 90 MiB) exceed \
@@ -443,6 +481,52 @@ fn convert_with(
             if let Some(a) = acc.filter(|a| !a.is_empty()) {
                 write(a, &mut parts)?;
             }
+        }
+        Partition::Spatial
+            if collect == Collect::Extents
+                && o.layout != Layout::Paper
+                && info.declared_points.is_some_and(|n| n <= per_part)
+                && reader.gives_extents()? =>
+        {
+            // Pass 1 over the chunks' extents: the reader gives every point
+            // again when the part is written, and the input holds no more
+            // points than one part.
+            let mut bounds = Bounds::EMPTY;
+            let mut built: Option<store::PartBuilder> = None;
+            while let Some(e) = reader.next_extent()? {
+                check_cancel(o)?;
+                total += e.len as u64;
+                progress.advance(reader.bytes_done(), total);
+                bounds = bounds.union(&e.bounds);
+                let b = match built.as_mut() {
+                    Some(b) => b,
+                    None => {
+                        let centre = info.declared_bounds.unwrap_or(e.bounds).center();
+                        let expect = info.declared_points.unwrap_or(0).min(per_part);
+                        let mut b = store::PartBuilder::new(centre, None, expect as usize);
+                        let Some(rows) = reader.row_source() else {
+                            return Err(NeedColumns.into());
+                        };
+                        b.rows_from(rows);
+                        built.insert(b)
+                    }
+                };
+                if (b.len() + e.len) as u64 > per_part {
+                    return Err(NeedColumns.into());
+                }
+                b.push_extent(&part_path(0), &e).map_err(public)?;
+            }
+            pass("read", t_read);
+            if !as_file && too_wide(&bounds) {
+                return Err(NeedColumns.into());
+            }
+            let held_points = total;
+            progress.phase("write", held_points, "points");
+            last_part.set(true);
+            if let Some(b) = built.filter(|b| !b.is_empty()) {
+                write_built(b, &mut parts)?;
+            }
+            progress.advance(held_points, held_points);
         }
         Partition::Spatial => {
             // Pass 1: bounds and a sample; points kept while they fit one part.

@@ -77,6 +77,14 @@ impl ColorScale {
         (v * self.factor()).clamp(0.0, 255.0)
     }
 
+    /// Whether scaling `v` leaves 0–255, so [`ColorScale::one`] clamps it (what
+    /// [`ColorScale::apply`] counts).
+    #[inline]
+    pub fn clamps(self, v: f32) -> bool {
+        let s = v * self.factor();
+        s.clamp(0.0, 255.0) != s && !s.is_nan()
+    }
+
     /// Scales a column in place and clamps it to 0–255; how many values the clamp
     /// changed (the scale did not fit them).
     pub fn apply(self, values: &mut [f32]) -> u64 {
@@ -175,28 +183,36 @@ impl ColorNormalizer {
         self.scale
     }
 
+    /// Decides the scale from the colour values of the file's first points (at
+    /// most [`DECIDE_POINTS`] of each channel), unless decided already; the scale.
+    pub fn decide<'a>(&mut self, first: impl IntoIterator<Item = &'a [f32]>) -> ColorScale {
+        *self.scale.get_or_insert_with(|| {
+            let first: Vec<&[f32]> = first
+                .into_iter()
+                .map(|c| &c[..c.len().min(DECIDE_POINTS)])
+                .collect();
+            ColorScale::detect(first, self.float_source)
+        })
+    }
+
+    /// Counts `n` more values clamped (by a reader that scales them itself).
+    pub fn add_clamped(&self, n: u64) {
+        self.clamped.fetch_add(n, Ordering::Relaxed);
+    }
+
     pub fn apply(&mut self, cols: &mut crate::points::PointColumns) {
         if !cols.attributes.iter().any(|a| is_color(&a.name)) {
             return;
         }
-        let scale = match self.scale {
-            Some(s) => s,
-            None => {
-                if cols.is_empty() {
-                    return;
-                }
-                let n = cols.len().min(DECIDE_POINTS);
-                let s = ColorScale::detect(
-                    cols.attributes
-                        .iter()
-                        .filter(|a| is_color(&a.name))
-                        .map(|a| &a.values[..n]),
-                    self.float_source,
-                );
-                self.scale = Some(s);
-                s
-            }
-        };
+        if self.scale.is_none() && cols.is_empty() {
+            return;
+        }
+        let scale = self.decide(
+            cols.attributes
+                .iter()
+                .filter(|a| is_color(&a.name))
+                .map(|a| &a.values[..]),
+        );
         for a in cols.attributes.iter_mut().filter(|a| is_color(&a.name)) {
             let n = scale.apply(&mut a.values);
             self.clamped.fetch_add(n, Ordering::Relaxed);

@@ -11,7 +11,7 @@ use super::error::IngestError;
 use super::las::Opened;
 use super::{PointReader, ReadOptions, SourceInfo};
 use crate::bigvec;
-use crate::points::{Attribute, PointColumns, RowSource};
+use crate::points::{Attribute, Bounds, ChunkExtent, PointColumns, RowSource};
 use rayon::prelude::*;
 use std::mem::MaybeUninit;
 use std::path::Path;
@@ -226,6 +226,78 @@ fn fill_field(
         }
         (Some(Field::Gps(at)), _) => fill(rec, s, dst, m, j, |r| (f64_at(r, at) - g) as f32),
         (None, _) => fill(rec, s, dst, m, j, |_| f32::NAN),
+    }
+}
+
+/// What [`RecordReader::next_extent`] finds in a window of records: each axis's
+/// smallest and largest stored integer, each field's smallest and largest raw
+/// value (NaN ignored), and how many colour values the colour scale clamps.
+struct Scan {
+    lo: [i32; 3],
+    hi: [i32; 3],
+    ranges: Vec<(f64, f64)>,
+    clamped: u64,
+}
+
+impl Scan {
+    /// The scan of the records `rec` (a whole number of them, at least one).
+    fn of(rec: &[u8], stride: usize, fields: &[(Field, bool)], colour: ColorScale) -> Scan {
+        let (mut lo, mut hi) = ([i32::MAX; 3], [i32::MIN; 3]);
+        for r in rec.chunks_exact(stride) {
+            for a in 0..3 {
+                let v = i32_at(r, 4 * a);
+                lo[a] = lo[a].min(v);
+                hi[a] = hi[a].max(v);
+            }
+        }
+        let records = || rec.chunks_exact(stride);
+        let mut clamped = 0;
+        let ranges = fields
+            .iter()
+            .map(|&(field, is_colour)| match field {
+                Field::U16(at) => {
+                    let (l, h) = records()
+                        .map(|r| u16_at(r, at))
+                        .fold((u16::MAX, 0), |(l, h), v| (l.min(v), h.max(v)));
+                    if is_colour {
+                        clamped += records()
+                            .filter(|r| colour.clamps(f32::from(u16_at(r, at))))
+                            .count() as u64;
+                    }
+                    (f64::from(l), f64::from(h))
+                }
+                Field::Bits(at, shift, mask) => {
+                    let (l, h) = records()
+                        .map(|r| (r[at] >> shift) & mask)
+                        .fold((u8::MAX, 0), |(l, h), v| (l.min(v), h.max(v)));
+                    (f64::from(l), f64::from(h))
+                }
+                Field::Gps(at) => records()
+                    .map(|r| f64_at(r, at))
+                    .fold((f64::INFINITY, f64::NEG_INFINITY), |(l, h), v| {
+                        (l.min(v), h.max(v))
+                    }),
+            })
+            .collect();
+        Scan {
+            lo,
+            hi,
+            ranges,
+            clamped,
+        }
+    }
+
+    /// Both scans' union.
+    fn union(mut self, o: Scan) -> Scan {
+        for a in 0..3 {
+            self.lo[a] = self.lo[a].min(o.lo[a]);
+            self.hi[a] = self.hi[a].max(o.hi[a]);
+        }
+        for (r, q) in self.ranges.iter_mut().zip(o.ranges) {
+            *r = (r.0.min(q.0), r.1.max(q.1));
+        }
+        self.clamped += o.clamped;
+        self
     }
 }
 
@@ -483,6 +555,38 @@ impl RecordReader {
     }
 }
 
+impl RecordReader {
+    /// The offset of attribute `name`'s values.
+    fn offset_of(&self, name: &str) -> f64 {
+        if name == "gps_time" {
+            self.gps_offset
+        } else {
+            0.0
+        }
+    }
+
+    /// Whether [`PointReader::row_source`] gives every point's rows (once the
+    /// colour scale is decided): while every record is read, and only when they
+    /// are no larger than the f64 columns the memory budget counts for each point
+    /// (`convert::budget::bytes_per_point`: the mapped records take their place
+    /// while a part's tiles are written), so larger ones (extra bytes) are copied
+    /// as usual.
+    fn gives_rows(&self) -> bool {
+        self.every == 1 && self.fields.stride <= 24 + 4 * self.info.attribute_names.len()
+    }
+
+    /// Moves past the `stretch` records from byte `first`. While a part takes its
+    /// rows from the map (`row_source`), its records are read again: their
+    /// pages stay mapped.
+    fn consumed(&mut self, first: usize, stretch: usize) {
+        self.done += stretch;
+        if std::sync::Arc::strong_count(&self.offered) == 1 {
+            let end = first + stretch * self.fields.stride;
+            super::release_consumed(&self.map, &mut self.released, end);
+        }
+    }
+}
+
 impl PointReader for RecordReader {
     fn info(&self) -> &SourceInfo {
         &self.info
@@ -499,7 +603,7 @@ impl PointReader for RecordReader {
             .saturating_mul(self.every)
             .min(self.total - self.done);
         let n = (stretch / self.every).clamp(1, stretch);
-        let names = &self.info.attribute_names;
+        let names = self.info.attribute_names.clone();
         let mut xyz: [Vec<f64>; 3] = std::array::from_fn(|_| bigvec::with_capacity(n));
         let mut attrs: Vec<Vec<f32>> = names.iter().map(|_| bigvec::with_capacity(n)).collect();
         // One Out per window, each holding that window's slice of every column.
@@ -560,12 +664,7 @@ impl PointReader for RecordReader {
         for c in attrs.iter_mut() {
             unsafe { c.set_len(n) };
         }
-        self.done += stretch;
-        // While a part takes its rows from the map (`row_source`), its records
-        // are read again: their pages stay mapped.
-        if std::sync::Arc::strong_count(&self.offered) == 1 {
-            super::release_consumed(&self.map, &mut self.released, first + stretch * f.stride);
-        }
+        self.consumed(first, stretch);
         let [x, y, z] = xyz;
         let mut cols = PointColumns {
             x,
@@ -576,15 +675,101 @@ impl PointReader for RecordReader {
                 .zip(attrs)
                 .map(|(name, values)| {
                     let mut a = Attribute::new(name.clone(), values);
-                    if name == "gps_time" {
-                        a.offset = gps_offset;
-                    }
+                    a.offset = self.offset_of(name);
                     a
                 })
                 .collect(),
         };
         self.colors.apply(&mut cols);
         Ok(Some(cols))
+    }
+
+    fn gives_extents(&mut self) -> Result<bool, IngestError> {
+        Ok(self.gives_rows())
+    }
+
+    /// The extent of the next chunk's records, scanned straight from the map: no
+    /// column is decoded, the coordinates' bounds come from each axis's smallest
+    /// and largest integer (the transform is monotonic) and each attribute's
+    /// range from its smallest and largest raw value; exactly what
+    /// [`ChunkExtent::of`] makes of the chunk `next_chunk` would have delivered.
+    fn next_extent(&mut self) -> Result<Option<ChunkExtent>, IngestError> {
+        if !self.gives_rows() {
+            return Ok(self.next_chunk()?.map(|c| ChunkExtent::of(&c)));
+        }
+        if self.done >= self.total {
+            return Ok(None);
+        }
+        let stretch = self.chunk.min(self.total - self.done);
+        let f = self.fields;
+        let first = self.start + self.done * f.stride;
+        self.ahead.want((first + 2 * self.chunk * f.stride) as u64);
+        let bytes = &self.map[first..first + stretch * f.stride];
+        let fields = f.attributes();
+        let colour = match f.rgb {
+            // As `next_chunk` decides it: from the first chunk's first points.
+            Some(c) => {
+                let n = stretch.min(super::color::DECIDE_POINTS);
+                let first: Vec<Vec<f32>> = (0..3)
+                    .map(|j| {
+                        bytes[..n * f.stride]
+                            .chunks_exact(f.stride)
+                            .map(|r| f32::from(u16_at(r, c + 2 * j)))
+                            .collect()
+                    })
+                    .collect();
+                self.colors.decide(first.iter().map(|v| &v[..]))
+            }
+            None => ColorScale::Identity,
+        };
+        let scan = bytes
+            .par_chunks(WINDOW * f.stride)
+            .map(|w| Scan::of(w, f.stride, &fields, colour))
+            .reduce_with(Scan::union)
+            .expect("a stretch holds at least one record");
+        self.colors.add_clamped(scan.clamped);
+        let mut bounds = Bounds::EMPTY;
+        let mut finite = true;
+        for a in 0..3 {
+            let (scale, offset) = f.transforms[a];
+            // `coordinate`'s arithmetic, on the smallest and largest integer.
+            let ends = [scan.lo[a], scan.hi[a]].map(|v| scale * f64::from(v) + offset);
+            finite &= ends.iter().all(|v| v.is_finite());
+            bounds.min[a] = ends[0].min(ends[1]);
+            bounds.max[a] = ends[0].max(ends[1]);
+        }
+        // Rare (a header's transform that overflows): found record by record.
+        let not_finite = (!finite)
+            .then(|| {
+                bytes.chunks_exact(f.stride).enumerate().find_map(|(i, r)| {
+                    let p = [0, 1, 2].map(|a| coordinate(r, &f.transforms, a));
+                    (!p.iter().all(|v| v.is_finite())).then_some((i, p))
+                })
+            })
+            .flatten();
+        let gps_offset = self.gps_offset;
+        let ranges = fields
+            .iter()
+            .zip(scan.ranges)
+            .map(|(&(field, is_colour), (l, h))| match field {
+                Field::Gps(_) => ((l - gps_offset) as f32, (h - gps_offset) as f32),
+                _ if is_colour => (colour.one(l as f32), colour.one(h as f32)),
+                _ => (l as f32, h as f32),
+            })
+            .collect();
+        self.consumed(first, stretch);
+        Ok(Some(ChunkExtent {
+            len: stretch,
+            bounds,
+            attributes: self
+                .info
+                .attribute_names
+                .iter()
+                .map(|name| (name.clone(), self.offset_of(name)))
+                .collect(),
+            ranges,
+            not_finite,
+        }))
     }
 
     fn bytes_done(&self) -> u64 {
@@ -613,11 +798,7 @@ impl PointReader for RecordReader {
             // The colour scale is not decided yet (no chunk read).
             (Some(_), None) => return None,
         };
-        // While a part's tiles are written its records are mapped: they take the
-        // place of the f64 columns the memory budget counts for each point
-        // (`convert::budget::bytes_per_point`), so larger records (extra bytes)
-        // are copied as usual.
-        if self.every != 1 || self.fields.stride > 24 + 4 * m {
+        if !self.gives_rows() {
             return None;
         }
         Some(std::sync::Arc::new(LasRows {
@@ -646,7 +827,7 @@ impl PointReader for RecordReader {
 mod tests {
     use super::super::las::LasReader;
     use super::super::{PointReader, ReadOptions, open};
-    use crate::points::PointColumns;
+    use crate::points::{ChunkExtent, PointColumns};
 
     /// Writes `n` points of point format `format` with varied field values.
     fn write(path: &std::path::Path, format: u8, n: usize) {
@@ -755,6 +936,63 @@ mod tests {
                 assert_eq!(a.name, b.name, "format {format}");
                 assert_eq!(a.offset, b.offset, "format {format} {}", a.name);
                 assert!(a.values == b.values, "format {format} {}", a.name);
+            }
+        }
+    }
+
+    /// The extents read straight from the map equal those of the chunks
+    /// `next_chunk` delivers, chunk by chunk, in every point format: bounds,
+    /// attribute ranges (16-bit colour scaled), offsets; and so do the counts
+    /// of clamped colour values when 8-bit colour in 16-bit fields breaks the
+    /// pattern later, or GPS times are NaN.
+    #[test]
+    fn extents_from_the_map_match_the_chunks() {
+        let dir = tempfile::tempdir().unwrap();
+        let (opts, mut files) = every_format(dir.path());
+        // 8-bit colour in the first chunk, some larger values after it; some
+        // NaN GPS times.
+        let odd = dir.path().join("odd.las");
+        let mut b = las::Builder::from((1, 2));
+        b.point_format = las::point::Format::new(3).unwrap();
+        let mut w = las::Writer::from_path(&odd, b.into_header().unwrap()).unwrap();
+        for i in 0..N {
+            let c = if i > 20_000 && i % 7 == 0 {
+                300 + i as u16 % 50
+            } else {
+                i as u16 % 200
+            };
+            w.write_point(las::Point {
+                x: i as f64,
+                y: -(i as f64),
+                z: (i % 13) as f64,
+                gps_time: Some(if i % 5 == 0 { f64::NAN } else { i as f64 }),
+                color: Some(las::Color::new(c, 255 - c.min(255), 7)),
+                ..Default::default()
+            })
+            .unwrap();
+        }
+        w.close().unwrap();
+        files.push((3, odd));
+        for (format, path) in files {
+            let mut chunks = open(&path, &opts).unwrap();
+            let mut extents = open(&path, &opts).unwrap();
+            let fast = extents.gives_extents().unwrap();
+            assert_eq!(fast, ![4, 5, 9, 10].contains(&format), "format {format}");
+            let mut k = 0;
+            while let Some(c) = chunks.next_chunk().unwrap() {
+                let e = extents
+                    .next_extent()
+                    .unwrap()
+                    .expect("as many extents as chunks");
+                assert_eq!(e, ChunkExtent::of(&c), "format {format}, chunk {k}");
+                assert_eq!(extents.bytes_done(), chunks.bytes_done());
+                k += 1;
+            }
+            assert!(extents.next_extent().unwrap().is_none());
+            assert_eq!(k, N.div_ceil(17_000), "format {format}");
+            assert_eq!(extents.clamped_colours(), chunks.clamped_colours());
+            if path.ends_with("odd.las") {
+                assert!(chunks.clamped_colours() > 0);
             }
         }
     }

@@ -34,7 +34,7 @@ use std::path::{Path, PathBuf};
 
 pub use error::IngestError;
 
-use crate::points::{PointColumns, RowSource};
+use crate::points::{ChunkExtent, PointColumns, RowSource};
 
 /// What a reader knows about its source before reading points.
 #[derive(Debug, Clone, PartialEq)]
@@ -115,6 +115,19 @@ pub trait PointReader: Send {
     /// cannot (only uncompressed LAS can).
     fn row_source(&self) -> Option<std::sync::Arc<dyn RowSource>> {
         None
+    }
+    /// Whether [`PointReader::row_source`] will give the positions and rows of
+    /// every point (once the first chunk or extent is read) and
+    /// [`PointReader::next_extent`] reads the input faster than `next_chunk`: a
+    /// caller that takes the points from the source then needs no columns.
+    fn gives_extents(&mut self) -> Result<bool, IngestError> {
+        Ok(false)
+    }
+    /// The next chunk's [`ChunkExtent`] instead of its columns (the same points
+    /// `next_chunk` would have delivered, and the reader moves past them the
+    /// same way), `None` at the end.
+    fn next_extent(&mut self) -> Result<Option<ChunkExtent>, IngestError> {
+        Ok(self.next_chunk()?.map(|c| ChunkExtent::of(&c)))
     }
 }
 

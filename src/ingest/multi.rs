@@ -18,7 +18,7 @@ use std::collections::HashSet;
 use std::path::{Path, PathBuf};
 
 use super::{IngestError, InputKind, PointReader, ReadOptions, SourceInfo, detect, open};
-use crate::points::PointColumns;
+use crate::points::{ChunkExtent, PointColumns};
 
 /// Whether `path` is an empty (zero-byte) file: one [`MultiReader`] leaves out.
 pub fn is_empty_file(path: &Path) -> bool {
@@ -117,6 +117,26 @@ impl MultiReader {
         }
         self.current = Some(r);
         Ok(())
+    }
+
+    /// The next item `next` takes from the files, one after the other (`None`
+    /// once every file is done).
+    fn next_of<T>(
+        &mut self,
+        mut next: impl FnMut(&mut Box<dyn PointReader>) -> Result<Option<T>, IngestError>,
+    ) -> Result<Option<T>, IngestError> {
+        while self.at < self.paths.len() {
+            if self.current.is_none() {
+                self.open_current()?;
+            }
+            if let Some(r) = self.current.as_mut()
+                && let Some(c) = next(r)?
+            {
+                return Ok(Some(c));
+            }
+            self.finish_current();
+        }
+        Ok(None)
     }
 
     /// Closes the current file, adding its counts to those before.
@@ -289,18 +309,27 @@ impl PointReader for MultiReader {
     }
 
     fn next_chunk(&mut self) -> Result<Option<PointColumns>, IngestError> {
-        while self.at < self.paths.len() {
-            if self.current.is_none() {
-                self.open_current()?;
-            }
-            if let Some(r) = self.current.as_mut()
-                && let Some(c) = r.next_chunk()?
-            {
-                return Ok(Some(c));
-            }
-            self.finish_current();
+        self.next_of(|r| r.next_chunk())
+    }
+
+    fn gives_extents(&mut self) -> Result<bool, IngestError> {
+        // One file's rows only (see `row_source`).
+        if self.paths.len() != 1 || self.at >= self.paths.len() {
+            return Ok(false);
         }
-        Ok(None)
+        if self.current.is_none() {
+            self.open_current()?;
+        }
+        self.current
+            .as_mut()
+            .map_or(Ok(false), |r| r.gives_extents())
+    }
+
+    fn next_extent(&mut self) -> Result<Option<ChunkExtent>, IngestError> {
+        if self.paths.len() != 1 {
+            return Ok(self.next_chunk()?.map(|c| ChunkExtent::of(&c)));
+        }
+        self.next_of(|r| r.next_extent())
     }
 
     fn bytes_done(&self) -> u64 {

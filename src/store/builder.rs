@@ -8,7 +8,7 @@
 //! source for each tile's rows.
 
 use super::error::{Result, StoreError};
-use crate::points::{Attribute, Bounds, PointColumns, RowSource};
+use crate::points::{Attribute, Bounds, ChunkExtent, PointColumns, RowSource};
 use rayon::prelude::*;
 use std::path::Path;
 use std::sync::Arc;
@@ -148,6 +148,43 @@ impl PartBuilder {
         c.check_lengths().map_err(|m| StoreError::new(path, m))?;
         self.push_positions(path, c)?;
         self.push_rows(&c.attributes, c.len());
+        Ok(())
+    }
+
+    /// Appends points known only by their [`ChunkExtent`], for a part whose
+    /// source gives their positions and rows ([`PartBuilder::rows_from`]): what
+    /// [`PartBuilder::push`] keeps of their chunk, with the same checks. A part
+    /// that holds its positions, or expects bounds, needs the points themselves.
+    /// On an error the builder is unchanged.
+    pub fn push_extent(&mut self, path: &Path, e: &ChunkExtent) -> Result<()> {
+        if !self.positions_from_source() || self.expect.is_some() {
+            return Err(StoreError::new(
+                path,
+                "this part holds its points or checks them against bounds: push its chunks",
+            ));
+        }
+        if e.ranges.len() != e.attributes.len() {
+            return Err(StoreError::new(
+                path,
+                format!(
+                    "a chunk's extent has {} attribute ranges for {} attributes",
+                    e.ranges.len(),
+                    e.attributes.len()
+                ),
+            ));
+        }
+        let first = self.admit(path, &e.attributes, e.len)?;
+        if let Some((i, p)) = e.not_finite {
+            return Err(bad_point(path, self.count + i, p));
+        }
+        self.count += e.len;
+        self.bounds = self.bounds.union(&e.bounds);
+        if first {
+            self.attributes = e.attributes.clone();
+        }
+        if !e.attributes.is_empty() {
+            self.widen_ranges(e.ranges.clone());
+        }
         Ok(())
     }
 
@@ -657,6 +694,71 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(e.contains("point 1 lies outside"), "{e}");
+    }
+
+    /// A source that claims positions (its rows are never asked for here).
+    struct Positions(usize);
+
+    impl RowSource for Positions {
+        fn len(&self) -> usize {
+            self.0
+        }
+        fn width(&self) -> usize {
+            2
+        }
+        fn gather(&self, _: &[u32], _: &mut Vec<f32>) {}
+        fn has_positions(&self) -> bool {
+            true
+        }
+    }
+
+    /// A part whose source gives positions and rows keeps the same count,
+    /// bounds and ranges from the chunks' extents as from the chunks, and
+    /// refuses a non-finite point by its number; a part that holds its
+    /// positions refuses extents.
+    #[test]
+    fn extents_count_as_their_chunks() {
+        let p = Path::new("part.tif");
+        let chunks = [
+            chunk(&[11.0, 12.0], &[1.0, 2.0], 5.0),
+            chunk(&[9.0], &[f32::NAN], 5.0),
+        ];
+        let source = || {
+            let mut b = PartBuilder::new([10.0, 20.0, 0.0], None, 0);
+            b.rows_from(Arc::new(Positions(3)));
+            b
+        };
+        let (mut a, mut b) = (source(), source());
+        for c in &chunks {
+            a.push(p, c).unwrap();
+            b.push_extent(p, &ChunkExtent::of(c)).unwrap();
+        }
+        assert_eq!(
+            (b.len(), b.bounds(), &b.ranges),
+            (a.len(), a.bounds(), &a.ranges)
+        );
+        assert_eq!(b.attributes, a.attributes);
+        assert!(b.pos.is_empty() && b.rows.is_empty());
+        let e = b
+            .push_extent(
+                p,
+                &ChunkExtent::of(&chunk(&[1.0, f64::INFINITY], &[1.0, 2.0], 5.0)),
+            )
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("point 4 ") && e.contains("not a finite"), "{e}");
+        let e = b
+            .push_extent(p, &ChunkExtent::of(&chunk(&[1.0], &[1.0], 6.0)))
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("offsets"), "{e}");
+        assert_eq!(b.len(), 3);
+        let mut held = PartBuilder::new([0.0; 3], None, 0);
+        assert!(held.push_extent(p, &ChunkExtent::of(&chunks[0])).is_err());
+        held.rows_from(Arc::new(Positions(3)));
+        held.hold_positions();
+        assert!(held.push_extent(p, &ChunkExtent::of(&chunks[0])).is_err());
+        assert!(held.is_empty());
     }
 
     /// `c`'s points packed around `origin`, as a spill file holds them.
