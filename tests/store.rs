@@ -188,12 +188,14 @@ fn direct_and_buffered_writes_give_the_same_file() {
     assert!(TileIo::parse("sideways").is_err());
 }
 
-/// Uncompressed parts write level 0 while the points are arranged, in the order
-/// the tiles were arranged, and point each image tile at its place; compressed
-/// parts encode level 0 afterwards, in image order. Both read back the same,
-/// level by level in image order, with tiles that the coarse levels reorder.
+/// Uncompressed parts write every level while the points are arranged (level 0
+/// in the order the tiles were arranged, a coarser tile as soon as the tiles
+/// below it are), all tile data before the first directory, and point each
+/// image tile at its place; compressed parts encode the levels afterwards, in
+/// image order. Both read back the same, level by level in image order, with
+/// tiles that the coarse levels reorder.
 #[test]
-fn level_zero_written_while_arranging_reads_as_a_compressed_part() {
+fn every_level_written_while_arranging_reads_as_a_compressed_part() {
     // 22 tiles and a partial one: levels 9..=11 of the layout move whole tiles.
     let c = random_cloud(22 * 65_536 + 1_234, 5, 0);
     let dir = tempfile::tempdir().unwrap();
@@ -221,6 +223,25 @@ fn level_zero_written_while_arranging_reads_as_a_compressed_part() {
         .collect();
     assert_eq!(z.len(), 23);
     assert!(!z.is_sorted(), "level 0's tiles are stored in image order");
+    // Every level's tiles lie before the first directory (classic TIFF: its
+    // offset at byte 4).
+    let head = std::fs::read(dir.path().join("None.tif")).unwrap();
+    let first_ifd = u64::from(u32::from_le_bytes(head[4..8].try_into().unwrap()));
+    let mut levels = 0;
+    loop {
+        let offsets = tiff.get_tag_u64_vec(tiff::tags::Tag::TileOffsets).unwrap();
+        let last = offsets.iter().max().unwrap();
+        assert!(
+            last + 256 * 1024 <= first_ifd,
+            "level {levels}: tile after the IFD"
+        );
+        levels += 1;
+        if !tiff.more_images() {
+            break;
+        }
+        tiff.next_image().unwrap();
+    }
+    assert_eq!(levels, parts[0].levels.len());
     for k in 0..parts[0].levels.len() {
         let bands: Vec<usize> = (0..parts[0].bands.len()).collect();
         let [a, b] = [0, 1].map(|p| parts[p].read_level(k, &bands).unwrap());

@@ -385,6 +385,36 @@ impl LasRows {
         }
     }
 
+    /// The records of points `idx`, one after the other, into `buf`: each copy
+    /// of a fixed size for the standard record lengths (a call to `memcpy` a
+    /// record cost as much as the copy).
+    fn copy_records(&self, idx: &[u32], buf: &mut Vec<u8>) {
+        fn fixed<const S: usize>(rows: &LasRows, idx: &[u32], buf: &mut Vec<u8>) {
+            buf.resize(idx.len() * S, 0);
+            let mut out = buf.chunks_exact_mut(S);
+            rows.each_record(idx, |_, r| {
+                if let (Some(d), Some(r)) = (out.next(), r.first_chunk::<S>()) {
+                    d.copy_from_slice(r);
+                }
+            });
+        }
+        match self.fields.stride {
+            // Point formats 0, 1, 2, 3, 6, 7, 8.
+            20 => fixed::<20>(self, idx, buf),
+            28 => fixed::<28>(self, idx, buf),
+            26 => fixed::<26>(self, idx, buf),
+            34 => fixed::<34>(self, idx, buf),
+            30 => fixed::<30>(self, idx, buf),
+            36 => fixed::<36>(self, idx, buf),
+            38 => fixed::<38>(self, idx, buf),
+            stride => {
+                buf.clear();
+                buf.reserve(idx.len() * stride);
+                self.each_record(idx, |_, r| buf.extend_from_slice(r));
+            }
+        }
+    }
+
     /// The rows of points `idx` appended to `rows`, and, given an origin, their
     /// positions to `pos`: each record read once for both. The records are copied
     /// out first (the reads that miss the cache, prefetched), then decoded a field
@@ -401,9 +431,7 @@ impl LasRows {
         let (t, m, stride) = (self.fields.transforms, self.width, self.fields.stride);
         let n = idx.len();
         RECORDS.with_borrow_mut(|buf| {
-            buf.clear();
-            buf.reserve(n * stride);
-            self.each_record(idx, |_, r| buf.extend_from_slice(r));
+            self.copy_records(idx, buf);
             if let Some((origin, p)) = pos {
                 p.extend(buf.chunks_exact(stride).map(|r| relative(r, &t, origin)));
             }

@@ -618,6 +618,20 @@ pub enum Keep {
     /// Only level 1's (the points of slots 0, 4, 8, ...; slot `s` at `s / 4`):
     /// for a caller that took level 0 from `on_tile`.
     Leads,
+    /// Only each tile's first point (tile `t`'s at `t`): for a caller that took
+    /// every level from `on_tile`.
+    Firsts,
+}
+
+impl Keep {
+    /// Slots per kept position.
+    pub fn every(self) -> usize {
+        match self {
+            Keep::All => 1,
+            Keep::Leads => 4,
+            Keep::Firsts => TILE_PIXELS,
+        }
+    }
 }
 
 /// What [`gather_representatives`] calls with each arranged tile: its number,
@@ -658,7 +672,7 @@ pub fn gather_representatives(
     keep: Keep,
 ) -> (Vec<[f32; 3]>, Vec<u32>) {
     let n = perm.len();
-    let every = if keep == Keep::Leads { 4 } else { 1 };
+    let every = keep.every();
     let kept = n.div_ceil(every);
     let mut out: Vec<[f32; 3]> = crate::bigvec::with_capacity(kept);
     let grid = Grid::new(lo, hi);
@@ -1102,26 +1116,66 @@ impl Descent<'_> {
 /// [`gather_representatives`]).
 fn tile_order(n: usize, first_of: impl Fn(usize) -> [f32; 3], levels: usize) -> Vec<u32> {
     let mut order: Vec<u32> = (0..n.div_ceil(TILE_PIXELS) as u32).collect();
-    for level in TILE_LEVELS + 1..levels {
+    order_tiles(&mut order, 0, n, first_of, TILE_LEVELS + 1..levels);
+    order
+}
+
+/// The order [`gather_representatives`] gives the tiles of one aligned group of
+/// `4^k` tiles (group `g`; the last group may hold fewer) of `n` points: the
+/// centroid rule of the `k` levels whose sub-blocks are tiles within the group,
+/// `first_of(t)` being tile `t`'s first point. Whole groups of `4^k` tiles keep
+/// this order in the tile order (the levels above only move whole groups), so
+/// the group makes the same tile of level `k` wherever it ends up; the last
+/// group stays last.
+pub fn group_tile_order(
+    n: usize,
+    k: usize,
+    g: usize,
+    first_of: impl Fn(usize) -> [f32; 3],
+) -> Vec<u32> {
+    let tiles = n.div_ceil(TILE_PIXELS);
+    let first = g << (2 * k);
+    let mut order: Vec<u32> = (first..tiles.min(first + (1 << (2 * k))))
+        .map(|t| t as u32)
+        .collect();
+    order_tiles(
+        &mut order,
+        first,
+        n,
+        first_of,
+        TILE_LEVELS + 1..TILE_LEVELS + 1 + k,
+    );
+    order
+}
+
+/// Applies the centroid rule of `levels` (all above [`TILE_LEVELS`]) to `order`,
+/// the tiles `first..` of `n` points (`first` aligned to the largest block).
+fn order_tiles(
+    order: &mut [u32],
+    first: usize,
+    n: usize,
+    first_of: impl Fn(usize) -> [f32; 3],
+    levels: std::ops::Range<usize>,
+) {
+    for level in levels {
         // Tiles per sub-block, and points per sub-block.
         let sub = 1usize << (2 * (level - 1 - TILE_LEVELS));
         let sub_points = sub * TILE_PIXELS;
         for (b, block) in order.chunks_mut(4 * sub).enumerate() {
-            let len = (n - b * 4 * sub_points).min(4 * sub_points);
+            let len = (n - (first + b * 4 * sub) * TILE_PIXELS).min(4 * sub_points);
             let count = len.div_ceil(sub_points);
             if count < 2 {
                 continue;
             }
             let full = (len / sub_points).max(1);
-            let first = |j: usize| first_of(block[j * sub] as usize);
-            let best = leading_sub_block(count, full, first);
+            let lead = |j: usize| first_of(block[j * sub] as usize);
+            let best = leading_sub_block(count, full, lead);
             if best > 0 {
                 let (head, tail) = block.split_at_mut(best * sub);
                 head[..sub].swap_with_slice(&mut tail[..sub]);
             }
         }
     }
-    order
 }
 
 /// One level of the centroid rule over a run of whole blocks (a tile).
@@ -1505,7 +1559,7 @@ mod tests {
             Keep::All,
         );
         // Keeping level 1's positions only: the same arrangement, every fourth.
-        let mut perm4 = sorted;
+        let mut perm4 = sorted.clone();
         let (leads, order4) = gather_representatives(
             Positions::Held(&pos),
             &mut perm4,
@@ -1518,6 +1572,33 @@ mod tests {
         assert_eq!((&perm4, &order4), (&perm, &order));
         let every_fourth: Vec<[f32; 3]> = out.iter().step_by(4).copied().collect();
         assert!(leads == every_fourth && leads.len() == n.div_ceil(4));
+        // Each tile's first point only: the same order.
+        let mut perm1 = sorted;
+        let (firsts, order1) = gather_representatives(
+            Positions::Held(&pos),
+            &mut perm1,
+            levels,
+            lo,
+            hi,
+            &|_, _, _, _| {},
+            Keep::Firsts,
+        );
+        let first_of_each: Vec<[f32; 3]> = out.iter().step_by(TILE_PIXELS).copied().collect();
+        assert!(firsts == first_of_each && order1 == order);
+        // Every aligned group of 4^k tiles keeps its own order within the tile
+        // order, as a whole (the last, partial group last).
+        let tiles = order.len();
+        for k in 1..=levels - 1 - TILE_LEVELS {
+            let size = 1usize << (2 * k);
+            for (at, block) in order.chunks(size).enumerate() {
+                let g = block[0] as usize / size;
+                let own = group_tile_order(n, k, g, |t| out[t * TILE_PIXELS]);
+                assert_eq!(block, &own[..], "level {k}, block {at}");
+                if (g + 1) * size >= tiles {
+                    assert_eq!(at, tiles.div_ceil(size) - 1, "the last group moved");
+                }
+            }
+        }
         let (mut want, mut want_perm) = (out.clone(), perm.clone());
         for level in TILE_LEVELS + 1..levels {
             let block = 1usize << (2 * level);

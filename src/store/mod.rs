@@ -2,6 +2,7 @@
 //! its reader. Everything above the input readers goes through this module.
 
 pub mod builder;
+pub mod coarse;
 pub mod codec;
 pub mod error;
 pub mod layout;

@@ -3,6 +3,7 @@
 //! with internal overviews, atomically (temporary name, then rename).
 
 use super::builder::PartBuilder;
+use super::coarse::{self, Coarse};
 use super::codec::{self, Compression};
 use super::error::{Result, StoreError};
 use super::layout::{self, Layout};
@@ -18,10 +19,9 @@ use crate::points::{Bounds, PointColumns, RowSource};
 use rayon::prelude::*;
 use std::fs::File;
 use std::io::{Seek, Write};
-use std::mem::MaybeUninit;
 use std::path::{Path, PathBuf};
-use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
-use std::sync::{Arc, Mutex};
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
 use tiff::encoder::{TiffEncoder, TiffKind, TiffKindBig, TiffKindStandard};
 use tiff::tags::Tag;
 
@@ -168,8 +168,7 @@ struct Arranged {
     geometry: Geometry,
     layout: Layout,
     /// Positions, whole level-0 tiles in stored order (see `tile_order`); when
-    /// level 0 was written while arranging, only the level-1 points' (slot `s`
-    /// at `s / 4`: [`Arranged::pos_every`]).
+    /// every level was written while arranging, only each tile's first.
     pos: Vec<[f32; 3]>,
     /// Source index of each slot of `pos` (empty for the paper layout, whose
     /// order is the input's).
@@ -181,16 +180,13 @@ struct Arranged {
     /// Bounds of the stored coordinates of each tile of `pos` (as stored, before
     /// `tile_order`), found while arranging (empty for the paper layout).
     tile_bounds: Vec<Option<[[f32; 3]; 2]>>,
-    /// Whether level 0's tiles were written while the points were arranged
-    /// (tile `tile_order[t]`'s bands from [`LEVEL0_AT`] on, band-interleaved as
-    /// `encode` lays them out).
-    level0_written: bool,
+    /// Whether every level's tiles were written while the points were arranged
+    /// (level 0: tile `tile_order[t]`'s bands from [`LEVEL0_AT`] on; level `k`:
+    /// group `tile_order[t · 4^k] / 4^k`'s in the level's region, see
+    /// [`coarse`]), band-interleaved as `encode` lays them out.
+    levels_written: bool,
     /// Bands 3 and up, interleaved, in input order.
     rows: Rows,
-    /// The rows of the level-1 points of `pos` (slots 0, 4, 8, ...: slot `s`'s
-    /// row is row `s / 4`), kept while level 0 was written (else empty): levels
-    /// 1 and up read them.
-    level1_rows: Vec<f32>,
     m: usize,
     /// Each attribute's smallest and largest value.
     ranges: Vec<(f32, f32)>,
@@ -206,12 +202,6 @@ impl Arranged {
     #[inline]
     fn stored_tile(&self, t: usize) -> usize {
         self.tile_order.get(t).map_or(t, |&s| s as usize)
-    }
-
-    /// Slots per kept position: 4 when level 0 was written while arranging
-    /// (`layout::Keep::Leads`), else 1.
-    fn pos_every(&self) -> usize {
-        if self.level0_written { 4 } else { 1 }
     }
 
     /// The index in `pos` and `perm` of image slot `s` (level 0, Z-order).
@@ -361,7 +351,6 @@ fn arrange(
     // `tile_order` gives): positions and their source indices.
     let m = attributes.len();
     let mut tile_bounds = Vec::new();
-    let mut level1_rows = Vec::new();
     let (pos, perm, tile_order) = match layout {
         Layout::Hilbert => {
             let lo = [0, 1, 2].map(|a| (bounds.min[a] - origin[a]) as f32);
@@ -375,22 +364,9 @@ fn arrange(
             let found: Vec<std::sync::OnceLock<[[f32; 3]; 2]>> = (0..n.div_ceil(TILE_PIXELS))
                 .map(|_| Default::default())
                 .collect();
-            // Each tile's level-1 attribute rows (slots 0, 4, 8, ...), kept from
-            // its level-0 rows for the coarser levels (which then gather nothing):
-            // one buffer (huge pages: a fresh 4 KiB page costs more here), a
-            // share of it a tile, taken once.
-            let share = TILE_PIXELS / 4 * m;
-            let mut level1: Vec<f32> = if level0.is_some() {
-                bigvec::with_capacity(found.len() * share)
-            } else {
-                Vec::new()
-            };
-            let shares: Vec<Mutex<Option<&mut [MaybeUninit<f32>]>>> = level1
-                .spare_capacity_mut()
-                .chunks_mut(share.max(1))
-                .map(|c| Mutex::new(Some(c)))
-                .collect();
-            let kept = AtomicUsize::new(0);
+            // Levels 1 and up from the tiles' level-1 points, each coarse tile
+            // written as soon as the tiles below it are arranged.
+            let coarse = level0.map(|_| Coarse::new(n, m, LEVEL0_AT, lut.clone()));
             let on_tile = |t: usize, o: &[[f32; 3]], i: &[u32], tile: Option<layout::TileRows>| {
                 let mut b = [[f32::INFINITY; 3], [f32::NEG_INFINITY; 3]];
                 for p in o {
@@ -400,7 +376,7 @@ fn arrange(
                     }
                 }
                 let _ = found[t].set(b);
-                let Some(sink) = level0.filter(|s| !s.stopped()) else {
+                let (Some(sink), Some(coarse)) = (level0.filter(|s| !s.stopped()), &coarse) else {
                     return;
                 };
                 let at = |b: usize| LEVEL0_AT + (t * nb + b) as u64 * TILE_BYTES;
@@ -411,32 +387,19 @@ fn arrange(
                     Some(tr) => gather_held(tr.rows, tr.local, m, &mut slot_rows),
                     None => rows.gather(i, m, &mut slot_rows),
                 }
-                let mine = shares.get(t).and_then(|s| s.lock().ok()?.take());
-                if let Some(d) = mine {
-                    let mut d = d.chunks_exact_mut(m);
-                    for (r, d) in slot_rows.chunks(4 * m).zip(&mut d) {
-                        for (d, &v) in d.iter_mut().zip(r) {
-                            d.write(v);
-                        }
-                    }
-                    // Past the last tile's points: NaN, as its empty pixels.
-                    d.flatten().for_each(|v| {
-                        v.write(f32::NAN);
-                    });
-                    kept.fetch_add(1, Ordering::Relaxed);
-                }
                 let batch = (0..groups(m))
                     .flat_map(|group| hilbert_bands(&lut, o.len(), group, |k| o[k], &slot_rows, m))
                     .map(|(b, buf)| (at(b), buf))
                     .collect();
                 // A refusal (cancelled, a failed write) is kept by the sink.
                 let _ = sink.send(batch);
+                coarse.tile_done(t, o, &slot_rows, sink);
             };
             let levels = layout::representative_levels(n);
-            // Level 0 written from `on_tile`: the coarser levels want level 1's
-            // positions only.
+            // Every level written from `on_tile`: the tile order wants each
+            // tile's first point only.
             let keep = if level0.is_some() {
-                layout::Keep::Leads
+                layout::Keep::Firsts
             } else {
                 layout::Keep::All
             };
@@ -444,17 +407,10 @@ fn arrange(
                 positions, &mut perm, levels, lo, hi, &on_tile, keep,
             );
             drop(pos);
-            let found_tiles = found.len();
+            drop(coarse);
             tile_bounds = found.into_iter().map(|b| b.into_inner()).collect();
-            // All tiles' or none (a write stopped early keeps no rows).
-            drop(shares);
-            if m > 0 && kept.into_inner() == found_tiles {
-                // SAFETY: every tile wrote its whole share (rows, then NaN).
-                unsafe { level1.set_len(found_tiles * share) };
-                level1_rows = level1;
-            }
             ph.mark(if level0.is_some() {
-                "gather+representatives+level 0"
+                "gather+representatives+levels"
             } else {
                 "gather+representatives"
             });
@@ -472,9 +428,8 @@ fn arrange(
         perm,
         tile_order,
         tile_bounds,
-        level0_written: level0.is_some(),
+        levels_written: level0.is_some(),
         rows,
-        level1_rows,
         m,
         ranges,
         names,
@@ -754,7 +709,7 @@ fn write(
         });
         let a = a?;
         written.map_err(|e| write_failed(&e))?;
-        ph.mark("level 0 written");
+        ph.mark("levels written");
         a
     } else {
         arrange(path, part, opts.layout, &mut ph, None)?
@@ -869,7 +824,7 @@ fn scatter_z_tile(lut: &[u32], count: usize, value: impl Fn(usize) -> f32) -> Ti
 /// The parallel jobs of a level's tile `t` with `m` attributes: one per
 /// coordinate band, and one for all attribute bands together (their values are
 /// gathered a point at a time).
-fn groups(m: usize) -> usize {
+pub(super) fn groups(m: usize) -> usize {
     3 + usize::from(m > 0)
 }
 
@@ -919,19 +874,10 @@ fn encode_job(
     let mut rows = Vec::new();
     if group >= 3 {
         rows.reserve(count * m);
-        if level > 0 && !a.level1_rows.is_empty() {
-            // Every slot of a coarser level is a level-1 slot (a multiple of 4).
-            for i in 0..count {
-                let r = at(i) / 4 * m;
-                rows.extend_from_slice(&a.level1_rows[r..r + m]);
-            }
-        } else {
-            let idx: Vec<u32> = (0..count).map(|i| perm[at(i)]).collect();
-            a.rows.gather(&idx, m, &mut rows);
-        }
+        let idx: Vec<u32> = (0..count).map(|i| perm[at(i)]).collect();
+        a.rows.gather(&idx, m, &mut rows);
     }
-    let every = a.pos_every();
-    hilbert_bands(lut, count, group, |i| pos[at(i) / every], &rows, m)
+    hilbert_bands(lut, count, group, |i| pos[at(i)], &rows, m)
         .into_iter()
         .map(|(b, buf)| (b, done(buf)))
         .collect()
@@ -941,7 +887,7 @@ fn encode_job(
 /// whose `count` points, in Z-order within the tile, are `pos(0..count)`, and
 /// whose attribute rows are `gathered` (`m` values a point, in the same order;
 /// only the attribute job reads them): (band, tile) pairs.
-fn hilbert_bands(
+pub(super) fn hilbert_bands(
     lut: &[u32],
     count: usize,
     group: usize,
@@ -986,6 +932,10 @@ fn encode<K: TiffKind>(
     let software = format!("{} {}", spec::SOFTWARE_PREFIX, env!("CARGO_PKG_VERSION"));
     let hole = w.hole();
     let mut enc = TiffEncoder::<&mut Out, K>::new_generic(w)?;
+    // Where the uncompressed tile data begins (all levels, reserved with level 0),
+    // and the tiles each level fills.
+    let mut tiles_at = 0;
+    let level_tiles = |k: usize| index[k].tiles.len() as u64;
     for level in 0..g.levels() {
         let across = g.tiles_across(level) as usize;
         let per_band = across * across;
@@ -996,33 +946,40 @@ fn encode<K: TiffKind>(
         let filled = tiles.len();
         let mut dir = enc.image_directory()?;
         // Align tile data to 8 bytes so readers can view planes in place, and
-        // uncompressed tiles to whole disk blocks for direct writes.
+        // uncompressed tiles to whole disk blocks for direct writes (all levels'
+        // tiles come first, reserved with level 0's).
         let align = match opts.compression {
             Compression::None => out::DIRECT_ALIGN as u64,
             _ => 8,
         };
-        let at = dir.write_data(&[0u8; 0][..])?;
-        if at % align != 0 {
-            let pad = vec![0u8; (align - at % align) as usize];
-            dir.write_data(&pad[..])?;
+        if level == 0 || opts.compression != Compression::None {
+            let at = dir.write_data(&[0u8; 0][..])?;
+            if at % align != 0 {
+                let pad = vec![0u8; (align - at % align) as usize];
+                dir.write_data(&pad[..])?;
+            }
         }
         if opts.compression == Compression::None {
-            // Every tile is TILE_PIXELS samples: the level's tile data is reserved
-            // as one hole (tile t's band b at slot t * nb + b) and the tiles are
-            // encoded and written into it by the rayon pool. Level 0 may have
-            // been written already, while the points were arranged: its slot of
-            // image tile t is then tile_order[t].
-            let jobs = filled * nb;
-            let len = jobs as u64 * TILE_BYTES;
-            hole.set(len);
-            let start = out::reserve(len, |piece| dir.write_data(piece))?;
-            debug_assert_eq!(hole.get(), 0);
-            let written = a.level0_written && level == 0;
-            if written && start != LEVEL0_AT {
-                return Err(tiff::TiffError::IoError(std::io::Error::other(format!(
-                    "level 0 was written from byte {LEVEL0_AT} but belongs at byte {start}"
-                ))));
+            // Every tile is TILE_PIXELS samples: every level's tile data is
+            // reserved as one hole, level after level (`coarse::region_start`:
+            // tile t's band b at slot t * nb + b of its level's region), and the
+            // tiles are encoded and written into it by the rayon pool. They may
+            // have been written already, while the points were arranged: the
+            // slot of level k's image tile t is then tile_order[t * 4^k] / 4^k.
+            if level == 0 {
+                let len = coarse::region_start(level_tiles, nb, 0, g.levels());
+                hole.set(len);
+                tiles_at = out::reserve(len, |piece| dir.write_data(piece))?;
+                debug_assert_eq!(hole.get(), 0);
+                if a.levels_written && tiles_at != LEVEL0_AT {
+                    return Err(tiff::TiffError::IoError(std::io::Error::other(format!(
+                        "the tiles were written from byte {LEVEL0_AT} but belong at byte \
+                         {tiles_at}"
+                    ))));
+                }
             }
+            let start = coarse::region_start(level_tiles, nb, tiles_at, level);
+            let written = a.levels_written;
             let per_tile = groups(a.m);
             let cancelled = || opts.cancelled();
             let jobs = if written { 0 } else { filled * per_tile };
@@ -1044,7 +1001,11 @@ fn encode<K: TiffKind>(
                 }),
             )?;
             for (t, tile) in tiles.iter().enumerate() {
-                let slot = if written { a.stored_tile(t) } else { t };
+                let slot = if written {
+                    a.stored_tile(t << (2 * level)) >> (2 * level)
+                } else {
+                    t
+                };
                 for b in 0..nb {
                     let r = tile.index as usize;
                     offsets[b * per_band + r] = start + (slot * nb + b) as u64 * TILE_BYTES;
