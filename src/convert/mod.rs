@@ -436,6 +436,13 @@ fn convert_with(
         write_chunks(vec![pts], &bounds, parts)
     };
 
+    // The builder of a part collected while reading, around the centre of the
+    // bounds the input declares (LAS) or else of its first window (`here`).
+    let new_part = |here: Bounds| {
+        let centre = info.declared_bounds.unwrap_or(here).center();
+        let expect = info.declared_points.unwrap_or(0).min(per_part);
+        store::PartBuilder::new(centre, None, expect as usize)
+    };
     let mut total = 0u64;
     // Whether attribute values were noted to lose precision on a common offset.
     let rebased = Cell::new(false);
@@ -501,9 +508,7 @@ fn convert_with(
                 let b = match built.as_mut() {
                     Some(b) => b,
                     None => {
-                        let centre = info.declared_bounds.unwrap_or(e.bounds).center();
-                        let expect = info.declared_points.unwrap_or(0).min(per_part);
-                        let mut b = store::PartBuilder::new(centre, None, expect as usize);
+                        let mut b = new_part(e.bounds);
                         let Some(rows) = reader.row_source() else {
                             return Err(NeedColumns.into());
                         };
@@ -567,9 +572,7 @@ fn convert_with(
                     held_points += chunk.len() as u64;
                     if early {
                         let b = built.get_or_insert_with(|| {
-                            let centre = info.declared_bounds.unwrap_or(here).center();
-                            let expect = info.declared_points.unwrap_or(0).min(per_part);
-                            let mut b = store::PartBuilder::new(centre, None, expect as usize);
+                            let mut b = new_part(here);
                             // Attribute rows the reader can give again (LAS) are
                             // not copied: the tiles take them from the input.
                             if let Some(rows) = reader.row_source() {

@@ -495,8 +495,15 @@ fn prefetch_ahead(recs: &[u8], idx: &[u32], k: usize, stride: usize) {
 /// header's transform `t` (what [`decode_window`] delivers).
 #[inline(always)]
 fn coordinate(r: &[u8], t: &[(f64, f64); 3], axis: usize) -> f64 {
+    transformed(t, axis, i32_at(r, 4 * axis))
+}
+
+/// The stored integer `v` of axis `axis` scaled and offset by the header's
+/// transform `t` (monotonic in `v`).
+#[inline(always)]
+fn transformed(t: &[(f64, f64); 3], axis: usize, v: i32) -> f64 {
     let (scale, offset) = t[axis];
-    scale * f64::from(i32_at(r, 4 * axis)) + offset
+    scale * f64::from(v) + offset
 }
 
 /// A record's coordinates less `origin`, as `f32`: the `f64` values
@@ -631,7 +638,7 @@ impl PointReader for RecordReader {
             .saturating_mul(self.every)
             .min(self.total - self.done);
         let n = (stretch / self.every).clamp(1, stretch);
-        let names = self.info.attribute_names.clone();
+        let names = &self.info.attribute_names;
         let mut xyz: [Vec<f64>; 3] = std::array::from_fn(|_| bigvec::with_capacity(n));
         let mut attrs: Vec<Vec<f32>> = names.iter().map(|_| bigvec::with_capacity(n)).collect();
         // One Out per window, each holding that window's slice of every column.
@@ -692,7 +699,6 @@ impl PointReader for RecordReader {
         for c in attrs.iter_mut() {
             unsafe { c.set_len(n) };
         }
-        self.consumed(first, stretch);
         let [x, y, z] = xyz;
         let mut cols = PointColumns {
             x,
@@ -708,6 +714,7 @@ impl PointReader for RecordReader {
                 })
                 .collect(),
         };
+        self.consumed(first, stretch);
         self.colors.apply(&mut cols);
         Ok(Some(cols))
     }
@@ -759,9 +766,7 @@ impl PointReader for RecordReader {
         let mut bounds = Bounds::EMPTY;
         let mut finite = true;
         for a in 0..3 {
-            let (scale, offset) = f.transforms[a];
-            // `coordinate`'s arithmetic, on the smallest and largest integer.
-            let ends = [scan.lo[a], scan.hi[a]].map(|v| scale * f64::from(v) + offset);
+            let ends = [scan.lo[a], scan.hi[a]].map(|v| transformed(&f.transforms, a, v));
             finite &= ends.iter().all(|v| v.is_finite());
             bounds.min[a] = ends[0].min(ends[1]);
             bounds.max[a] = ends[0].max(ends[1]);

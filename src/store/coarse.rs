@@ -5,7 +5,8 @@
 //! is made from them and sent to the writer threads. The levels above a tile
 //! only move whole groups ([`layout::group_tile_order`]), so a group makes the
 //! same tile of level `k` wherever the tile order puts it: its bands go to the
-//! group's own slot of the level's region of the file ([`region_start`]), and the
+//! group's own slot of the level's region of the file
+//! ([`super::writer::region_start`]), and the
 //! level's `TileOffsets` follow the tile order. So the disk writes the coarse
 //! levels while the CPU arranges, instead of after it.
 
@@ -16,17 +17,6 @@ use super::spec::{TILE_BYTES, TILE_PIXELS};
 use super::zorder::Geometry;
 use crate::bigvec::{self, Shared};
 use std::sync::atomic::{AtomicUsize, Ordering};
-
-/// Where level `level`'s tile data begins in an uncompressed file whose tiles
-/// start at `first`: every level's tiles come first, level after level, the
-/// `filled(k)` tiles holding points of level `k` in slots of `bands` band tiles
-/// (tile `s`'s band `b` at slot `s · bands + b`).
-pub fn region_start(filled: impl Fn(usize) -> u64, bands: usize, first: u64, level: usize) -> u64 {
-    first
-        + (0..level)
-            .map(|k| filled(k) * bands as u64 * TILE_BYTES)
-            .sum::<u64>()
-}
 
 /// The kept level-1 points of a part being arranged, and which groups of tiles
 /// are complete.
@@ -140,7 +130,7 @@ impl Coarse {
             rows.extend_from_slice(&p[3..]);
         }
         let nb = 3 + m;
-        let start = region_start(|l| self.g.filled_tiles(l), nb, self.first, k);
+        let start = super::writer::region_start(|l| self.g.filled_tiles(l), nb, self.first, k);
         (0..super::writer::groups(m))
             .flat_map(|group| {
                 super::writer::hilbert_bands(&self.lut, count, group, |i| pos[i], &rows, m)

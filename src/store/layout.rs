@@ -615,9 +615,6 @@ fn lsd_sort(s: &mut [u64], scratch: &mut Vec<u64>, base: u64, low: u32, bits: u3
 pub enum Keep {
     /// Every point's, in image order.
     All,
-    /// Only level 1's (the points of slots 0, 4, 8, ...; slot `s` at `s / 4`):
-    /// for a caller that took level 0 from `on_tile`.
-    Leads,
     /// Only each tile's first point (tile `t`'s at `t`): for a caller that took
     /// every level from `on_tile`.
     Firsts,
@@ -628,7 +625,6 @@ impl Keep {
     pub fn every(self) -> usize {
         match self {
             Keep::All => 1,
-            Keep::Leads => 4,
             Keep::Firsts => TILE_PIXELS,
         }
     }
@@ -1558,21 +1554,7 @@ mod tests {
             &on_tile,
             Keep::All,
         );
-        // Keeping level 1's positions only: the same arrangement, every fourth.
-        let mut perm4 = sorted.clone();
-        let (leads, order4) = gather_representatives(
-            Positions::Held(&pos),
-            &mut perm4,
-            levels,
-            lo,
-            hi,
-            &|_, _, _, _| {},
-            Keep::Leads,
-        );
-        assert_eq!((&perm4, &order4), (&perm, &order));
-        let every_fourth: Vec<[f32; 3]> = out.iter().step_by(4).copied().collect();
-        assert!(leads == every_fourth && leads.len() == n.div_ceil(4));
-        // Each tile's first point only: the same order.
+        // Each tile's first point only: the same arrangement and order.
         let mut perm1 = sorted;
         let (firsts, order1) = gather_representatives(
             Positions::Held(&pos),
@@ -1584,7 +1566,8 @@ mod tests {
             Keep::Firsts,
         );
         let first_of_each: Vec<[f32; 3]> = out.iter().step_by(TILE_PIXELS).copied().collect();
-        assert!(firsts == first_of_each && order1 == order);
+        assert_eq!((&perm1, &order1), (&perm, &order));
+        assert!(firsts == first_of_each);
         // Every aligned group of 4^k tiles keeps its own order within the tile
         // order, as a whole (the last, partial group last).
         let tiles = order.len();

@@ -3,7 +3,7 @@
 //! with internal overviews, atomically (temporary name, then rename).
 
 use super::builder::PartBuilder;
-use super::coarse::{self, Coarse};
+use super::coarse::Coarse;
 use super::codec::{self, Compression};
 use super::error::{Result, StoreError};
 use super::layout::{self, Layout};
@@ -214,6 +214,22 @@ impl Arranged {
 /// Where level 0's tile data begins in an uncompressed file: the TIFF header (8
 /// or 16 bytes) padded to the direct-write alignment, as `encode` writes it.
 const LEVEL0_AT: u64 = out::DIRECT_ALIGN as u64;
+
+/// Where level `level`'s tile data begins in an uncompressed file whose tiles
+/// start at `first`: every level's tiles come first, level after level, the
+/// `filled(k)` tiles holding points of level `k` in slots of `bands` band tiles
+/// (tile `s`'s band `b` at slot `s · bands + b`).
+pub(super) fn region_start(
+    filled: impl Fn(usize) -> u64,
+    bands: usize,
+    first: u64,
+    level: usize,
+) -> u64 {
+    first
+        + (0..level)
+            .map(|k| filled(k) * bands as u64 * TILE_BYTES)
+            .sum::<u64>()
+}
 
 fn band_name(raw: &str) -> String {
     let s: String = raw
@@ -1008,13 +1024,13 @@ fn encode<K: TiffKind>(
         }
         if opts.compression == Compression::None {
             // Every tile is TILE_PIXELS samples: every level's tile data is
-            // reserved as one hole, level after level (`coarse::region_start`:
+            // reserved as one hole, level after level ([`region_start`]:
             // tile t's band b at slot t * nb + b of its level's region), and the
             // tiles are encoded and written into it by the rayon pool. They may
             // have been written already, while the points were arranged: the
             // slot of level k's image tile t is then tile_order[t * 4^k] / 4^k.
             if level == 0 {
-                let len = coarse::region_start(level_tiles, nb, 0, g.levels());
+                let len = region_start(level_tiles, nb, 0, g.levels());
                 hole.set(len);
                 tiles_at = out::reserve(len, |piece| dir.write_data(piece))?;
                 debug_assert_eq!(hole.get(), 0);
@@ -1025,7 +1041,7 @@ fn encode<K: TiffKind>(
                     ))));
                 }
             }
-            let start = coarse::region_start(level_tiles, nb, tiles_at, level);
+            let start = region_start(level_tiles, nb, tiles_at, level);
             let written = a.levels_written;
             let per_tile = groups(a.m);
             let cancelled = || opts.cancelled();
