@@ -152,6 +152,43 @@ fn truncated_laz_is_an_error() {
     }
 }
 
+/// A LAZ chunk table whose chunk count is corrupt is refused before the `laz`
+/// crate reserves memory for that many chunks (`examples/fuzz_inputs.rs` found a
+/// count that made it ask for 47 GB and abort the process). The table's offset is
+/// the first 8 bytes of the point data; its count is the table's second u32.
+#[test]
+fn corrupt_laz_chunk_count_is_an_error() {
+    let dir = tempfile::tempdir().unwrap();
+    let src = dir.path().join("s.laz");
+    pcimg::synth::write_las(&src, 3000, 1).unwrap();
+    let data = std::fs::read(&src).unwrap();
+    let start = u32::from_le_bytes(data[96..100].try_into().unwrap()) as usize;
+    let table = i64::from_le_bytes(data[start..start + 8].try_into().unwrap()) as usize;
+    // The untouched file reads.
+    assert_eq!(
+        ingest::read_all(&src, &ReadOptions::default())
+            .unwrap()
+            .1
+            .len(),
+        3000
+    );
+    for count in [u32::MAX, 1 << 24, 5000] {
+        let mut d = data.clone();
+        d[table + 4..table + 8].copy_from_slice(&count.to_le_bytes());
+        let p = dir.path().join(format!("count{count}.laz"));
+        std::fs::write(&p, &d).unwrap();
+        let e = ingest::read_all(&p, &ReadOptions::default())
+            .err()
+            .unwrap_or_else(|| panic!("no error for {count} chunks"));
+        let s = e.to_string();
+        assert!(s.contains(&format!("count{count}.laz")), "{s}");
+        assert!(
+            s.contains("chunk table") && s.contains(&count.to_string()),
+            "{s}"
+        );
+    }
+}
+
 /// Damaged copies of every sample (truncated, bytes overwritten in the header and
 /// in the body) must give `Ok` or `Err`, never a panic or a hang.
 #[test]

@@ -187,6 +187,65 @@ fn tidy(msg: &str) -> String {
     msg.replace("format point format", "point format")
 }
 
+/// Bytes each LAZ chunk takes at least: its first point is stored raw, and the
+/// smallest point record (format 0) is 20 bytes.
+const MIN_LAZ_CHUNK_BYTES: u64 = 20;
+
+/// Checks the number of chunks that the LAZ chunk table declares against what the
+/// point data can hold (the `laz` crate reserves memory for all of them first, so
+/// a corrupt count would abort the process). `table` is the offset written at the
+/// start of the point data (`start`); as in `laz`, one that does not lie past it
+/// means the table's offset is in the file's last 8 bytes. A table that cannot be
+/// found is left to the decoder, which reads sequentially without one.
+fn check_chunk_table(
+    path: &Path,
+    file: &mut File,
+    start: u64,
+    table: i64,
+    points: u64,
+    file_len: u64,
+) -> Result<(), IngestError> {
+    let mut read_at = |at: u64| -> Option<[u8; 8]> {
+        let mut b = [0u8; 8];
+        file.seek(SeekFrom::Start(at)).ok()?;
+        file.read_exact(&mut b).ok()?;
+        Some(b)
+    };
+    let mut at = table;
+    if at <= start as i64 {
+        match file_len.checked_sub(8).and_then(&mut read_at) {
+            Some(b) => at = i64::from_le_bytes(b),
+            None => return Ok(()),
+        }
+    }
+    if at <= start as i64 || at as u64 >= file_len {
+        return Ok(());
+    }
+    let at = at as u64;
+    let Some(b) = read_at(at) else {
+        return Err(IngestError::binary(
+            path,
+            file_len,
+            format!("truncated LAZ file: it ends inside the chunk table at byte {at}"),
+        ));
+    };
+    let chunks = u64::from(u32::from_le_bytes([b[4], b[5], b[6], b[7]]));
+    let data = at - (start + 8);
+    let most = (data / MIN_LAZ_CHUNK_BYTES).min(points) + 1;
+    if chunks > most {
+        return Err(IngestError::binary(
+            path,
+            at + 4,
+            format!(
+                "corrupt LAZ chunk table: it lists {chunks} chunks, but {} bytes of point \
+                 data for {points} points hold at most {most}",
+                data
+            ),
+        ));
+    }
+    Ok(())
+}
+
 /// A LAS/LAZ file whose header has been read and checked.
 pub(crate) struct Opened {
     pub file: File,
@@ -310,6 +369,7 @@ pub(crate) fn open_header(path: &Path) -> Result<Opened, IngestError> {
                         ),
                     ));
                 }
+                check_chunk_table(path, &mut file, start, table, n, file_len)?;
             }
         } else {
             let rec = u64::from(format.len());
