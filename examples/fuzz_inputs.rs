@@ -2,12 +2,17 @@
 //! input files (bytes flipped, set to delimiters and digits, ranges deleted,
 //! repeated or cut off), converts each result with small chunks and a small
 //! memory budget, and reports every panic, and every failed conversion that left
-//! its output or a temporary file behind. Inputs that panic are saved to `--save`.
+//! its output or a temporary file behind; panics of the `las`/`laz` decoders that
+//! pcimg contains (and reports as errors) are counted apart. Inputs that panic
+//! are saved to `--save`.
 //!
 //! ```text
 //! cargo run --release --example fuzz_inputs -- [--iterations 2000] [--seed 1]
-//!     [--save DIR] SEED_FILE...
+//!     [--save DIR] [--only CASE] SEED_FILE...
 //! ```
+//! `--only CASE` runs one case of the same `--seed` again (its options printed and,
+//! with `--save`, its input kept): for an abort, which ends the run before the
+//! case can be saved.
 //! Seed files keep their extension, which picks the reader (`.xyz .csv .pts .ply
 //! .las .laz`...); a `.tif` seed is a dataset part, opened and read level by level. Small seeds (a few thousand points) run hundreds a second.
 use anyhow::{Context, bail};
@@ -29,6 +34,7 @@ fn main() -> anyhow::Result<()> {
     let mut iterations = 2000u64;
     let mut seed = 1u64;
     let mut save: Option<PathBuf> = None;
+    let mut only: Option<u64> = None;
     let mut seeds = Vec::new();
     let mut args = std::env::args().skip(1);
     while let Some(a) = args.next() {
@@ -36,6 +42,7 @@ fn main() -> anyhow::Result<()> {
             "--iterations" => iterations = args.next().context("--iterations N")?.parse()?,
             "--seed" => seed = args.next().context("--seed N")?.parse()?,
             "--save" => save = Some(args.next().context("--save DIR")?.into()),
+            "--only" => only = Some(args.next().context("--only CASE")?.parse()?),
             _ => seeds.push(PathBuf::from(a)),
         }
     }
@@ -102,6 +109,14 @@ fn main() -> anyhow::Result<()> {
             sample_points: 1000,
             io: TileIo::Buffered,
         };
+        if only.is_some_and(|k| k != it) {
+            std::fs::remove_dir_all(&work)?;
+            continue;
+        }
+        if only.is_some() {
+            println!("case {it}: {o:?}");
+            keep(save.as_deref(), it, ext, &data)?;
+        }
         let r = std::panic::catch_unwind(|| {
             if ext == "tif" {
                 // A dataset part: opened and every level read, as `info` and
@@ -111,20 +126,20 @@ fn main() -> anyhow::Result<()> {
                 convert::convert(&input, &o, &Quiet).map(|_| ())
             }
         });
-        if r.is_ok()
-            && let Some(msg) = PANIC.lock().unwrap().take()
-        {
-            // A panic that pcimg caught and turned into an error (a decoder
-            // thread's): not a failure, but worth knowing.
-            contained += 1;
-            if seen_contained.insert(msg.clone()) {
-                println!("case {it} (.{ext}): contained panic at {msg}");
-            }
-        }
         match r {
             Ok(Ok(_)) => ok += 1,
-            Ok(Err(_)) => {
+            Ok(Err(e)) => {
                 err += 1;
+                // A panic of a third-party decoder that pcimg caught and
+                // reported (`ingest::contain`): not a failure, but worth knowing.
+                let msg = format!("{e:#}");
+                if msg.contains("failed on corrupt data") || msg.contains("header is corrupt") {
+                    contained += 1;
+                    if seen_contained.insert(msg.clone()) {
+                        println!("case {it} (.{ext}): a decoder panicked, reported as: {msg}");
+                    }
+                    keep(save.as_deref(), it, ext, &data)?;
+                }
                 let left: Vec<String> = std::fs::read_dir(&work)?
                     .filter_map(|e| e.ok())
                     .map(|e| e.file_name().to_string_lossy().into_owned())
@@ -149,7 +164,7 @@ fn main() -> anyhow::Result<()> {
     }
     println!(
         "{iterations} cases: {ok} accepted, {err} refused, {panics} panics ({} distinct), \
-         {leftovers} left files behind; {contained} panics caught by pcimg ({} distinct)",
+         {leftovers} left files behind; {contained} decoder panics contained ({} distinct)",
         seen.len(),
         seen_contained.len()
     );

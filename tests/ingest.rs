@@ -152,12 +152,13 @@ fn truncated_laz_is_an_error() {
     }
 }
 
-/// A LAZ chunk table whose chunk count is corrupt is refused before the `laz`
-/// crate reserves memory for that many chunks (`examples/fuzz_inputs.rs` found a
+/// A LAZ chunk table whose chunk count is corrupt, or a laszip VLR whose chunk
+/// size is, is refused before the `laz` crate reserves memory for that many chunks
+/// or points (`examples/fuzz_inputs.rs` found a
 /// count that made it ask for 47 GB and abort the process). The table's offset is
 /// the first 8 bytes of the point data; its count is the table's second u32.
 #[test]
-fn corrupt_laz_chunk_count_is_an_error() {
+fn corrupt_laz_chunk_count_or_size_is_an_error() {
     let dir = tempfile::tempdir().unwrap();
     let src = dir.path().join("s.laz");
     pcimg::synth::write_las(&src, 3000, 1).unwrap();
@@ -184,6 +185,38 @@ fn corrupt_laz_chunk_count_is_an_error() {
         assert!(s.contains(&format!("count{count}.laz")), "{s}");
         assert!(
             s.contains("chunk table") && s.contains(&count.to_string()),
+            "{s}"
+        );
+    }
+    // The laszip VLR's chunk size (its data's bytes 12..16): the `laz` crate
+    // reserves a chunk's decoded points for the last chunk (a corrupt size asked
+    // for 114 GB). The data follows the user id (16 bytes), record id, length
+    // and description (32 bytes).
+    let id = data
+        .windows(14)
+        .position(|w| w == b"laszip encoded")
+        .unwrap();
+    let size_at = id + 16 + 2 + 2 + 32 + 12;
+    assert_eq!(
+        u32::from_le_bytes(data[size_at..size_at + 4].try_into().unwrap()),
+        50_000
+    );
+    for size in [1u32 << 23, 0xf300_c350] {
+        let mut d = data.clone();
+        d[size_at..size_at + 4].copy_from_slice(&size.to_le_bytes());
+        let p = dir.path().join(format!("size{size}.laz"));
+        std::fs::write(&p, &d).unwrap();
+        let opts = ReadOptions {
+            chunk_points: 7,
+            ..Default::default()
+        };
+        let e = ingest::read_all(&p, &opts)
+            .err()
+            .unwrap_or_else(|| panic!("no error for chunks of {size} points"));
+        let s = e.to_string();
+        assert!(s.contains(&format!("size{size}.laz")), "{s}");
+        assert!(
+            s.contains("laszip VLR") && s.contains(&size.to_string()),
             "{s}"
         );
     }

@@ -36,6 +36,7 @@ use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::mpsc::{Receiver, SyncSender, sync_channel};
 
 use super::color::ColorNormalizer;
+use super::contain::contain;
 use super::error::IngestError;
 use super::{PointReader, ReadOptions, SourceInfo};
 use crate::points::{Attribute, PointColumns};
@@ -191,6 +192,34 @@ fn tidy(msg: &str) -> String {
 /// smallest point record (format 0) is 20 bytes.
 const MIN_LAZ_CHUNK_BYTES: u64 = 20;
 
+/// Largest LAZ chunk, in points, accepted beyond the file's own point count
+/// (LASzip writes 50,000).
+const MAX_SPARE_CHUNK_POINTS: u64 = 1 << 22;
+
+/// Checks the laszip VLR's chunk size: the `laz` crate reserves a whole chunk's
+/// decoded points for the last chunk, so a corrupt size would abort the process.
+/// A size larger than both the file's points and [`MAX_SPARE_CHUNK_POINTS`] is
+/// refused; a VLR that cannot be read is left to the decoder, which reports it.
+fn check_chunk_size(path: &Path, header: &las::Header, points: u64) -> Result<(), IngestError> {
+    let Some(Ok(vlr)) = contain(|| header.laz_vlr()) else {
+        return Ok(());
+    };
+    if vlr.uses_variable_size_chunks() {
+        return Ok(());
+    }
+    let size = u64::from(vlr.chunk_size());
+    if size > points.max(MAX_SPARE_CHUNK_POINTS) {
+        return Err(IngestError::format(
+            path,
+            format!(
+                "corrupt laszip VLR: it gives chunks of {size} points, for a file of {points} \
+                 points"
+            ),
+        ));
+    }
+    Ok(())
+}
+
 /// Checks the number of chunks that the LAZ chunk table declares against what the
 /// point data can hold (the `laz` crate reserves memory for all of them first, so
 /// a corrupt count would abort the process). `table` is the offset written at the
@@ -309,11 +338,9 @@ pub(crate) fn open_header(path: &Path) -> Result<Opened, IngestError> {
         file.seek(SeekFrom::Start(0))
             .map_err(|e| IngestError::io(path, "cannot seek", e))?;
         // The header parser runs on corrupt input: contain a panic in it as well.
-        let header = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
-            las::Header::new(&mut BufReader::new(&mut file))
-        }))
-        .map_err(|_| IngestError::binary(path, 0, "the LAS header is corrupt"))?
-        .map_err(|e| las_err(path, 0, "cannot read the LAS header and VLRs", e))?;
+        let header = contain(|| las::Header::new(&mut BufReader::new(&mut file)))
+            .ok_or_else(|| IngestError::binary(path, 0, "the LAS header is corrupt"))?
+            .map_err(|e| las_err(path, 0, "cannot read the LAS header and VLRs", e))?;
         // Scale factors and offsets (header bytes 131.. and 155..): a zero or
         // non-finite scale would turn every coordinate into one value or NaN.
         let scales = [raw.x_scale_factor, raw.y_scale_factor, raw.z_scale_factor];
@@ -370,6 +397,7 @@ pub(crate) fn open_header(path: &Path) -> Result<Opened, IngestError> {
                     ));
                 }
                 check_chunk_table(path, &mut file, start, table, n, file_len)?;
+                check_chunk_size(path, &header, n)?;
             }
         } else {
             let rec = u64::from(format.len());
@@ -449,10 +477,8 @@ impl LasReader {
                 .name("pcimg-las".into())
                 .spawn(move || {
                     let tx2 = tx.clone();
-                    let r = std::panic::catch_unwind(std::panic::AssertUnwindSafe(move || {
-                        decode(p, tracked, chunk, n, tx2, every2, colors)
-                    }));
-                    if r.is_err() {
+                    let r = contain(move || decode(p, tracked, chunk, n, tx2, every2, colors));
+                    if r.is_none() {
                         let _ = tx.send(Msg::Err(IngestError::binary(
                             &PathBuf::new(),
                             pos2.load(Ordering::Relaxed),

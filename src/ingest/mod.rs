@@ -21,6 +21,7 @@
 
 pub mod ahead;
 pub mod color;
+pub(crate) mod contain;
 pub mod error;
 pub mod las;
 pub mod las_records;
