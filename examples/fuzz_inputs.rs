@@ -100,7 +100,14 @@ fn main() -> anyhow::Result<()> {
                 Layout::Hilbert
             },
             read: ReadOptions {
-                columns: None,
+                // Text: now and then the columns given rather than detected.
+                columns: match below(&mut rng, 8) {
+                    0 => Some("x y z intensity".into()),
+                    1 => Some("x y z _ r g b".into()),
+                    2 => Some("_ x y z".into()),
+                    _ => None,
+                }
+                .filter(|_| !matches!(ext.as_str(), "ply" | "las" | "laz" | "tif")),
                 skip_invalid: below(&mut rng, 2) == 0,
                 chunk_points: [1usize, 7, 500, 4096][below(&mut rng, 4) as usize],
             },
