@@ -153,7 +153,7 @@ fn truncated_laz_is_an_error() {
 }
 
 /// A LAZ chunk table whose chunk count is corrupt, or a laszip VLR whose chunk
-/// size is, is refused before the `laz` crate reserves memory for that many chunks
+/// size or point size is, is refused before the `laz` crate reserves memory for that many chunks
 /// or points (`examples/fuzz_inputs.rs` found a
 /// count that made it ask for 47 GB and abort the process). The table's offset is
 /// the first 8 bytes of the point data; its count is the table's second u32.
@@ -220,6 +220,25 @@ fn corrupt_laz_chunk_count_or_size_is_an_error() {
             "{s}"
         );
     }
+    // The items' sizes (after their count, at the data's byte 32: type, size and
+    // version, u16 each) must add up to the header's record length, as LASzip
+    // requires; the `laz` crate decoded that many bytes a point, and panicked
+    // (or misread) when they differ.
+    let first_size = id + 16 + 2 + 2 + 32 + 34 + 2;
+    assert_eq!(
+        u16::from_le_bytes(data[first_size..first_size + 2].try_into().unwrap()),
+        20
+    );
+    let mut d = data.clone();
+    d[first_size..first_size + 2].copy_from_slice(&0u16.to_le_bytes());
+    let p = dir.path().join("items.laz");
+    std::fs::write(&p, &d).unwrap();
+    let e = ingest::read_all(&p, &ReadOptions::default()).err().unwrap();
+    let s = e.to_string();
+    assert!(
+        s.contains("items.laz") && s.contains("laszip VLR") && s.contains("bytes a point"),
+        "{s}"
+    );
 }
 
 /// Damaged copies of every sample (truncated, bytes overwritten in the header and

@@ -196,14 +196,30 @@ const MIN_LAZ_CHUNK_BYTES: u64 = 20;
 /// (LASzip writes 50,000).
 const MAX_SPARE_CHUNK_POINTS: u64 = 1 << 22;
 
-/// Checks the laszip VLR's chunk size: the `laz` crate reserves a whole chunk's
-/// decoded points for the last chunk, so a corrupt size would abort the process.
-/// A size larger than both the file's points and [`MAX_SPARE_CHUNK_POINTS`] is
-/// refused; a VLR that cannot be read is left to the decoder, which reports it.
-fn check_chunk_size(path: &Path, header: &las::Header, points: u64) -> Result<(), IngestError> {
+/// Checks the laszip VLR against the header: the `laz` crate decodes as many bytes
+/// a point as the VLR's items describe (a point size that differs from the
+/// header's made it panic), and reserves a whole chunk's decoded points for the
+/// last chunk (a corrupt chunk size aborted the process). A chunk size larger
+/// than both the file's points and [`MAX_SPARE_CHUNK_POINTS`] is refused; a VLR
+/// that cannot be read is left to the decoder, which reports it.
+fn check_laz_vlr(path: &Path, header: &las::Header, points: u64) -> Result<(), IngestError> {
     let Some(Ok(vlr)) = contain(|| header.laz_vlr()) else {
         return Ok(());
     };
+    let record = u64::from(header.point_format().len());
+    match contain(|| vlr.items_size()) {
+        Some(items) if items == record => {}
+        items => {
+            return Err(IngestError::format(
+                path,
+                format!(
+                    "corrupt laszip VLR: its items describe {} a point, the header's point \
+                     format {record} bytes",
+                    items.map_or("more than 65,535 bytes".into(), |b| format!("{b} bytes"))
+                ),
+            ));
+        }
+    }
     if vlr.uses_variable_size_chunks() {
         return Ok(());
     }
@@ -397,7 +413,7 @@ pub(crate) fn open_header(path: &Path) -> Result<Opened, IngestError> {
                     ));
                 }
                 check_chunk_table(path, &mut file, start, table, n, file_len)?;
-                check_chunk_size(path, &header, n)?;
+                check_laz_vlr(path, &header, n)?;
             }
         } else {
             let rec = u64::from(format.len());
@@ -795,6 +811,41 @@ mod tests {
             .unwrap();
         }
         w.close().unwrap();
+    }
+
+    /// The laszip VLR check ([`super::check_laz_vlr`]) accepts what LASzip writes:
+    /// every point format the `laz` crate compresses, with extra bytes, the
+    /// items' point size equal to the header's.
+    #[test]
+    fn laz_of_every_format_with_extra_bytes_reads() {
+        let dir = tempfile::tempdir().unwrap();
+        for f in [0u8, 1, 2, 3, 6, 7, 8] {
+            let mut b = las::Builder::default();
+            b.version = las::Version::new(1, if f >= 6 { 4 } else { 2 });
+            let mut format = las::point::Format::new(f).unwrap();
+            format.extra_bytes = 3;
+            format.is_compressed = true;
+            b.point_format = format;
+            let path = dir.path().join(format!("f{f}.laz"));
+            let mut w = las::Writer::from_path(&path, b.into_header().unwrap()).unwrap();
+            for i in 0..1000 {
+                w.write_point(las::Point {
+                    x: i as f64,
+                    y: 2.0 * i as f64,
+                    z: 1.0,
+                    gps_time: format.has_gps_time.then_some(i as f64),
+                    color: format.has_color.then(|| las::Color::new(1, 2, 3)),
+                    nir: format.has_nir.then_some(7),
+                    extra_bytes: vec![1, 2, 3],
+                    ..Default::default()
+                })
+                .unwrap();
+            }
+            w.close().unwrap();
+            let (info, all, _) = read_all(&path, &ReadOptions::default()).unwrap();
+            assert!(info.format.starts_with("laz"), "{}", info.format);
+            assert_eq!(all.len(), 1000, "format {f}");
+        }
     }
 
     /// GeoTIFF keys: the projected code, else the geographic one; a user-defined
