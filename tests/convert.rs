@@ -991,6 +991,38 @@ fn far_points_the_sample_misses_get_their_own_parts() {
     );
 }
 
+/// A point 54,000 km off (a digit too many in one y, found by `tests/fuzz.rs`)
+/// among a small scan: its spatial region's origin loses more than 0.1 mm where
+/// the centre of its own bounds would not, which once made the conversion read
+/// the input again, choose the same origins, and fail with "the points reach too
+/// far from the origin chosen while reading". A region's origin is final: the
+/// part is written when f32 keeps its points to 1 mm from it.
+#[test]
+fn one_wild_coordinate_gets_a_part_of_its_own() {
+    let dir = tempfile::tempdir().unwrap();
+    let input = dir.path().join("wild.xyz");
+    pcimg::synth::write_text(&input, 1500, 1).unwrap();
+    let mut text = std::fs::read_to_string(&input).unwrap();
+    text.push_str("637148.132 60111178.540 18.000 104\n");
+    std::fs::write(&input, &text).unwrap();
+    let out = dir.path().join("wild.pcimg");
+    let s = convert::convert(&input, &opts(out.clone(), 8 << 20), &convert::Quiet).unwrap();
+    assert_eq!(s.points, 1501);
+    assert!(
+        s.max_quantization_error < 1e-3,
+        "{}",
+        s.max_quantization_error
+    );
+    assert!(worst_offset(&dataset_points(&out), &file_points(&input)) <= 10);
+    let ds = Dataset::open(&out).unwrap();
+    assert!(
+        ds.parts
+            .iter()
+            .any(|p| p.meta.bounds.min[1] > 6e7 && p.meta.point_count == 1),
+        "the wild point has no part of its own"
+    );
+}
+
 /// Files whose attribute offsets differ widely (GPS times a month apart) are
 /// stored around one offset; the precision that costs is said. An empty LAS tile
 /// (no points, zero bounds) does not make its header bounds count.

@@ -343,6 +343,11 @@ fn convert_with(
     read.chunk_points = read.chunk_points.min((per_part / 8).max(1 << 16) as usize);
     drop(opened);
     let mut reader = ingest::multi::open_all(inputs, &read)?;
+    // What errors about the points as a whole name: the input.
+    let about = match inputs {
+        [one] => one.display().to_string(),
+        _ => source_name(inputs).unwrap_or_default(),
+    };
     let write_opts = WriteOptions {
         compression: o.compression,
         layout: o.layout,
@@ -410,7 +415,7 @@ fn convert_with(
                         parts: &mut Vec<PartSummary>|
      -> Result<()> {
         check_cancel(o)?;
-        check_precision(bounds, bounds.center(), parts.len(), o, as_file)?;
+        check_precision(&about, bounds, bounds.center(), parts.len(), o, as_file)?;
         let s =
             store::write_part_owned(&part_path(parts.len()), chunks, Some(*bounds), &opts_now())
                 .map_err(public)?;
@@ -418,15 +423,22 @@ fn convert_with(
         Ok(())
     };
     // A part collected by a store builder (its own origin and bounds).
-    let write_built = |b: store::PartBuilder, parts: &mut Vec<PartSummary>| -> Result<()> {
+    // `while_reading`: the origin was chosen before the points' bounds were known
+    // (a single part collected as it is read), so a better one can be had by
+    // reading again ([`OriginTooFar`]); a spatial region's origin is already
+    // placed from its own points, and reading again would place it the same way.
+    let write_built = |b: store::PartBuilder,
+                       while_reading: bool,
+                       parts: &mut Vec<PartSummary>|
+     -> Result<()> {
         check_cancel(o)?;
         let (bounds, origin) = (b.bounds(), b.origin());
         let (here, best) = (reach(&bounds, origin), reach(&bounds, bounds.center()));
         let costly = f32_rounding(here) >= 1e-4 && f32_rounding(here) > 4.0 * f32_rounding(best);
-        if (here >= F32_MM_RADIUS && best < F32_MM_RADIUS) || costly {
+        if while_reading && ((here >= F32_MM_RADIUS && best < F32_MM_RADIUS) || costly) {
             return Err(OriginTooFar.into());
         }
-        check_precision(&bounds, origin, parts.len(), o, as_file)?;
+        check_precision(&about, &bounds, origin, parts.len(), o, as_file)?;
         let s = store::write_part_built(&part_path(parts.len()), b, &opts_now()).map_err(public)?;
         record(s, parts);
         Ok(())
@@ -529,7 +541,7 @@ fn convert_with(
             progress.phase("write", held_points, "points");
             last_part.set(true);
             if let Some(b) = built.filter(|b| !b.is_empty()) {
-                write_built(b, &mut parts)?;
+                write_built(b, true, &mut parts)?;
             }
             progress.advance(held_points, held_points);
         }
@@ -623,7 +635,7 @@ fn convert_with(
                 progress.phase("write", held_points, "points");
                 last_part.set(true);
                 if let Some(b) = built.filter(|b| !b.is_empty()) {
-                    write_built(b, &mut parts)?;
+                    write_built(b, true, &mut parts)?;
                 } else if held_points > 0 {
                     write_chunks(held, &bounds, &mut parts)?;
                 }
@@ -773,7 +785,7 @@ fn convert_with(
                         drop(blocks);
                         let _ = std::fs::remove_file(&f.path);
                         pass("read back", t_back);
-                        write_built(b, &mut parts)?;
+                        write_built(b, false, &mut parts)?;
                     } else if !split {
                         let t_split = begin();
                         let mut grid = CountGrid::new(f.bounds);
@@ -812,13 +824,17 @@ fn convert_with(
                             b.push_packed(&part_path(parts.len()), r, &names)
                                 .map_err(public)?;
                             if room(&b) == 0 {
-                                write_built(std::mem::replace(&mut b, new_part()), &mut parts)?;
+                                write_built(
+                                    std::mem::replace(&mut b, new_part()),
+                                    false,
+                                    &mut parts,
+                                )?;
                             }
                         }
                         drop(blocks);
                         let _ = std::fs::remove_file(&f.path);
                         if !b.is_empty() {
-                            write_built(b, &mut parts)?;
+                            write_built(b, false, &mut parts)?;
                         }
                     }
                     done += f.points;
@@ -904,8 +920,10 @@ fn reach(b: &Bounds, origin: [f64; 3]) -> f64 {
         .fold(0f64, f64::max)
 }
 
-/// Refuses a part whose points lie farther from its origin than f32 keeps 1 mm.
+/// Refuses a part whose points lie farther from its origin than f32 keeps 1 mm;
+/// the message names `about`, the input.
 fn check_precision(
+    about: &str,
     b: &Bounds,
     origin: [f64; 3],
     part: usize,
@@ -923,9 +941,10 @@ fn check_precision(
             ""
         };
         anyhow::bail!(
-            "part {} spans {:.1} km: stored as f32 relative to a point {:.1} km from its \
+            "{}: part {} spans {:.1} km: stored as f32 relative to a point {:.1} km from its \
              farthest points, coordinates would move by up to {:.2} mm (f32 keeps 1 mm within \
              {:.1} km); use --allow-lossy to accept it{instead}",
+            crate::text::sanitize(about),
             part + 1,
             b.extent().iter().fold(0f64, |m, &e| m.max(e)) / 1000.0,
             reach / 1000.0,

@@ -1,6 +1,8 @@
 //! Helpers shared by the integration tests.
 #![allow(dead_code)]
 
+pub mod fuzz;
+
 use pcimg::points::{Attribute, PointColumns};
 use pcimg::synth::Rng;
 use std::process::Command;
