@@ -88,10 +88,13 @@ fn main() -> anyhow::Result<()> {
                 None
             }
             Outcome::Refused {
-                contained: false, ..
+                msg,
+                contained: false,
             } => {
                 err += 1;
-                None
+                // Every error should name the file it is about.
+                (!msg.contains("in.") && !msg.contains("out.pcimg"))
+                    .then(|| format!("an error that names no file: {msg}"))
             }
             Outcome::Refused {
                 msg,
