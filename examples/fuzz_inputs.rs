@@ -123,6 +123,12 @@ fn main() -> anyhow::Result<()> {
             keep(save.as_deref(), it, ext, &data)?;
         }
         std::fs::remove_dir_all(&work)?;
+        if it % 1000 == 999 {
+            eprintln!(
+                "{} cases, {panics} panics, {leftovers} left files behind",
+                it + 1
+            );
+        }
     }
     println!(
         "{iterations} cases: {ok} accepted, {err} refused, {panics} panics, {leftovers} left \
