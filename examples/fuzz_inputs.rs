@@ -24,7 +24,7 @@ use std::sync::Mutex;
 
 #[path = "../tests/common/fuzz.rs"]
 mod fuzz;
-use fuzz::{Outcome, below};
+use fuzz::Outcome;
 
 /// The last panic's place and message, from the hook.
 static PANIC: Mutex<Option<String>> = Mutex::new(None);
@@ -69,10 +69,8 @@ fn main() -> anyhow::Result<()> {
     let (mut ok, mut err, mut panics, mut leftovers, mut contained) = (0u64, 0, 0, 0, 0);
     let mut seen = std::collections::BTreeSet::new();
     for it in 0..iterations {
-        let (orig, ext) = &seeds[below(&mut rng, seeds.len() as u64) as usize];
-        let data = fuzz::mutate(orig, &mut rng);
-        let work = dir.path().join(format!("case{it}"));
-        let o = fuzz::options(&mut rng, ext, &work.join("out.pcimg"));
+        let (ext, data, work, o) = fuzz::case(&seeds, &mut rng, dir.path(), it);
+        let ext = ext.as_str();
         if only.is_some_and(|k| k != it) {
             continue;
         }

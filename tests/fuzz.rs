@@ -22,12 +22,9 @@ fn mutated_inputs_are_refused_cleanly() {
     let (mut accepted, mut refused) = (0, 0);
     let mut failures = Vec::new();
     for it in 0..n_cases {
-        let (orig, ext) = &seeds[fuzz::below(&mut rng, seeds.len() as u64) as usize];
-        let data = fuzz::mutate(orig, &mut rng);
-        let work = dir.path().join(format!("case{it}"));
-        let o = fuzz::options(&mut rng, ext, &work.join("out.pcimg"));
+        let (ext, data, work, o) = fuzz::case(&seeds, &mut rng, dir.path(), it);
         std::fs::create_dir(&work).unwrap();
-        match fuzz::run(&work, ext, &data, &o).unwrap() {
+        match fuzz::run(&work, &ext, &data, &o).unwrap() {
             Outcome::Accepted => accepted += 1,
             Outcome::Refused { msg, contained } => {
                 refused += 1;

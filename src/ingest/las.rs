@@ -275,7 +275,8 @@ fn check_chunk_table(
         ));
     };
     let chunks = u64::from(u32::from_le_bytes([b[4], b[5], b[6], b[7]]));
-    let data = at - (start + 8);
+    // (A table offset inside the 8 bytes that hold it leaves no point data.)
+    let data = at.saturating_sub(start + 8);
     let most = (data / MIN_LAZ_CHUNK_BYTES).min(points) + 1;
     if chunks > most {
         return Err(IngestError::binary(

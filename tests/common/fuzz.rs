@@ -66,34 +66,32 @@ pub fn seeds(dir: &Path, n: u64) -> anyhow::Result<Vec<(Vec<u8>, String)>> {
             rows.len()
         )
         .into_bytes();
+        // Binary values in the file's byte order.
+        let big = format == "binary_big_endian";
+        let put = |d: &mut Vec<u8>, mut b: Vec<u8>| {
+            if big {
+                b.reverse();
+            }
+            d.extend(b);
+        };
         for (i, r) in rows.iter().enumerate() {
             let [x, y, z] = xyz_of(r);
             let c = [(i % 256) as u8, 7, 9];
-            match format {
-                "ascii" => d.extend(format!("{x} {y} {z} {} {} {}\n", c[0], c[1], c[2]).bytes()),
-                "binary_little_endian" => {
-                    d.extend((x as f32).to_le_bytes());
-                    d.extend((y as f32).to_le_bytes());
-                    d.extend(z.to_le_bytes());
-                    d.extend(c);
-                }
-                _ => {
-                    d.extend((x as f32).to_be_bytes());
-                    d.extend((y as f32).to_be_bytes());
-                    d.extend(z.to_be_bytes());
-                    d.extend(c);
-                }
+            if format == "ascii" {
+                d.extend(format!("{x} {y} {z} {} {} {}\n", c[0], c[1], c[2]).bytes());
+            } else {
+                put(&mut d, (x as f32).to_le_bytes().to_vec());
+                put(&mut d, (y as f32).to_le_bytes().to_vec());
+                put(&mut d, z.to_le_bytes().to_vec());
+                d.extend(c);
             }
         }
-        match format {
-            "ascii" => d.extend(b"3 0 1 2\n"),
-            "binary_little_endian" => {
-                d.push(3);
-                [0i32, 1, 2].iter().for_each(|v| d.extend(v.to_le_bytes()));
-            }
-            _ => {
-                d.push(3);
-                [0i32, 1, 2].iter().for_each(|v| d.extend(v.to_be_bytes()));
+        if format == "ascii" {
+            d.extend(b"3 0 1 2\n");
+        } else {
+            d.push(3);
+            for v in [0i32, 1, 2] {
+                put(&mut d, v.to_le_bytes().to_vec());
             }
         }
         out.push((d, "ply".to_string()));
@@ -106,16 +104,10 @@ pub fn seeds(dir: &Path, n: u64) -> anyhow::Result<Vec<(Vec<u8>, String)>> {
     let part = dir.join("seed.tif");
     let o = ConvertOptions {
         compression: Compression::Deflate,
+        memory: 1 << 30,
         ..options(&mut Rng::new(0), "xyz", &part)
     };
-    convert::convert(
-        &xyz,
-        &ConvertOptions {
-            memory: 1 << 30,
-            ..o
-        },
-        &Quiet,
-    )?;
+    convert::convert(&xyz, &o, &Quiet)?;
     out.push((std::fs::read(&part)?, "tif".to_string()));
     Ok(out)
 }
@@ -198,6 +190,22 @@ pub fn options(rng: &mut Rng, ext: &str, output: &Path) -> ConvertOptions {
         sample_points: 1000,
         io: TileIo::Buffered,
     }
+}
+
+/// One case drawn from `seeds`: its extension, its mutated bytes, its directory
+/// (`dir/caseN`, not yet made) and the options it converts with. Drawn the same
+/// way whether or not it is then run, so a run's case `it` can be replayed.
+pub fn case(
+    seeds: &[(Vec<u8>, String)],
+    rng: &mut Rng,
+    dir: &Path,
+    it: u64,
+) -> (String, Vec<u8>, std::path::PathBuf, ConvertOptions) {
+    let (orig, ext) = &seeds[below(rng, seeds.len() as u64) as usize];
+    let data = mutate(orig, rng);
+    let work = dir.join(format!("case{it}"));
+    let o = options(rng, ext, &work.join("out.pcimg"));
+    (ext.clone(), data, work, o)
 }
 
 /// Runs one case in the empty directory `work`: `data` written as `in.EXT`, then
