@@ -5,7 +5,7 @@
 #
 #   bash docs/make_pictures.sh
 #
-# Needs: cargo; the sample scan ../shared/data/autzen_trim.laz (or PCIMG_DATA=DIR).
+# Needs: cargo; the sample scan fixtures/autzen_trim.laz (or PCIMG_DATA=DIR).
 # For the screenshot only (skipped with a note when missing, never needed by CI):
 #   apt-get install xvfb xterm x11-utils imagemagick
 # All frames use the CPU rasterizer, so they do not depend on a GPU driver.
@@ -13,7 +13,7 @@ set -euo pipefail
 
 cd "$(dirname "$0")/.."
 OUT=docs/pictures
-DATA=${PCIMG_DATA:-../shared/data}
+DATA=${PCIMG_DATA:-fixtures}
 mkdir -p "$OUT"
 
 cargo build --release --quiet

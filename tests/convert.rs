@@ -1,4 +1,4 @@
-//! `pcimg convert` end to end: every input format, the shared real samples, the
+//! `pcimg convert` end to end: every input format, the real samples in fixtures/, the
 //! memory budget, partition modes, bad inputs, interruption, and the command line.
 
 use pcimg::convert::{self, ConvertOptions, Partition, Progress, Quiet};
@@ -9,9 +9,9 @@ use std::process::Command;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 
-fn shared(name: &str) -> PathBuf {
+fn fixture(name: &str) -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("../shared/data")
+        .join("fixtures")
         .join(name)
 }
 
@@ -110,7 +110,7 @@ fn real_samples_convert_with_reference_counts_and_bounds() {
     ];
     for (name, n, bounds) in cases {
         let out = dir.path().join(format!("{name}.tif"));
-        let s = convert::convert(&shared(name), &opts(out.clone(), 1 << 30), &Quiet).unwrap();
+        let s = convert::convert(&fixture(name), &opts(out.clone(), 1 << 30), &Quiet).unwrap();
         assert_eq!(s.points, n, "{name}");
         let ds = Dataset::open(&out).unwrap();
         assert_eq!(ds.points(), n);
@@ -572,7 +572,7 @@ fn bad_inputs_are_clear_errors_and_leave_nothing() {
             b"ply\nformat binary_little_endian 1.0\nelement vertex 10\nproperty float x\nproperty float y\nproperty float z\nend_header\n\x00\x00\x80\x3f".to_vec(),
             "",
         ),
-        ("cut.laz", std::fs::read(shared("autzen_trim.laz")).unwrap()[..20_000].to_vec(), ""),
+        ("cut.laz", std::fs::read(fixture("autzen_trim.laz")).unwrap()[..20_000].to_vec(), ""),
     ];
     for (name, bytes, want) in cases {
         let input = d.join(name);

@@ -1,4 +1,4 @@
-//! The input readers against the real sample files in `../shared/data/`.
+//! The input readers against the real sample files in `fixtures/`.
 
 use std::path::{Path, PathBuf};
 
@@ -6,7 +6,7 @@ use pcimg::ingest::{self, ReadOptions};
 use pcimg::points::PointColumns;
 
 fn sample(name: &str) -> PathBuf {
-    Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/../shared/data/")).join(name)
+    Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/fixtures/")).join(name)
 }
 
 fn attr<'a>(p: &'a PointColumns, name: &str) -> &'a [f32] {

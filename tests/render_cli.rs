@@ -12,7 +12,7 @@ fn exe() -> Command {
 }
 
 fn autzen(dir: &Path) -> PathBuf {
-    let src = Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data/autzen_trim.laz");
+    let src = Path::new(env!("CARGO_MANIFEST_DIR")).join("fixtures/autzen_trim.laz");
     let out = dir.join("autzen.tif");
     let o = exe()
         .args(["convert", "-q", "-o"])

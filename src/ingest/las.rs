@@ -951,8 +951,7 @@ mod tests {
     /// header and attribute names before choosing the chunk size).
     #[test]
     fn laz_decoder_starts_with_the_first_read() {
-        let p =
-            std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data/autzen_trim.laz");
+        let p = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("fixtures/autzen_trim.laz");
         let mut r = open(&p, &ReadOptions::default()).unwrap();
         std::thread::sleep(std::time::Duration::from_millis(300));
         assert_eq!(r.bytes_done(), 0);
