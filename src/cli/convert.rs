@@ -337,6 +337,9 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         "  stored coordinates within {:.4} mm of the source",
         s.max_quantization_error * 1000.0
     )?;
+    if let Some(r) = &s.index {
+        writeln!(out, "  {}", super::index::describe(r))?;
+    }
     if a.timings {
         writeln!(
             out,

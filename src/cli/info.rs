@@ -26,7 +26,24 @@ pub struct DatasetReport {
     pub points: u64,
     pub bytes: u64,
     pub bounds: Bounds,
+    /// Bytes of the index the dataset was opened from (`null`: opened without one).
+    pub index_bytes: Option<u64>,
+    /// The overview's layers above the parts, lowest first (empty without one).
+    pub overview: Vec<LayerReport>,
     pub parts: Vec<PartReport>,
+}
+
+/// One layer of overview nodes.
+#[derive(Debug, Serialize)]
+pub struct LayerReport {
+    /// 1 just above the parts.
+    pub layer: u32,
+    pub nodes: usize,
+    /// Points of the nodes' coarsest levels (what a view of the layer draws).
+    pub points: u64,
+    /// Points and bytes stored in the nodes, all levels.
+    pub stored_points: u64,
+    pub bytes: u64,
 }
 
 #[derive(Debug, Serialize)]
@@ -139,8 +156,37 @@ pub fn report(ds: &Dataset, tiles: bool) -> DatasetReport {
         points: ds.points(),
         bytes: ds.bytes(),
         bounds: ds.bounds(),
+        index_bytes: ds.index_bytes,
+        overview: overview_report(ds),
         parts: ds.parts.iter().map(|p| part_report(p, tiles)).collect(),
     }
+}
+
+fn overview_report(ds: &Dataset) -> Vec<LayerReport> {
+    let Some(o) = &ds.overview else {
+        return Vec::new();
+    };
+    (1..=o.layer_count())
+        .map(|layer| {
+            let nodes: Vec<&Part> = o
+                .nodes
+                .iter()
+                .zip(&o.layers)
+                .filter(|(_, l)| **l == layer)
+                .map(|(n, _)| n)
+                .collect();
+            LayerReport {
+                layer,
+                nodes: nodes.len(),
+                points: nodes
+                    .iter()
+                    .map(|n| n.levels.last().and_then(|l| l.points).unwrap_or(0))
+                    .sum(),
+                stored_points: nodes.iter().map(|n| n.meta.point_count).sum(),
+                bytes: nodes.iter().map(|n| n.file_bytes).sum(),
+            }
+        })
+        .collect()
 }
 
 fn xyz(v: [f64; 3]) -> String {
@@ -165,6 +211,34 @@ pub fn render_text(r: &DatasetReport) -> String {
         xyz(r.bounds.min),
         xyz(r.bounds.max)
     );
+    let _ = match r.index_bytes {
+        Some(b) => writeln!(
+            o,
+            "index    {} ({}): opened without reading the parts' headers",
+            crate::store::index::INDEX_FILE,
+            bytes(b)
+        ),
+        None if r.parts.len() > 1 => writeln!(o, "index    none (`pcimg index` makes one)"),
+        None => Ok(()),
+    };
+    if !r.overview.is_empty() {
+        let _ = writeln!(
+            o,
+            "overview {} layer(s) above the parts' levels\n    layer  nodes   points drawn   points stored  bytes",
+            r.overview.len()
+        );
+        for l in r.overview.iter().rev() {
+            let _ = writeln!(
+                o,
+                "    {:<5}  {:>5}  {:>13}  {:>14}  {}",
+                l.layer,
+                l.nodes,
+                count(l.points),
+                count(l.stored_points),
+                bytes(l.bytes)
+            );
+        }
+    }
     for (i, p) in r.parts.iter().enumerate() {
         let _ = writeln!(
             o,
@@ -267,6 +341,9 @@ pub fn render_text(r: &DatasetReport) -> String {
 
 pub fn run(a: Args) -> anyhow::Result<()> {
     let ds = Dataset::open(&a.path)?;
+    if let Some(h) = &ds.hint {
+        note!("{h}");
+    }
     let r = report(&ds, a.tiles);
     if a.json {
         super::print_out(&format!("{}\n", serde_json::to_string_pretty(&r)?))?;

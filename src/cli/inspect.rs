@@ -54,6 +54,9 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     no_device_select();
     // The dataset first: a wrong path is the error to report, terminal or not.
     let ds = Arc::new(Dataset::open(&a.view.path)?);
+    if let Some(h) = &ds.hint {
+        note!("{h}");
+    }
     if !have_terminal() {
         anyhow::bail!(
             "the inspector needs a terminal (stdin and stdout are not one here): use `pcimg info {0}` for a report, `pcimg render {0} -o frame.png` for an image",

@@ -11,6 +11,7 @@ macro_rules! note {
 
 pub mod convert;
 pub mod demo;
+pub mod index;
 pub mod info;
 pub mod inspect;
 pub mod preview;
@@ -43,6 +44,8 @@ pub enum Command {
     Info(info::Args),
     /// Convert a point cloud (text, PLY, LAS/LAZ) into an image dataset, out of core.
     Convert(convert::Args),
+    /// Rebuild a dataset directory's index and overview (for parts made separately).
+    Index(index::Args),
     /// Browse a dataset in the terminal: parts, bands, levels and a live view.
     Inspect(inspect::Args),
     /// Build a synthetic dataset in a temporary directory and open the inspector on it.
@@ -74,8 +77,8 @@ pub fn print_out(text: &str) -> anyhow::Result<()> {
 }
 
 /// The commands' names, for [`misspelt_command`].
-const COMMANDS: [&str; 8] = [
-    "info", "convert", "inspect", "demo", "render", "preview", "synth", "help",
+const COMMANDS: [&str; 9] = [
+    "info", "convert", "index", "inspect", "demo", "render", "preview", "synth", "help",
 ];
 
 /// When the first argument is neither a command nor an existing path but is
@@ -130,6 +133,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Inspect(a) => inspect::run(a),
         Command::Info(a) => info::run(a),
         Command::Convert(a) => convert::run(a),
+        Command::Index(a) => index::run(a),
         Command::Demo(a) => demo::run(a),
         Command::Render(a) => render::run(a),
         Command::Preview(a) => preview::run(a),

@@ -24,6 +24,9 @@ pub struct Args {
 pub fn run(a: Args) -> anyhow::Result<()> {
     // The dataset first: a wrong path is the error to report, terminal or not.
     let ds = Arc::new(Dataset::open(&a.view.path)?);
+    if let Some(h) = &ds.hint {
+        note!("{h}");
+    }
     if !std::io::stdout().is_terminal() {
         anyhow::bail!(
             "stdout is not a terminal, so there is nowhere to draw: use `pcimg render {} -o frame.png` for a file",

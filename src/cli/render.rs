@@ -39,6 +39,9 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         std::process::exit(130);
     });
     let ds = Arc::new(Dataset::open(&a.view.path)?);
+    if let Some(h) = &ds.hint {
+        note!("{h}");
+    }
     let cam = view::camera_for(&a.view, &ds)?;
     if a.view.print_camera {
         note!("{}", cam.to_json());

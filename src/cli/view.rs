@@ -29,9 +29,10 @@ pub struct ViewArgs {
     /// rule, one level for all parts) or a level number (0 = finest).
     #[arg(long, default_value = "view")]
     pub lod: String,
-    /// Point budget for --lod view (at least 1,000; the nearest tile is drawn
-    /// whatever the budget).
-    #[arg(long, default_value_t = 2_000_000,
+    /// Most points drawn with --lod view. Each frame draws about two points a
+    /// pixel (at least 65,536), never more than this (at least 1,000; the nearest
+    /// tile is drawn whatever the budget).
+    #[arg(long, default_value_t = crate::lod::DEFAULT_BUDGET_CAP,
           value_parser = clap::value_parser!(u64).range(1_000..))]
     pub budget: u64,
     /// Colour: rgb, intensity, height, level or part (rgb falls back to intensity,
@@ -71,11 +72,17 @@ fn parse_lod(s: &str, budget: u64) -> anyhow::Result<LodMode> {
 pub fn lod_for(s: &str, budget: u64, ds: &Dataset) -> anyhow::Result<LodMode> {
     let mode = parse_lod(s, budget)?;
     if let LodMode::Fixed(k) = mode {
-        let levels = ds.parts.iter().map(|p| p.levels.len()).max().unwrap_or(1);
+        let levels = lod::level_count(ds);
         if k >= levels {
+            let above = ds.overview.as_ref().map_or(String::new(), |o| {
+                format!(
+                    " (the last {} above the parts: the overview)",
+                    o.layer_count()
+                )
+            });
             anyhow::bail!(
-                "--lod {k}: {} has levels 0 (finest) to {}",
-                ds.path.display(),
+                "--lod {k}: {} has levels 0 (finest) to {}{above}",
+                crate::text::sanitize(&ds.path.display().to_string()),
                 levels.saturating_sub(1)
             );
         }
@@ -116,7 +123,7 @@ pub fn render_once(
     width: u32,
     height: u32,
 ) -> anyhow::Result<(Frame, FrameReport)> {
-    let mode = lod_for(&a.lod, a.budget, &ds)?;
+    let mode = lod_for(&a.lod, lod::budget_for_pixels(width, height, a.budget), &ds)?;
     let color: ColorMode = a.color.parse()?;
     let choice: RendererChoice = a.renderer.parse()?;
     let t = Instant::now();
@@ -169,6 +176,13 @@ pub fn describe(r: &FrameReport) -> String {
         r.render_ms,
         r.renderer
     );
+    if s.overview_tiles > 0 {
+        line = line.replacen(
+            " tiles (",
+            &format!(" tiles ({} overview, ", s.overview_tiles),
+            1,
+        );
+    }
     if s.dropped_tiles > 0 {
         line.push_str(&format!(
             "; gave up loading {} tiles ({} points) for the point or memory budget",

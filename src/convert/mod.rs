@@ -97,6 +97,8 @@ pub struct ConvertSummary {
     /// Wall and CPU time per phase, in first-seen order: the passes over the
     /// input, then the store's phases summed over parts.
     pub phases: Vec<(String, Span)>,
+    /// The index and overview of a directory output.
+    pub index: Option<store::overview::IndexReport>,
 }
 
 /// Wall and CPU time per named phase, summed, in first-seen order.
@@ -854,6 +856,19 @@ fn convert_with(
             ),
         }
     }
+    // The index and overview, last: their presence marks a finished dataset.
+    let mut index = None;
+    if let Some(stage) = &staging {
+        let t_index = begin();
+        let io = store::overview::IndexOptions {
+            compression: Some(o.compression),
+            cancel: Some(o.cancel.clone()),
+        };
+        progress.phase("overview", parts.len() as u64 / 3 + 1, "nodes");
+        let done = |d: usize, _: usize| progress.advance(d as u64, 0);
+        index = Some(store::overview::build_index(&stage.path, &io, &done).map_err(public)?);
+        pass("index and overview", t_index);
+    }
     // Publish: move the staged parts into place.
     let t_publish = begin();
     if let Some(stage) = &staging {
@@ -895,6 +910,7 @@ fn convert_with(
         elapsed: start.elapsed(),
         max_quantization_error: worst,
         phases,
+        index,
     })
 }
 

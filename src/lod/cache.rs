@@ -75,8 +75,7 @@ pub const COLOR_BANDS: [&str; 4] = ["intensity", "red", "green", "blue"];
 pub fn load_tile(ds: &Dataset, key: TileKey) -> Result<LoadedTile, String> {
     let t0 = Instant::now();
     let part = ds
-        .parts
-        .get(key.part)
+        .part(key.part)
         .ok_or_else(|| format!("no part {}", key.part))?;
     let mut bands = vec![0usize, 1, 2];
     bands.extend(COLOR_BANDS.iter().filter_map(|n| part.band_index(n)));
@@ -288,7 +287,7 @@ impl TileCache {
             if s.tiles.contains_key(&key) {
                 continue;
             }
-            let Some(part) = self.ds.parts.get(t.part) else {
+            let Some(part) = self.ds.part(t.part) else {
                 continue;
             };
             let Some(level) = part.levels.get(t.level) else {
@@ -296,6 +295,7 @@ impl TileCache {
             };
             let across = level.tiles_across.max(1);
             let (mut col, mut row) = (t.tile % across, t.tile / across);
+            let mut here = false;
             for coarser in part.levels.iter().skip(t.level + 1) {
                 (col, row) = (col / 2, row / 2);
                 let k = TileKey {
@@ -306,8 +306,32 @@ impl TileCache {
                 if let Some(e) = s.tiles.get_mut(&k) {
                     e.last_used = clock;
                     found.insert(k);
+                    here = true;
                     break;
                 }
+            }
+            // Then the overview nodes above the part, nearest first.
+            let mut up = self.ds.parent(t.part);
+            while let Some(n) = up.filter(|_| !here) {
+                let Some(top) = self.ds.part(n).and_then(|p| p.levels.last()) else {
+                    break;
+                };
+                let hit = top.tiles.iter().map(|tile| TileKey {
+                    part: n,
+                    level: top.index,
+                    tile: tile.index,
+                });
+                let hit: Vec<TileKey> = hit.filter(|k| s.tiles.contains_key(k)).collect();
+                if !hit.is_empty() {
+                    for k in hit {
+                        if let Some(e) = s.tiles.get_mut(&k) {
+                            e.last_used = clock;
+                        }
+                        found.insert(k);
+                    }
+                    break;
+                }
+                up = self.ds.parent(n);
             }
         }
         let mut keys: Vec<TileKey> = found.into_iter().collect();

@@ -6,4 +6,7 @@ pub mod cache;
 pub mod select;
 
 pub use cache::{LoadedTile, TileCache, TileKey};
-pub use select::{LodMode, Selection, TileRef, distance_level, select};
+pub use select::{
+    DEFAULT_BUDGET_CAP, LodMode, Selection, TileRef, budget_for_pixels, distance_level,
+    level_count, select,
+};

@@ -10,6 +10,12 @@
 //!   spacing is below about a pixel or the point budget would be exceeded.
 //! - `Fixed(k)`: level k (clamped per part) everywhere, culled by the frustum.
 //!
+//! A dataset with an overview (`store::index`) starts `View` at the overview's
+//! root: a node's coarsest tile refines into its children's coarsest tiles (nodes
+//! of the layer below, then parts), then into each part's own pyramid, so the
+//! whole visible dataset is drawn under any budget. For `Distance` and `Fixed`
+//! the overview's layers are the levels above the parts' own.
+//!
 //! Every mode then respects a memory budget: tiles that do not fit are not loaded,
 //! farthest first, and the selection says so (the paper: "it has to give up
 //! loading").
@@ -49,8 +55,23 @@ pub struct Selection {
     /// Tiles (and their points) given up for the memory or the point budget.
     pub dropped_tiles: usize,
     pub dropped_points: u64,
-    /// The finest and coarsest level drawn.
+    /// The finest and coarsest level of the parts drawn.
     pub levels: Option<(usize, usize)>,
+    /// Tiles of overview nodes drawn.
+    pub overview_tiles: usize,
+}
+
+/// The default cap on points drawn: 4K at two points a pixel.
+pub const DEFAULT_BUDGET_CAP: u64 = 16_000_000;
+/// Points a pixel the automatic budget allows.
+pub const POINTS_PER_PIXEL: u64 = 2;
+
+/// The point budget for a `width`×`height` frame: two points a pixel, at least
+/// one tile's worth (65,536), at most `cap`.
+pub fn budget_for_pixels(width: u32, height: u32, cap: u64) -> u64 {
+    (POINTS_PER_PIXEL * width as u64 * height as u64)
+        .max(crate::store::spec::TILE_PIXELS as u64)
+        .min(cap)
 }
 
 /// Bytes a point costs in memory when loaded (x, y, z and one colour source).
@@ -116,8 +137,12 @@ impl Ord for Candidate {
 
 /// Tile entries of a level: raster index → (points, bounds), in Z-rank order.
 fn level_tiles(ds: &Dataset, part: usize, level: usize) -> Vec<TileRef> {
-    let p = &ds.parts[part];
-    let l = &p.levels[level];
+    let Some(p) = ds.part(part) else {
+        return Vec::new();
+    };
+    let Some(l) = p.levels.get(level) else {
+        return Vec::new();
+    };
     l.tiles
         .iter()
         .map(|t| TileRef {
@@ -135,10 +160,18 @@ fn level_tiles(ds: &Dataset, part: usize, level: usize) -> Vec<TileRef> {
 /// The four children (one level finer) of a tile, when the level below has a tile
 /// index with the same Z-order structure.
 fn children(ds: &Dataset, t: &TileRef) -> Option<Vec<TileRef>> {
+    if let Some(o) = ds.overview.as_ref().filter(|_| ds.is_overview(t.part)) {
+        let kids = o.children.get(t.part - ds.parts.len())?;
+        return Some(
+            kids.iter()
+                .flat_map(|&c| top_tiles(ds, ds.child_part(c)))
+                .collect(),
+        );
+    }
     if t.level == 0 {
         return None;
     }
-    let p = &ds.parts[t.part];
+    let p = ds.part(t.part)?;
     let (up, down) = (&p.levels[t.level], &p.levels[t.level - 1]);
     if !up.indexed || !down.indexed || down.tiles_across != 2 * up.tiles_across {
         return None;
@@ -164,6 +197,40 @@ fn children(ds: &Dataset, t: &TileRef) -> Option<Vec<TileRef>> {
     )
 }
 
+/// The tiles of part `part`'s coarsest level.
+fn top_tiles(ds: &Dataset, part: usize) -> Vec<TileRef> {
+    let top = ds
+        .part(part)
+        .map_or(0, |p| p.levels.len().saturating_sub(1));
+    level_tiles(ds, part, top)
+}
+
+/// Levels a `Fixed` or `Distance` selection counts: the parts' own, then one per
+/// overview layer.
+pub fn level_count(ds: &Dataset) -> usize {
+    let own = ds.parts.iter().map(|p| p.levels.len()).max().unwrap_or(1);
+    own + ds.overview.as_ref().map_or(0, |o| o.layer_count() as usize)
+}
+
+/// The tiles of dataset level `level` (clamped per part; past the parts' own
+/// levels, the overview layer's nodes).
+fn tiles_at(ds: &Dataset, level: usize) -> Vec<TileRef> {
+    let own = ds.parts.iter().map(|p| p.levels.len()).max().unwrap_or(1);
+    if let Some(o) = ds.overview.as_ref().filter(|_| level >= own) {
+        let layer = ((level - own + 1) as u32).min(o.layer_count());
+        return (0..o.nodes.len())
+            .filter(|&k| o.layers[k] == layer)
+            .flat_map(|k| top_tiles(ds, ds.parts.len() + k))
+            .collect();
+    }
+    (0..ds.parts.len())
+        .flat_map(|pi| {
+            let n = ds.parts[pi].levels.len();
+            level_tiles(ds, pi, level.min(n.saturating_sub(1)))
+        })
+        .collect()
+}
+
 /// Selects the tiles to draw for `camera` on a `width`×`height` view.
 pub fn select(
     ds: &Dataset,
@@ -184,18 +251,15 @@ pub fn select(
             let total = ds.bounds();
             let diag = total.extent().iter().map(|e| e * e).sum::<f64>().sqrt();
             let d = camera.distance_to(total.center());
-            for (pi, p) in ds.parts.iter().enumerate() {
-                let n = p.levels.len();
-                let level = match mode {
-                    LodMode::Fixed(k) => k.min(n.saturating_sub(1)),
-                    _ => distance_level(d, diag, n),
-                };
-                for t in level_tiles(ds, pi, level) {
-                    if visible(&t) {
-                        chosen.push(t);
-                    } else {
-                        sel.culled += 1;
-                    }
+            let level = match mode {
+                LodMode::Fixed(k) => k,
+                _ => distance_level(d, diag, level_count(ds)),
+            };
+            for t in tiles_at(ds, level) {
+                if visible(&t) {
+                    chosen.push(t);
+                } else {
+                    sel.culled += 1;
                 }
             }
         }
@@ -203,9 +267,12 @@ pub fn select(
             let ppu = |b: &Bounds| camera.pixels_per_unit(distance_to_box(eye, b), height);
             let mut heap = BinaryHeap::new();
             let mut total = 0u64;
-            for (pi, p) in ds.parts.iter().enumerate() {
-                let top = p.levels.len().saturating_sub(1);
-                for t in level_tiles(ds, pi, top) {
+            let starts: Vec<usize> = match &ds.overview {
+                Some(o) => vec![ds.parts.len() + o.root()],
+                None => (0..ds.parts.len()).collect(),
+            };
+            for pi in starts {
+                for t in top_tiles(ds, pi) {
                     if !visible(&t) {
                         sel.culled += 1;
                         continue;
@@ -268,6 +335,11 @@ pub fn select(
         }
         bytes += cost;
         sel.points += t.points;
+        if ds.is_overview(t.part) {
+            sel.overview_tiles += 1;
+            sel.tiles.push(t);
+            continue;
+        }
         sel.levels = Some(match sel.levels {
             None => (t.level, t.level),
             Some((lo, hi)) => (lo.min(t.level), hi.max(t.level)),

@@ -1,18 +1,51 @@
-//! A dataset: one part file, or a directory of part files.
+//! A dataset: one part file, or a directory of part files, opened from its index
+//! (`index.rs`) when it has one, with the overview nodes above its parts.
 
 use super::error::{Result, StoreError};
+use super::index::{Child, INDEX_FILE, IndexFile};
 use super::reader::Part;
 use crate::points::Bounds;
 use std::path::{Path, PathBuf};
 
-/// An opened dataset (headers only).
-#[derive(Debug)]
+/// An opened dataset (headers only; parts opened from an index not even those).
+#[derive(Debug, Default)]
 pub struct Dataset {
     pub path: PathBuf,
     pub parts: Vec<Part>,
+    /// The overview above the parts, from the index.
+    pub overview: Option<Overview>,
+    /// Bytes of the index the dataset was opened from.
+    pub index_bytes: Option<u64>,
+    /// A one-line hint for a directory of several parts without an index.
+    pub hint: Option<String>,
 }
 
-fn is_part_file(p: &Path) -> bool {
+/// Overview nodes above the parts: ordinary parts whose coarsest level is an even
+/// sample of their children's coarsest levels. In a [`crate::lod::TileRef`], node
+/// `k` is part number `parts.len() + k` (see [`Dataset::part`]).
+#[derive(Debug)]
+pub struct Overview {
+    pub nodes: Vec<Part>,
+    pub children: Vec<Vec<Child>>,
+    /// Layer of each node: 1 just above the parts.
+    pub layers: Vec<u32>,
+    /// The node above each part number (parts, then nodes), `None` for the root.
+    pub parents: Vec<Option<usize>>,
+}
+
+impl Overview {
+    /// The root node (the last).
+    pub fn root(&self) -> usize {
+        self.nodes.len() - 1
+    }
+
+    /// Number of layers above the parts.
+    pub fn layer_count(&self) -> u32 {
+        self.layers.iter().copied().max().unwrap_or(0)
+    }
+}
+
+pub(super) fn is_part_file(p: &Path) -> bool {
     let hidden = p
         .file_name()
         .and_then(|n| n.to_str())
@@ -39,7 +72,7 @@ fn starts_like_tiff(path: &Path) -> bool {
 
 /// `s` as one shell word (quoted when it holds anything but plain characters),
 /// sanitized for the terminal.
-fn shell_quoted(s: &str) -> String {
+pub(super) fn shell_quoted(s: &str) -> String {
     let s = crate::text::sanitize(s);
     if s.chars()
         .all(|c| c.is_ascii_alphanumeric() || "-_./+,:@".contains(c))
@@ -55,6 +88,40 @@ impl Dataset {
     pub fn open(path: &Path) -> Result<Dataset> {
         let meta = std::fs::metadata(path)
             .map_err(|e| StoreError::new(path, format!("cannot open: {e}")))?;
+        if meta.is_dir()
+            && let Some(index) = IndexFile::load(path)?
+        {
+            let (parts, nodes) = index.open_parts(path)?;
+            let np = parts.len();
+            let overview = (!nodes.is_empty()).then(|| {
+                let mut parents = vec![None; np + nodes.len()];
+                for (k, n) in index.nodes.iter().enumerate() {
+                    for c in &n.children {
+                        let i = match *c {
+                            Child::Part(i) => i,
+                            Child::Node(j) => np + j,
+                        };
+                        parents[i] = Some(np + k);
+                    }
+                }
+                Overview {
+                    nodes,
+                    children: index.nodes.iter().map(|n| n.children.clone()).collect(),
+                    layers: index.nodes.iter().map(|n| n.layer).collect(),
+                    parents,
+                }
+            });
+            let index_bytes = std::fs::metadata(path.join(INDEX_FILE))
+                .ok()
+                .map(|m| m.len());
+            return Ok(Dataset {
+                path: path.to_path_buf(),
+                parts,
+                overview,
+                index_bytes,
+                hint: None,
+            });
+        }
         let parts = if meta.is_dir() {
             let mut files: Vec<PathBuf> = std::fs::read_dir(path)
                 .map_err(|e| StoreError::new(path, format!("cannot list directory: {e}")))?
@@ -92,10 +159,76 @@ impl Dataset {
             }
             vec![Part::open(path)?]
         };
+        let hint = (parts.len() > 1).then(|| {
+            format!(
+                "note: this dataset has no index (made by an older pcimg); {} makes one, for faster opening and an overview of all {} parts",
+                super::index::fix_command(path),
+                parts.len()
+            )
+        });
         Ok(Dataset {
             path: path.to_path_buf(),
             parts,
+            hint,
+            ..Default::default()
         })
+    }
+
+    /// Part `i` of a [`crate::lod::TileRef`]: a part, or past the parts an
+    /// overview node.
+    pub fn part(&self, i: usize) -> Option<&Part> {
+        match i.checked_sub(self.parts.len()) {
+            None => self.parts.get(i),
+            Some(k) => self.overview.as_ref().and_then(|o| o.nodes.get(k)),
+        }
+    }
+
+    /// The part number of an overview child.
+    pub fn child_part(&self, c: Child) -> usize {
+        match c {
+            Child::Part(i) => i,
+            Child::Node(k) => self.parts.len() + k,
+        }
+    }
+
+    /// The overview node above part number `i` (a part or a node).
+    pub fn parent(&self, i: usize) -> Option<usize> {
+        self.overview.as_ref()?.parents.get(i).copied().flatten()
+    }
+
+    /// The coarsest tiles of the overview's top layers, root first, up to `points`
+    /// points in all: what a viewer loads before anything else.
+    pub fn overview_first(&self, points: u64) -> Vec<(usize, usize, u32, u64)> {
+        let Some(o) = &self.overview else {
+            return Vec::new();
+        };
+        let mut order: Vec<usize> = (0..o.nodes.len()).collect();
+        order.sort_by_key(|&k| (std::cmp::Reverse(o.layers[k]), k));
+        let mut out = Vec::new();
+        let mut sum = 0;
+        for k in order {
+            let n = &o.nodes[k];
+            let Some(l) = n.levels.last() else { continue };
+            let pts = l.points.unwrap_or(0);
+            if sum + pts > points && !out.is_empty() {
+                break;
+            }
+            sum += pts;
+            for t in &l.tiles {
+                out.push((
+                    self.parts.len() + k,
+                    l.index,
+                    t.index,
+                    t.points.unwrap_or(0) as u64,
+                ));
+            }
+        }
+        out
+    }
+
+    /// Whether part number `i` is an overview node.
+    pub fn is_overview(&self, i: usize) -> bool {
+        i >= self.parts.len()
     }
 
     /// Union of the parts' bounds.

@@ -24,7 +24,10 @@ pub use writer::{
 };
 pub mod dataset;
 pub mod ifd;
+pub mod index;
+pub mod overview;
 pub mod reader;
+pub mod summary;
 
-pub use dataset::Dataset;
+pub use dataset::{Dataset, Overview};
 pub use reader::{BandInfo, Level, Part, PartMeta, Points, TileInfo};

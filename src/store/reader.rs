@@ -21,7 +21,7 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
 /// Dataset-level metadata of a part.
-#[derive(Debug, Clone)]
+#[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
 pub struct PartMeta {
     pub format_version: u32,
     pub point_count: u64,
@@ -37,7 +37,7 @@ pub struct PartMeta {
 }
 
 /// One band: its name and the offset added to every stored value.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct BandInfo {
     pub name: String,
     pub offset: f64,
@@ -47,7 +47,7 @@ pub struct BandInfo {
 }
 
 /// One tile of a level that holds data.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct TileInfo {
     /// Raster index (`row * tiles_across + col`).
     pub index: u32,
@@ -78,10 +78,10 @@ pub struct Level {
     pub indexed: bool,
     /// Tiles holding data, in reading order (Z-order where the grid allows).
     pub tiles: Vec<TileInfo>,
-    offsets: Vec<u64>,
-    counts: Vec<u64>,
+    pub(super) offsets: Vec<u64>,
+    pub(super) counts: Vec<u64>,
     /// For square power-of-two tiles: raster offset of each Z-rank in a tile.
-    z_lut: Option<Arc<Vec<u32>>>,
+    pub(super) z_lut: Option<Arc<Vec<u32>>>,
 }
 
 impl Level {
@@ -134,12 +134,15 @@ pub struct Part {
     pub bands: Vec<BandInfo>,
     pub levels: Vec<Level>,
     /// Samples per pixel of each level (the band count).
-    samples: usize,
-    map: Arc<Bytes>,
+    pub(super) samples: usize,
+    pub(super) map: Arc<Bytes>,
+    /// A part described by the dataset index: its headers are read on its first
+    /// tile read (`summary.rs`).
+    pub(super) lazy: Option<Arc<super::summary::Deferred>>,
 }
 
 /// The bytes of a part: a read-only memory map, or a buffer (tests, fuzzing).
-enum Bytes {
+pub(super) enum Bytes {
     Map(Mmap),
     Owned(Vec<u8>),
 }
@@ -431,6 +434,7 @@ impl Part {
             levels,
             samples,
             map: Arc::new(map),
+            lazy: None,
         })
     }
 
@@ -633,6 +637,9 @@ impl Part {
     /// Reads every point of `level` for `bands` (a paper-layout part: in image row
     /// order, so level 0 comes back in input order).
     pub fn read_level(&self, level: usize, bands: &[usize]) -> Result<Points> {
+        if let Some(p) = self.opened()? {
+            return p.read_level(level, bands);
+        }
         if self.row_major() {
             return self.read_level_row_major(level, bands);
         }
@@ -653,6 +660,9 @@ impl Part {
     /// Reads the points of the tiles `tiles` (raster indices) of `level` for `bands`,
     /// tile after tile in the order given.
     pub fn read_tiles(&self, level: usize, tiles: &[u32], bands: &[usize]) -> Result<Points> {
+        if let Some(p) = self.opened()? {
+            return p.read_tiles(level, tiles, bands);
+        }
         if self.row_major() {
             return self.read_tiles_row_major(level, tiles, bands);
         }

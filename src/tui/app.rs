@@ -73,8 +73,8 @@ impl Settings {
     }
 }
 
-/// The default point budget.
-pub const DEFAULT_BUDGET: u64 = 2_000_000;
+/// The default point budget (a cap: a frame draws about two points a pixel).
+pub const DEFAULT_BUDGET: u64 = crate::lod::DEFAULT_BUDGET_CAP;
 /// Point budgets `b` and `B` stay within.
 pub const BUDGET_RANGE: (u64, u64) = (15_625, 256_000_000);
 /// Radians per orbit step.
@@ -135,6 +135,11 @@ pub struct FrameStatus {
     pub unreadable: usize,
     /// Tiles in view given up for the point or memory budget.
     pub dropped: usize,
+    /// Tiles of overview nodes drawn.
+    pub overview_tiles: usize,
+    /// The point budget the frame was selected under (view mode: the pixels'
+    /// share of the budget setting), 0 in other modes.
+    pub budget: u64,
     pub select_ms: f64,
     pub load_ms: f64,
     pub render_ms: f64,
@@ -284,7 +289,11 @@ impl App {
             "{} | {levels} | {} pts / {} | {} | size {}{}",
             self.settings.lod.label(),
             crate::text::count(f.points),
-            crate::text::count(self.settings.budget),
+            crate::text::count(if f.budget > 0 {
+                f.budget
+            } else {
+                self.settings.budget
+            }),
             color_name(self.settings.color),
             self.settings.point_size,
             if self.settings.edl { " | edl" } else { "" },

@@ -8,7 +8,7 @@
 use super::app::{FrameStatus, Settings};
 use super::protocol::{self, Graphics};
 use crate::camera::Camera;
-use crate::lod::{self, TileCache, TileKey, TileRef};
+use crate::lod::{self, LodMode, TileCache, TileKey, TileRef};
 use crate::render::color::ColorMode;
 use crate::render::scene::{ColorRanges, colorize};
 use crate::render::{self, Frame, PointBatch, Rasterizer, RenderOptions, RendererChoice};
@@ -53,6 +53,8 @@ pub enum Report {
 
 /// How long the worker waits for more tiles before drawing what arrived.
 const REDRAW_WHILE_LOADING: Duration = Duration::from_millis(60);
+/// Points of the overview's top layers requested before the first selection.
+const OVERVIEW_FIRST_POINTS: u64 = 1_000_000;
 
 /// The render worker thread and its two channels.
 pub struct RenderWorker {
@@ -133,6 +135,8 @@ struct Worker {
     renderer: Option<Box<dyn Rasterizer>>,
     /// When the current wait for tiles began.
     loading_since: Option<Instant>,
+    /// Whether the overview's top tiles were requested.
+    overview_requested: bool,
     ranges: ColorRanges,
     colors: ColorCache,
 }
@@ -151,6 +155,7 @@ fn run(
         cache,
         renderer: None,
         loading_since: None,
+        overview_requested: false,
         ranges,
         colors: ColorCache {
             mode: None,
@@ -253,7 +258,30 @@ impl Worker {
         self.renderer()?;
 
         let t = Instant::now();
-        let sel = lod::select(&self.ds, &req.camera, width, height, s.lod_mode(), s.memory);
+        let mode = match s.lod_mode() {
+            LodMode::View { budget } => LodMode::View {
+                budget: lod::budget_for_pixels(width, height, budget),
+            },
+            m => m,
+        };
+        if !self.overview_requested {
+            // The overview's top first: it covers the whole dataset.
+            self.overview_requested = true;
+            let first: Vec<TileRef> = self
+                .ds
+                .overview_first(OVERVIEW_FIRST_POINTS)
+                .into_iter()
+                .map(|(part, level, tile, points)| TileRef {
+                    part,
+                    level,
+                    tile,
+                    points,
+                    bounds: self.ds.bounds(),
+                })
+                .collect();
+            self.cache.request(&first);
+        }
+        let sel = lod::select(&self.ds, &req.camera, width, height, mode, s.memory);
         let select_ms = ms(t);
         self.cache.request(&sel.tiles);
         let mut tiles = self.cache.ready(&sel.tiles);
@@ -329,6 +357,11 @@ impl Worker {
             pending,
             unreadable,
             dropped: sel.dropped_tiles,
+            overview_tiles: sel.overview_tiles,
+            budget: match mode {
+                LodMode::View { budget } => budget,
+                _ => 0,
+            },
             select_ms,
             load_ms,
             render_ms,

@@ -1,0 +1,68 @@
+//! `pcimg index DIR`: (re)builds a dataset directory's index and overview, for
+//! parts made separately, added, replaced or removed since the last index.
+
+use crate::store::overview::{IndexOptions, IndexReport, build_index};
+use crate::text::{bytes, count, sanitize};
+use std::path::PathBuf;
+use std::sync::Arc;
+use std::sync::atomic::AtomicBool;
+
+#[derive(Debug, clap::Args)]
+pub struct Args {
+    /// A directory of parts (.tif). Its index (pcimg-index.json) and overview
+    /// folder (overview/) are replaced; the parts are only read.
+    pub dir: PathBuf,
+    /// Print nothing but errors.
+    #[arg(short, long)]
+    pub quiet: bool,
+}
+
+/// The report's lines, for `index` and `convert`.
+pub fn describe(r: &IndexReport) -> String {
+    let overview = match &r.no_overview {
+        Some(why) => format!("no overview ({})", sanitize(why)),
+        None => format!(
+            "overview of {} node(s) in {} layer(s), {} points, {}",
+            count(r.nodes as u64),
+            r.layers,
+            count(r.node_points),
+            bytes(r.node_bytes)
+        ),
+    };
+    format!(
+        "indexed {} part(s), {} points: {overview}; index {}; {:.2} s",
+        count(r.parts as u64),
+        count(r.points),
+        bytes(r.index_bytes),
+        r.seconds
+    )
+}
+
+pub fn run(a: Args) -> anyhow::Result<()> {
+    if !a.dir.is_dir() {
+        anyhow::bail!(
+            "{}: not a directory of parts (a single .tif part needs no index)",
+            sanitize(&a.dir.display().to_string())
+        );
+    }
+    let cancel = Arc::new(AtomicBool::new(false));
+    {
+        let c = cancel.clone();
+        let _ = ctrlc::set_handler(move || c.store(true, std::sync::atomic::Ordering::Relaxed));
+    }
+    let o = IndexOptions {
+        compression: None,
+        cancel: Some(cancel),
+    };
+    let quiet = a.quiet;
+    let progress = move |done: usize, total: usize| {
+        if !quiet {
+            note!("\roverview: {done}/~{total} node(s) written\x1b[K");
+        }
+    };
+    let r = build_index(&a.dir, &o, &progress)?;
+    if !quiet {
+        super::print_out(&format!("{}\n", describe(&r)))?;
+    }
+    Ok(())
+}

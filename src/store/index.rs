@@ -1,0 +1,252 @@
+//! The dataset index, `pcimg-index.json` in a dataset directory: every part's file,
+//! size, modification time and header, and the overview nodes above the parts. It
+//! is written last (its presence marks a finished dataset); opening a dataset
+//! reads it instead of every part's header, after checking that the directory
+//! still holds exactly the files it lists.
+
+use super::error::{Result, StoreError};
+use super::reader::Part;
+use super::summary::PartHeader;
+use std::path::{Path, PathBuf};
+use std::time::UNIX_EPOCH;
+
+/// The index's file name inside a dataset directory.
+pub const INDEX_FILE: &str = "pcimg-index.json";
+/// The folder of overview parts inside a dataset directory.
+pub const OVERVIEW_DIR: &str = "overview";
+/// The index format this pcimg writes and reads.
+pub const INDEX_VERSION: u32 = 1;
+const FORMAT_NAME: &str = "pcimg-index";
+
+/// A file the index lists: its path relative to the dataset, size, modification
+/// time and header.
+#[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
+pub struct FileEntry {
+    /// Relative to the dataset directory, `/`-separated.
+    pub file: String,
+    pub bytes: u64,
+    /// Modification time: seconds and nanoseconds since the Unix epoch.
+    pub mtime: (i64, u32),
+    pub header: PartHeader,
+}
+
+/// What an overview node stands for: a part, or a node of the layer below.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Child {
+    Part(usize),
+    Node(usize),
+}
+
+/// An overview node: an ordinary part whose coarsest level is an even sample of
+/// its children's coarsest levels (its level 0 holds all of their points).
+#[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
+pub struct NodeEntry {
+    #[serde(flatten)]
+    pub entry: FileEntry,
+    /// 1 just above the parts, the root's layer highest.
+    pub layer: u32,
+    pub children: Vec<Child>,
+}
+
+/// The whole index file.
+#[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
+pub struct IndexFile {
+    pub format: String,
+    pub version: u32,
+    pub parts: Vec<FileEntry>,
+    /// Overview nodes, each after its children; the root last.
+    pub nodes: Vec<NodeEntry>,
+}
+
+/// Modification time of `meta` as stored in the index.
+fn mtime_of(meta: &std::fs::Metadata) -> (i64, u32) {
+    match meta.modified().ok().map(|t| t.duration_since(UNIX_EPOCH)) {
+        Some(Ok(d)) => (d.as_secs() as i64, d.subsec_nanos()),
+        Some(Err(e)) => (
+            -(e.duration().as_secs() as i64),
+            e.duration().subsec_nanos(),
+        ),
+        None => (0, 0),
+    }
+}
+
+/// The index entry of an opened part, `file` relative to the dataset.
+pub fn entry_of(part: &Part, file: &str) -> Result<FileEntry> {
+    let meta = std::fs::metadata(&part.path)
+        .map_err(|e| StoreError::new(&part.path, format!("cannot stat: {e}")))?;
+    Ok(FileEntry {
+        file: file.to_string(),
+        bytes: meta.len(),
+        mtime: mtime_of(&meta),
+        header: part.header(),
+    })
+}
+
+/// `s` quoted for a shell command in a message.
+pub fn fix_command(dir: &Path) -> String {
+    format!(
+        "`pcimg index {}`",
+        super::dataset::shell_quoted(&dir.display().to_string())
+    )
+}
+
+impl IndexFile {
+    pub fn new(parts: Vec<FileEntry>, nodes: Vec<NodeEntry>) -> Self {
+        IndexFile {
+            format: FORMAT_NAME.into(),
+            version: INDEX_VERSION,
+            parts,
+            nodes,
+        }
+    }
+
+    /// Reads `dir`'s index, if it has one.
+    pub fn load(dir: &Path) -> Result<Option<IndexFile>> {
+        let path = dir.join(INDEX_FILE);
+        let text = match std::fs::read(&path) {
+            Ok(t) => t,
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(None),
+            Err(e) => return Err(StoreError::new(&path, format!("cannot read: {e}"))),
+        };
+        let idx: IndexFile = serde_json::from_slice(&text).map_err(|e| {
+            StoreError::new(
+                &path,
+                format!(
+                    "not a valid dataset index (line {}, column {}: {e}); rebuild it with {}",
+                    e.line(),
+                    e.column(),
+                    fix_command(dir)
+                ),
+            )
+        })?;
+        if idx.format != FORMAT_NAME || idx.version > INDEX_VERSION {
+            return Err(StoreError::new(
+                &path,
+                format!(
+                    "index format '{}' version {} is not one this pcimg reads ({FORMAT_NAME} {INDEX_VERSION}); upgrade pcimg or rebuild it with {}",
+                    crate::text::sanitize(&idx.format),
+                    idx.version,
+                    fix_command(dir)
+                ),
+            ));
+        }
+        idx.check_structure(dir)?;
+        Ok(Some(idx))
+    }
+
+    /// Children that exist and come before their parent; names inside the folder.
+    fn check_structure(&self, dir: &Path) -> Result<()> {
+        let bad = |m: String| {
+            StoreError::new(
+                &dir.join(INDEX_FILE),
+                format!("{m}; rebuild it with {}", fix_command(dir)),
+            )
+        };
+        let names = self.parts.iter().chain(self.nodes.iter().map(|n| &n.entry));
+        for e in names {
+            let p = Path::new(&e.file);
+            if p.is_absolute()
+                || p.components()
+                    .any(|c| !matches!(c, std::path::Component::Normal(_)))
+            {
+                return Err(bad(format!(
+                    "lists '{}', which is not a file inside the dataset",
+                    crate::text::sanitize(&e.file)
+                )));
+            }
+            if e.header.bands.len() < 3 || e.header.levels.is_empty() {
+                return Err(bad(format!(
+                    "entry '{}' has no levels or fewer than 3 bands",
+                    crate::text::sanitize(&e.file)
+                )));
+            }
+        }
+        for (i, n) in self.nodes.iter().enumerate() {
+            for c in &n.children {
+                let ok = match *c {
+                    Child::Part(p) => p < self.parts.len(),
+                    Child::Node(k) => k < i,
+                };
+                if !ok {
+                    return Err(bad(format!("node {i} names a child that does not exist")));
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// Checks that every listed file is there, unchanged, and that the folder
+    /// holds no part the index does not list; the parts and nodes, unopened.
+    pub fn open_parts(&self, dir: &Path) -> Result<(Vec<Part>, Vec<Part>)> {
+        let listed: std::collections::HashSet<&str> =
+            self.parts.iter().map(|e| e.file.as_str()).collect();
+        let mut unlisted: Vec<PathBuf> = std::fs::read_dir(dir)
+            .map_err(|e| StoreError::new(dir, format!("cannot list directory: {e}")))?
+            .filter_map(|e| e.ok().map(|e| e.path()))
+            .filter(|p| super::dataset::is_part_file(p) && p.is_file())
+            .filter(|p| {
+                p.file_name()
+                    .and_then(|n| n.to_str())
+                    .is_none_or(|n| !listed.contains(n))
+            })
+            .collect();
+        unlisted.sort();
+        if let Some(p) = unlisted.first() {
+            return Err(StoreError::new(
+                p,
+                format!(
+                    "is not in the dataset's index ({} unlisted part{}); add it with {}",
+                    unlisted.len(),
+                    if unlisted.len() == 1 { "" } else { "s" },
+                    fix_command(dir)
+                ),
+            ));
+        }
+        let open = |e: &FileEntry| -> Result<Part> {
+            let path = dir.join(&e.file);
+            let meta = std::fs::metadata(&path).map_err(|err| {
+                StoreError::new(
+                    &path,
+                    format!(
+                        "is listed in the dataset's index but cannot be read ({err}); restore it, or re-index with {}",
+                        fix_command(dir)
+                    ),
+                )
+            })?;
+            if meta.len() != e.bytes || mtime_of(&meta) != e.mtime {
+                return Err(StoreError::new(
+                    &path,
+                    format!(
+                        "changed since the dataset was indexed ({} bytes now, {} then); re-index with {}",
+                        meta.len(),
+                        e.bytes,
+                        fix_command(dir)
+                    ),
+                ));
+            }
+            Ok(Part::from_header(dir, &path, e.bytes, e.header.clone()))
+        };
+        let parts = self.parts.iter().map(open).collect::<Result<Vec<_>>>()?;
+        let nodes = self
+            .nodes
+            .iter()
+            .map(|n| open(&n.entry))
+            .collect::<Result<Vec<_>>>()?;
+        Ok((parts, nodes))
+    }
+
+    /// Writes the index into `dir` atomically (a temporary file renamed).
+    pub fn save(&self, dir: &Path) -> Result<u64> {
+        let path = dir.join(INDEX_FILE);
+        let tmp = dir.join(format!(".{INDEX_FILE}.tmp-{}", std::process::id()));
+        let text = serde_json::to_vec(self)
+            .map_err(|e| StoreError::new(&path, format!("cannot encode: {e}")))?;
+        let r = std::fs::write(&tmp, &text).and_then(|()| std::fs::rename(&tmp, &path));
+        if let Err(e) = r {
+            let _ = std::fs::remove_file(&tmp);
+            return Err(StoreError::new(&path, format!("cannot write: {e}")));
+        }
+        Ok(text.len() as u64)
+    }
+}

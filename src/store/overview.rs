@@ -1,0 +1,374 @@
+//! Building a dataset directory's index and overview (`pcimg index`, and `convert`
+//! last): overview nodes above the parts, each an ordinary part made from its
+//! children's coarsest levels only (no pass over the points), its children a run of
+//! the layer below in Morton order of their centres, layer after layer up to one
+//! root; then the index, written last.
+
+use super::codec::Compression;
+use super::dataset::is_part_file;
+use super::error::{Result, StoreError};
+use super::index::{Child, FileEntry, INDEX_FILE, IndexFile, NodeEntry, OVERVIEW_DIR, entry_of};
+use super::reader::Part;
+use super::spec::TILE_PIXELS;
+use super::writer::{WriteOptions, write_part};
+use crate::points::{Attribute, Bounds, PointColumns};
+use rayon::prelude::*;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
+use std::time::Instant;
+
+/// A node closes once its children's coarsest levels hold this many points: four
+/// tiles, so that a node's coarsest level (one tile) refines into about four
+/// tiles' worth, as a level of a part's own pyramid does.
+pub const GROUP_POINTS: u64 = 4 * TILE_PIXELS as u64;
+
+/// What building the index did.
+#[derive(Debug, Clone, Default)]
+pub struct IndexReport {
+    pub parts: usize,
+    pub points: u64,
+    pub nodes: usize,
+    pub layers: u32,
+    /// Points stored in the overview nodes (all levels).
+    pub node_points: u64,
+    pub node_bytes: u64,
+    pub index_bytes: u64,
+    pub seconds: f64,
+    /// Why there is no overview, when there is none.
+    pub no_overview: Option<String>,
+}
+
+/// One member of a layer: a part or a node, with what grouping needs.
+struct Member<'a> {
+    child: Child,
+    part: &'a Part,
+    top_points: u64,
+    center: [f64; 3],
+}
+
+/// The `4^k` slot of `v` in `[lo, hi]` on a 2^16 grid, spread for a Morton key.
+fn spread(v: f64, lo: f64, hi: f64) -> u64 {
+    let t = if hi > lo { (v - lo) / (hi - lo) } else { 0.0 };
+    let mut x = (t.clamp(0.0, 1.0) * 65535.0) as u64;
+    x = (x | (x << 16)) & 0x0000_FFFF_0000_FFFF;
+    x = (x | (x << 8)) & 0x00FF_00FF_00FF_00FF;
+    x = (x | (x << 4)) & 0x0F0F_0F0F_0F0F_0F0F;
+    x = (x | (x << 2)) & 0x3333_3333_3333_3333;
+    x = (x | (x << 1)) & 0x5555_5555_5555_5555;
+    x
+}
+
+/// Groups a layer's members (sorted in Morton order of their centres in the
+/// xy plane) into runs whose coarsest levels hold [`GROUP_POINTS`] or more, at
+/// least two members a run (the last run joins the one before when it would be
+/// alone).
+fn group(members: &mut [Member], total: &Bounds) -> Vec<std::ops::Range<usize>> {
+    members.sort_by_key(|m| {
+        spread(m.center[0], total.min[0], total.max[0])
+            | spread(m.center[1], total.min[1], total.max[1]) << 1
+    });
+    let mut runs = Vec::new();
+    let (mut start, mut sum) = (0, 0u64);
+    for (i, m) in members.iter().enumerate() {
+        sum += m.top_points;
+        if sum >= GROUP_POINTS && i + 1 - start >= 2 {
+            runs.push(start..i + 1);
+            start = i + 1;
+            sum = 0;
+        }
+    }
+    if start < members.len() {
+        match runs.last_mut() {
+            Some(last) if members.len() - start < 2 => last.end = members.len(),
+            _ => runs.push(start..members.len()),
+        }
+    }
+    runs
+}
+
+/// The points of a part's coarsest level, every band, as columns in source units.
+fn coarsest(part: &Part) -> Result<PointColumns> {
+    let top = part.levels.len() - 1;
+    let bands: Vec<usize> = (0..part.bands.len()).collect();
+    let p = part.read_level(top, &bands)?;
+    let mut cols = p.columns.into_iter();
+    let mut coord = |o: f64| -> Vec<f64> {
+        cols.next()
+            .unwrap_or_default()
+            .into_iter()
+            .map(|v| v as f64 + o)
+            .collect()
+    };
+    let (x, y, z) = (
+        coord(p.offsets[0]),
+        coord(p.offsets[1]),
+        coord(p.offsets[2]),
+    );
+    let attributes = p.bands[3..]
+        .iter()
+        .zip(&p.offsets[3..])
+        .zip(cols)
+        .map(|((name, &offset), values)| Attribute {
+            name: name.clone(),
+            offset,
+            values,
+        })
+        .collect();
+    Ok(PointColumns {
+        x,
+        y,
+        z,
+        attributes,
+    })
+}
+
+/// Appends `b` to `a`, bringing `b`'s attributes to `a`'s offsets.
+fn append(a: &mut PointColumns, b: PointColumns) {
+    if a.x.is_empty() && a.attributes.is_empty() {
+        *a = b;
+        return;
+    }
+    a.x.extend(b.x);
+    a.y.extend(b.y);
+    a.z.extend(b.z);
+    for (ta, tb) in a.attributes.iter_mut().zip(b.attributes) {
+        let shift = (tb.offset - ta.offset) as f32;
+        ta.values.extend(tb.values.into_iter().map(|v| v + shift));
+    }
+}
+
+/// A node's file name: its layer and its number in the layer.
+fn node_name(layer: u32, k: usize) -> String {
+    format!("node-{layer}-{k:05}.tif")
+}
+
+/// Why the parts cannot share an overview, if they cannot.
+fn incompatible(parts: &[Part]) -> Option<String> {
+    let names = |p: &Part| p.bands.iter().map(|b| b.name.clone()).collect::<Vec<_>>();
+    let first = names(&parts[0]);
+    parts.iter().find(|p| names(p) != first).map(|p| {
+        format!(
+            "{} has other bands than {}",
+            p.path.display(),
+            parts[0].path.display()
+        )
+    })
+}
+
+/// Lists `dir`'s parts (sorted by name).
+fn list_parts(dir: &Path) -> Result<Vec<PathBuf>> {
+    let mut files: Vec<PathBuf> = std::fs::read_dir(dir)
+        .map_err(|e| StoreError::new(dir, format!("cannot list directory: {e}")))?
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .filter(|p| p.is_file() && is_part_file(p))
+        .collect();
+    files.sort();
+    if files.is_empty() {
+        return Err(StoreError::new(dir, "directory holds no .tif parts"));
+    }
+    Ok(files)
+}
+
+/// Options of [`build_index`].
+#[derive(Debug, Clone, Default)]
+pub struct IndexOptions {
+    /// Compression of the overview nodes (`None`: as the first part's level 0).
+    pub compression: Option<Compression>,
+    pub cancel: Option<Arc<AtomicBool>>,
+}
+
+/// Builds the overview of the parts in `dir` and writes its index, replacing any
+/// earlier overview and index. `progress(done, total)` counts nodes written.
+pub fn build_index(
+    dir: &Path,
+    o: &IndexOptions,
+    progress: &(dyn Fn(usize, usize) + Sync),
+) -> Result<IndexReport> {
+    let t0 = Instant::now();
+    let files = list_parts(dir)?;
+    let parts: Vec<Part> = files
+        .par_iter()
+        .map(|f| Part::open(f))
+        .collect::<Result<_>>()?;
+    let name = |f: &Path| f.file_name().map(|n| n.to_string_lossy().into_owned());
+    let entries: Vec<FileEntry> = parts
+        .iter()
+        .zip(&files)
+        .map(|(p, f)| entry_of(p, &name(f).unwrap_or_default()))
+        .collect::<Result<_>>()?;
+    let mut report = IndexReport {
+        parts: parts.len(),
+        points: parts.iter().map(|p| p.meta.point_count).sum(),
+        ..Default::default()
+    };
+    report.no_overview = if parts.len() < 2 {
+        Some("a single part is its own overview".into())
+    } else {
+        incompatible(&parts)
+    };
+    // Remove an earlier index first: the directory is unfinished until the new one
+    // is written.
+    let index_path = dir.join(INDEX_FILE);
+    if index_path.exists() {
+        std::fs::remove_file(&index_path)
+            .map_err(|e| StoreError::new(&index_path, format!("cannot remove: {e}")))?;
+    }
+    let old = dir.join(OVERVIEW_DIR);
+    let nodes = if report.no_overview.is_none() {
+        let tmp = dir.join(format!(".{OVERVIEW_DIR}-tmp-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&tmp);
+        std::fs::create_dir(&tmp)
+            .map_err(|e| StoreError::new(&tmp, format!("cannot create: {e}")))?;
+        let built = build_nodes(&parts, &files, &tmp, o, progress);
+        let built = built.and_then(|nodes| {
+            remove_overview(&old)?;
+            std::fs::rename(&tmp, &old)
+                .map_err(|e| StoreError::new(&old, format!("cannot rename into place: {e}")))?;
+            Ok(nodes)
+        });
+        match built {
+            Ok(n) => n,
+            Err(e) => {
+                let _ = std::fs::remove_dir_all(&tmp);
+                return Err(e);
+            }
+        }
+    } else {
+        remove_overview(&old)?;
+        Vec::new()
+    };
+    report.nodes = nodes.len();
+    report.layers = nodes.iter().map(|n| n.layer).max().unwrap_or(0);
+    report.node_points = nodes.iter().map(|n| n.entry.header.meta.point_count).sum();
+    report.node_bytes = nodes.iter().map(|n| n.entry.bytes).sum();
+    report.index_bytes = IndexFile::new(entries, nodes).save(dir)?;
+    report.seconds = t0.elapsed().as_secs_f64();
+    Ok(report)
+}
+
+/// Removes an earlier overview folder, which must hold only node files.
+fn remove_overview(old: &Path) -> Result<()> {
+    if !old.exists() {
+        return Ok(());
+    }
+    let foreign = std::fs::read_dir(old)
+        .map_err(|e| StoreError::new(old, format!("cannot list: {e}")))?
+        .filter_map(|e| e.ok())
+        .find(|e| {
+            let n = e.file_name().to_string_lossy().into_owned();
+            !(n.starts_with("node-") && n.ends_with(".tif"))
+        });
+    if let Some(f) = foreign {
+        return Err(StoreError::new(
+            &f.path(),
+            "is not an overview node: pcimg replaces the overview folder only when it \
+             holds nothing else",
+        ));
+    }
+    std::fs::remove_dir_all(old).map_err(|e| StoreError::new(old, format!("cannot remove: {e}")))
+}
+
+/// Writes the nodes layer by layer into `tmp`; their entries name them inside
+/// the final overview folder.
+fn build_nodes(
+    parts: &[Part],
+    files: &[PathBuf],
+    tmp: &Path,
+    o: &IndexOptions,
+    progress: &(dyn Fn(usize, usize) + Sync),
+) -> Result<Vec<NodeEntry>> {
+    let total = parts
+        .iter()
+        .fold(Bounds::EMPTY, |b, p| b.union(&p.meta.bounds));
+    let compression = o
+        .compression
+        .unwrap_or(match parts[0].levels[0].compression {
+            c if c == Compression::Zstd.tiff_code() => Compression::Zstd,
+            c if c == Compression::Deflate.tiff_code() => Compression::Deflate,
+            _ => Compression::None,
+        });
+    let top = |p: &Part| p.levels.last().and_then(|l| l.points).unwrap_or(0);
+    let file_name = |f: &Path| f.file_name().map(|n| n.to_string_lossy().into_owned());
+    let mut names: Vec<String> = files
+        .iter()
+        .map(|f| file_name(f).unwrap_or_default())
+        .collect();
+    let mut opened: Vec<Part> = Vec::new();
+    let mut nodes: Vec<NodeEntry> = Vec::new();
+    let mut members: Vec<(Child, usize)> = (0..parts.len()).map(|i| (Child::Part(i), i)).collect();
+    // Expected node count, for progress: about a quarter fewer each layer.
+    let expect = (parts.len() as f64 / 3.0).ceil() as usize + 1;
+    let done = AtomicUsize::new(0);
+    let mut layer = 0;
+    while members.len() > 1 {
+        layer += 1;
+        let member = |&(child, _): &(Child, usize)| -> Member {
+            let part = match child {
+                Child::Part(i) => &parts[i],
+                Child::Node(k) => &opened[k],
+            };
+            Member {
+                child,
+                part,
+                top_points: top(part),
+                center: part.meta.bounds.center(),
+            }
+        };
+        let mut m: Vec<Member> = members.iter().map(member).collect();
+        let runs = group(&mut m, &total);
+        let written: Vec<(Part, NodeEntry)> = runs
+            .par_iter()
+            .enumerate()
+            .map(|(k, run)| {
+                if o.cancel.as_ref().is_some_and(|c| c.load(Ordering::Relaxed)) {
+                    return Err(StoreError::new(tmp, super::writer::INTERRUPTED));
+                }
+                let kids = &m[run.clone()];
+                let mut pts = PointColumns::default();
+                for kid in kids {
+                    append(&mut pts, coarsest(kid.part)?);
+                }
+                let child_names: Vec<String> = kids
+                    .iter()
+                    .map(|kid| match kid.child {
+                        Child::Part(i) => names[i].clone(),
+                        Child::Node(j) => format!("{OVERVIEW_DIR}/{}", names[parts.len() + j]),
+                    })
+                    .collect();
+                let path = tmp.join(node_name(layer, k));
+                let opts = WriteOptions {
+                    compression,
+                    source: Some(format!("pcimg overview of {}", child_names.join(" "))),
+                    crs: kids[0].part.meta.crs.clone(),
+                    cancel: o.cancel.clone(),
+                    ..Default::default()
+                };
+                write_part(&path, &pts, &opts)?;
+                let part = Part::open(&path)?;
+                let entry = entry_of(&part, &format!("{OVERVIEW_DIR}/{}", node_name(layer, k)))?;
+                progress(
+                    done.fetch_add(1, Ordering::Relaxed) + 1,
+                    expect.max(nodes.len() + k + 1),
+                );
+                Ok((
+                    part,
+                    NodeEntry {
+                        entry,
+                        layer,
+                        children: kids.iter().map(|kid| kid.child).collect(),
+                    },
+                ))
+            })
+            .collect::<Result<_>>()?;
+        drop(m);
+        members.clear();
+        for (part, entry) in written {
+            members.push((Child::Node(opened.len()), opened.len()));
+            names.push(node_name(layer, members.len() - 1));
+            opened.push(part);
+            nodes.push(entry);
+        }
+    }
+    Ok(nodes)
+}

@@ -1,0 +1,158 @@
+//! A part's header as the dataset index keeps it (`PartHeader`), and parts opened
+//! from it: such a part answers every question about its levels and tiles from the
+//! index and maps its file only on its first tile read, checking then that the file
+//! is still the one indexed.
+
+use super::error::{Result, StoreError};
+use super::reader::{BandInfo, Bytes, Level, Part, PartMeta, TileInfo};
+use std::path::{Path, PathBuf};
+use std::sync::{Arc, OnceLock};
+
+/// What the index records of one level.
+#[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
+pub struct LevelHeader {
+    pub width: u32,
+    pub height: u32,
+    pub tile_width: u32,
+    pub tile_height: u32,
+    pub tiles_across: u32,
+    pub tiles_down: u32,
+    pub compression: u16,
+    pub predictor: u16,
+    pub planar_separate: bool,
+    pub points: Option<u64>,
+    pub bytes: u64,
+    pub indexed: bool,
+    pub tiles: Vec<TileInfo>,
+}
+
+/// What the index records of one part's headers: enough to select its tiles
+/// without opening it.
+#[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
+pub struct PartHeader {
+    pub bigtiff: bool,
+    pub little_endian: bool,
+    pub meta: PartMeta,
+    pub bands: Vec<BandInfo>,
+    pub levels: Vec<LevelHeader>,
+}
+
+/// The file behind a part opened from the index, mapped on first use.
+pub(super) struct Deferred {
+    /// The dataset directory, named in the hint to re-index.
+    dataset: PathBuf,
+    opened: OnceLock<std::result::Result<Part, String>>,
+}
+
+impl Part {
+    /// The header as the dataset index records it.
+    pub fn header(&self) -> PartHeader {
+        PartHeader {
+            bigtiff: self.bigtiff,
+            little_endian: self.little_endian,
+            meta: self.meta.clone(),
+            bands: self.bands.clone(),
+            levels: self
+                .levels
+                .iter()
+                .map(|l| LevelHeader {
+                    width: l.width,
+                    height: l.height,
+                    tile_width: l.tile_width,
+                    tile_height: l.tile_height,
+                    tiles_across: l.tiles_across,
+                    tiles_down: l.tiles_down,
+                    compression: l.compression,
+                    predictor: l.predictor,
+                    planar_separate: l.planar_separate,
+                    points: l.points,
+                    bytes: l.bytes,
+                    indexed: l.indexed,
+                    tiles: l.tiles.clone(),
+                })
+                .collect(),
+        }
+    }
+
+    /// A part of the dataset at `dataset` described by its index entry: nothing is
+    /// read until a tile is.
+    pub fn from_header(dataset: &Path, path: &Path, file_bytes: u64, h: PartHeader) -> Part {
+        let samples = h.bands.len();
+        Part {
+            path: path.to_path_buf(),
+            file_bytes,
+            bigtiff: h.bigtiff,
+            little_endian: h.little_endian,
+            meta: h.meta,
+            bands: h.bands,
+            levels: h
+                .levels
+                .into_iter()
+                .enumerate()
+                .map(|(index, l)| Level {
+                    index,
+                    width: l.width,
+                    height: l.height,
+                    tile_width: l.tile_width,
+                    tile_height: l.tile_height,
+                    tiles_across: l.tiles_across,
+                    tiles_down: l.tiles_down,
+                    compression: l.compression,
+                    predictor: l.predictor,
+                    planar_separate: l.planar_separate,
+                    points: l.points,
+                    bytes: l.bytes,
+                    indexed: l.indexed,
+                    tiles: l.tiles,
+                    offsets: Vec::new(),
+                    counts: Vec::new(),
+                    z_lut: None,
+                })
+                .collect(),
+            samples,
+            map: Arc::new(Bytes::Owned(Vec::new())),
+            lazy: Some(Arc::new(Deferred {
+                dataset: dataset.to_path_buf(),
+                opened: OnceLock::new(),
+            })),
+        }
+    }
+
+    /// Whether the part's file has been read (always, but for parts opened from an
+    /// index before their first tile read).
+    pub fn is_open(&self) -> bool {
+        self.lazy.as_ref().is_none_or(|d| d.opened.get().is_some())
+    }
+
+    /// For a part opened from the index: the part read from its file (opened on
+    /// the first call, and checked against the index); `None` for a part opened
+    /// from its file.
+    pub(super) fn opened(&self) -> Result<Option<&Part>> {
+        let Some(d) = &self.lazy else {
+            return Ok(None);
+        };
+        let r = d.opened.get_or_init(|| {
+            let p = Part::open(&self.path).map_err(|e| e.message)?;
+            let same = p.file_bytes == self.file_bytes
+                && p.meta.point_count == self.meta.point_count
+                && p.levels.len() == self.levels.len()
+                && p.bands.len() == self.bands.len()
+                && p.levels
+                    .iter()
+                    .zip(&self.levels)
+                    .all(|(a, b)| a.tiles.len() == b.tiles.len());
+            if same {
+                Ok(p)
+            } else {
+                Err(format!(
+                    "changed since the dataset was indexed; run `pcimg index {}`",
+                    crate::text::sanitize(&d.dataset.display().to_string())
+                ))
+            }
+        });
+        match r {
+            Ok(p) => Ok(Some(p)),
+            Err(m) => Err(StoreError::new(&self.path, m.clone())),
+        }
+    }
+}
