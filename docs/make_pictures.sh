@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
-# Regenerates the pictures in docs/pictures/ that the README's "Pictures" section
-# shows: the paper's Figures 5 and 6 for our data, rendered by `pcimg render`, and a
+# Regenerates the pictures in docs/pictures/ that docs/pictures.md and the README
+# show: the paper's Figures 5 and 6 for our data, rendered by `pcimg render`, and a
 # screenshot of the inspector in a real terminal (xterm with sixel, under Xvfb).
 #
 #   bash docs/make_pictures.sh

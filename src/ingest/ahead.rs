@@ -81,7 +81,7 @@ enum State {
 
 impl Ahead {
     /// Reading ahead in `map` from byte `start` up to `end`, once asked; not at
-    /// all for a stretch of at most [`SMALL`] (a thread a file cost more than it
+    /// all for a stretch of at most `SMALL` (a thread a file cost more than it
     /// saved on 500 files of 130 kB: 1.37-1.66 s against 1.10-1.17 s).
     pub fn new(map: Arc<Mmap>, start: u64, end: u64) -> Ahead {
         let small = end.saturating_sub(start) <= SMALL;

@@ -6,7 +6,7 @@
 //! only move whole groups ([`layout::group_tile_order`]), so a group makes the
 //! same tile of level `k` wherever the tile order puts it: its bands go to the
 //! group's own slot of the level's region of the file
-//! ([`super::writer::region_start`]), and the
+//! (`super::writer::region_start`), and the
 //! level's `TileOffsets` follow the tile order. So the disk writes the coarse
 //! levels while the CPU arranges, instead of after it.
 

@@ -1,7 +1,7 @@
 //! The order in which a part's points are laid out in its image: a 3D Hilbert sort,
 //! then representatives moved to the first slot of every block up the pyramid (a
 //! voxel-like choice at level 1, the centroid rule above), so that every
-//! down-sampled level is a spatially even sample (`../shared/notes/lod-layout.md`
+//! down-sampled level is a spatially even sample (`docs/notes/lod-layout.md`
 //! and `examples/lod_quality.rs` for the measurements behind this).
 
 use super::spec::TILE_PIXELS;

@@ -1,4 +1,4 @@
-//! The multi-band image store: the file format (see ARCHITECTURE.md), its writer and
+//! The multi-band image store: the file format (see docs/format.md), its writer and
 //! its reader. Everything above the input readers goes through this module.
 
 pub mod builder;

@@ -1,5 +1,5 @@
 //! The file format's constants in one place: tags, metadata keys, layout numbers.
-//! ARCHITECTURE.md is the prose version of this file; the writer and the reader
+//! docs/format.md is the prose version of this file; the writer and the reader
 //! both take every format decision from here.
 
 /// Format version written in `PCIMG_FORMAT`; a reader refuses newer major versions.

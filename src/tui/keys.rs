@@ -91,7 +91,7 @@ pub fn command_for(key: KeyEvent) -> Option<Command> {
     })
 }
 
-/// The key map as (keys, what they do), for the help overlay and the README.
+/// The key map as (keys, what they do), for the help overlay and docs/guide.md.
 pub const HELP: &[(&str, &str)] = &[
     ("←→↑↓ / h l k j", "orbit around the centre"),
     (

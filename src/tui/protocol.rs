@@ -7,7 +7,7 @@
 //! environment hints (`KITTY_WINDOW_ID`, `TERM`, `TERM_PROGRAM`); inside tmux the
 //! default is half-blocks. (`Picker::from_query_stdio` waits up to 2 s, and in
 //! tmux its query thread swallowed a key press and left raw mode: see
-//! `shared/notes/terminal-frames.md`.)
+//! `docs/notes/terminal-frames.md`.)
 //!
 //! Encoding runs on the render worker, so the event loop only copies cells; kitty
 //! frames all use one image id ([`KITTY_IMAGE_ID`]) so each frame replaces the last
