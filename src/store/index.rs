@@ -38,8 +38,9 @@ pub enum Child {
     Node(usize),
 }
 
-/// An overview node: an ordinary part whose coarsest level is an even sample of
-/// its children's coarsest levels (its level 0 holds all of their points).
+/// An overview node: an ordinary part (usually one tile) holding an even sample of
+/// its children's coarsest levels: a quarter of their points, as the next level of
+/// their pyramids would.
 #[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
 pub struct NodeEntry {
     #[serde(flatten)]

@@ -1,8 +1,9 @@
 //! Building a dataset directory's index and overview (`pcimg index`, and `convert`
-//! last): overview nodes above the parts, each an ordinary part made from its
-//! children's coarsest levels only (no pass over the points), its children a run of
-//! the layer below in Morton order of their centres, layer after layer up to one
-//! root; then the index, written last.
+//! last): overview nodes above the parts, each an ordinary part of one tile made
+//! from its children's coarsest levels only (no pass over the points): the level
+//! one coarser that each child's pyramid would have made, joined. A node's
+//! children are a run of the layer below in Morton order of their centres; layer
+//! after layer up to one root; then the index, written last.
 
 use super::codec::Compression;
 use super::dataset::is_part_file;
@@ -18,9 +19,9 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 use std::time::Instant;
 
-/// A node closes once its children's coarsest levels hold this many points: four
-/// tiles, so that a node's coarsest level (one tile) refines into about four
-/// tiles' worth, as a level of a part's own pyramid does.
+/// A node's children's coarsest levels hold at most this many points: four tiles.
+/// The node keeps a quarter of them (one tile), so that it refines into four
+/// times its points, as a level of a part's own pyramid does.
 pub const GROUP_POINTS: u64 = 4 * TILE_PIXELS as u64;
 
 /// What building the index did.
@@ -60,9 +61,9 @@ fn spread(v: f64, lo: f64, hi: f64) -> u64 {
 }
 
 /// Groups a layer's members (sorted in Morton order of their centres in the
-/// xy plane) into runs whose coarsest levels hold [`GROUP_POINTS`] or more, at
-/// least two members a run (the last run joins the one before when it would be
-/// alone).
+/// xy plane) into runs whose coarsest levels hold at most [`GROUP_POINTS`] (so a
+/// node, a quarter of that, fits one tile), at least two members a run (the last
+/// run joins the one before when it would be alone).
 fn group(members: &mut [Member], total: &Bounds) -> Vec<std::ops::Range<usize>> {
     members.sort_by_key(|m| {
         spread(m.center[0], total.min[0], total.max[0])
@@ -71,12 +72,12 @@ fn group(members: &mut [Member], total: &Bounds) -> Vec<std::ops::Range<usize>> 
     let mut runs = Vec::new();
     let (mut start, mut sum) = (0, 0u64);
     for (i, m) in members.iter().enumerate() {
-        sum += m.top_points;
-        if sum >= GROUP_POINTS && i + 1 - start >= 2 {
-            runs.push(start..i + 1);
-            start = i + 1;
+        if i - start >= 2 && sum + m.top_points > GROUP_POINTS {
+            runs.push(start..i);
+            start = i;
             sum = 0;
         }
+        sum += m.top_points;
     }
     if start < members.len() {
         match runs.last_mut() {
@@ -87,12 +88,16 @@ fn group(members: &mut [Member], total: &Bounds) -> Vec<std::ops::Range<usize>> 
     runs
 }
 
-/// The points of a part's coarsest level, every band, as columns in source units.
-fn coarsest(part: &Part) -> Result<PointColumns> {
+/// The level one coarser than a part's coarsest, as its pyramid would make it:
+/// every fourth point of the coarsest level in its Z order (the first of each 2×2
+/// block, which the layout made the block's representative), every band, as
+/// columns in source units.
+fn next_coarser(part: &Part) -> Result<PointColumns> {
     let top = part.levels.len() - 1;
     let bands: Vec<usize> = (0..part.bands.len()).collect();
     let p = part.read_level(top, &bands)?;
-    let mut cols = p.columns.into_iter();
+    let quarter = |c: Vec<f32>| -> Vec<f32> { c.into_iter().step_by(4).collect() };
+    let mut cols = p.columns.into_iter().map(quarter);
     let mut coord = |o: f64| -> Vec<f64> {
         cols.next()
             .unwrap_or_default()
@@ -296,14 +301,14 @@ fn build_nodes(
         .collect();
     let mut opened: Vec<Part> = Vec::new();
     let mut nodes: Vec<NodeEntry> = Vec::new();
-    let mut members: Vec<(Child, usize)> = (0..parts.len()).map(|i| (Child::Part(i), i)).collect();
+    let mut members: Vec<Child> = (0..parts.len()).map(Child::Part).collect();
     // Expected node count, for progress: about a quarter fewer each layer.
     let expect = (parts.len() as f64 / 3.0).ceil() as usize + 1;
     let done = AtomicUsize::new(0);
     let mut layer = 0;
     while members.len() > 1 {
         layer += 1;
-        let member = |&(child, _): &(Child, usize)| -> Member {
+        let member = |&child: &Child| -> Member {
             let part = match child {
                 Child::Part(i) => &parts[i],
                 Child::Node(k) => &opened[k],
@@ -327,7 +332,7 @@ fn build_nodes(
                 let kids = &m[run.clone()];
                 let mut pts = PointColumns::default();
                 for kid in kids {
-                    append(&mut pts, coarsest(kid.part)?);
+                    append(&mut pts, next_coarser(kid.part)?);
                 }
                 let child_names: Vec<String> = kids
                     .iter()
@@ -364,7 +369,7 @@ fn build_nodes(
         drop(m);
         members.clear();
         for (part, entry) in written {
-            members.push((Child::Node(opened.len()), opened.len()));
+            members.push(Child::Node(opened.len()));
             names.push(node_name(layer, members.len() - 1));
             opened.push(part);
             nodes.push(entry);

@@ -147,6 +147,28 @@ pub(super) enum Bytes {
     Owned(Vec<u8>),
 }
 
+impl Bytes {
+    /// Turns the map's read-ahead off: a fault reads its page only. Parts are
+    /// read a tile at a time, and a disk's read-ahead (8 MiB on some) would read
+    /// whole parts for a few tiles.
+    fn random(&self) {
+        if let Bytes::Map(m) = self {
+            let _ = m.advise(memmap2::Advice::Random);
+        }
+    }
+
+    /// Asks the kernel to read `len` bytes at `offset` now (one request, not a
+    /// fault per page).
+    pub(super) fn will_need(&self, offset: u64, len: u64) {
+        if let Bytes::Map(m) = self
+            && len > 0
+            && offset.saturating_add(len) <= m.len() as u64
+        {
+            let _ = m.advise_range(memmap2::Advice::WillNeed, offset as usize, len as usize);
+        }
+    }
+}
+
 impl std::ops::Deref for Bytes {
     type Target = [u8];
     fn deref(&self) -> &[u8] {
@@ -250,7 +272,9 @@ impl Part {
         // A file truncated by someone else while mapped can fault; that is the
         // documented limit of memory-mapped I/O.
         let map = unsafe { Mmap::map(&file) }.map_err(|e| err(format!("cannot map: {e}")))?;
-        Self::parse(path, Bytes::Map(map))
+        let map = Bytes::Map(map);
+        map.random();
+        Self::parse(path, map)
     }
 
     /// Opens a part held in memory; `name` stands for the file in messages.
@@ -800,6 +824,12 @@ impl Part {
             }
             return Ok(());
         }
+        for &b in bands {
+            let c = b * per_band + t as usize;
+            if let (Some(&o), Some(&n)) = (l.offsets.get(c), l.counts.get(c)) {
+                self.map.will_need(o, n);
+            }
+        }
         for (o, &b) in outs.into_iter().zip(bands) {
             let c = b * per_band + t as usize;
             let (off, len) = (l.offsets[c] as usize, l.counts[c] as usize);
@@ -879,6 +909,13 @@ impl Part {
         let mut decode: Vec<usize> = bands.to_vec();
         if points.is_none() && !decode.contains(&0) {
             decode.push(0);
+        }
+        // The map reads nothing ahead (`Bytes::random`): ask for exactly this
+        // tile's chunks, all at once.
+        for c in decode.iter().map(|&b| chunk(b)) {
+            if let (Some(&o), Some(&n)) = (l.offsets.get(c), l.counts.get(c)) {
+                self.map.will_need(o, n);
+            }
         }
         let raw_native = l.compression == spec::compression::NONE
             && l.planar_separate

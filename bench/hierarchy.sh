@@ -1,0 +1,74 @@
+#!/usr/bin/env bash
+# The dataset hierarchy (issue 26): for datasets of many parts and a single-part
+# dataset of the same points, the time to open the dataset and draw the first frame
+# of the whole of it (`pcimg render --view 0,-89`, CPU rasterizer, 1280x720), page
+# cache warm and cold; the points loaded, the bytes read from the disk (cold), and
+# the tiles given up; and the share of the conversion spent on the index and
+# overview.
+#
+#   bash bench/hierarchy.sh                 # 8, ~144 and ~1,000 parts
+#   SIZES="1200000" bash bench/hierarchy.sh  # one size (points), quicker
+#
+# Cold runs drop the page cache (`echo 3 > /proc/sys/vm/drop_caches`): run as root.
+# Parts are made with `--memory 64MiB` (about 190,000 points a part at most).
+set -euo pipefail
+cd "$(dirname "$0")/.."
+DIR=${DIR:-/tmp/pcimg-hier}
+BIN=$PWD/target/release/pcimg
+SIZES=${SIZES:-"1200000 20000000 150000000"}
+REPS=${REPS:-5}
+cargo build --release -q
+mkdir -p "$DIR"
+echo "machine: $(nproc) cores, $(free -g | awk '/Mem:/ {print $2}') GiB, $(uname -sr); $(date -u +%FT%TZ)"
+
+drop() { sync; echo 3 > /proc/sys/vm/drop_caches; }
+
+# frame DS LABEL MODE: REPS first frames; prints the median wall time (range), the
+# points, tiles and given-up tiles of the last, and (cold) the median bytes read.
+frame() {
+  local ds=$1 label=$2 mode=$3 walls=() reads=() line=""
+  for _ in $(seq "$REPS"); do
+    [ "$mode" = cold ] && drop
+    /usr/bin/time -f "%e %I" -o "$DIR/t.txt" "$BIN" render "$ds" -o "$DIR/f.png" \
+      --view 0,-89 --renderer cpu 2> "$DIR/err.txt" || { cat "$DIR/err.txt"; exit 1; }
+    read -r wall blocks < "$DIR/t.txt"
+    walls+=("$wall")
+    reads+=("$((blocks * 512))")
+    line=$(grep -v '^wrote' "$DIR/err.txt" | grep -v '^note' | tail -1)
+  done
+  local med lo hi rd
+  med=$(printf '%s\n' "${walls[@]}" | sort -g | awk '{v[NR]=$1} END {print v[int((NR+1)/2)]}')
+  lo=$(printf '%s\n' "${walls[@]}" | sort -g | head -1)
+  hi=$(printf '%s\n' "${walls[@]}" | sort -g | tail -1)
+  rd=$(printf '%s\n' "${reads[@]}" | sort -g | awk '{v[NR]=$1} END {print v[int((NR+1)/2)]}')
+  local pts tiles gave
+  pts=$(sed -E 's/^([0-9,]+) points.*/\1/' <<< "$line")
+  tiles=$(sed -E 's/^[0-9,]+ points from ([0-9]+) tiles.*/\1/' <<< "$line")
+  gave=$(grep -oE 'gave up loading [0-9]+' <<< "$line" | grep -oE '[0-9]+$' || echo 0)
+  printf '%-28s %-5s %6.3f s (%s-%s)  points %11s  tiles %5s  given up %s  read %s MB\n' \
+    "$label" "$mode" "$med" "$lo" "$hi" "$pts" "$tiles" "$gave" \
+    "$(awk -v b="$rd" 'BEGIN {printf "%.1f", b / 1e6}')"
+}
+
+for n in $SIZES; do
+  in="$DIR/scan-$n.las"
+  [ -f "$in" ] || "$BIN" synth -n "$n" --order scan -o "$in" > /dev/null
+  many="$DIR/many-$n.pcimg"
+  one="$DIR/one-$n.tif"
+  if [ ! -f "$many/pcimg-index.json" ]; then
+    rm -rf "$many"
+    "$BIN" convert "$in" -o "$many" --memory 64MiB --timings -q > "$DIR/conv-$n.txt"
+  fi
+  [ -f "$one" ] || "$BIN" convert "$in" -o "$one" --memory 16G -q
+  parts=$(ls "$many"/*.tif | wc -l)
+  echo
+  echo "== $n points: $parts parts (--memory 64MiB) against one part"
+  grep -E 'part\(s\)|indexed|M points/s|index and overview' "$DIR/conv-$n.txt" | sed 's/^ */  /' 
+  frame "$many" "$parts parts" warm
+  frame "$one" "1 part" warm
+  frame "$many" "$parts parts" cold
+  frame "$one" "1 part" cold
+  # The overview rebuilt alone (pcimg index), for parts made separately.
+  /usr/bin/time -f "%e" -o "$DIR/t.txt" "$BIN" index "$many" -q
+  echo "  pcimg index alone: $(cat "$DIR/t.txt") s"
+done
