@@ -719,7 +719,10 @@ fn force_replaces_only_what_pcimg_wrote() {
         let (ok, err) = run(&["in.xyz", "-o", "out.pcimg"]);
         assert!(ok, "{err}");
     }
-    assert_eq!(entries(&sb.join("out.pcimg")), ["part-00000.tif"]);
+    assert_eq!(
+        entries(&sb.join("out.pcimg")),
+        ["part-00000.tif", "pcimg-index.json"]
+    );
 }
 
 /// The colour scale is decided on the file's first 65,536 points, whatever

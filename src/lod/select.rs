@@ -143,6 +143,10 @@ fn level_tiles(ds: &Dataset, part: usize, level: usize) -> Vec<TileRef> {
     let Some(l) = p.levels.get(level) else {
         return Vec::new();
     };
+    // A node's tiles stand for all of its children's points.
+    let cover = part
+        .checked_sub(ds.parts.len())
+        .and_then(|k| ds.overview.as_ref()?.covers.get(k).copied());
     l.tiles
         .iter()
         .map(|t| TileRef {
@@ -152,7 +156,7 @@ fn level_tiles(ds: &Dataset, part: usize, level: usize) -> Vec<TileRef> {
             points: t.points.map(|n| n as u64).unwrap_or_else(|| {
                 l.points.unwrap_or(p.meta.point_count) / l.tiles.len().max(1) as u64
             }),
-            bounds: t.bounds,
+            bounds: cover.unwrap_or(t.bounds),
         })
         .collect()
 }

@@ -31,6 +31,9 @@ pub struct Overview {
     pub layers: Vec<u32>,
     /// The node above each part number (parts, then nodes), `None` for the root.
     pub parents: Vec<Option<usize>>,
+    /// What each node stands for: the union of its children's bounds (its own
+    /// points, a sample, may not reach the edges of its children's).
+    pub covers: Vec<Bounds>,
 }
 
 impl Overview {
@@ -104,11 +107,20 @@ impl Dataset {
                         parents[i] = Some(np + k);
                     }
                 }
+                let mut covers: Vec<Bounds> = Vec::with_capacity(nodes.len());
+                for n in &index.nodes {
+                    let b = n.children.iter().fold(Bounds::EMPTY, |b, c| match *c {
+                        Child::Part(i) => b.union(&parts[i].meta.bounds),
+                        Child::Node(j) => b.union(&covers[j]),
+                    });
+                    covers.push(b);
+                }
                 Overview {
                     nodes,
                     children: index.nodes.iter().map(|n| n.children.clone()).collect(),
                     layers: index.nodes.iter().map(|n| n.layer).collect(),
                     parents,
+                    covers,
                 }
             });
             let index_bytes = std::fs::metadata(path.join(INDEX_FILE))
