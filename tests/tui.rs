@@ -181,7 +181,7 @@ fn keys_pin_levels_and_cycle_colours_in_the_status_line() {
     press(&mut app, KeyCode::Char('a'));
     assert!(status(&app).contains("auto (view-dependent)"));
     press(&mut app, KeyCode::Char('b'));
-    assert!(status(&app).contains("/ 1,000,000"), "{}", status(&app));
+    assert!(status(&app).contains("/ 8,000,000"), "{}", status(&app));
 
     press(&mut app, KeyCode::Char('?'));
     let text = screen(&app, None).join("\n");

@@ -54,14 +54,20 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         compression: None,
         cancel: Some(cancel),
     };
-    let quiet = a.quiet;
-    let progress = move |done: usize, total: usize| {
-        if !quiet {
-            note!("\roverview: {done}/~{total} node(s) written\x1b[K");
+    use std::io::IsTerminal;
+    let show = !a.quiet && std::io::stderr().is_terminal();
+    let progress = move |done: usize, _: usize| {
+        if show {
+            use std::io::Write;
+            let _ = write!(std::io::stderr(), "\roverview: {done} node(s) written");
         }
     };
-    let r = build_index(&a.dir, &o, &progress)?;
-    if !quiet {
+    let r = build_index(&a.dir, &o, &progress);
+    if show {
+        note!("");
+    }
+    let r = r?;
+    if !a.quiet {
         super::print_out(&format!("{}\n", describe(&r)))?;
     }
     Ok(())

@@ -279,12 +279,16 @@ impl App {
     /// colour, point size, eye-dome lighting, tiles still loading.
     pub fn status_line(&self) -> String {
         let f = &self.frame;
-        let levels = match f.levels {
+        let mut levels = match f.levels {
             Some((lo, hi)) if lo == hi => format!("level {lo}"),
             Some((lo, hi)) => format!("levels {lo}-{hi}"),
+            None if f.overview_tiles > 0 => "overview".into(),
             None if f.renderer.is_empty() => "no frame yet".into(),
             None => "nothing drawn".into(),
         };
+        if f.levels.is_some() && f.overview_tiles > 0 {
+            levels.push_str(" + overview");
+        }
         let mut s = format!(
             "{} | {levels} | {} pts / {} | {} | size {}{}",
             self.settings.lod.label(),

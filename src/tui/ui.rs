@@ -290,7 +290,8 @@ fn draw_levels(f: &mut Frame, app: &App, area: Rect) {
             .map_or(0, |(_, n)| *n)
     };
     let shown = app.frame.levels;
-    let rows: Vec<Row> = app
+    let mut rows = overview_rows(app);
+    let own: Vec<Row> = app
         .dataset
         .parts
         .get(app.part)
@@ -325,6 +326,7 @@ fn draw_levels(f: &mut Frame, app: &App, area: Rect) {
                 .collect()
         })
         .unwrap_or_default();
+    rows.extend(own);
     let t = Table::new(
         rows,
         [
@@ -339,11 +341,73 @@ fn draw_levels(f: &mut Frame, app: &App, area: Rect) {
     .header(header(&[
         "level", "size", "points", "bytes", "codec", "cache",
     ]))
-    .block(Block::bordered().title(title(format!(" levels of part {} ", app.part + 1))));
+    .block(Block::bordered().title(title(match &app.dataset.overview {
+        Some(_) => format!(" overview + levels of part {} ", app.part + 1),
+        None => format!(" levels of part {} ", app.part + 1),
+    })));
     f.render_widget(t, area);
 }
 
+/// One row per overview layer, the root's first: `O` and its layer, the nodes,
+/// the points a view of the layer draws, bytes, and how many nodes are loaded.
+fn overview_rows(app: &App) -> Vec<Row<'static>> {
+    let ds = &app.dataset;
+    let Some(o) = &ds.overview else {
+        return Vec::new();
+    };
+    let np = ds.parts.len();
+    (1..=o.layer_count())
+        .rev()
+        .map(|layer| {
+            let nodes: Vec<usize> = (0..o.nodes.len())
+                .filter(|&k| o.layers[k] == layer)
+                .collect();
+            let points: u64 = nodes
+                .iter()
+                .map(|&k| o.nodes[k].levels.last().and_then(|l| l.points).unwrap_or(0))
+                .sum();
+            let stored: u64 = nodes.iter().map(|&k| o.nodes[k].file_bytes).sum();
+            let loaded = nodes
+                .iter()
+                .filter(|&&k| {
+                    app.frame
+                        .loaded
+                        .iter()
+                        .any(|((p, _), n)| *p == np + k && *n > 0)
+                })
+                .count();
+            let state = match loaded {
+                0 => "-".to_string(),
+                n if n == nodes.len() => "loaded".to_string(),
+                n => format!("{n}/{} nodes", nodes.len()),
+            };
+            let codec = o.nodes[nodes[0]].levels[0].compression;
+            let row = Row::new(vec![
+                Cell::from(format!("O{layer}")),
+                Cell::from(format!(
+                    "{} node{}",
+                    nodes.len(),
+                    if nodes.len() == 1 { "" } else { "s" }
+                )),
+                Cell::from(count(points)),
+                Cell::from(bytes(stored)),
+                Cell::from(compression_name(codec)),
+                Cell::from(state),
+            ]);
+            if app.frame.overview_tiles > 0 && loaded > 0 {
+                row.style(Style::new().fg(Color::Cyan))
+            } else {
+                row
+            }
+        })
+        .collect()
+}
+
 fn draw_memory(f: &mut Frame, app: &App, area: Rect) {
+    let budget = match app.frame.budget {
+        0 => app.settings.budget,
+        b => b,
+    };
     let block = Block::bordered().title(title(" memory "));
     let inner = block.inner(area);
     f.render_widget(block, area);
@@ -365,11 +429,11 @@ fn draw_memory(f: &mut Frame, app: &App, area: Rect) {
     f.render_widget(
         Gauge::default()
             .gauge_style(Style::new().fg(Color::Magenta))
-            .ratio(ratio(app.frame.points, s.budget))
+            .ratio(ratio(app.frame.points, budget))
             .label(format!(
                 "points {} / {}",
                 count(app.frame.points),
-                count(s.budget)
+                count(budget)
             )),
         points,
     );

@@ -53,7 +53,7 @@ pub enum Report {
 
 /// How long the worker waits for more tiles before drawing what arrived.
 const REDRAW_WHILE_LOADING: Duration = Duration::from_millis(60);
-/// Points of the overview's top layers requested before the first selection.
+/// Points of the overview's top layers loaded before the first frame.
 const OVERVIEW_FIRST_POINTS: u64 = 1_000_000;
 
 /// The render worker thread and its two channels.
@@ -135,8 +135,6 @@ struct Worker {
     renderer: Option<Box<dyn Rasterizer>>,
     /// When the current wait for tiles began.
     loading_since: Option<Instant>,
-    /// Whether the overview's top tiles were requested.
-    overview_requested: bool,
     ranges: ColorRanges,
     colors: ColorCache,
 }
@@ -155,7 +153,6 @@ fn run(
         cache,
         renderer: None,
         loading_since: None,
-        overview_requested: false,
         ranges,
         colors: ColorCache {
             mode: None,
@@ -213,24 +210,40 @@ fn run(
     }
 }
 
-/// Colour ranges from every part's coarsest level (small, and fixed for the
-/// session so colours do not flicker as tiles stream in).
+/// Colour ranges from the overview's top layers, loaded first (they cover the
+/// whole dataset), or without an overview from every part's coarsest level (small,
+/// and fixed for the session so colours do not flicker as tiles stream in).
 fn color_ranges(ds: &Dataset, cache: &TileCache) -> ColorRanges {
-    let refs: Vec<TileRef> = ds
-        .parts
-        .iter()
-        .enumerate()
-        .filter_map(|(pi, p)| p.levels.last().map(|l| (pi, l)))
-        .flat_map(|(pi, l)| {
-            l.tiles.iter().map(move |t| TileRef {
-                part: pi,
-                level: l.index,
-                tile: t.index,
-                points: t.points.unwrap_or(0) as u64,
-                bounds: t.bounds,
-            })
+    // With an overview, its top stands for the whole dataset: no part is read.
+    let first: Vec<TileRef> = ds
+        .overview_first(OVERVIEW_FIRST_POINTS)
+        .into_iter()
+        .map(|(part, level, tile, points)| TileRef {
+            part,
+            level,
+            tile,
+            points,
+            bounds: ds.bounds(),
         })
         .collect();
+    let refs: Vec<TileRef> = if !first.is_empty() {
+        first
+    } else {
+        ds.parts
+            .iter()
+            .enumerate()
+            .filter_map(|(pi, p)| p.levels.last().map(|l| (pi, l)))
+            .flat_map(|(pi, l)| {
+                l.tiles.iter().map(move |t| TileRef {
+                    part: pi,
+                    level: l.index,
+                    tile: t.index,
+                    points: t.points.unwrap_or(0) as u64,
+                    bounds: t.bounds,
+                })
+            })
+            .collect()
+    };
     let tiles = cache.load_all(&refs).unwrap_or_default();
     ColorRanges::from_tiles(&tiles, &ds.bounds())
 }
@@ -264,23 +277,6 @@ impl Worker {
             },
             m => m,
         };
-        if !self.overview_requested {
-            // The overview's top first: it covers the whole dataset.
-            self.overview_requested = true;
-            let first: Vec<TileRef> = self
-                .ds
-                .overview_first(OVERVIEW_FIRST_POINTS)
-                .into_iter()
-                .map(|(part, level, tile, points)| TileRef {
-                    part,
-                    level,
-                    tile,
-                    points,
-                    bounds: self.ds.bounds(),
-                })
-                .collect();
-            self.cache.request(&first);
-        }
         let sel = lod::select(&self.ds, &req.camera, width, height, mode, s.memory);
         let select_ms = ms(t);
         self.cache.request(&sel.tiles);
@@ -323,10 +319,13 @@ impl Worker {
             })
             .collect();
         let points: u64 = tiles.iter().map(|t| t.len() as u64).sum();
-        let levels = tiles.iter().fold(None, |acc: Option<(usize, usize)>, t| {
-            let l = t.key.level;
-            Some(acc.map_or((l, l), |(lo, hi)| (lo.min(l), hi.max(l))))
-        });
+        let levels = tiles
+            .iter()
+            .filter(|t| !self.ds.is_overview(t.key.part))
+            .fold(None, |acc: Option<(usize, usize)>, t| {
+                let l = t.key.level;
+                Some(acc.map_or((l, l), |(lo, hi)| (lo.min(l), hi.max(l))))
+            });
 
         let opts = RenderOptions {
             width,
