@@ -6,16 +6,17 @@
 # the tiles given up; and the share of the conversion spent on the index and
 # overview.
 #
-#   bash bench/hierarchy.sh                 # 8, ~144 and ~1,000 parts
-#   SIZES="1200000" bash bench/hierarchy.sh  # one size (points), quicker
+#   bash bench/hierarchy.sh                        # about 8, 144 and 1,000 parts
+#   SIZES="1200000:64MiB" bash bench/hierarchy.sh   # one dataset: points:--memory
 #
 # Cold runs drop the page cache (`echo 3 > /proc/sys/vm/drop_caches`): run as root.
-# Parts are made with `--memory 64MiB` (about 190,000 points a part at most).
+# `--memory 256MiB` makes parts of up to 1.6 M synthetic LAS points (4-5 levels),
+# `--memory 64MiB` parts of up to 140,000 (2 levels). PREP=1 only makes the data.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 DIR=${DIR:-/tmp/pcimg-hier}
 BIN=$PWD/target/release/pcimg
-SIZES=${SIZES:-"1200000 20000000 150000000"}
+SIZES=${SIZES:-"12000000:256MiB 13000000:64MiB 92000000:64MiB"}
 REPS=${REPS:-5}
 cargo build --release -q
 mkdir -p "$DIR"
@@ -50,20 +51,27 @@ frame() {
     "$(awk -v b="$rd" 'BEGIN {printf "%.1f", b / 1e6}')"
 }
 
-for n in $SIZES; do
+for spec in $SIZES; do
+  n=${spec%%:*}
+  mem=${spec##*:}
   in="$DIR/scan-$n.las"
   [ -f "$in" ] || "$BIN" synth -n "$n" --order scan -o "$in" > /dev/null
-  many="$DIR/many-$n.pcimg"
+  many="$DIR/many-$n-$mem.pcimg"
   one="$DIR/one-$n.tif"
   if [ ! -f "$many/pcimg-index.json" ]; then
     rm -rf "$many"
-    "$BIN" convert "$in" -o "$many" --memory 64MiB --timings -q > "$DIR/conv-$n.txt"
+    "$BIN" convert "$in" -o "$many" --memory "$mem" --timings -q > "$DIR/conv-$n-$mem.txt"
   fi
   [ -f "$one" ] || "$BIN" convert "$in" -o "$one" --memory 16G -q
+  [ -n "${PREP:-}" ] && continue
   parts=$(ls "$many"/*.tif | wc -l)
   echo
-  echo "== $n points: $parts parts (--memory 64MiB) against one part"
-  grep -E 'part\(s\)|indexed|M points/s|index and overview' "$DIR/conv-$n.txt" | sed 's/^ */  /' 
+  echo "== $n points: $parts parts (--memory $mem) against one part"
+  # The conversion again, timed on its own (the data prep may have run beside
+  # other work).
+  rm -rf "$many"
+  "$BIN" convert "$in" -o "$many" --memory "$mem" --timings -q > "$DIR/conv-$n-$mem.txt"
+  grep -E 'part\(s\)|indexed|M points/s|index and overview' "$DIR/conv-$n-$mem.txt" | sed 's/^ */  /' 
   frame "$many" "$parts parts" warm
   frame "$one" "1 part" warm
   frame "$many" "$parts parts" cold

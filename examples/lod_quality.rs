@@ -14,12 +14,19 @@
 //! cargo run --release --example lod_quality -- [--levels 5] [--min-points 100] INPUT...
 //! INPUT: a point cloud file, synth:N (synthetic scene, random order) or
 //!        synth-scan:N (the same points in airborne scan order)
+//! cargo run --release --example lod_quality -- --dataset DIR
 //! ```
+//!
+//! `--dataset DIR` measures a directory dataset's levels as a viewer draws them
+//! over the whole dataset: each level of the parts' pyramids (every part's level
+//! `k`, or its coarsest where it has fewer), then each layer of the overview above
+//! them (every node of the layer), against a voxel-grid sample of the same size
+//! (issue 26: the overview must be as even as the parts' own levels).
 use anyhow::{Context, bail};
 use kiddo::{ImmutableKdTree, SquaredEuclidean};
 use pcimg::ingest::{self, ReadOptions};
 use pcimg::points::PointColumns;
-use pcimg::store::{Layout, Part, WriteOptions, paper, write_part};
+use pcimg::store::{Dataset, Layout, Part, WriteOptions, paper, write_part};
 use pcimg::synth::{self, Order, Rng};
 use rayon::prelude::*;
 use std::path::Path;
@@ -216,6 +223,68 @@ fn evaluate(pts: &PointColumns, levels: usize, min_points: usize) -> anyhow::Res
     Ok(rows)
 }
 
+/// Every level of a dataset as drawn over all of it, against a voxel sample.
+fn evaluate_dataset(dir: &Path) -> anyhow::Result<()> {
+    let ds = Dataset::open(dir)?;
+    let centre = ds.bounds().center();
+    let union = |parts: &[&Part], level: Option<usize>| -> anyhow::Result<Vec<P3>> {
+        let mut out = Vec::new();
+        for p in parts {
+            let top = p.levels.len() - 1;
+            out.extend(read(p, level.unwrap_or(top).min(top), centre)?);
+        }
+        Ok(out)
+    };
+    let parts: Vec<&Part> = ds.parts.iter().collect();
+    let cloud = union(&parts, Some(0))?;
+    let own = parts.iter().map(|p| p.levels.len()).max().unwrap_or(1);
+    let mut samples: Vec<(String, Vec<P3>)> = Vec::new();
+    for k in 1..own {
+        samples.push((format!("parts' level {k}"), union(&parts, Some(k))?));
+    }
+    if let Some(o) = &ds.overview {
+        for layer in 1..=o.layer_count() {
+            let nodes: Vec<&Part> = (0..o.nodes.len())
+                .filter(|&k| o.layers[k] == layer)
+                .map(|k| &o.nodes[k])
+                .collect();
+            samples.push((
+                format!("overview layer {layer} ({} nodes)", nodes.len()),
+                union(&nodes, None)?,
+            ));
+        }
+    }
+    println!(
+        "{}: {} parts, {} points. Distance from every point to the nearest point of the \
+         level: mean / p95; ratio = level ÷ voxel sample of the same size.",
+        dir.display(),
+        ds.parts.len(),
+        cloud.len()
+    );
+    println!();
+    println!(
+        "| level | points | level mean / p95 | random | voxel (points) | ÷ voxel mean / p95 |"
+    );
+    println!("|---|---|---|---|---|---|");
+    for (k, (name, sample)) in samples.iter().enumerate() {
+        let voxel = voxel_sample(&cloud, sample.len());
+        let (ours, vox) = (coverage(&cloud, sample), coverage(&cloud, &voxel));
+        let random = coverage(&cloud, &random_sample(&cloud, sample.len(), k as u64));
+        let f = |v: (f64, f64)| format!("{} / {}", sig(v.0), sig(v.1));
+        println!(
+            "| {name} | {} | {} | {} | {} ({}) | {:.2} / {:.2} |",
+            sample.len(),
+            f(ours),
+            f(random),
+            f(vox),
+            voxel.len(),
+            ours.0 / vox.0,
+            ours.1 / vox.1
+        );
+    }
+    Ok(())
+}
+
 fn main() -> anyhow::Result<()> {
     let mut levels = 5usize;
     let mut min_points = 100usize;
@@ -225,6 +294,9 @@ fn main() -> anyhow::Result<()> {
         match a.as_str() {
             "--levels" => levels = args.next().context("--levels N")?.parse()?,
             "--min-points" => min_points = args.next().context("--min-points N")?.parse()?,
+            "--dataset" => {
+                return evaluate_dataset(Path::new(&args.next().context("--dataset DIR")?));
+            }
             _ => inputs.push(a),
         }
     }
