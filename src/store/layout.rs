@@ -15,7 +15,7 @@ use std::sync::OnceLock;
 pub const KEY_BITS: u32 = 21;
 
 /// How points are placed along the image's Z-order curve.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
 pub enum Layout {
     /// Hilbert order with centroid representatives (the default).
     #[default]
