@@ -5,6 +5,7 @@ pub mod builder;
 pub mod coarse;
 pub mod codec;
 pub mod error;
+pub mod hilbert;
 pub mod layout;
 pub mod metadata;
 pub mod out;
