@@ -12,6 +12,7 @@ pub mod out;
 pub mod paper;
 pub mod sink;
 pub mod spec;
+pub mod tiles;
 pub mod writer;
 pub mod zorder;
 
