@@ -1,10 +1,13 @@
-//! Pass 2 of spatial partitioning: every point appended to its region's temporary
-//! file (`spill.rs`), by the count grid's cell, on a writer thread of its own;
-//! also used to split a region the sample underestimated.
+//! Pass 2 of spatial partitioning, distribution: every point appended to its
+//! region's temporary file (`spill.rs`), by the plan's count grid cell, on a
+//! writer thread of its own, the plan corrected where points the sample never
+//! saw need it; also used to split a region the sample underestimated.
 
+use super::job::Job;
 use super::partition::{CountGrid, Region};
-use super::{ConvertOptions, Progress, Result, check_cancel, normalize, spill};
-use crate::ingest::{self, PointReader, ReadOptions};
+use super::plan::{Cells, Placer, Plan};
+use super::{ConvertOptions, F32_MM_RADIUS, Result, check_cancel, normalize, reach, spill};
+use crate::ingest::{self, PointReader};
 use crate::points::{Bounds, PointColumns};
 use rayon::prelude::*;
 use std::path::{Path, PathBuf};
@@ -18,41 +21,96 @@ pub(super) struct Spilled {
     pub(super) origin: [f64; 3],
 }
 
-/// Pass 2 of spatial partitioning: re-reads the input and appends every point to
-/// its region's temporary file. Returns each region's file, point count and bounds.
-#[allow(clippy::too_many_arguments)]
-pub(super) fn distribute(
+/// Pass 2 of spatial partitioning, as the plan says: every point in its region's
+/// file. Where points the sample never saw make that impossible, the plan is
+/// corrected and the pass run again (see below). Returns each region's file.
+pub(super) fn regions(
+    job: &Job,
     reader: &mut Box<dyn PointReader>,
-    inputs: &[PathBuf],
-    read: &ReadOptions,
-    o: &ConvertOptions,
-    progress: &dyn Progress,
-    grid: &CountGrid,
-    regions: &[Region],
-    cell_region: &[u32],
-    origins: &[[f64; 3]],
+    plan: &mut Plan,
+    cells: Cells,
+    placer: &Placer,
+    dir: &Path,
+) -> Result<Vec<Spilled>> {
+    let like = plan.like();
+    let nattr = like.attributes.len();
+    let mut cells = cells;
+    let mut files = distribute(job, reader, plan, &cells, &like, dir)?;
+    // Points far outside the bounds the sample saw join the nearest region,
+    // which can then spread wider than f32 keeps 1 mm across wherever its
+    // origin. The regions are then placed again over every point's bounds,
+    // every grid cell that holds a point of such a region counted as occupied
+    // (read back from its file: its f32 offsets place points well enough for
+    // that), so the far points get regions of their own.
+    let wide = |f: &Spilled| reach(&f.bounds, f.bounds.center()) >= F32_MM_RADIUS;
+    if files.iter().any(wide) {
+        job.progress
+            .note("points lie far outside the bounds the sample saw: partitioning again");
+        let all = files.iter().fold(Bounds::EMPTY, |a, f| a.union(&f.bounds));
+        let probe = CountGrid::new(all);
+        let mut occupied = vec![false; probe.counts.len()];
+        for f in files.iter().filter(|f| wide(f)) {
+            let mut blocks = spill::SpillReader::open(&f.path, nattr)?;
+            while let Some(c) = blocks.next_block(&like, 1 << 20, f.origin)? {
+                check_cancel(job.o)?;
+                for i in 0..c.len() {
+                    occupied[probe.index(probe.cell([c.x[i], c.y[i], c.z[i]]))] = true;
+                }
+            }
+        }
+        cells = plan.place_again(placer, all, &occupied);
+        files = distribute(job, reader, plan, &cells, &like, dir)?;
+    }
+    // Points the sample never saw can lie far outside their region's box.
+    // Where f32 then lost 1 mm around the box's centre but would not around
+    // the centre of the region's own bounds, the pass is run again around
+    // those centres (the parts' own check then holds).
+    let far = |f: &Spilled| {
+        reach(&f.bounds, f.origin) >= F32_MM_RADIUS
+            && reach(&f.bounds, f.bounds.center()) < F32_MM_RADIUS
+    };
+    if files.iter().any(far) {
+        job.progress
+            .note("points lie far outside their regions: partitioning again");
+        for (origin, f) in plan.origins.iter_mut().zip(&files) {
+            if !f.bounds.is_empty() {
+                *origin = f.bounds.center();
+            }
+        }
+        files = distribute(job, reader, plan, &cells, &like, dir)?;
+    }
+    Ok(files)
+}
+
+/// Re-reads the input and appends every point to its region's temporary file.
+/// Returns each region's file, point count and bounds.
+fn distribute(
+    job: &Job,
+    reader: &mut Box<dyn PointReader>,
+    plan: &Plan,
+    cells: &Cells,
     like: &PointColumns,
     dir: &Path,
-    rebased: &std::cell::Cell<bool>,
 ) -> Result<Vec<Spilled>> {
+    let (o, progress) = (job.o, job.progress);
     // (`ingest::open` refuses more attributes than a record carries:
     // `points::MAX_ATTRIBUTES`.)
-    *reader = ingest::multi::open_all(inputs, read)?;
+    *reader = ingest::multi::open_all(&plan.inputs, &plan.read)?;
     progress.phase("partition", reader.info().file_bytes, "bytes");
     let mut seen = 0u64;
     let reader = &mut **reader;
     spill_all(
         o,
-        grid,
-        regions,
-        cell_region,
-        origins,
+        &cells.grid,
+        &plan.regions,
+        &cells.cell_region,
+        &plan.origins,
         dir,
         "region",
         |sink| {
             while let Some(mut chunk) = reader.next_chunk()? {
                 check_cancel(o)?;
-                normalize(&mut chunk, like, progress, rebased);
+                normalize(&mut chunk, like, progress, &job.rebased);
                 seen += chunk.len() as u64;
                 sink(chunk)?;
                 progress.advance(reader.bytes_done(), seen);

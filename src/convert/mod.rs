@@ -1,30 +1,38 @@
 //! The conversion pipeline (the paper's storage phase, out of core): input readers
 //! deliver windows of points; the memory budget decides how many points make one
 //! image; spatial partitioning (default) or the paper's single stream pass groups
-//! them into parts, each written through the image store.
+//! them into parts, each written through the image store. This module holds the
+//! options, the summary and the retries; the stages are `scan` (pass 1), `plan`
+//! (the spatial [`Plan`]), `distribute` (pass 2) and `write` (pass 3, or the
+//! single part), sharing one conversion's state through `job::Job`.
 
 pub mod budget;
 mod distribute;
+mod job;
 mod output;
 pub mod partition;
+mod plan;
 mod sample;
+mod scan;
 pub mod spill;
+mod write;
 
-use distribute::{Spilled, distribute, spill_all};
+use job::Job;
+use plan::Placer;
+pub use plan::Plan;
 pub use sample::DEFAULT_SAMPLE_POINTS;
-use sample::{MIN_SAMPLE, Sample};
+use scan::Scanned;
 
-use crate::clock::{Span, Stamp};
+use crate::clock::Span;
 use crate::ingest::{self, ReadOptions};
 use crate::points::{Bounds, PointColumns};
-use crate::store::{self, Compression, Layout, PartSummary, WriteOptions};
-use partition::CountGrid;
+use crate::store::{self, Compression, Layout, PartSummary};
 use rayon::prelude::*;
 use std::cell::Cell;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 /// How points are grouped into parts.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
@@ -310,608 +318,65 @@ impl std::fmt::Display for NeedColumns {
 
 impl std::error::Error for NeedColumns {}
 
-/// [`convert`], the first pass collecting a single part as `collect` says.
+/// [`convert`], the first pass collecting a single part as `collect` says:
+/// scan, then write the single part; or, for several spatial parts, scan → plan
+/// → distribute → write.
 fn convert_with(
     inputs: &[PathBuf],
     o: &ConvertOptions,
     progress: &dyn Progress,
     collect: Collect,
 ) -> Result<ConvertSummary> {
-    let early = collect != Collect::Held;
-    let start = Instant::now();
-    let as_file = output_is_file(&o.output);
-    for input in inputs {
-        output::check(input, &o.output, as_file, o.force)?;
-    }
-    let mut read = o.read.clone();
-    let opened = ingest::multi::open_all(inputs, &read)?;
-    let info = opened.info().clone();
-    let per_part = budget::points_per_part(o.memory, info.attribute_names.len());
-    if o.memory < budget::MIN_KEPT && collect == Collect::Extents {
-        progress.note(&format!(
-            "--memory {} is below {}, the smallest budget a conversion keeps to: parts \
-             still hold {} points, and the converter's fixed needs (about 90 MiB) exceed \
-             the budget",
-            crate::text::bytes(o.memory),
-            crate::text::bytes(budget::MIN_KEPT),
-            crate::text::count(per_part),
-        ));
-    }
-    // Freed large buffers are kept for the next ones (a part's sort keys reuse the
-    // input columns' pages, the next part reuses this one's), within a share of
-    // the budget.
-    crate::alloc::set_pool_limit((o.memory / 4).min(usize::MAX as u64) as usize);
-    // Reader windows are a small share of the budget.
-    read.chunk_points = read.chunk_points.min((per_part / 8).max(1 << 16) as usize);
-    drop(opened);
-    let mut reader = ingest::multi::open_all(inputs, &read)?;
-    // What errors about the points as a whole name: the input.
-    let about = match inputs {
-        [one] => one.display().to_string(),
-        _ => source_name(inputs).unwrap_or_default(),
-    };
-    let write_opts = WriteOptions {
-        compression: o.compression,
-        layout: o.layout,
-        source: source_name(inputs),
-        crs: info.crs_wkt.clone(),
-        force_bigtiff: false,
-        cancel: Some(o.cancel.clone()),
-        io: o.io,
-        release_pool: false,
-    };
-    // The single part of a conversion gives the allocator's pool back before its
-    // tiles: nothing after it would reuse that memory.
-    let last_part = Cell::new(false);
-    let opts_now = || WriteOptions {
-        release_pool: last_part.get(),
-        ..write_opts.clone()
-    };
-    progress.phase("read", info.file_bytes, "bytes");
-
-    // Parts go into a temporary directory renamed into place at the end (for a
-    // single-file output the store's own temporary file does this).
-    let staging = if as_file {
-        None
-    } else {
-        Some(spill::TempDir::beside(&o.output, "pcimg-out")?)
-    };
-    let part_path = |k: usize| match &staging {
-        Some(d) => d.path.join(format!("part-{k:05}.tif")),
-        None => o.output.clone(),
-    };
-    // A store error names the part where the user will look for it: the staging
-    // directory is gone by the time the message is read.
-    let public = |mut e: store::StoreError| -> anyhow::Error {
-        if let Some(rel) = staging
-            .as_ref()
-            .and_then(|d| e.path.strip_prefix(&d.path).ok())
-        {
-            e.path = o.output.join(rel);
-        }
-        e.into()
-    };
-    let mut parts: Vec<PartSummary> = Vec::new();
-    let timings = std::cell::RefCell::new(Timings::default());
-    // Time spent writing parts so far (passes report their time less this).
-    let written = std::cell::Cell::new(Span::default());
-    // Notes a written part: its timings and a progress line.
-    let record = |s: PartSummary, parts: &mut Vec<PartSummary>| {
-        for (name, d) in &s.phases {
-            timings.borrow_mut().add(&format!("write: {name}"), *d);
-            written.set(written.get() + *d);
-        }
-        progress.note(&format!(
-            "part {} written: {} points, {}",
-            parts.len() + 1,
-            crate::text::count(s.points),
-            crate::text::bytes(s.bytes)
-        ));
-        parts.push(s);
-    };
-    // A part from consecutive chunks of points, whose bounds the caller has.
-    // It takes the chunks, so their coordinates are freed as soon as the store has
-    // read them.
-    let write_chunks = |chunks: Vec<PointColumns>,
-                        bounds: &Bounds,
-                        parts: &mut Vec<PartSummary>|
-     -> Result<()> {
-        check_cancel(o)?;
-        check_precision(&about, bounds, bounds.center(), parts.len(), o, as_file)?;
-        let s =
-            store::write_part_owned(&part_path(parts.len()), chunks, Some(*bounds), &opts_now())
-                .map_err(public)?;
-        record(s, parts);
-        Ok(())
-    };
-    // A part collected by a store builder (its own origin and bounds).
-    // `while_reading`: the origin was chosen before the points' bounds were known
-    // (a single part collected as it is read), so a better one can be had by
-    // reading again ([`OriginTooFar`]); a spatial region's origin is already
-    // placed from its own points, and reading again would place it the same way.
-    let write_built = |b: store::PartBuilder,
-                       while_reading: bool,
-                       parts: &mut Vec<PartSummary>|
-     -> Result<()> {
-        check_cancel(o)?;
-        let (bounds, origin) = (b.bounds(), b.origin());
-        let (here, best) = (reach(&bounds, origin), reach(&bounds, bounds.center()));
-        let costly = f32_rounding(here) >= 1e-4 && f32_rounding(here) > 4.0 * f32_rounding(best);
-        if while_reading && ((here >= F32_MM_RADIUS && best < F32_MM_RADIUS) || costly) {
-            return Err(OriginTooFar.into());
-        }
-        check_precision(&about, &bounds, origin, parts.len(), o, as_file)?;
-        let s = store::write_part_built(&part_path(parts.len()), b, &opts_now()).map_err(public)?;
-        record(s, parts);
-        Ok(())
-    };
-    let write = |pts: PointColumns, parts: &mut Vec<PartSummary>| -> Result<()> {
-        let bounds = pts.bounds();
-        write_chunks(vec![pts], &bounds, parts)
-    };
-
-    // The builder of a part collected while reading, around the centre of the
-    // bounds the input declares (LAS) or else of its first window (`here`).
-    let new_part = |here: Bounds| {
-        let centre = info.declared_bounds.unwrap_or(here).center();
-        let expect = info.declared_points.unwrap_or(0).min(per_part);
-        store::PartBuilder::new(centre, None, expect as usize)
-    };
-    let mut total = 0u64;
-    // Whether attribute values were noted to lose precision on a common offset.
-    let rebased = Cell::new(false);
-    // A pass starts with the clock and the write time so far; its time is the
-    // wall time since, less the parts written meanwhile.
-    let begin = || (Stamp::now(), written.get());
-    let pass = |name: &str, (since, before): (Stamp, Span)| {
-        let writes = written.get().saturating_sub(before);
-        timings
-            .borrow_mut()
-            .add(name, since.elapsed().saturating_sub(writes));
-    };
-    let t_read = begin();
-    match o.partition {
-        Partition::Stream => {
-            // Parts are written while the input is read: the pass is listed first.
-            timings.borrow_mut().add("read", Span::default());
-            let mut acc: Option<PointColumns> = None;
-            while let Some(mut chunk) = reader.next_chunk()? {
-                check_cancel(o)?;
-                total += chunk.len() as u64;
-                progress.advance(reader.bytes_done(), total);
-                let a = acc.get_or_insert_with(|| chunk.empty_like());
-                normalize(&mut chunk, a, progress, &rebased);
-                // Fill the current part up to the budget; the rest starts the next.
-                // A full part is written once more points arrive (so an input of
-                // exactly one part's size still fits a single-file output).
-                let mut from = 0;
-                while from < chunk.len() {
-                    if a.len() as u64 >= per_part {
-                        if as_file {
-                            anyhow::bail!(too_many_parts(&o.output, per_part, o.memory));
-                        }
-                        let full = std::mem::replace(a, chunk.empty_like());
-                        write(full, &mut parts)?;
-                    }
-                    let take = ((per_part as usize) - a.len()).min(chunk.len() - from);
-                    a.append_range(&chunk, from, from + take);
-                    from += take;
-                }
-            }
-            pass("read", t_read);
-            if let Some(a) = acc.filter(|a| !a.is_empty()) {
-                write(a, &mut parts)?;
-            }
-        }
+    let (mut job, mut reader) = Job::open(inputs, o, progress, collect)?;
+    let t_read = job.begin();
+    let total = match o.partition {
+        Partition::Stream => scan::stream(&mut job, &mut *reader, t_read)?,
         Partition::Spatial
             if collect == Collect::Extents
                 && o.layout != Layout::Paper
-                && info.declared_points.is_some_and(|n| n <= per_part)
+                && job.info.declared_points.is_some_and(|n| n <= job.per_part)
                 && reader.gives_extents()? =>
         {
-            // Pass 1 over the chunks' extents: the reader gives every point
-            // again when the part is written, and the input holds no more
-            // points than one part.
-            let mut bounds = Bounds::EMPTY;
-            let mut built: Option<store::PartBuilder> = None;
-            while let Some(e) = reader.next_extent()? {
-                check_cancel(o)?;
-                total += e.len as u64;
-                progress.advance(reader.bytes_done(), total);
-                bounds = bounds.union(&e.bounds);
-                let b = match built.as_mut() {
-                    Some(b) => b,
-                    None => {
-                        let mut b = new_part(e.bounds);
-                        let Some(rows) = reader.row_source() else {
-                            return Err(NeedColumns.into());
-                        };
-                        b.rows_from(rows);
-                        built.insert(b)
-                    }
-                };
-                if (b.len() + e.len) as u64 > per_part {
-                    return Err(NeedColumns.into());
-                }
-                b.push_extent(&part_path(0), &e).map_err(public)?;
-            }
-            pass("read", t_read);
-            if !as_file && too_wide(&bounds) {
-                return Err(NeedColumns.into());
-            }
-            let held_points = total;
-            progress.phase("write", held_points, "points");
-            last_part.set(true);
-            if let Some(b) = built.filter(|b| !b.is_empty()) {
-                write_built(b, true, &mut parts)?;
-            }
-            progress.advance(held_points, held_points);
+            let one = scan::extents(&mut job, &mut *reader, t_read)?;
+            write::one_part(&mut job, one)?
         }
         Partition::Spatial => {
-            // Pass 1: bounds and a sample; points kept while they fit one part.
-            let mut bounds = Bounds::EMPTY;
-            // The points so far while they fit one part: converted for the store
-            // as they arrive (`early`), around the centre of the bounds the input
-            // declares (LAS) or else of its first window, so each window is freed
-            // at once and its memory reused for the next; or (when that origin
-            // proved too far) the chunks as read, no copy.
-            let mut held: Vec<PointColumns> = Vec::new();
-            let mut built: Option<store::PartBuilder> = None;
-            let mut held_points = 0u64;
-            let mut overflow = false;
-            let mut sample = Sample::new(1 << 21);
-            let mut like: Option<PointColumns> = None;
-            // Points each delivered point stands for: 1, or more once the reader
-            // samples (then `total` is an estimate until pass 2 counts).
-            let mut weight = 1u64;
-            while let Some(mut chunk) = reader.next_chunk()? {
-                check_cancel(o)?;
-                total += chunk.len() as u64 * weight;
-                progress.advance(reader.bytes_done(), total);
-                let l = like.get_or_insert_with(|| chunk.empty_like());
-                normalize(&mut chunk, l, progress, &rebased);
-                let here = chunk.bounds();
-                bounds = bounds.union(&here);
-                // The sample is only needed once the points overflow one part.
-                // Held chunks give it then (the same sample as taking it chunk by
-                // chunk); converted ones are not kept as read, so with them it is
-                // taken from the start.
-                if overflow || early {
-                    sample.add(&chunk, weight);
-                }
-                if overflow || chunk.is_empty() {
-                    continue;
-                }
-                if held_points + chunk.len() as u64 <= per_part {
-                    held_points += chunk.len() as u64;
-                    if early {
-                        let b = built.get_or_insert_with(|| {
-                            let mut b = new_part(here);
-                            // Attribute rows the reader can give again (LAS) are
-                            // not copied: the tiles take them from the input.
-                            if let Some(rows) = reader.row_source() {
-                                b.rows_from(rows);
-                            }
-                            if o.layout == Layout::Paper {
-                                b.hold_positions();
-                            }
-                            b
-                        });
-                        b.push(&part_path(0), &chunk).map_err(public)?;
-                    } else {
-                        held.push(chunk);
-                    }
-                } else {
-                    overflow = true;
-                    built = None;
-                    for c in held.drain(..) {
-                        sample.add(&c, 1);
-                    }
-                    if !early {
-                        sample.add(&chunk, 1);
-                    }
-                    // More than one part: the rest of this pass only places the
-                    // regions, and a sample of it does (pass 2 reads every point).
-                    let read_bytes = reader.bytes_done().max(1);
-                    let left = info.file_bytes.saturating_sub(read_bytes);
-                    let rest = left as f64 * total as f64 / read_bytes as f64;
-                    let wanted = o.sample_points.max(MIN_SAMPLE) as f64;
-                    let every = (rest / wanted) as u64;
-                    if every >= 2 && reader.sample_rest(every) {
-                        weight = every;
-                    }
-                }
-            }
-            pass("read", t_read);
-            // Points that fit one part but spread wider than f32 keeps 1 mm across
-            // are partitioned all the same (into a directory of parts).
-            if !overflow && !as_file && too_wide(&bounds) {
-                overflow = true;
-                built = None;
-                for c in held.drain(..) {
-                    sample.add(&c, 1);
-                }
-            }
-            if !overflow {
-                // One part: its sort and tiles are the last phase.
-                progress.phase("write", held_points, "points");
-                last_part.set(true);
-                if let Some(b) = built.filter(|b| !b.is_empty()) {
-                    write_built(b, true, &mut parts)?;
-                } else if held_points > 0 {
-                    write_chunks(held, &bounds, &mut parts)?;
-                }
-                progress.advance(held_points, held_points);
-            } else {
-                if as_file {
-                    anyhow::bail!(too_many_parts(&o.output, per_part, o.memory));
-                }
-                let like = like.unwrap_or_default();
-                // Regions from the sample (and `extra` points: see below), with
-                // margin for its error, and the origin of each.
-                let scale = sample.seen as f64 / sample.pts.len().max(1) as f64;
-                let target = ((per_part as f64 * 0.85) / scale).max(1.0) as u64;
-                let plan = |bounds: Bounds, occupied: &[bool]| {
-                    let mut grid = CountGrid::new(bounds);
-                    for p in &sample.pts {
-                        grid.add(*p);
-                    }
-                    for (c, _) in grid.counts.iter_mut().zip(occupied).filter(|(_, o)| **o) {
-                        *c = (*c).max(1);
-                    }
-                    let regions = partition::split(&grid, target, MAX_EXTENT);
-                    let cell_region = partition::cell_regions(&grid, &regions);
-                    let origins: Vec<[f64; 3]> = regions
-                        .iter()
-                        .map(|r| partition::occupied(&grid, *r).centre(&grid))
-                        .collect();
-                    (grid, regions, cell_region, origins)
-                };
-                let (mut grid, mut regions, mut cell_region, mut origins) = plan(bounds, &[]);
-                let nattr = like.attributes.len();
-                progress.note(&format!(
-                    "{}{} points over {} spatial regions",
-                    if weight > 1 { "about " } else { "" },
-                    crate::text::count(total),
-                    regions.len()
-                ));
-                // Pass 2: distribute points into one temporary file per region,
-                // stored relative to the centre of the region's occupied cells.
-                let tmp = spill::TempDir::beside(&o.output, "pcimg-spill")?;
-                let t_partition = begin();
-                let spill_with = |reader: &mut Box<dyn ingest::PointReader>,
-                                  grid: &CountGrid,
-                                  regions: &[partition::Region],
-                                  cell_region: &[u32],
-                                  origins: &[[f64; 3]]| {
-                    distribute(
-                        reader,
-                        inputs,
-                        &read,
-                        o,
-                        progress,
-                        grid,
-                        regions,
-                        cell_region,
-                        origins,
-                        &like,
-                        &tmp.path,
-                        &rebased,
-                    )
-                };
-                let mut files = spill_with(&mut reader, &grid, &regions, &cell_region, &origins)?;
-                // Points far outside the bounds the sample saw join the nearest
-                // region, which can then spread wider than f32 keeps 1 mm across
-                // wherever its origin. The regions are then placed again over
-                // every point's bounds, every grid cell that holds a point of
-                // such a region counted as occupied (read back from its file:
-                // its f32 offsets place points well enough for that), so the far
-                // points get regions of their own.
-                let wide = |f: &Spilled| reach(&f.bounds, f.bounds.center()) >= F32_MM_RADIUS;
-                if files.iter().any(wide) {
-                    progress.note(
-                        "points lie far outside the bounds the sample saw: partitioning again",
-                    );
-                    let all = files.iter().fold(Bounds::EMPTY, |a, f| a.union(&f.bounds));
-                    let probe = CountGrid::new(all);
-                    let mut occupied = vec![false; probe.counts.len()];
-                    for f in files.iter().filter(|f| wide(f)) {
-                        let mut blocks = spill::SpillReader::open(&f.path, nattr)?;
-                        while let Some(c) = blocks.next_block(&like, 1 << 20, f.origin)? {
-                            check_cancel(o)?;
-                            for i in 0..c.len() {
-                                occupied[probe.index(probe.cell([c.x[i], c.y[i], c.z[i]]))] = true;
-                            }
-                        }
-                    }
-                    (grid, regions, cell_region, origins) = plan(all, &occupied);
-                    files = spill_with(&mut reader, &grid, &regions, &cell_region, &origins)?;
-                }
-                // Points the sample never saw can lie far outside their region's
-                // box. Where f32 then lost 1 mm around the box's centre but would
-                // not around the centre of the region's own bounds, the pass is
-                // run again around those centres (the parts' own check then holds).
-                let far = |f: &Spilled| {
-                    reach(&f.bounds, f.origin) >= F32_MM_RADIUS
-                        && reach(&f.bounds, f.bounds.center()) < F32_MM_RADIUS
-                };
-                if files.iter().any(far) {
-                    progress.note("points lie far outside their regions: partitioning again");
-                    for (origin, f) in origins.iter_mut().zip(&files) {
-                        if !f.bounds.is_empty() {
-                            *origin = f.bounds.center();
-                        }
-                    }
-                    files = spill_with(&mut reader, &grid, &regions, &cell_region, &origins)?;
-                }
-                pass("partition", t_partition);
-                total = files.iter().map(|f| f.points).sum();
-                // Pass 3: each region becomes one part, streamed from its file into
-                // a store builder around the region's origin. A region
-                // the sample underestimated is first split again, exactly, by a
-                // count grid over its own points; a grid cell that alone holds more
-                // than a part (points denser than the grid resolves) becomes
-                // parts in file order. Either way no part exceeds the budget.
-                progress.phase("write", total, "points");
-                let mut done = 0u64;
-                let mut splits = 0usize;
-                let names: Vec<(String, f64)> = like
-                    .attributes
-                    .iter()
-                    .map(|a| (a.name.clone(), a.offset))
-                    .collect();
-                let mut stack: Vec<(Spilled, bool)> =
-                    files.into_iter().rev().map(|f| (f, false)).collect();
-                while let Some((f, split)) = stack.pop() {
-                    check_cancel(o)?;
-                    if f.points == 0 {
-                        let _ = std::fs::remove_file(&f.path);
-                        continue;
-                    }
-                    let mut blocks = spill::SpillReader::open(&f.path, nattr)?;
-                    // The file's origin, so the builder stores the f32 offsets
-                    // the file holds, exactly.
-                    let new_part = || {
-                        let n = f.points.min(per_part) as usize;
-                        store::PartBuilder::new(f.origin, None, n)
-                    };
-                    if f.points <= per_part {
-                        let t_back = begin();
-                        let mut b = new_part();
-                        while let Some(r) = blocks.next_records(usize::MAX)? {
-                            b.push_packed(&part_path(parts.len()), r, &names)
-                                .map_err(public)?;
-                        }
-                        // The region's bounds, kept in f64 while spilling.
-                        b.set_source_bounds(f.bounds);
-                        drop(blocks);
-                        let _ = std::fs::remove_file(&f.path);
-                        pass("read back", t_back);
-                        write_built(b, false, &mut parts)?;
-                    } else if !split {
-                        let t_split = begin();
-                        let mut grid = CountGrid::new(f.bounds);
-                        while let Some(c) = blocks.next_block(&like, usize::MAX, f.origin)? {
-                            for i in 0..c.len() {
-                                grid.add([c.x[i], c.y[i], c.z[i]]);
-                            }
-                        }
-                        let subs = partition::split(&grid, per_part, MAX_EXTENT);
-                        let map = partition::cell_regions(&grid, &subs);
-                        drop(blocks);
-                        let mut blocks = spill::SpillReader::open(&f.path, nattr)?;
-                        splits += 1;
-                        let tag = format!("split{splits}");
-                        // The pieces keep the region's origin (their offsets are
-                        // then the same f32 values, not rounded again).
-                        let origins = vec![f.origin; subs.len()];
-                        let pieces =
-                            spill_all(o, &grid, &subs, &map, &origins, &tmp.path, &tag, |sink| {
-                                while let Some(c) =
-                                    blocks.next_block(&like, usize::MAX, f.origin)?
-                                {
-                                    sink(c)?;
-                                }
-                                Ok(())
-                            })?;
-                        drop(blocks);
-                        let _ = std::fs::remove_file(&f.path);
-                        pass("split", t_split);
-                        stack.extend(pieces.into_iter().rev().map(|p| (p, true)));
-                        continue;
-                    } else {
-                        let mut b = new_part();
-                        let room = |b: &store::PartBuilder| per_part as usize - b.len();
-                        while let Some(r) = blocks.next_records(room(&b))? {
-                            b.push_packed(&part_path(parts.len()), r, &names)
-                                .map_err(public)?;
-                            if room(&b) == 0 {
-                                write_built(
-                                    std::mem::replace(&mut b, new_part()),
-                                    false,
-                                    &mut parts,
-                                )?;
-                            }
-                        }
-                        drop(blocks);
-                        let _ = std::fs::remove_file(&f.path);
-                        if !b.is_empty() {
-                            write_built(b, false, &mut parts)?;
-                        }
-                    }
-                    done += f.points;
-                    progress.advance(done, done);
-                }
+            match scan::scan(&mut job, &mut *reader, collect != Collect::Held, t_read)? {
+                Scanned::One(one) => write::one_part(&mut job, one)?,
+                Scanned::Many(over) => spatial_parts(&mut job, &mut reader, over)?,
             }
         }
+    };
+    job.finish(total, &*reader)
+}
+
+/// Several spatial parts from what the scan found: the plan, pass 2's
+/// distribution into one temporary file per region (stored relative to the
+/// centre of the region's occupied cells), then pass 3 writing the parts.
+/// Returns the points written.
+fn spatial_parts(
+    job: &mut Job,
+    reader: &mut Box<dyn ingest::PointReader>,
+    over: scan::Overflow,
+) -> Result<u64> {
+    if job.as_file {
+        return Err(job.too_many_parts());
     }
-    if total == 0 {
-        match inputs {
-            [one] => anyhow::bail!("{}: no points in the input", one.display()),
-            _ => anyhow::bail!(
-                "{} … {}: no points in the {} input files",
-                inputs[0].display(),
-                inputs[inputs.len() - 1].display(),
-                inputs.len()
-            ),
-        }
-    }
-    // The index and overview, last: their presence marks a finished dataset.
-    let mut index = None;
-    if let Some(stage) = &staging {
-        let t_index = begin();
-        let io = store::overview::IndexOptions {
-            compression: Some(o.compression),
-            cancel: Some(o.cancel.clone()),
-        };
-        progress.phase("overview", parts.len() as u64 / 3 + 1, "nodes");
-        let done = |d: usize, _: usize| progress.advance(d as u64, 0);
-        index = Some(store::overview::build_index(&stage.path, &io, &done).map_err(public)?);
-        pass("index and overview", t_index);
-    }
-    // Publish: move the staged parts into place.
-    let t_publish = begin();
-    if let Some(stage) = &staging {
-        if o.output.exists() {
-            if o.output.is_dir() {
-                std::fs::remove_dir_all(&o.output)?;
-            } else {
-                std::fs::remove_file(&o.output)?;
-            }
-        }
-        std::fs::rename(&stage.path, &o.output)?;
-        let moved: Vec<PartSummary> = parts
-            .into_iter()
-            .map(|mut p| {
-                if let Some(name) = p.path.file_name() {
-                    p.path = o.output.join(name);
-                }
-                p
-            })
-            .collect();
-        parts = moved;
-    }
-    pass("publish", t_publish);
-    let phases = timings.into_inner().0;
-    let worst = parts
-        .iter()
-        .map(|p| p.max_quantization_error)
-        .fold(0.0, f64::max);
-    Ok(ConvertSummary {
-        inputs: inputs.to_vec(),
-        output: o.output.clone(),
-        format: info.format.clone(),
-        input_bytes: info.file_bytes,
-        points: total,
-        skipped: reader.skipped(),
-        clamped_colours: reader.clamped_colours(),
-        parts,
-        points_per_part: per_part,
-        elapsed: start.elapsed(),
-        max_quantization_error: worst,
-        phases,
-        index,
-    })
+    let placer = Placer::new(&over.sample, job.per_part);
+    let (mut plan, cells) = Plan::new(job, &placer, &over);
+    job.progress.note(&format!(
+        "{}{} points over {} spatial regions",
+        if over.weight > 1 { "about " } else { "" },
+        crate::text::count(over.points),
+        plan.regions.len()
+    ));
+    let tmp = spill::TempDir::beside(&job.o.output, "pcimg-spill")?;
+    let t_partition = job.begin();
+    let files = distribute::regions(job, reader, &mut plan, cells, &placer, &tmp.path)?;
+    job.pass("partition", t_partition);
+    let total = files.iter().map(|f| f.points).sum();
+    write::regions(job, &plan, files, total, &tmp.path)?;
+    Ok(total)
 }
 
 fn too_many_parts(out: &Path, per_part: u64, memory: u64) -> String {

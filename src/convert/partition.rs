@@ -99,7 +99,7 @@ impl CountGrid {
 }
 
 /// A region of the grid: cells `lo..hi` on each axis.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 pub struct Region {
     pub lo: [usize; 3],
     pub hi: [usize; 3],

@@ -58,7 +58,7 @@ pub struct SourceInfo {
 }
 
 /// How to read an input.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct ReadOptions {
     /// Text only: the column layout, names separated by spaces or commas, e.g.
     /// `"x y z intensity r g b"`; `_` skips a column. `None` detects it.

@@ -131,9 +131,9 @@ impl Coarse {
         }
         let nb = 3 + m;
         let start = super::writer::region_start(|l| self.g.filled_tiles(l), nb, self.first, k);
-        (0..super::writer::groups(m))
+        (0..super::tiles::groups(m))
             .flat_map(|group| {
-                super::writer::hilbert_bands(&self.lut, count, group, |i| pos[i], &rows, m)
+                super::tiles::hilbert_bands(&self.lut, count, group, |i| pos[i], &rows, m)
             })
             .map(|(b, buf)| (start + (h * nb + b) as u64 * TILE_BYTES, buf))
             .collect()

@@ -5,7 +5,7 @@ use super::spec::{compression as comp, predictor as pred};
 use std::io::{Read, Write};
 
 /// Compression of a part's tiles.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
 pub enum Compression {
     /// Fastest to load: tiles are read straight out of the memory map.
     #[default]

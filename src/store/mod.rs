@@ -5,12 +5,14 @@ pub mod builder;
 pub mod coarse;
 pub mod codec;
 pub mod error;
+pub mod hilbert;
 pub mod layout;
 pub mod metadata;
 pub mod out;
 pub mod paper;
 pub mod sink;
 pub mod spec;
+pub mod tiles;
 pub mod writer;
 pub mod zorder;
 
