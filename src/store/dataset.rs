@@ -48,7 +48,7 @@ impl Overview {
     }
 }
 
-pub(super) fn is_part_file(p: &Path) -> bool {
+fn is_part_file(p: &Path) -> bool {
     let hidden = p
         .file_name()
         .and_then(|n| n.to_str())
@@ -58,6 +58,20 @@ pub(super) fn is_part_file(p: &Path) -> bool {
         .and_then(|e| e.to_str())
         .map(|e| e.to_ascii_lowercase());
     !hidden && matches!(ext.as_deref(), Some("tif" | "tiff"))
+}
+
+/// The parts of a directory dataset, sorted by name (an error when it has none).
+pub(super) fn list_parts(dir: &Path) -> Result<Vec<PathBuf>> {
+    let mut files: Vec<PathBuf> = std::fs::read_dir(dir)
+        .map_err(|e| StoreError::new(dir, format!("cannot list directory: {e}")))?
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .filter(|p| p.is_file() && is_part_file(p))
+        .collect();
+    files.sort();
+    if files.is_empty() {
+        return Err(StoreError::new(dir, "directory holds no .tif parts"));
+    }
+    Ok(files)
 }
 
 /// Extensions of the point clouds `pcimg convert` reads (named when one is
@@ -135,16 +149,7 @@ impl Dataset {
             });
         }
         let parts = if meta.is_dir() {
-            let mut files: Vec<PathBuf> = std::fs::read_dir(path)
-                .map_err(|e| StoreError::new(path, format!("cannot list directory: {e}")))?
-                .filter_map(|e| e.ok().map(|e| e.path()))
-                .filter(|p| p.is_file() && is_part_file(p))
-                .collect();
-            files.sort();
-            if files.is_empty() {
-                return Err(StoreError::new(path, "directory holds no .tif parts"));
-            }
-            files
+            list_parts(path)?
                 .iter()
                 .map(|f| Part::open(f))
                 .collect::<Result<Vec<_>>>()?

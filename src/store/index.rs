@@ -182,17 +182,14 @@ impl IndexFile {
     pub fn open_parts(&self, dir: &Path) -> Result<(Vec<Part>, Vec<Part>)> {
         let listed: std::collections::HashSet<&str> =
             self.parts.iter().map(|e| e.file.as_str()).collect();
-        let mut unlisted: Vec<PathBuf> = std::fs::read_dir(dir)
-            .map_err(|e| StoreError::new(dir, format!("cannot list directory: {e}")))?
-            .filter_map(|e| e.ok().map(|e| e.path()))
-            .filter(|p| super::dataset::is_part_file(p) && p.is_file())
+        let unlisted: Vec<PathBuf> = super::dataset::list_parts(dir)?
+            .into_iter()
             .filter(|p| {
                 p.file_name()
                     .and_then(|n| n.to_str())
                     .is_none_or(|n| !listed.contains(n))
             })
             .collect();
-        unlisted.sort();
         if let Some(p) = unlisted.first() {
             return Err(StoreError::new(
                 p,

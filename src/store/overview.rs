@@ -6,7 +6,7 @@
 //! after layer up to one root; then the index, written last.
 
 use super::codec::Compression;
-use super::dataset::is_part_file;
+use super::dataset::list_parts;
 use super::error::{Result, StoreError};
 use super::index::{Child, FileEntry, INDEX_FILE, IndexFile, NodeEntry, OVERVIEW_DIR, entry_of};
 use super::reader::Part;
@@ -161,20 +161,6 @@ fn incompatible(parts: &[Part]) -> Option<String> {
     })
 }
 
-/// Lists `dir`'s parts (sorted by name).
-fn list_parts(dir: &Path) -> Result<Vec<PathBuf>> {
-    let mut files: Vec<PathBuf> = std::fs::read_dir(dir)
-        .map_err(|e| StoreError::new(dir, format!("cannot list directory: {e}")))?
-        .filter_map(|e| e.ok().map(|e| e.path()))
-        .filter(|p| p.is_file() && is_part_file(p))
-        .collect();
-    files.sort();
-    if files.is_empty() {
-        return Err(StoreError::new(dir, "directory holds no .tif parts"));
-    }
-    Ok(files)
-}
-
 /// Options of [`build_index`].
 #[derive(Debug, Clone, Default)]
 pub struct IndexOptions {
@@ -196,6 +182,13 @@ pub fn build_index(
         .par_iter()
         .map(|f| Part::open(f))
         .collect::<Result<_>>()?;
+    if let Some(empty) = parts.iter().find(|p| p.meta.point_count == 0) {
+        return Err(StoreError::new(
+            &empty.path,
+            "holds no points: a dataset's index lists parts with points only; move it out \
+             of the directory",
+        ));
+    }
     let name = |f: &Path| f.file_name().map(|n| n.to_string_lossy().into_owned());
     let entries: Vec<FileEntry> = parts
         .iter()

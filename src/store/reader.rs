@@ -57,9 +57,11 @@ pub struct TileInfo {
     pub bounds: Bounds,
 }
 
-/// One pyramid level (one IFD).
-#[derive(Debug, Clone)]
+/// One pyramid level (one IFD). The dataset index stores it without its index
+/// and the file positions of its tiles, which the part's file gives.
+#[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
 pub struct Level {
+    #[serde(skip)]
     pub index: usize,
     pub width: u32,
     pub height: u32,
@@ -78,9 +80,12 @@ pub struct Level {
     pub indexed: bool,
     /// Tiles holding data, in reading order (Z-order where the grid allows).
     pub tiles: Vec<TileInfo>,
+    #[serde(skip)]
     pub(super) offsets: Vec<u64>,
+    #[serde(skip)]
     pub(super) counts: Vec<u64>,
     /// For square power-of-two tiles: raster offset of each Z-rank in a tile.
+    #[serde(skip)]
     pub(super) z_lut: Option<Arc<Vec<u32>>>,
 }
 

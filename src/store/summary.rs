@@ -4,27 +4,9 @@
 //! is still the one indexed.
 
 use super::error::{Result, StoreError};
-use super::reader::{BandInfo, Bytes, Level, Part, PartMeta, TileInfo};
+use super::reader::{BandInfo, Bytes, Level, Part, PartMeta};
 use std::path::{Path, PathBuf};
 use std::sync::{Arc, OnceLock};
-
-/// What the index records of one level.
-#[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
-pub struct LevelHeader {
-    pub width: u32,
-    pub height: u32,
-    pub tile_width: u32,
-    pub tile_height: u32,
-    pub tiles_across: u32,
-    pub tiles_down: u32,
-    pub compression: u16,
-    pub predictor: u16,
-    pub planar_separate: bool,
-    pub points: Option<u64>,
-    pub bytes: u64,
-    pub indexed: bool,
-    pub tiles: Vec<TileInfo>,
-}
 
 /// What the index records of one part's headers: enough to select its tiles
 /// without opening it.
@@ -34,7 +16,8 @@ pub struct PartHeader {
     pub little_endian: bool,
     pub meta: PartMeta,
     pub bands: Vec<BandInfo>,
-    pub levels: Vec<LevelHeader>,
+    /// Without their tiles' file positions (`Level`'s skipped fields).
+    pub levels: Vec<Level>,
 }
 
 /// The file behind a part opened from the index, mapped on first use.
@@ -55,20 +38,11 @@ impl Part {
             levels: self
                 .levels
                 .iter()
-                .map(|l| LevelHeader {
-                    width: l.width,
-                    height: l.height,
-                    tile_width: l.tile_width,
-                    tile_height: l.tile_height,
-                    tiles_across: l.tiles_across,
-                    tiles_down: l.tiles_down,
-                    compression: l.compression,
-                    predictor: l.predictor,
-                    planar_separate: l.planar_separate,
-                    points: l.points,
-                    bytes: l.bytes,
-                    indexed: l.indexed,
-                    tiles: l.tiles.clone(),
+                .map(|l| Level {
+                    offsets: Vec::new(),
+                    counts: Vec::new(),
+                    z_lut: None,
+                    ..l.clone()
                 })
                 .collect(),
         }
@@ -89,25 +63,7 @@ impl Part {
                 .levels
                 .into_iter()
                 .enumerate()
-                .map(|(index, l)| Level {
-                    index,
-                    width: l.width,
-                    height: l.height,
-                    tile_width: l.tile_width,
-                    tile_height: l.tile_height,
-                    tiles_across: l.tiles_across,
-                    tiles_down: l.tiles_down,
-                    compression: l.compression,
-                    predictor: l.predictor,
-                    planar_separate: l.planar_separate,
-                    points: l.points,
-                    bytes: l.bytes,
-                    indexed: l.indexed,
-                    tiles: l.tiles,
-                    offsets: Vec::new(),
-                    counts: Vec::new(),
-                    z_lut: None,
-                })
+                .map(|(index, l)| Level { index, ..l })
                 .collect(),
             samples,
             map: Arc::new(Bytes::Owned(Vec::new())),
