@@ -24,31 +24,44 @@ echo "machine: $(nproc) cores, $(free -g | awk '/Mem:/ {print $2}') GiB, $(uname
 
 drop() { sync; echo 3 > /proc/sys/vm/drop_caches; }
 
-# frame DS LABEL MODE: REPS first frames; prints the median wall time (range), the
-# points, tiles and given-up tiles of the last, and (cold) the median bytes read.
-frame() {
-  local ds=$1 label=$2 mode=$3 walls=() reads=() line=""
+# pair MANY ONE LABEL MODE: REPS first frames of each dataset, interleaved (many,
+# one, many, ...); per dataset the median wall time in ms (range), the points,
+# tiles and given-up tiles of the last frame, and (cold) the median bytes read.
+pair() {
+  local many=$1 one=$2 label=$3 mode=$4
+  declare -A walls reads line
   for _ in $(seq "$REPS"); do
-    [ "$mode" = cold ] && drop
-    /usr/bin/time -f "%e %I" -o "$DIR/t.txt" "$BIN" render "$ds" -o "$DIR/f.png" \
-      --view 0,-89 --renderer cpu 2> "$DIR/err.txt" || { cat "$DIR/err.txt"; exit 1; }
-    read -r wall blocks < "$DIR/t.txt"
-    walls+=("$wall")
-    reads+=("$((blocks * 512))")
-    line=$(grep -v '^wrote' "$DIR/err.txt" | grep -v '^note' | tail -1)
+    for ds in "$many" "$one"; do
+      [ "$mode" = cold ] && drop
+      local t0 t1
+      t0=$(date +%s%N)
+      /usr/bin/time -f "%I" -o "$DIR/t.txt" "$BIN" render "$ds" -o "$DIR/f.png" \
+        --view 0,-89 --renderer cpu 2> "$DIR/err.txt" || { cat "$DIR/err.txt"; exit 1; }
+      t1=$(date +%s%N)
+      walls[$ds]+="$(( (t1 - t0) / 1000 )) "
+      reads[$ds]+="$(( $(cat "$DIR/t.txt") * 512 )) "
+      line[$ds]=$(grep ' points from ' "$DIR/err.txt" | tail -1)
+    done
   done
-  local med lo hi rd
-  med=$(printf '%s\n' "${walls[@]}" | sort -g | awk '{v[NR]=$1} END {print v[int((NR+1)/2)]}')
-  lo=$(printf '%s\n' "${walls[@]}" | sort -g | head -1)
-  hi=$(printf '%s\n' "${walls[@]}" | sort -g | tail -1)
-  rd=$(printf '%s\n' "${reads[@]}" | sort -g | awk '{v[NR]=$1} END {print v[int((NR+1)/2)]}')
-  local pts tiles gave
-  pts=$(sed -E 's/^([0-9,]+) points.*/\1/' <<< "$line")
-  tiles=$(sed -E 's/^[0-9,]+ points from ([0-9]+) tiles.*/\1/' <<< "$line")
-  gave=$(grep -oE 'gave up loading [0-9]+' <<< "$line" | grep -oE '[0-9]+$' || echo 0)
-  printf '%-28s %-5s %6.3f s (%s-%s)  points %11s  tiles %5s  given up %s  read %s MB\n' \
-    "$label" "$mode" "$med" "$lo" "$hi" "$pts" "$tiles" "$gave" \
-    "$(awk -v b="$rd" 'BEGIN {printf "%.1f", b / 1e6}')"
+  local med_many=""
+  for ds in "$many" "$one"; do
+    local name med lo hi rd pts tiles gave
+    [ "$ds" = "$many" ] && name="$label" || name="1 part"
+    read -r med lo hi < <(tr ' ' '\n' <<< "${walls[$ds]}" | grep . | sort -g |
+      awk '{v[NR]=$1} END {printf "%.1f %.1f %.1f\n", v[int((NR+1)/2)]/1000, v[1]/1000, v[NR]/1000}')
+    rd=$(tr ' ' '\n' <<< "${reads[$ds]}" | grep . | sort -g | awk '{v[NR]=$1} END {printf "%.1f", v[int((NR+1)/2)]/1e6}')
+    pts=$(sed -E 's/^([0-9,]+) points.*/\1/' <<< "${line[$ds]}")
+    tiles=$(sed -E 's/^[0-9,]+ points from ([0-9]+) tiles.*/\1/' <<< "${line[$ds]}")
+    gave=$(grep -oE 'gave up loading [0-9]+' <<< "${line[$ds]}" | grep -oE '[0-9]+$' || echo 0)
+    printf '%-12s %-5s %7.1f ms (%s-%s)  points %11s  tiles %4s  given up %s  read %6s MB' \
+      "$name" "$mode" "$med" "$lo" "$hi" "$pts" "$tiles" "$gave" "$rd"
+    if [ -z "$med_many" ]; then
+      med_many=$med
+      echo
+    else
+      awk -v a="$med_many" -v b="$med" 'BEGIN {printf "   many/one %.2f\n", a / b}'
+    fi
+  done
 }
 
 for spec in $SIZES; do
@@ -72,10 +85,8 @@ for spec in $SIZES; do
   rm -rf "$many"
   "$BIN" convert "$in" -o "$many" --memory "$mem" --timings -q > "$DIR/conv-$n-$mem.txt"
   grep -E 'part\(s\)|indexed|M points/s|index and overview' "$DIR/conv-$n-$mem.txt" | sed 's/^ */  /' 
-  frame "$many" "$parts parts" warm
-  frame "$one" "1 part" warm
-  frame "$many" "$parts parts" cold
-  frame "$one" "1 part" cold
+  pair "$many" "$one" "$parts parts" warm
+  pair "$many" "$one" "$parts parts" cold
   # The overview rebuilt alone (pcimg index), for parts made separately.
   /usr/bin/time -f "%e" -o "$DIR/t.txt" "$BIN" index "$many" -q
   echo "  pcimg index alone: $(cat "$DIR/t.txt") s"

@@ -62,10 +62,18 @@ fn is_part_file(p: &Path) -> bool {
 
 /// The parts of a directory dataset, sorted by name (an error when it has none).
 pub(super) fn list_parts(dir: &Path) -> Result<Vec<PathBuf>> {
+    // The entry's own type where the directory gives it (no stat a file: a
+    // thousand parts cost a thousand stats), following links.
     let mut files: Vec<PathBuf> = std::fs::read_dir(dir)
         .map_err(|e| StoreError::new(dir, format!("cannot list directory: {e}")))?
-        .filter_map(|e| e.ok().map(|e| e.path()))
-        .filter(|p| p.is_file() && is_part_file(p))
+        .filter_map(|e| e.ok())
+        .filter(|e| match e.file_type() {
+            Ok(t) if t.is_file() => true,
+            Ok(t) if t.is_symlink() => e.path().is_file(),
+            _ => false,
+        })
+        .map(|e| e.path())
+        .filter(|p| is_part_file(p))
         .collect();
     files.sort();
     if files.is_empty() {
@@ -108,12 +116,17 @@ impl Dataset {
         if meta.is_dir()
             && let Some(index) = IndexFile::load(path)?
         {
+            let tree: Vec<(u32, Vec<Child>)> = index
+                .nodes
+                .iter()
+                .map(|n| (n.layer, n.children.clone()))
+                .collect();
             let (parts, nodes) = index.open_parts(path)?;
             let np = parts.len();
             let overview = (!nodes.is_empty()).then(|| {
                 let mut parents = vec![None; np + nodes.len()];
-                for (k, n) in index.nodes.iter().enumerate() {
-                    for c in &n.children {
+                for (k, (_, children)) in tree.iter().enumerate() {
+                    for c in children {
                         let i = match *c {
                             Child::Part(i) => i,
                             Child::Node(j) => np + j,
@@ -122,8 +135,8 @@ impl Dataset {
                     }
                 }
                 let mut covers: Vec<Bounds> = Vec::with_capacity(nodes.len());
-                for n in &index.nodes {
-                    let b = n.children.iter().fold(Bounds::EMPTY, |b, c| match *c {
+                for (_, children) in &tree {
+                    let b = children.iter().fold(Bounds::EMPTY, |b, c| match *c {
                         Child::Part(i) => b.union(&parts[i].meta.bounds),
                         Child::Node(j) => b.union(&covers[j]),
                     });
@@ -131,8 +144,8 @@ impl Dataset {
                 }
                 Overview {
                     nodes,
-                    children: index.nodes.iter().map(|n| n.children.clone()).collect(),
-                    layers: index.nodes.iter().map(|n| n.layer).collect(),
+                    layers: tree.iter().map(|t| t.0).collect(),
+                    children: tree.into_iter().map(|t| t.1).collect(),
                     parents,
                     covers,
                 }

@@ -7,7 +7,7 @@
 use super::error::{Result, StoreError};
 use super::reader::Part;
 use super::summary::PartHeader;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::time::UNIX_EPOCH;
 
 /// The index's file name inside a dataset directory.
@@ -61,7 +61,7 @@ pub struct IndexFile {
 }
 
 /// Modification time of `meta` as stored in the index.
-fn mtime_of(meta: &std::fs::Metadata) -> (i64, u32) {
+pub(super) fn mtime_of(meta: &std::fs::Metadata) -> (i64, u32) {
     match meta.modified().ok().map(|t| t.duration_since(UNIX_EPOCH)) {
         Some(Ok(d)) => (d.as_secs() as i64, d.subsec_nanos()),
         Some(Err(e)) => (
@@ -177,22 +177,34 @@ impl IndexFile {
         Ok(())
     }
 
-    /// Checks that every listed file is there, unchanged, and that the folder
-    /// holds no part the index does not list; the parts and nodes, unopened.
-    pub fn open_parts(&self, dir: &Path) -> Result<(Vec<Part>, Vec<Part>)> {
+    /// Checks, from the directories' listings alone (no file is opened or
+    /// stat'ed: a thousand parts open in milliseconds), that every listed file is
+    /// there and that the folder holds no part the index does not list; the parts
+    /// and nodes, unopened. Whether a part changed (size or modification time) is
+    /// checked when its file is first read.
+    pub fn open_parts(self, dir: &Path) -> Result<(Vec<Part>, Vec<Part>)> {
+        let present = |d: &Path| -> std::collections::HashSet<String> {
+            super::dataset::list_parts(d)
+                .unwrap_or_default()
+                .iter()
+                .filter_map(|p| p.strip_prefix(dir).ok())
+                .map(|p| p.to_string_lossy().replace('\\', "/"))
+                .collect()
+        };
+        let mut here = present(dir);
+        if !self.nodes.is_empty() {
+            here.extend(present(&dir.join(OVERVIEW_DIR)));
+        }
         let listed: std::collections::HashSet<&str> =
             self.parts.iter().map(|e| e.file.as_str()).collect();
-        let unlisted: Vec<PathBuf> = super::dataset::list_parts(dir)?
-            .into_iter()
-            .filter(|p| {
-                p.file_name()
-                    .and_then(|n| n.to_str())
-                    .is_none_or(|n| !listed.contains(n))
-            })
+        let mut unlisted: Vec<&String> = here
+            .iter()
+            .filter(|n| !n.contains('/') && !listed.contains(n.as_str()))
             .collect();
-        if let Some(p) = unlisted.first() {
+        unlisted.sort();
+        if let Some(n) = unlisted.first() {
             return Err(StoreError::new(
-                p,
+                &dir.join(n),
                 format!(
                     "is not in the dataset's index ({} unlisted part{}); add it with {}",
                     unlisted.len(),
@@ -201,35 +213,28 @@ impl IndexFile {
                 ),
             ));
         }
-        let open = |e: &FileEntry| -> Result<Part> {
+        let open = |e: FileEntry| -> Result<Part> {
             let path = dir.join(&e.file);
-            let meta = std::fs::metadata(&path).map_err(|err| {
-                StoreError::new(
-                    &path,
-                    format!(
-                        "is listed in the dataset's index but cannot be read ({err}); restore it, or re-index with {}",
-                        fix_command(dir)
-                    ),
-                )
-            })?;
-            if meta.len() != e.bytes || mtime_of(&meta) != e.mtime {
+            if !here.contains(&e.file) {
                 return Err(StoreError::new(
                     &path,
                     format!(
-                        "changed since the dataset was indexed ({} bytes now, {} then); re-index with {}",
-                        meta.len(),
-                        e.bytes,
+                        "is listed in the dataset's index but missing; restore it, or re-index with {}",
                         fix_command(dir)
                     ),
                 ));
             }
-            Ok(Part::from_header(dir, &path, e.bytes, e.header.clone()))
+            Ok(Part::from_header(dir, &path, (e.bytes, e.mtime), e.header))
         };
-        let parts = self.parts.iter().map(open).collect::<Result<Vec<_>>>()?;
+        let parts = self
+            .parts
+            .into_iter()
+            .map(open)
+            .collect::<Result<Vec<_>>>()?;
         let nodes = self
             .nodes
-            .iter()
-            .map(|n| open(&n.entry))
+            .into_iter()
+            .map(|n| open(n.entry))
             .collect::<Result<Vec<_>>>()?;
         Ok((parts, nodes))
     }

@@ -2,8 +2,8 @@
 //! last): overview nodes above the parts, each an ordinary part of one tile made
 //! from its children's coarsest levels only (no pass over the points): the level
 //! one coarser that each child's pyramid would have made, joined. A node's
-//! children are a run of the layer below in Morton order of their centres; layer
-//! after layer up to one root; then the index, written last.
+//! children are a compact group of the layer below (a k-d split of their
+//! centres); layer after layer up to one root; then the index, written last.
 
 use super::codec::Compression;
 use super::dataset::list_parts;
@@ -12,7 +12,7 @@ use super::index::{Child, FileEntry, INDEX_FILE, IndexFile, NodeEntry, OVERVIEW_
 use super::reader::Part;
 use super::spec::TILE_PIXELS;
 use super::writer::{WriteOptions, write_part};
-use crate::points::{Attribute, Bounds, PointColumns};
+use crate::points::{Attribute, PointColumns};
 use rayon::prelude::*;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
@@ -48,44 +48,45 @@ struct Member<'a> {
     center: [f64; 3],
 }
 
-/// The `4^k` slot of `v` in `[lo, hi]` on a 2^16 grid, spread for a Morton key.
-fn spread(v: f64, lo: f64, hi: f64) -> u64 {
-    let t = if hi > lo { (v - lo) / (hi - lo) } else { 0.0 };
-    let mut x = (t.clamp(0.0, 1.0) * 65535.0) as u64;
-    x = (x | (x << 16)) & 0x0000_FFFF_0000_FFFF;
-    x = (x | (x << 8)) & 0x00FF_00FF_00FF_00FF;
-    x = (x | (x << 4)) & 0x0F0F_0F0F_0F0F_0F0F;
-    x = (x | (x << 2)) & 0x3333_3333_3333_3333;
-    x = (x | (x << 1)) & 0x5555_5555_5555_5555;
-    x
+/// Groups a layer's members into compact runs whose coarsest levels hold at most
+/// [`GROUP_POINTS`] (so a node, a quarter of that, fits one tile): the members are
+/// split in two at the median of their points along the longer side of their
+/// centres' box (a k-d split), again and again, never into fewer than two.
+fn group(members: &mut [Member]) -> Vec<std::ops::Range<usize>> {
+    let mut runs = Vec::new();
+    split(members, 0, &mut runs);
+    runs
 }
 
-/// Groups a layer's members (sorted in Morton order of their centres in the
-/// xy plane) into runs whose coarsest levels hold at most [`GROUP_POINTS`] (so a
-/// node, a quarter of that, fits one tile), at least two members a run (the last
-/// run joins the one before when it would be alone).
-fn group(members: &mut [Member], total: &Bounds) -> Vec<std::ops::Range<usize>> {
-    members.sort_by_key(|m| {
-        spread(m.center[0], total.min[0], total.max[0])
-            | spread(m.center[1], total.min[1], total.max[1]) << 1
-    });
-    let mut runs = Vec::new();
-    let (mut start, mut sum) = (0, 0u64);
-    for (i, m) in members.iter().enumerate() {
-        if i - start >= 2 && sum + m.top_points > GROUP_POINTS {
-            runs.push(start..i);
-            start = i;
-            sum = 0;
-        }
-        sum += m.top_points;
+fn split(m: &mut [Member], at: usize, runs: &mut Vec<std::ops::Range<usize>>) {
+    let sum: u64 = m.iter().map(|x| x.top_points).sum();
+    if sum <= GROUP_POINTS || m.len() < 4 {
+        runs.push(at..at + m.len());
+        return;
     }
-    if start < members.len() {
-        match runs.last_mut() {
-            Some(last) if members.len() - start < 2 => last.end = members.len(),
-            _ => runs.push(start..members.len()),
+    let extent = |a: usize| {
+        let (lo, hi) = m
+            .iter()
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), x| {
+                (lo.min(x.center[a]), hi.max(x.center[a]))
+            });
+        hi - lo
+    };
+    let axis = if extent(0) >= extent(1) { 0 } else { 1 };
+    m.sort_by(|a, b| a.center[axis].total_cmp(&b.center[axis]));
+    let mut half = 0;
+    let mut mid = m.len() / 2;
+    for (i, x) in m.iter().enumerate() {
+        half += x.top_points;
+        if 2 * half >= sum {
+            mid = i + 1;
+            break;
         }
     }
-    runs
+    let mid = mid.clamp(2, m.len() - 2);
+    let (left, right) = m.split_at_mut(mid);
+    split(left, at, runs);
+    split(right, at + mid, runs);
 }
 
 /// The level one coarser than a part's coarsest, as its pyramid would make it:
@@ -276,9 +277,6 @@ fn build_nodes(
     o: &IndexOptions,
     progress: &(dyn Fn(usize, usize) + Sync),
 ) -> Result<Vec<NodeEntry>> {
-    let total = parts
-        .iter()
-        .fold(Bounds::EMPTY, |b, p| b.union(&p.meta.bounds));
     let compression = o
         .compression
         .unwrap_or(match parts[0].levels[0].compression {
@@ -314,7 +312,7 @@ fn build_nodes(
             }
         };
         let mut m: Vec<Member> = members.iter().map(member).collect();
-        let runs = group(&mut m, &total);
+        let runs = group(&mut m);
         let written: Vec<(Part, NodeEntry)> = runs
             .par_iter()
             .enumerate()

@@ -24,6 +24,8 @@ pub struct PartHeader {
 pub(super) struct Deferred {
     /// The dataset directory, named in the hint to re-index.
     dataset: PathBuf,
+    /// Size and modification time when indexed.
+    expect: (u64, (i64, u32)),
     opened: OnceLock<std::result::Result<Part, String>>,
 }
 
@@ -50,7 +52,12 @@ impl Part {
 
     /// A part of the dataset at `dataset` described by its index entry: nothing is
     /// read until a tile is.
-    pub fn from_header(dataset: &Path, path: &Path, file_bytes: u64, h: PartHeader) -> Part {
+    pub fn from_header(
+        dataset: &Path,
+        path: &Path,
+        (file_bytes, mtime): (u64, (i64, u32)),
+        h: PartHeader,
+    ) -> Part {
         let samples = h.bands.len();
         Part {
             path: path.to_path_buf(),
@@ -69,6 +76,7 @@ impl Part {
             map: Arc::new(Bytes::Owned(Vec::new())),
             lazy: Some(Arc::new(Deferred {
                 dataset: dataset.to_path_buf(),
+                expect: (file_bytes, mtime),
                 opened: OnceLock::new(),
             })),
         }
@@ -88,7 +96,23 @@ impl Part {
             return Ok(None);
         };
         let r = d.opened.get_or_init(|| {
-            let p = Part::open(&self.path).map_err(|e| e.message)?;
+            let fix = format!(
+                "; re-index with `pcimg index {}`",
+                crate::text::sanitize(&d.dataset.display().to_string())
+            );
+            let meta = std::fs::metadata(&self.path).map_err(|e| {
+                format!("is listed in the dataset's index but cannot be read ({e}){fix}")
+            })?;
+            let now = (meta.len(), super::index::mtime_of(&meta));
+            if now != d.expect {
+                return Err(format!(
+                    "changed since the dataset was indexed ({} bytes now, {} then; modified {}){fix}",
+                    now.0,
+                    d.expect.0,
+                    if now.1 == d.expect.1 { "then" } else { "since" }
+                ));
+            }
+            let p = Part::open(&self.path).map_err(|e| format!("{}{fix}", e.message))?;
             let same = p.file_bytes == self.file_bytes
                 && p.meta.point_count == self.meta.point_count
                 && p.levels.len() == self.levels.len()
@@ -100,10 +124,7 @@ impl Part {
             if same {
                 Ok(p)
             } else {
-                Err(format!(
-                    "changed since the dataset was indexed; run `pcimg index {}`",
-                    crate::text::sanitize(&d.dataset.display().to_string())
-                ))
+                Err(format!("changed since the dataset was indexed{fix}"))
             }
         });
         match r {
