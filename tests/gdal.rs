@@ -430,3 +430,47 @@ fn gdal_reads_the_paper_layout() {
     );
     assert!(out.trim().eq_ignore_ascii_case("nan"), "{out}");
 }
+
+/// The overview above a dataset's parts is made of ordinary parts: GDAL opens each
+/// node with the parts' bands, and its metadata names the children it stands for.
+#[test]
+fn gdal_reads_overview_nodes() {
+    if !gdal() {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let ds = dir.path().join("tiles");
+    std::fs::create_dir(&ds).unwrap();
+    for k in 0..4 {
+        let mut c = common::random_cloud(30_000, 20 + k, 0);
+        for x in &mut c.x {
+            *x += 600.0 * k as f64;
+        }
+        let opts = WriteOptions::default();
+        pcimg::store::write_part(&ds.join(format!("t{k}.tif")), &c, &opts).unwrap();
+    }
+    let o = pcimg::store::overview::IndexOptions::default();
+    pcimg::store::overview::build_index(&ds, &o, &|_, _| {}).unwrap();
+    let opened = pcimg::store::Dataset::open(&ds).unwrap();
+    let nodes = &opened.overview.as_ref().unwrap().nodes;
+    assert!(!nodes.is_empty());
+    for node in nodes {
+        let info: serde_json::Value =
+            serde_json::from_str(&run("gdalinfo", &["-json", node.path.to_str().unwrap()]))
+                .unwrap();
+        let names: Vec<&str> = info["bands"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|b| b["description"].as_str().unwrap())
+            .collect();
+        assert_eq!(names, ["x", "y", "z", "intensity", "gps_time"]);
+        let meta = &info["metadata"][""];
+        assert_eq!(
+            meta["POINT_COUNT"].as_str().unwrap(),
+            node.meta.point_count.to_string()
+        );
+        let source = meta["SOURCE"].as_str().unwrap();
+        assert!(source.starts_with("pcimg overview of t"), "{source}");
+    }
+}
