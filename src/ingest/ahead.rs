@@ -180,8 +180,11 @@ mod tests {
     /// even while waiting for more to be asked.
     #[test]
     fn reads_ahead_and_stops() {
-        // (Under target/, on the disk: a tmpfs could not drop the pages.)
-        let dir = tempfile::tempdir_in(concat!(env!("CARGO_MANIFEST_DIR"), "/target")).unwrap();
+        // (Under target/, on the disk: a tmpfs could not drop the pages. It is
+        // made if the build went elsewhere, as with CARGO_TARGET_DIR.)
+        let base = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("target");
+        std::fs::create_dir_all(&base).unwrap();
+        let dir = tempfile::tempdir_in(&base).unwrap();
         let p = dir.path().join("f.bin");
         std::fs::write(&p, vec![7u8; 8 << 20]).unwrap();
         let f = std::fs::File::open(&p).unwrap();
