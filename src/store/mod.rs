@@ -28,8 +28,10 @@ pub mod dataset;
 pub mod ifd;
 pub mod index;
 pub mod overview;
+pub mod read;
 pub mod reader;
 pub mod summary;
 
 pub use dataset::{Dataset, Overview};
-pub use reader::{BandInfo, Level, Part, PartMeta, Points, TileInfo};
+pub use read::Points;
+pub use reader::{BandInfo, Level, Part, PartMeta, TileInfo};

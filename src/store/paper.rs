@@ -6,7 +6,8 @@
 
 use super::error::{Result, StoreError};
 use super::metadata::{LevelIndex, TileEntry};
-use super::reader::{Part, Points};
+use super::read::Points;
+use super::reader::Part;
 use super::spec::TILE_SIZE;
 use super::zorder::Geometry;
 use crate::points::Bounds;

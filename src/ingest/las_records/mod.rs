@@ -3,7 +3,7 @@
 //! in cache, decoded in parallel (rayon) into disjoint slices of the chunk's
 //! columns. The columns and their meaning are exactly those of the `las`-crate
 //! path in [`super::las`] (which still reads LAZ): the tests compare the two.
-//! The same map gives any record's attributes again ([`LasRows`], `rows.rs`), so
+//! The same map gives any record's attributes again (`LasRows`, `rows.rs`), so
 //! a part need not hold a copy of them.
 
 mod rows;
