@@ -142,14 +142,20 @@ impl Bytes {
         }
     }
 
-    /// Asks the kernel to read `len` bytes at `offset` now (one request, not a
-    /// fault per page).
+    /// Reads `len` bytes at `offset` into the page cache and maps them, before
+    /// they are touched: one read request for the range (`MADV_WILLNEED`), then
+    /// one call that maps its pages (`MADV_POPULATE_READ`). Without it, read-ahead
+    /// off, every 4 KiB page would cost a fault even when cached: reading 1,137
+    /// parts' coarsest tiles from the page cache took 9.7 s of CPU, not 1.
     pub(super) fn will_need(&self, offset: u64, len: u64) {
         if let Bytes::Map(m) = self
             && len > 0
             && offset.saturating_add(len) <= m.len() as u64
         {
-            let _ = m.advise_range(memmap2::Advice::WillNeed, offset as usize, len as usize);
+            let (o, n) = (offset as usize, len as usize);
+            let _ = m.advise_range(memmap2::Advice::WillNeed, o, n);
+            #[cfg(target_os = "linux")]
+            let _ = m.advise_range(memmap2::Advice::PopulateRead, o, n);
         }
     }
 }
