@@ -133,20 +133,16 @@ pub(super) enum Bytes {
 }
 
 impl Bytes {
-    /// Turns the map's read-ahead off: a fault reads its page only. Parts are
-    /// read a tile at a time, and a disk's read-ahead (8 MiB on some) would read
-    /// whole parts for a few tiles.
-    fn random(&self) {
+    /// Advice on the whole map (a memory map's only: a buffer has none).
+    fn advise(&self, advice: memmap2::Advice) {
         if let Bytes::Map(m) = self {
-            let _ = m.advise(memmap2::Advice::Random);
+            let _ = m.advise(advice);
         }
     }
 
-    /// Reads `len` bytes at `offset` into the page cache and maps them, before
-    /// they are touched: one read request for the range (`MADV_WILLNEED`), then
-    /// one call that maps its pages (`MADV_POPULATE_READ`). Without it, read-ahead
-    /// off, every 4 KiB page would cost a fault even when cached: reading 1,137
-    /// parts' coarsest tiles from the page cache took 9.7 s of CPU, not 1.
+    /// Asks the kernel to read `len` bytes at `offset` now, in one request
+    /// (`MADV_WILLNEED`), before they are touched: a fault then finds its page
+    /// cached and reads nothing ahead of it.
     pub(super) fn will_need(&self, offset: u64, len: u64) {
         if let Bytes::Map(m) = self
             && len > 0
@@ -154,8 +150,6 @@ impl Bytes {
         {
             let (o, n) = (offset as usize, len as usize);
             let _ = m.advise_range(memmap2::Advice::WillNeed, o, n);
-            #[cfg(target_os = "linux")]
-            let _ = m.advise_range(memmap2::Advice::PopulateRead, o, n);
         }
     }
 }
@@ -264,8 +258,13 @@ impl Part {
         // documented limit of memory-mapped I/O.
         let map = unsafe { Mmap::map(&file) }.map_err(|e| err(format!("cannot map: {e}")))?;
         let map = Bytes::Map(map);
-        map.random();
-        Self::parse(path, map)
+        // Headers are read without read-ahead (a disk's 8 MiB would read a whole
+        // part for its header); tiles then with the default, after asking for
+        // their chunks (`will_need`), so a fault maps its neighbours too.
+        map.advise(memmap2::Advice::Random);
+        let part = Self::parse(path, map)?;
+        part.map.advise(memmap2::Advice::Normal);
+        Ok(part)
     }
 
     /// Opens a part held in memory; `name` stands for the file in messages.
