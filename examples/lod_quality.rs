@@ -237,17 +237,14 @@ fn evaluate_dataset(dir: &Path) -> anyhow::Result<()> {
     };
     let parts: Vec<&Part> = ds.parts.iter().collect();
     let cloud = union(&parts, Some(0))?;
-    let own = parts.iter().map(|p| p.levels.len()).max().unwrap_or(1);
+    let own = ds.own_levels();
     let mut samples: Vec<(String, Vec<P3>)> = Vec::new();
     for k in 1..own {
         samples.push((format!("parts' level {k}"), union(&parts, Some(k))?));
     }
     if let Some(o) = &ds.overview {
         for layer in 1..=o.layer_count() {
-            let nodes: Vec<&Part> = (0..o.nodes.len())
-                .filter(|&k| o.layers[k] == layer)
-                .map(|k| &o.nodes[k])
-                .collect();
+            let nodes: Vec<&Part> = o.layer(layer).map(|k| &o.nodes[k]).collect();
             samples.push((
                 format!("overview layer {layer} ({} nodes)", nodes.len()),
                 union(&nodes, None)?,

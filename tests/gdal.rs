@@ -450,7 +450,7 @@ fn gdal_reads_overview_nodes() {
         pcimg::store::write_part(&ds.join(format!("t{k}.tif")), &c, &opts).unwrap();
     }
     let o = pcimg::store::overview::IndexOptions::default();
-    pcimg::store::overview::build_index(&ds, &o, &|_, _| {}).unwrap();
+    pcimg::store::overview::build_index(&ds, &o, &|_| {}).unwrap();
     let opened = pcimg::store::Dataset::open(&ds).unwrap();
     let nodes = &opened.overview.as_ref().unwrap().nodes;
     assert!(!nodes.is_empty());

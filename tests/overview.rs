@@ -64,7 +64,7 @@ fn datasets(dir: &Path, n: usize, nx: usize, ny: usize) -> (PathBuf, PathBuf) {
             write_part(&many.join(format!("tile-{i}-{j}.tif")), &c, &opts).unwrap();
         }
     }
-    let r = build_index(&many, &IndexOptions::default(), &|_, _| {}).unwrap();
+    let r = build_index(&many, &IndexOptions::default(), &|_| {}).unwrap();
     assert_eq!(r.parts, nx * ny);
     assert!(r.nodes >= 1 && r.no_overview.is_none(), "{r:?}");
     let one = dir.join("one.tif");
@@ -202,7 +202,7 @@ fn the_index_notices_removed_replaced_and_unlisted_parts() {
     assert!(e.contains("changed") && e.contains("modified since"), "{e}");
 
     // Re-indexed, it opens; a part added after is named.
-    build_index(&many, &IndexOptions::default(), &|_, _| {}).unwrap();
+    build_index(&many, &IndexOptions::default(), &|_| {}).unwrap();
     Dataset::open(&many).unwrap();
     std::fs::copy(&part, many.join("tile-9-9.tif")).unwrap();
     let e = open_err();
@@ -227,7 +227,7 @@ fn the_index_notices_removed_replaced_and_unlisted_parts() {
     assert!(ds.hint.as_deref().unwrap().contains("pcimg index"));
 
     // A part damaged after the dataset was opened is named when first read.
-    build_index(&many, &IndexOptions::default(), &|_, _| {}).unwrap();
+    build_index(&many, &IndexOptions::default(), &|_| {}).unwrap();
     let ds = Dataset::open(&many).unwrap();
     std::fs::write(&part, b"II*\0 not a part any more").unwrap();
     let k = ds.parts.iter().position(|p| p.path == part).unwrap();

@@ -56,7 +56,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     };
     use std::io::IsTerminal;
     let show = !a.quiet && std::io::stderr().is_terminal();
-    let progress = move |done: usize, _: usize| {
+    let progress = move |done: usize| {
         if show {
             use std::io::Write;
             let _ = write!(std::io::stderr(), "\roverview: {done} node(s) written");

@@ -168,22 +168,13 @@ fn overview_report(ds: &Dataset) -> Vec<LayerReport> {
     };
     (1..=o.layer_count())
         .map(|layer| {
-            let nodes: Vec<&Part> = o
-                .nodes
-                .iter()
-                .zip(&o.layers)
-                .filter(|(_, l)| **l == layer)
-                .map(|(n, _)| n)
-                .collect();
+            let s = o.layer_summary(layer);
             LayerReport {
                 layer,
-                nodes: nodes.len(),
-                points: nodes
-                    .iter()
-                    .map(|n| n.levels.last().and_then(|l| l.points).unwrap_or(0))
-                    .sum(),
-                stored_points: nodes.iter().map(|n| n.meta.point_count).sum(),
-                bytes: nodes.iter().map(|n| n.file_bytes).sum(),
+                nodes: s.nodes,
+                points: s.points,
+                stored_points: s.stored_points,
+                bytes: s.bytes,
             }
         })
         .collect()

@@ -161,11 +161,14 @@ pub fn render_once(
 /// A one-line summary of a frame.
 pub fn describe(r: &FrameReport) -> String {
     let s = &r.selection;
-    let levels = match s.levels {
+    let mut levels = match s.levels {
         Some((lo, hi)) if lo == hi => format!("level {lo}"),
         Some((lo, hi)) => format!("levels {lo}-{hi}"),
         None => "no level".into(),
     };
+    if s.overview_tiles > 0 {
+        levels = format!("{} overview, {levels}", s.overview_tiles);
+    }
     let mut line = format!(
         "{} points from {} tiles ({levels}), {} culled; select {:.1} ms, load {:.0} ms, render {:.0} ms on {}",
         crate::text::count(s.points),
@@ -176,13 +179,6 @@ pub fn describe(r: &FrameReport) -> String {
         r.render_ms,
         r.renderer
     );
-    if s.overview_tiles > 0 {
-        line = line.replacen(
-            " tiles (",
-            &format!(" tiles ({} overview, ", s.overview_tiles),
-            1,
-        );
-    }
     if s.dropped_tiles > 0 {
         line.push_str(&format!(
             "; gave up loading {} tiles ({} points) for the point or memory budget",

@@ -290,7 +290,7 @@ impl<'a> Job<'a> {
             };
             let progress = self.progress;
             progress.phase("overview", self.parts.len() as u64 / 3 + 1, "nodes");
-            let done = |d: usize, _: usize| progress.advance(d as u64, 0);
+            let done = |d: usize| progress.advance(d as u64, 0);
             let built = store::overview::build_index(&stage.path, &io, &done);
             index = Some(built.map_err(|e| self.public(e))?);
             self.pass("index and overview", t_index);

@@ -212,18 +212,17 @@ fn top_tiles(ds: &Dataset, part: usize) -> Vec<TileRef> {
 /// Levels a `Fixed` or `Distance` selection counts: the parts' own, then one per
 /// overview layer.
 pub fn level_count(ds: &Dataset) -> usize {
-    let own = ds.parts.iter().map(|p| p.levels.len()).max().unwrap_or(1);
-    own + ds.overview.as_ref().map_or(0, |o| o.layer_count() as usize)
+    ds.own_levels() + ds.overview.as_ref().map_or(0, |o| o.layer_count() as usize)
 }
 
 /// The tiles of dataset level `level` (clamped per part; past the parts' own
 /// levels, the overview layer's nodes).
 fn tiles_at(ds: &Dataset, level: usize) -> Vec<TileRef> {
-    let own = ds.parts.iter().map(|p| p.levels.len()).max().unwrap_or(1);
+    let own = ds.own_levels();
     if let Some(o) = ds.overview.as_ref().filter(|_| level >= own) {
         let layer = ((level - own + 1) as u32).min(o.layer_count());
-        return (0..o.nodes.len())
-            .filter(|&k| o.layers[k] == layer)
+        return o
+            .layer(layer)
             .flat_map(|k| top_tiles(ds, ds.parts.len() + k))
             .collect();
     }

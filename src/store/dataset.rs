@@ -2,7 +2,7 @@
 //! (`index.rs`) when it has one, with the overview nodes above its parts.
 
 use super::error::{Result, StoreError};
-use super::index::{Child, INDEX_FILE, IndexFile};
+use super::index::{Child, IndexFile};
 use super::reader::Part;
 use crate::points::Bounds;
 use std::path::{Path, PathBuf};
@@ -46,6 +46,33 @@ impl Overview {
     pub fn layer_count(&self) -> u32 {
         self.layers.iter().copied().max().unwrap_or(0)
     }
+
+    /// The nodes (numbers into `nodes`) of `layer`.
+    pub fn layer(&self, layer: u32) -> impl Iterator<Item = usize> + '_ {
+        (0..self.nodes.len()).filter(move |&k| self.layers[k] == layer)
+    }
+
+    /// What `layer` holds: its nodes, the points a view of it draws (their
+    /// coarsest levels), the points and bytes stored.
+    pub fn layer_summary(&self, layer: u32) -> LayerSummary {
+        let mut s = LayerSummary::default();
+        for n in self.layer(layer).map(|k| &self.nodes[k]) {
+            s.nodes += 1;
+            s.points += n.levels.last().and_then(|l| l.points).unwrap_or(0);
+            s.stored_points += n.meta.point_count;
+            s.bytes += n.file_bytes;
+        }
+        s
+    }
+}
+
+/// One overview layer in numbers ([`Overview::layer_summary`]).
+#[derive(Debug, Clone, Copy, Default)]
+pub struct LayerSummary {
+    pub nodes: usize,
+    pub points: u64,
+    pub stored_points: u64,
+    pub bytes: u64,
 }
 
 fn is_part_file(p: &Path) -> bool {
@@ -61,6 +88,15 @@ fn is_part_file(p: &Path) -> bool {
 }
 
 /// The parts of a directory dataset, sorted by name (an error when it has none).
+/// The part number of overview child `c` in a dataset of `parts` parts (nodes
+/// come after the parts).
+fn child_number(parts: usize, c: Child) -> usize {
+    match c {
+        Child::Part(i) => i,
+        Child::Node(k) => parts + k,
+    }
+}
+
 pub(super) fn list_parts(dir: &Path) -> Result<Vec<PathBuf>> {
     // The entry's own type where the directory gives it (no stat a file: a
     // thousand parts cost a thousand stats), following links.
@@ -114,7 +150,7 @@ impl Dataset {
         let meta = std::fs::metadata(path)
             .map_err(|e| StoreError::new(path, format!("cannot open: {e}")))?;
         if meta.is_dir()
-            && let Some(index) = IndexFile::load(path)?
+            && let Some((index, index_bytes)) = IndexFile::load(path)?
         {
             let tree: Vec<(u32, Vec<Child>)> = index
                 .nodes
@@ -126,12 +162,8 @@ impl Dataset {
             let overview = (!nodes.is_empty()).then(|| {
                 let mut parents = vec![None; np + nodes.len()];
                 for (k, (_, children)) in tree.iter().enumerate() {
-                    for c in children {
-                        let i = match *c {
-                            Child::Part(i) => i,
-                            Child::Node(j) => np + j,
-                        };
-                        parents[i] = Some(np + k);
+                    for &c in children {
+                        parents[child_number(np, c)] = Some(np + k);
                     }
                 }
                 let mut covers: Vec<Bounds> = Vec::with_capacity(nodes.len());
@@ -150,14 +182,11 @@ impl Dataset {
                     covers,
                 }
             });
-            let index_bytes = std::fs::metadata(path.join(INDEX_FILE))
-                .ok()
-                .map(|m| m.len());
             return Ok(Dataset {
                 path: path.to_path_buf(),
                 parts,
                 overview,
-                index_bytes,
+                index_bytes: Some(index_bytes),
                 hint: None,
             });
         }
@@ -204,6 +233,11 @@ impl Dataset {
         })
     }
 
+    /// The most levels a part has (at least 1).
+    pub fn own_levels(&self) -> usize {
+        self.parts.iter().map(|p| p.levels.len()).max().unwrap_or(1)
+    }
+
     /// Part `i` of a [`crate::lod::TileRef`]: a part, or past the parts an
     /// overview node.
     pub fn part(&self, i: usize) -> Option<&Part> {
@@ -215,10 +249,7 @@ impl Dataset {
 
     /// The part number of an overview child.
     pub fn child_part(&self, c: Child) -> usize {
-        match c {
-            Child::Part(i) => i,
-            Child::Node(k) => self.parts.len() + k,
-        }
+        child_number(self.parts.len(), c)
     }
 
     /// The overview node above part number `i` (a part or a node).

@@ -84,7 +84,7 @@ pub fn entry_of(part: &Part, file: &str) -> Result<FileEntry> {
     })
 }
 
-/// `s` quoted for a shell command in a message.
+/// The command that rebuilds `dir`'s index, quoted for a message.
 pub fn fix_command(dir: &Path) -> String {
     format!(
         "`pcimg index {}`",
@@ -102,8 +102,8 @@ impl IndexFile {
         }
     }
 
-    /// Reads `dir`'s index, if it has one.
-    pub fn load(dir: &Path) -> Result<Option<IndexFile>> {
+    /// Reads `dir`'s index, if it has one, and its size in bytes.
+    pub fn load(dir: &Path) -> Result<Option<(IndexFile, u64)>> {
         let path = dir.join(INDEX_FILE);
         let text = match std::fs::read(&path) {
             Ok(t) => t,
@@ -133,7 +133,7 @@ impl IndexFile {
             ));
         }
         idx.check_structure(dir)?;
-        Ok(Some(idx))
+        Ok(Some((idx, text.len() as u64)))
     }
 
     /// Children that exist and come before their parent; names inside the folder.

@@ -171,11 +171,11 @@ pub struct IndexOptions {
 }
 
 /// Builds the overview of the parts in `dir` and writes its index, replacing any
-/// earlier overview and index. `progress(done, total)` counts nodes written.
+/// earlier overview and index. `progress(done)` counts nodes written.
 pub fn build_index(
     dir: &Path,
     o: &IndexOptions,
-    progress: &(dyn Fn(usize, usize) + Sync),
+    progress: &(dyn Fn(usize) + Sync),
 ) -> Result<IndexReport> {
     let t0 = Instant::now();
     let files = list_parts(dir)?;
@@ -275,7 +275,7 @@ fn build_nodes(
     files: &[PathBuf],
     tmp: &Path,
     o: &IndexOptions,
-    progress: &(dyn Fn(usize, usize) + Sync),
+    progress: &(dyn Fn(usize) + Sync),
 ) -> Result<Vec<NodeEntry>> {
     let compression = o
         .compression
@@ -293,8 +293,6 @@ fn build_nodes(
     let mut opened: Vec<Part> = Vec::new();
     let mut nodes: Vec<NodeEntry> = Vec::new();
     let mut members: Vec<Child> = (0..parts.len()).map(Child::Part).collect();
-    // Expected node count, for progress: about a quarter fewer each layer.
-    let expect = (parts.len() as f64 / 3.0).ceil() as usize + 1;
     let done = AtomicUsize::new(0);
     let mut layer = 0;
     while members.len() > 1 {
@@ -343,10 +341,7 @@ fn build_nodes(
                 write_part(&path, &pts, &opts)?;
                 let part = Part::open(&path)?;
                 let entry = entry_of(&part, &format!("{OVERVIEW_DIR}/{}", node_name(layer, k)))?;
-                progress(
-                    done.fetch_add(1, Ordering::Relaxed) + 1,
-                    expect.max(nodes.len() + k + 1),
-                );
+                progress(done.fetch_add(1, Ordering::Relaxed) + 1);
                 Ok((
                     part,
                     NodeEntry {

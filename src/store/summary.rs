@@ -96,10 +96,7 @@ impl Part {
             return Ok(None);
         };
         let r = d.opened.get_or_init(|| {
-            let fix = format!(
-                "; re-index with `pcimg index {}`",
-                crate::text::sanitize(&d.dataset.display().to_string())
-            );
+            let fix = format!("; re-index with {}", super::index::fix_command(&d.dataset));
             let meta = std::fs::metadata(&self.path).map_err(|e| {
                 format!("is listed in the dataset's index but cannot be read ({e}){fix}")
             })?;

@@ -359,17 +359,10 @@ fn overview_rows(app: &App) -> Vec<Row<'static>> {
     (1..=o.layer_count())
         .rev()
         .map(|layer| {
-            let nodes: Vec<usize> = (0..o.nodes.len())
-                .filter(|&k| o.layers[k] == layer)
-                .collect();
-            let points: u64 = nodes
-                .iter()
-                .map(|&k| o.nodes[k].levels.last().and_then(|l| l.points).unwrap_or(0))
-                .sum();
-            let stored: u64 = nodes.iter().map(|&k| o.nodes[k].file_bytes).sum();
-            let loaded = nodes
-                .iter()
-                .filter(|&&k| {
+            let s = o.layer_summary(layer);
+            let loaded = o
+                .layer(layer)
+                .filter(|&k| {
                     app.frame
                         .loaded
                         .iter()
@@ -378,19 +371,22 @@ fn overview_rows(app: &App) -> Vec<Row<'static>> {
                 .count();
             let state = match loaded {
                 0 => "-".to_string(),
-                n if n == nodes.len() => "loaded".to_string(),
-                n => format!("{n}/{} nodes", nodes.len()),
+                n if n == s.nodes => "loaded".to_string(),
+                n => format!("{n}/{} nodes", s.nodes),
             };
-            let codec = o.nodes[nodes[0]].levels[0].compression;
+            let codec = o
+                .layer(layer)
+                .next()
+                .map_or(1, |k| o.nodes[k].levels[0].compression);
             let row = Row::new(vec![
                 Cell::from(format!("O{layer}")),
                 Cell::from(format!(
                     "{} node{}",
-                    nodes.len(),
-                    if nodes.len() == 1 { "" } else { "s" }
+                    s.nodes,
+                    if s.nodes == 1 { "" } else { "s" }
                 )),
-                Cell::from(count(points)),
-                Cell::from(bytes(stored)),
+                Cell::from(count(s.points)),
+                Cell::from(bytes(s.bytes)),
                 Cell::from(compression_name(codec)),
                 Cell::from(state),
             ]);
