@@ -16,8 +16,8 @@ use std::sync::Arc;
 pub struct Args {
     #[command(flatten)]
     pub view: ViewArgs,
-    /// Image protocol: auto (from the environment; half-blocks in tmux), kitty,
-    /// sixel, iterm or halfblocks.
+    /// Image protocol: auto (asks the terminal, or inside tmux the tmux server;
+    /// `pcimg doctor` shows what it finds), kitty, sixel, iterm or halfblocks.
     #[arg(long, default_value = "auto")]
     pub protocol: Protocol,
     /// Threads loading tiles (1 to 64).

@@ -11,6 +11,7 @@ macro_rules! note {
 
 pub mod convert;
 pub mod demo;
+pub mod doctor;
 pub mod index;
 pub mod info;
 pub mod inspect;
@@ -56,6 +57,9 @@ pub enum Command {
     Preview(preview::Args),
     /// Write a deterministic synthetic scan as text, LAS or LAZ.
     Synth(synth::Args),
+    /// Ask the terminal what it draws and say which image protocol and cell size
+    /// `preview` and `inspect` would use (for bug reports).
+    Doctor(doctor::Args),
 }
 
 /// stdout was closed by its reader (`pcimg info X | head`): the command ends
@@ -138,6 +142,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Render(a) => render::run(a),
         Command::Preview(a) => preview::run(a),
         Command::Synth(a) => synth::run(a),
+        Command::Doctor(a) => doctor::run(a),
     }
 }
 

@@ -3,8 +3,7 @@
 
 use super::view::{self, ViewArgs};
 use crate::store::Dataset;
-use crate::term::{self, Protocol};
-use crate::tui::protocol::Graphics;
+use crate::term::{self, Graphics, Protocol};
 use std::io::IsTerminal;
 use std::sync::Arc;
 
@@ -33,46 +32,40 @@ pub fn run(a: Args) -> anyhow::Result<()> {
             a.view.path.display()
         );
     }
-    // Auto is decided from the environment, as the inspector decides it: never
-    // by asking the terminal (one that does not answer would hang the command).
-    let protocol = match crate::tui::protocol::choose(
-        a.protocol,
-        &crate::tui::protocol::TerminalEnv::from_process(),
-    ) {
-        Graphics::Kitty => Protocol::Kitty,
-        Graphics::Sixel => Protocol::Sixel,
-        Graphics::Iterm2 => Protocol::Iterm,
-        Graphics::Halfblocks => Protocol::Halfblocks,
-    };
+    // The same detection as the inspector's: the terminal (or the tmux server)
+    // is asked, at most about a second.
+    let mut found = term::detect(a.protocol, term::probe::CAP);
+    found.prepare();
+    if let Some(n) = &found.choice.note {
+        note!("{n}");
+    }
+    let graphics = found.choice.graphics;
     let cam = view::camera_for(&a.view, &ds)?;
     if a.view.print_camera {
         note!("{}", cam.to_json());
     }
-    let (term_cols, term_rows, px) = term::terminal_pixels();
-    let (cols, rows, w, h) = frame_size((term_cols, term_rows), px, a.cols, protocol);
-    let (frame, report) = view::render_once(ds, &a.view, &cam, w, h)?;
-    term::print_frame(&frame, protocol, cols, rows)?;
+    let (term_cols, term_rows, _) = term::terminal_pixels();
+    let (cols, rows, w, h) = frame_size((term_cols, term_rows), found.cell_pixels, a.cols, graphics);
+    let printed = view::render_once(ds, &a.view, &cam, w, h)
+        .and_then(|(frame, report)| Ok((term::print_frame(&frame, &found.choice, cols, rows)?, report)));
+    term::tmux::restore_passthrough();
+    let ((), report) = printed?;
     super::print_out(&format!("{}\n", view::describe(&report)))?;
     Ok(())
 }
 
 /// The picture in cells and pixels: `want` columns (the terminal's width when
 /// not given, never wider, at least 10) by the terminal's rows less three for the
-/// report, at the terminal's cell size in pixels (8×16 when it does not say);
-/// half-blocks are one pixel wide and two high a cell.
+/// report, at `cell` pixels a cell (half-blocks: one pixel wide, two high).
 fn frame_size(
     (term_cols, term_rows): (u16, u16),
-    px: Option<(u32, u32)>,
+    (cw, ch): (u32, u32),
     want: Option<u16>,
-    protocol: Protocol,
+    graphics: Graphics,
 ) -> (u16, u16, u32, u32) {
-    let (cw, ch) = px
-        .map(|(w, h)| (w / term_cols.max(1) as u32, h / term_rows.max(1) as u32))
-        .filter(|&(w, h)| w > 0 && h > 0)
-        .unwrap_or((8, 16));
     let cols = want.unwrap_or(term_cols).min(term_cols.max(10)).max(10);
     let rows = term_rows.saturating_sub(3).max(5);
-    if protocol == Protocol::Halfblocks {
+    if graphics == Graphics::Halfblocks {
         (cols, rows, cols as u32, rows as u32 * 2)
     } else {
         (cols, rows, cols as u32 * cw, rows as u32 * ch)
@@ -86,25 +79,21 @@ mod tests {
     #[test]
     fn columns_narrow_the_picture_at_the_terminals_cell_size() {
         // 100×40 cells of 10×20 pixels.
-        let px = Some((1000, 800));
+        let cell = (10, 20);
         assert_eq!(
-            frame_size((100, 40), px, None, Protocol::Sixel),
+            frame_size((100, 40), cell, None, Graphics::Sixel),
             (100, 37, 1000, 740)
         );
         assert_eq!(
-            frame_size((100, 40), px, Some(40), Protocol::Sixel),
+            frame_size((100, 40), cell, Some(40), Graphics::Sixel),
             (40, 37, 400, 740)
         );
         // Never wider than the terminal, never narrower than 10 columns.
-        assert_eq!(frame_size((100, 40), px, Some(300), Protocol::Kitty).0, 100);
-        assert_eq!(frame_size((100, 40), px, Some(3), Protocol::Kitty).0, 10);
+        assert_eq!(frame_size((100, 40), cell, Some(300), Graphics::Kitty).0, 100);
+        assert_eq!(frame_size((100, 40), cell, Some(3), Graphics::Kitty).0, 10);
         assert_eq!(
-            frame_size((100, 40), None, Some(40), Protocol::Halfblocks),
+            frame_size((100, 40), (1, 2), Some(40), Graphics::Halfblocks),
             (40, 37, 40, 74)
-        );
-        assert_eq!(
-            frame_size((100, 40), None, None, Protocol::Iterm),
-            (100, 37, 800, 592)
         );
     }
 }

@@ -1,9 +1,8 @@
-//! Printing a frame inline in the terminal: sixel through our own encoder
-//! ([`super::sixel`], at the frame's exact pixel size), kitty graphics (direct,
-//! in-band RGBA, chunked) and iTerm2 (inline PNG) written here, Unicode
-//! half-blocks through viuer. Nothing here queries the terminal (a terminal or pty
-//! that never answers would hang the command): `auto` must be resolved by the
-//! caller from the environment first.
+//! Printing a frame inline in the terminal (`pcimg preview`): sixel through our
+//! own encoder ([`super::sixel`], at the frame's exact pixel size), kitty graphics
+//! ([`super::kitty`]) and iTerm2 (inline PNG) scaled by the terminal to the cells,
+//! Unicode half-blocks through viuer. Nothing here queries the terminal: the
+//! protocol comes from [`super::detect`].
 
 use crate::render::Frame;
 use std::io::Write;
@@ -11,7 +10,7 @@ use std::io::Write;
 /// An inline image protocol.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Protocol {
-    /// Chosen from the environment (by the caller, before printing).
+    /// Detected: the terminal is asked ([`super::detect`]).
     Auto,
     Kitty,
     Sixel,
@@ -45,22 +44,29 @@ pub fn terminal_pixels() -> (u16, u16, Option<(u32, u32)>) {
     (cols, rows, px)
 }
 
-/// Prints `frame` at the cursor, `cols` × `rows` cells. Sixel frames are sent at
-/// their own pixel size (render them at the terminal's cell size × cells); `Auto`
-/// prints half-blocks (resolve it first).
-pub fn print_frame(frame: &Frame, protocol: Protocol, cols: u16, rows: u16) -> anyhow::Result<()> {
-    let seq = match protocol {
-        Protocol::Sixel => {
-            let seq = super::sixel::encode(&frame.rgba, frame.width, frame.height)?;
-            if std::env::var_os("TMUX").is_some() {
-                super::sixel::tmux_passthrough(&seq)
-            } else {
-                seq
-            }
+/// Prints `frame` at the cursor over `cols` × `rows` cells as `choice` says:
+/// sixel at the frame's own pixel size (render it at the cell size × cells), kitty
+/// and iTerm2 scaled by the terminal to the cells (through tmux: kitty as Unicode
+/// placeholders, passed through), else half-blocks.
+pub fn print_frame(
+    frame: &Frame,
+    choice: &super::detect::Choice,
+    cols: u16,
+    rows: u16,
+) -> anyhow::Result<()> {
+    use super::Graphics;
+    let wrap = |s: String| {
+        if choice.passthrough {
+            super::sixel::tmux_passthrough(&s)
+        } else {
+            s
         }
-        Protocol::Kitty => kitty_sequence(frame, cols, rows),
-        Protocol::Iterm => iterm_sequence(frame, cols, rows)?,
-        Protocol::Auto | Protocol::Halfblocks => {
+    };
+    let seq = match choice.graphics {
+        Graphics::Sixel => wrap(super::sixel::encode(&frame.rgba, frame.width, frame.height)?),
+        Graphics::Kitty => kitty_cells(frame, choice, cols, rows),
+        Graphics::Iterm2 => wrap(iterm_sequence(frame, cols, rows, false)?),
+        Graphics::Halfblocks => {
             let img = image::RgbaImage::from_raw(frame.width, frame.height, frame.rgba.clone())
                 .ok_or_else(|| anyhow::anyhow!("frame buffer has the wrong size"))?;
             let conf = viuer::Config {
@@ -86,31 +92,49 @@ pub fn print_frame(frame: &Frame, protocol: Protocol, cols: u16, rows: u16) -> a
     Ok(())
 }
 
-/// The kitty graphics sequence that shows `frame` (RGBA, direct transfer in
-/// 4096-byte base64 chunks) over `cols` × `rows` cells.
-pub fn kitty_sequence(frame: &Frame, cols: u16, rows: u16) -> String {
-    use base64::Engine as _;
-    let data = base64::engine::general_purpose::STANDARD.encode(&frame.rgba);
-    let chunks: Vec<&[u8]> = data.as_bytes().chunks(4096).collect();
-    let mut seq = String::with_capacity(data.len() + chunks.len() * 16 + 64);
-    for (i, chunk) in chunks.iter().enumerate() {
-        let more = u8::from(i + 1 < chunks.len());
-        let chunk = std::str::from_utf8(chunk).unwrap_or_default();
-        if i == 0 {
-            seq.push_str(&format!(
-                "\x1b_Ga=T,f=32,s={},v={},c={cols},r={rows},q=2,m={more};{chunk}\x1b\\",
-                frame.width, frame.height
-            ));
-        } else {
-            seq.push_str(&format!("\x1b_Gm={more};{chunk}\x1b\\"));
+/// The image id `preview` uses (a fresh one per process would pile up images;
+/// one id means the newest preview replaces the older in the terminal's memory).
+const PREVIEW_IMAGE_ID: u32 = 0x00_70_63_70;
+
+/// A kitty frame over `cols` × `rows` cells at the cursor: room made first (so
+/// scrolling happens before the image is placed), then the image, then the
+/// cursor below it. Through tmux the image is a virtual placement and the cells
+/// are written as Unicode placeholders in the image id's colour.
+fn kitty_cells(frame: &Frame, choice: &super::detect::Choice, cols: u16, rows: u16) -> String {
+    let p = super::kitty::Placement {
+        id: PREVIEW_IMAGE_ID,
+        cols,
+        rows,
+        placeholders: choice.placeholders,
+        passthrough: choice.passthrough,
+    };
+    let mut s = "\n".repeat(rows as usize);
+    s.push_str(&format!("\x1b[{rows}A\r"));
+    s.push_str(&super::kitty::transmit(frame, p));
+    if choice.placeholders {
+        let (r, g, b) = super::kitty::id_color(PREVIEW_IMAGE_ID);
+        for row in 0..rows.min(super::kitty::max_cells()) {
+            s.push_str(&format!("\x1b[38;2;{r};{g};{b}m"));
+            for col in 0..cols.min(super::kitty::max_cells()) {
+                s.push_str(&super::kitty::placeholder(row, col, PREVIEW_IMAGE_ID));
+            }
+            s.push_str("\x1b[39m\r\n");
         }
+        s.push_str("\x1b[1A");
+    } else {
+        s.push_str(&format!("\x1b[{}B", rows.saturating_sub(1)));
     }
-    seq
+    s
 }
 
 /// The iTerm2 inline-image sequence that shows `frame` (as PNG) over `cols` ×
-/// `rows` cells.
-pub fn iterm_sequence(frame: &Frame, cols: u16, rows: u16) -> anyhow::Result<String> {
+/// `rows` cells; with `keep_cursor` the cursor stays where it was.
+pub fn iterm_sequence(
+    frame: &Frame,
+    cols: u16,
+    rows: u16,
+    keep_cursor: bool,
+) -> anyhow::Result<String> {
     use base64::Engine as _;
     let img = image::RgbaImage::from_raw(frame.width, frame.height, frame.rgba.clone())
         .ok_or_else(|| anyhow::anyhow!("frame buffer has the wrong size"))?;
@@ -118,8 +142,9 @@ pub fn iterm_sequence(frame: &Frame, cols: u16, rows: u16) -> anyhow::Result<Str
     img.write_to(&mut png, image::ImageFormat::Png)?;
     let png = png.into_inner();
     Ok(format!(
-        "\x1b]1337;File=inline=1;size={};width={cols};height={rows};preserveAspectRatio=1:{}\x07",
+        "\x1b]1337;File=inline=1;size={};width={cols};height={rows};preserveAspectRatio=0{}:{}\x07",
         png.len(),
+        if keep_cursor { ";doNotMoveCursor=1" } else { "" },
         base64::engine::general_purpose::STANDARD.encode(&png)
     ))
 }
@@ -139,28 +164,13 @@ mod tests {
     }
 
     #[test]
-    fn kitty_frames_are_chunked_rgba_that_decodes_back() {
-        let f = frame(64, 48); // 12,288 bytes: 16,384 of base64, four chunks
-        let seq = kitty_sequence(&f, 20, 10);
-        let parts: Vec<&str> = seq.split("\x1b\\").filter(|p| !p.is_empty()).collect();
-        assert_eq!(parts.len(), 4);
-        assert!(parts[0].starts_with("\x1b_Ga=T,f=32,s=64,v=48,c=20,r=10,q=2,m=1;"));
-        assert!(parts[3].starts_with("\x1b_Gm=0;"));
-        let data: String = parts.iter().map(|p| p.split_once(';').unwrap().1).collect();
-        let back = base64::engine::general_purpose::STANDARD
-            .decode(data)
-            .unwrap();
-        assert_eq!(back, f.rgba);
-    }
-
-    #[test]
     fn iterm_frames_are_inline_png() {
         let f = frame(8, 4);
-        let seq = iterm_sequence(&f, 4, 2).unwrap();
+        let seq = iterm_sequence(&f, 4, 2, true).unwrap();
         let (head, body) = seq.split_once(':').unwrap();
         assert!(
             head.starts_with("\x1b]1337;File=inline=1;size=")
-                && head.ends_with("width=4;height=2;preserveAspectRatio=1")
+                && head.ends_with("width=4;height=2;preserveAspectRatio=0;doNotMoveCursor=1")
         );
         let png = base64::engine::general_purpose::STANDARD
             .decode(body.trim_end_matches('\x07'))

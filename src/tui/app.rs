@@ -149,6 +149,10 @@ pub struct FrameStatus {
     pub cache_bytes: u64,
     /// Loaded tiles per (part, level).
     pub loaded: Vec<((usize, usize), usize)>,
+    /// Bytes of escape sequences the frame costs the terminal.
+    pub bytes: usize,
+    /// 1: full resolution; n: 1/n of the pane's pixels each way (while moving).
+    pub scale: u32,
 }
 
 /// The inspector's state.
@@ -168,6 +172,11 @@ pub struct App {
     pub fps: f64,
     /// Name of the image protocol in use.
     pub protocol: String,
+    /// Why the terminal gets no images, or that it did not answer (from
+    /// detection), kept in the status line.
+    pub terminal_note: String,
+    /// Bytes per second the terminal took our output at, when measured.
+    pub link_rate: Option<f64>,
 }
 
 impl App {
@@ -183,6 +192,8 @@ impl App {
             frame: FrameStatus::default(),
             fps: 0.0,
             protocol: String::new(),
+            terminal_note: String::new(),
+            link_rate: None,
         }
     }
 
@@ -314,6 +325,9 @@ impl App {
         if f.unreadable > 0 {
             s.push_str(&format!(" | {} tiles unreadable", f.unreadable));
         }
+        if !self.terminal_note.is_empty() {
+            s.push_str(&format!(" | {}", self.terminal_note));
+        }
         s
     }
 
@@ -321,8 +335,15 @@ impl App {
     /// second, and the renderer.
     pub fn timing_line(&self) -> String {
         let f = &self.frame;
+        let mut frame = crate::text::bytes(f.bytes as u64);
+        if f.scale > 1 {
+            frame.push_str(&format!(" at 1/{}", f.scale));
+        }
+        if let Some(r) = self.link_rate {
+            frame.push_str(&format!(" · link {}/s", crate::text::bytes(r as u64)));
+        }
         format!(
-            "load {:.0} · render {:.0} · encode {:.0} ms | {} | {}",
+            "load {:.0} · render {:.0} · encode {:.0} ms | {frame} | {} | {}",
             f.load_ms,
             f.render_ms,
             f.encode_ms,

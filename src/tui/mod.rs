@@ -20,7 +20,7 @@ use crate::render::{Frame, RendererChoice};
 use crate::store::Dataset;
 use app::{App, Effect, Settings};
 use ratatui::layout::Rect;
-use ratatui_image::protocol::Protocol;
+use protocol::PaneImage;
 use std::collections::VecDeque;
 use std::path::PathBuf;
 use std::sync::Arc;
@@ -59,9 +59,15 @@ const POLL: Duration = Duration::from_millis(8);
 /// Runs the inspector on `ds` until the user quits (the terminal is restored on
 /// every exit path); returns the camera it ended with.
 pub fn run(ds: Arc<Dataset>, opts: InspectOptions) -> anyhow::Result<Camera> {
-    let env = protocol::TerminalEnv::from_process();
-    let graphics = protocol::choose(opts.protocol, &env);
-    let cell_pixels = protocol::cell_pixels(graphics);
+    // Ask the terminal (or the tmux server) once, before raw mode and the loop.
+    let mut found = crate::term::detect(opts.protocol, crate::term::probe::CAP);
+    found.prepare();
+    let graphics = found.choice.graphics;
+    let encoding = protocol::Encoding {
+        graphics,
+        passthrough: found.choice.passthrough,
+    };
+    let cell_pixels = found.cell_pixels;
     // Termination signals end the loop (the first handler of the process wins;
     // a command that installs its own first forwards to [`on_signal`]).
     let _ = ctrlc::set_handler(on_signal);
@@ -73,8 +79,7 @@ pub fn run(ds: Arc<Dataset>, opts: InspectOptions) -> anyhow::Result<Camera> {
     let worker = RenderWorker::spawn(
         ds.clone(),
         WorkerOptions {
-            graphics,
-            in_tmux: env.in_multiplexer(),
+            encoding,
             renderer: opts.renderer,
             memory: opts.settings.memory,
             load_threads: opts.load_threads,
@@ -82,8 +87,19 @@ pub fn run(ds: Arc<Dataset>, opts: InspectOptions) -> anyhow::Result<Camera> {
     );
     let mut app = App::new(ds, opts.camera, opts.settings);
     app.protocol = graphics.name().into();
-    let mut session = terminal::Session::enter(graphics == protocol::Graphics::Kitty)?;
-    let result = event_loop(&mut session, &mut app, &worker, graphics, cell_pixels);
+    app.terminal_note = found.choice.note.clone().unwrap_or_default();
+    let typed = crate::term::typed::key_events(found.typed());
+    let mut session = terminal::Session::enter(encoding)?;
+    let result = event_loop(
+        &mut session,
+        &mut app,
+        &worker,
+        Pane {
+            graphics,
+            cell_pixels,
+        },
+        typed,
+    );
     LOOP_ENDED.store(true, Ordering::SeqCst);
     RUNNING.store(false, Ordering::SeqCst);
     drop(session);
@@ -115,27 +131,74 @@ pub fn on_signal() {
 /// What the view pane shows now.
 #[derive(Default)]
 struct Shown {
-    image: Option<Protocol>,
+    image: Option<PaneImage>,
     frame: Option<Arc<Frame>>,
     arrivals: VecDeque<Instant>,
+}
+
+/// How the view pane is drawn: the protocol and a cell's size in pixels.
+#[derive(Debug, Clone, Copy)]
+struct Pane {
+    graphics: protocol::Graphics,
+    cell_pixels: (u32, u32),
+}
+
+/// After the last key that moved the camera, how long before the full-resolution
+/// frame is asked for (frames while keys keep coming are reduced).
+const SETTLE: Duration = Duration::from_millis(90);
+
+/// What the event loop knows of how fast the terminal takes our output.
+#[derive(Debug, Default)]
+struct Link {
+    /// Bytes per second, smoothed, from draws that took long enough to measure.
+    rate: Option<f64>,
+}
+
+impl Link {
+    /// Records a draw of `bytes` that took `took`.
+    fn record(&mut self, bytes: usize, took: Duration) {
+        // Short writes measure the kernel's buffer, not the link.
+        if bytes < 32 * 1024 || took < Duration::from_millis(4) {
+            return;
+        }
+        let r = bytes as f64 / took.as_secs_f64();
+        self.rate = Some(self.rate.map_or(r, |old| 0.5 * old + 0.5 * r));
+    }
+
+    /// The reduction (1/n of the pixels each way) for frames while the camera
+    /// moves: 2, or 3 when a frame of `full_bytes` would take more than 100 ms.
+    fn moving_scale(&self, full_bytes: usize) -> u32 {
+        match self.rate {
+            Some(r) if full_bytes as f64 / 4.0 / r > 0.1 => 3,
+            _ => 2,
+        }
+    }
 }
 
 fn event_loop(
     session: &mut terminal::Session,
     app: &mut App,
     worker: &RenderWorker,
-    graphics: protocol::Graphics,
-    cell_pixels: (u32, u32),
+    pane: Pane,
+    typed: Vec<crossterm::event::KeyEvent>,
 ) -> anyhow::Result<()> {
     use crossterm::event::{self, Event};
     let mut shown = Shown::default();
     let (msg_tx, msg_rx): (Sender<String>, Receiver<String>) = channel();
+    let mut typed: VecDeque<_> = typed.into();
     let mut seq = 0u64;
     let mut want_frame = true;
     let mut requested_cells = (0u16, 0u16);
     let mut dirty = true;
     let mut saved = 0u32;
     let mut help_shown = false;
+    // Frames asked for while keys come are reduced; the full one follows.
+    let mut last_move: Option<Instant> = None;
+    let mut moving = false;
+    let mut full_owed = false;
+    let mut link = Link::default();
+    let mut full_bytes = 0usize;
+    let scalable = pane.graphics != protocol::Graphics::Halfblocks;
     loop {
         if STOP.load(Ordering::SeqCst) {
             return Ok(());
@@ -146,19 +209,30 @@ fn event_loop(
         if cells != requested_cells {
             want_frame = true;
         }
+        if full_owed && !want_frame && last_move.is_some_and(|t| t.elapsed() >= SETTLE) {
+            moving = false;
+            want_frame = true;
+        }
         if want_frame && cells.0 > 0 && cells.1 > 0 {
             seq += 1;
+            let scale = if moving && scalable {
+                link.moving_scale(full_bytes)
+            } else {
+                1
+            };
+            full_owed = scale > 1;
             worker.request(Request {
                 seq,
                 camera: app.camera,
                 settings: app.settings,
                 cells,
-                cell_pixels,
+                cell_pixels: pane.cell_pixels,
+                scale,
             });
             requested_cells = cells;
             want_frame = false;
         }
-        if help_shown && !app.show_help && protocol::image_in_one_cell(graphics) {
+        if help_shown && !app.show_help && protocol::image_in_one_cell(pane.graphics) {
             // The help was drawn over the image's skipped cells; ratatui would not
             // send those again, so its text would stay. Redraw everything once.
             session.terminal.clear()?;
@@ -181,52 +255,69 @@ fn event_loop(
             dirty = true;
         }
         if dirty {
+            let t = Instant::now();
+            let image_bytes = shown.image.as_ref().map_or(0, |i| i.bytes());
             session
                 .terminal
                 .draw(|f| ui::draw(f, app, shown.image.as_ref()))?;
+            link.record(image_bytes, t.elapsed());
+            app.link_rate = link.rate;
             dirty = false;
         }
         if terminal::hung_up() {
             // The terminal went away: nothing to restore, nobody to show frames to.
             return Ok(());
         }
-        if event::poll(POLL)? {
-            match event::read()? {
-                Event::Key(k) => {
-                    if let Some(cmd) = keys::command_for(k) {
-                        let effect = app.apply(cmd);
-                        if effect != Effect::None {
-                            app.message.clear();
-                        }
-                        match effect {
-                            Effect::Quit => return Ok(()),
-                            Effect::Render => want_frame = true,
-                            Effect::Save => {
-                                saved += 1;
-                                save_frame(shown.frame.clone(), saved, msg_tx.clone());
-                                app.message = "saving the frame…".into();
-                            }
-                            Effect::Suspend => {
-                                session.suspend()?;
-                                want_frame = true;
-                            }
-                            Effect::Repaint => {
-                                session.terminal.clear()?;
-                                want_frame = true;
-                            }
-                            Effect::Redraw | Effect::None => {}
-                        }
-                        dirty = true;
+        // Keys typed while the terminal was probed come first.
+        let next = match typed.pop_front() {
+            Some(k) => Some(Event::Key(k)),
+            None if event::poll(POLL)? => Some(event::read()?),
+            None => None,
+        };
+        match next {
+            Some(Event::Key(k)) => {
+                if let Some(cmd) = keys::command_for(k) {
+                    let effect = app.apply(cmd);
+                    if effect != Effect::None {
+                        app.message.clear();
                     }
+                    match effect {
+                        Effect::Quit => return Ok(()),
+                        Effect::Render => {
+                            want_frame = true;
+                            moving = true;
+                            last_move = Some(Instant::now());
+                        }
+                        Effect::Save => {
+                            saved += 1;
+                            save_frame(shown.frame.clone(), saved, msg_tx.clone());
+                            app.message = "saving the frame…".into();
+                        }
+                        Effect::Suspend => {
+                            session.suspend()?;
+                            want_frame = true;
+                        }
+                        Effect::Repaint => {
+                            session.terminal.clear()?;
+                            want_frame = true;
+                        }
+                        Effect::Redraw | Effect::None => {}
+                    }
+                    dirty = true;
                 }
-                Event::Resize(..) => dirty = true,
-                _ => {}
             }
+            Some(Event::Resize(..)) => dirty = true,
+            _ => {}
         }
+        // Only the newest finished frame is drawn: older ones are dropped, so
+        // nothing queues behind a slow terminal.
         loop {
             match worker.try_recv() {
                 Ok(Some(Report::Frame(f))) => {
                     shown.arrivals.push_back(Instant::now());
+                    if f.status.scale == 1 {
+                        full_bytes = f.status.bytes;
+                    }
                     app.frame = f.status;
                     shown.image = Some(f.image);
                     shown.frame = Some(f.frame);

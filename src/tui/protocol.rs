@@ -1,47 +1,39 @@
-//! The inspector's terminal graphics: which image protocol to use (kitty, sixel,
-//! iTerm2 or Unicode half-blocks), the size of a cell in pixels, and encoding a
-//! rendered frame for that protocol. Nothing else in the inspector asks the
-//! terminal about its capabilities.
+//! The inspector's terminal graphics: encoding a rendered frame for the protocol
+//! detection chose ([`crate::term::detect`]), as a [`PaneImage`] the event loop
+//! only copies into ratatui's buffer.
 //!
-//! The choice never queries the terminal through stdin: `--protocol` wins, then
-//! environment hints (`KITTY_WINDOW_ID`, `TERM`, `TERM_PROGRAM`); inside tmux the
-//! default is half-blocks. (`Picker::from_query_stdio` waits up to 2 s, and in
-//! tmux its query thread swallowed a key press and left raw mode: see
-//! `docs/notes/terminal-frames.md`.)
-//!
-//! Encoding runs on the render worker, so the event loop only copies cells; kitty
-//! frames all use one image id ([`KITTY_IMAGE_ID`]) so each frame replaces the last
-//! in the terminal's memory instead of piling up. Sixel frames come from our own
-//! encoder ([`crate::term::sixel`]) and are handed to ratatui-image's `Sixel`
-//! ready-made, which draws them as ratatui-image does its own: the escape string in
-//! the pane's first cell, the other cells skipped.
+//! Encoding runs on the render worker. Kitty frames all use one image id
+//! ([`KITTY_IMAGE_ID`]) so each frame replaces the last in the terminal's memory,
+//! and are shown by Unicode placeholder cells (which tmux keeps like text), scaled
+//! by the terminal to the pane whatever their pixel size: frames rendered at
+//! reduced resolution while the camera moves cost a quarter of the bytes. Sixel
+//! and iTerm2 frames are one escape string in the pane's first cell, the other
+//! cells skipped; sixel comes from our own encoder ([`crate::term::sixel`]).
 
 use crate::render::Frame;
-use crate::term::Protocol as Requested;
-use crate::term::sixel;
-use ratatui::layout::Size;
-use ratatui_image::protocol::Protocol;
+use crate::term::{kitty, sixel};
+use ratatui::buffer::{Buffer, CellDiffOption};
+use ratatui::layout::{Rect, Size};
+use ratatui::style::Color;
+use ratatui::widgets::Widget;
 use ratatui_image::protocol::halfblocks::Halfblocks;
-use ratatui_image::protocol::iterm2::Iterm2;
-use ratatui_image::protocol::kitty::Kitty;
-use ratatui_image::protocol::sixel::Sixel;
+use ratatui_image::protocol::Protocol;
 
-/// The image protocol the inspector draws with.
+pub use crate::term::Graphics;
+
+/// How frames are encoded: the protocol and how it reaches the terminal.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Graphics {
-    Kitty,
-    Sixel,
-    Iterm2,
-    Halfblocks,
+pub struct Encoding {
+    pub graphics: Graphics,
+    /// Wrapped in tmux passthrough.
+    pub passthrough: bool,
 }
 
-impl Graphics {
-    pub fn name(&self) -> &'static str {
-        match self {
-            Graphics::Kitty => "kitty",
-            Graphics::Sixel => "sixel",
-            Graphics::Iterm2 => "iTerm2",
-            Graphics::Halfblocks => "half-blocks",
+impl Encoding {
+    pub fn new(graphics: Graphics) -> Encoding {
+        Encoding {
+            graphics,
+            passthrough: false,
         }
     }
 }
@@ -56,105 +48,99 @@ pub fn image_in_one_cell(graphics: Graphics) -> bool {
 /// The one kitty image id the inspector uses (frames replace each other).
 pub const KITTY_IMAGE_ID: u32 = 0x00_70_63_69; // "pci"
 
-/// The escape sequence that deletes the inspector's kitty image, sent on exit.
-pub fn kitty_delete_sequence() -> String {
-    format!("\x1b_Ga=d,d=I,i={KITTY_IMAGE_ID},q=2\x1b\\")
+/// A frame encoded for the view pane.
+pub enum PaneImage {
+    /// One escape string drawn from the pane's first cell, the others skipped.
+    FirstCell { data: String, cells: (u16, u16) },
+    /// A kitty image sent with the first cell, shown by placeholder cells.
+    Kitty { transmit: String, cells: (u16, u16) },
+    /// Unicode half-blocks.
+    Blocks(Protocol),
 }
 
-/// The environment variables the choice looks at.
-#[derive(Debug, Clone, Default)]
-pub struct TerminalEnv {
-    pub term: Option<String>,
-    pub term_program: Option<String>,
-    pub kitty_window_id: Option<String>,
-    pub tmux: Option<String>,
-    pub lc_terminal: Option<String>,
-}
-
-impl TerminalEnv {
-    /// This process's environment.
-    pub fn from_process() -> TerminalEnv {
-        let var = |k: &str| std::env::var(k).ok().filter(|v| !v.is_empty());
-        TerminalEnv {
-            term: var("TERM"),
-            term_program: var("TERM_PROGRAM"),
-            kitty_window_id: var("KITTY_WINDOW_ID"),
-            tmux: var("TMUX"),
-            lc_terminal: var("LC_TERMINAL"),
+impl PaneImage {
+    /// The pane's size in cells that the image covers.
+    pub fn cells(&self) -> (u16, u16) {
+        match self {
+            PaneImage::FirstCell { cells, .. } | PaneImage::Kitty { cells, .. } => *cells,
+            PaneImage::Blocks(p) => {
+                let s = p.size();
+                (s.width, s.height)
+            }
         }
     }
 
-    /// Whether we run inside tmux (or screen).
-    pub fn in_multiplexer(&self) -> bool {
-        self.tmux.is_some()
-            || self
-                .term
-                .as_deref()
-                .is_some_and(|t| t.starts_with("tmux") || t.starts_with("screen"))
-            || self.term_program.as_deref() == Some("tmux")
+    /// Bytes of escape sequences the image costs (half-blocks: cells × ~20).
+    pub fn bytes(&self) -> usize {
+        match self {
+            PaneImage::FirstCell { data, .. } => data.len(),
+            PaneImage::Kitty { transmit, cells } => {
+                transmit.len() + cells.0 as usize * cells.1 as usize * 4
+            }
+            PaneImage::Blocks(p) => {
+                let s = p.size();
+                s.width as usize * s.height as usize * 20
+            }
+        }
     }
 }
 
-/// Picks the protocol: the user's request, else environment hints, else
-/// half-blocks (which every terminal with colour shows).
-pub fn choose(requested: Requested, env: &TerminalEnv) -> Graphics {
-    match requested {
-        Requested::Kitty => return Graphics::Kitty,
-        Requested::Sixel => return Graphics::Sixel,
-        Requested::Iterm => return Graphics::Iterm2,
-        Requested::Halfblocks => return Graphics::Halfblocks,
-        Requested::Auto => {}
+/// A width of one, whatever the symbol's characters would measure.
+const UNIT_WIDTH: CellDiffOption = CellDiffOption::ForcedWidth(std::num::NonZeroU16::new(1).unwrap());
+
+impl Widget for &PaneImage {
+    fn render(self, area: Rect, buf: &mut Buffer) {
+        let (w, h) = self.cells();
+        let area = Rect::new(area.x, area.y, area.width.min(w), area.height.min(h));
+        if area.is_empty() {
+            return;
+        }
+        match self {
+            PaneImage::Blocks(p) => ratatui_image::Image::new(p).render(area, buf),
+            PaneImage::FirstCell { data, .. } => {
+                for y in area.top()..area.bottom() {
+                    for x in area.left()..area.right() {
+                        if let Some(cell) = buf.cell_mut((x, y)) {
+                            if (x, y) == (area.x, area.y) {
+                                cell.set_symbol(data).set_diff_option(UNIT_WIDTH);
+                            } else {
+                                cell.set_diff_option(CellDiffOption::Skip);
+                            }
+                        }
+                    }
+                }
+            }
+            PaneImage::Kitty { transmit, .. } => {
+                let (r, g, b) = kitty::id_color(KITTY_IMAGE_ID);
+                let max = kitty::max_cells();
+                for y in area.top()..area.bottom().min(area.y + max) {
+                    for x in area.left()..area.right().min(area.x + max) {
+                        let Some(cell) = buf.cell_mut((x, y)) else {
+                            continue;
+                        };
+                        let mut symbol = String::new();
+                        if (x, y) == (area.x, area.y) {
+                            symbol.push_str(transmit);
+                        }
+                        symbol.push_str(&kitty::placeholder(y - area.y, x - area.x, KITTY_IMAGE_ID));
+                        cell.set_symbol(&symbol)
+                            .set_fg(Color::Rgb(r, g, b))
+                            .set_diff_option(UNIT_WIDTH);
+                    }
+                }
+            }
+        }
     }
-    if env.in_multiplexer() {
-        // tmux passes images through only when configured to; blocks always work.
-        return Graphics::Halfblocks;
-    }
-    let term = env.term.as_deref().unwrap_or("").to_ascii_lowercase();
-    let program = env
-        .term_program
-        .as_deref()
-        .unwrap_or("")
-        .to_ascii_lowercase();
-    if env.kitty_window_id.is_some() || term.contains("kitty") || term.contains("ghostty") {
-        return Graphics::Kitty;
-    }
-    if program == "ghostty" {
-        return Graphics::Kitty;
-    }
-    if program == "iterm.app"
-        || program == "wezterm"
-        || env.lc_terminal.as_deref() == Some("iTerm2")
-    {
-        return Graphics::Iterm2;
-    }
-    if term.contains("foot") || term.contains("mlterm") || term.contains("sixel") {
-        return Graphics::Sixel;
-    }
-    Graphics::Halfblocks
 }
 
-/// Pixels per cell: the terminal's own numbers when it reports its size in pixels,
-/// else 10×20. Half-blocks are always 1×2.
-pub fn cell_pixels(graphics: Graphics) -> (u32, u32) {
-    if graphics == Graphics::Halfblocks {
-        return (1, 2);
-    }
-    let (cols, rows) = crossterm::terminal::size().unwrap_or((0, 0));
-    crossterm::terminal::window_size()
-        .ok()
-        .filter(|w| w.width > 0 && w.height > 0 && cols > 0 && rows > 0)
-        .map(|w| (w.width as u32 / cols as u32, w.height as u32 / rows as u32))
-        .filter(|&(w, h)| w > 0 && h > 0)
-        .unwrap_or((10, 20))
+/// The escape sequence that deletes the inspector's kitty image, sent on exit.
+pub fn kitty_delete_sequence(passthrough: bool) -> String {
+    kitty::delete(KITTY_IMAGE_ID, passthrough)
 }
 
-/// The sixel escape string for a pane of `cells`: the pane's cells erased first
-/// (ECH per row, as ratatui-image does, so no old text shows through), then the
-/// image; inside tmux all of it goes through passthrough.
-fn sixel_for_pane(frame: &Frame, cells: (u16, u16), in_tmux: bool) -> anyhow::Result<String> {
-    let image = sixel::encode(&frame.rgba, frame.width, frame.height)?;
-    let (w, h) = cells;
-    let mut s = String::with_capacity(image.len() + 16 * h as usize);
+/// The cells of a pane erased (ECH per row, as ratatui-image does, so no old text
+/// shows through), the cursor back at its first cell.
+fn erase_pane(s: &mut String, (w, h): (u16, u16)) {
     if h <= 1 {
         s.push_str(&format!("\x1b[{w}X"));
     } else {
@@ -163,80 +149,104 @@ fn sixel_for_pane(frame: &Frame, cells: (u16, u16), in_tmux: bool) -> anyhow::Re
         }
         s.push_str(&format!("\x1b[{h}A"));
     }
+}
+
+/// The sixel escape string for a pane of `cells` (`full` pixels): the pane
+/// erased, then the image (sixel cannot be scaled by the terminal: a smaller
+/// frame is enlarged here).
+fn sixel_for_pane(
+    frame: &Frame,
+    cells: (u16, u16),
+    passthrough: bool,
+    full: (u32, u32),
+) -> anyhow::Result<String> {
+    let image = if (frame.width, frame.height) == full || frame.width == 0 || frame.height == 0 {
+        sixel::encode(&frame.rgba, frame.width, frame.height)?
+    } else {
+        let big = enlarge(frame, full);
+        sixel::encode(&big, full.0, full.1)?
+    };
+    let mut s = String::with_capacity(image.len() + 16 * cells.1 as usize);
+    erase_pane(&mut s, cells);
     s.push_str(&image);
-    Ok(if in_tmux {
+    Ok(if passthrough {
         sixel::tmux_passthrough(&s)
     } else {
         s
     })
 }
 
-/// Encodes `frame` (rendered at `cells` × the cell size in pixels) for `graphics`.
+/// `frame` enlarged to `full` pixels by repeating pixels.
+fn enlarge(frame: &Frame, (w, h): (u32, u32)) -> Vec<u8> {
+    let mut out = Vec::with_capacity(w as usize * h as usize * 4);
+    for y in 0..h {
+        let sy = (y as u64 * frame.height as u64 / h as u64) as usize;
+        let row = &frame.rgba[sy * frame.width as usize * 4..][..frame.width as usize * 4];
+        for x in 0..w {
+            let sx = (x as u64 * frame.width as u64 / w as u64) as usize * 4;
+            out.extend_from_slice(&row[sx..sx + 4]);
+        }
+    }
+    out
+}
+
+/// The iTerm2 escape string for a pane of `cells`: the pane erased, then the frame
+/// as PNG stretched over the pane by the terminal, the cursor left where it was.
+fn iterm_for_pane(frame: &Frame, cells: (u16, u16), passthrough: bool) -> anyhow::Result<String> {
+    let mut s = String::new();
+    erase_pane(&mut s, cells);
+    s.push_str(&crate::term::inline::iterm_sequence(frame, cells.0, cells.1, true)?);
+    Ok(if passthrough {
+        sixel::tmux_passthrough(&s)
+    } else {
+        s
+    })
+}
+
+/// Encodes `frame` for a pane of `cells` that is `full` pixels. Kitty and iTerm2
+/// frames may be smaller (the terminal scales them); sixel ones are enlarged here.
 pub fn encode(
-    graphics: Graphics,
+    enc: Encoding,
     frame: &Frame,
     cells: (u16, u16),
-    in_tmux: bool,
-) -> anyhow::Result<Protocol> {
-    let size = Size::new(cells.0, cells.1);
-    let err = |e: ratatui_image::errors::Errors| anyhow::anyhow!("cannot encode the frame: {e}");
-    let image = || {
-        image::RgbaImage::from_raw(frame.width, frame.height, frame.rgba.clone())
-            .map(image::DynamicImage::ImageRgba8)
-            .ok_or_else(|| anyhow::anyhow!("frame buffer has the wrong size"))
-    };
-    Ok(match graphics {
-        Graphics::Halfblocks => Protocol::Halfblocks(Halfblocks::new(image()?, size).map_err(err)?),
-        Graphics::Sixel => Protocol::Sixel(Sixel {
-            data: sixel_for_pane(frame, cells, in_tmux)?,
-            size,
-            is_tmux: in_tmux,
-        }),
-        // zlib-compressed: a tenth of the bytes for ~5 ms more (notes/terminal-frames.md).
-        Graphics::Kitty => {
-            Protocol::Kitty(Kitty::new(image()?, size, KITTY_IMAGE_ID, in_tmux, true).map_err(err)?)
+    full: (u32, u32),
+) -> anyhow::Result<PaneImage> {
+    Ok(match enc.graphics {
+        Graphics::Halfblocks => {
+            let image = image::RgbaImage::from_raw(frame.width, frame.height, frame.rgba.clone())
+                .map(image::DynamicImage::ImageRgba8)
+                .ok_or_else(|| anyhow::anyhow!("frame buffer has the wrong size"))?;
+            let blocks = Halfblocks::new(image, Size::new(cells.0, cells.1))
+                .map_err(|e| anyhow::anyhow!("cannot encode the frame: {e}"))?;
+            PaneImage::Blocks(Protocol::Halfblocks(blocks))
         }
-        Graphics::Iterm2 => Protocol::ITerm2(Iterm2::new(image()?, size, in_tmux).map_err(err)?),
+        Graphics::Sixel => PaneImage::FirstCell {
+            data: sixel_for_pane(frame, cells, enc.passthrough, full)?,
+            cells,
+        },
+        Graphics::Kitty => PaneImage::Kitty {
+            transmit: kitty::transmit(
+                frame,
+                kitty::Placement {
+                    id: KITTY_IMAGE_ID,
+                    cols: cells.0,
+                    rows: cells.1,
+                    placeholders: true,
+                    passthrough: enc.passthrough,
+                },
+            ),
+            cells,
+        },
+        Graphics::Iterm2 => PaneImage::FirstCell {
+            data: iterm_for_pane(frame, cells, enc.passthrough)?,
+            cells,
+        },
     })
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    fn env(term: &str, program: &str) -> TerminalEnv {
-        TerminalEnv {
-            term: Some(term.into()),
-            term_program: (!program.is_empty()).then(|| program.into()),
-            ..Default::default()
-        }
-    }
-
-    #[test]
-    fn the_flag_wins_then_hints_then_half_blocks() {
-        let kitty = TerminalEnv {
-            kitty_window_id: Some("1".into()),
-            ..env("xterm-kitty", "")
-        };
-        assert_eq!(choose(Requested::Sixel, &kitty), Graphics::Sixel);
-        assert_eq!(choose(Requested::Auto, &kitty), Graphics::Kitty);
-        assert_eq!(
-            choose(Requested::Auto, &env("xterm-256color", "iTerm.app")),
-            Graphics::Iterm2
-        );
-        assert_eq!(choose(Requested::Auto, &env("foot", "")), Graphics::Sixel);
-        assert_eq!(
-            choose(Requested::Auto, &env("xterm-256color", "")),
-            Graphics::Halfblocks
-        );
-        let tmux = TerminalEnv {
-            tmux: Some("/tmp/tmux-0/default,1,0".into()),
-            kitty_window_id: Some("1".into()),
-            ..env("tmux-256color", "tmux")
-        };
-        assert_eq!(choose(Requested::Auto, &tmux), Graphics::Halfblocks);
-        assert_eq!(choose(Requested::Kitty, &tmux), Graphics::Kitty);
-    }
 
     #[test]
     fn frames_encode_for_every_protocol() {
@@ -252,8 +262,24 @@ mod tests {
             } else {
                 (4, 1)
             };
-            let p = encode(g, &frame, cells, false).unwrap();
-            assert_eq!(p.size(), Size::new(cells.0, cells.1), "{}", g.name());
+            let p = encode(Encoding::new(g), &frame, cells, (40, 20)).unwrap();
+            assert_eq!(p.cells(), cells, "{}", g.name());
+            assert!(p.bytes() > 0);
         }
+    }
+
+    #[test]
+    fn kitty_frames_fill_the_pane_with_placeholders() {
+        let frame = Frame::background(20, 20, [0, 0, 0]);
+        let img = encode(Encoding::new(Graphics::Kitty), &frame, (4, 2), (40, 40)).unwrap();
+        let mut buf = Buffer::empty(Rect::new(0, 0, 6, 3));
+        (&img).render(Rect::new(1, 1, 5, 2), &mut buf);
+        let first = buf[(1, 1)].symbol();
+        assert!(first.starts_with("\x1b_Ga=T,q=2,i=7365481,f=24,o=z,s=20,v=20,c=4,r=2,U=1"));
+        assert!(first.ends_with(&kitty::placeholder(0, 0, KITTY_IMAGE_ID)));
+        assert_eq!(buf[(4, 2)].symbol(), kitty::placeholder(1, 3, KITTY_IMAGE_ID));
+        assert_eq!(buf[(4, 2)].fg, Color::Rgb(0x70, 0x63, 0x69));
+        // Outside the image's 4×2 cells nothing is drawn.
+        assert_eq!(buf[(5, 1)].symbol(), " ");
     }
 }

@@ -18,6 +18,8 @@ use std::sync::atomic::{AtomicBool, Ordering};
 
 /// Whether a kitty image may be on screen (deleted when leaving).
 static KITTY_IMAGE: AtomicBool = AtomicBool::new(false);
+/// Whether images go through tmux's passthrough (the kitty delete must too).
+static PASSTHROUGH: AtomicBool = AtomicBool::new(false);
 /// Whether the terminal is in the inspector's mode now.
 static ACTIVE: AtomicBool = AtomicBool::new(false);
 static HOOK: Once = Once::new();
@@ -31,7 +33,9 @@ pub struct Session {
 
 impl Session {
     /// Enters raw mode and the alternate screen, after installing the panic hook.
-    pub fn enter(kitty: bool) -> anyhow::Result<Session> {
+    pub fn enter(encoding: protocol::Encoding) -> anyhow::Result<Session> {
+        let kitty = encoding.graphics == protocol::Graphics::Kitty;
+        PASSTHROUGH.store(encoding.passthrough, Ordering::SeqCst);
         HOOK.call_once(|| {
             let previous = std::panic::take_hook();
             std::panic::set_hook(Box::new(move |info| {
@@ -89,18 +93,21 @@ impl Drop for Session {
 }
 
 /// Leaves the inspector's mode (once; later calls do nothing): deletes the kitty
-/// image, leaves the alternate screen, shows the cursor, leaves raw mode.
+/// image, leaves the alternate screen, shows the cursor, leaves raw mode, and puts
+/// tmux's `allow-passthrough` back as it was.
 pub fn restore() {
     if !ACTIVE.swap(false, Ordering::SeqCst) {
         return;
     }
     let mut out = stdout();
     if KITTY_IMAGE.load(Ordering::SeqCst) {
-        let _ = out.write_all(protocol::kitty_delete_sequence().as_bytes());
+        let passthrough = PASSTHROUGH.load(Ordering::SeqCst);
+        let _ = out.write_all(protocol::kitty_delete_sequence(passthrough).as_bytes());
     }
     let _ = execute!(out, LeaveAlternateScreen, Show);
     let _ = disable_raw_mode();
     let _ = out.flush();
+    crate::term::tmux::restore_passthrough();
 }
 
 /// Whether the terminal under stdin is gone (the SSH connection or the terminal

@@ -13,8 +13,7 @@ use ratatui::layout::{Constraint, Layout, Rect};
 use ratatui::style::{Color, Modifier, Style, Stylize};
 use ratatui::text::{Line, Span};
 use ratatui::widgets::{Block, Cell, Clear, Gauge, Paragraph, Row, Table, TableState};
-use ratatui_image::Image;
-use ratatui_image::protocol::Protocol;
+use super::protocol::PaneImage;
 
 /// Where things go on screen.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -74,7 +73,7 @@ fn header(cells: &[&'static str]) -> Row<'static> {
 }
 
 /// Draws the whole screen; `image` is the latest encoded frame, if any.
-pub fn draw(f: &mut Frame, app: &App, image: Option<&Protocol>) {
+pub fn draw(f: &mut Frame, app: &App, image: Option<&PaneImage>) {
     let a = areas(f.area(), app);
     draw_parts(f, app, a.parts);
     draw_bands(f, app, a.bands);
@@ -89,7 +88,7 @@ pub fn draw(f: &mut Frame, app: &App, image: Option<&Protocol>) {
     }
     f.render_widget(view_block, a.view);
     match image {
-        Some(img) => f.render_widget(Image::new(img).allow_clipping(true), a.view_inner),
+        Some(img) => f.render_widget(img, a.view_inner),
         None => f.render_widget(
             Paragraph::new("rendering the first frame…").dark_gray(),
             a.view_inner,

@@ -6,14 +6,13 @@
 //! on it: it polls [`RenderWorker::try_recv`] between key presses.
 
 use super::app::{FrameStatus, Settings};
-use super::protocol::{self, Graphics};
+use super::protocol::{self, PaneImage};
 use crate::camera::Camera;
 use crate::lod::{self, LodMode, TileCache, TileKey, TileRef};
 use crate::render::color::ColorMode;
 use crate::render::scene::{ColorRanges, colorize};
 use crate::render::{self, Frame, PointBatch, Rasterizer, RenderOptions, RendererChoice};
 use crate::store::Dataset;
-use ratatui_image::protocol::Protocol;
 use std::collections::{BTreeMap, HashMap};
 use std::sync::Arc;
 use std::sync::mpsc::{Receiver, RecvTimeoutError, Sender, TryRecvError, channel};
@@ -30,13 +29,16 @@ pub struct Request {
     pub cells: (u16, u16),
     /// Pixels per cell for the protocol in use.
     pub cell_pixels: (u32, u32),
+    /// 1 for a full frame; n renders 1/n of the pixels each way (while the camera
+    /// moves, over a slow link), scaled up by the terminal or by us.
+    pub scale: u32,
 }
 
 /// A drawn and encoded frame.
 pub struct FrameReady {
     pub seq: u64,
     /// Ready for the terminal; drawing it only copies cells.
-    pub image: Protocol,
+    pub image: PaneImage,
     pub frame: Arc<Frame>,
     /// Cells the image covers.
     pub cells: (u16, u16),
@@ -66,8 +68,7 @@ pub struct RenderWorker {
 /// How the worker is set up.
 #[derive(Debug, Clone, Copy)]
 pub struct WorkerOptions {
-    pub graphics: Graphics,
-    pub in_tmux: bool,
+    pub encoding: protocol::Encoding,
     pub renderer: RendererChoice,
     /// Bytes of loaded tiles kept.
     pub memory: u64,
@@ -265,8 +266,12 @@ impl Worker {
 
     fn frame(&mut self, req: &Request, received: Instant) -> anyhow::Result<FrameReady> {
         let (cols, rows) = (req.cells.0.max(1), req.cells.1.max(1));
-        let width = (cols as u32 * req.cell_pixels.0).clamp(1, render::MAX_FRAME_SIDE);
-        let height = (rows as u32 * req.cell_pixels.1).clamp(1, render::MAX_FRAME_SIDE);
+        let scale = req.scale.max(1);
+        let full = (
+            (cols as u32 * req.cell_pixels.0).clamp(1, render::MAX_FRAME_SIDE),
+            (rows as u32 * req.cell_pixels.1).clamp(1, render::MAX_FRAME_SIDE),
+        );
+        let (width, height) = ((full.0 / scale).max(1), (full.1 / scale).max(1));
         let s = req.settings;
         self.renderer()?;
 
@@ -342,7 +347,7 @@ impl Worker {
         drop(batches);
 
         let t = Instant::now();
-        let image = protocol::encode(self.opts.graphics, &frame, (cols, rows), self.opts.in_tmux)?;
+        let image = protocol::encode(self.opts.encoding, &frame, (cols, rows), full)?;
         let encode_ms = ms(t);
 
         let mut loaded: BTreeMap<(usize, usize), usize> = BTreeMap::new();
@@ -368,6 +373,8 @@ impl Worker {
             renderer: renderer_name,
             cache_bytes: self.cache.stats().bytes,
             loaded: loaded.into_iter().collect(),
+            bytes: image.bytes(),
+            scale,
         };
         Ok(FrameReady {
             seq: req.seq,

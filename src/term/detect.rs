@@ -1,0 +1,346 @@
+//! Which image protocol to draw with, and a cell's size in pixels, for `preview`
+//! and `inspect` alike: `--protocol` first; inside tmux, what the tmux server says
+//! of the outer terminal; else the terminal's own answers to the probe (its name
+//! from XTVERSION, then the kitty query, then DA1's sixel attribute); then
+//! environment hints; then half-blocks, with a note saying why.
+//!
+//! [`choose`] is a pure function of what was learnt (tested for every terminal we
+//! know); [`detect`] does the asking.
+
+use super::Protocol;
+use super::probe::{self, Probe, WinSize};
+use super::replies::Replies;
+use super::tmux::{self, TmuxInfo};
+use serde::Serialize;
+use std::io::IsTerminal;
+use std::time::{Duration, Instant};
+
+/// The image protocol a frame is drawn with.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+pub enum Graphics {
+    Kitty,
+    Sixel,
+    Iterm2,
+    Halfblocks,
+}
+
+impl Graphics {
+    pub fn name(&self) -> &'static str {
+        match self {
+            Graphics::Kitty => "kitty",
+            Graphics::Sixel => "sixel",
+            Graphics::Iterm2 => "iTerm2",
+            Graphics::Halfblocks => "half-blocks",
+        }
+    }
+}
+
+/// The environment variables the choice looks at.
+#[derive(Debug, Clone, Default, Serialize)]
+pub struct TerminalEnv {
+    pub term: Option<String>,
+    pub term_program: Option<String>,
+    pub kitty_window_id: Option<String>,
+    pub tmux: Option<String>,
+    pub tmux_pane: Option<String>,
+    pub lc_terminal: Option<String>,
+}
+
+impl TerminalEnv {
+    /// This process's environment.
+    pub fn from_process() -> TerminalEnv {
+        let var = |k: &str| std::env::var(k).ok().filter(|v| !v.is_empty());
+        TerminalEnv {
+            term: var("TERM"),
+            term_program: var("TERM_PROGRAM"),
+            kitty_window_id: var("KITTY_WINDOW_ID"),
+            tmux: var("TMUX"),
+            tmux_pane: var("TMUX_PANE"),
+            lc_terminal: var("LC_TERMINAL"),
+        }
+    }
+
+    /// Whether we run inside tmux.
+    pub fn in_tmux(&self) -> bool {
+        self.tmux.is_some()
+    }
+
+    /// The protocol the variables suggest (after SSH most are gone).
+    pub fn hint(&self) -> Option<(Graphics, String)> {
+        let term = self.term.as_deref().unwrap_or("").to_ascii_lowercase();
+        let program = self.term_program.as_deref().unwrap_or("");
+        if self.kitty_window_id.is_some() {
+            return Some((Graphics::Kitty, "KITTY_WINDOW_ID is set".into()));
+        }
+        if let Some(g) = by_name(program).or_else(|| by_name(&term)) {
+            return Some((g, format!("TERM={term}, TERM_PROGRAM={program}")));
+        }
+        if self.lc_terminal.as_deref() == Some("iTerm2") {
+            return Some((Graphics::Iterm2, "LC_TERMINAL=iTerm2".into()));
+        }
+        if term.contains("sixel") || term.contains("mlterm") {
+            return Some((Graphics::Sixel, format!("TERM={term}")));
+        }
+        None
+    }
+}
+
+/// The protocol a terminal draws best, by its name (XTVERSION's text, `TERM` or
+/// `TERM_PROGRAM`). Named first because several terminals answer the kitty query
+/// `OK` but lack what we use (Unicode placeholders: WezTerm, Konsole).
+pub fn by_name(name: &str) -> Option<Graphics> {
+    let n = name.to_ascii_lowercase();
+    let has = |s: &str| n.contains(s);
+    if has("kitty") || has("ghostty") || n.starts_with("rio") {
+        Some(Graphics::Kitty)
+    } else if has("wezterm") || has("iterm") || has("mintty") {
+        Some(Graphics::Iterm2)
+    } else if has("konsole") || has("foot") || has("mlterm") || has("contour") {
+        Some(Graphics::Sixel)
+    } else {
+        None
+    }
+}
+
+/// What [`choose`] decided.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize)]
+pub struct Choice {
+    pub graphics: Graphics,
+    /// Why, in a few words.
+    pub reason: String,
+    /// Images go through tmux's passthrough (kitty placeholders, or a protocol
+    /// forced by `--protocol` that tmux does not draw).
+    pub passthrough: bool,
+    /// Kitty images drawn by Unicode placeholder cells (inside tmux).
+    pub placeholders: bool,
+    /// One line for the status bar when the choice is a fallback: why, and what
+    /// would give images.
+    pub note: Option<String>,
+}
+
+/// Decides from what was learnt: the request, the environment, the terminal's
+/// answers (`None`: not asked) and, inside tmux, the server's account of the
+/// outer terminal (`Err`: it could not be asked).
+pub fn choose(
+    requested: Protocol,
+    env: &TerminalEnv,
+    replies: Option<&Replies>,
+    capped: bool,
+    tmux: Option<&Result<TmuxInfo, String>>,
+) -> Choice {
+    let tmux_says = replies
+        .and_then(|r| r.xtversion.as_deref())
+        .is_some_and(|v| v.starts_with("tmux"));
+    let in_tmux = env.in_tmux() || tmux_says;
+    let tmux_info = tmux.and_then(|t| t.as_ref().ok());
+    let tmux_sixel = tmux_info.is_some_and(|t| t.draws_sixel())
+        || (tmux_says && replies.is_some_and(|r| r.sixel()));
+    let choice = |graphics, reason: String, note: Option<String>| Choice {
+        graphics,
+        reason,
+        passthrough: in_tmux && graphics != Graphics::Halfblocks && !(graphics == Graphics::Sixel && tmux_sixel),
+        placeholders: in_tmux && graphics == Graphics::Kitty,
+        note,
+    };
+    let forced = match requested {
+        Protocol::Kitty => Some(Graphics::Kitty),
+        Protocol::Sixel => Some(Graphics::Sixel),
+        Protocol::Iterm => Some(Graphics::Iterm2),
+        Protocol::Halfblocks => Some(Graphics::Halfblocks),
+        Protocol::Auto => None,
+    };
+    if let Some(g) = forced {
+        return choice(g, "--protocol".into(), None);
+    }
+    if in_tmux {
+        let outer = tmux_info
+            .map(|t| (t.termtype.clone(), t.termname.clone()))
+            .unwrap_or_default();
+        let outer_graphics = by_name(&outer.0).or_else(|| by_name(&outer.1));
+        let outer_name = [outer.0.as_str(), outer.1.as_str()]
+            .into_iter()
+            .find(|s| !s.is_empty())
+            .unwrap_or("an unknown terminal")
+            .to_string();
+        if outer_graphics == Some(Graphics::Kitty) {
+            return choice(
+                Graphics::Kitty,
+                format!("tmux, outer terminal {outer_name}: kitty placeholders"),
+                None,
+            );
+        }
+        if tmux_sixel {
+            return choice(Graphics::Sixel, "tmux draws sixel".into(), None);
+        }
+        let version = tmux_info.map(|t| t.version.as_str()).unwrap_or("");
+        let why = match tmux {
+            Some(Err(e)) => format!("tmux could not be asked ({e})"),
+            _ => format!("tmux {version} in {outer_name}"),
+        };
+        return choice(
+            Graphics::Halfblocks,
+            why.clone(),
+            Some(format!(
+                "half-blocks: {why} draws no images here; kitty, Ghostty or Rio outside tmux, or tmux 3.4+ with sixel, would"
+            )),
+        );
+    }
+    if let Some(r) = replies {
+        if let Some((g, v)) = r
+            .xtversion
+            .as_deref()
+            .and_then(|v| by_name(v).map(|g| (g, v)))
+        {
+            return choice(g, format!("the terminal says it is {v}"), None);
+        }
+        if r.kitty_ok() {
+            return choice(Graphics::Kitty, "the kitty graphics query was answered OK".into(), None);
+        }
+        if r.sixel() {
+            return choice(Graphics::Sixel, "DA1 lists sixel (attribute 4)".into(), None);
+        }
+    }
+    if let Some((g, why)) = env.hint() {
+        return choice(g, why, None);
+    }
+    let note = if capped {
+        format!(
+            "half-blocks: the terminal did not answer within {} ms",
+            probe::CAP.as_millis()
+        )
+    } else if replies.is_none() {
+        "half-blocks: stdin or stdout is not a terminal, so it was not asked".into()
+    } else {
+        "half-blocks: the terminal reports no image protocol (--protocol forces one)".into()
+    };
+    choice(Graphics::Halfblocks, "no image protocol found".into(), Some(note))
+}
+
+/// Everything detection learnt, and what it chose: what `pcimg doctor` prints.
+#[derive(Debug, Clone, Serialize)]
+pub struct Detection {
+    #[serde(flatten)]
+    pub choice: Choice,
+    /// Pixels per cell for frames (1×2 for half-blocks).
+    pub cell_pixels: (u32, u32),
+    /// Where the cell size came from.
+    pub cell_source: &'static str,
+    /// What was asked of the terminal, printable.
+    pub asked: Option<String>,
+    pub probe: Option<Probe>,
+    pub tmux: Option<Result<TmuxInfo, String>>,
+    pub winsize: Option<WinSize>,
+    pub env: TerminalEnv,
+    /// Milliseconds the whole detection took.
+    pub millis: f64,
+}
+
+impl Detection {
+    /// Keys typed during the probe, for the inspector.
+    pub fn typed(&self) -> &[u8] {
+        self.probe.as_ref().map_or(&[], |p| &p.typed)
+    }
+
+    /// The tmux pane to allow passthrough in, when images go through it.
+    pub fn passthrough_pane(&self) -> Option<&str> {
+        if !self.choice.passthrough {
+            return None;
+        }
+        match &self.tmux {
+            Some(Ok(t)) if !t.pane.is_empty() => Some(t.pane.as_str()),
+            _ => self.env.tmux_pane.as_deref(),
+        }
+    }
+
+    /// Turns on `allow-passthrough` for our pane when images need it; on failure
+    /// the note says so. Undone by [`tmux::restore_passthrough`].
+    pub fn prepare(&mut self) {
+        if let Some(pane) = self.passthrough_pane().map(str::to_string)
+            && let Err(e) = tmux::allow_passthrough(&pane)
+        {
+            self.choice.note = Some(format!("cannot allow passthrough in tmux: {e}"));
+        }
+    }
+}
+
+/// The cell size: the kernel's (`TIOCGWINSZ`) when plausible, else tmux's account
+/// of the outer terminal, else the terminal's `CSI 16 t` answer, else 10×20.
+pub fn cell_size(
+    graphics: Graphics,
+    winsize: Option<&WinSize>,
+    tmux: Option<&TmuxInfo>,
+    replies: Option<&Replies>,
+) -> ((u32, u32), &'static str) {
+    if graphics == Graphics::Halfblocks {
+        return ((1, 2), "half-blocks");
+    }
+    if let Some(c) = winsize.and_then(|w| w.cell_pixels()) {
+        return (c, "TIOCGWINSZ");
+    }
+    if let Some(c) = tmux.and_then(|t| t.cell_pixels) {
+        return (c, "tmux client_cell_width/height");
+    }
+    if let Some(c) = replies.and_then(|r| r.cell_pixels).and_then(probe::plausible_cell) {
+        return (c, "CSI 16 t");
+    }
+    ((10, 20), "assumed 10×20")
+}
+
+/// Learns what it can about the terminal on stdin/stdout and chooses. Asks the
+/// terminal (at most `cap`) only when both are a terminal and we are not in tmux
+/// (there the tmux server is asked instead); with `--protocol` given and the
+/// cell size known, asks nothing.
+pub fn detect(requested: Protocol, cap: Duration) -> Detection {
+    let start = Instant::now();
+    let env = TerminalEnv::from_process();
+    let winsize = WinSize::of(libc::STDOUT_FILENO);
+    let tty = std::io::stdin().is_terminal() && std::io::stdout().is_terminal();
+    let mut tmux_result = None;
+    let mut probe_result = None;
+    let mut asked = None;
+    if env.in_tmux() {
+        tmux_result = Some(tmux::query(env.tmux_pane.as_deref()));
+    } else if tty {
+        let known = requested != Protocol::Auto
+            && (requested == Protocol::Halfblocks
+                || winsize.as_ref().and_then(|w| w.cell_pixels()).is_some());
+        if !known {
+            asked = Some(super::replies::escaped(super::replies::queries().as_bytes()));
+            match probe::run(libc::STDIN_FILENO, libc::STDOUT_FILENO, cap) {
+                Ok(p) => {
+                    if p.replies
+                        .xtversion
+                        .as_deref()
+                        .is_some_and(|v| v.starts_with("tmux"))
+                    {
+                        tmux_result = Some(tmux::query(None));
+                    }
+                    probe_result = Some(p);
+                }
+                Err(e) => {
+                    asked = Some(format!("{} (failed: {e})", asked.unwrap_or_default()));
+                }
+            }
+        }
+    }
+    let replies = probe_result.as_ref().map(|p| &p.replies);
+    let capped = probe_result.as_ref().is_some_and(|p| p.capped);
+    let choice = choose(requested, &env, replies, capped, tmux_result.as_ref());
+    let (cell_pixels, cell_source) = cell_size(
+        choice.graphics,
+        winsize.as_ref(),
+        tmux_result.as_ref().and_then(|t| t.as_ref().ok()),
+        replies,
+    );
+    Detection {
+        choice,
+        cell_pixels,
+        cell_source,
+        asked,
+        probe: probe_result,
+        tmux: tmux_result,
+        winsize,
+        env,
+        millis: start.elapsed().as_secs_f64() * 1e3,
+    }
+}
