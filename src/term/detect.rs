@@ -13,6 +13,7 @@ use super::replies::Replies;
 use super::tmux::{self, TmuxInfo};
 use serde::Serialize;
 use std::io::IsTerminal;
+use std::os::fd::AsRawFd;
 use std::time::{Duration, Instant};
 
 /// The image protocol a frame is drawn with.
@@ -293,8 +294,24 @@ pub fn cell_size(
 pub fn detect(requested: Protocol, cap: Duration) -> Detection {
     let start = Instant::now();
     let env = TerminalEnv::from_process();
-    let winsize = WinSize::of(libc::STDOUT_FILENO);
-    let tty = std::io::stdin().is_terminal() && std::io::stdout().is_terminal();
+    // The terminal: stdin and stdout, or the controlling terminal when they are
+    // redirected (`pcimg doctor > report.txt`).
+    let tty_file = if std::io::stdin().is_terminal() && std::io::stdout().is_terminal() {
+        None
+    } else {
+        std::fs::OpenOptions::new()
+            .read(true)
+            .write(true)
+            .open("/dev/tty")
+            .ok()
+    };
+    let (fd_in, fd_out) = match &tty_file {
+        Some(f) => (f.as_raw_fd(), f.as_raw_fd()),
+        None => (libc::STDIN_FILENO, libc::STDOUT_FILENO),
+    };
+    let tty = tty_file.is_some()
+        || (std::io::stdin().is_terminal() && std::io::stdout().is_terminal());
+    let winsize = WinSize::of(fd_out);
     let mut tmux_result = None;
     let mut probe_result = None;
     let mut asked = None;
@@ -306,7 +323,7 @@ pub fn detect(requested: Protocol, cap: Duration) -> Detection {
                 || winsize.as_ref().and_then(|w| w.cell_pixels()).is_some());
         if !known {
             asked = Some(super::replies::escaped(super::replies::queries().as_bytes()));
-            match probe::run(libc::STDIN_FILENO, libc::STDOUT_FILENO, cap) {
+            match probe::run(fd_in, fd_out, cap) {
                 Ok(p) => {
                     if p.replies
                         .xtversion

@@ -26,8 +26,12 @@ pub struct Probe {
     /// Whether the cap ended the wait (no DA1 answer came).
     pub capped: bool,
     /// Bytes typed during the probe (keys), for the inspector.
-    #[serde(skip)]
+    #[serde(serialize_with = "as_escaped")]
     pub typed: Vec<u8>,
+}
+
+fn as_escaped<S: serde::Serializer>(bytes: &[u8], s: S) -> Result<S::Ok, S::Error> {
+    s.serialize_str(&replies::escaped(bytes))
 }
 
 /// The terminal's size from `TIOCGWINSZ`: cells and, where it says, pixels.

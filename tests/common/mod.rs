@@ -2,6 +2,7 @@
 #![allow(dead_code)]
 
 pub mod fuzz;
+pub mod pty;
 
 use pcimg::points::{Attribute, PointColumns};
 use pcimg::synth::Rng;

@@ -1,0 +1,386 @@
+//! Terminal detection against terminals: the real binary (`pcimg doctor --json`,
+//! `inspect`, `preview`) on a pseudo-terminal whose other side plays each known
+//! terminal's answers (from their documentation and source), a terminal that
+//! answers nothing and one that answers late; real tmux 3.3a asked through
+//! `tmux display` with a scripted outer terminal; and real xterm `-ti vt340` under
+//! Xvfb. Each checks the protocol chosen, the time taken, that a key typed during
+//! the probe is not lost, and that the terminal is left as it was found.
+
+mod common;
+
+use common::pty::{self, Pty};
+use std::path::{Path, PathBuf};
+use std::process::Command;
+use std::time::{Duration, Instant};
+
+fn bin() -> &'static str {
+    env!("CARGO_BIN_EXE_pcimg")
+}
+
+/// A terminal's answers to XTVERSION, the kitty query, `CSI 16 t` and DA1.
+struct Profile {
+    name: &'static str,
+    xtversion: Option<&'static str>,
+    kitty: Option<&'static str>,
+    cell: Option<&'static str>,
+    da1: Option<&'static str>,
+    delay: Duration,
+    /// The protocol it must get (`serde` name of `Graphics`).
+    expect: &'static str,
+}
+
+const fn p(
+    name: &'static str,
+    xtversion: Option<&'static str>,
+    kitty: Option<&'static str>,
+    da1: Option<&'static str>,
+    expect: &'static str,
+) -> Profile {
+    Profile {
+        name,
+        xtversion,
+        kitty,
+        cell: Some("\x1b[6;20;10t"),
+        da1,
+        delay: Duration::ZERO,
+        expect,
+    }
+}
+
+const OK: Option<&str> = Some("\x1b_Gi=31;OK\x1b\\");
+
+fn profiles() -> Vec<Profile> {
+    vec![
+        p("kitty", Some("kitty(0.35.2)"), OK, Some("\x1b[?62;c"), "Kitty"),
+        p("Ghostty", Some("ghostty 1.1.3"), OK, Some("\x1b[?62;22c"), "Kitty"),
+        p("Rio", Some("Rio 0.2.10"), OK, Some("\x1b[?62;4;22c"), "Kitty"),
+        // WezTerm answers the kitty query OK but draws no placeholders: by name.
+        p(
+            "WezTerm",
+            Some("WezTerm 20240203-110809-5046fc22"),
+            OK,
+            Some("\x1b[?65;4;6;18;22c"),
+            "Iterm2",
+        ),
+        p("iTerm2", Some("iTerm2 3.5.0"), None, Some("\x1b[?62;4c"), "Iterm2"),
+        p("foot", Some("foot(1.16.2)"), None, Some("\x1b[?62;4;22;28c"), "Sixel"),
+        // Konsole also answers OK to kitty, without placeholders: by name, sixel.
+        p("Konsole", Some("Konsole 24.02.1"), OK, Some("\x1b[?62;4;22c"), "Sixel"),
+        Profile {
+            cell: None,
+            ..p(
+                "xterm -ti vt340",
+                Some("XTerm(379)"),
+                None,
+                Some("\x1b[?63;1;2;4;6;9;15;16;22;28c"),
+                "Sixel",
+            )
+        },
+        Profile {
+            cell: None,
+            ..p(
+                "xterm",
+                Some("XTerm(379)"),
+                None,
+                Some("\x1b[?64;1;2;6;9;15;16;17;18;21;22;28c"),
+                "Halfblocks",
+            )
+        },
+        p("VS Code (images on)", Some("xterm.js(5.5.0)"), None, Some("\x1b[?62;4;9;22c"), "Sixel"),
+        p("Windows Terminal", None, None, Some("\x1b[?61;4;6;7;14;21;22;23;24;28;32;42c"), "Sixel"),
+        Profile {
+            cell: None,
+            ..p("answers nothing", None, None, None, "Halfblocks")
+        },
+        Profile {
+            delay: Duration::from_millis(300),
+            ..p("kitty over a slow link (300 ms)", Some("kitty(0.35.2)"), OK, Some("\x1b[?62;c"), "Kitty")
+        },
+    ]
+}
+
+/// Plays `t` for `cmd` on a new pty: waits for the queries, types `key`, answers
+/// after the profile's delay. Returns the pty after the program ended.
+fn play(t: &Profile, cmd: &mut Command, key: &[u8], px: (u16, u16)) -> (Pty, Duration) {
+    let mut term = Pty::spawn(cmd, (120, 40), px);
+    assert!(
+        term.read_until(Duration::from_secs(20), |o| pty::contains(o, b"\x1b[c")),
+        "{}: no queries came: {:?}",
+        t.name,
+        String::from_utf8_lossy(&term.output)
+    );
+    let asked = Instant::now();
+    term.write(key);
+    std::thread::sleep(t.delay);
+    let mut answer = String::new();
+    for a in [t.xtversion.map(|v| format!("\x1bP>|{v}\x1b\\")), t.kitty.map(String::from), t.cell.map(String::from), t.da1.map(String::from)]
+        .into_iter()
+        .flatten()
+    {
+        answer.push_str(&a);
+    }
+    if !answer.is_empty() {
+        term.write(answer.as_bytes());
+    }
+    let status = term.wait(Duration::from_secs(20));
+    let took = asked.elapsed();
+    assert!(status.is_some(), "{}: the program did not end", t.name);
+    let after = pty::termios(std::os::fd::AsRawFd::as_raw_fd(&term.slave));
+    assert_eq!(term.initial, after, "{}: the terminal was not left as found", t.name);
+    (term, took)
+}
+
+/// The JSON document in a program's pty output.
+fn json_in(output: &[u8]) -> serde_json::Value {
+    let text = String::from_utf8_lossy(output).replace("\r\n", "\n");
+    let start = text.find('{').expect("JSON in the output");
+    let end = text.rfind('}').expect("JSON in the output");
+    serde_json::from_str(&text[start..=end]).expect("valid JSON")
+}
+
+/// A command with none of the caller's terminal hints (tests may run in tmux).
+fn clean(args: &[&str]) -> Command {
+    let mut c = Command::new(bin());
+    c.args(args)
+        .env_clear()
+        .env("PATH", std::env::var("PATH").unwrap_or_default())
+        .env("TERM", "xterm-256color")
+        .env("NODEVICE_SELECT", "1");
+    c
+}
+
+#[test]
+fn every_known_terminal_gets_its_protocol_fast_and_no_key_is_lost() {
+    for t in profiles() {
+        let (term, took) = play(&t, &mut clean(&["doctor", "--json"]), b"j", (0, 0));
+        let d = json_in(&term.output);
+        assert_eq!(d["graphics"], t.expect, "{}: {d:#}", t.name);
+        let probe = &d["probe"];
+        assert_eq!(probe["typed"], "j", "{}: the key typed was lost: {d:#}", t.name);
+        let ms = probe["millis"].as_f64().unwrap();
+        let capped = probe["capped"].as_bool().unwrap();
+        assert_eq!(capped, t.da1.is_none(), "{}", t.name);
+        if capped {
+            assert!((900.0..1500.0).contains(&ms), "{}: capped at {ms} ms", t.name);
+            let note = d["note"].as_str().unwrap();
+            assert!(note.contains("did not answer"), "{note}");
+        } else {
+            // The answer's own delay plus little: no waiting once DA1 is in.
+            let slack = t.delay.as_secs_f64() * 1e3 + 250.0;
+            assert!(ms < slack, "{}: probe took {ms} ms", t.name);
+        }
+        if t.cell.is_some() && t.expect != "Halfblocks" {
+            assert_eq!(d["cell_pixels"], serde_json::json!([10, 20]), "{}", t.name);
+            assert_eq!(d["cell_source"], "CSI 16 t", "{}", t.name);
+        }
+        eprintln!(
+            "{:32} {:10} probe {ms:7.1} ms, program ended {:6.1} ms after the queries",
+            t.name,
+            t.expect,
+            took.as_secs_f64() * 1e3
+        );
+    }
+}
+
+#[test]
+fn the_kernels_cell_size_wins_when_plausible() {
+    let t = p("kitty", Some("kitty(0.35.2)"), OK, Some("\x1b[?62;c"), "Kitty");
+    let (term, _) = play(&t, &mut clean(&["doctor", "--json"]), b"", (1080, 880));
+    let d = json_in(&term.output);
+    assert_eq!(d["cell_pixels"], serde_json::json!([9, 22]), "{d:#}");
+    assert_eq!(d["cell_source"], "TIOCGWINSZ");
+}
+
+/// A small dataset for `inspect` and `preview`.
+fn dataset(dir: &Path) -> PathBuf {
+    let path = dir.join("scene.tif");
+    pcimg::store::write_part(
+        &path,
+        &pcimg::synth::scene(20_000, 3),
+        &Default::default(),
+    )
+    .unwrap();
+    path
+}
+
+#[test]
+fn a_key_typed_during_the_probe_reaches_the_inspector() {
+    let dir = tempfile::tempdir().unwrap();
+    let ds = dataset(dir.path());
+    let t = p("xterm -ti vt340", Some("XTerm(379)"), None, Some("\x1b[?63;1;2;4;6;9;15;16;22;28c"), "Sixel");
+    // `q` typed before the terminal answered: the inspector must quit on it alone.
+    let mut cmd = clean(&["inspect", ds.to_str().unwrap()]);
+    let (term, took) = play(&t, &mut cmd, b"q", (1200, 800));
+    assert!(took < Duration::from_secs(10), "quit after {took:?}");
+    // It left the alternate screen it entered.
+    assert!(pty::contains(&term.output, b"\x1b[?1049l"));
+}
+
+/// tmux on a private socket, killed on drop.
+struct Tmux {
+    socket: String,
+}
+
+impl Tmux {
+    fn cmd(&self) -> Command {
+        let mut c = Command::new("tmux");
+        c.args(["-L", &self.socket, "-f", "/dev/null"]);
+        c.env_remove("TMUX");
+        c
+    }
+    fn run(&self, args: &[&str]) -> String {
+        let o = self.cmd().args(args).output().expect("tmux runs");
+        assert!(o.status.success(), "tmux {args:?}: {}", String::from_utf8_lossy(&o.stderr));
+        String::from_utf8_lossy(&o.stdout).into_owned()
+    }
+}
+
+impl Drop for Tmux {
+    fn drop(&mut self) {
+        let _ = self.cmd().arg("kill-server").output();
+    }
+}
+
+/// Starts `shell` in a tmux session, attaches a client from a pty whose other
+/// side answers tmux's own queries as `outer` (XTVERSION text, DA1), and returns
+/// the client's pty once `done` exists.
+fn in_tmux(tmux: &Tmux, shell: &str, outer: &str, da1: &str, done: &Path) -> Pty {
+    tmux.run(&["new-session", "-d", "-s", "t", "-x", "120", "-y", "40", shell]);
+    let mut attach = tmux.cmd();
+    attach.args(["attach", "-t", "t"]).env("TERM", "xterm-256color");
+    let mut client = Pty::spawn(&mut attach, (120, 40), (1200, 800));
+    let end = Instant::now() + Duration::from_secs(20);
+    let mut answered = (false, false);
+    while Instant::now() < end && !done.exists() {
+        client.read_some(Duration::from_millis(20));
+        if !answered.0 && pty::contains(&client.output, b"\x1b[>q") {
+            client.write(format!("\x1bP>|{outer}\x1b\\").as_bytes());
+            answered.0 = true;
+        }
+        if !answered.1 && pty::contains(&client.output, b"\x1b[c") {
+            client.write(da1.as_bytes());
+            answered.1 = true;
+        }
+    }
+    client.read_for(Duration::from_millis(200));
+    assert!(done.exists(), "the command in tmux did not finish");
+    client
+}
+
+#[test]
+fn inside_tmux_the_server_is_asked_about_the_outer_terminal() {
+    if !common::tool_available("tmux", "-V") {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    for (outer, da1, expect, placeholders) in [
+        ("kitty(0.35.2)", "\x1b[?62;c", "Kitty", true),
+        ("XTerm(379)", "\x1b[?63;1;2;4;6;9;15;16;22;28c", "Halfblocks", false),
+    ] {
+        let tmux = Tmux {
+            socket: format!("pcimg-terminals-{}-{expect}", std::process::id()),
+        };
+        let out = dir.path().join(format!("{expect}.json"));
+        let done = dir.path().join(format!("{expect}.done"));
+        // Wait for the client, so that tmux knows the outer terminal.
+        let shell = format!(
+            "while [ -z \"$(tmux display -p '#{{client_name}}')\" ]; do sleep 0.05; done; sleep 0.3; {} doctor --json > {} 2>&1; touch {}",
+            bin(),
+            out.display(),
+            done.display()
+        );
+        let _client = in_tmux(&tmux, &shell, outer, da1, &done);
+        let d: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(&out).unwrap()).unwrap();
+        assert_eq!(d["graphics"], expect, "{d:#}");
+        assert_eq!(d["placeholders"], placeholders, "{d:#}");
+        assert!(d["probe"].is_null(), "tmux itself must not be probed: {d:#}");
+        let info = &d["tmux"]["Ok"];
+        assert_eq!(info["termtype"], outer, "{d:#}");
+        assert!(info["version"].as_str().unwrap().starts_with('3'));
+        let ms = info["millis"].as_f64().unwrap();
+        assert!(ms < 500.0, "tmux display took {ms} ms");
+        if expect == "Halfblocks" {
+            let note = d["note"].as_str().unwrap();
+            assert!(note.contains("tmux") && note.contains("would"), "{note}");
+        }
+        eprintln!("tmux with outer {outer}: {expect}, tmux asked in {ms:.1} ms");
+    }
+}
+
+#[test]
+fn preview_in_tmux_sends_kitty_placeholders_through_to_the_outer_terminal() {
+    if !common::tool_available("tmux", "-V") {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let ds = dataset(dir.path());
+    let tmux = Tmux {
+        socket: format!("pcimg-preview-{}", std::process::id()),
+    };
+    let done = dir.path().join("done");
+    let before = dir.path().join("before");
+    let shell = format!(
+        "while [ -z \"$(tmux display -p '#{{client_name}}')\" ]; do sleep 0.05; done; sleep 0.3; \
+         tmux show -pv allow-passthrough > {}; {} preview {} --cols 40 || true; sleep 0.2; touch {}; sleep 30",
+        before.display(),
+        bin(),
+        ds.display(),
+        done.display()
+    );
+    let client = in_tmux(&tmux, &shell, "kitty(0.35.2)", "\x1b[?62;c", &done);
+    // The image reached the outer terminal unwrapped: a virtual placement.
+    let out = &client.output;
+    assert!(
+        pty::contains(out, b"\x1b_Ga=T,q=2,i=") && pty::contains(out, b",U=1,"),
+        "no kitty image came through tmux"
+    );
+    // Placeholder cells, drawn by tmux as text.
+    assert!(pty::contains(out, "\u{10EEEE}".as_bytes()));
+    // allow-passthrough was put back as it was (not set on the pane).
+    let after = tmux.run(&["show", "-pv", "-t", "t", "allow-passthrough"]);
+    assert_eq!(after.trim(), std::fs::read_to_string(&before).unwrap().trim());
+}
+
+#[test]
+fn real_xterm_in_vt340_mode_gets_sixel_without_a_flag() {
+    let have = ["xterm", "Xvfb"].iter().all(|p| {
+        Command::new("which")
+            .arg(p)
+            .output()
+            .is_ok_and(|o| o.status.success())
+    });
+    if !have {
+        assert!(
+            std::env::var("CI").ok().as_deref() != Some("true"),
+            "xterm and Xvfb are required in CI (.ci/run installs xterm, xvfb)"
+        );
+        eprintln!("note: xterm or Xvfb not found, skipping this test outside CI");
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let display = format!(":{}", 90 + std::process::id() % 100);
+    let mut xvfb = Command::new("Xvfb")
+        .args([display.as_str(), "-screen", "0", "1280x1024x24", "-nolisten", "tcp"])
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .unwrap();
+    std::thread::sleep(Duration::from_millis(700));
+    let out = dir.path().join("doctor.json");
+    let status = Command::new("xterm")
+        .args(["-display", &display, "-ti", "vt340", "-e", "sh", "-c"])
+        .arg(format!("{} doctor --json > {}", bin(), out.display()))
+        .env_remove("TMUX")
+        .env_remove("KITTY_WINDOW_ID")
+        .env_remove("TERM_PROGRAM")
+        .status();
+    let _ = xvfb.kill();
+    let _ = xvfb.wait();
+    assert!(status.unwrap().success());
+    let d: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&out).unwrap()).unwrap();
+    assert_eq!(d["graphics"], "Sixel", "{d:#}");
+    let probe = &d["probe"];
+    assert!(probe["replies"]["xtversion"].as_str().unwrap().starts_with("XTerm("));
+    assert_eq!(probe["capped"], false);
+    eprintln!("xterm -ti vt340: sixel, probe {} ms", probe["millis"]);
+}
