@@ -9,16 +9,18 @@
 //!
 //! Each press orbits the camera by one step (the `→` key), sends the request, waits
 //! for the frame that answers it with every tile loaded, and draws it. Reports
-//! medians: key → frame drawn, and the worker's select/render/encode times. Then,
-//! for comparison, the last sixel frame encoded through ratatui-image's own
-//! `Sixel` (icy_sixel: quantizer and dithering), which the inspector used before.
+//! medians per protocol, for full frames (at rest) and for the reduced frames sent
+//! while the camera moves (1/2 of the pixels each way): key → frame drawn, the
+//! worker's select/render/encode times, and the bytes sent. Then the sixel
+//! choices for moving frames (colours, enlarged half-resolution frames), and, for
+//! comparison, a sixel frame through ratatui-image's own `Sixel` (icy_sixel).
 
 use pcimg::camera::Camera;
 use pcimg::render::RendererChoice;
 use pcimg::store::{self, Dataset, WriteOptions};
 use pcimg::tui::app::{App, Settings};
 use pcimg::tui::keys::Command;
-use pcimg::tui::protocol::Graphics;
+use pcimg::tui::protocol::{Encoding, Graphics};
 use pcimg::tui::worker::{FrameReady, RenderWorker, Report, Request, WorkerOptions};
 use ratatui::Terminal;
 use ratatui::backend::CrosstermBackend;
@@ -82,11 +84,20 @@ fn main() -> anyhow::Result<()> {
     let cells = (120u16, 40u16);
 
     println!(
-        "| protocol | key → frame drawn ms | select ms | render ms | encode ms | bytes / frame | bytes, same frame again | points drawn | renderer |"
+        "| protocol | frame | key → frame drawn ms | select ms | render ms | encode ms | bytes / frame | bytes, same frame again | points drawn | renderer |"
     );
-    println!("|---|---|---|---|---|---|---|---|---|");
+    println!("|---|---|---|---|---|---|---|---|---|---|");
     let mut last_sixel = None;
-    for graphics in [Graphics::Halfblocks, Graphics::Sixel, Graphics::Kitty] {
+    let runs = [
+        (Graphics::Halfblocks, 1),
+        (Graphics::Sixel, 1),
+        (Graphics::Sixel, 2),
+        (Graphics::Kitty, 1),
+        (Graphics::Kitty, 2),
+        (Graphics::Iterm2, 1),
+        (Graphics::Iterm2, 2),
+    ];
+    for (graphics, scale) in runs {
         let cell_pixels = if graphics == Graphics::Halfblocks {
             (1, 2)
         } else {
@@ -95,8 +106,7 @@ fn main() -> anyhow::Result<()> {
         let w = RenderWorker::spawn(
             ds.clone(),
             WorkerOptions {
-                graphics,
-                in_tmux: false,
+                encoding: Encoding::new(graphics),
                 renderer,
                 memory: 2 << 30,
                 load_threads: 2,
@@ -119,6 +129,7 @@ fn main() -> anyhow::Result<()> {
             settings: app.settings,
             cells,
             cell_pixels,
+            scale,
         };
         // Warm up: load the tiles of the first view.
         w.request(request(&app, 0));
@@ -134,7 +145,7 @@ fn main() -> anyhow::Result<()> {
             let f = wait_complete(&w, seq);
             let before = bytes.load(Ordering::Relaxed);
             term.draw(|fr| {
-                fr.render_widget(ratatui_image::Image::new(&f.image), fr.area());
+                fr.render_widget(&f.image, fr.area());
             })?;
             lat.push(t0.elapsed().as_secs_f64() * 1e3);
             sent.push((bytes.load(Ordering::Relaxed) - before) as f64);
@@ -142,7 +153,7 @@ fn main() -> anyhow::Result<()> {
             // only changed cells, so the image is not sent again.
             let before = bytes.load(Ordering::Relaxed);
             term.draw(|fr| {
-                fr.render_widget(ratatui_image::Image::new(&f.image), fr.area());
+                fr.render_widget(&f.image, fr.area());
             })?;
             again.push((bytes.load(Ordering::Relaxed) - before) as f64);
             sel.push(f.status.select_ms);
@@ -150,13 +161,18 @@ fn main() -> anyhow::Result<()> {
             enc.push(f.status.encode_ms);
             pts.push(f.status.points as f64);
             renderer = f.status.renderer.clone();
-            if graphics == Graphics::Sixel {
+            if graphics == Graphics::Sixel && scale == 1 {
                 last_sixel = Some(f.frame.clone());
             }
         }
         println!(
-            "| {} | {:.1} | {:.1} | {:.1} | {:.1} | {:.0} K | {:.0} B | {:.0} | {} |",
+            "| {} | {} | {:.1} | {:.1} | {:.1} | {:.1} | {:.0} K | {:.0} B | {:.0} | {} |",
             graphics.name(),
+            if scale == 1 {
+                "full".to_string()
+            } else {
+                format!("moving, 1/{scale}")
+            },
             median(lat),
             median(sel),
             median(ren),
@@ -166,6 +182,19 @@ fn main() -> anyhow::Result<()> {
             median(pts),
             renderer
         );
+    }
+    if let Some(frame) = &last_sixel {
+        // Sixel cannot be scaled by the terminal: what a moving frame could be.
+        println!("\n| sixel frame | colours | bytes |\n|---|---|---|");
+        let half = half_size(frame);
+        let enlarged = enlarge(&half, frame.width, frame.height);
+        for (what, rgba) in [("full resolution", &frame.rgba), ("half resolution, enlarged 2×", &enlarged)] {
+            for colors in [32, 16, 8] {
+                let ix = pcimg::term::palette::reduce(rgba, colors);
+                let s = pcimg::term::sixel::encode_indexed(&ix, frame.width as usize, frame.height as usize)?;
+                println!("| {what} | {colors} | {:.0} K |", s.len() as f64 / 1024.0);
+            }
+        }
     }
     if let Some(frame) = last_sixel {
         let (mut enc, mut len) = (vec![], 0);
@@ -188,4 +217,32 @@ fn main() -> anyhow::Result<()> {
         );
     }
     Ok(())
+}
+
+/// Every other pixel each way.
+fn half_size(f: &pcimg::render::Frame) -> (u32, u32, Vec<u8>) {
+    let (w, h) = (f.width / 2, f.height / 2);
+    let mut out = Vec::with_capacity((w * h * 4) as usize);
+    for y in 0..h {
+        for x in 0..w {
+            let i = ((2 * y * f.width + 2 * x) * 4) as usize;
+            out.extend_from_slice(&f.rgba[i..i + 4]);
+        }
+    }
+    (w, h, out)
+}
+
+/// `half` enlarged to `w` × `h` by repeating pixels.
+fn enlarge(half: &(u32, u32, Vec<u8>), w: u32, h: u32) -> Vec<u8> {
+    let (hw, hh, px) = half;
+    let mut out = Vec::with_capacity((w * h * 4) as usize);
+    for y in 0..h {
+        let sy = (y * hh / h).min(hh - 1);
+        for x in 0..w {
+            let sx = (x * hw / w).min(hw - 1);
+            let i = ((sy * hw + sx) * 4) as usize;
+            out.extend_from_slice(&px[i..i + 4]);
+        }
+    }
+    out
 }

@@ -136,11 +136,21 @@ pub fn iterm_sequence(
     keep_cursor: bool,
 ) -> anyhow::Result<String> {
     use base64::Engine as _;
-    let img = image::RgbaImage::from_raw(frame.width, frame.height, frame.rgba.clone())
-        .ok_or_else(|| anyhow::anyhow!("frame buffer has the wrong size"))?;
-    let mut png = std::io::Cursor::new(Vec::new());
-    img.write_to(&mut png, image::ImageFormat::Png)?;
-    let png = png.into_inner();
+    use image::ImageEncoder as _;
+    use image::codecs::png::{CompressionType, FilterType, PngEncoder};
+    if frame.rgba.len() != frame.width as usize * frame.height as usize * 4 {
+        anyhow::bail!("frame buffer has the wrong size");
+    }
+    // RGB with the adaptive filter at the default level: frames are about a
+    // third smaller than image's fast RGBA PNG for ~5 ms more (bench/RESULTS.md).
+    let rgb: Vec<u8> = frame
+        .rgba
+        .chunks_exact(4)
+        .flat_map(|p| [p[0], p[1], p[2]])
+        .collect();
+    let mut png = Vec::new();
+    PngEncoder::new_with_quality(&mut png, CompressionType::Default, FilterType::Adaptive)
+        .write_image(&rgb, frame.width, frame.height, image::ExtendedColorType::Rgb8)?;
     Ok(format!(
         "\x1b]1337;File=inline=1;size={};width={cols};height={rows};preserveAspectRatio=0{}:{}\x07",
         png.len(),
@@ -175,7 +185,8 @@ mod tests {
         let png = base64::engine::general_purpose::STANDARD
             .decode(body.trim_end_matches('\x07'))
             .unwrap();
-        let img = image::load_from_memory(&png).unwrap().to_rgba8();
-        assert_eq!(img.into_raw(), f.rgba);
+        let img = image::load_from_memory(&png).unwrap().to_rgb8();
+        let rgb: Vec<u8> = f.rgba.chunks(4).flat_map(|p| [p[0], p[1], p[2]]).collect();
+        assert_eq!(img.into_raw(), rgb);
     }
 }

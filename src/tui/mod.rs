@@ -144,14 +144,33 @@ struct Pane {
 }
 
 /// After the last key that moved the camera, how long before the full-resolution
-/// frame is asked for (frames while keys keep coming are reduced).
-const SETTLE: Duration = Duration::from_millis(90);
+/// frame is asked for (frames while keys keep coming are reduced). Longer than
+/// a keyboard's auto-repeat interval (25–40 ms), so held keys stay "moving".
+const SETTLE: Duration = Duration::from_millis(60);
 
-/// What the event loop knows of how fast the terminal takes our output.
-#[derive(Debug, Default)]
+/// Most bytes a frame may cost while the camera moves.
+const MOVING_BYTES: usize = 150_000;
+/// Most time a moving frame may take to reach the terminal, at the measured rate
+/// (a held key repeats every 25-40 ms; frames should keep up with a few).
+const MOVING_TRANSFER: f64 = 0.06;
+
+/// What the event loop knows of how fast the terminal takes our output, and the
+/// reduction moving frames get.
+#[derive(Debug)]
 struct Link {
     /// Bytes per second, smoothed, from draws that took long enough to measure.
     rate: Option<f64>,
+    /// 1/n of the pane's pixels each way for moving frames.
+    scale: u32,
+}
+
+impl Default for Link {
+    fn default() -> Link {
+        Link {
+            rate: None,
+            scale: 2,
+        }
+    }
 }
 
 impl Link {
@@ -165,15 +184,23 @@ impl Link {
         self.rate = Some(self.rate.map_or(r, |old| 0.5 * old + 0.5 * r));
     }
 
-    /// The reduction (1/n of the pixels each way) for frames while the camera
-    /// moves: 2, or 3 when a frame of `full_bytes` would take more than 100 ms.
-    fn moving_scale(&self, full_bytes: usize) -> u32 {
-        match self.rate {
-            Some(r) if full_bytes as f64 / 4.0 / r > 0.1 => 3,
-            _ => 2,
+    /// A moving frame of `bytes` at 1/`scale` arrived: the next ones are
+    /// reduced more when it cost more than [`MOVING_BYTES`] or would take more
+    /// than [`MOVING_TRANSFER`] on this link, less when it cost under a third.
+    fn moving_frame(&mut self, bytes: usize, scale: u32) {
+        let slow = self
+            .rate
+            .is_some_and(|r| bytes as f64 / r > MOVING_TRANSFER);
+        if bytes > MOVING_BYTES || slow {
+            self.scale = (scale + 1).min(MAX_SCALE);
+        } else if bytes < MOVING_BYTES / 3 && scale > 2 {
+            self.scale = scale - 1;
         }
     }
 }
+
+/// The most a moving frame is reduced (1/4 of the pixels each way).
+const MAX_SCALE: u32 = 4;
 
 fn event_loop(
     session: &mut terminal::Session,
@@ -197,7 +224,6 @@ fn event_loop(
     let mut moving = false;
     let mut full_owed = false;
     let mut link = Link::default();
-    let mut full_bytes = 0usize;
     let scalable = pane.graphics != protocol::Graphics::Halfblocks;
     loop {
         if STOP.load(Ordering::SeqCst) {
@@ -215,11 +241,7 @@ fn event_loop(
         }
         if want_frame && cells.0 > 0 && cells.1 > 0 {
             seq += 1;
-            let scale = if moving && scalable {
-                link.moving_scale(full_bytes)
-            } else {
-                1
-            };
+            let scale = if moving && scalable { link.scale } else { 1 };
             full_owed = scale > 1;
             worker.request(Request {
                 seq,
@@ -268,15 +290,24 @@ fn event_loop(
             // The terminal went away: nothing to restore, nobody to show frames to.
             return Ok(());
         }
-        // Keys typed while the terminal was probed come first.
-        let next = match typed.pop_front() {
-            Some(k) => Some(Event::Key(k)),
-            None if event::poll(POLL)? => Some(event::read()?),
-            None => None,
-        };
-        match next {
-            Some(Event::Key(k)) => {
-                if let Some(cmd) = keys::command_for(k) {
+        // Keys typed while the terminal was probed come first. Every key already
+        // waiting is taken before the next frame is asked for: after a slow
+        // draw, a burst of orbit keys makes one frame, not one each.
+        let mut events = Vec::new();
+        if let Some(k) = typed.pop_front() {
+            events.push(Event::Key(k));
+        } else if event::poll(POLL)? {
+            events.push(event::read()?);
+            while events.len() < 256 && event::poll(Duration::ZERO)? {
+                events.push(event::read()?);
+            }
+        }
+        for ev in events {
+            match ev {
+                Event::Key(k) => {
+                    let Some(cmd) = keys::command_for(k) else {
+                        continue;
+                    };
                     let effect = app.apply(cmd);
                     if effect != Effect::None {
                         app.message.clear();
@@ -305,18 +336,23 @@ fn event_loop(
                     }
                     dirty = true;
                 }
+                Event::Resize(..) => dirty = true,
+                _ => {}
             }
-            Some(Event::Resize(..)) => dirty = true,
-            _ => {}
         }
         // Only the newest finished frame is drawn: older ones are dropped, so
         // nothing queues behind a slow terminal.
         loop {
             match worker.try_recv() {
                 Ok(Some(Report::Frame(f))) => {
+                    // A frame for a request already superseded is stale: sending
+                    // it would only delay the newer one on a slow terminal.
+                    if f.seq < seq && shown.image.is_some() {
+                        continue;
+                    }
                     shown.arrivals.push_back(Instant::now());
-                    if f.status.scale == 1 {
-                        full_bytes = f.status.bytes;
+                    if f.status.scale > 1 {
+                        link.moving_frame(f.status.bytes, f.status.scale);
                     }
                     app.frame = f.status;
                     shown.image = Some(f.image);

@@ -152,8 +152,8 @@ fn erase_pane(s: &mut String, (w, h): (u16, u16)) {
 }
 
 /// The sixel escape string for a pane of `cells` (`full` pixels): the pane
-/// erased, then the image (sixel cannot be scaled by the terminal: a smaller
-/// frame is enlarged here).
+/// erased, then the image. Sixel cannot be scaled by the terminal: a smaller
+/// (moving) frame is enlarged here and sent in fewer colours.
 fn sixel_for_pane(
     frame: &Frame,
     cells: (u16, u16),
@@ -164,7 +164,7 @@ fn sixel_for_pane(
         sixel::encode(&frame.rgba, frame.width, frame.height)?
     } else {
         let big = enlarge(frame, full);
-        sixel::encode(&big, full.0, full.1)?
+        sixel::encode_colors(&big, full.0, full.1, sixel::MOVING_COLORS)?
     };
     let mut s = String::with_capacity(image.len() + 16 * cells.1 as usize);
     erase_pane(&mut s, cells);

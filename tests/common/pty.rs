@@ -20,6 +20,8 @@ pub struct Pty {
     pub link: Option<f64>,
     /// The terminal's settings before the program started.
     pub initial: (u32, u32, u32, u32),
+    /// When each read ended, and the output's length then.
+    pub log: Vec<(Instant, usize)>,
 }
 
 /// The settings of a terminal as `tcgetattr` gives them, comparable.
@@ -77,6 +79,7 @@ impl Pty {
             output: Vec::new(),
             link: None,
             initial,
+            log: Vec::new(),
         }
     }
 
@@ -122,6 +125,12 @@ impl Pty {
             if let Some(rest) = due.checked_sub(t.elapsed()) {
                 std::thread::sleep(rest);
             }
+        }
+        self.log.push((Instant::now(), self.output.len()));
+        // A cursor position request (crossterm asks when ratatui starts): answered
+        // as a terminal would.
+        if contains(&buf[..n], b"\x1b[6n") {
+            self.write(b"\x1b[1;1R");
         }
         n
     }
