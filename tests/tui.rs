@@ -12,7 +12,7 @@ use pcimg::render::RendererChoice;
 use pcimg::store::{self, Dataset, WriteOptions};
 use pcimg::tui::app::{App, LodChoice, Settings};
 use pcimg::tui::keys::command_for;
-use pcimg::tui::protocol::Graphics;
+use pcimg::tui::protocol::{Encoding, Graphics, PaneImage};
 use pcimg::tui::ui;
 use pcimg::tui::worker::{RenderWorker, Report, Request, WorkerOptions};
 use ratatui::Terminal;
@@ -52,7 +52,7 @@ fn app_for(path: &Path) -> App {
 }
 
 /// The screen as lines of text.
-fn screen(app: &App, image: Option<&ratatui_image::protocol::Protocol>) -> Vec<String> {
+fn screen(app: &App, image: Option<&PaneImage>) -> Vec<String> {
     let mut t = Terminal::new(TestBackend::new(160, 48)).unwrap();
     t.draw(|f| ui::draw(f, app, image)).unwrap();
     let buf = t.backend().buffer().clone();
@@ -219,8 +219,7 @@ fn the_worker_renders_and_encodes_half_block_frames() {
     let w = RenderWorker::spawn(
         app.dataset.clone(),
         WorkerOptions {
-            graphics: Graphics::Halfblocks,
-            in_tmux: false,
+            encoding: Encoding::new(Graphics::Halfblocks),
             renderer: RendererChoice::Cpu,
             memory: 1 << 30,
             load_threads: 2,
@@ -234,6 +233,7 @@ fn the_worker_renders_and_encodes_half_block_frames() {
         settings: app.settings,
         cells: (area.width, area.height),
         cell_pixels: (1, 2),
+        scale: 1,
     });
     let deadline = Instant::now() + Duration::from_secs(30);
     let frame = loop {
@@ -306,7 +306,6 @@ fn sixel_frames_go_into_the_first_cell_and_are_sent_only_when_they_change() {
     use pcimg::tui::protocol;
     use ratatui::backend::CrosstermBackend;
     use ratatui::layout::Rect;
-    use ratatui_image::Image;
     // 6×3 cells of 10×20 px: a red square on black.
     let mut frame = pcimg::render::Frame::background(60, 60, [0, 0, 0]);
     for y in 10..30 {
@@ -314,13 +313,14 @@ fn sixel_frames_go_into_the_first_cell_and_are_sent_only_when_they_change() {
             frame.rgba[(y * 60 + x) * 4] = 255;
         }
     }
-    let image = protocol::encode(Graphics::Sixel, &frame, (6, 3), false).unwrap();
+    let sixel = Encoding::new(Graphics::Sixel);
+    let image = protocol::encode(sixel, &frame, (6, 3), (60, 60)).unwrap();
     let pane = Rect::new(2, 1, 6, 3);
 
     // In ratatui's buffer: the escape string in the first cell, the rest skipped.
     let mut t = Terminal::new(TestBackend::new(12, 6)).unwrap();
     let buf = t
-        .draw(|f| f.render_widget(Image::new(&image), pane))
+        .draw(|f| f.render_widget(&image, pane))
         .unwrap()
         .buffer
         .clone();
@@ -343,9 +343,9 @@ fn sixel_frames_go_into_the_first_cell_and_are_sent_only_when_they_change() {
         },
     )
     .unwrap();
-    let draw = |t: &mut Terminal<CrosstermBackend<Sink>>, img, note: &str| {
+    let draw = |t: &mut Terminal<CrosstermBackend<Sink>>, img: &PaneImage, note: &str| {
         t.draw(|f| {
-            f.render_widget(Image::new(img), pane);
+            f.render_widget(img, pane);
             f.render_widget(
                 ratatui::widgets::Paragraph::new(note.to_string()),
                 Rect::new(0, 5, 12, 1),
@@ -361,14 +361,18 @@ fn sixel_frames_go_into_the_first_cell_and_are_sent_only_when_they_change() {
     assert!(!sent.contains("\x1bP") && sent.contains("two"), "{sent:?}");
     // A changed frame is sent again.
     frame.rgba[0] = 255;
-    let changed = protocol::encode(Graphics::Sixel, &frame, (6, 3), false).unwrap();
+    let changed = protocol::encode(sixel, &frame, (6, 3), (60, 60)).unwrap();
     draw(&mut t, &changed, "two");
     assert_eq!(sink.take().matches("\x1bP0;1;0q").count(), 1);
 
     // In tmux the whole string goes through passthrough, every inner ESC doubled.
-    let tmux = protocol::encode(Graphics::Sixel, &frame, (6, 3), true).unwrap();
+    let through = Encoding {
+        passthrough: true,
+        ..sixel
+    };
+    let tmux = protocol::encode(through, &frame, (6, 3), (60, 60)).unwrap();
     let mut t = Terminal::new(TestBackend::new(12, 6)).unwrap();
-    t.draw(|f| f.render_widget(Image::new(&tmux), pane))
+    t.draw(|f| f.render_widget(&tmux, pane))
         .unwrap();
     let s = t.backend().buffer()[(2, 1)].symbol().to_string();
     assert!(s.starts_with("\x1bPtmux;\x1b\x1b[6X"), "{s:?}");

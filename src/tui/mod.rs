@@ -406,3 +406,33 @@ fn save_frame(frame: Option<Arc<Frame>>, n: u32, done: Sender<String>) {
         let _ = done.send(msg);
     });
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn moving_frames_are_reduced_until_they_fit_the_budget_and_the_link() {
+        let mut link = Link::default();
+        assert_eq!(link.scale, 2);
+        link.moving_frame(200_000, 2);
+        assert_eq!(link.scale, 3);
+        link.moving_frame(100_000, 3);
+        assert_eq!(link.scale, 3, "within the budget: kept");
+        link.moving_frame(20_000, 3);
+        assert_eq!(link.scale, 2, "far under it: less reduced");
+        // A 1.25 MB/s link (10 Mbit/s): 100 KB takes 80 ms, over the 60 ms allowed.
+        link.record(500_000, Duration::from_millis(400));
+        link.moving_frame(100_000, 2);
+        assert_eq!(link.scale, 3);
+        for _ in 0..5 {
+            link.moving_frame(900_000, link.scale);
+        }
+        assert_eq!(link.scale, MAX_SCALE);
+        // Short writes say nothing about the link.
+        let mut fresh = Link::default();
+        fresh.record(10_000, Duration::from_millis(50));
+        fresh.record(100_000, Duration::from_millis(1));
+        assert_eq!(fresh.rate, None);
+    }
+}

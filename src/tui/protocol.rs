@@ -269,6 +269,37 @@ mod tests {
     }
 
     #[test]
+    fn reduced_sixel_frames_are_enlarged_to_the_pane_in_fewer_colours() {
+        // A 30×30 frame of 40 greys for a pane of 60×60 pixels.
+        let mut frame = Frame::background(30, 30, [0, 0, 0]);
+        for (i, px) in frame.rgba.chunks_mut(4).enumerate() {
+            let v = (i % 40 * 6) as u8;
+            px[..3].copy_from_slice(&[v, v, v]);
+        }
+        let img = encode(Encoding::new(Graphics::Sixel), &frame, (6, 3), (60, 60)).unwrap();
+        let PaneImage::FirstCell { data, .. } = img else {
+            panic!("sixel is drawn from the first cell");
+        };
+        assert!(data.contains("\"1;1;60;60#"), "enlarged to the pane");
+        let defined = (0..64).filter(|c| data.contains(&format!("#{c};2;"))).count();
+        assert!((2..=sixel::MOVING_COLORS).contains(&defined), "{defined} colours");
+        // At full size, the full palette.
+        let full = Frame {
+            width: 60,
+            height: 60,
+            rgba: enlarge(&frame, (60, 60)),
+            stats: Default::default(),
+        };
+        let PaneImage::FirstCell { data, .. } =
+            encode(Encoding::new(Graphics::Sixel), &full, (6, 3), (60, 60)).unwrap()
+        else {
+            panic!("sixel is drawn from the first cell");
+        };
+        let defined = (0..64).filter(|c| data.contains(&format!("#{c};2;"))).count();
+        assert!(defined > sixel::MOVING_COLORS, "{defined} colours");
+    }
+
+    #[test]
     fn kitty_frames_fill_the_pane_with_placeholders() {
         let frame = Frame::background(20, 20, [0, 0, 0]);
         let img = encode(Encoding::new(Graphics::Kitty), &frame, (4, 2), (40, 40)).unwrap();
