@@ -13,7 +13,7 @@ POINTS=${POINTS:-2000000}
 export NODEVICE_SELECT=1
 cargo build --release --bins --example tui_latency --example term_link 2>&1 | tail -1
 echo "== probe times (uptime: $(uptime | sed 's/.*load/load/'))"
-cargo test --release --test terminals -- --nocapture --test-threads 1 2>&1 \
+cargo test --test terminals -- --nocapture --test-threads 1 2>&1 \
   | grep -E "probe|tmux with|xterm -ti" | sed 's/^test [a-z_]* \.\.\. //'
 echo "== frames per protocol (tui_latency $POINTS points, 8 presses, cpu)"
 target/release/examples/tui_latency "$POINTS" 8 cpu
