@@ -127,8 +127,16 @@ fn main() -> anyhow::Result<()> {
     );
     println!("|---|---|---|---|---|---|---|");
     let terminals = [
-        ("xterm -ti vt340 (sixel)", "\x1bP>|XTerm(379)\x1b\\\x1b[?63;1;2;4;6;9;15;16;22;28c", false),
-        ("kitty", "\x1bP>|kitty(0.35.2)\x1b\\\x1b_Gi=31;OK\x1b\\\x1b[?62;c", true),
+        (
+            "xterm -ti vt340 (sixel)",
+            "\x1bP>|XTerm(379)\x1b\\\x1b[?63;1;2;4;6;9;15;16;22;28c",
+            false,
+        ),
+        (
+            "kitty",
+            "\x1bP>|kitty(0.35.2)\x1b\\\x1b_Gi=31;OK\x1b\\\x1b[?62;c",
+            true,
+        ),
     ];
     for (name, answers, kitty) in terminals {
         for &mbit in &links {
@@ -175,26 +183,37 @@ fn main() -> anyhow::Result<()> {
                         f.bytes / 1024,
                         if f.moving { "moving" } else { "full  " },
                         (f.end.duration_since(first_key).as_secs_f64()
-                            - keys.last().map_or(0.0, |k| k.duration_since(first_key).as_secs_f64()))
+                            - keys
+                                .last()
+                                .map_or(0.0, |k| k.duration_since(first_key).as_secs_f64()))
                             * 1e3
                     );
                 }
             }
             let last_key = *keys.last().unwrap_or(&first_key);
-            let moving: Vec<f64> = seen.iter().filter(|f| f.moving).map(|f| f.bytes as f64).collect();
+            let moving: Vec<f64> = seen
+                .iter()
+                .filter(|f| f.moving)
+                .map(|f| f.bytes as f64)
+                .collect();
             let full = seen.iter().rev().find(|f| !f.moving);
             let first_full = seen.iter().find(|f| !f.moving && f.end > last_key);
             let first = seen.iter().find(|f| f.end > first_key);
             let ms = |a: Instant, b: Instant| b.saturating_duration_since(a).as_secs_f64() * 1e3;
             println!(
                 "| {name} | {} | {probe_ms:.1} | {:.0} K ({}) | {} | {} | {} |",
-                if mbit > 0.0 { format!("{mbit} Mbit/s") } else { "pty, unthrottled".into() },
+                if mbit > 0.0 {
+                    format!("{mbit} Mbit/s")
+                } else {
+                    "pty, unthrottled".into()
+                },
                 median(moving.clone()) / 1024.0,
                 moving.len(),
                 full.map_or("-".into(), |f| format!("{:.0} K", f.bytes as f64 / 1024.0)),
                 first.map_or("-".into(), |f| format!("{:.0}", ms(first_key, f.end))),
                 match (first_full, full.filter(|f| f.end > last_key)) {
-                    (Some(a), Some(b)) => format!("{:.0}; {:.0}", ms(last_key, a.end), ms(last_key, b.end)),
+                    (Some(a), Some(b)) =>
+                        format!("{:.0}; {:.0}", ms(last_key, a.end), ms(last_key, b.end)),
                     _ => "-".into(),
                 },
             );

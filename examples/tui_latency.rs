@@ -188,10 +188,17 @@ fn main() -> anyhow::Result<()> {
         println!("\n| sixel frame | colours | bytes |\n|---|---|---|");
         let half = half_size(frame);
         let enlarged = enlarge(&half, frame.width, frame.height);
-        for (what, rgba) in [("full resolution", &frame.rgba), ("half resolution, enlarged 2×", &enlarged)] {
+        for (what, rgba) in [
+            ("full resolution", &frame.rgba),
+            ("half resolution, enlarged 2×", &enlarged),
+        ] {
             for colors in [32, 16, 8] {
                 let ix = pcimg::term::palette::reduce(rgba, colors);
-                let s = pcimg::term::sixel::encode_indexed(&ix, frame.width as usize, frame.height as usize)?;
+                let s = pcimg::term::sixel::encode_indexed(
+                    &ix,
+                    frame.width as usize,
+                    frame.height as usize,
+                )?;
                 println!("| {what} | {colors} | {:.0} K |", s.len() as f64 / 1024.0);
             }
         }

@@ -51,9 +51,27 @@ const OK: Option<&str> = Some("\x1b_Gi=31;OK\x1b\\");
 
 fn profiles() -> Vec<Profile> {
     vec![
-        p("kitty", Some("kitty(0.35.2)"), OK, Some("\x1b[?62;c"), "Kitty"),
-        p("Ghostty", Some("ghostty 1.1.3"), OK, Some("\x1b[?62;22c"), "Kitty"),
-        p("Rio", Some("Rio 0.2.10"), OK, Some("\x1b[?62;4;22c"), "Kitty"),
+        p(
+            "kitty",
+            Some("kitty(0.35.2)"),
+            OK,
+            Some("\x1b[?62;c"),
+            "Kitty",
+        ),
+        p(
+            "Ghostty",
+            Some("ghostty 1.1.3"),
+            OK,
+            Some("\x1b[?62;22c"),
+            "Kitty",
+        ),
+        p(
+            "Rio",
+            Some("Rio 0.2.10"),
+            OK,
+            Some("\x1b[?62;4;22c"),
+            "Kitty",
+        ),
         // WezTerm answers the kitty query OK but draws no placeholders: by name.
         p(
             "WezTerm",
@@ -62,10 +80,28 @@ fn profiles() -> Vec<Profile> {
             Some("\x1b[?65;4;6;18;22c"),
             "Iterm2",
         ),
-        p("iTerm2", Some("iTerm2 3.5.0"), None, Some("\x1b[?62;4c"), "Iterm2"),
-        p("foot", Some("foot(1.16.2)"), None, Some("\x1b[?62;4;22;28c"), "Sixel"),
+        p(
+            "iTerm2",
+            Some("iTerm2 3.5.0"),
+            None,
+            Some("\x1b[?62;4c"),
+            "Iterm2",
+        ),
+        p(
+            "foot",
+            Some("foot(1.16.2)"),
+            None,
+            Some("\x1b[?62;4;22;28c"),
+            "Sixel",
+        ),
         // Konsole also answers OK to kitty, without placeholders: by name, sixel.
-        p("Konsole", Some("Konsole 24.02.1"), OK, Some("\x1b[?62;4;22c"), "Sixel"),
+        p(
+            "Konsole",
+            Some("Konsole 24.02.1"),
+            OK,
+            Some("\x1b[?62;4;22c"),
+            "Sixel",
+        ),
         Profile {
             cell: None,
             ..p(
@@ -86,15 +122,33 @@ fn profiles() -> Vec<Profile> {
                 "Halfblocks",
             )
         },
-        p("VS Code (images on)", Some("xterm.js(5.5.0)"), None, Some("\x1b[?62;4;9;22c"), "Sixel"),
-        p("Windows Terminal", None, None, Some("\x1b[?61;4;6;7;14;21;22;23;24;28;32;42c"), "Sixel"),
+        p(
+            "VS Code (images on)",
+            Some("xterm.js(5.5.0)"),
+            None,
+            Some("\x1b[?62;4;9;22c"),
+            "Sixel",
+        ),
+        p(
+            "Windows Terminal",
+            None,
+            None,
+            Some("\x1b[?61;4;6;7;14;21;22;23;24;28;32;42c"),
+            "Sixel",
+        ),
         Profile {
             cell: None,
             ..p("answers nothing", None, None, None, "Halfblocks")
         },
         Profile {
             delay: Duration::from_millis(300),
-            ..p("kitty over a slow link (300 ms)", Some("kitty(0.35.2)"), OK, Some("\x1b[?62;c"), "Kitty")
+            ..p(
+                "kitty over a slow link (300 ms)",
+                Some("kitty(0.35.2)"),
+                OK,
+                Some("\x1b[?62;c"),
+                "Kitty",
+            )
         },
     ]
 }
@@ -113,9 +167,14 @@ fn play(t: &Profile, cmd: &mut Command, key: &[u8], px: (u16, u16)) -> (Pty, Dur
     term.write(key);
     std::thread::sleep(t.delay);
     let mut answer = String::new();
-    for a in [t.xtversion.map(|v| format!("\x1bP>|{v}\x1b\\")), t.kitty.map(String::from), t.cell.map(String::from), t.da1.map(String::from)]
-        .into_iter()
-        .flatten()
+    for a in [
+        t.xtversion.map(|v| format!("\x1bP>|{v}\x1b\\")),
+        t.kitty.map(String::from),
+        t.cell.map(String::from),
+        t.da1.map(String::from),
+    ]
+    .into_iter()
+    .flatten()
     {
         answer.push_str(&a);
     }
@@ -126,7 +185,11 @@ fn play(t: &Profile, cmd: &mut Command, key: &[u8], px: (u16, u16)) -> (Pty, Dur
     let took = asked.elapsed();
     assert!(status.is_some(), "{}: the program did not end", t.name);
     let after = pty::termios(std::os::fd::AsRawFd::as_raw_fd(&term.slave));
-    assert_eq!(term.initial, after, "{}: the terminal was not left as found", t.name);
+    assert_eq!(
+        term.initial, after,
+        "{}: the terminal was not left as found",
+        t.name
+    );
     (term, took)
 }
 
@@ -156,12 +219,20 @@ fn every_known_terminal_gets_its_protocol_fast_and_no_key_is_lost() {
         let d = json_in(&term.output);
         assert_eq!(d["graphics"], t.expect, "{}: {d:#}", t.name);
         let probe = &d["probe"];
-        assert_eq!(probe["typed"], "j", "{}: the key typed was lost: {d:#}", t.name);
+        assert_eq!(
+            probe["typed"], "j",
+            "{}: the key typed was lost: {d:#}",
+            t.name
+        );
         let ms = probe["millis"].as_f64().unwrap();
         let capped = probe["capped"].as_bool().unwrap();
         assert_eq!(capped, t.da1.is_none(), "{}", t.name);
         if capped {
-            assert!((900.0..1500.0).contains(&ms), "{}: capped at {ms} ms", t.name);
+            assert!(
+                (900.0..1500.0).contains(&ms),
+                "{}: capped at {ms} ms",
+                t.name
+            );
             let note = d["note"].as_str().unwrap();
             assert!(note.contains("did not answer"), "{note}");
         } else {
@@ -184,7 +255,13 @@ fn every_known_terminal_gets_its_protocol_fast_and_no_key_is_lost() {
 
 #[test]
 fn the_kernels_cell_size_wins_when_plausible() {
-    let t = p("kitty", Some("kitty(0.35.2)"), OK, Some("\x1b[?62;c"), "Kitty");
+    let t = p(
+        "kitty",
+        Some("kitty(0.35.2)"),
+        OK,
+        Some("\x1b[?62;c"),
+        "Kitty",
+    );
     let (term, _) = play(&t, &mut clean(&["doctor", "--json"]), b"", (1080, 880));
     let d = json_in(&term.output);
     assert_eq!(d["cell_pixels"], serde_json::json!([9, 22]), "{d:#}");
@@ -194,12 +271,7 @@ fn the_kernels_cell_size_wins_when_plausible() {
 /// A small dataset for `inspect` and `preview`.
 fn dataset(dir: &Path) -> PathBuf {
     let path = dir.join("scene.tif");
-    pcimg::store::write_part(
-        &path,
-        &pcimg::synth::scene(20_000, 3),
-        &Default::default(),
-    )
-    .unwrap();
+    pcimg::store::write_part(&path, &pcimg::synth::scene(20_000, 3), &Default::default()).unwrap();
     path
 }
 
@@ -207,7 +279,13 @@ fn dataset(dir: &Path) -> PathBuf {
 fn a_key_typed_during_the_probe_reaches_the_inspector() {
     let dir = tempfile::tempdir().unwrap();
     let ds = dataset(dir.path());
-    let t = p("xterm -ti vt340", Some("XTerm(379)"), None, Some("\x1b[?63;1;2;4;6;9;15;16;22;28c"), "Sixel");
+    let t = p(
+        "xterm -ti vt340",
+        Some("XTerm(379)"),
+        None,
+        Some("\x1b[?63;1;2;4;6;9;15;16;22;28c"),
+        "Sixel",
+    );
     // `q` typed before the terminal answered: the inspector must quit on it alone.
     let mut cmd = clean(&["inspect", ds.to_str().unwrap()]);
     let (term, took) = play(&t, &mut cmd, b"q", (1200, 800));
@@ -230,7 +308,11 @@ impl Tmux {
     }
     fn run(&self, args: &[&str]) -> String {
         let o = self.cmd().args(args).output().expect("tmux runs");
-        assert!(o.status.success(), "tmux {args:?}: {}", String::from_utf8_lossy(&o.stderr));
+        assert!(
+            o.status.success(),
+            "tmux {args:?}: {}",
+            String::from_utf8_lossy(&o.stderr)
+        );
         String::from_utf8_lossy(&o.stdout).into_owned()
     }
 }
@@ -245,9 +327,21 @@ impl Drop for Tmux {
 /// side answers tmux's own queries as `outer` (XTVERSION text, DA1), and returns
 /// the client's pty once `done` exists.
 fn in_tmux(tmux: &Tmux, shell: &str, outer: &str, da1: &str, done: &Path) -> Pty {
-    tmux.run(&["new-session", "-d", "-s", "t", "-x", "120", "-y", "40", shell]);
+    tmux.run(&[
+        "new-session",
+        "-d",
+        "-s",
+        "t",
+        "-x",
+        "120",
+        "-y",
+        "40",
+        shell,
+    ]);
     let mut attach = tmux.cmd();
-    attach.args(["attach", "-t", "t"]).env("TERM", "xterm-256color");
+    attach
+        .args(["attach", "-t", "t"])
+        .env("TERM", "xterm-256color");
     let mut client = Pty::spawn(&mut attach, (120, 40), (1200, 800));
     let end = Instant::now() + Duration::from_secs(20);
     let mut answered = (false, false);
@@ -275,7 +369,12 @@ fn inside_tmux_the_server_is_asked_about_the_outer_terminal() {
     let dir = tempfile::tempdir().unwrap();
     for (outer, da1, expect, placeholders) in [
         ("kitty(0.35.2)", "\x1b[?62;c", "Kitty", true),
-        ("XTerm(379)", "\x1b[?63;1;2;4;6;9;15;16;22;28c", "Halfblocks", false),
+        (
+            "XTerm(379)",
+            "\x1b[?63;1;2;4;6;9;15;16;22;28c",
+            "Halfblocks",
+            false,
+        ),
     ] {
         let tmux = Tmux {
             socket: format!("pcimg-terminals-{}-{expect}", std::process::id()),
@@ -294,7 +393,10 @@ fn inside_tmux_the_server_is_asked_about_the_outer_terminal() {
             serde_json::from_str(&std::fs::read_to_string(&out).unwrap()).unwrap();
         assert_eq!(d["graphics"], expect, "{d:#}");
         assert_eq!(d["placeholders"], placeholders, "{d:#}");
-        assert!(d["probe"].is_null(), "tmux itself must not be probed: {d:#}");
+        assert!(
+            d["probe"].is_null(),
+            "tmux itself must not be probed: {d:#}"
+        );
         let info = &d["tmux"]["Ok"];
         assert_eq!(info["termtype"], outer, "{d:#}");
         assert!(info["version"].as_str().unwrap().starts_with('3'));
@@ -339,7 +441,10 @@ fn preview_in_tmux_sends_kitty_placeholders_through_to_the_outer_terminal() {
     assert!(pty::contains(out, "\u{10EEEE}".as_bytes()));
     // allow-passthrough was put back as it was (not set on the pane).
     let after = tmux.run(&["show", "-pv", "-t", "t", "allow-passthrough"]);
-    assert_eq!(after.trim(), std::fs::read_to_string(&before).unwrap().trim());
+    assert_eq!(
+        after.trim(),
+        std::fs::read_to_string(&before).unwrap().trim()
+    );
 }
 
 #[test]
@@ -361,7 +466,14 @@ fn real_xterm_in_vt340_mode_gets_sixel_without_a_flag() {
     let dir = tempfile::tempdir().unwrap();
     let display = format!(":{}", 90 + std::process::id() % 100);
     let mut xvfb = Command::new("Xvfb")
-        .args([display.as_str(), "-screen", "0", "1280x1024x24", "-nolisten", "tcp"])
+        .args([
+            display.as_str(),
+            "-screen",
+            "0",
+            "1280x1024x24",
+            "-nolisten",
+            "tcp",
+        ])
         .stderr(std::process::Stdio::null())
         .spawn()
         .unwrap();
@@ -377,10 +489,16 @@ fn real_xterm_in_vt340_mode_gets_sixel_without_a_flag() {
     let _ = xvfb.kill();
     let _ = xvfb.wait();
     assert!(status.unwrap().success());
-    let d: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&out).unwrap()).unwrap();
+    let d: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&out).unwrap()).unwrap();
     assert_eq!(d["graphics"], "Sixel", "{d:#}");
     let probe = &d["probe"];
-    assert!(probe["replies"]["xtversion"].as_str().unwrap().starts_with("XTerm("));
+    assert!(
+        probe["replies"]["xtversion"]
+            .as_str()
+            .unwrap()
+            .starts_with("XTerm(")
+    );
     assert_eq!(probe["capped"], false);
     eprintln!("xterm -ti vt340: sixel, probe {} ms", probe["millis"]);
 }

@@ -372,8 +372,7 @@ fn sixel_frames_go_into_the_first_cell_and_are_sent_only_when_they_change() {
     };
     let tmux = protocol::encode(through, &frame, (6, 3), (60, 60)).unwrap();
     let mut t = Terminal::new(TestBackend::new(12, 6)).unwrap();
-    t.draw(|f| f.render_widget(&tmux, pane))
-        .unwrap();
+    t.draw(|f| f.render_widget(&tmux, pane)).unwrap();
     let s = t.backend().buffer()[(2, 1)].symbol().to_string();
     assert!(s.starts_with("\x1bPtmux;\x1b\x1b[6X"), "{s:?}");
     assert!(s.ends_with("\x1b\x1b\\\x1b\\"), "{s:?}");

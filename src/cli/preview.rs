@@ -45,9 +45,14 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         note!("{}", cam.to_json());
     }
     let (term_cols, term_rows, _) = term::terminal_pixels();
-    let (cols, rows, w, h) = frame_size((term_cols, term_rows), found.cell_pixels, a.cols, graphics);
-    let printed = view::render_once(ds, &a.view, &cam, w, h)
-        .and_then(|(frame, report)| Ok((term::print_frame(&frame, &found.choice, cols, rows)?, report)));
+    let (cols, rows, w, h) =
+        frame_size((term_cols, term_rows), found.cell_pixels, a.cols, graphics);
+    let printed = view::render_once(ds, &a.view, &cam, w, h).and_then(|(frame, report)| {
+        Ok((
+            term::print_frame(&frame, &found.choice, cols, rows)?,
+            report,
+        ))
+    });
     term::tmux::restore_passthrough();
     let ((), report) = printed?;
     super::print_out(&format!("{}\n", view::describe(&report)))?;
@@ -89,7 +94,10 @@ mod tests {
             (40, 37, 400, 740)
         );
         // Never wider than the terminal, never narrower than 10 columns.
-        assert_eq!(frame_size((100, 40), cell, Some(300), Graphics::Kitty).0, 100);
+        assert_eq!(
+            frame_size((100, 40), cell, Some(300), Graphics::Kitty).0,
+            100
+        );
         assert_eq!(frame_size((100, 40), cell, Some(3), Graphics::Kitty).0, 10);
         assert_eq!(
             frame_size((100, 40), (1, 2), Some(40), Graphics::Halfblocks),

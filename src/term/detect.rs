@@ -139,7 +139,9 @@ pub fn choose(
     let choice = |graphics, reason: String, note: Option<String>| Choice {
         graphics,
         reason,
-        passthrough: in_tmux && graphics != Graphics::Halfblocks && !(graphics == Graphics::Sixel && tmux_sixel),
+        passthrough: in_tmux
+            && graphics != Graphics::Halfblocks
+            && !(graphics == Graphics::Sixel && tmux_sixel),
         placeholders: in_tmux && graphics == Graphics::Kitty,
         note,
     };
@@ -195,10 +197,18 @@ pub fn choose(
             return choice(g, format!("the terminal says it is {v}"), None);
         }
         if r.kitty_ok() {
-            return choice(Graphics::Kitty, "the kitty graphics query was answered OK".into(), None);
+            return choice(
+                Graphics::Kitty,
+                "the kitty graphics query was answered OK".into(),
+                None,
+            );
         }
         if r.sixel() {
-            return choice(Graphics::Sixel, "DA1 lists sixel (attribute 4)".into(), None);
+            return choice(
+                Graphics::Sixel,
+                "DA1 lists sixel (attribute 4)".into(),
+                None,
+            );
         }
     }
     if let Some((g, why)) = env.hint() {
@@ -214,7 +224,11 @@ pub fn choose(
     } else {
         "half-blocks: the terminal reports no image protocol (--protocol forces one)".into()
     };
-    choice(Graphics::Halfblocks, "no image protocol found".into(), Some(note))
+    choice(
+        Graphics::Halfblocks,
+        "no image protocol found".into(),
+        Some(note),
+    )
 }
 
 /// Everything detection learnt, and what it chose: what `pcimg doctor` prints.
@@ -281,7 +295,10 @@ pub fn cell_size(
     if let Some(c) = tmux.and_then(|t| t.cell_pixels) {
         return (c, "tmux client_cell_width/height");
     }
-    if let Some(c) = replies.and_then(|r| r.cell_pixels).and_then(probe::plausible_cell) {
+    if let Some(c) = replies
+        .and_then(|r| r.cell_pixels)
+        .and_then(probe::plausible_cell)
+    {
         return (c, "CSI 16 t");
     }
     ((10, 20), "assumed 10×20")
@@ -309,8 +326,8 @@ pub fn detect(requested: Protocol, cap: Duration) -> Detection {
         Some(f) => (f.as_raw_fd(), f.as_raw_fd()),
         None => (libc::STDIN_FILENO, libc::STDOUT_FILENO),
     };
-    let tty = tty_file.is_some()
-        || (std::io::stdin().is_terminal() && std::io::stdout().is_terminal());
+    let tty =
+        tty_file.is_some() || (std::io::stdin().is_terminal() && std::io::stdout().is_terminal());
     let winsize = WinSize::of(fd_out);
     let mut tmux_result = None;
     let mut probe_result = None;
@@ -322,7 +339,9 @@ pub fn detect(requested: Protocol, cap: Duration) -> Detection {
             && (requested == Protocol::Halfblocks
                 || winsize.as_ref().and_then(|w| w.cell_pixels()).is_some());
         if !known {
-            asked = Some(super::replies::escaped(super::replies::queries().as_bytes()));
+            asked = Some(super::replies::escaped(
+                super::replies::queries().as_bytes(),
+            ));
             match probe::run(fd_in, fd_out, cap) {
                 Ok(p) => {
                     if p.replies

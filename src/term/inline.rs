@@ -63,7 +63,11 @@ pub fn print_frame(
         }
     };
     let seq = match choice.graphics {
-        Graphics::Sixel => wrap(super::sixel::encode(&frame.rgba, frame.width, frame.height)?),
+        Graphics::Sixel => wrap(super::sixel::encode(
+            &frame.rgba,
+            frame.width,
+            frame.height,
+        )?),
         Graphics::Kitty => kitty_cells(frame, choice, cols, rows),
         Graphics::Iterm2 => wrap(iterm_sequence(frame, cols, rows, false)?),
         Graphics::Halfblocks => {
@@ -150,11 +154,20 @@ pub fn iterm_sequence(
         .collect();
     let mut png = Vec::new();
     PngEncoder::new_with_quality(&mut png, CompressionType::Default, FilterType::Adaptive)
-        .write_image(&rgb, frame.width, frame.height, image::ExtendedColorType::Rgb8)?;
+        .write_image(
+            &rgb,
+            frame.width,
+            frame.height,
+            image::ExtendedColorType::Rgb8,
+        )?;
     Ok(format!(
         "\x1b]1337;File=inline=1;size={};width={cols};height={rows};preserveAspectRatio=0{}:{}\x07",
         png.len(),
-        if keep_cursor { ";doNotMoveCursor=1" } else { "" },
+        if keep_cursor {
+            ";doNotMoveCursor=1"
+        } else {
+            ""
+        },
         base64::engine::general_purpose::STANDARD.encode(&png)
     ))
 }

@@ -15,9 +15,7 @@ pub const KITTY_QUERY_ID: u32 = 31;
 /// The queries, in the order they are written, DA1 last: every terminal answers
 /// DA1, and answers come in order, so once its answer is in all others have come.
 pub fn queries() -> String {
-    format!(
-        "\x1b[>0q\x1b_Gi={KITTY_QUERY_ID},s=1,v=1,a=q,t=d,f=24;AAAA\x1b\\\x1b[16t\x1b[c"
-    )
+    format!("\x1b[>0q\x1b_Gi={KITTY_QUERY_ID},s=1,v=1,a=q,t=d,f=24;AAAA\x1b\\\x1b[16t\x1b[c")
 }
 
 /// What the terminal answered.

@@ -60,9 +60,7 @@ fn tmux(args: &[&str]) -> Result<String, String> {
             Err(e) => return Err(format!("tmux: {e}")),
         }
     }
-    let out = child
-        .wait_with_output()
-        .map_err(|e| format!("tmux: {e}"))?;
+    let out = child.wait_with_output().map_err(|e| format!("tmux: {e}"))?;
     if !out.status.success() {
         let err = String::from_utf8_lossy(&out.stderr);
         return Err(format!("tmux: {}", crate::text::sanitize(err.trim())));
@@ -117,7 +115,10 @@ pub fn allow_passthrough(pane: &str) -> Result<(), String> {
     }
     tmux(&["set-option", "-p", "-t", pane, "allow-passthrough", "on"])?;
     if let Ok(mut c) = CHANGED.lock() {
-        *c = Some((pane.to_string(), (!before.is_empty()).then(|| before.to_string())));
+        *c = Some((
+            pane.to_string(),
+            (!before.is_empty()).then(|| before.to_string()),
+        ));
     }
     Ok(())
 }

@@ -35,10 +35,7 @@ fn one(b: &[u8]) -> (Option<KeyEvent>, usize) {
         0x7f | 0x08 => (key(KeyCode::Backspace, none), 1),
         0 => (key(KeyCode::Char(' '), KeyModifiers::CONTROL), 1),
         c @ 0x01..=0x1a => (
-            key(
-                KeyCode::Char((c - 1 + b'a') as char),
-                KeyModifiers::CONTROL,
-            ),
+            key(KeyCode::Char((c - 1 + b'a') as char), KeyModifiers::CONTROL),
             1,
         ),
         0x1c..=0x1f => (None, 1),

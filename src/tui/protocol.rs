@@ -16,8 +16,8 @@ use ratatui::buffer::{Buffer, CellDiffOption};
 use ratatui::layout::{Rect, Size};
 use ratatui::style::Color;
 use ratatui::widgets::Widget;
-use ratatui_image::protocol::halfblocks::Halfblocks;
 use ratatui_image::protocol::Protocol;
+use ratatui_image::protocol::halfblocks::Halfblocks;
 
 pub use crate::term::Graphics;
 
@@ -86,7 +86,8 @@ impl PaneImage {
 }
 
 /// A width of one, whatever the symbol's characters would measure.
-const UNIT_WIDTH: CellDiffOption = CellDiffOption::ForcedWidth(std::num::NonZeroU16::new(1).unwrap());
+const UNIT_WIDTH: CellDiffOption =
+    CellDiffOption::ForcedWidth(std::num::NonZeroU16::new(1).unwrap());
 
 impl Widget for &PaneImage {
     fn render(self, area: Rect, buf: &mut Buffer) {
@@ -122,7 +123,11 @@ impl Widget for &PaneImage {
                         if (x, y) == (area.x, area.y) {
                             symbol.push_str(transmit);
                         }
-                        symbol.push_str(&kitty::placeholder(y - area.y, x - area.x, KITTY_IMAGE_ID));
+                        symbol.push_str(&kitty::placeholder(
+                            y - area.y,
+                            x - area.x,
+                            KITTY_IMAGE_ID,
+                        ));
                         cell.set_symbol(&symbol)
                             .set_fg(Color::Rgb(r, g, b))
                             .set_diff_option(UNIT_WIDTH);
@@ -195,7 +200,9 @@ fn enlarge(frame: &Frame, (w, h): (u32, u32)) -> Vec<u8> {
 fn iterm_for_pane(frame: &Frame, cells: (u16, u16), passthrough: bool) -> anyhow::Result<String> {
     let mut s = String::new();
     erase_pane(&mut s, cells);
-    s.push_str(&crate::term::inline::iterm_sequence(frame, cells.0, cells.1, true)?);
+    s.push_str(&crate::term::inline::iterm_sequence(
+        frame, cells.0, cells.1, true,
+    )?);
     Ok(if passthrough {
         sixel::tmux_passthrough(&s)
     } else {
@@ -281,8 +288,13 @@ mod tests {
             panic!("sixel is drawn from the first cell");
         };
         assert!(data.contains("\"1;1;60;60#"), "enlarged to the pane");
-        let defined = (0..64).filter(|c| data.contains(&format!("#{c};2;"))).count();
-        assert!((2..=sixel::MOVING_COLORS).contains(&defined), "{defined} colours");
+        let defined = (0..64)
+            .filter(|c| data.contains(&format!("#{c};2;")))
+            .count();
+        assert!(
+            (2..=sixel::MOVING_COLORS).contains(&defined),
+            "{defined} colours"
+        );
         // At full size, the full palette.
         let full = Frame {
             width: 60,
@@ -295,7 +307,9 @@ mod tests {
         else {
             panic!("sixel is drawn from the first cell");
         };
-        let defined = (0..64).filter(|c| data.contains(&format!("#{c};2;"))).count();
+        let defined = (0..64)
+            .filter(|c| data.contains(&format!("#{c};2;")))
+            .count();
         assert!(defined > sixel::MOVING_COLORS, "{defined} colours");
     }
 
@@ -308,7 +322,10 @@ mod tests {
         let first = buf[(1, 1)].symbol();
         assert!(first.starts_with("\x1b_Ga=T,q=2,i=7365481,f=24,o=z,s=20,v=20,c=4,r=2,U=1"));
         assert!(first.ends_with(&kitty::placeholder(0, 0, KITTY_IMAGE_ID)));
-        assert_eq!(buf[(4, 2)].symbol(), kitty::placeholder(1, 3, KITTY_IMAGE_ID));
+        assert_eq!(
+            buf[(4, 2)].symbol(),
+            kitty::placeholder(1, 3, KITTY_IMAGE_ID)
+        );
         assert_eq!(buf[(4, 2)].fg, Color::Rgb(0x70, 0x63, 0x69));
         // Outside the image's 4×2 cells nothing is drawn.
         assert_eq!(buf[(5, 1)].symbol(), " ");

@@ -6,6 +6,7 @@
 
 use super::app::App;
 use super::keys::HELP;
+use super::protocol::PaneImage;
 use crate::store::codec::compression_name;
 use crate::text::{bytes, count, sanitize};
 use ratatui::Frame;
@@ -13,7 +14,6 @@ use ratatui::layout::{Constraint, Layout, Rect};
 use ratatui::style::{Color, Modifier, Style, Stylize};
 use ratatui::text::{Line, Span};
 use ratatui::widgets::{Block, Cell, Clear, Gauge, Paragraph, Row, Table, TableState};
-use super::protocol::PaneImage;
 
 /// Where things go on screen.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]

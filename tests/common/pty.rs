@@ -43,15 +43,8 @@ impl Pty {
             ws_ypixel: px.1,
         };
         // SAFETY: openpty writes two fds; the winsize is read.
-        let r = unsafe {
-            libc::openpty(
-                &mut m,
-                &mut s,
-                std::ptr::null_mut(),
-                std::ptr::null(),
-                &ws,
-            )
-        };
+        let r =
+            unsafe { libc::openpty(&mut m, &mut s, std::ptr::null_mut(), std::ptr::null(), &ws) };
         assert_eq!(r, 0, "openpty");
         // SAFETY: fresh fds from openpty, owned here.
         let master = unsafe { OwnedFd::from_raw_fd(m) };
