@@ -9,6 +9,7 @@
 mod common;
 
 use common::pty::{self, Pty};
+use common::tmux::Tmux;
 use std::path::{Path, PathBuf};
 use std::process::Command;
 use std::time::{Duration, Instant};
@@ -294,50 +295,11 @@ fn a_key_typed_during_the_probe_reaches_the_inspector() {
     assert!(pty::contains(&term.output, b"\x1b[?1049l"));
 }
 
-/// tmux on a private socket, killed on drop.
-struct Tmux {
-    socket: String,
-}
-
-impl Tmux {
-    fn cmd(&self) -> Command {
-        let mut c = Command::new("tmux");
-        c.args(["-L", &self.socket, "-f", "/dev/null"]);
-        c.env_remove("TMUX");
-        c
-    }
-    fn run(&self, args: &[&str]) -> String {
-        let o = self.cmd().args(args).output().expect("tmux runs");
-        assert!(
-            o.status.success(),
-            "tmux {args:?}: {}",
-            String::from_utf8_lossy(&o.stderr)
-        );
-        String::from_utf8_lossy(&o.stdout).into_owned()
-    }
-}
-
-impl Drop for Tmux {
-    fn drop(&mut self) {
-        let _ = self.cmd().arg("kill-server").output();
-    }
-}
-
 /// Starts `shell` in a tmux session, attaches a client from a pty whose other
 /// side answers tmux's own queries as `outer` (XTVERSION text, DA1), and returns
 /// the client's pty once `done` exists.
 fn in_tmux(tmux: &Tmux, shell: &str, outer: &str, da1: &str, done: &Path) -> Pty {
-    tmux.run(&[
-        "new-session",
-        "-d",
-        "-s",
-        "t",
-        "-x",
-        "120",
-        "-y",
-        "40",
-        shell,
-    ]);
+    tmux.start(shell);
     let mut attach = tmux.cmd();
     attach
         .args(["attach", "-t", "t"])
@@ -376,9 +338,7 @@ fn inside_tmux_the_server_is_asked_about_the_outer_terminal() {
             false,
         ),
     ] {
-        let tmux = Tmux {
-            socket: format!("pcimg-terminals-{}-{expect}", std::process::id()),
-        };
+        let tmux = Tmux::new(&format!("terminals-{expect}"));
         let out = dir.path().join(format!("{expect}.json"));
         let done = dir.path().join(format!("{expect}.done"));
         // Wait for the client, so that tmux knows the outer terminal.
@@ -417,9 +377,7 @@ fn preview_in_tmux_sends_kitty_placeholders_through_to_the_outer_terminal() {
     }
     let dir = tempfile::tempdir().unwrap();
     let ds = dataset(dir.path());
-    let tmux = Tmux {
-        socket: format!("pcimg-preview-{}", std::process::id()),
-    };
+    let tmux = Tmux::new("preview");
     let done = dir.path().join("done");
     let before = dir.path().join("before");
     let shell = format!(

@@ -6,6 +6,8 @@
 
 mod common;
 
+use common::tmux::Tmux;
+
 use crossterm::event::{KeyCode, KeyEvent, KeyModifiers};
 use pcimg::camera::Camera;
 use pcimg::render::RendererChoice;
@@ -379,46 +381,6 @@ fn sixel_frames_go_into_the_first_cell_and_are_sent_only_when_they_change() {
     assert_eq!(s.matches('\x1b').count() % 2, 0);
 }
 
-/// tmux on a private socket, killed on drop.
-struct Tmux {
-    socket: String,
-}
-
-impl Tmux {
-    fn cmd(&self) -> Command {
-        let mut c = Command::new("tmux");
-        c.args(["-L", &self.socket, "-f", "/dev/null"]);
-        c
-    }
-    fn run(&self, args: &[&str]) -> String {
-        let o = self.cmd().args(args).output().expect("tmux runs");
-        assert!(
-            o.status.success(),
-            "tmux {args:?}: {}",
-            String::from_utf8_lossy(&o.stderr)
-        );
-        String::from_utf8_lossy(&o.stdout).into_owned()
-    }
-    fn capture(&self) -> String {
-        self.run(&["capture-pane", "-p", "-t", "t"])
-    }
-    /// Polls the pane until `pred` holds, at most `secs` seconds.
-    fn wait_for(&self, what: &str, secs: u64, pred: impl Fn(&str) -> bool) -> String {
-        let deadline = Instant::now() + Duration::from_secs(secs);
-        loop {
-            let s = self.capture();
-            if pred(&s) {
-                return s;
-            }
-            assert!(
-                Instant::now() < deadline,
-                "waited {secs} s for {what}; the pane shows:\n{s}"
-            );
-            std::thread::sleep(Duration::from_millis(100));
-        }
-    }
-}
-
 /// A synthetic part of `n` points written in `dir`.
 fn scan_part(dir: &Path, n: u64, seed: u64) -> PathBuf {
     let path = dir.join("scan.tif");
@@ -431,12 +393,6 @@ fn scan_part(dir: &Path, n: u64, seed: u64) -> PathBuf {
     path
 }
 
-impl Drop for Tmux {
-    fn drop(&mut self) {
-        let _ = self.cmd().arg("kill-server").output();
-    }
-}
-
 #[test]
 fn the_binary_runs_in_tmux_and_restores_the_terminal() {
     if !common::tool_available("tmux", "-V") {
@@ -444,9 +400,7 @@ fn the_binary_runs_in_tmux_and_restores_the_terminal() {
     }
     let dir = tempfile::tempdir().unwrap();
     let path = scan_part(dir.path(), 70_000, 5);
-    let tmux = Tmux {
-        socket: format!("pcimg-test-{}", std::process::id()),
-    };
+    let tmux = Tmux::new("test");
     tmux.run(&[
         "new-session",
         "-d",
@@ -535,26 +489,14 @@ fn the_binary_ends_when_its_terminal_goes_away() {
     }
     let dir = tempfile::tempdir().unwrap();
     let path = scan_part(dir.path(), 20_000, 6);
-    let tmux = Tmux {
-        socket: format!("pcimg-hup-{}", std::process::id()),
-    };
+    let tmux = Tmux::new("hup");
     // The inspector is the pane's process itself (no shell in between).
     let command = format!(
         "exec env NODEVICE_SELECT=1 '{}' inspect '{}' --renderer cpu",
         env!("CARGO_BIN_EXE_pcimg"),
         path.display()
     );
-    tmux.run(&[
-        "new-session",
-        "-d",
-        "-s",
-        "t",
-        "-x",
-        "120",
-        "-y",
-        "40",
-        &command,
-    ]);
+    tmux.start(&command);
     tmux.wait_for("the panels", 10, |s| {
         s.contains("levels of part 1") && (s.contains("fps") || s.contains("idle"))
     });

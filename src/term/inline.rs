@@ -2,7 +2,7 @@
 //! own encoder ([`super::sixel`], at the frame's exact pixel size), kitty graphics
 //! ([`super::kitty`]) and iTerm2 (inline PNG) scaled by the terminal to the cells,
 //! Unicode half-blocks through viuer. Nothing here queries the terminal: the
-//! protocol comes from [`super::detect`].
+//! protocol comes from [`super::detect()`].
 
 use crate::render::Frame;
 use std::io::Write;
@@ -10,7 +10,7 @@ use std::io::Write;
 /// An inline image protocol.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Protocol {
-    /// Detected: the terminal is asked ([`super::detect`]).
+    /// Detected: the terminal is asked ([`super::detect()`]).
     Auto,
     Kitty,
     Sixel,
@@ -177,14 +177,7 @@ mod tests {
     use super::*;
     use base64::Engine as _;
 
-    fn frame(w: u32, h: u32) -> Frame {
-        Frame {
-            width: w,
-            height: h,
-            rgba: (0..w * h * 4).map(|i| (i % 251) as u8).collect(),
-            stats: Default::default(),
-        }
-    }
+    use crate::term::test_frame as frame;
 
     #[test]
     fn iterm_frames_are_inline_png() {

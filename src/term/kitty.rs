@@ -416,14 +416,7 @@ mod tests {
     use base64::Engine as _;
     use std::io::Read as _;
 
-    fn frame(w: u32, h: u32) -> Frame {
-        Frame {
-            width: w,
-            height: h,
-            rgba: (0..w * h * 4).map(|i| (i % 251) as u8).collect(),
-            stats: Default::default(),
-        }
-    }
+    use crate::term::test_frame as frame;
 
     fn decode(seq: &str) -> (String, Vec<u8>) {
         let parts: Vec<&str> = seq.split("\x1b\\").filter(|p| !p.is_empty()).collect();

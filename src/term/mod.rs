@@ -14,3 +14,14 @@ pub mod typed;
 
 pub use detect::{Detection, Graphics, TerminalEnv, detect};
 pub use inline::{Protocol, print_frame, terminal_pixels};
+
+/// A frame of `w` × `h` pixels whose bytes count 0..250 over and over (tests).
+#[cfg(test)]
+pub(crate) fn test_frame(w: u32, h: u32) -> crate::render::Frame {
+    crate::render::Frame {
+        width: w,
+        height: h,
+        rgba: (0..w * h * 4).map(|i| (i % 251) as u8).collect(),
+        stats: Default::default(),
+    }
+}

@@ -1,5 +1,5 @@
 //! The inspector's terminal graphics: encoding a rendered frame for the protocol
-//! detection chose ([`crate::term::detect`]), as a [`PaneImage`] the event loop
+//! detection chose ([`crate::term::detect()`]), as a [`PaneImage`] the event loop
 //! only copies into ratatui's buffer.
 //!
 //! Encoding runs on the render worker. Kitty frames all use one image id

@@ -3,6 +3,7 @@
 
 pub mod fuzz;
 pub mod pty;
+pub mod tmux;
 
 use pcimg::points::{Attribute, PointColumns};
 use pcimg::synth::Rng;
