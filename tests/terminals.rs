@@ -295,6 +295,51 @@ fn a_key_typed_during_the_probe_reaches_the_inspector() {
     assert!(pty::contains(&term.output, b"\x1b[?1049l"));
 }
 
+#[test]
+fn the_inspector_draws_kitty_placeholders_and_deletes_its_image_on_exit() {
+    let dir = tempfile::tempdir().unwrap();
+    let ds = dataset(dir.path());
+    let t = p(
+        "kitty",
+        Some("kitty(0.35.2)"),
+        OK,
+        Some("\x1b[?62;c"),
+        "Kitty",
+    );
+    let mut cmd = clean(&["inspect", ds.to_str().unwrap(), "--renderer", "cpu"]);
+    let mut term = Pty::spawn(&mut cmd, (160, 48), (1600, 960));
+    assert!(term.read_until(Duration::from_secs(20), |o| pty::contains(o, b"\x1b[c")));
+    let answers = format!(
+        "\x1bP>|{}\x1b\\{}\x1b[6;20;10t{}",
+        t.xtversion.unwrap(),
+        t.kitty.unwrap(),
+        t.da1.unwrap()
+    );
+    term.write(answers.as_bytes());
+    // The first frame: a transmission with a virtual placement, and placeholders.
+    let drawn = term.read_until(Duration::from_secs(30), |o| {
+        pty::contains(o, b",U=1,") && pty::contains(o, "\u{10EEEE}".as_bytes())
+    });
+    assert!(drawn, "no kitty frame with placeholders");
+    let out = String::from_utf8_lossy(&term.output).to_string();
+    let head = &out[out.find("\x1b_Ga=T").unwrap()..];
+    assert!(
+        head.starts_with("\x1b_Ga=T,q=2,i=7365481,f=24,o=z,s="),
+        "{}",
+        &head[..80]
+    );
+    term.write(b"q");
+    assert!(term.wait(Duration::from_secs(10)).is_some());
+    assert!(pty::contains(
+        &term.output,
+        b"\x1b_Ga=d,d=I,i=7365481,q=2\x1b\\"
+    ));
+    assert_eq!(
+        term.initial,
+        pty::termios(std::os::fd::AsRawFd::as_raw_fd(&term.slave))
+    );
+}
+
 /// Starts `shell` in a tmux session, attaches a client from a pty whose other
 /// side answers tmux's own queries as `outer` (XTVERSION text, DA1), and returns
 /// the client's pty once `done` exists.

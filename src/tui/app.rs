@@ -381,6 +381,21 @@ mod tests {
     }
 
     #[test]
+    fn the_terminals_note_and_the_frames_cost_are_shown() {
+        let (_d, mut a) = app();
+        a.terminal_note = "half-blocks: the terminal did not answer within 1000 ms".into();
+        assert!(
+            a.status_line()
+                .ends_with("| half-blocks: the terminal did not answer within 1000 ms")
+        );
+        a.frame.bytes = 120 * 1024;
+        a.frame.scale = 2;
+        a.link_rate = Some(1.25e6);
+        let t = a.timing_line();
+        assert!(t.contains("| 120.0 KiB at 1/2 · link 1.2 MiB/s |"), "{t}");
+    }
+
+    #[test]
     fn levels_pin_step_and_return_to_automatic() {
         let (_d, mut a) = app();
         let top = a.max_levels() - 1;
