@@ -177,6 +177,11 @@ impl Bounds {
         [0, 1, 2].map(|a| (self.max[a] - self.min[a]).max(0.0))
     }
 
+    /// Whether the two boxes share a point (touching counts).
+    pub fn intersects(&self, o: &Bounds) -> bool {
+        (0..3).all(|a| self.min[a] <= o.max[a] && o.min[a] <= self.max[a])
+    }
+
     pub fn contains(&self, o: &Bounds) -> bool {
         (0..3).all(|a| self.min[a] <= o.min[a] && o.max[a] <= self.max[a])
     }

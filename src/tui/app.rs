@@ -5,9 +5,15 @@
 //! terminal, a thread or a file, so every key can be tested on its own.
 
 use super::keys::Command;
+pub use super::section::Section;
 use crate::camera::Camera;
 use crate::lod::LodMode;
+use crate::lod::point::PointRecord;
 use crate::render::color::ColorMode;
+use crate::render::edl::EdlParams;
+use crate::render::filter::Filter;
+use crate::render::legend::{self, ClassEntry};
+use crate::render::ramp::Ramp;
 use crate::store::Dataset;
 use std::sync::Arc;
 
@@ -34,13 +40,19 @@ impl LodChoice {
 }
 
 /// Everything that decides what a frame shows, apart from the camera.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, PartialEq)]
 pub struct Settings {
     pub lod: LodChoice,
     pub color: ColorMode,
+    /// The ramp and range of ramp modes (`None`: the defaults).
+    pub ramp: Option<Ramp>,
+    pub range: Option<(f64, f64)>,
+    /// Which points are drawn (classes, band ranges, the clip box).
+    pub filter: Filter,
     /// Splat side in pixels, 1..=3.
     pub point_size: u32,
     pub edl: bool,
+    pub edl_params: EdlParams,
     /// Points drawn at most in view-dependent mode.
     pub budget: u64,
     /// Bytes of loaded tiles kept in memory.
@@ -52,8 +64,12 @@ impl Default for Settings {
         Settings {
             lod: LodChoice::View,
             color: ColorMode::Rgb,
+            ramp: None,
+            range: None,
+            filter: Filter::default(),
             point_size: 1,
             edl: false,
+            edl_params: EdlParams::default(),
             budget: DEFAULT_BUDGET,
             memory: 2 << 30,
         }
@@ -61,6 +77,15 @@ impl Default for Settings {
 }
 
 impl Settings {
+    /// The colour style frames are drawn in.
+    pub fn style(&self) -> crate::render::scene::Style {
+        crate::render::scene::Style {
+            mode: self.color.clone(),
+            ramp: self.ramp,
+            range: self.range,
+        }
+    }
+
     /// The level selection mode for `lod::select`.
     pub fn lod_mode(&self) -> LodMode {
         match self.lod {
@@ -84,25 +109,22 @@ const PAN_STEP: f64 = 0.1;
 /// Distance factor per zoom-in step.
 const ZOOM_STEP: f64 = 0.8;
 
-/// The order `c` cycles through.
-pub const COLOR_CYCLE: [ColorMode; 5] = [
+/// The order `c` cycles through (classification only where the data has it;
+/// a `band:NAME` given on the command line is left for the next in the cycle).
+pub const COLOR_CYCLE: [ColorMode; 6] = [
     ColorMode::Rgb,
     ColorMode::Intensity,
     ColorMode::Height,
+    ColorMode::Classification,
     ColorMode::Level,
     ColorMode::Part,
 ];
 
-/// A colour mode's name as the command line spells it.
-pub fn color_name(c: ColorMode) -> &'static str {
-    match c {
-        ColorMode::Rgb => "rgb",
-        ColorMode::Intensity => "intensity",
-        ColorMode::Height => "height",
-        ColorMode::Level => "level",
-        ColorMode::Part => "part",
-    }
-}
+/// Crosshair steps across the view per key press (shift: coarser).
+const CURSOR_STEP: f64 = 1.0 / 64.0;
+/// EDL strength factor per `<` / `>`, and its limits.
+const EDL_STEP: f32 = 1.5;
+const EDL_STRENGTH: (f32, f32) = (0.1, 10.0);
 
 /// What the event loop does after a command.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -120,6 +142,11 @@ pub enum Effect {
     /// Clear and draw everything again.
     Repaint,
     Quit,
+}
+
+/// `x y z` as a panel shows them (millimetres).
+pub fn format_xyz(p: [f64; 3]) -> String {
+    format!("{:.3} {:.3} {:.3}", p[0], p[1], p[2])
 }
 
 /// What the last frame was, as the worker reported it.
@@ -149,6 +176,10 @@ pub struct FrameStatus {
     pub cache_bytes: u64,
     /// Loaded tiles per (part, level).
     pub loaded: Vec<((usize, usize), usize)>,
+    /// A ramp mode's legend: band, ramp, the values at its ends.
+    pub ramp: Option<(String, Ramp, f64, f64)>,
+    /// Ground units a pixel of the frame spans at the orbit target.
+    pub units_per_pixel: f64,
 }
 
 /// The inspector's state.
@@ -168,6 +199,18 @@ pub struct App {
     pub fps: f64,
     /// Name of the image protocol in use.
     pub protocol: String,
+    /// Pick mode: the crosshair is shown and the arrows move it.
+    pub picking: bool,
+    /// The crosshair, as a fraction of the view (0..1 across, 0..1 down).
+    pub cursor: (f64, f64),
+    /// A pick the next frame request carries (the crosshair's position).
+    pub pick_pending: bool,
+    /// The last two picked points, oldest first.
+    pub picks: Vec<PointRecord>,
+    /// The legend row selected for `space` (classification colour).
+    pub legend_row: usize,
+    /// The section (a slab seen from the side), while one is shown.
+    pub section: Option<Section>,
 }
 
 impl App {
@@ -183,6 +226,39 @@ impl App {
             frame: FrameStatus::default(),
             fps: 0.0,
             protocol: String::new(),
+            picking: false,
+            cursor: (0.5, 0.5),
+            pick_pending: false,
+            picks: Vec::new(),
+            legend_row: 0,
+            section: None,
+        }
+    }
+
+    /// Whether some part has a `classification` band.
+    pub fn has_classes(&self) -> bool {
+        self.dataset
+            .parts
+            .iter()
+            .any(|p| p.band_index("classification").is_some())
+    }
+
+    /// The classes present with their counts and whether each is shown.
+    pub fn legend(&self) -> Vec<ClassEntry> {
+        legend::class_entries(&self.dataset, &self.settings.filter.classes)
+    }
+
+    /// Records a picked point (keeps the last two: a measurement).
+    pub fn add_pick(&mut self, p: Option<PointRecord>) {
+        match p {
+            Some(p) => {
+                self.message = format!("picked {}", crate::text::sanitize(&format_xyz(p.position)));
+                self.picks.push(p);
+                if self.picks.len() > 2 {
+                    self.picks.remove(0);
+                }
+            }
+            None => self.message = "no point under the crosshair".into(),
         }
     }
 
@@ -209,6 +285,10 @@ impl App {
                 self.show_help = false;
                 return Effect::Redraw;
             }
+            Quit if self.picking => {
+                self.picking = false;
+                return Effect::Render;
+            }
             Quit => return Effect::Quit,
             ToggleHelp => {
                 self.show_help = !self.show_help;
@@ -224,9 +304,6 @@ impl App {
                 self.part = (self.part + n - 1) % n;
                 return Effect::Redraw;
             }
-            Orbit(dy, dp) => self
-                .camera
-                .rotate(dy as f64 * ORBIT_STEP, dp as f64 * ORBIT_STEP),
             Pan(dr, du) => {
                 let step = self.camera.distance * PAN_STEP;
                 self.camera
@@ -255,12 +332,108 @@ impl App {
                     _ => LodChoice::Distance,
                 }
             }
+            Orbit(dx, dy) if self.picking => {
+                let (x, y) = self.cursor;
+                self.cursor = (
+                    (x + dx as f64 * CURSOR_STEP).clamp(0.0, 1.0),
+                    (y - dy as f64 * CURSOR_STEP).clamp(0.0, 1.0),
+                );
+            }
+            Orbit(dy, dp) => self
+                .camera
+                .rotate(dy as f64 * ORBIT_STEP, dp as f64 * ORBIT_STEP),
             CycleColor => {
+                let has_classes = self.has_classes();
                 let i = COLOR_CYCLE
                     .iter()
-                    .position(|&c| c == self.settings.color)
-                    .unwrap_or(0);
-                self.settings.color = COLOR_CYCLE[(i + 1) % COLOR_CYCLE.len()];
+                    .position(|c| *c == self.settings.color)
+                    .unwrap_or(COLOR_CYCLE.len() - 1);
+                let mut next = (i + 1) % COLOR_CYCLE.len();
+                if COLOR_CYCLE[next] == ColorMode::Classification && !has_classes {
+                    next = (next + 1) % COLOR_CYCLE.len();
+                }
+                self.settings.color = COLOR_CYCLE[next].clone();
+                // A ramp or range from the command line was for the mode it named.
+                self.settings.ramp = None;
+                self.settings.range = None;
+            }
+            ColorClasses => {
+                if !self.has_classes() {
+                    self.message = "the data has no classification band".into();
+                    return Effect::Redraw;
+                }
+                self.settings.color = ColorMode::Classification;
+            }
+            TogglePick => {
+                self.picking = !self.picking;
+                return Effect::Render;
+            }
+            Pick => {
+                self.picking = true;
+                self.pick_pending = true;
+            }
+            PickAt(x, y) => {
+                self.picking = true;
+                self.cursor = ((x as f64).clamp(0.0, 1.0), (y as f64).clamp(0.0, 1.0));
+                self.pick_pending = true;
+            }
+            ClearPicks => self.picks.clear(),
+            LegendRow(d) => {
+                let n = self.legend().len();
+                if n == 0 {
+                    return Effect::None;
+                }
+                self.legend_row = (self.legend_row as i64 + d as i64).rem_euclid(n as i64) as usize;
+                return Effect::Redraw;
+            }
+            ToggleClass => {
+                let entries = self.legend();
+                let Some(e) = entries.get(self.legend_row.min(entries.len().saturating_sub(1)))
+                else {
+                    self.message = "no classes to show or hide".into();
+                    return Effect::Redraw;
+                };
+                self.settings.filter.classes.set(e.code, !e.shown);
+            }
+            ToggleSection => {
+                if let Some(s) = self.section.take() {
+                    self.settings.filter.clip = s.saved_clip;
+                    self.camera = s.saved_camera;
+                } else {
+                    let at = self.picks.last().map(|p| p.position);
+                    let s = Section::through(
+                        &self.dataset.bounds(),
+                        &self.camera,
+                        at,
+                        &self.settings.filter,
+                    );
+                    self.settings.filter.clip = Some(s.clip(&self.dataset.bounds()));
+                    self.camera = s.profile_camera(&self.dataset.bounds(), &self.camera);
+                    self.section = Some(s);
+                }
+            }
+            SlabWidth(d) | SlabMove(d) => {
+                let Some(s) = self.section.as_mut() else {
+                    self.message = "no section: z shows one (through the last pick)".into();
+                    return Effect::Redraw;
+                };
+                if matches!(cmd, SlabWidth(_)) {
+                    s.resize(d);
+                } else {
+                    s.shift(d);
+                }
+                self.settings.filter.clip = Some(s.clip(&self.dataset.bounds()));
+            }
+            EdlStrength(d) => {
+                let p = &mut self.settings.edl_params;
+                p.strength =
+                    (p.strength * EDL_STEP.powi(d as i32)).clamp(EDL_STRENGTH.0, EDL_STRENGTH.1);
+                self.settings.edl = true;
+            }
+            EdlRadius => {
+                let p = &mut self.settings.edl_params;
+                p.radius = p.radius % 4 + 1;
+                self.settings.edl = true;
             }
             CyclePointSize => self.settings.point_size = self.settings.point_size % 3 + 1,
             ToggleEdl => self.settings.edl = !self.settings.edl,
@@ -298,10 +471,24 @@ impl App {
             } else {
                 self.settings.budget
             }),
-            color_name(self.settings.color),
+            self.settings.color.name(),
             self.settings.point_size,
-            if self.settings.edl { " | edl" } else { "" },
+            if self.settings.edl {
+                let p = self.settings.edl_params;
+                format!(" | edl {:.2}/{}", p.strength, p.radius)
+            } else {
+                String::new()
+            },
         );
+        if !self.settings.filter.is_empty() {
+            s.push_str(" | filtered");
+        }
+        if self.section.is_some() {
+            s.push_str(" | section");
+        }
+        if self.picking {
+            s.push_str(" | pick: arrows move, Enter picks");
+        }
         if f.pending > 0 {
             s.push_str(&format!(" | loading {} tiles", f.pending));
         }

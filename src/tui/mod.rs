@@ -10,7 +10,9 @@
 
 pub mod app;
 pub mod keys;
+pub mod panels;
 pub mod protocol;
+pub mod section;
 mod terminal;
 pub mod ui;
 pub mod worker;
@@ -37,6 +39,8 @@ pub struct InspectOptions {
     pub renderer: RendererChoice,
     pub camera: Camera,
     pub settings: Settings,
+    /// Bands tiles load besides the colour bands (classification, filtered bands).
+    pub extra_bands: Vec<String>,
     /// Tile loading threads.
     pub load_threads: usize,
     /// A temporary directory to remove should the process have to be ended by
@@ -73,6 +77,7 @@ pub fn run(ds: Arc<Dataset>, opts: InspectOptions) -> anyhow::Result<Camera> {
     let worker = RenderWorker::spawn(
         ds.clone(),
         WorkerOptions {
+            extra_bands: opts.extra_bands.clone(),
             graphics,
             in_tmux: env.in_multiplexer(),
             renderer: opts.renderer,
@@ -151,7 +156,10 @@ fn event_loop(
             worker.request(Request {
                 seq,
                 camera: app.camera,
-                settings: app.settings,
+                settings: app.settings.clone(),
+                cursor: app.picking.then_some(app.cursor),
+                pick: std::mem::take(&mut app.pick_pending),
+                marks: app.picks.iter().map(|p| p.position).collect(),
                 cells,
                 cell_pixels,
             });
@@ -219,6 +227,24 @@ fn event_loop(
                         dirty = true;
                     }
                 }
+                Event::Mouse(m) => {
+                    use crossterm::event::{MouseButton, MouseEventKind};
+                    let v = ui::areas(Rect::new(0, 0, size.width, size.height), app).view_inner;
+                    let inside = m.column >= v.x
+                        && m.row >= v.y
+                        && m.column < v.x + v.width
+                        && m.row < v.y + v.height;
+                    if m.kind == MouseEventKind::Down(MouseButton::Left) && inside {
+                        // The middle of the clicked cell, as fractions of the view.
+                        let fx = (m.column - v.x) as f32 + 0.5;
+                        let fy = (m.row - v.y) as f32 + 0.5;
+                        let cmd = keys::Command::PickAt(fx / v.width as f32, fy / v.height as f32);
+                        if app.apply(cmd) == Effect::Render {
+                            want_frame = true;
+                        }
+                        dirty = true;
+                    }
+                }
                 Event::Resize(..) => dirty = true,
                 _ => {}
             }
@@ -226,6 +252,11 @@ fn event_loop(
         loop {
             match worker.try_recv() {
                 Ok(Some(Report::Frame(f))) => {
+                    if let Some(p) = f.pick {
+                        app.add_pick(p);
+                        // The new pick's mark is drawn in the next frame.
+                        want_frame = true;
+                    }
                     shown.arrivals.push_back(Instant::now());
                     app.frame = f.status;
                     shown.image = Some(f.image);
