@@ -95,6 +95,7 @@ fn main() -> anyhow::Result<()> {
         let w = RenderWorker::spawn(
             ds.clone(),
             WorkerOptions {
+                extra_bands: Vec::new(),
                 graphics,
                 in_tmux: false,
                 renderer,
@@ -116,7 +117,10 @@ fn main() -> anyhow::Result<()> {
         let request = |app: &App, seq| Request {
             seq,
             camera: app.camera,
-            settings: app.settings,
+            settings: app.settings.clone(),
+            cursor: None,
+            pick: false,
+            marks: Vec::new(),
             cells,
             cell_pixels,
         };

@@ -219,6 +219,7 @@ fn the_worker_renders_and_encodes_half_block_frames() {
     let w = RenderWorker::spawn(
         app.dataset.clone(),
         WorkerOptions {
+            extra_bands: Vec::new(),
             graphics: Graphics::Halfblocks,
             in_tmux: false,
             renderer: RendererChoice::Cpu,
@@ -231,7 +232,10 @@ fn the_worker_renders_and_encodes_half_block_frames() {
     w.request(Request {
         seq: 1,
         camera: app.camera,
-        settings: app.settings,
+        settings: app.settings.clone(),
+        cursor: None,
+        pick: false,
+        marks: Vec::new(),
         cells: (area.width, area.height),
         cell_pixels: (1, 2),
     });
@@ -512,6 +516,138 @@ fn the_binary_runs_in_tmux_and_restores_the_terminal() {
         !s.contains("levels of part 1"),
         "the alternate screen is left: {s}"
     );
+}
+
+#[test]
+fn the_worker_picks_the_point_under_the_crosshair() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("c.tif");
+    store::write_part(
+        &path,
+        &pcimg::synth::scene_classified(80_000, 3),
+        &WriteOptions::default(),
+    )
+    .unwrap();
+    let mut app = app_for(&path);
+    let w = RenderWorker::spawn(
+        app.dataset.clone(),
+        WorkerOptions {
+            extra_bands: vec!["classification".into()],
+            graphics: Graphics::Halfblocks,
+            in_tmux: false,
+            renderer: RendererChoice::Cpu,
+            memory: 1 << 30,
+            load_threads: 2,
+        },
+    );
+    app.settings.color = pcimg::render::ColorMode::Classification;
+    // Straight down at the centre of the scene: the crosshair's point is there.
+    app.camera.pitch = -89.0f64.to_radians();
+    let area = ui::areas(ratatui::layout::Rect::new(0, 0, 160, 48), &app).view_inner;
+    let (camera, settings) = (app.camera, app.settings.clone());
+    let pick_at = |w: &RenderWorker, seq: u64, cursor: (f64, f64)| {
+        w.request(Request {
+            seq,
+            camera,
+            settings: settings.clone(),
+            cursor: Some(cursor),
+            pick: true,
+            marks: Vec::new(),
+            cells: (area.width, area.height),
+            cell_pixels: (4, 8),
+        });
+        let deadline = Instant::now() + Duration::from_secs(30);
+        loop {
+            assert!(Instant::now() < deadline, "no pick in 30 s");
+            match w.recv_timeout(Duration::from_millis(200)) {
+                Some(Report::Frame(f)) if f.seq == seq && f.pick.is_some() => break f,
+                Some(Report::Error(e)) => panic!("worker error: {e}"),
+                _ => {}
+            }
+        }
+    };
+    let f = pick_at(&w, 1, (0.5, 0.5));
+    let p = f.pick.unwrap().expect("a point under the crosshair");
+    let c = app.dataset.bounds().center();
+    // Within a few pixels of the centre: the scene is 400 m across the view.
+    assert!(
+        (p.position[0] - c[0]).abs() < 10.0 && (p.position[1] - c[1]).abs() < 10.0,
+        "{p:?}"
+    );
+    let names: Vec<&str> = p.attributes.iter().map(|a| a.0.as_str()).collect();
+    assert_eq!(names, ["intensity", "classification"]);
+    // The panel lists it, with the class's name.
+    app.add_pick(Some(p));
+    app.frame = f.status.clone();
+    let text = screen(&app, None).join("\n");
+    assert!(text.contains("A 637"), "{text}");
+    assert!(text.contains("classification"), "{text}");
+    assert!(text.contains("ground") || text.contains("building") || text.contains("vegetation"));
+    // A second pick: the distances.
+    let g = pick_at(&w, 2, (0.25, 0.5));
+    app.add_pick(g.pick.unwrap());
+    let text = screen(&app, None).join("\n");
+    assert!(text.contains("A→B 3D"), "{text}");
+}
+
+#[test]
+fn the_inspector_shows_class_legend_and_picks_in_tmux() {
+    if !common::tool_available("tmux", "-V") {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("c.tif");
+    store::write_part(
+        &path,
+        &pcimg::synth::scene_classified(60_000, 5),
+        &WriteOptions::default(),
+    )
+    .unwrap();
+    let tmux = Tmux {
+        socket: format!("pcimg-test-legend-{}", std::process::id()),
+    };
+    tmux.run(&[
+        "new-session",
+        "-d",
+        "-s",
+        "t",
+        "-x",
+        "160",
+        "-y",
+        "50",
+        "env",
+        "PS1=$ ",
+        "sh",
+    ]);
+    let line = format!(
+        "NODEVICE_SELECT=1 '{}' inspect '{}' --renderer cpu --color classification",
+        env!("CARGO_BIN_EXE_pcimg"),
+        path.display()
+    );
+    tmux.run(&["send-keys", "-t", "t", "-l", &line]);
+    tmux.run(&["send-keys", "-t", "t", "Enter"]);
+    tmux.wait_for("the class legend", 10, |s| {
+        s.contains("ground") && s.contains("building") && s.contains("high vegetation")
+    });
+    // Hide the selected class (ground, the first row).
+    tmux.run(&["send-keys", "-t", "t", " "]);
+    tmux.wait_for("the filter in the status line", 5, |s| {
+        s.contains("| filtered")
+    });
+    tmux.run(&["send-keys", "-t", "t", " "]);
+    tmux.wait_for("the filter gone", 5, |s| !s.contains("| filtered"));
+    // Pick mode and a pick at the centre.
+    tmux.run(&["send-keys", "-t", "t", "x"]);
+    tmux.wait_for("pick mode", 5, |s| s.contains("Enter picks"));
+    tmux.run(&["send-keys", "-t", "t", "Enter"]);
+    let s = tmux.wait_for("the picked point", 10, |s| {
+        s.contains("picked ") && s.contains("A 637")
+    });
+    assert!(s.contains("classification"), "{s}");
+    tmux.run(&["send-keys", "-t", "t", "q"]);
+    tmux.wait_for("pick mode left", 5, |s| !s.contains("Enter picks"));
+    tmux.run(&["send-keys", "-t", "t", "q"]);
+    tmux.wait_for("the prompt", 5, |s| !s.contains("high vegetation"));
 }
 
 /// Whether a process is alive (not gone, not a zombie), from `/proc`.

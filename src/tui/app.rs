@@ -612,6 +612,74 @@ mod tests {
     }
 
     #[test]
+    fn legend_toggles_pick_mode_and_sections() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("c.tif");
+        store::write_part(
+            &path,
+            &crate::synth::scene_classified(50_000, 3),
+            &WriteOptions::default(),
+        )
+        .unwrap();
+        let ds = Arc::new(Dataset::open(&path).unwrap());
+        let cam = Camera::fit(&ds.bounds());
+        let mut a = App::new(ds, cam, Settings::default());
+        // The cycle reaches classification on classified data.
+        for _ in 0..3 {
+            a.apply(Command::CycleColor);
+        }
+        assert_eq!(a.settings.color, ColorMode::Classification);
+        let codes: Vec<u8> = a.legend().iter().map(|e| e.code).collect();
+        assert_eq!(codes, vec![2, 5, 6]);
+        // Select the second row (vegetation) and hide it, then show it again.
+        assert_eq!(a.apply(Command::LegendRow(1)), Effect::Redraw);
+        assert_eq!(a.apply(Command::ToggleClass), Effect::Render);
+        assert!(!a.settings.filter.classes.shows(5));
+        assert!(a.settings.filter.classes.shows(2));
+        assert!(!a.legend()[1].shown);
+        a.apply(Command::ToggleClass);
+        assert!(a.settings.filter.classes.all());
+        a.apply(Command::LegendRow(-2));
+        assert_eq!(a.legend_row, 2, "wraps around");
+        // Pick mode: the arrows move the crosshair, not the camera.
+        let yaw = a.camera.yaw;
+        a.apply(Command::TogglePick);
+        a.apply(Command::Orbit(1, 1));
+        assert_eq!(a.camera.yaw, yaw);
+        assert!(a.cursor.0 > 0.5 && a.cursor.1 < 0.5);
+        a.apply(Command::Pick);
+        assert!(a.pick_pending);
+        assert_eq!(a.apply(Command::Quit), Effect::Render, "q leaves pick mode");
+        assert!(!a.picking);
+        // A section clips to a slab and looks at it level; z again restores.
+        let before = a.camera;
+        a.apply(Command::ToggleSection);
+        let clip = a.settings.filter.clip.unwrap();
+        let b = a.dataset.bounds();
+        let s = a.section.unwrap();
+        assert!(clip.max[s.axis] - clip.min[s.axis] < 0.02 * b.extent()[s.axis]);
+        assert_eq!(a.camera.pitch, 0.0);
+        a.apply(Command::SlabWidth(1));
+        let wider = a.settings.filter.clip.unwrap();
+        assert!(wider.max[s.axis] - wider.min[s.axis] > clip.max[s.axis] - clip.min[s.axis]);
+        a.apply(Command::ToggleSection);
+        assert_eq!(a.settings.filter.clip, None);
+        assert_eq!(a.camera, before);
+        // EDL keys turn it on and stay in range.
+        for _ in 0..20 {
+            a.apply(Command::EdlStrength(1));
+        }
+        assert!(a.settings.edl && a.settings.edl_params.strength <= 10.0);
+        a.apply(Command::EdlRadius);
+        assert_eq!(a.settings.edl_params.radius, 2);
+        assert!(
+            a.status_line().contains("edl 10.00/2"),
+            "{}",
+            a.status_line()
+        );
+    }
+
+    #[test]
     fn settings_cycle_and_stay_in_range() {
         let (_d, mut a) = app();
         for want in [
