@@ -2,6 +2,13 @@
 //! readers into the image store. Coordinates are `f64` (georeferenced inputs keep
 //! millimetres); every other attribute is an `f32` column plus an `f64` offset.
 
+/// The ASPRS class code of a stored `classification` value: a whole number
+/// 0..=255, else `None` (such points belong to no class).
+#[inline(always)]
+pub fn class_code(v: f32) -> Option<u8> {
+    ((0.0..=255.0).contains(&v) && v.fract() == 0.0).then_some(v as u8)
+}
+
 /// One scalar attribute column (intensity, red, classification, gps_time...).
 ///
 /// The true value of point `i` is `offset + values[i] as f64`. Readers use the offset

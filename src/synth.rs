@@ -63,7 +63,7 @@ fn point(seed: u64, i: u64) -> ([f64; 3], f32) {
     (p, intensity)
 }
 
-/// [`point`] with its ASPRS class: ground 2, vegetation 5, building 6.
+/// Point `i` of the scene with its ASPRS class: ground 2, vegetation 5, building 6.
 pub fn classified_point(seed: u64, i: u64) -> ([f64; 3], f32, u8) {
     let mut r = Rng::new(seed ^ i.wrapping_mul(0xD6E8_FEB8_6659_FD93));
     let kind = r.f64();

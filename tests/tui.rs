@@ -403,6 +403,31 @@ impl Tmux {
     fn capture(&self) -> String {
         self.run(&["capture-pane", "-p", "-t", "t"])
     }
+    /// Starts a shell in a `size` window and types `pcimg inspect PATH
+    /// --renderer cpu EXTRA` into it.
+    fn inspect(&self, size: (u16, u16), path: &Path, extra: &str) {
+        let (x, y) = (size.0.to_string(), size.1.to_string());
+        self.run(&[
+            "new-session",
+            "-d",
+            "-s",
+            "t",
+            "-x",
+            &x,
+            "-y",
+            &y,
+            "env",
+            "PS1=$ ",
+            "sh",
+        ]);
+        let line = format!(
+            "NODEVICE_SELECT=1 '{}' inspect '{}' --renderer cpu {extra}",
+            env!("CARGO_BIN_EXE_pcimg"),
+            path.display()
+        );
+        self.run(&["send-keys", "-t", "t", "-l", &line]);
+        self.run(&["send-keys", "-t", "t", "Enter"]);
+    }
     /// Polls the pane until `pred` holds, at most `secs` seconds.
     fn wait_for(&self, what: &str, secs: u64, pred: impl Fn(&str) -> bool) -> String {
         let deadline = Instant::now() + Duration::from_secs(secs);
@@ -448,28 +473,9 @@ fn the_binary_runs_in_tmux_and_restores_the_terminal() {
     let tmux = Tmux {
         socket: format!("pcimg-test-{}", std::process::id()),
     };
-    tmux.run(&[
-        "new-session",
-        "-d",
-        "-s",
-        "t",
-        "-x",
-        "150",
-        "-y",
-        "45",
-        "env",
-        "PS1=$ ",
-        "sh",
-    ]);
     // The status and terminal modes are asked for after it ends (a list typed on
     // one line would go on while the inspector is stopped by Ctrl-Z).
-    let line = format!(
-        "NODEVICE_SELECT=1 '{}' inspect '{}' --renderer cpu",
-        env!("CARGO_BIN_EXE_pcimg"),
-        path.display()
-    );
-    tmux.run(&["send-keys", "-t", "t", "-l", &line]);
-    tmux.run(&["send-keys", "-t", "t", "Enter"]);
+    tmux.inspect((150, 45), &path, "");
     tmux.wait_for("the panels", 10, |s| {
         s.contains("levels of part 1")
             && s.contains("half-blocks")
@@ -606,26 +612,7 @@ fn the_inspector_shows_class_legend_and_picks_in_tmux() {
     let tmux = Tmux {
         socket: format!("pcimg-test-legend-{}", std::process::id()),
     };
-    tmux.run(&[
-        "new-session",
-        "-d",
-        "-s",
-        "t",
-        "-x",
-        "160",
-        "-y",
-        "50",
-        "env",
-        "PS1=$ ",
-        "sh",
-    ]);
-    let line = format!(
-        "NODEVICE_SELECT=1 '{}' inspect '{}' --renderer cpu --color classification",
-        env!("CARGO_BIN_EXE_pcimg"),
-        path.display()
-    );
-    tmux.run(&["send-keys", "-t", "t", "-l", &line]);
-    tmux.run(&["send-keys", "-t", "t", "Enter"]);
+    tmux.inspect((160, 50), &path, "--color classification");
     tmux.wait_for("the class legend", 10, |s| {
         s.contains("ground") && s.contains("building") && s.contains("high vegetation")
     });

@@ -5,7 +5,7 @@
 //! round, and bad option values are refused clearly.
 
 use pcimg::camera::Camera;
-use pcimg::lod::{self, LodMode, TileCache, TileKey};
+use pcimg::lod::{self, LodMode, TileCache};
 use pcimg::points::{Attribute, Bounds, PointColumns};
 use pcimg::render::classes::ClassMask;
 use pcimg::render::cpu::CpuRasterizer;
@@ -22,6 +22,20 @@ fn exe() -> Command {
     let mut c = Command::new(env!("CARGO_BIN_EXE_pcimg"));
     c.env("NODEVICE_SELECT", "1");
     c
+}
+
+/// `pcimg render PART` on the CPU at `size`, to `out`, with `args`.
+fn render(part: &Path, size: (u32, u32), args: &[&str], out: &Path) -> std::process::Output {
+    exe()
+        .arg("render")
+        .arg(part)
+        .args(["--renderer", "cpu", "--width", &size.0.to_string()])
+        .args(["--height", &size.1.to_string()])
+        .args(args)
+        .arg("-o")
+        .arg(out)
+        .output()
+        .unwrap()
 }
 
 /// A part of the synthetic scene with classes (ground 2, vegetation 5, building 6).
@@ -168,25 +182,13 @@ fn render_pick_prints_the_point_with_every_attribute() {
     let [sx, sy] = cam
         .project([500_010.0, 4_000_010.0, 104.0], 320, 240)
         .unwrap();
-    let o = exe()
-        .arg("render")
-        .arg(&part)
-        .args([
-            "--renderer",
-            "cpu",
-            "--width",
-            "320",
-            "--height",
-            "240",
-            "--point-size",
-            "3",
-        ])
-        .arg("--pick")
-        .arg(format!("{},{}", sx as u32, sy as u32))
-        .arg("-o")
-        .arg(dir.path().join("f.png"))
-        .output()
-        .unwrap();
+    let at = format!("{},{}", sx as u32, sy as u32);
+    let o = render(
+        &part,
+        (320, 240),
+        &["--point-size", "3", "--pick", &at],
+        &dir.path().join("f.png"),
+    );
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
     assert!((v["x"].as_f64().unwrap() - 500_010.0).abs() < 1e-3, "{v}");
@@ -197,23 +199,12 @@ fn render_pick_prints_the_point_with_every_attribute() {
     assert!((v["attributes"]["gps_time"].as_f64().unwrap() - 300_000_002.0).abs() < 1e-3);
     assert_eq!(v["class_name"], "building");
     // A pixel in the empty corner: null.
-    let o = exe()
-        .arg("render")
-        .arg(&part)
-        .args([
-            "--renderer",
-            "cpu",
-            "--width",
-            "320",
-            "--height",
-            "240",
-            "--pick",
-            "0,0",
-            "-o",
-        ])
-        .arg(dir.path().join("g.png"))
-        .output()
-        .unwrap();
+    let o = render(
+        &part,
+        (320, 240),
+        &["--pick", "0,0"],
+        &dir.path().join("g.png"),
+    );
     assert!(o.status.success());
     assert_eq!(String::from_utf8_lossy(&o.stdout).trim(), "null");
 }
@@ -396,42 +387,29 @@ fn a_clip_box_selects_only_the_tiles_that_touch_it() {
     let mut inside = 0u64;
     for (t, h) in scene.tiles.iter().zip(&scene.hidden) {
         let z = h.as_deref().unwrap_or(&t.z);
-        for i in 0..t.len() {
-            if z[i].is_nan() {
+        for (zi, xi) in z.iter().zip(&t.x) {
+            if zi.is_nan() {
                 continue;
             }
             inside += 1;
-            let x = t.x[i] as f64 + t.origin[0];
+            let x = *xi as f64 + t.origin[0];
             assert!(x >= clip.min[0] && x <= clip.max[0]);
         }
     }
     assert!(inside > 0);
     assert_eq!(inside, scene.shown_points());
-    let _ = TileKey {
-        part: 0,
-        level: 0,
-        tile: 0,
-    };
 }
 
 #[test]
 fn turntable_frames_differ_and_go_round() {
     let dir = tempfile::tempdir().unwrap();
     let part = classified_part(dir.path(), 60_000);
-    let run = |extra: &[&str], out: &Path| {
+    let run = |view: &str, extra: &[&str], out: &Path| {
         let o = exe()
             .arg("render")
             .arg(&part)
-            .args([
-                "--renderer",
-                "cpu",
-                "--width",
-                "160",
-                "--height",
-                "120",
-                "--view",
-                "0,-30",
-            ])
+            .args(["--renderer", "cpu", "--width", "160", "--height", "120"])
+            .args(["--view", view])
             .args(extra)
             .arg("-o")
             .arg(out)
@@ -440,7 +418,7 @@ fn turntable_frames_differ_and_go_round() {
         assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     };
     let pattern = dir.path().join("spin_{}.png");
-    run(&["--turntable", "8"], &pattern);
+    run("0,-30", &["--turntable", "8"], &pattern);
     let frames: Vec<Vec<u8>> = (0..8)
         .map(|i| {
             image::open(dir.path().join(format!("spin_{i:03}.png")))
@@ -459,24 +437,7 @@ fn turntable_frames_differ_and_go_round() {
     // (yaw + 180°): the same as asking for it.
     for (k, view) in [(0, "0,-30"), (4, "180,-30"), (2, "90,-30")] {
         let one = dir.path().join(format!("one{k}.png"));
-        let o = exe()
-            .arg("render")
-            .arg(&part)
-            .args([
-                "--renderer",
-                "cpu",
-                "--width",
-                "160",
-                "--height",
-                "120",
-                "--view",
-                view,
-                "-o",
-            ])
-            .arg(&one)
-            .output()
-            .unwrap();
-        assert!(o.status.success());
+        run(view, &[], &one);
         assert_eq!(
             image::open(&one).unwrap().to_rgba8().into_raw(),
             frames[k],
@@ -485,7 +446,7 @@ fn turntable_frames_differ_and_go_round() {
     }
     // One animated PNG: 8 frames, each the size asked for.
     let apng = dir.path().join("spin.png");
-    run(&["--turntable", "8"], &apng);
+    run("0,-30", &["--turntable", "8"], &apng);
     let dec = png::Decoder::new(std::io::BufReader::new(std::fs::File::open(&apng).unwrap()));
     let mut r = dec.read_info().unwrap();
     let actl = r.info().animation_control.unwrap();

@@ -271,6 +271,8 @@ pub struct FrameReport {
     pub selection: Selection,
     pub select_ms: f64,
     pub load_ms: f64,
+    /// Colouring the loaded points and applying the filter.
+    pub color_ms: f64,
     pub render_ms: f64,
     pub renderer: String,
 }
@@ -346,10 +348,12 @@ impl Drawing {
             .load_all(&sel.tiles)
             .map_err(anyhow::Error::msg)?;
         let load_ms = t.elapsed().as_secs_f64() * 1e3;
+        let t = Instant::now();
         let ranges = *self
             .ranges
             .get_or_insert_with(|| ColorRanges::for_style(&tiles, &self.ds.bounds(), &self.style));
         let scene = Scene::build(tiles, &self.style, &ranges, &self.filter);
+        let color_ms = t.elapsed().as_secs_f64() * 1e3;
         let t = Instant::now();
         let frame = self.renderer.render(cam, &scene.batches(), &self.opts)?;
         let render_ms = t.elapsed().as_secs_f64() * 1e3;
@@ -359,6 +363,7 @@ impl Drawing {
                 selection: sel,
                 select_ms,
                 load_ms,
+                color_ms,
                 render_ms,
                 renderer: self.renderer.name(),
             },
@@ -392,12 +397,13 @@ pub fn describe(r: &FrameReport) -> String {
         levels = format!("{} overview, {levels}", s.overview_tiles);
     }
     let mut line = format!(
-        "{} points from {} tiles ({levels}), {} culled; select {:.1} ms, load {:.0} ms, render {:.0} ms on {}",
+        "{} points from {} tiles ({levels}), {} culled; select {:.1} ms, load {:.0} ms, colour {:.0} ms, render {:.0} ms on {}",
         crate::text::count(s.points),
         s.tiles.len(),
         s.culled,
         r.select_ms,
         r.load_ms,
+        r.color_ms,
         r.render_ms,
         r.renderer
     );

@@ -69,7 +69,7 @@ pub const fn color(code: u8) -> u32 {
 /// else `None` (such points match no class).
 #[inline(always)]
 pub fn code_of(v: f32) -> Option<u8> {
-    (v >= 0.0 && v <= 255.0 && v.fract() == 0.0).then_some(v as u8)
+    crate::points::class_code(v)
 }
 
 /// Which classes are shown: one flag a code.

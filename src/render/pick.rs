@@ -1,7 +1,7 @@
 //! Picking: which point a frame shows at a pixel. The frame path keeps no
 //! per-pixel point index (that would add a 4-byte write per splat to every
 //! frame); instead a pick projects the frame's points again with the CPU
-//! rasterizer's own transform ([`Projector`]) and keeps, for the pixels near
+//! rasterizer's own transform (`Projector`) and keeps, for the pixels near
 //! the cursor, the point with the smallest packed `depth << 32 | colour`: the
 //! very point the CPU rasterizer drew there. It costs one pass over the drawn
 //! points, only when the user picks.

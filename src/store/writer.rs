@@ -508,10 +508,9 @@ fn class_counts(a: &Arranged) -> Option<Vec<(u8, u64)>> {
     let band = a.names.iter().position(|n| n == "classification")?;
     let j = band.checked_sub(3)?;
     let (m, n) = (a.m, a.geometry.points as usize);
-    let code = |v: f32| (v >= 0.0 && v <= 255.0 && v.fract() == 0.0).then_some(v as usize);
     let add = |mut h: Vec<u64>, v: f32| {
-        if let Some(c) = code(v) {
-            h[c] += 1;
+        if let Some(c) = crate::points::class_code(v) {
+            h[c as usize] += 1;
         }
         h
     };

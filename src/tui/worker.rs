@@ -354,9 +354,10 @@ impl Worker {
                 let c = colorize_style(t, &style, &self.ranges);
                 self.colors.columns.insert(t.key, c);
             }
-            if !self.colors.hidden.contains_key(&t.key) {
-                self.colors.hidden.insert(t.key, s.filter.hidden_z(t));
-            }
+            self.colors
+                .hidden
+                .entry(t.key)
+                .or_insert_with(|| s.filter.hidden_z(t));
         }
         let batches: Vec<PointBatch<'_>> = tiles
             .iter()
