@@ -35,8 +35,8 @@ for _ in $(seq "$ROUNDS"); do
   done
 done
 stats() { # LABEL COLUMN: median min max
-  awk -v l="$1" -v c="$2" '$1 == l { print $c }' "$LOG" | sort -g |
-    awk '{ v[NR] = $1 } END { m = (NR % 2) ? v[(NR + 1) / 2] : (v[NR / 2] + v[NR / 2 + 1]) / 2; printf "%g (%g-%g)", m, v[1], v[NR] }'
+  awk -v l="$1" -v c="$2" '$1 == l && $c != "-" { print $c }' "$LOG" | sort -g |
+    awk '{ v[NR] = $1 } END { if (NR == 0) { printf "-"; exit } m = (NR % 2) ? v[(NR + 1) / 2] : (v[NR / 2] + v[NR / 2 + 1]) / 2; printf "%g (%g-%g)", m, v[1], v[NR] }'
 }
 echo "label: render ms median (range) | load ms median (range) | colour ms median (range) | tiles | points"
 for spec in "$@"; do

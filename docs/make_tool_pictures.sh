@@ -18,11 +18,11 @@ S=("$W/synth.tif" --width 640 --height 360 --renderer cpu --view 30,-35,500)
 "$P" render "${S[@]}" --color classification --legend -o $OUT/tools-synth-classes.png
 "$P" render "${S[@]}" --color classification --exclude-classes 2 --legend -o $OUT/tools-synth-no-ground.png
 "$P" render "${S[@]}" --color height --ramp turbo --where z=25..60 --legend -o $OUT/tools-synth-where-z.png
-# A slab 4 m thick across x through the middle, seen from the side (looking along +x).
-"$P" render "$W/synth.tif" --width 640 --height 360 --renderer cpu --view 0,0,260 \
-  --clip 637198,6010900,0,637202,6011305,100 --color classification --legend --point-size 2 \
+# A slab 4 m thick across x through a row of buildings, 240 m long, seen from the side (looking along +x).
+"$P" render "$W/synth.tif" --width 640 --height 360 --renderer cpu --view 0,0,170 \
+  --clip 637218,6010980,0,637222,6011220,100 --color classification --legend --point-size 2 \
   -o $OUT/tools-synth-section.png
 "$P" render "${S[@]}" --color height --edl -o $OUT/tools-synth-edl-1.png
-"$P" render "${S[@]}" --color height --edl-strength 4 --edl-radius 2 -o $OUT/tools-synth-edl-4r2.png
+"$P" render "${S[@]}" --color height --edl-strength 2 --edl-radius 2 -o $OUT/tools-synth-edl-2r2.png
 "$P" render "$W/synth.tif" --width 320 --height 180 --renderer cpu --view 30,-35,520 \
   --color classification --turntable 24 -o $OUT/tools-synth-turntable.png

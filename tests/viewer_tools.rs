@@ -577,3 +577,52 @@ fn ramps_legends_and_edl_options_draw() {
     assert_ne!(edl1, none);
     assert_ne!(edl1, edl2);
 }
+
+#[test]
+fn filters_hide_the_same_points_on_the_gpu() {
+    let dir = tempfile::tempdir().unwrap();
+    let part = classified_part(dir.path(), 50_000);
+    let args = [
+        "--color",
+        "classification",
+        "--classes",
+        "6",
+        "--view",
+        "30,-40",
+    ];
+    let cpu = dir.path().join("cpu.png");
+    let o = render(&part, (320, 240), &args, &cpu);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let gpu = dir.path().join("gpu.png");
+    let o = exe()
+        .arg("render")
+        .arg(&part)
+        .args(["--renderer", "gpu", "--width", "320", "--height", "240"])
+        .args(args)
+        .arg("-o")
+        .arg(&gpu)
+        .output()
+        .unwrap();
+    if !o.status.success() {
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(
+            err.contains("no GPU adapter") && std::env::var("CI").ok().as_deref() != Some("true"),
+            "{err}"
+        );
+        eprintln!("note: skipping, no wgpu adapter: {err}");
+        return;
+    }
+    let (c, g) = (
+        image::open(&cpu).unwrap().to_rgba8(),
+        image::open(&gpu).unwrap().to_rgba8(),
+    );
+    let building = pcimg::render::color::unpack_rgb(pcimg::render::classes::color(6));
+    let lit = |i: &image::RgbaImage| i.pixels().filter(|p| p[0] | p[1] | p[2] != 0).count();
+    assert!(lit(&g) > 1000);
+    assert!(
+        g.pixels()
+            .all(|p| p[0] | p[1] | p[2] == 0 || p.0[..3] == building)
+    );
+    let same = c.pixels().zip(g.pixels()).filter(|(a, b)| a == b).count();
+    assert!(same as f64 > 0.99 * (320.0 * 240.0), "{same}");
+}
