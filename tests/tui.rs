@@ -633,6 +633,27 @@ fn the_inspector_shows_class_legend_and_picks_in_tmux() {
     assert!(s.contains("classification"), "{s}");
     tmux.run(&["send-keys", "-t", "t", "q"]);
     tmux.wait_for("pick mode left", 5, |s| !s.contains("Enter picks"));
+    // The mouse (SGR reports, as terminals send them): a click on the legend's
+    // ground row hides ground; a click in the view picks the point there.
+    let s = tmux.capture();
+    let row = s.lines().position(|l| l.contains(" ground ")).unwrap() + 1;
+    let click = |col: usize, row: usize| {
+        for end in ['M', 'm'] {
+            let seq = format!("\x1b[<0;{col};{row}{end}");
+            tmux.run(&["send-keys", "-t", "t", "-l", &seq]);
+        }
+    };
+    click(5, row);
+    tmux.wait_for("ground hidden by a click", 5, |s| s.contains("| filtered"));
+    click(5, row);
+    tmux.wait_for("ground shown again", 5, |s| !s.contains("| filtered"));
+    tmux.run(&["send-keys", "-t", "t", "X"]);
+    tmux.wait_for("the picks forgotten", 5, |s| !s.contains("A 637"));
+    click(110, 25);
+    tmux.wait_for("a pick by a click in the view", 10, |s| s.contains("A 637"));
+    // The click left the crosshair on: the first q leaves pick mode.
+    tmux.run(&["send-keys", "-t", "t", "q"]);
+    tmux.wait_for("pick mode left", 5, |s| !s.contains("Enter picks"));
     tmux.run(&["send-keys", "-t", "t", "q"]);
     tmux.wait_for("the prompt", 5, |s| !s.contains("high vegetation"));
 }

@@ -386,6 +386,13 @@ impl App {
                 self.legend_row = (self.legend_row as i64 + d as i64).rem_euclid(n as i64) as usize;
                 return Effect::Redraw;
             }
+            ToggleClassRow(row) => {
+                if self.settings.color != ColorMode::Classification || row >= self.legend().len() {
+                    return Effect::None;
+                }
+                self.legend_row = row;
+                return self.apply(ToggleClass);
+            }
             ToggleClass => {
                 let entries = self.legend();
                 let Some(e) = entries.get(self.legend_row.min(entries.len().saturating_sub(1)))
@@ -641,6 +648,15 @@ mod tests {
         assert!(a.settings.filter.classes.all());
         a.apply(Command::LegendRow(-2));
         assert_eq!(a.legend_row, 2, "wraps around");
+        // A click on a row toggles that row's class.
+        assert_eq!(a.apply(Command::ToggleClassRow(0)), Effect::Render);
+        assert!(!a.settings.filter.classes.shows(2) && a.legend_row == 0);
+        a.apply(Command::ToggleClassRow(0));
+        assert_eq!(
+            a.apply(Command::ToggleClassRow(3)),
+            Effect::None,
+            "no such row"
+        );
         // Pick mode: the arrows move the crosshair, not the camera.
         let yaw = a.camera.yaw;
         a.apply(Command::TogglePick);

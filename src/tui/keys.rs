@@ -41,6 +41,8 @@ pub enum Command {
     LegendRow(i8),
     /// Show or hide the selected legend row's class.
     ToggleClass,
+    /// Select legend row N and show or hide its class (a click on the row).
+    ToggleClassRow(usize),
     /// A section through the last pick, seen from the side, on / off.
     ToggleSection,
     /// The section's slab thicker (+1) or thinner (-1).

@@ -234,6 +234,20 @@ fn event_loop(
                         && m.row >= v.y
                         && m.column < v.x + v.width
                         && m.row < v.y + v.height;
+                    // A click on a class row of the legend shows or hides the class.
+                    let tools = ui::areas(Rect::new(0, 0, size.width, size.height), app).tools;
+                    if m.kind == MouseEventKind::Down(MouseButton::Left)
+                        && m.column > tools.x
+                        && m.column + 1 < tools.x + tools.width
+                        && m.row > tools.y
+                        && m.row + 1 < tools.y + tools.height
+                    {
+                        let row = (m.row - tools.y - 1) as usize;
+                        if app.apply(keys::Command::ToggleClassRow(row)) == Effect::Render {
+                            want_frame = true;
+                        }
+                        dirty = true;
+                    }
                     if m.kind == MouseEventKind::Down(MouseButton::Left) && inside {
                         // The middle of the clicked cell, as fractions of the view.
                         let fx = (m.column - v.x) as f32 + 0.5;
