@@ -63,11 +63,11 @@ pub struct ViewArgs {
     /// Draw only points whose band lies in a range: NAME=VALUE or NAME=LO..HI
     /// (an end may be left out), e.g. return_number=1 or z=400..450. May be
     /// given several times (all must hold).
-    #[arg(long = "where", allow_hyphen_values = true)]
+    #[arg(long = "where", value_name = "NAME=LO..HI", allow_hyphen_values = true)]
     pub wheres: Vec<String>,
     /// Draw only what lies in the box MINX,MINY,MINZ,MAXX,MAXY,MAXZ (dataset
     /// coordinates); tiles outside it are not loaded.
-    #[arg(long, allow_hyphen_values = true)]
+    #[arg(long, value_name = "BOX", allow_hyphen_values = true)]
     pub clip: Option<String>,
     /// Splat size in pixels, 1 to 3.
     #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..=3))]
