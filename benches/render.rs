@@ -117,6 +117,7 @@ fn bench(cr: &mut Criterion) {
         height: 720,
         point_size: 1,
         eye_dome_lighting: false,
+        edl: Default::default(),
         background: [0, 0, 0],
     };
     let bounds = Bounds {

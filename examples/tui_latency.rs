@@ -107,6 +107,7 @@ fn main() -> anyhow::Result<()> {
             ds.clone(),
             WorkerOptions {
                 encoding: Encoding::new(graphics),
+                extra_bands: Vec::new(),
                 renderer,
                 memory: 2 << 30,
                 load_threads: 2,
@@ -126,7 +127,10 @@ fn main() -> anyhow::Result<()> {
         let request = |app: &App, seq| Request {
             seq,
             camera: app.camera,
-            settings: app.settings,
+            settings: app.settings.clone(),
+            cursor: None,
+            pick: false,
+            marks: Vec::new(),
             cells,
             cell_pixels,
             scale,

@@ -2,6 +2,13 @@
 //! readers into the image store. Coordinates are `f64` (georeferenced inputs keep
 //! millimetres); every other attribute is an `f32` column plus an `f64` offset.
 
+/// The ASPRS class code of a stored `classification` value: a whole number
+/// 0..=255, else `None` (such points belong to no class).
+#[inline(always)]
+pub fn class_code(v: f32) -> Option<u8> {
+    ((0.0..=255.0).contains(&v) && v.fract() == 0.0).then_some(v as u8)
+}
+
 /// One scalar attribute column (intensity, red, classification, gps_time...).
 ///
 /// The true value of point `i` is `offset + values[i] as f64`. Readers use the offset
@@ -175,6 +182,11 @@ impl Bounds {
 
     pub fn extent(&self) -> [f64; 3] {
         [0, 1, 2].map(|a| (self.max[a] - self.min[a]).max(0.0))
+    }
+
+    /// Whether the two boxes share a point (touching counts).
+    pub fn intersects(&self, o: &Bounds) -> bool {
+        (0..3).all(|a| self.min[a] <= o.max[a] && o.min[a] <= self.max[a])
     }
 
     pub fn contains(&self, o: &Bounds) -> bool {

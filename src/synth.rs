@@ -52,8 +52,19 @@ fn building(cell_x: i64, cell_y: i64) -> Option<(f64, f64, f64, f64, f64)> {
     ))
 }
 
+/// ASPRS classification codes of the scene's three kinds of point.
+pub const CLASS_GROUND: u8 = 2;
+pub const CLASS_VEGETATION: u8 = 5;
+pub const CLASS_BUILDING: u8 = 6;
+
 /// One point `i` of the scene generated with `seed`.
 fn point(seed: u64, i: u64) -> ([f64; 3], f32) {
+    let (p, intensity, _) = classified_point(seed, i);
+    (p, intensity)
+}
+
+/// Point `i` of the scene with its ASPRS class: ground 2, vegetation 5, building 6.
+pub fn classified_point(seed: u64, i: u64) -> ([f64; 3], f32, u8) {
     let mut r = Rng::new(seed ^ i.wrapping_mul(0xD6E8_FEB8_6659_FD93));
     let kind = r.f64();
     let x = r.f64() * SCENE_SIZE;
@@ -79,7 +90,7 @@ fn point(seed: u64, i: u64) -> ([f64; 3], f32) {
             [bx + u * w, by + d, base + v * h]
         };
         let intensity = if face < 0.5 { 180.0 } else { 120.0 } + 20.0 * r.f64();
-        return (p, intensity as f32);
+        return (p, intensity as f32, CLASS_BUILDING);
     }
     if kind > 0.9 {
         // Vegetation-like clutter: blobs of points above the ground.
@@ -92,10 +103,14 @@ fn point(seed: u64, i: u64) -> ([f64; 3], f32) {
             ty + b * crown,
             terrain(tx, ty) + 5.0 + c * crown,
         ];
-        return (p, (40.0 + 60.0 * r.f64()) as f32);
+        return (p, (40.0 + 60.0 * r.f64()) as f32, CLASS_VEGETATION);
     }
     let noise = (r.f64() - 0.5) * 0.05;
-    ([x, y, ground + noise], (70.0 + 40.0 * r.f64()) as f32)
+    (
+        [x, y, ground + noise],
+        (70.0 + 40.0 * r.f64()) as f32,
+        CLASS_GROUND,
+    )
 }
 
 /// The order in which points are listed.
@@ -162,6 +177,18 @@ fn permutation(n: u64, seed: u64, order: Order) -> Option<Vec<u32>> {
         .collect();
     keys.par_sort_unstable();
     Some(keys.into_par_iter().map(|k| k as u32).collect())
+}
+
+/// `n` points of the synthetic scene (the same as [`scene`]) with
+/// `intensity` and `classification` attributes.
+pub fn scene_classified(n: u64, seed: u64) -> PointColumns {
+    let mut c = scene(n, seed);
+    let class = (0..n)
+        .into_par_iter()
+        .map(|i| classified_point(seed, i).2 as f32)
+        .collect();
+    c.attributes.push(Attribute::new("classification", class));
+    c
 }
 
 /// `n` points of the synthetic scene with an `intensity` attribute.
@@ -318,7 +345,8 @@ pub fn write_text_in_order(
     Ok(bytes)
 }
 
-/// Writes `n` points of the scene as LAS 1.2 (point format 1: intensity, GPS time),
+/// Writes `n` points of the scene as LAS 1.2 (point format 1: intensity, GPS time,
+/// classification ground 2, vegetation 5, building 6),
 /// scale 1 mm, atomically; compressed (LAZ) when `path` ends in `.laz`.
 pub fn write_las(path: &std::path::Path, n: u64, seed: u64) -> std::io::Result<u64> {
     write_las_in_order(path, n, seed, Order::Random)
@@ -357,11 +385,11 @@ pub fn write_las_in_order(
         let mut start = 0;
         while start < n {
             let end = (start + WRITE_BLOCK).min(n);
-            let pts: Vec<([f64; 3], f32)> = (start..end)
+            let pts: Vec<([f64; 3], f32, u8)> = (start..end)
                 .into_par_iter()
-                .map(|i| point(seed, at(i)))
+                .map(|i| classified_point(seed, at(i)))
                 .collect();
-            for (k, (p, inten)) in pts.into_iter().enumerate() {
+            for (k, (p, inten, class)) in pts.into_iter().enumerate() {
                 w.write_point(las::Point {
                     x: SCENE_ORIGIN[0] + p[0],
                     y: SCENE_ORIGIN[1] + p[1],
@@ -370,6 +398,7 @@ pub fn write_las_in_order(
                     // One return a pulse (LAS numbers returns from 1).
                     return_number: 1,
                     number_of_returns: 1,
+                    classification: las::point::Classification::new(class).map_err(err)?,
                     gps_time: Some(1.0e8 + (start + k as u64) as f64 * 1e-5),
                     ..Default::default()
                 })

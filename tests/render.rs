@@ -23,6 +23,7 @@ fn opts(w: u32, h: u32, size: u32) -> RenderOptions {
         height: h,
         point_size: size,
         eye_dome_lighting: false,
+        edl: Default::default(),
         background: BG,
     }
 }
@@ -713,6 +714,7 @@ mod arbitrary {
                 height: size.1,
                 point_size: size.2,
                 eye_dome_lighting: size.3,
+                edl: Default::default(),
                 background: BG,
             };
             let mut cpu = CpuRasterizer::new();

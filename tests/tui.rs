@@ -222,6 +222,7 @@ fn the_worker_renders_and_encodes_half_block_frames() {
         app.dataset.clone(),
         WorkerOptions {
             encoding: Encoding::new(Graphics::Halfblocks),
+            extra_bands: Vec::new(),
             renderer: RendererChoice::Cpu,
             memory: 1 << 30,
             load_threads: 2,
@@ -232,7 +233,10 @@ fn the_worker_renders_and_encodes_half_block_frames() {
     w.request(Request {
         seq: 1,
         camera: app.camera,
-        settings: app.settings,
+        settings: app.settings.clone(),
+        cursor: None,
+        pick: false,
+        marks: Vec::new(),
         cells: (area.width, area.height),
         cell_pixels: (1, 2),
         scale: 1,
@@ -401,28 +405,9 @@ fn the_binary_runs_in_tmux_and_restores_the_terminal() {
     let dir = tempfile::tempdir().unwrap();
     let path = scan_part(dir.path(), 70_000, 5);
     let tmux = Tmux::new("test");
-    tmux.run(&[
-        "new-session",
-        "-d",
-        "-s",
-        "t",
-        "-x",
-        "150",
-        "-y",
-        "45",
-        "env",
-        "PS1=$ ",
-        "sh",
-    ]);
     // The status and terminal modes are asked for after it ends (a list typed on
     // one line would go on while the inspector is stopped by Ctrl-Z).
-    let line = format!(
-        "NODEVICE_SELECT=1 '{}' inspect '{}' --renderer cpu",
-        env!("CARGO_BIN_EXE_pcimg"),
-        path.display()
-    );
-    tmux.run(&["send-keys", "-t", "t", "-l", &line]);
-    tmux.run(&["send-keys", "-t", "t", "Enter"]);
+    tmux.inspect((150, 45), &path, "");
     tmux.wait_for("the panels", 10, |s| {
         s.contains("levels of part 1")
             && s.contains("half-blocks")
@@ -469,6 +454,140 @@ fn the_binary_runs_in_tmux_and_restores_the_terminal() {
         !s.contains("levels of part 1"),
         "the alternate screen is left: {s}"
     );
+}
+
+#[test]
+fn the_worker_picks_the_point_under_the_crosshair() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("c.tif");
+    store::write_part(
+        &path,
+        &pcimg::synth::scene_classified(80_000, 3),
+        &WriteOptions::default(),
+    )
+    .unwrap();
+    let mut app = app_for(&path);
+    let w = RenderWorker::spawn(
+        app.dataset.clone(),
+        WorkerOptions {
+            extra_bands: vec!["classification".into()],
+            encoding: Encoding::new(Graphics::Halfblocks),
+            renderer: RendererChoice::Cpu,
+            memory: 1 << 30,
+            load_threads: 2,
+        },
+    );
+    app.settings.color = pcimg::render::ColorMode::Classification;
+    // Straight down at the centre of the scene: the crosshair's point is there.
+    app.camera.pitch = -89.0f64.to_radians();
+    let area = ui::areas(ratatui::layout::Rect::new(0, 0, 160, 48), &app).view_inner;
+    let (camera, settings) = (app.camera, app.settings.clone());
+    let pick_at = |w: &RenderWorker, seq: u64, cursor: (f64, f64)| {
+        w.request(Request {
+            seq,
+            camera,
+            settings: settings.clone(),
+            cursor: Some(cursor),
+            pick: true,
+            marks: Vec::new(),
+            cells: (area.width, area.height),
+            cell_pixels: (4, 8),
+            scale: 1,
+        });
+        let deadline = Instant::now() + Duration::from_secs(30);
+        loop {
+            assert!(Instant::now() < deadline, "no pick in 30 s");
+            match w.recv_timeout(Duration::from_millis(200)) {
+                Some(Report::Frame(f)) if f.seq == seq && f.pick.is_some() => break f,
+                Some(Report::Error(e)) => panic!("worker error: {e}"),
+                _ => {}
+            }
+        }
+    };
+    let f = pick_at(&w, 1, (0.5, 0.5));
+    let p = f.pick.unwrap().expect("a point under the crosshair");
+    let c = app.dataset.bounds().center();
+    // Within a few pixels of the centre: the scene is 400 m across the view.
+    assert!(
+        (p.position[0] - c[0]).abs() < 10.0 && (p.position[1] - c[1]).abs() < 10.0,
+        "{p:?}"
+    );
+    let names: Vec<&str> = p.attributes.iter().map(|a| a.0.as_str()).collect();
+    assert_eq!(names, ["intensity", "classification"]);
+    // The panel lists it, with the class's name.
+    app.add_pick(Some(p));
+    app.frame = f.status.clone();
+    let text = screen(&app, None).join("\n");
+    assert!(text.contains("A 637"), "{text}");
+    assert!(text.contains("classification"), "{text}");
+    assert!(text.contains("ground") || text.contains("building") || text.contains("vegetation"));
+    // A second pick: the distances.
+    let g = pick_at(&w, 2, (0.25, 0.5));
+    app.add_pick(g.pick.unwrap());
+    let text = screen(&app, None).join("\n");
+    assert!(text.contains("A→B 3D"), "{text}");
+}
+
+#[test]
+fn the_inspector_shows_class_legend_and_picks_in_tmux() {
+    if !common::tool_available("tmux", "-V") {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("c.tif");
+    store::write_part(
+        &path,
+        &pcimg::synth::scene_classified(60_000, 5),
+        &WriteOptions::default(),
+    )
+    .unwrap();
+    let tmux = Tmux {
+        socket: format!("pcimg-test-legend-{}", std::process::id()),
+    };
+    tmux.inspect((160, 50), &path, "--color classification");
+    tmux.wait_for("the class legend", 10, |s| {
+        s.contains("ground") && s.contains("building") && s.contains("high vegetation")
+    });
+    // Hide the selected class (ground, the first row).
+    tmux.run(&["send-keys", "-t", "t", " "]);
+    tmux.wait_for("the filter in the status line", 5, |s| {
+        s.contains("| filtered")
+    });
+    tmux.run(&["send-keys", "-t", "t", " "]);
+    tmux.wait_for("the filter gone", 5, |s| !s.contains("| filtered"));
+    // Pick mode and a pick at the centre.
+    tmux.run(&["send-keys", "-t", "t", "x"]);
+    tmux.wait_for("pick mode", 5, |s| s.contains("Enter picks"));
+    tmux.run(&["send-keys", "-t", "t", "Enter"]);
+    let s = tmux.wait_for("the picked point", 10, |s| {
+        s.contains("picked ") && s.contains("A 637")
+    });
+    assert!(s.contains("classification"), "{s}");
+    tmux.run(&["send-keys", "-t", "t", "q"]);
+    tmux.wait_for("pick mode left", 5, |s| !s.contains("Enter picks"));
+    // The mouse (SGR reports, as terminals send them): a click on the legend's
+    // ground row hides ground; a click in the view picks the point there.
+    let s = tmux.capture();
+    let row = s.lines().position(|l| l.contains(" ground ")).unwrap() + 1;
+    let click = |col: usize, row: usize| {
+        for end in ['M', 'm'] {
+            let seq = format!("\x1b[<0;{col};{row}{end}");
+            tmux.run(&["send-keys", "-t", "t", "-l", &seq]);
+        }
+    };
+    click(5, row);
+    tmux.wait_for("ground hidden by a click", 5, |s| s.contains("| filtered"));
+    click(5, row);
+    tmux.wait_for("ground shown again", 5, |s| !s.contains("| filtered"));
+    tmux.run(&["send-keys", "-t", "t", "X"]);
+    tmux.wait_for("the picks forgotten", 5, |s| !s.contains("A 637"));
+    click(110, 25);
+    tmux.wait_for("a pick by a click in the view", 10, |s| s.contains("A 637"));
+    // The click left the crosshair on: the first q leaves pick mode.
+    tmux.run(&["send-keys", "-t", "t", "q"]);
+    tmux.wait_for("pick mode left", 5, |s| !s.contains("Enter picks"));
+    tmux.run(&["send-keys", "-t", "t", "q"]);
+    tmux.wait_for("the prompt", 5, |s| !s.contains("high vegetation"));
 }
 
 /// Whether a process is alive (not gone, not a zombie), from `/proc`.

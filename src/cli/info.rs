@@ -59,6 +59,9 @@ pub struct PartReport {
     pub source: Option<String>,
     pub crs: Option<String>,
     pub max_quantization_error: Option<f64>,
+    /// Points per classification code, as recorded when the part was written.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub class_counts: Vec<(u8, u64)>,
     pub bands: Vec<BandReport>,
     pub levels: Vec<LevelReport>,
 }
@@ -109,6 +112,7 @@ fn part_report(p: &Part, tiles: bool) -> PartReport {
         source: p.meta.source.clone(),
         crs: p.meta.crs.clone(),
         max_quantization_error: p.meta.max_quantization_error,
+        class_counts: p.meta.class_counts.clone(),
         bands: p
             .bands
             .iter()
@@ -276,6 +280,14 @@ pub fn render_text(r: &DatasetReport) -> String {
             crs
         };
         let _ = writeln!(o, "  crs      {crs}");
+        if !p.class_counts.is_empty() {
+            let classes: Vec<String> = p
+                .class_counts
+                .iter()
+                .map(|&(c, n)| format!("{c} {} {}", crate::render::classes::name(c), count(n)))
+                .collect();
+            let _ = writeln!(o, "  classes  {}", classes.join(" · "));
+        }
         let _ = writeln!(o, "  bands    {}", p.bands.len());
         for (b, band) in p.bands.iter().enumerate() {
             let mut off = match band.range {

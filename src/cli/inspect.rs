@@ -77,11 +77,23 @@ pub fn open(ds: Arc<Dataset>, a: &Args, temporary: Option<&Path>) -> anyhow::Res
         crate::lod::LodMode::Distance => LodChoice::Distance,
         crate::lod::LodMode::Fixed(k) => LodChoice::Pinned(k),
     };
+    let style = view::style_for(v, &ds)?;
+    let filter = view::filter_for(v, &ds)?;
+    let (edl, edl_params) = view::edl_for(v)?;
+    let mut extra_bands = view::bands_for(&style, &filter);
+    // The legend's class toggles and the `C` key need the classes at hand.
+    if view::has_band(&ds, "classification") && !extra_bands.iter().any(|b| b == "classification") {
+        extra_bands.push("classification".into());
+    }
     let settings = Settings {
         lod,
-        color: v.color.parse()?,
+        color: style.mode,
+        ramp: style.ramp,
+        range: style.range,
+        filter,
         point_size: v.point_size,
-        edl: v.edl,
+        edl,
+        edl_params,
         budget: v.budget,
         memory: v.memory,
     };
@@ -94,6 +106,7 @@ pub fn open(ds: Arc<Dataset>, a: &Args, temporary: Option<&Path>) -> anyhow::Res
             renderer,
             camera,
             settings,
+            extra_bands,
             load_threads: a.load_threads as usize,
             temporary: temporary.map(Path::to_path_buf),
         },

@@ -18,6 +18,7 @@ pub mod inspect;
 pub mod preview;
 pub mod render;
 pub mod synth;
+pub mod turntable;
 pub mod view;
 
 use clap::{Parser, Subcommand};

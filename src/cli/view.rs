@@ -1,10 +1,15 @@
 //! Options shared by `render` and `preview`: the camera, level selection, colour,
-//! and the steps from a dataset to a frame (select → load → colour → rasterize).
+//! filters, and the steps from a dataset to a frame (select → load → colour →
+//! rasterize).
 
 use crate::camera::{self, Camera};
 use crate::lod::{self, LodMode, Selection, TileCache};
+use crate::render::classes::{self, ClassMask};
 use crate::render::color::ColorMode;
-use crate::render::scene::{ColorRanges, Scene};
+use crate::render::edl::EdlParams;
+use crate::render::filter::{self, Filter, Where};
+use crate::render::ramp::{self, Ramp};
+use crate::render::scene::{ColorRanges, Scene, Style};
 use crate::render::{self, Frame, RenderOptions, RendererChoice};
 use crate::store::Dataset;
 use std::path::PathBuf;
@@ -35,16 +40,47 @@ pub struct ViewArgs {
     #[arg(long, default_value_t = crate::lod::DEFAULT_BUDGET_CAP,
           value_parser = clap::value_parser!(u64).range(1_000..))]
     pub budget: u64,
-    /// Colour: rgb, intensity, height, level or part (rgb falls back to intensity,
-    /// then height, when the data has no colour).
+    /// Colour: rgb, intensity, height, level, part, classification (ASPRS
+    /// colours) or band:NAME (any band through --ramp, e.g. band:gps_time). rgb
+    /// falls back to intensity, then height, when the data has no colour.
     #[arg(long, default_value = "rgb")]
     pub color: String,
+    /// Ramp for intensity, height and band:NAME: turbo, viridis, magma,
+    /// inferno, plasma or gray (default: gray for intensity, turbo for height,
+    /// viridis for a band).
+    #[arg(long)]
+    pub ramp: Option<String>,
+    /// The values the ramp spans, LO,HI in the band's units (default: the 2nd
+    /// to 98th percentile of the loaded points; height: the dataset's bounds).
+    #[arg(long, allow_hyphen_values = true)]
+    pub range: Option<String>,
+    /// Draw only these classification codes, e.g. 2,6 (ground, building).
+    #[arg(long)]
+    pub classes: Option<String>,
+    /// Do not draw these classification codes, e.g. 7,18 (noise).
+    #[arg(long)]
+    pub exclude_classes: Option<String>,
+    /// Draw only points whose band lies in a range: NAME=VALUE or NAME=LO..HI
+    /// (an end may be left out), e.g. return_number=1 or z=400..450. May be
+    /// given several times (all must hold).
+    #[arg(long = "where", value_name = "NAME=LO..HI", allow_hyphen_values = true)]
+    pub wheres: Vec<String>,
+    /// Draw only what lies in the box MINX,MINY,MINZ,MAXX,MAXY,MAXZ (dataset
+    /// coordinates); tiles outside it are not loaded.
+    #[arg(long, value_name = "BOX", allow_hyphen_values = true)]
+    pub clip: Option<String>,
     /// Splat size in pixels, 1 to 3.
     #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..=3))]
     pub point_size: u32,
     /// Eye-dome lighting: shades depth edges so dense clouds read as surfaces.
     #[arg(long)]
     pub edl: bool,
+    /// Eye-dome lighting strength (0.1 to 10; default 1); implies --edl.
+    #[arg(long)]
+    pub edl_strength: Option<f32>,
+    /// Eye-dome lighting radius in pixels (1 to 8; default 1); implies --edl.
+    #[arg(long, value_parser = clap::value_parser!(u32).range(1..=8))]
+    pub edl_radius: Option<u32>,
     /// Renderer: auto (wgpu when an adapter exists, else CPU), gpu or cpu.
     #[arg(long, default_value = "auto")]
     pub renderer: String,
@@ -105,14 +141,236 @@ pub fn camera_for(a: &ViewArgs, ds: &Dataset) -> anyhow::Result<Camera> {
     Ok(cam)
 }
 
+/// Whether some part of `ds` has band `name` (x, y and z always exist).
+pub fn has_band(ds: &Dataset, name: &str) -> bool {
+    ["x", "y", "z"].contains(&name) || ds.parts.iter().any(|p| p.band_index(name).is_some())
+}
+
+/// The error for a band no part has, listing those there are.
+fn no_band(ds: &Dataset, name: &str, what: &str) -> anyhow::Error {
+    let mut names: Vec<String> = ds
+        .parts
+        .iter()
+        .flat_map(|p| p.bands.iter().map(|b| b.name.clone()))
+        .collect();
+    names.sort();
+    names.dedup();
+    anyhow::anyhow!(
+        "{what}: {} has no band '{}'; its bands: {}",
+        crate::text::sanitize(&ds.path.display().to_string()),
+        crate::text::sanitize(name),
+        crate::text::sanitize(&names.join(", "))
+    )
+}
+
+/// The colour style from `--color`, `--ramp` and `--range`, checked against `ds`.
+pub fn style_for(a: &ViewArgs, ds: &Dataset) -> anyhow::Result<Style> {
+    let mode: ColorMode = a.color.parse()?;
+    if let ColorMode::Band(b) = &mode
+        && !has_band(ds, b)
+    {
+        return Err(no_band(ds, b, &format!("--color {}", a.color)));
+    }
+    if mode == ColorMode::Classification && !has_band(ds, "classification") {
+        return Err(no_band(ds, "classification", "--color classification"));
+    }
+    let ramp: Option<Ramp> = a.ramp.as_deref().map(str::parse).transpose()?;
+    let range = a
+        .range
+        .as_deref()
+        .map(ramp::parse_range)
+        .transpose()
+        .map_err(anyhow::Error::msg)?;
+    if (ramp.is_some() || range.is_some()) && !mode.uses_ramp() {
+        anyhow::bail!(
+            "--ramp and --range apply to --color intensity, height or band:NAME, not {}",
+            mode.name()
+        );
+    }
+    Ok(Style { mode, ramp, range })
+}
+
+/// The filter from `--classes`, `--exclude-classes`, `--where` and `--clip`,
+/// checked against `ds`.
+pub fn filter_for(a: &ViewArgs, ds: &Dataset) -> anyhow::Result<Filter> {
+    let include = a
+        .classes
+        .as_deref()
+        .map(|s| classes::parse_list(s, "--classes"))
+        .transpose()
+        .map_err(anyhow::Error::msg)?;
+    let exclude = a
+        .exclude_classes
+        .as_deref()
+        .map(|s| classes::parse_list(s, "--exclude-classes"))
+        .transpose()
+        .map_err(anyhow::Error::msg)?
+        .unwrap_or_default();
+    if (include.is_some() || !exclude.is_empty()) && !has_band(ds, "classification") {
+        return Err(no_band(ds, "classification", "--classes"));
+    }
+    let wheres: Vec<Where> = a
+        .wheres
+        .iter()
+        .map(|w| Where::parse(w))
+        .collect::<Result<_, _>>()
+        .map_err(anyhow::Error::msg)?;
+    for w in &wheres {
+        if !has_band(ds, &w.band) {
+            return Err(no_band(ds, &w.band, "--where"));
+        }
+    }
+    let clip = a
+        .clip
+        .as_deref()
+        .map(filter::parse_clip)
+        .transpose()
+        .map_err(anyhow::Error::msg)?;
+    Ok(Filter {
+        classes: ClassMask::new(include.as_deref(), &exclude),
+        wheres,
+        clip,
+    })
+}
+
+/// Eye-dome lighting from `--edl`, `--edl-strength` and `--edl-radius`: on or
+/// off, and its parameters.
+pub fn edl_for(a: &ViewArgs) -> anyhow::Result<(bool, EdlParams)> {
+    let mut p = EdlParams::default();
+    if let Some(s) = a.edl_strength {
+        if !(0.1..=10.0).contains(&s) {
+            anyhow::bail!("--edl-strength {s}: expected 0.1 to 10");
+        }
+        p.strength = s;
+    }
+    if let Some(r) = a.edl_radius {
+        p.radius = r;
+    }
+    Ok((
+        a.edl || a.edl_strength.is_some() || a.edl_radius.is_some(),
+        p,
+    ))
+}
+
+/// The bands loads must read for `style` and `filter` besides the colour bands.
+pub fn bands_for(style: &Style, filter: &Filter) -> Vec<String> {
+    let mut b = filter.bands();
+    if let Some(n) = style.mode.band()
+        && !["x", "y", "z"].contains(&n)
+    {
+        b.push(n.to_string());
+    }
+    b.sort();
+    b.dedup();
+    b
+}
+
 /// What one frame took, for the report and the status line.
 #[derive(Debug, Clone, Default)]
 pub struct FrameReport {
     pub selection: Selection,
     pub select_ms: f64,
     pub load_ms: f64,
+    /// Colouring the loaded points and applying the filter.
+    pub color_ms: f64,
     pub render_ms: f64,
     pub renderer: String,
+}
+
+/// Everything a frame is drawn from, parsed and checked once (a turntable
+/// draws many frames from one).
+pub struct Drawing {
+    pub ds: Arc<Dataset>,
+    pub style: Style,
+    pub filter: Filter,
+    pub opts: RenderOptions,
+    mode: LodMode,
+    memory: u64,
+    cache: TileCache,
+    renderer: Box<dyn render::Rasterizer>,
+    /// Colour ranges, fixed by the first frame (a turntable keeps one scale).
+    ranges: Option<ColorRanges>,
+}
+
+/// One drawn frame with the scene it was drawn from (for picking and legends).
+pub struct Drawn {
+    pub frame: Frame,
+    pub report: FrameReport,
+    pub scene: Scene,
+    pub ranges: ColorRanges,
+}
+
+impl Drawing {
+    pub fn new(ds: Arc<Dataset>, a: &ViewArgs, width: u32, height: u32) -> anyhow::Result<Drawing> {
+        let mode = lod_for(&a.lod, lod::budget_for_pixels(width, height, a.budget), &ds)?;
+        let style = style_for(a, &ds)?;
+        let filter = filter_for(a, &ds)?;
+        let (edl_on, edl) = edl_for(a)?;
+        let choice: RendererChoice = a.renderer.parse()?;
+        let cache = TileCache::with_bands(ds.clone(), a.memory, 1, bands_for(&style, &filter));
+        Ok(Drawing {
+            ds,
+            style,
+            filter,
+            opts: RenderOptions {
+                width,
+                height,
+                point_size: a.point_size,
+                eye_dome_lighting: edl_on,
+                edl,
+                background: [0, 0, 0],
+            },
+            mode,
+            memory: a.memory,
+            cache,
+            renderer: render::create(choice)?,
+            ranges: None,
+        })
+    }
+
+    /// Selects (culling by the clip box too), loads, colours and renders a frame.
+    pub fn draw(&mut self, cam: &Camera) -> anyhow::Result<Drawn> {
+        let (width, height) = (self.opts.width, self.opts.height);
+        let t = Instant::now();
+        let sel = lod::select_clipped(
+            &self.ds,
+            cam,
+            width,
+            height,
+            self.mode,
+            self.memory,
+            self.filter.clip.as_ref(),
+        );
+        let select_ms = t.elapsed().as_secs_f64() * 1e3;
+        let t = Instant::now();
+        let tiles = self
+            .cache
+            .load_all(&sel.tiles)
+            .map_err(anyhow::Error::msg)?;
+        let load_ms = t.elapsed().as_secs_f64() * 1e3;
+        let t = Instant::now();
+        let ranges = *self
+            .ranges
+            .get_or_insert_with(|| ColorRanges::for_style(&tiles, &self.ds.bounds(), &self.style));
+        let scene = Scene::build(tiles, &self.style, &ranges, &self.filter);
+        let color_ms = t.elapsed().as_secs_f64() * 1e3;
+        let t = Instant::now();
+        let frame = self.renderer.render(cam, &scene.batches(), &self.opts)?;
+        let render_ms = t.elapsed().as_secs_f64() * 1e3;
+        Ok(Drawn {
+            frame,
+            report: FrameReport {
+                selection: sel,
+                select_ms,
+                load_ms,
+                color_ms,
+                render_ms,
+                renderer: self.renderer.name(),
+            },
+            scene,
+            ranges,
+        })
+    }
 }
 
 /// Selects, loads (all at once), colours and renders one frame.
@@ -123,39 +381,8 @@ pub fn render_once(
     width: u32,
     height: u32,
 ) -> anyhow::Result<(Frame, FrameReport)> {
-    let mode = lod_for(&a.lod, lod::budget_for_pixels(width, height, a.budget), &ds)?;
-    let color: ColorMode = a.color.parse()?;
-    let choice: RendererChoice = a.renderer.parse()?;
-    let t = Instant::now();
-    let sel = lod::select(&ds, cam, width, height, mode, a.memory);
-    let select_ms = t.elapsed().as_secs_f64() * 1e3;
-    let t = Instant::now();
-    let cache = TileCache::new(ds.clone(), a.memory, 1);
-    let tiles = cache.load_all(&sel.tiles).map_err(anyhow::Error::msg)?;
-    let load_ms = t.elapsed().as_secs_f64() * 1e3;
-    let ranges = ColorRanges::from_tiles(&tiles, &ds.bounds());
-    let scene = Scene::new(tiles, color, &ranges);
-    let mut r = render::create(choice)?;
-    let opts = RenderOptions {
-        width,
-        height,
-        point_size: a.point_size,
-        eye_dome_lighting: a.edl,
-        background: [0, 0, 0],
-    };
-    let t = Instant::now();
-    let frame = r.render(cam, &scene.batches(), &opts)?;
-    let render_ms = t.elapsed().as_secs_f64() * 1e3;
-    Ok((
-        frame,
-        FrameReport {
-            selection: sel,
-            select_ms,
-            load_ms,
-            render_ms,
-            renderer: r.name(),
-        },
-    ))
+    let d = Drawing::new(ds, a, width, height)?.draw(cam)?;
+    Ok((d.frame, d.report))
 }
 
 /// A one-line summary of a frame.
@@ -170,12 +397,13 @@ pub fn describe(r: &FrameReport) -> String {
         levels = format!("{} overview, {levels}", s.overview_tiles);
     }
     let mut line = format!(
-        "{} points from {} tiles ({levels}), {} culled; select {:.1} ms, load {:.0} ms, render {:.0} ms on {}",
+        "{} points from {} tiles ({levels}), {} culled; select {:.1} ms, load {:.0} ms, colour {:.0} ms, render {:.0} ms on {}",
         crate::text::count(s.points),
         s.tiles.len(),
         s.culled,
         r.select_ms,
         r.load_ms,
+        r.color_ms,
         r.render_ms,
         r.renderer
     );

@@ -71,14 +71,59 @@ impl LoadedTile {
 /// Attribute bands loaded for colouring, when the part has them.
 pub const COLOR_BANDS: [&str; 4] = ["intensity", "red", "green", "blue"];
 
-/// Loads one tile from the store.
+/// Loads one tile from the store (x, y, z and the [`COLOR_BANDS`] it has).
 pub fn load_tile(ds: &Dataset, key: TileKey) -> Result<LoadedTile, String> {
+    load_tile_with(ds, key, &[])
+}
+
+/// Which bands a tile load reads besides the coordinates.
+#[derive(Debug, Clone, PartialEq, Eq, Default)]
+pub enum Extra {
+    /// The [`COLOR_BANDS`] and these (those a part lacks are skipped).
+    #[default]
+    Color,
+    Also(Vec<String>),
+    /// Every band of the part.
+    All,
+}
+
+/// [`load_tile`] reading `extra` bands too (for colour modes and filters on
+/// other bands, and for the attributes of a picked point).
+pub fn load_tile_with(ds: &Dataset, key: TileKey, extra: &[String]) -> Result<LoadedTile, String> {
+    load_tile_bands(
+        ds,
+        key,
+        &if extra.is_empty() {
+            Extra::Color
+        } else {
+            Extra::Also(extra.to_vec())
+        },
+    )
+}
+
+/// [`load_tile`] with the bands `extra` names.
+pub fn load_tile_bands(ds: &Dataset, key: TileKey, extra: &Extra) -> Result<LoadedTile, String> {
     let t0 = Instant::now();
     let part = ds
         .part(key.part)
         .ok_or_else(|| format!("no part {}", key.part))?;
     let mut bands = vec![0usize, 1, 2];
-    bands.extend(COLOR_BANDS.iter().filter_map(|n| part.band_index(n)));
+    match extra {
+        Extra::All => bands.extend(3..part.bands.len()),
+        Extra::Color | Extra::Also(_) => {
+            bands.extend(COLOR_BANDS.iter().filter_map(|n| part.band_index(n)));
+            if let Extra::Also(names) = extra {
+                for n in names {
+                    if let Some(b) = part.band_index(n)
+                        && b > 2
+                        && !bands.contains(&b)
+                    {
+                        bands.push(b);
+                    }
+                }
+            }
+        }
+    }
     let p = part
         .read_tiles(key.level, &[key.tile], &bands)
         .map_err(|e| e.to_string())?;
@@ -136,6 +181,8 @@ pub struct CacheStats {
 /// Tiles loaded on worker threads under a memory budget.
 pub struct TileCache {
     ds: Arc<Dataset>,
+    /// Bands loaded besides the colour bands.
+    extra: Arc<Vec<String>>,
     budget: u64,
     state: Arc<Mutex<State>>,
     jobs: Option<Sender<TileKey>>,
@@ -148,6 +195,17 @@ pub struct TileCache {
 
 impl TileCache {
     pub fn new(ds: Arc<Dataset>, budget: u64, threads: usize) -> TileCache {
+        TileCache::with_bands(ds, budget, threads, Vec::new())
+    }
+
+    /// A cache whose loads read `extra` bands besides the colour bands.
+    pub fn with_bands(
+        ds: Arc<Dataset>,
+        budget: u64,
+        threads: usize,
+        extra: Vec<String>,
+    ) -> TileCache {
+        let extra = Arc::new(extra);
         let (job_tx, job_rx) = channel::<TileKey>();
         let (arrive_tx, arrive_rx) = channel::<TileKey>();
         let job_rx = Arc::new(Mutex::new(job_rx));
@@ -158,6 +216,7 @@ impl TileCache {
             .map(|_| {
                 let (rx, state, ds, tx) =
                     (job_rx.clone(), state.clone(), ds.clone(), arrive_tx.clone());
+                let extra = extra.clone();
                 let (loads, load_us) = (loads.clone(), load_us.clone());
                 std::thread::spawn(move || {
                     loop {
@@ -178,7 +237,7 @@ impl TileCache {
                             }
                             continue;
                         }
-                        let res = load_tile(&ds, key);
+                        let res = load_tile_with(&ds, key, &extra);
                         let Ok(mut s) = state.lock() else { return };
                         s.queued.remove(&key);
                         match res {
@@ -213,6 +272,7 @@ impl TileCache {
             .collect();
         TileCache {
             ds,
+            extra,
             budget,
             state,
             jobs: Some(job_tx),
@@ -346,9 +406,10 @@ impl TileCache {
     pub fn load_all(&self, tiles: &[TileRef]) -> Result<Vec<Arc<LoadedTile>>, String> {
         use rayon::prelude::*;
         let ds: &Dataset = &self.ds;
+        let extra: &[String] = &self.extra;
         let out: Vec<Arc<LoadedTile>> = tiles
             .par_iter()
-            .map(|t| load_tile(ds, TileKey::from(t)).map(Arc::new))
+            .map(|t| load_tile_with(ds, TileKey::from(t), extra).map(Arc::new))
             .collect::<Result<_, String>>()?;
         for t in &out {
             self.loads.fetch_add(1, Ordering::Relaxed);

@@ -3,10 +3,11 @@
 //! budget), and a tile cache filled by worker threads under a memory budget.
 
 pub mod cache;
+pub mod point;
 pub mod select;
 
-pub use cache::{LoadedTile, TileCache, TileKey};
+pub use cache::{Extra, LoadedTile, TileCache, TileKey};
 pub use select::{
     DEFAULT_BUDGET_CAP, LodMode, Selection, TileRef, budget_for_pixels, distance_level,
-    level_count, select,
+    level_count, select, select_clipped,
 };

@@ -243,12 +243,30 @@ pub fn select(
     mode: LodMode,
     memory_budget: u64,
 ) -> Selection {
+    select_clipped(ds, camera, width, height, mode, memory_budget, None)
+}
+
+/// [`select`] drawing only what lies in the box `clip`: tiles whose bounds miss
+/// it are culled like those outside the view (a section loads only what it
+/// shows), and refinement spends the budget on the tiles that touch it.
+pub fn select_clipped(
+    ds: &Dataset,
+    camera: &Camera,
+    width: u32,
+    height: u32,
+    mode: LodMode,
+    memory_budget: u64,
+    clip: Option<&Bounds>,
+) -> Selection {
     let aspect = width as f64 / height.max(1) as f64;
     let frustum: Frustum = camera.frustum(aspect);
     let eye = camera.eye().to_array();
     let mut sel = Selection::default();
     let mut chosen: Vec<TileRef> = Vec::new();
-    let visible = |t: &TileRef| frustum.contains_aabb(&t.bounds) != Containment::Outside;
+    let visible = |t: &TileRef| {
+        clip.is_none_or(|c| c.intersects(&t.bounds))
+            && frustum.contains_aabb(&t.bounds) != Containment::Outside
+    };
     match mode {
         LodMode::Distance | LodMode::Fixed(_) => {
             let total = ds.bounds();

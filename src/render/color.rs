@@ -1,8 +1,9 @@
 //! Colour modes: build the packed `u32` colour column (`r | g << 8 | b << 16`,
 //! alpha 255 in the top byte) that renderers consume, from attribute columns —
 //! intensity (robust 2nd–98th percentile range, greyscale), rgb (0–255 bands),
-//! height (turbo ramp), level (one colour per LOD level) and part (one colour
-//! per part). Large columns are converted in parallel; percentiles come from a
+//! height (turbo ramp), level (one colour per LOD level), part (one colour
+//! per part), classification (ASPRS colours, `classes.rs`) and any band through
+//! a ramp (`ramp.rs`). Large columns are converted in parallel; percentiles come from a
 //! strided sample, so they cost the same for 10 k or 10 G points.
 
 use std::sync::OnceLock;
@@ -18,7 +19,7 @@ const PAR_MIN: usize = 1 << 20;
 const PAR_CHUNK: usize = 1 << 16;
 
 /// Which attribute drives the colour.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[derive(Debug, Clone, PartialEq, Eq, Default)]
 pub enum ColorMode {
     Intensity,
     #[default]
@@ -26,6 +27,44 @@ pub enum ColorMode {
     Height,
     Level,
     Part,
+    /// The `classification` band in ASPRS colours.
+    Classification,
+    /// Any band (by name) through a ramp.
+    Band(String),
+}
+
+impl ColorMode {
+    /// The name `--color` takes (`band:NAME` for a band).
+    pub fn name(&self) -> String {
+        match self {
+            ColorMode::Intensity => "intensity".into(),
+            ColorMode::Rgb => "rgb".into(),
+            ColorMode::Height => "height".into(),
+            ColorMode::Level => "level".into(),
+            ColorMode::Part => "part".into(),
+            ColorMode::Classification => "classification".into(),
+            ColorMode::Band(b) => format!("band:{b}"),
+        }
+    }
+
+    /// Whether the mode maps values through a ramp (and so has a ramp legend).
+    pub fn uses_ramp(&self) -> bool {
+        matches!(
+            self,
+            ColorMode::Intensity | ColorMode::Height | ColorMode::Band(_)
+        )
+    }
+
+    /// The band the mode reads, if one.
+    pub fn band(&self) -> Option<&str> {
+        match self {
+            ColorMode::Intensity => Some("intensity"),
+            ColorMode::Height => Some("z"),
+            ColorMode::Classification => Some("classification"),
+            ColorMode::Band(b) => Some(b),
+            _ => None,
+        }
+    }
 }
 
 impl std::str::FromStr for ColorMode {
@@ -37,8 +76,20 @@ impl std::str::FromStr for ColorMode {
             "height" | "z" | "elevation" => Ok(Self::Height),
             "level" | "lod" => Ok(Self::Level),
             "part" => Ok(Self::Part),
+            "classification" | "class" => Ok(Self::Classification),
+            b if b.starts_with("band:") => {
+                // The band name keeps its case (band names are case-sensitive).
+                let name = s.trim()[5..].trim();
+                if name.is_empty() {
+                    return Err(RenderError::InvalidOptions(
+                        "--color band:NAME needs a band name, e.g. band:gps_time".into(),
+                    ));
+                }
+                Ok(Self::Band(name.to_string()))
+            }
             other => Err(RenderError::InvalidOptions(format!(
-                "unknown colour mode '{other}', expected intensity, rgb, height, level or part"
+                "unknown colour mode '{other}', expected intensity, rgb, height, level, part, \
+                 classification or band:NAME"
             ))),
         }
     }
@@ -172,7 +223,7 @@ pub fn turbo(t: f32) -> u32 {
     turbo_lut()[(t.clamp(0.0, 1.0) * 255.0 + 0.5) as usize]
 }
 
-fn turbo_lut() -> &'static [u32; 256] {
+pub(crate) fn turbo_lut() -> &'static [u32; 256] {
     static LUT: OnceLock<[u32; 256]> = OnceLock::new();
     LUT.get_or_init(|| {
         let mut lut = [0u32; 256];

@@ -87,13 +87,15 @@ impl Projector {
         }
     }
 
-    /// Splats points `[start, end)` of `b` through `put(pixel_index, packed)`.
+    /// Splats points `[start, end)` of `b` through `put(pixel_index, packed,
+    /// point_index)` (the index of the point in `b`; the rasterizer ignores it,
+    /// picking keeps it).
     ///
     /// Two phases per block of [`LANES`] points: a branch-free transform that
     /// the compiler vectorizes (first covered pixel, depth bits, validity),
     /// then the scalar scatter.
     #[inline(always)]
-    fn splat<F: FnMut(usize, u64)>(
+    pub(crate) fn splat<F: FnMut(usize, u64, usize)>(
         &self,
         b: &PointBatch<'_>,
         start: usize,
@@ -144,7 +146,7 @@ impl Projector {
                     if ok[j] != 0 {
                         let (x, y) = (px[j].clamp(0, wi - 1), py[j].clamp(0, hi - 1));
                         let v = ((dep[j] as u64) << 32) | (cs[j] & 0x00ff_ffff) as u64;
-                        put(y as usize * wu + x as usize, v);
+                        put(y as usize * wu + x as usize, v, s + j);
                     }
                 }
             } else {
@@ -157,7 +159,7 @@ impl Projector {
                     for y in y0.max(0)..(y0 + size).min(hi) {
                         let row = y as usize * wu;
                         for x in x0.max(0)..(x0 + size).min(wi) {
-                            put(row + x as usize, v);
+                            put(row + x as usize, v, s + j);
                         }
                     }
                 }
@@ -300,7 +302,7 @@ impl Rasterizer for CpuRasterizer {
                         Err(p) => p.into_inner(),
                     };
                     let buf = guard.as_mut_slice();
-                    projs[bi].splat(&batches[bi], s, e, |i, v| {
+                    projs[bi].splat(&batches[bi], s, e, |i, v, _| {
                         // Branch-free: ordered input makes `v < *p` unpredictable.
                         if let Some(p) = buf.get_mut(i) {
                             *p = (*p).min(v);
@@ -353,7 +355,7 @@ impl Rasterizer for CpuRasterizer {
             CpuStrategy::SharedAtomic => {
                 let buf = &self.shared;
                 items.par_iter().for_each(|&(bi, s, e)| {
-                    projs[bi].splat(&batches[bi], s, e, |i, v| {
+                    projs[bi].splat(&batches[bi], s, e, |i, v, _| {
                         let a = &buf[i];
                         let mut cur = a.load(Ordering::Relaxed);
                         while v < cur {
@@ -381,7 +383,7 @@ impl Rasterizer for CpuRasterizer {
             }
         }
         if opts.eye_dome_lighting {
-            edl::apply(&mut rgba, &self.depth, w, h, &edl::EdlParams::default());
+            edl::apply(&mut rgba, &self.depth, w, h, &opts.edl);
         }
         Ok(Frame {
             width: w,

@@ -882,7 +882,7 @@ impl Rasterizer for GpuRasterizer {
         }
         self.fb_dirty = false;
         if opts.eye_dome_lighting {
-            edl::apply(&mut rgba, &depth, w, h, &edl::EdlParams::default());
+            edl::apply(&mut rgba, &depth, w, h, &opts.edl);
         }
         Ok(Frame {
             width: w,

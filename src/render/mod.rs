@@ -35,13 +35,21 @@
 //! the `f32` (monotonic for positive floats). Ties (same depth bits) are broken
 //! by the smaller colour value, so both backends agree exactly.
 
+pub mod classes;
 pub mod color;
 pub mod cpu;
 pub mod edl;
+pub mod filter;
+pub mod font;
 pub mod gpu;
+pub mod legend;
+pub mod marks;
+pub mod pick;
+pub mod ramp;
 pub mod scene;
 
 pub use crate::camera::{self, Camera, CameraMode, Containment, Frustum, ViewSpec};
+pub use color::ColorMode;
 
 /// The value of an empty framebuffer pixel (no point drew there).
 pub const EMPTY_PIXEL: u64 = u64::MAX;
@@ -93,13 +101,15 @@ impl PointBatch<'_> {
 }
 
 /// How to draw a frame.
-#[derive(Debug, Clone, PartialEq, Eq)]
+#[derive(Debug, Clone, PartialEq)]
 pub struct RenderOptions {
     pub width: u32,
     pub height: u32,
     /// Square splat side in pixels, 1..=3 (other values are clamped).
     pub point_size: u32,
     pub eye_dome_lighting: bool,
+    /// Eye-dome lighting's strength and radius (when it is on).
+    pub edl: edl::EdlParams,
     pub background: [u8; 3],
 }
 
@@ -110,6 +120,7 @@ impl Default for RenderOptions {
             height: 720,
             point_size: 1,
             eye_dome_lighting: false,
+            edl: edl::EdlParams::default(),
             background: [0, 0, 0],
         }
     }

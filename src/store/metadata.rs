@@ -254,6 +254,30 @@ pub fn parse_f64s(s: &str, n: usize, what: &str) -> Result<Vec<f64>, String> {
     }
 }
 
+/// [`key::CLASS_COUNTS`]'s value: `CODE:COUNT` pairs, codes ascending.
+pub fn class_counts(counts: &[(u8, u64)]) -> String {
+    counts
+        .iter()
+        .map(|(c, n)| format!("{c}:{n}"))
+        .collect::<Vec<_>>()
+        .join(" ")
+}
+
+/// Parses [`key::CLASS_COUNTS`] (see [`class_counts`]).
+pub fn parse_class_counts(s: &str) -> Result<Vec<(u8, u64)>, String> {
+    let bad = || format!("metadata {} is not a list of CODE:COUNT", key::CLASS_COUNTS);
+    let mut out: Vec<(u8, u64)> = s
+        .split_whitespace()
+        .map(|pair| {
+            let (c, n) = pair.split_once(':').ok_or_else(bad)?;
+            Ok((c.parse().map_err(|_| bad())?, n.parse().map_err(|_| bad())?))
+        })
+        .collect::<Result<_, String>>()?;
+    out.sort_unstable();
+    out.dedup_by_key(|p| p.0);
+    Ok(out)
+}
+
 /// Per-tile entry of the tile index.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct TileEntry {

@@ -27,6 +27,10 @@ pub struct PartMeta {
     pub source: Option<String>,
     pub crs: Option<String>,
     pub max_quantization_error: Option<f64>,
+    /// Points per classification code (`CLASS_COUNTS`), codes ascending; empty
+    /// when the part has no classification band or predates the item.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub class_counts: Vec<(u8, u64)>,
     /// Every default-domain item, as stored (unsanitized: sanitize before display).
     /// Not kept in the dataset index (the fields above are): empty for a part
     /// opened from it.
@@ -236,6 +240,11 @@ fn parse_meta(items: &BTreeMap<String, String>) -> std::result::Result<PartMeta,
         max_quantization_error: items
             .get(key::MAX_QUANTIZATION_ERROR)
             .and_then(|s| s.trim().parse().ok()),
+        class_counts: items
+            .get(key::CLASS_COUNTS)
+            .map(|s| metadata::parse_class_counts(s))
+            .transpose()?
+            .unwrap_or_default(),
         items: items.clone(),
     })
 }

@@ -69,6 +69,10 @@ pub mod key {
     pub const SOURCE: &str = "SOURCE";
     pub const CRS: &str = "CRS";
     pub const MAX_QUANTIZATION_ERROR: &str = "MAX_QUANTIZATION_ERROR";
+    /// Points per classification code, `CODE:COUNT` pairs separated by spaces
+    /// (codes ascending, absent codes left out), for parts with a
+    /// `classification` band; counted when the part is written.
+    pub const CLASS_COUNTS: &str = "CLASS_COUNTS";
     /// Per-band minimum and maximum of the stored values (before the band offset),
     /// as GDAL names its band statistics, so `gdalinfo` shows them.
     pub const STATISTICS_MINIMUM: &str = "STATISTICS_MINIMUM";

@@ -500,6 +500,56 @@ fn stored_ranges(a: &Arranged) -> Vec<(f64, f64)> {
     r
 }
 
+/// Points per classification code when the part has a `classification` band
+/// (values that are not whole codes 0..=255 are not counted). Held rows are
+/// counted in place; rows the reader gives again are asked for in blocks.
+fn class_counts(a: &Arranged) -> Option<Vec<(u8, u64)>> {
+    use rayon::prelude::*;
+    let band = a.names.iter().position(|n| n == "classification")?;
+    let j = band.checked_sub(3)?;
+    let (m, n) = (a.m, a.geometry.points as usize);
+    let add = |mut h: Vec<u64>, v: f32| {
+        if let Some(c) = crate::points::class_code(v) {
+            h[c as usize] += 1;
+        }
+        h
+    };
+    let merge = |a: Vec<u64>, b: Vec<u64>| a.iter().zip(&b).map(|(x, y)| x + y).collect();
+    const BLOCK: usize = 1 << 16;
+    let hist: Vec<u64> = match &a.rows {
+        Rows::Held(rows) => rows
+            .par_chunks(m * BLOCK)
+            .map(|c| {
+                c.iter()
+                    .skip(j)
+                    .step_by(m)
+                    .fold(vec![0u64; 256], |h, &v| add(h, v))
+            })
+            .reduce(|| vec![0u64; 256], merge),
+        Rows::Source(src) => (0..n.div_ceil(BLOCK))
+            .into_par_iter()
+            .map(|b| {
+                let idx: Vec<u32> = (b * BLOCK..((b + 1) * BLOCK).min(n))
+                    .map(|i| i as u32)
+                    .collect();
+                let mut out = Vec::with_capacity(idx.len() * m);
+                src.gather(&idx, &mut out);
+                out.iter()
+                    .skip(j)
+                    .step_by(m)
+                    .fold(vec![0u64; 256], |h, &v| add(h, v))
+            })
+            .reduce(|| vec![0u64; 256], merge),
+    };
+    Some(
+        hist.iter()
+            .enumerate()
+            .filter(|p| *p.1 > 0)
+            .map(|(c, &k)| (c as u8, k))
+            .collect(),
+    )
+}
+
 fn metadata_xml(a: &Arranged, opts: &WriteOptions, index: &[LevelIndex]) -> String {
     let g = a.geometry;
     let mut items = vec![
@@ -525,6 +575,12 @@ fn metadata_xml(a: &Arranged, opts: &WriteOptions, index: &[LevelIndex]) -> Stri
     }
     if let Some(c) = &opts.crs {
         items.push(Item::dataset(key::CRS, c.clone()));
+    }
+    if let Some(counts) = class_counts(a) {
+        items.push(Item::dataset(
+            key::CLASS_COUNTS,
+            metadata::class_counts(&counts),
+        ));
     }
     for (b, (lo, hi)) in stored_ranges(a).into_iter().enumerate() {
         if lo <= hi {

@@ -5,9 +5,15 @@
 //! terminal, a thread or a file, so every key can be tested on its own.
 
 use super::keys::Command;
+pub use super::section::Section;
 use crate::camera::Camera;
 use crate::lod::LodMode;
+use crate::lod::point::PointRecord;
 use crate::render::color::ColorMode;
+use crate::render::edl::EdlParams;
+use crate::render::filter::Filter;
+use crate::render::legend::{self, ClassEntry};
+use crate::render::ramp::Ramp;
 use crate::store::Dataset;
 use std::sync::Arc;
 
@@ -34,13 +40,19 @@ impl LodChoice {
 }
 
 /// Everything that decides what a frame shows, apart from the camera.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, PartialEq)]
 pub struct Settings {
     pub lod: LodChoice,
     pub color: ColorMode,
+    /// The ramp and range of ramp modes (`None`: the defaults).
+    pub ramp: Option<Ramp>,
+    pub range: Option<(f64, f64)>,
+    /// Which points are drawn (classes, band ranges, the clip box).
+    pub filter: Filter,
     /// Splat side in pixels, 1..=3.
     pub point_size: u32,
     pub edl: bool,
+    pub edl_params: EdlParams,
     /// Points drawn at most in view-dependent mode.
     pub budget: u64,
     /// Bytes of loaded tiles kept in memory.
@@ -52,8 +64,12 @@ impl Default for Settings {
         Settings {
             lod: LodChoice::View,
             color: ColorMode::Rgb,
+            ramp: None,
+            range: None,
+            filter: Filter::default(),
             point_size: 1,
             edl: false,
+            edl_params: EdlParams::default(),
             budget: DEFAULT_BUDGET,
             memory: 2 << 30,
         }
@@ -61,6 +77,15 @@ impl Default for Settings {
 }
 
 impl Settings {
+    /// The colour style frames are drawn in.
+    pub fn style(&self) -> crate::render::scene::Style {
+        crate::render::scene::Style {
+            mode: self.color.clone(),
+            ramp: self.ramp,
+            range: self.range,
+        }
+    }
+
     /// The level selection mode for `lod::select`.
     pub fn lod_mode(&self) -> LodMode {
         match self.lod {
@@ -84,25 +109,22 @@ const PAN_STEP: f64 = 0.1;
 /// Distance factor per zoom-in step.
 const ZOOM_STEP: f64 = 0.8;
 
-/// The order `c` cycles through.
-pub const COLOR_CYCLE: [ColorMode; 5] = [
+/// The order `c` cycles through (classification only where the data has it;
+/// a `band:NAME` given on the command line is left for the next in the cycle).
+pub const COLOR_CYCLE: [ColorMode; 6] = [
     ColorMode::Rgb,
     ColorMode::Intensity,
     ColorMode::Height,
+    ColorMode::Classification,
     ColorMode::Level,
     ColorMode::Part,
 ];
 
-/// A colour mode's name as the command line spells it.
-pub fn color_name(c: ColorMode) -> &'static str {
-    match c {
-        ColorMode::Rgb => "rgb",
-        ColorMode::Intensity => "intensity",
-        ColorMode::Height => "height",
-        ColorMode::Level => "level",
-        ColorMode::Part => "part",
-    }
-}
+/// Crosshair steps across the view per key press (shift: coarser).
+const CURSOR_STEP: f64 = 1.0 / 64.0;
+/// EDL strength factor per `<` / `>`, and its limits.
+const EDL_STEP: f32 = 1.5;
+const EDL_STRENGTH: (f32, f32) = (0.1, 10.0);
 
 /// What the event loop does after a command.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -120,6 +142,11 @@ pub enum Effect {
     /// Clear and draw everything again.
     Repaint,
     Quit,
+}
+
+/// `x y z` as a panel shows them (millimetres).
+pub fn format_xyz(p: [f64; 3]) -> String {
+    format!("{:.3} {:.3} {:.3}", p[0], p[1], p[2])
 }
 
 /// What the last frame was, as the worker reported it.
@@ -153,6 +180,10 @@ pub struct FrameStatus {
     pub bytes: usize,
     /// 1: full resolution; n: 1/n of the pane's pixels each way (while moving).
     pub scale: u32,
+    /// A ramp mode's legend: band, ramp, the values at its ends.
+    pub ramp: Option<(String, Ramp, f64, f64)>,
+    /// Ground units a pixel of the frame spans at the orbit target.
+    pub units_per_pixel: f64,
 }
 
 /// The inspector's state.
@@ -177,6 +208,18 @@ pub struct App {
     pub terminal_note: String,
     /// Bytes per second the terminal took our output at, when measured.
     pub link_rate: Option<f64>,
+    /// Pick mode: the crosshair is shown and the arrows move it.
+    pub picking: bool,
+    /// The crosshair, as a fraction of the view (0..1 across, 0..1 down).
+    pub cursor: (f64, f64),
+    /// A pick the next frame request carries (the crosshair's position).
+    pub pick_pending: bool,
+    /// The last two picked points, oldest first.
+    pub picks: Vec<PointRecord>,
+    /// The legend row selected for `space` (classification colour).
+    pub legend_row: usize,
+    /// The section (a slab seen from the side), while one is shown.
+    pub section: Option<Section>,
 }
 
 impl App {
@@ -194,6 +237,39 @@ impl App {
             protocol: String::new(),
             terminal_note: String::new(),
             link_rate: None,
+            picking: false,
+            cursor: (0.5, 0.5),
+            pick_pending: false,
+            picks: Vec::new(),
+            legend_row: 0,
+            section: None,
+        }
+    }
+
+    /// Whether some part has a `classification` band.
+    pub fn has_classes(&self) -> bool {
+        self.dataset
+            .parts
+            .iter()
+            .any(|p| p.band_index("classification").is_some())
+    }
+
+    /// The classes present with their counts and whether each is shown.
+    pub fn legend(&self) -> Vec<ClassEntry> {
+        legend::class_entries(&self.dataset, &self.settings.filter.classes)
+    }
+
+    /// Records a picked point (keeps the last two: a measurement).
+    pub fn add_pick(&mut self, p: Option<PointRecord>) {
+        match p {
+            Some(p) => {
+                self.message = format!("picked {}", crate::text::sanitize(&format_xyz(p.position)));
+                self.picks.push(p);
+                if self.picks.len() > 2 {
+                    self.picks.remove(0);
+                }
+            }
+            None => self.message = "no point under the crosshair".into(),
         }
     }
 
@@ -220,6 +296,10 @@ impl App {
                 self.show_help = false;
                 return Effect::Redraw;
             }
+            Quit if self.picking => {
+                self.picking = false;
+                return Effect::Render;
+            }
             Quit => return Effect::Quit,
             ToggleHelp => {
                 self.show_help = !self.show_help;
@@ -235,9 +315,6 @@ impl App {
                 self.part = (self.part + n - 1) % n;
                 return Effect::Redraw;
             }
-            Orbit(dy, dp) => self
-                .camera
-                .rotate(dy as f64 * ORBIT_STEP, dp as f64 * ORBIT_STEP),
             Pan(dr, du) => {
                 let step = self.camera.distance * PAN_STEP;
                 self.camera
@@ -266,12 +343,115 @@ impl App {
                     _ => LodChoice::Distance,
                 }
             }
+            Orbit(dx, dy) if self.picking => {
+                let (x, y) = self.cursor;
+                self.cursor = (
+                    (x + dx as f64 * CURSOR_STEP).clamp(0.0, 1.0),
+                    (y - dy as f64 * CURSOR_STEP).clamp(0.0, 1.0),
+                );
+            }
+            Orbit(dy, dp) => self
+                .camera
+                .rotate(dy as f64 * ORBIT_STEP, dp as f64 * ORBIT_STEP),
             CycleColor => {
+                let has_classes = self.has_classes();
                 let i = COLOR_CYCLE
                     .iter()
-                    .position(|&c| c == self.settings.color)
-                    .unwrap_or(0);
-                self.settings.color = COLOR_CYCLE[(i + 1) % COLOR_CYCLE.len()];
+                    .position(|c| *c == self.settings.color)
+                    .unwrap_or(COLOR_CYCLE.len() - 1);
+                let mut next = (i + 1) % COLOR_CYCLE.len();
+                if COLOR_CYCLE[next] == ColorMode::Classification && !has_classes {
+                    next = (next + 1) % COLOR_CYCLE.len();
+                }
+                self.settings.color = COLOR_CYCLE[next].clone();
+                // A ramp or range from the command line was for the mode it named.
+                self.settings.ramp = None;
+                self.settings.range = None;
+            }
+            ColorClasses => {
+                if !self.has_classes() {
+                    self.message = "the data has no classification band".into();
+                    return Effect::Redraw;
+                }
+                self.settings.color = ColorMode::Classification;
+            }
+            TogglePick => {
+                self.picking = !self.picking;
+                return Effect::Render;
+            }
+            Pick => {
+                self.picking = true;
+                self.pick_pending = true;
+            }
+            PickAt(x, y) => {
+                self.picking = true;
+                self.cursor = ((x as f64).clamp(0.0, 1.0), (y as f64).clamp(0.0, 1.0));
+                self.pick_pending = true;
+            }
+            ClearPicks => self.picks.clear(),
+            LegendRow(d) => {
+                let n = self.legend().len();
+                if n == 0 {
+                    return Effect::None;
+                }
+                self.legend_row = (self.legend_row as i64 + d as i64).rem_euclid(n as i64) as usize;
+                return Effect::Redraw;
+            }
+            ToggleClassRow(row) => {
+                if self.settings.color != ColorMode::Classification || row >= self.legend().len() {
+                    return Effect::None;
+                }
+                self.legend_row = row;
+                return self.apply(ToggleClass);
+            }
+            ToggleClass => {
+                let entries = self.legend();
+                let Some(e) = entries.get(self.legend_row.min(entries.len().saturating_sub(1)))
+                else {
+                    self.message = "no classes to show or hide".into();
+                    return Effect::Redraw;
+                };
+                self.settings.filter.classes.set(e.code, !e.shown);
+            }
+            ToggleSection => {
+                if let Some(s) = self.section.take() {
+                    self.settings.filter.clip = s.saved_clip;
+                    self.camera = s.saved_camera;
+                } else {
+                    let at = self.picks.last().map(|p| p.position);
+                    let s = Section::through(
+                        &self.dataset.bounds(),
+                        &self.camera,
+                        at,
+                        &self.settings.filter,
+                    );
+                    self.settings.filter.clip = Some(s.clip(&self.dataset.bounds()));
+                    self.camera = s.profile_camera(&self.dataset.bounds(), &self.camera);
+                    self.section = Some(s);
+                }
+            }
+            SlabWidth(d) | SlabMove(d) => {
+                let Some(s) = self.section.as_mut() else {
+                    self.message = "no section: z shows one (through the last pick)".into();
+                    return Effect::Redraw;
+                };
+                if matches!(cmd, SlabWidth(_)) {
+                    s.resize(d);
+                } else {
+                    s.shift(d);
+                }
+                self.settings.filter.clip = Some(s.clip(&self.dataset.bounds()));
+            }
+            EdlStrength(d) => {
+                let p = &mut self.settings.edl_params;
+                p.strength =
+                    (p.strength * EDL_STEP.powi(d as i32)).clamp(EDL_STRENGTH.0, EDL_STRENGTH.1);
+                self.settings.edl = true;
+            }
+            EdlRadius => {
+                let p = &mut self.settings.edl_params;
+                p.radius = p.radius % 4 + 1;
+                self.settings.edl = true;
             }
             CyclePointSize => self.settings.point_size = self.settings.point_size % 3 + 1,
             ToggleEdl => self.settings.edl = !self.settings.edl,
@@ -309,10 +489,24 @@ impl App {
             } else {
                 self.settings.budget
             }),
-            color_name(self.settings.color),
+            self.settings.color.name(),
             self.settings.point_size,
-            if self.settings.edl { " | edl" } else { "" },
+            if self.settings.edl {
+                let p = self.settings.edl_params;
+                format!(" | edl {:.2}/{}", p.strength, p.radius)
+            } else {
+                String::new()
+            },
         );
+        if !self.settings.filter.is_empty() {
+            s.push_str(" | filtered");
+        }
+        if self.section.is_some() {
+            s.push_str(" | section");
+        }
+        if self.picking {
+            s.push_str(" | pick: arrows move, Enter picks");
+        }
         if f.pending > 0 {
             s.push_str(&format!(" | loading {} tiles", f.pending));
         }
@@ -458,6 +652,83 @@ mod tests {
         a.apply(Command::ResetView);
         assert_eq!(a.camera.target, home.target);
         assert_eq!(a.camera.distance, home.distance);
+    }
+
+    #[test]
+    fn legend_toggles_pick_mode_and_sections() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("c.tif");
+        store::write_part(
+            &path,
+            &crate::synth::scene_classified(50_000, 3),
+            &WriteOptions::default(),
+        )
+        .unwrap();
+        let ds = Arc::new(Dataset::open(&path).unwrap());
+        let cam = Camera::fit(&ds.bounds());
+        let mut a = App::new(ds, cam, Settings::default());
+        // The cycle reaches classification on classified data.
+        for _ in 0..3 {
+            a.apply(Command::CycleColor);
+        }
+        assert_eq!(a.settings.color, ColorMode::Classification);
+        let codes: Vec<u8> = a.legend().iter().map(|e| e.code).collect();
+        assert_eq!(codes, vec![2, 5, 6]);
+        // Select the second row (vegetation) and hide it, then show it again.
+        assert_eq!(a.apply(Command::LegendRow(1)), Effect::Redraw);
+        assert_eq!(a.apply(Command::ToggleClass), Effect::Render);
+        assert!(!a.settings.filter.classes.shows(5));
+        assert!(a.settings.filter.classes.shows(2));
+        assert!(!a.legend()[1].shown);
+        a.apply(Command::ToggleClass);
+        assert!(a.settings.filter.classes.all());
+        a.apply(Command::LegendRow(-2));
+        assert_eq!(a.legend_row, 2, "wraps around");
+        // A click on a row toggles that row's class.
+        assert_eq!(a.apply(Command::ToggleClassRow(0)), Effect::Render);
+        assert!(!a.settings.filter.classes.shows(2) && a.legend_row == 0);
+        a.apply(Command::ToggleClassRow(0));
+        assert_eq!(
+            a.apply(Command::ToggleClassRow(3)),
+            Effect::None,
+            "no such row"
+        );
+        // Pick mode: the arrows move the crosshair, not the camera.
+        let yaw = a.camera.yaw;
+        a.apply(Command::TogglePick);
+        a.apply(Command::Orbit(1, 1));
+        assert_eq!(a.camera.yaw, yaw);
+        assert!(a.cursor.0 > 0.5 && a.cursor.1 < 0.5);
+        a.apply(Command::Pick);
+        assert!(a.pick_pending);
+        assert_eq!(a.apply(Command::Quit), Effect::Render, "q leaves pick mode");
+        assert!(!a.picking);
+        // A section clips to a slab and looks at it level; z again restores.
+        let before = a.camera;
+        a.apply(Command::ToggleSection);
+        let clip = a.settings.filter.clip.unwrap();
+        let b = a.dataset.bounds();
+        let s = a.section.unwrap();
+        assert!(clip.max[s.axis] - clip.min[s.axis] < 0.02 * b.extent()[s.axis]);
+        assert_eq!(a.camera.pitch, 0.0);
+        a.apply(Command::SlabWidth(1));
+        let wider = a.settings.filter.clip.unwrap();
+        assert!(wider.max[s.axis] - wider.min[s.axis] > clip.max[s.axis] - clip.min[s.axis]);
+        a.apply(Command::ToggleSection);
+        assert_eq!(a.settings.filter.clip, None);
+        assert_eq!(a.camera, before);
+        // EDL keys turn it on and stay in range.
+        for _ in 0..20 {
+            a.apply(Command::EdlStrength(1));
+        }
+        assert!(a.settings.edl && a.settings.edl_params.strength <= 10.0);
+        a.apply(Command::EdlRadius);
+        assert_eq!(a.settings.edl_params.radius, 2);
+        assert!(
+            a.status_line().contains("edl 10.00/2"),
+            "{}",
+            a.status_line()
+        );
     }
 
     #[test]

@@ -21,8 +21,34 @@ pub enum Command {
     Coarser,
     Finer,
     CycleColor,
+    /// Colour by classification.
+    ColorClasses,
     CyclePointSize,
     ToggleEdl,
+    /// Eye-dome lighting stronger (+1) or weaker (-1).
+    EdlStrength(i8),
+    /// Eye-dome lighting radius 1 → 2 → 3 → 4.
+    EdlRadius,
+    /// Pick mode on / off: a crosshair the arrows move.
+    TogglePick,
+    /// Pick the point under the crosshair.
+    Pick,
+    /// Pick at a place in the view (a mouse click), as fractions across and down.
+    PickAt(f32, f32),
+    /// Forget the picked points.
+    ClearPicks,
+    /// Select the previous (-1) or next legend row.
+    LegendRow(i8),
+    /// Show or hide the selected legend row's class.
+    ToggleClass,
+    /// Select legend row N and show or hide its class (a click on the row).
+    ToggleClassRow(usize),
+    /// A section through the last pick, seen from the side, on / off.
+    ToggleSection,
+    /// The section's slab thicker (+1) or thinner (-1).
+    SlabWidth(i8),
+    /// The section's slab moved forward (+1) or back by its thickness.
+    SlabMove(i8),
     BudgetDown,
     BudgetUp,
     /// Switch between the distance rule and view-dependent selection.
@@ -79,8 +105,23 @@ pub fn command_for(key: KeyEvent) -> Option<Command> {
         KeyCode::Char('[') => Coarser,
         KeyCode::Char(']') => Finer,
         KeyCode::Char('c') => CycleColor,
+        KeyCode::Char('C') => ColorClasses,
         KeyCode::Char('p') => CyclePointSize,
         KeyCode::Char('e') => ToggleEdl,
+        KeyCode::Char('E') => EdlRadius,
+        KeyCode::Char('<') => EdlStrength(-1),
+        KeyCode::Char('>') => EdlStrength(1),
+        KeyCode::Char('x') => TogglePick,
+        KeyCode::Enter => Pick,
+        KeyCode::Char('X') => ClearPicks,
+        KeyCode::Char(',') => LegendRow(-1),
+        KeyCode::Char('.') => LegendRow(1),
+        KeyCode::Char(' ') => ToggleClass,
+        KeyCode::Char('z') => ToggleSection,
+        KeyCode::Char('(') => SlabWidth(-1),
+        KeyCode::Char(')') => SlabWidth(1),
+        KeyCode::Char('{') => SlabMove(-1),
+        KeyCode::Char('}') => SlabMove(1),
         KeyCode::Char('b') => BudgetDown,
         KeyCode::Char('B') => BudgetUp,
         KeyCode::Char('m') => ToggleDistanceRule,
@@ -105,9 +146,32 @@ pub const HELP: &[(&str, &str)] = &[
     ("[ / ]", "coarser / finer level"),
     ("m", "distance rule ↔ view-dependent"),
     ("b / B", "halve / double the point budget"),
-    ("c", "cycle colour: rgb, intensity, height, level, part"),
+    (
+        "c / C",
+        "cycle colour: rgb, intensity, height, classification, level, part / classification",
+    ),
+    (
+        ", / . , space",
+        "legend: select the previous / next class, show or hide it",
+    ),
+    (
+        "x, Enter, click",
+        "pick mode (arrows move the crosshair), pick the point there",
+    ),
+    ("X", "forget the picks (two picks give their distances)"),
+    (
+        "z",
+        "section through the last pick, seen from the side, on / off",
+    ),
+    (
+        "( / ) , { / }",
+        "section slab thinner / thicker, move it back / forward",
+    ),
     ("p", "point size 1 → 2 → 3"),
-    ("e", "eye-dome lighting on / off"),
+    (
+        "e, < / >, E",
+        "eye-dome lighting on / off, weaker / stronger, radius 1 → 4",
+    ),
     ("s", "save the current frame as PNG"),
     ("Tab / n, Shift-Tab", "select the next / previous part"),
     ("?", "this help (q or Esc closes it)"),
@@ -153,7 +217,16 @@ mod tests {
             command_for(key(KeyCode::Tab, none)),
             Some(Command::NextPart)
         );
-        assert_eq!(command_for(key(KeyCode::Char('x'), none)), None);
+        assert_eq!(command_for(key(KeyCode::Char('Q'), none)), None);
+        assert_eq!(
+            command_for(key(KeyCode::Char('x'), none)),
+            Some(Command::TogglePick)
+        );
+        assert_eq!(command_for(key(KeyCode::Enter, none)), Some(Command::Pick));
+        assert_eq!(
+            command_for(key(KeyCode::Char(' '), none)),
+            Some(Command::ToggleClass)
+        );
         assert_eq!(
             command_for(key(KeyCode::BackTab, KeyModifiers::SHIFT)),
             Some(Command::PreviousPart)

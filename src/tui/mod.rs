@@ -10,7 +10,9 @@
 
 pub mod app;
 pub mod keys;
+pub mod panels;
 pub mod protocol;
+pub mod section;
 mod terminal;
 pub mod ui;
 pub mod worker;
@@ -37,6 +39,8 @@ pub struct InspectOptions {
     pub renderer: RendererChoice,
     pub camera: Camera,
     pub settings: Settings,
+    /// Bands tiles load besides the colour bands (classification, filtered bands).
+    pub extra_bands: Vec<String>,
     /// Tile loading threads.
     pub load_threads: usize,
     /// A temporary directory to remove should the process have to be ended by
@@ -80,6 +84,7 @@ pub fn run(ds: Arc<Dataset>, opts: InspectOptions) -> anyhow::Result<Camera> {
         ds.clone(),
         WorkerOptions {
             encoding,
+            extra_bands: opts.extra_bands.clone(),
             renderer: opts.renderer,
             memory: opts.settings.memory,
             load_threads: opts.load_threads,
@@ -246,7 +251,10 @@ fn event_loop(
             worker.request(Request {
                 seq,
                 camera: app.camera,
-                settings: app.settings,
+                settings: app.settings.clone(),
+                cursor: app.picking.then_some(app.cursor),
+                pick: std::mem::take(&mut app.pick_pending),
+                marks: app.picks.iter().map(|p| p.position).collect(),
                 cells,
                 cell_pixels: pane.cell_pixels,
                 scale,
@@ -336,6 +344,38 @@ fn event_loop(
                     }
                     dirty = true;
                 }
+                Event::Mouse(m) => {
+                    use crossterm::event::{MouseButton, MouseEventKind};
+                    let v = ui::areas(Rect::new(0, 0, size.width, size.height), app).view_inner;
+                    let inside = m.column >= v.x
+                        && m.row >= v.y
+                        && m.column < v.x + v.width
+                        && m.row < v.y + v.height;
+                    // A click on a class row of the legend shows or hides the class.
+                    let tools = ui::areas(Rect::new(0, 0, size.width, size.height), app).tools;
+                    if m.kind == MouseEventKind::Down(MouseButton::Left)
+                        && m.column > tools.x
+                        && m.column + 1 < tools.x + tools.width
+                        && m.row > tools.y
+                        && m.row + 1 < tools.y + tools.height
+                    {
+                        let row = (m.row - tools.y - 1) as usize;
+                        if app.apply(keys::Command::ToggleClassRow(row)) == Effect::Render {
+                            want_frame = true;
+                        }
+                        dirty = true;
+                    }
+                    if m.kind == MouseEventKind::Down(MouseButton::Left) && inside {
+                        // The middle of the clicked cell, as fractions of the view.
+                        let fx = (m.column - v.x) as f32 + 0.5;
+                        let fy = (m.row - v.y) as f32 + 0.5;
+                        let cmd = keys::Command::PickAt(fx / v.width as f32, fy / v.height as f32);
+                        if app.apply(cmd) == Effect::Render {
+                            want_frame = true;
+                        }
+                        dirty = true;
+                    }
+                }
                 Event::Resize(..) => dirty = true,
                 _ => {}
             }
@@ -345,6 +385,12 @@ fn event_loop(
         loop {
             match worker.try_recv() {
                 Ok(Some(Report::Frame(f))) => {
+                    // A pick is kept whatever the frame: it answers the click.
+                    if let Some(p) = f.pick {
+                        app.add_pick(p);
+                        // The new pick's mark is drawn in the next frame.
+                        want_frame = true;
+                    }
                     // A frame for a request already superseded is stale: sending
                     // it would only delay the newer one on a slow terminal.
                     if f.seq < seq && shown.image.is_some() {

@@ -6,6 +6,7 @@
 
 use super::protocol;
 use crossterm::cursor::{Hide, Show};
+use crossterm::event::{DisableMouseCapture, EnableMouseCapture};
 use crossterm::execute;
 use crossterm::terminal::{
     EnterAlternateScreen, LeaveAlternateScreen, disable_raw_mode, enable_raw_mode,
@@ -47,7 +48,8 @@ impl Session {
         ACTIVE.store(true, Ordering::SeqCst);
         let setup = || -> anyhow::Result<Terminal<CrosstermBackend<Stdout>>> {
             enable_raw_mode()?;
-            execute!(stdout(), EnterAlternateScreen, Hide)?;
+            // Mouse reports: a click in the view picks the point there.
+            execute!(stdout(), EnterAlternateScreen, Hide, EnableMouseCapture)?;
             let mut t = Terminal::new(CrosstermBackend::new(stdout()))?;
             t.clear()?;
             Ok(t)
@@ -76,7 +78,7 @@ impl Session {
         unsafe { libc::raise(libc::SIGTSTP) };
         ACTIVE.store(true, Ordering::SeqCst);
         enable_raw_mode()?;
-        execute!(stdout(), EnterAlternateScreen, Hide)?;
+        execute!(stdout(), EnterAlternateScreen, Hide, EnableMouseCapture)?;
         self.terminal.clear()?;
         Ok(())
     }
@@ -104,7 +106,7 @@ pub fn restore() {
         let passthrough = PASSTHROUGH.load(Ordering::SeqCst);
         let _ = out.write_all(protocol::kitty_delete_sequence(passthrough).as_bytes());
     }
-    let _ = execute!(out, LeaveAlternateScreen, Show);
+    let _ = execute!(out, DisableMouseCapture, LeaveAlternateScreen, Show);
     let _ = disable_raw_mode();
     let _ = out.flush();
     crate::term::tmux::restore_passthrough();

@@ -21,6 +21,8 @@ pub struct Areas {
     pub parts: Rect,
     pub bands: Rect,
     pub levels: Rect,
+    /// The legend and picked points (empty when there is nothing to show).
+    pub tools: Rect,
     pub memory: Rect,
     /// The view pane's border, and inside it the frame.
     pub view: Rect,
@@ -43,10 +45,11 @@ pub fn areas(area: Rect, app: &App) -> Areas {
     let part = app.dataset.parts.get(app.part);
     let n_parts = app.dataset.parts.len() as u16;
     let n_bands = part.map_or(0, |p| p.bands.len()) as u16;
-    let [parts, bands, levels, memory] = Layout::vertical([
+    let [parts, bands, levels, tools, memory] = Layout::vertical([
         Constraint::Length(n_parts.min(8) + 5),
         Constraint::Length(n_bands + 3),
         Constraint::Min(4),
+        Constraint::Length(super::panels::height(app, 18)),
         Constraint::Length(4),
     ])
     .areas(left);
@@ -55,6 +58,7 @@ pub fn areas(area: Rect, app: &App) -> Areas {
         parts,
         bands,
         levels,
+        tools,
         memory,
         view,
         view_inner,
@@ -78,6 +82,7 @@ pub fn draw(f: &mut Frame, app: &App, image: Option<&PaneImage>) {
     draw_parts(f, app, a.parts);
     draw_bands(f, app, a.bands);
     draw_levels(f, app, a.levels);
+    super::panels::draw(f, app, a.tools);
     draw_memory(f, app, a.memory);
 
     let view_title = format!(" view · {} ", app.protocol);

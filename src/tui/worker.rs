@@ -8,10 +8,13 @@
 use super::app::{FrameStatus, Settings};
 use super::protocol::{self, PaneImage};
 use crate::camera::Camera;
-use crate::lod::{self, LodMode, TileCache, TileKey, TileRef};
+use crate::lod::point::{PointRecord, point_record};
+use crate::lod::{self, LoadedTile, LodMode, TileCache, TileKey, TileRef};
 use crate::render::color::ColorMode;
-use crate::render::scene::{ColorRanges, colorize};
+use crate::render::filter::Filter;
+use crate::render::scene::{ColorRanges, Style, band_range, colorize_style};
 use crate::render::{self, Frame, PointBatch, Rasterizer, RenderOptions, RendererChoice};
+use crate::render::{legend, marks, pick};
 use crate::store::Dataset;
 use std::collections::{BTreeMap, HashMap};
 use std::sync::Arc;
@@ -19,12 +22,18 @@ use std::sync::mpsc::{Receiver, RecvTimeoutError, Sender, TryRecvError, channel}
 use std::time::{Duration, Instant};
 
 /// What to draw.
-#[derive(Debug, Clone, Copy)]
+#[derive(Debug, Clone)]
 pub struct Request {
     /// Increases with every request; frames carry the number they answer.
     pub seq: u64,
     pub camera: Camera,
     pub settings: Settings,
+    /// The crosshair to draw, as fractions of the view across and down.
+    pub cursor: Option<(f64, f64)>,
+    /// Whether to pick the point under the crosshair in this frame.
+    pub pick: bool,
+    /// Picked points to mark (two: joined by a line).
+    pub marks: Vec<[f64; 3]>,
     /// The view pane in cells.
     pub cells: (u16, u16),
     /// Pixels per cell for the protocol in use.
@@ -45,6 +54,8 @@ pub struct FrameReady {
     pub status: FrameStatus,
     /// When the request this frame answers was received by the worker.
     pub requested: Instant,
+    /// The answer to a pick: the point under the crosshair, if any.
+    pub pick: Option<Option<PointRecord>>,
 }
 
 /// What the worker sends back.
@@ -66,9 +77,11 @@ pub struct RenderWorker {
 }
 
 /// How the worker is set up.
-#[derive(Debug, Clone, Copy)]
+#[derive(Debug, Clone)]
 pub struct WorkerOptions {
     pub encoding: protocol::Encoding,
+    /// Bands loaded besides the colour bands (classification, bands filtered on).
+    pub extra_bands: Vec<String>,
     pub renderer: RendererChoice,
     /// Bytes of loaded tiles kept.
     pub memory: u64,
@@ -123,10 +136,13 @@ impl Drop for RenderWorker {
     }
 }
 
-/// Colour columns of loaded tiles, for one colour mode (orbiting recolours nothing).
+/// Colour columns of loaded tiles, for one colour style (orbiting recolours
+/// nothing), and their heights with hidden points NaN for one filter.
 struct ColorCache {
-    mode: Option<ColorMode>,
+    style: Option<Style>,
     columns: HashMap<TileKey, Vec<u32>>,
+    filter: Option<Filter>,
+    hidden: HashMap<TileKey, Option<Vec<f32>>>,
 }
 
 struct Worker {
@@ -137,6 +153,8 @@ struct Worker {
     /// When the current wait for tiles began.
     loading_since: Option<Instant>,
     ranges: ColorRanges,
+    /// The tiles the colour ranges came from (a band's range is found in them).
+    first: Vec<Arc<LoadedTile>>,
     colors: ColorCache,
 }
 
@@ -146,8 +164,14 @@ fn run(
     requests: Receiver<Request>,
     reports: Sender<Report>,
 ) {
-    let cache = TileCache::new(ds.clone(), opts.memory, opts.load_threads.max(1));
-    let ranges = color_ranges(&ds, &cache);
+    let cache = TileCache::with_bands(
+        ds.clone(),
+        opts.memory,
+        opts.load_threads.max(1),
+        opts.extra_bands.clone(),
+    );
+    let first = first_tiles(&ds, &cache);
+    let ranges = ColorRanges::from_tiles(&first, &ds.bounds());
     let mut w = Worker {
         ds,
         opts,
@@ -155,9 +179,12 @@ fn run(
         renderer: None,
         loading_since: None,
         ranges,
+        first,
         colors: ColorCache {
-            mode: None,
+            style: None,
             columns: HashMap::new(),
+            filter: None,
+            hidden: HashMap::new(),
         },
     };
     let mut current: Option<(Request, Instant)> = None;
@@ -185,13 +212,16 @@ fn run(
         if w.cache.arrivals.try_iter().count() > 0 {
             dirty = true;
         }
-        let Some((req, received)) = current else {
+        let Some((req, received)) = current.as_mut() else {
             continue;
         };
         if !dirty {
             continue;
         }
-        match w.frame(&req, received) {
+        let result = w.frame(req, *received);
+        // A pick is answered once; redraws as tiles arrive do not pick again.
+        req.pick = false;
+        match result {
             Ok(f) => {
                 pending = f.status.pending;
                 if reports.send(Report::Frame(Box::new(f))).is_err() {
@@ -211,10 +241,11 @@ fn run(
     }
 }
 
-/// Colour ranges from the overview's top layers, loaded first (they cover the
-/// whole dataset), or without an overview from every part's coarsest level (small,
-/// and fixed for the session so colours do not flicker as tiles stream in).
-fn color_ranges(ds: &Dataset, cache: &TileCache) -> ColorRanges {
+/// The tiles colour ranges come from: the overview's top layers, loaded first
+/// (they cover the whole dataset), or without an overview every part's coarsest
+/// level (small, and fixed for the session so colours do not flicker as tiles
+/// stream in).
+fn first_tiles(ds: &Dataset, cache: &TileCache) -> Vec<Arc<LoadedTile>> {
     // With an overview, its top stands for the whole dataset: no part is read.
     let first: Vec<TileRef> = ds
         .overview_first(OVERVIEW_FIRST_POINTS)
@@ -245,8 +276,7 @@ fn color_ranges(ds: &Dataset, cache: &TileCache) -> ColorRanges {
             })
             .collect()
     };
-    let tiles = cache.load_all(&refs).unwrap_or_default();
-    ColorRanges::from_tiles(&tiles, &ds.bounds())
+    cache.load_all(&refs).unwrap_or_default()
 }
 
 impl Worker {
@@ -272,7 +302,7 @@ impl Worker {
             (rows as u32 * req.cell_pixels.1).clamp(1, render::MAX_FRAME_SIDE),
         );
         let (width, height) = ((full.0 / scale).max(1), (full.1 / scale).max(1));
-        let s = req.settings;
+        let s = &req.settings;
         self.renderer()?;
 
         let t = Instant::now();
@@ -282,7 +312,15 @@ impl Worker {
             },
             m => m,
         };
-        let sel = lod::select(&self.ds, &req.camera, width, height, mode, s.memory);
+        let sel = lod::select_clipped(
+            &self.ds,
+            &req.camera,
+            width,
+            height,
+            mode,
+            s.memory,
+            s.filter.clip.as_ref(),
+        );
         let select_ms = ms(t);
         self.cache.request(&sel.tiles);
         let mut tiles = self.cache.ready(&sel.tiles);
@@ -301,17 +339,30 @@ impl Worker {
             self.loading_since.take().map_or(0.0, ms)
         };
 
-        if self.colors.mode != Some(s.color) {
+        let style = s.style();
+        if self.colors.style.as_ref() != Some(&style) {
             self.colors.columns.clear();
-            self.colors.mode = Some(s.color);
+            if let ColorMode::Band(b) = &style.mode {
+                self.ranges.band = band_range(&self.first, b).unwrap_or((0.0, 1.0));
+            }
+            self.colors.style = Some(style.clone());
+        }
+        if self.colors.filter.as_ref() != Some(&s.filter) {
+            self.colors.hidden.clear();
+            self.colors.filter = Some(s.filter.clone());
         }
         let keep: std::collections::HashSet<TileKey> = tiles.iter().map(|t| t.key).collect();
         self.colors.columns.retain(|k, _| keep.contains(k));
+        self.colors.hidden.retain(|k, _| keep.contains(k));
         for t in &tiles {
             if !self.colors.columns.contains_key(&t.key) {
-                let c = colorize(t, s.color, &self.ranges);
+                let c = colorize_style(t, &style, &self.ranges);
                 self.colors.columns.insert(t.key, c);
             }
+            self.colors
+                .hidden
+                .entry(t.key)
+                .or_insert_with(|| s.filter.hidden_z(t));
         }
         let batches: Vec<PointBatch<'_>> = tiles
             .iter()
@@ -319,7 +370,7 @@ impl Worker {
                 origin: t.origin,
                 x: &t.x,
                 y: &t.y,
-                z: &t.z,
+                z: self.colors.hidden[&t.key].as_deref().unwrap_or(&t.z),
                 color: &self.colors.columns[&t.key],
             })
             .collect();
@@ -337,14 +388,37 @@ impl Worker {
             height,
             point_size: s.point_size,
             eye_dome_lighting: s.edl,
+            edl: s.edl_params,
             background: [0, 0, 0],
         };
         let t = Instant::now();
         let renderer = self.renderer.as_mut().expect("created at the top");
-        let frame = renderer.render(&req.camera, &batches, &opts)?;
+        let mut frame = renderer.render(&req.camera, &batches, &opts)?;
         let renderer_name = renderer.name();
         let render_ms = ms(t);
+        let cursor_px = req.cursor.map(|(x, y)| {
+            (
+                ((x * width as f64) as u32).min(width - 1),
+                ((y * height as f64) as u32).min(height - 1),
+            )
+        });
+        let pick = match (req.pick, cursor_px) {
+            (true, Some((x, y))) => {
+                let radius = req_pick_radius(width);
+                Some(
+                    match pick::pick(&req.camera, &batches, &opts, x, y, radius)? {
+                        Some(h) => Some(
+                            point_record(&self.ds, tiles[h.batch].key, h.index)
+                                .map_err(anyhow::Error::msg)?,
+                        ),
+                        None => None,
+                    },
+                )
+            }
+            _ => None,
+        };
         drop(batches);
+        overlay(&mut frame, req, cursor_px);
 
         let t = Instant::now();
         let image = protocol::encode(self.opts.encoding, &frame, (cols, rows), full)?;
@@ -375,6 +449,11 @@ impl Worker {
             loaded: loaded.into_iter().collect(),
             bytes: image.bytes(),
             scale,
+            ramp: style.value_range(&self.ranges).map(|(lo, hi)| {
+                let band = style.mode.band().unwrap_or("value").to_string();
+                (band, style.ramp(), lo, hi)
+            }),
+            units_per_pixel: 1.0 / req.camera.pixels_per_unit(req.camera.distance, height),
         };
         Ok(FrameReady {
             seq: req.seq,
@@ -383,8 +462,30 @@ impl Worker {
             cells: (cols, rows),
             status,
             requested: received,
+            pick,
         })
     }
+}
+
+/// Pixels around the crosshair a pick searches: about half a terminal cell.
+fn req_pick_radius(width: u32) -> u32 {
+    (width / 200).clamp(2, 8)
+}
+
+/// Draws the picked points, their measurement line, the crosshair and the
+/// scale bar over a frame.
+fn overlay(frame: &mut Frame, req: &Request, cursor: Option<(u32, u32)>) {
+    let cam = &req.camera;
+    if let [a, b] = req.marks[..] {
+        marks::segment(frame, cam, a, b, [255, 220, 0]);
+    }
+    for m in &req.marks {
+        marks::mark(frame, cam, *m, [255, 220, 0]);
+    }
+    if let Some((x, y)) = cursor {
+        marks::crosshair(frame, x, y, (frame.height / 40).max(6));
+    }
+    legend::draw_scale_bar(frame, cam);
 }
 
 fn ms(t: Instant) -> f64 {

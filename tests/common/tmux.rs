@@ -51,6 +51,32 @@ impl Tmux {
         ]);
     }
 
+    /// Starts a shell in a `size` window and types `pcimg inspect PATH
+    /// --renderer cpu EXTRA` into it.
+    pub fn inspect(&self, size: (u16, u16), path: &std::path::Path, extra: &str) {
+        let (x, y) = (size.0.to_string(), size.1.to_string());
+        self.run(&[
+            "new-session",
+            "-d",
+            "-s",
+            "t",
+            "-x",
+            &x,
+            "-y",
+            &y,
+            "env",
+            "PS1=$ ",
+            "sh",
+        ]);
+        let line = format!(
+            "NODEVICE_SELECT=1 '{}' inspect '{}' --renderer cpu {extra}",
+            env!("CARGO_BIN_EXE_pcimg"),
+            path.display()
+        );
+        self.run(&["send-keys", "-t", "t", "-l", &line]);
+        self.run(&["send-keys", "-t", "t", "Enter"]);
+    }
+
     pub fn capture(&self) -> String {
         self.run(&["capture-pane", "-p", "-t", "t"])
     }

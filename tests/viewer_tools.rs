@@ -1,0 +1,628 @@
+//! The viewer's tools (issue 29) against scenes whose answers are known:
+//! picking finds the point drawn at a pixel, a class filter hides exactly that
+//! class's points, a clip box selects only the tiles that touch it, legends
+//! list the classes present with their counts, turntable frames differ and go
+//! round, and bad option values are refused clearly.
+
+use pcimg::camera::Camera;
+use pcimg::lod::{self, LodMode, TileCache};
+use pcimg::points::{Attribute, Bounds, PointColumns};
+use pcimg::render::classes::ClassMask;
+use pcimg::render::cpu::CpuRasterizer;
+use pcimg::render::filter::{Filter, Where};
+use pcimg::render::legend;
+use pcimg::render::scene::{ColorRanges, Scene, Style};
+use pcimg::render::{ColorMode, PointBatch, Rasterizer, RenderOptions, pick};
+use pcimg::store::{self, Dataset, WriteOptions};
+use std::path::{Path, PathBuf};
+use std::process::Command;
+use std::sync::Arc;
+
+fn exe() -> Command {
+    let mut c = Command::new(env!("CARGO_BIN_EXE_pcimg"));
+    c.env("NODEVICE_SELECT", "1");
+    c
+}
+
+/// `pcimg render PART` on the CPU at `size`, to `out`, with `args`.
+fn render(part: &Path, size: (u32, u32), args: &[&str], out: &Path) -> std::process::Output {
+    exe()
+        .arg("render")
+        .arg(part)
+        .args(["--renderer", "cpu", "--width", &size.0.to_string()])
+        .args(["--height", &size.1.to_string()])
+        .args(args)
+        .arg("-o")
+        .arg(out)
+        .output()
+        .unwrap()
+}
+
+/// A part of the synthetic scene with classes (ground 2, vegetation 5, building 6).
+fn classified_part(dir: &Path, n: u64) -> PathBuf {
+    let path = dir.join("scene.tif");
+    store::write_part(
+        &path,
+        &pcimg::synth::scene_classified(n, 7),
+        &WriteOptions::default(),
+    )
+    .unwrap();
+    path
+}
+
+/// Counts of each class among the scene's first `n` points, from the generator.
+fn true_counts(n: u64, seed: u64) -> [u64; 256] {
+    let mut c = [0u64; 256];
+    for i in 0..n {
+        c[pcimg::synth::classified_point(seed, i).2 as usize] += 1;
+    }
+    c
+}
+
+fn all_tiles(ds: &Arc<Dataset>, level: usize) -> Vec<Arc<lod::LoadedTile>> {
+    let cam = Camera::fit(&ds.bounds());
+    let sel = lod::select(ds, &cam, 64, 64, LodMode::Fixed(level), u64::MAX);
+    let cache = TileCache::with_bands(ds.clone(), u64::MAX, 1, vec!["classification".into()]);
+    cache.load_all(&sel.tiles).unwrap()
+}
+
+#[test]
+fn picking_returns_the_point_drawn_at_the_pixel() {
+    // A 20 x 20 grid 1 m apart on a plane, far from the datum, and one point
+    // hovering 5 m above grid point (7, 11): seen from above it hides that one.
+    let origin = [637_000.0, 5_100_000.0, 300.0];
+    let (mut x, mut y, mut z) = (Vec::new(), Vec::new(), Vec::new());
+    for i in 0..20 {
+        for j in 0..20 {
+            x.push(i as f32);
+            y.push(j as f32);
+            z.push(0.0);
+        }
+    }
+    x.push(7.0);
+    y.push(11.0);
+    z.push(5.0);
+    let color: Vec<u32> = (0..x.len() as u32)
+        .map(|i| 0xff00_0000 | (i * 7919))
+        .collect();
+    let b = PointBatch {
+        origin,
+        x: &x,
+        y: &y,
+        z: &z,
+        color: &color,
+    };
+    let bounds = Bounds {
+        min: origin,
+        max: [origin[0] + 19.0, origin[1] + 19.0, origin[2] + 5.0],
+    };
+    let mut cam = Camera::fit(&bounds);
+    cam.pitch = -89.0f64.to_radians();
+    cam.yaw = 0.3;
+    cam.set_clip_from_bounds(&bounds);
+    let opts = RenderOptions {
+        width: 400,
+        height: 300,
+        ..Default::default()
+    };
+    let frame = CpuRasterizer::new().render(&cam, &[b], &opts).unwrap();
+    for (i, j) in [(0usize, 0usize), (3, 17), (19, 19), (12, 4)] {
+        let k = i * 20 + j;
+        let p = [origin[0] + i as f64, origin[1] + j as f64, origin[2]];
+        let [sx, sy] = cam.project(p, 400, 300).unwrap();
+        let hit = pick::pick(&cam, &[b], &opts, sx as u32, sy as u32, 0)
+            .unwrap()
+            .unwrap();
+        assert_eq!((hit.batch, hit.index), (0, k), "grid point ({i}, {j})");
+        assert_eq!(hit.position, p);
+        // The picked point's colour is the one the frame shows there.
+        let px = frame.pixel(hit.pixel.0, hit.pixel.1).unwrap();
+        let c = color[k];
+        assert_eq!(px[..3], [c as u8, (c >> 8) as u8, (c >> 16) as u8]);
+    }
+    // The hovering point hides grid point (7, 11) and is the one picked.
+    let p = [origin[0] + 7.0, origin[1] + 11.0, origin[2] + 5.0];
+    let [sx, sy] = cam.project(p, 400, 300).unwrap();
+    let hit = pick::pick(&cam, &[b], &opts, sx as u32, sy as u32, 0)
+        .unwrap()
+        .unwrap();
+    assert_eq!(hit.index, 400);
+    // Between grid points, the radius finds the nearest drawn pixel.
+    let near = pick::pick(&cam, &[b], &opts, sx as u32 + 2, sy as u32, 4)
+        .unwrap()
+        .unwrap();
+    assert_eq!(near.index, 400);
+    // Nothing out in the background.
+    assert_eq!(pick::pick(&cam, &[b], &opts, 0, 0, 2).unwrap(), None);
+    assert!(pick::pick(&cam, &[b], &opts, 400, 0, 0).is_err());
+    // Hidden points (NaN height: a filter) are never picked: the grid point
+    // under the hovering one is found once it is hidden.
+    let mut zh = z.clone();
+    zh[400] = f32::NAN;
+    let hb = PointBatch { z: &zh, ..b };
+    let gone = pick::pick(&cam, &[hb], &opts, sx as u32, sy as u32, 0).unwrap();
+    assert!(gone.is_none_or(|h| h.index != 400));
+    let base = [origin[0] + 7.0, origin[1] + 11.0, origin[2]];
+    let [bx, by] = cam.project(base, 400, 300).unwrap();
+    let hit = pick::pick(&cam, &[hb], &opts, bx as u32, by as u32, 0)
+        .unwrap()
+        .unwrap();
+    assert_eq!(hit.index, 7 * 20 + 11);
+}
+
+#[test]
+fn render_pick_prints_the_point_with_every_attribute() {
+    let dir = tempfile::tempdir().unwrap();
+    // Nine points on a 3 x 3 grid 10 m apart, each with its own attributes.
+    let mut c = PointColumns {
+        attributes: vec![
+            Attribute::new("intensity", Vec::new()),
+            Attribute::new("classification", Vec::new()),
+            Attribute {
+                name: "gps_time".into(),
+                offset: 3.0e8,
+                values: Vec::new(),
+            },
+        ],
+        ..Default::default()
+    };
+    for k in 0..9 {
+        c.x.push(500_000.0 + 10.0 * (k % 3) as f64);
+        c.y.push(4_000_000.0 + 10.0 * (k / 3) as f64);
+        c.z.push(100.0 + k as f64);
+        c.attributes[0].values.push(1000.0 + k as f32);
+        c.attributes[1].values.push(if k == 4 { 6.0 } else { 2.0 });
+        c.attributes[2].values.push(k as f32 * 0.5);
+    }
+    let part = dir.path().join("grid.tif");
+    store::write_part(&part, &c, &WriteOptions::default()).unwrap();
+    let ds = Dataset::open(&part).unwrap();
+    let cam = Camera::fit(&ds.bounds());
+    // Where the centre point (k = 4) lands on a 320 x 240 frame.
+    let [sx, sy] = cam
+        .project([500_010.0, 4_000_010.0, 104.0], 320, 240)
+        .unwrap();
+    let at = format!("{},{}", sx as u32, sy as u32);
+    let o = render(
+        &part,
+        (320, 240),
+        &["--point-size", "3", "--pick", &at],
+        &dir.path().join("f.png"),
+    );
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert!((v["x"].as_f64().unwrap() - 500_010.0).abs() < 1e-3, "{v}");
+    assert!((v["y"].as_f64().unwrap() - 4_000_010.0).abs() < 1e-3, "{v}");
+    assert!((v["z"].as_f64().unwrap() - 104.0).abs() < 1e-3, "{v}");
+    assert_eq!(v["attributes"]["intensity"], 1004.0);
+    assert_eq!(v["attributes"]["classification"], 6.0);
+    assert!((v["attributes"]["gps_time"].as_f64().unwrap() - 300_000_002.0).abs() < 1e-3);
+    assert_eq!(v["class_name"], "building");
+    // A pixel in the empty corner: null.
+    let o = render(
+        &part,
+        (320, 240),
+        &["--pick", "0,0"],
+        &dir.path().join("g.png"),
+    );
+    assert!(o.status.success());
+    assert_eq!(String::from_utf8_lossy(&o.stdout).trim(), "null");
+}
+
+#[test]
+fn class_counts_are_recorded_and_a_class_filter_hides_exactly_that_class() {
+    let dir = tempfile::tempdir().unwrap();
+    let n = 200_000;
+    let part = classified_part(dir.path(), n);
+    let ds = Arc::new(Dataset::open(&part).unwrap());
+    let truth = true_counts(n, 7);
+    // Recorded at conversion: the legend lists the classes present, with counts.
+    let entries = legend::class_entries(&ds, &ClassMask::default());
+    let listed: Vec<(u8, u64)> = entries.iter().map(|e| (e.code, e.count)).collect();
+    let want: Vec<(u8, u64)> = (0..256)
+        .filter(|&c| truth[c] > 0)
+        .map(|c| (c as u8, truth[c]))
+        .collect();
+    assert_eq!(listed, want);
+    assert_eq!(want.len(), 3, "ground, vegetation and building");
+    assert_eq!(entries[2].name, "building");
+    // Level 0 holds every point: hiding buildings removes exactly their count.
+    let tiles = all_tiles(&ds, 0);
+    let total: u64 = tiles.iter().map(|t| t.len() as u64).sum();
+    assert_eq!(total, n);
+    let ranges = ColorRanges::from_tiles(&tiles, &ds.bounds());
+    let style = Style::of(ColorMode::Classification);
+    let f = Filter {
+        classes: ClassMask::new(None, &[6]),
+        ..Filter::default()
+    };
+    let scene = Scene::build(tiles.clone(), &style, &ranges, &f);
+    assert_eq!(scene.shown_points(), n - truth[6]);
+    let only = Filter {
+        classes: ClassMask::new(Some(&[5]), &[]),
+        ..Filter::default()
+    };
+    let scene = Scene::build(tiles.clone(), &style, &ranges, &only);
+    assert_eq!(scene.shown_points(), truth[5]);
+    // Every hidden point is of the hidden class, every shown one is not.
+    for (t, h) in scene.tiles.iter().zip(&scene.hidden) {
+        let cls = t.attribute("classification").unwrap();
+        let h = h.as_ref().unwrap();
+        for (c, z) in cls.iter().zip(h) {
+            assert_eq!(*c == 5.0, !z.is_nan());
+        }
+    }
+    // A band range: z within 30..40 m (absolute), counted directly.
+    let w = Filter {
+        wheres: vec![Where::parse("z=30..40").unwrap()],
+        ..Filter::default()
+    };
+    let scene = Scene::build(tiles.clone(), &style, &ranges, &w);
+    let direct: u64 = tiles
+        .iter()
+        .map(|t| {
+            t.z.iter()
+                .filter(|&&z| (30.0..=40.0).contains(&(z as f64 + t.origin[2])))
+                .count() as u64
+        })
+        .sum();
+    assert!(direct > 0 && direct < n);
+    assert_eq!(scene.shown_points(), direct);
+    // Drawn: with only buildings, every lit pixel is the building colour.
+    let cam = Camera::fit(&ds.bounds());
+    let only6 = Filter {
+        classes: ClassMask::new(Some(&[6]), &[]),
+        ..Filter::default()
+    };
+    let scene = Scene::build(tiles, &style, &ranges, &only6);
+    let frame = CpuRasterizer::new()
+        .render(
+            &cam,
+            &scene.batches(),
+            &RenderOptions {
+                width: 320,
+                height: 240,
+                ..Default::default()
+            },
+        )
+        .unwrap();
+    let b = pcimg::render::color::unpack_rgb(pcimg::render::classes::color(6));
+    let lit: Vec<&[u8]> = frame
+        .rgba
+        .chunks(4)
+        .filter(|p| p[..3] != [0, 0, 0])
+        .collect();
+    assert!(lit.len() > 1000);
+    assert!(lit.iter().all(|p| p[..3] == b));
+}
+
+#[test]
+fn legends_sum_class_counts_over_parts() {
+    let dir = tempfile::tempdir().unwrap();
+    let c = pcimg::synth::scene_classified(120_000, 7);
+    // Two parts: the west and east halves of the scene.
+    let mid = pcimg::synth::SCENE_ORIGIN[0] + pcimg::synth::SCENE_SIZE / 2.0;
+    let mut halves = [c.empty_like(), c.empty_like()];
+    let mut want = [[0u64; 256]; 2];
+    for i in 0..c.len() {
+        let h = (c.x[i] >= mid) as usize;
+        halves[h].append_range(&c, i, i + 1);
+        want[h][c.attributes[1].values[i] as usize] += 1;
+    }
+    std::fs::create_dir(dir.path().join("ds")).unwrap();
+    for (k, h) in halves.iter().enumerate() {
+        let p = dir.path().join(format!("ds/part{k}.tif"));
+        store::write_part(&p, h, &WriteOptions::default()).unwrap();
+        let one = Dataset::open(&p).unwrap();
+        let recorded: Vec<(u8, u64)> = one.parts[0].meta.class_counts.clone();
+        let truth: Vec<(u8, u64)> = (0..256)
+            .filter(|&c| want[k][c] > 0)
+            .map(|c| (c as u8, want[k][c]))
+            .collect();
+        assert_eq!(recorded, truth, "part {k}");
+    }
+    let ds = Dataset::open(&dir.path().join("ds")).unwrap();
+    assert_eq!(ds.parts.len(), 2);
+    let hidden = ClassMask::new(None, &[2]);
+    let e = legend::class_entries(&ds, &hidden);
+    for x in &e {
+        assert_eq!(x.count, want[0][x.code as usize] + want[1][x.code as usize]);
+        assert_eq!(x.shown, x.code != 2);
+    }
+    assert_eq!(e.iter().map(|x| x.count).sum::<u64>(), 120_000);
+}
+
+#[test]
+fn a_clip_box_selects_only_the_tiles_that_touch_it() {
+    let dir = tempfile::tempdir().unwrap();
+    let part = classified_part(dir.path(), 400_000);
+    let ds = Arc::new(Dataset::open(&part).unwrap());
+    let b = ds.bounds();
+    let cam = Camera::fit(&b);
+    // A slab 8 m thick across x through the middle of the scene.
+    let cx = (b.min[0] + b.max[0]) / 2.0;
+    let clip = Bounds {
+        min: [cx - 4.0, b.min[1], b.min[2]],
+        max: [cx + 4.0, b.max[1], b.max[2]],
+    };
+    let all = lod::select(&ds, &cam, 640, 480, LodMode::Fixed(0), u64::MAX);
+    let some = lod::select_clipped(
+        &ds,
+        &cam,
+        640,
+        480,
+        LodMode::Fixed(0),
+        u64::MAX,
+        Some(&clip),
+    );
+    let touching: Vec<_> = all
+        .tiles
+        .iter()
+        .filter(|t| t.bounds.intersects(&clip))
+        .collect();
+    assert!(!touching.is_empty() && touching.len() < all.tiles.len());
+    assert_eq!(some.tiles.len(), touching.len());
+    assert!(some.tiles.iter().all(|t| t.bounds.intersects(&clip)));
+    assert!(some.points < all.points);
+    // View-dependent selection spends its budget inside the clip too.
+    let v = lod::select_clipped(
+        &ds,
+        &cam,
+        640,
+        480,
+        LodMode::View { budget: 1 << 20 },
+        u64::MAX,
+        Some(&clip),
+    );
+    assert!(v.tiles.iter().all(|t| t.bounds.intersects(&clip)));
+    // The drawn points all lie in the box.
+    let cache = TileCache::new(ds.clone(), u64::MAX, 1);
+    let tiles = cache.load_all(&some.tiles).unwrap();
+    let f = Filter {
+        clip: Some(clip),
+        ..Filter::default()
+    };
+    let ranges = ColorRanges::from_tiles(&tiles, &b);
+    let scene = Scene::build(tiles, &Style::default(), &ranges, &f);
+    let mut inside = 0u64;
+    for (t, h) in scene.tiles.iter().zip(&scene.hidden) {
+        let z = h.as_deref().unwrap_or(&t.z);
+        for (zi, xi) in z.iter().zip(&t.x) {
+            if zi.is_nan() {
+                continue;
+            }
+            inside += 1;
+            let x = *xi as f64 + t.origin[0];
+            assert!(x >= clip.min[0] && x <= clip.max[0]);
+        }
+    }
+    assert!(inside > 0);
+    assert_eq!(inside, scene.shown_points());
+}
+
+#[test]
+fn turntable_frames_differ_and_go_round() {
+    let dir = tempfile::tempdir().unwrap();
+    let part = classified_part(dir.path(), 60_000);
+    let run = |view: &str, extra: &[&str], out: &Path| {
+        let o = exe()
+            .arg("render")
+            .arg(&part)
+            .args(["--renderer", "cpu", "--width", "160", "--height", "120"])
+            .args(["--view", view])
+            .args(extra)
+            .arg("-o")
+            .arg(out)
+            .output()
+            .unwrap();
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    };
+    let pattern = dir.path().join("spin_{}.png");
+    run("0,-30", &["--turntable", "8"], &pattern);
+    let frames: Vec<Vec<u8>> = (0..8)
+        .map(|i| {
+            image::open(dir.path().join(format!("spin_{i:03}.png")))
+                .unwrap()
+                .to_rgba8()
+                .into_raw()
+        })
+        .collect();
+    assert!(!dir.path().join("spin_008.png").exists());
+    for i in 0..8 {
+        for j in i + 1..8 {
+            assert_ne!(frames[i], frames[j], "frames {i} and {j} are the same");
+        }
+    }
+    // Frame 0 is the view asked for, frame 4 the view from the other side
+    // (yaw + 180°): the same as asking for it.
+    for (k, view) in [(0, "0,-30"), (4, "180,-30"), (2, "90,-30")] {
+        let one = dir.path().join(format!("one{k}.png"));
+        run(view, &[], &one);
+        assert_eq!(
+            image::open(&one).unwrap().to_rgba8().into_raw(),
+            frames[k],
+            "frame {k} vs --view {view}"
+        );
+    }
+    // One animated PNG: 8 frames, each the size asked for.
+    let apng = dir.path().join("spin.png");
+    run("0,-30", &["--turntable", "8"], &apng);
+    let dec = png::Decoder::new(std::io::BufReader::new(std::fs::File::open(&apng).unwrap()));
+    let mut r = dec.read_info().unwrap();
+    let actl = r.info().animation_control.unwrap();
+    assert_eq!(actl.num_frames, 8);
+    let mut buf = vec![0u8; r.output_buffer_size().unwrap()];
+    let mut decoded = Vec::new();
+    while let Ok(info) = r.next_frame(&mut buf) {
+        assert_eq!((info.width, info.height), (160, 120));
+        decoded.push(buf[..info.buffer_size()].to_vec());
+    }
+    assert_eq!(decoded.len(), 8);
+    assert_eq!(decoded[3], frames[3]);
+}
+
+#[test]
+fn bad_values_are_refused_clearly() {
+    let dir = tempfile::tempdir().unwrap();
+    let part = classified_part(dir.path(), 5_000);
+    // A part without classes.
+    let plain = dir.path().join("plain.tif");
+    store::write_part(
+        &plain,
+        &pcimg::synth::scene(5_000, 1),
+        &WriteOptions::default(),
+    )
+    .unwrap();
+    let out = dir.path().join("x.png");
+    for (path, args, says) in [
+        (&part, vec!["--color", "band:nope"], "no band 'nope'"),
+        (&part, vec!["--classes", "2,300"], "class codes 0 to 255"),
+        (
+            &part,
+            vec!["--exclude-classes", "x"],
+            "class codes 0 to 255",
+        ),
+        (&part, vec!["--where", "z"], "NAME=VALUE"),
+        (&part, vec!["--where", "z=5..1"], "low end lies above"),
+        (&part, vec!["--where", "nope=1"], "no band 'nope'"),
+        (&part, vec!["--clip", "1,2,3"], "six"),
+        (&part, vec!["--clip", "0,0,9,1,1,1"], "minimum lies above"),
+        (
+            &part,
+            vec!["--color", "height", "--range", "5,1"],
+            "LO below HI",
+        ),
+        (
+            &part,
+            vec!["--color", "height", "--ramp", "rainbow"],
+            "unknown ramp",
+        ),
+        (&part, vec!["--ramp", "gray"], "apply to --color intensity"),
+        (&part, vec!["--pick", "999,1"], "a pixel of the"),
+        (&part, vec!["--edl-strength", "99"], "0.1 to 10"),
+        (&plain, vec!["--classes", "2"], "no band 'classification'"),
+        (
+            &plain,
+            vec!["--color", "classification"],
+            "no band 'classification'",
+        ),
+    ] {
+        let o = exe()
+            .arg("render")
+            .arg(path)
+            .args(["--renderer", "cpu", "--width", "64", "--height", "48", "-o"])
+            .arg(&out)
+            .args(&args)
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(!o.status.success(), "{args:?} succeeded");
+        assert!(err.contains(says), "{args:?}: {err}");
+        assert!(!err.contains("panicked"), "{args:?}: {err}");
+    }
+}
+
+#[test]
+fn ramps_legends_and_edl_options_draw() {
+    let dir = tempfile::tempdir().unwrap();
+    let part = classified_part(dir.path(), 50_000);
+    let render = |args: &[&str]| -> image::RgbaImage {
+        let out = dir.path().join("r.png");
+        let o = exe()
+            .arg("render")
+            .arg(&part)
+            .args([
+                "--renderer",
+                "cpu",
+                "--width",
+                "320",
+                "--height",
+                "240",
+                "-o",
+            ])
+            .arg(&out)
+            .args(args)
+            .output()
+            .unwrap();
+        assert!(
+            o.status.success(),
+            "{args:?}: {}",
+            String::from_utf8_lossy(&o.stderr)
+        );
+        image::open(&out).unwrap().to_rgba8()
+    };
+    let plain = render(&["--color", "band:intensity"]);
+    let gray = render(&["--color", "band:intensity", "--ramp", "gray"]);
+    let fixed = render(&["--color", "band:intensity", "--range", "0,1000"]);
+    assert_ne!(plain, gray);
+    assert_ne!(plain, fixed);
+    // The legend is drawn in the top-right corner, the scale bar bottom-left.
+    let legend = render(&["--color", "band:intensity", "--legend"]);
+    let differs = |x0: u32, y0: u32, x1: u32, y1: u32| {
+        (y0..y1).any(|y| (x0..x1).any(|x| legend.get_pixel(x, y) != plain.get_pixel(x, y)))
+    };
+    assert!(differs(220, 0, 320, 100), "no legend");
+    assert!(differs(0, 200, 100, 240), "no scale bar");
+    // EDL: the options turn it on and change the shading.
+    let edl1 = render(&["--color", "height", "--edl"]);
+    let edl2 = render(&[
+        "--color",
+        "height",
+        "--edl-strength",
+        "4",
+        "--edl-radius",
+        "3",
+    ]);
+    let none = render(&["--color", "height"]);
+    assert_ne!(edl1, none);
+    assert_ne!(edl1, edl2);
+}
+
+#[test]
+fn filters_hide_the_same_points_on_the_gpu() {
+    let dir = tempfile::tempdir().unwrap();
+    let part = classified_part(dir.path(), 50_000);
+    let args = [
+        "--color",
+        "classification",
+        "--classes",
+        "6",
+        "--view",
+        "30,-40",
+    ];
+    let cpu = dir.path().join("cpu.png");
+    let o = render(&part, (320, 240), &args, &cpu);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let gpu = dir.path().join("gpu.png");
+    let o = exe()
+        .arg("render")
+        .arg(&part)
+        .args(["--renderer", "gpu", "--width", "320", "--height", "240"])
+        .args(args)
+        .arg("-o")
+        .arg(&gpu)
+        .output()
+        .unwrap();
+    if !o.status.success() {
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(
+            err.contains("no GPU adapter") && std::env::var("CI").ok().as_deref() != Some("true"),
+            "{err}"
+        );
+        eprintln!("note: skipping, no wgpu adapter: {err}");
+        return;
+    }
+    let (c, g) = (
+        image::open(&cpu).unwrap().to_rgba8(),
+        image::open(&gpu).unwrap().to_rgba8(),
+    );
+    let building = pcimg::render::color::unpack_rgb(pcimg::render::classes::color(6));
+    let lit = |i: &image::RgbaImage| i.pixels().filter(|p| p[0] | p[1] | p[2] != 0).count();
+    assert!(lit(&g) > 1000);
+    assert!(
+        g.pixels()
+            .all(|p| p[0] | p[1] | p[2] == 0 || p.0[..3] == building)
+    );
+    let same = c.pixels().zip(g.pixels()).filter(|(a, b)| a == b).count();
+    assert!(same as f64 > 0.99 * (320.0 * 240.0), "{same}");
+}
