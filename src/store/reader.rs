@@ -27,6 +27,10 @@ pub struct PartMeta {
     pub source: Option<String>,
     pub crs: Option<String>,
     pub max_quantization_error: Option<f64>,
+    /// The items the source gave about itself (`key::FROM_SOURCE`: a PCD
+    /// viewpoint, E57 scans), name and value.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub from_source: Vec<(String, String)>,
     /// Every default-domain item, as stored (unsanitized: sanitize before display).
     /// Not kept in the dataset index (the fields above are): empty for a part
     /// opened from it.
@@ -236,6 +240,10 @@ fn parse_meta(items: &BTreeMap<String, String>) -> std::result::Result<PartMeta,
         max_quantization_error: items
             .get(key::MAX_QUANTIZATION_ERROR)
             .and_then(|s| s.trim().parse().ok()),
+        from_source: key::FROM_SOURCE
+            .iter()
+            .filter_map(|k| items.get(*k).map(|v| (k.to_string(), v.clone())))
+            .collect(),
         items: items.clone(),
     })
 }
