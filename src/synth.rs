@@ -53,7 +53,7 @@ fn building(cell_x: i64, cell_y: i64) -> Option<(f64, f64, f64, f64, f64)> {
 }
 
 /// One point `i` of the scene generated with `seed`.
-fn point(seed: u64, i: u64) -> ([f64; 3], f32) {
+pub(crate) fn point(seed: u64, i: u64) -> ([f64; 3], f32) {
     let mut r = Rng::new(seed ^ i.wrapping_mul(0xD6E8_FEB8_6659_FD93));
     let kind = r.f64();
     let x = r.f64() * SCENE_SIZE;

@@ -43,6 +43,15 @@ struct Shared {
 }
 
 impl Shared {
+    /// The `e57` crate panicked (contained): the data is corrupt.
+    fn corrupt(&self) -> IngestError {
+        IngestError::binary(
+            &self.path,
+            self.last_read.load(Ordering::Relaxed),
+            "E57: the decoder failed on corrupt data",
+        )
+    }
+
     fn error(&self, e: e57::Error) -> IngestError {
         IngestError::binary(
             &self.path,
@@ -85,15 +94,9 @@ pub fn open(path: &Path, opts: &ReadOptions) -> Result<Box<dyn PointReader>, Ing
         records_done: AtomicU64::new(0),
         left_out: AtomicU64::new(0),
     });
-    // (The crate may panic on malformed data: that is an error like any other.)
-    let reader = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| E57Reader::new(cursor)))
-        .map_err(|_| {
-            IngestError::binary(
-                path,
-                shared.last_read.load(Ordering::Relaxed),
-                "E57: malformed header or XML section",
-            )
-        })?
+    // (The crate may panic on corrupt data: that is an error like any other.)
+    let reader = super::contain::contain(|| E57Reader::new(cursor))
+        .ok_or_else(|| shared.corrupt())?
         .map_err(|e| shared.error(e))?;
     let scans = reader.pointclouds();
     for (i, pc) in scans.iter().enumerate() {
@@ -196,7 +199,7 @@ fn decode(
 ) {
     let mut cols = empty(&layout, chunk);
     let mut attrs = vec![0.0; layout.names.len()];
-    let mut run = || -> Result<bool, IngestError> {
+    let run = || -> Result<bool, IngestError> {
         for (i, pc) in scans.iter().enumerate() {
             let scan = Scan::new(pc, i);
             let points = reader.pointcloud_raw(pc).map_err(|e| shared.error(e))?;
@@ -235,7 +238,7 @@ fn decode(
         }
         Ok(true)
     };
-    match run() {
+    match super::contain::contain(run).unwrap_or_else(|| Err(shared.corrupt())) {
         Ok(true) => {
             if !cols.is_empty() {
                 let _ = tx.send(Ok(cols));
@@ -296,11 +299,7 @@ impl PointReader for E57Input {
                 } = state
                 {
                     if t.join().is_err() {
-                        return Err(IngestError::binary(
-                            &self.info.path,
-                            self.shared.last_read.load(Ordering::Relaxed),
-                            "E57: the decoder failed on malformed data",
-                        ));
+                        return Err(self.shared.corrupt());
                     }
                 }
                 Ok(None)

@@ -150,6 +150,54 @@ impl Cursor {
     }
 }
 
+/// LZF-compresses `input` (greedy, a hash of the next three bytes): for
+/// writing `binary_compressed` PCD files (benchmarks, the fuzzer's seeds).
+pub fn compress(input: &[u8]) -> Vec<u8> {
+    const HLOG: u32 = 14;
+    let mut out = Vec::with_capacity(input.len() / 2 + 16);
+    let mut table = vec![0usize; 1 << HLOG];
+    let mut lit_from = 0;
+    let flush = |out: &mut Vec<u8>, lit: &[u8]| {
+        for run in lit.chunks(32) {
+            out.push((run.len() - 1) as u8);
+            out.extend_from_slice(run);
+        }
+    };
+    let mut i = 0;
+    while i + 2 < input.len() {
+        let v = u32::from_le_bytes([input[i], input[i + 1], input[i + 2], 0]);
+        let h = (v.wrapping_mul(2_654_435_761) >> (32 - HLOG)) as usize;
+        let cand = table[h];
+        table[h] = i + 1;
+        if cand > 0 {
+            let r = cand - 1;
+            let dist = i - r;
+            if dist <= WINDOW && input[r..r + 3] == input[i..i + 3] {
+                let max = (input.len() - i).min(264);
+                let mut len = 3;
+                while len < max && input[r + len] == input[i + len] {
+                    len += 1;
+                }
+                flush(&mut out, &input[lit_from..i]);
+                let (d, l) = (dist - 1, len - 2);
+                if l < 7 {
+                    out.push(((l << 5) | (d >> 8)) as u8);
+                } else {
+                    out.push(((7 << 5) | (d >> 8)) as u8);
+                    out.push((l - 7) as u8);
+                }
+                out.push((d & 255) as u8);
+                i += len;
+                lit_from = i;
+                continue;
+            }
+        }
+        i += 1;
+    }
+    flush(&mut out, &input[lit_from..]);
+    out
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -200,6 +248,20 @@ mod tests {
         assert_eq!(&out[..10_000], &data[..]);
         assert_eq!(&out[10_000..], &data[10_000 - 8192..10_000 - 8192 + 3]);
         assert!(c.at_end(&src));
+    }
+
+    #[test]
+    fn compress_round_trips() {
+        let mut data: Vec<u8> = (0..50_000u32).map(|i| (i / 7 % 13) as u8).collect();
+        data.extend((0..20_000u32).map(|i| (i.wrapping_mul(2_654_435_761) >> 24) as u8));
+        let z = compress(&data);
+        assert!(z.len() < data.len());
+        let mut c = Cursor::default();
+        let mut out = vec![0; data.len()];
+        c.read(&z, &mut out).unwrap();
+        assert_eq!(out, data);
+        assert!(c.at_end(&z));
+        assert!(compress(b"").is_empty());
     }
 
     #[test]
