@@ -253,6 +253,9 @@ fn decode(
 
 impl E57Input {
     fn start(&mut self) -> Result<(), IngestError> {
+        if !matches!(self.state, State::Ready(_)) {
+            return Ok(());
+        }
         let State::Ready(reader) = std::mem::replace(&mut self.state, State::Done) else {
             return Ok(());
         };

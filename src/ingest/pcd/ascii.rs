@@ -100,7 +100,12 @@ impl Ascii {
                     }
                     continue;
                 }
-                let v: f64 = fast_float2::parse(w).map_err(|_| bad())?;
+                // A `F 4` value is the float32 nearest the text, as PCL reads it.
+                let v: f64 = if e.ty == Ty::F4 {
+                    fast_float2::parse::<f32, _>(w).map_err(|_| bad())? as f64
+                } else {
+                    fast_float2::parse(w).map_err(|_| bad())?
+                };
                 match e.role {
                     Role::X => out.x[i] = v,
                     Role::Y => out.y[i] = v,
