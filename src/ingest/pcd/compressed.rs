@@ -28,6 +28,10 @@ pub struct Compressed {
     /// One cursor per field, at the next point's values; empty until the stream
     /// was walked.
     cursors: Vec<Cursor>,
+    /// Per field, the map's pages released so far (below each cursor's input):
+    /// the columns are read at once from as many places in the file, whose
+    /// pages would otherwise all stay resident.
+    released: Vec<usize>,
 }
 
 impl Compressed {
@@ -80,6 +84,7 @@ impl Compressed {
             points: h.points,
             field_bytes: h.fields.iter().map(|f| f.bytes()).collect(),
             cursors: Vec::new(),
+            released: Vec::new(),
         })
     }
 
@@ -105,6 +110,7 @@ impl Compressed {
         let mut c = Cursor::default();
         let mut scratch = vec![0u8; 1 << 20];
         let mut cursors = Vec::with_capacity(self.field_bytes.len());
+        let mut walked = self.start;
         for &b in &self.field_bytes {
             cursors.push(c.clone());
             let mut left = self.points * b as u64;
@@ -112,6 +118,11 @@ impl Compressed {
                 let k = left.min(scratch.len() as u64) as usize;
                 c.read(src, &mut scratch[..k]).map_err(|e| self.error(e))?;
                 left -= k as u64;
+                crate::ingest::release_consumed(
+                    &self.map,
+                    &mut walked,
+                    self.start + c.input_offset(),
+                );
             }
         }
         if !c.at_end(src) {
@@ -126,6 +137,10 @@ impl Compressed {
                 ),
             ));
         }
+        self.released = cursors
+            .iter()
+            .map(|c| self.start + c.input_offset())
+            .collect();
         self.cursors = cursors;
         Ok(())
     }
@@ -158,6 +173,9 @@ impl Compressed {
                     format!("binary_compressed data: {}", e.msg),
                 )
             })?;
+        for (c, r) in self.cursors.iter().zip(&mut self.released) {
+            crate::ingest::release_consumed(&self.map, r, self.start + c.input_offset());
+        }
         let field_bytes = &self.field_bytes;
         decode::split(out, decode::task_points(n))
             .into_par_iter()
