@@ -300,10 +300,9 @@ impl PointReader for E57Input {
                 if let State::Running {
                     thread: Some(t), ..
                 } = state
+                    && t.join().is_err()
                 {
-                    if t.join().is_err() {
-                        return Err(self.shared.corrupt());
-                    }
+                    return Err(self.shared.corrupt());
                 }
                 Ok(None)
             }

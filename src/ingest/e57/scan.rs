@@ -278,16 +278,16 @@ impl Scan {
         let unit = |n: &Norm| -> Result<f64, e57::Error> {
             Ok(((self.get(v, n.at)? - n.min) * n.inv).clamp(0.0, 1.0))
         };
-        if let (Some(n), Some(a)) = (&self.intensity, layout.intensity) {
-            if self.valid(v, self.intensity_state)? {
-                attrs[a] = unit(n)?;
-            }
+        if let (Some(n), Some(a)) = (&self.intensity, layout.intensity)
+            && self.valid(v, self.intensity_state)?
+        {
+            attrs[a] = unit(n)?;
         }
-        if let (Some(c), Some(a)) = (&self.color, layout.color) {
-            if self.valid(v, self.color_state)? {
-                for k in 0..3 {
-                    attrs[a + k] = unit(&c[k])? * 255.0;
-                }
+        if let (Some(c), Some(a)) = (&self.color, layout.color)
+            && self.valid(v, self.color_state)?
+        {
+            for k in 0..3 {
+                attrs[a + k] = unit(&c[k])? * 255.0;
             }
         }
         let plain = [
