@@ -13,7 +13,8 @@
 //!     [--save DIR] [--only CASE] [SEED_FILE...]
 //! ```
 //! Without seed files it uses built-in ones of every format (3,000 points each).
-//! A seed file's extension picks its reader (`.xyz .csv .pts .ply .las .laz .tif`).
+//! A seed file's extension picks its reader (`.xyz .csv .pts .ply .las .laz .pcd
+//! .e57 .tif`).
 //! Cases that go wrong are saved to `--save`. An abort (an allocation the
 //! process cannot have) ends the run before its case is saved: `--only CASE`
 //! runs that case of the same `--seed` again, prints its options and saves it.

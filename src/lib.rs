@@ -30,6 +30,7 @@ pub mod points;
 pub mod render;
 pub mod store;
 pub mod synth;
+pub mod synth_formats;
 pub mod term;
 pub mod text;
 pub mod tui;

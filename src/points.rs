@@ -203,6 +203,32 @@ impl PointColumns {
         self.x.is_empty()
     }
 
+    /// Whether point `i` has finite coordinates.
+    pub fn finite_at(&self, i: usize) -> bool {
+        self.x[i].is_finite() && self.y[i].is_finite() && self.z[i].is_finite()
+    }
+
+    /// Drops the points with a non-finite coordinate (NaN or infinity); returns
+    /// how many were dropped.
+    pub fn drop_non_finite(&mut self) -> u64 {
+        let keep: Vec<bool> = (0..self.len()).map(|i| self.finite_at(i)).collect();
+        let dropped = keep.iter().filter(|k| !**k).count() as u64;
+        if dropped == 0 {
+            return 0;
+        }
+        fn retain<T: Copy>(v: &mut Vec<T>, keep: &[bool]) {
+            let mut k = keep.iter();
+            v.retain(|_| k.next().copied().unwrap_or(false));
+        }
+        retain(&mut self.x, &keep);
+        retain(&mut self.y, &keep);
+        retain(&mut self.z, &keep);
+        for a in &mut self.attributes {
+            retain(&mut a.values, &keep);
+        }
+        dropped
+    }
+
     /// An empty set with the same attribute names and offsets as `self`.
     pub fn empty_like(&self) -> Self {
         self.map_columns(|_| Vec::new(), |_| Vec::new())

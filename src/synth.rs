@@ -58,7 +58,7 @@ pub const CLASS_VEGETATION: u8 = 5;
 pub const CLASS_BUILDING: u8 = 6;
 
 /// One point `i` of the scene generated with `seed`.
-fn point(seed: u64, i: u64) -> ([f64; 3], f32) {
+pub(crate) fn point(seed: u64, i: u64) -> ([f64; 3], f32) {
     let (p, intensity, _) = classified_point(seed, i);
     (p, intensity)
 }

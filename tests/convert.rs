@@ -1,7 +1,9 @@
 //! `pcimg convert` end to end: every input format, the real samples in fixtures/, the
 //! memory budget, partition modes, bad inputs, interruption, and the command line.
 
-use pcimg::convert::{self, ConvertOptions, Partition, Progress, Quiet};
+mod common;
+
+use pcimg::convert::{self, Partition, Progress, Quiet};
 use pcimg::ingest::ReadOptions;
 use pcimg::store::{Compression, Dataset, Layout};
 use std::path::{Path, PathBuf};
@@ -13,22 +15,6 @@ fn fixture(name: &str) -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR"))
         .join("fixtures")
         .join(name)
-}
-
-fn opts(output: PathBuf, memory: u64) -> ConvertOptions {
-    ConvertOptions {
-        output,
-        force: false,
-        memory,
-        partition: Partition::Spatial,
-        compression: Compression::None,
-        layout: Layout::Hilbert,
-        read: ReadOptions::default(),
-        allow_lossy: false,
-        cancel: Arc::new(AtomicBool::new(false)),
-        sample_points: convert::DEFAULT_SAMPLE_POINTS,
-        io: pcimg::store::TileIo::Auto,
-    }
 }
 
 /// Level-0 points of a dataset as (x, y, z) rounded to 0.1 mm, sorted.
@@ -110,7 +96,12 @@ fn real_samples_convert_with_reference_counts_and_bounds() {
     ];
     for (name, n, bounds) in cases {
         let out = dir.path().join(format!("{name}.tif"));
-        let s = convert::convert(&fixture(name), &opts(out.clone(), 1 << 30), &Quiet).unwrap();
+        let s = convert::convert(
+            &fixture(name),
+            &common::convert_options(out.clone(), 1 << 30),
+            &Quiet,
+        )
+        .unwrap();
         assert_eq!(s.points, n, "{name}");
         let ds = Dataset::open(&out).unwrap();
         assert_eq!(ds.points(), n);
@@ -150,7 +141,12 @@ fn budget_far_below_input_gives_spatial_parts_with_every_point() {
     pcimg::synth::write_text(&input, 600_000, 3).unwrap();
     let out = dir.path().join("scan.pcimg");
     // 64 MiB: about 180 k points per part for 4 bands.
-    let s = convert::convert(&input, &opts(out.clone(), 64 << 20), &Quiet).unwrap();
+    let s = convert::convert(
+        &input,
+        &common::convert_options(out.clone(), 64 << 20),
+        &Quiet,
+    )
+    .unwrap();
     assert_eq!(s.points, 600_000);
     assert!(s.parts.len() as u64 >= 600_000u64.div_ceil(s.points_per_part));
     assert!(s.parts.len() >= 3, "{} parts", s.parts.len());
@@ -211,8 +207,13 @@ fn sampled_first_pass_keeps_every_point_within_budget() {
     for input in [&text, &las, &laz] {
         let whole = dir.path().join("whole.pcimg");
         let sampled = dir.path().join("sampled.pcimg");
-        let s = convert::convert(input, &opts(whole.clone(), 64 << 20), &Quiet).unwrap();
-        let mut o = opts(sampled.clone(), 64 << 20);
+        let s = convert::convert(
+            input,
+            &common::convert_options(whole.clone(), 64 << 20),
+            &Quiet,
+        )
+        .unwrap();
+        let mut o = common::convert_options(sampled.clone(), 64 << 20);
         o.sample_points = 20_000;
         let notes = Notes::default();
         let t = convert::convert(input, &o, &notes).unwrap();
@@ -241,7 +242,7 @@ fn sampled_first_pass_keeps_every_point_within_budget() {
     let line = bytes[..at].iter().filter(|&&c| c == b'\n').count() + 1;
     bytes.splice(at..at, b"1 2 oops 4\n".iter().copied());
     std::fs::write(&text, &bytes).unwrap();
-    let mut o = opts(dir.path().join("bad.pcimg"), 64 << 20);
+    let mut o = common::convert_options(dir.path().join("bad.pcimg"), 64 << 20);
     o.sample_points = 20_000;
     let e = convert::convert(&text, &o, &Quiet).unwrap_err().to_string();
     assert!(e.contains(&format!("line {line}")), "{e}");
@@ -265,7 +266,7 @@ fn underestimated_regions_are_split_within_budget() {
     }
     std::fs::write(&input, &text).unwrap();
     let out = dir.path().join("dense.pcimg");
-    let mut o = opts(out.clone(), 64 << 20);
+    let mut o = common::convert_options(out.clone(), 64 << 20);
     // A tiny sample: its region estimates are far off.
     o.sample_points = 2_000;
     let s = convert::convert(&input, &o, &Quiet).unwrap();
@@ -300,7 +301,7 @@ fn points_far_outside_the_sample_are_kept_to_a_millimetre() {
     text.push_str("40000.125 50.5 1.5 9\n");
     std::fs::write(&input, &text).unwrap();
     let out = dir.path().join("far.pcimg");
-    let mut o = opts(out.clone(), 64 << 20);
+    let mut o = common::convert_options(out.clone(), 64 << 20);
     o.sample_points = 1;
     let notes = Notes::default();
     let s = convert::convert(&input, &o, &notes).unwrap();
@@ -325,7 +326,7 @@ fn stream_partition_keeps_file_order() {
     let input = dir.path().join("scan.las");
     pcimg::synth::write_las(&input, 300_000, 5).unwrap();
     let out = dir.path().join("stream");
-    let mut o = opts(out.clone(), 56 << 20);
+    let mut o = common::convert_options(out.clone(), 56 << 20);
     o.partition = Partition::Stream;
     o.layout = Layout::Paper;
     let s = convert::convert(&input, &o, &Quiet).unwrap();
@@ -359,19 +360,23 @@ fn precision_is_refused_unless_allowed() {
     let dir = tempfile::tempdir().unwrap();
     let input = dir.path().join("wide.xyz");
     std::fs::write(&input, "0 0 0\n100000 5 1\n50000 2 3\n").unwrap();
-    let e = convert::convert(&input, &opts(dir.path().join("w.tif"), 1 << 30), &Quiet)
-        .unwrap_err()
-        .to_string();
+    let e = convert::convert(
+        &input,
+        &common::convert_options(dir.path().join("w.tif"), 1 << 30),
+        &Quiet,
+    )
+    .unwrap_err()
+    .to_string();
     assert!(e.contains("100.0 km") && e.contains("--allow-lossy"), "{e}");
     assert!(
         e.contains("1.95 mm") && e.contains("a directory output"),
         "{e}"
     );
-    let mut o = opts(dir.path().join("w.tif"), 1 << 30);
+    let mut o = common::convert_options(dir.path().join("w.tif"), 1 << 30);
     o.allow_lossy = true;
     assert!(convert::convert(&input, &o, &Quiet).is_ok());
     // Stream parts follow the file: refused, pointing to spatial parts.
-    let mut o = opts(dir.path().join("stream.pcimg"), 1 << 30);
+    let mut o = common::convert_options(dir.path().join("stream.pcimg"), 1 << 30);
     o.partition = Partition::Stream;
     let e = convert::convert(&input, &o, &Quiet)
         .unwrap_err()
@@ -401,7 +406,12 @@ fn wide_inputs_become_parts_that_keep_a_millimetre() {
         }
         std::fs::write(&input, &text).unwrap();
         let out = dir.path().join(format!("clusters{n}.pcimg"));
-        let s = convert::convert(&input, &opts(out.clone(), memory), &Quiet).unwrap();
+        let s = convert::convert(
+            &input,
+            &common::convert_options(out.clone(), memory),
+            &Quiet,
+        )
+        .unwrap();
         assert!(s.parts.len() >= 2, "{n}: {} part(s)", s.parts.len());
         assert!(
             s.max_quantization_error < 1e-3,
@@ -451,7 +461,12 @@ fn wide_las_fitting_one_part_is_read_again_and_partitioned() {
     }
     w.close().unwrap();
     let out = dir.path().join("clusters.pcimg");
-    let s = convert::convert(&input, &opts(out.clone(), 1 << 30), &Quiet).unwrap();
+    let s = convert::convert(
+        &input,
+        &common::convert_options(out.clone(), 1 << 30),
+        &Quiet,
+    )
+    .unwrap();
     assert!(s.parts.len() >= 2, "{} part(s)", s.parts.len());
     assert!(
         s.max_quantization_error < 1e-3,
@@ -473,7 +488,7 @@ fn wrong_header_bounds_are_not_trusted() {
     let good = dir.path().join("good.las");
     pcimg::synth::write_las(&good, 50_000, 3).unwrap();
     let a = dir.path().join("a.tif");
-    let sa = convert::convert(&good, &opts(a.clone(), 1 << 30), &Quiet).unwrap();
+    let sa = convert::convert(&good, &common::convert_options(a.clone(), 1 << 30), &Quiet).unwrap();
     // Max X (byte 179), Min X (187), Max Y (195) and Min Y (203) of the header.
     let header = std::fs::read(&good).unwrap();
     let at = |o: usize| f64::from_le_bytes(header[o..o + 8].try_into().unwrap());
@@ -487,7 +502,8 @@ fn wrong_header_bounds_are_not_trusted() {
         let bad = dir.path().join(format!("bad{k}.las"));
         std::fs::write(&bad, &bytes).unwrap();
         let b = dir.path().join(format!("b{k}.tif"));
-        let sb = convert::convert(&bad, &opts(b.clone(), 1 << 30), &Quiet).unwrap();
+        let sb =
+            convert::convert(&bad, &common::convert_options(b.clone(), 1 << 30), &Quiet).unwrap();
         assert_eq!((sa.points, sb.points), (50_000, 50_000));
         assert_eq!(dataset_points(&a), dataset_points(&b));
         let part = &Dataset::open(&b).unwrap().parts[0];
@@ -515,7 +531,7 @@ fn first_window_far_from_the_rest_is_read_again() {
     }
     std::fs::write(&input, text).unwrap();
     let out = dir.path().join("long.tif");
-    let mut o = opts(out.clone(), 1 << 30);
+    let mut o = common::convert_options(out.clone(), 1 << 30);
     o.read.chunk_points = 1000;
     let s = convert::convert(&input, &o, &Quiet).unwrap();
     assert_eq!(s.points, 5000);
@@ -545,7 +561,7 @@ fn interrupted_conversion_leaves_nothing() {
     let input = dir.path().join("scan.xyz");
     pcimg::synth::write_text(&input, 400_000, 1).unwrap();
     for partition in [Partition::Spatial, Partition::Stream] {
-        let mut o = opts(dir.path().join("out"), 64 << 20);
+        let mut o = common::convert_options(dir.path().join("out"), 64 << 20);
         o.partition = partition;
         o.read.chunk_points = 50_000;
         let stop = StopAfterFirst(o.cancel.clone());
@@ -578,9 +594,13 @@ fn bad_inputs_are_clear_errors_and_leave_nothing() {
         let input = d.join(name);
         std::fs::write(&input, &bytes).unwrap();
         let out = d.join(format!("{name}.out"));
-        let e = convert::convert(&input, &opts(out.clone(), 1 << 30), &Quiet)
-            .expect_err(name)
-            .to_string();
+        let e = convert::convert(
+            &input,
+            &common::convert_options(out.clone(), 1 << 30),
+            &Quiet,
+        )
+        .expect_err(name)
+        .to_string();
         assert!(
             e.contains(name),
             "{name}: error does not name the file: {e}"
@@ -593,12 +613,17 @@ fn bad_inputs_are_clear_errors_and_leave_nothing() {
     // skip_invalid skips and counts.
     let input = d.join("bad.xyz");
     std::fs::write(&input, b"1 2 3\n4 5 6\n7 oops 9\n10 11 12\n").unwrap();
-    let mut o = opts(d.join("ok.tif"), 1 << 30);
+    let mut o = common::convert_options(d.join("ok.tif"), 1 << 30);
     o.read.skip_invalid = true;
     let s = convert::convert(&input, &o, &Quiet).unwrap();
     assert_eq!((s.points, s.skipped), (3, 1));
     // An existing output is not replaced without force.
-    let e = convert::convert(&input, &opts(d.join("ok.tif"), 1 << 30), &Quiet).unwrap_err();
+    let e = convert::convert(
+        &input,
+        &common::convert_options(d.join("ok.tif"), 1 << 30),
+        &Quiet,
+    )
+    .unwrap_err();
     assert!(e.to_string().contains("--force"), "{e}");
 }
 
@@ -741,7 +766,12 @@ fn colour_scale_does_not_depend_on_memory() {
     std::fs::write(&input, &text).unwrap();
     let red = |memory: u64| -> (f64, f64) {
         let out = dir.path().join(format!("m{memory}.pcimg"));
-        let s = convert::convert(&input, &opts(out.clone(), memory), &Quiet).unwrap();
+        let s = convert::convert(
+            &input,
+            &common::convert_options(out.clone(), memory),
+            &Quiet,
+        )
+        .unwrap();
         // Every channel of the 300,000 later points was clamped, and is counted.
         assert_eq!(s.clamped_colours, 900_000);
         let ds = Dataset::open(&out).unwrap();
@@ -829,7 +859,7 @@ fn several_files_become_one_dataset() {
         .collect();
     for (files, n) in [(&tiles, 300_000u64), (&las, 400_000)] {
         let out = dir.path().join("out.pcimg");
-        let mut o = opts(out.clone(), 64 << 20);
+        let mut o = common::convert_options(out.clone(), 64 << 20);
         o.sample_points = 20_000;
         let notes = Notes::default();
         let s = convert::convert_files(files, &o, &notes).unwrap();
@@ -867,7 +897,7 @@ fn several_files_that_disagree_are_refused() {
     let out = d.join("out.pcimg");
     let e = convert::convert_files(
         &[xyzi.clone(), xyz.clone()],
-        &opts(out.clone(), 1 << 30),
+        &common::convert_options(out.clone(), 1 << 30),
         &Quiet,
     )
     .unwrap_err()
@@ -878,7 +908,7 @@ fn several_files_that_disagree_are_refused() {
     );
     let e = convert::convert_files(
         &[xyzi.clone(), d.join(".").join("a.xyz")],
-        &opts(out.clone(), 1 << 30),
+        &common::convert_options(out.clone(), 1 << 30),
         &Quiet,
     )
     .unwrap_err()
@@ -886,9 +916,13 @@ fn several_files_that_disagree_are_refused() {
     assert!(e.contains("given twice"), "{e}");
     let bad = d.join("c.xyz");
     std::fs::write(&bad, "1 2 3 10\n4 5 six 20\n").unwrap();
-    let e = convert::convert_files(&[xyzi.clone(), bad], &opts(out.clone(), 1 << 30), &Quiet)
-        .unwrap_err()
-        .to_string();
+    let e = convert::convert_files(
+        &[xyzi.clone(), bad],
+        &common::convert_options(out.clone(), 1 << 30),
+        &Quiet,
+    )
+    .unwrap_err()
+    .to_string();
     assert!(e.contains("c.xyz: line 2"), "{e}");
     assert!(!out.exists());
     assert_eq!(entries(d), ["a.xyz", "b.xyz", "c.xyz"]);
@@ -964,7 +998,7 @@ fn far_points_the_sample_misses_get_their_own_parts() {
         let input = dir.path().join("far.xyz");
         std::fs::write(&input, body).unwrap();
         let out = dir.path().join("far.pcimg");
-        let mut o = opts(out.clone(), 64 << 20);
+        let mut o = common::convert_options(out.clone(), 64 << 20);
         o.sample_points = 20_000;
         let notes = Notes::default();
         let s = convert::convert(&input, &o, &notes).unwrap();
@@ -1009,7 +1043,12 @@ fn one_wild_coordinate_gets_a_part_of_its_own() {
     text.push_str("637148.132 60111178.540 18.000 104\n");
     std::fs::write(&input, &text).unwrap();
     let out = dir.path().join("wild.pcimg");
-    let s = convert::convert(&input, &opts(out.clone(), 8 << 20), &convert::Quiet).unwrap();
+    let s = convert::convert(
+        &input,
+        &common::convert_options(out.clone(), 8 << 20),
+        &convert::Quiet,
+    )
+    .unwrap();
     assert_eq!(s.points, 1501);
     assert!(
         s.max_quantization_error < 1e-3,
@@ -1044,7 +1083,7 @@ fn several_files_note_what_one_offset_costs() {
     let notes = Notes::default();
     let s = convert::convert_files(
         &[a.clone(), b.clone()],
-        &opts(d.join("ab.tif"), 1 << 30),
+        &common::convert_options(d.join("ab.tif"), 1 << 30),
         &notes,
     )
     .unwrap();
@@ -1059,7 +1098,12 @@ fn several_files_note_what_one_offset_costs() {
     // Close offsets: nothing to say.
     let notes = Notes::default();
     std::fs::write(&b, format!("x y z gps_time\n{}", lines(3.0e8 + 60.0))).unwrap();
-    convert::convert_files(&[a, b], &opts(d.join("ab2.tif"), 1 << 30), &notes).unwrap();
+    convert::convert_files(
+        &[a, b],
+        &common::convert_options(d.join("ab2.tif"), 1 << 30),
+        &notes,
+    )
+    .unwrap();
     let notes = notes.0.into_inner().unwrap();
     assert!(!notes.iter().any(|n| n.contains("offset")), "{notes:?}");
     // An empty LAS tile between two others.
@@ -1075,7 +1119,12 @@ fn several_files_note_what_one_offset_costs() {
     bytes[179..227].fill(0);
     std::fs::write(&z0, bytes).unwrap();
     let notes = Notes::default();
-    let s = convert::convert_files(&[z1, z0, z2], &opts(d.join("z.tif"), 1 << 30), &notes).unwrap();
+    let s = convert::convert_files(
+        &[z1, z0, z2],
+        &common::convert_options(d.join("z.tif"), 1 << 30),
+        &notes,
+    )
+    .unwrap();
     assert_eq!(s.points, 40_000);
     let notes = notes.0.into_inner().unwrap();
     assert!(!notes.iter().any(|n| n.contains("again")), "{notes:?}");
@@ -1105,7 +1154,7 @@ fn las_rows_read_from_the_input_match_a_held_copy() {
                 input.file_name().unwrap().to_string_lossy(),
                 layout.name()
             ));
-            let mut o = opts(out.clone(), 1 << 30);
+            let mut o = common::convert_options(out.clone(), 1 << 30);
             o.layout = layout;
             o.compression = compression;
             let s = convert::convert(input, &o, &Quiet).unwrap();

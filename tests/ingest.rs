@@ -1,5 +1,7 @@
 //! The input readers against the real sample files in `fixtures/`.
 
+mod common;
+
 use std::path::{Path, PathBuf};
 
 use pcimg::ingest::{self, ReadOptions};
@@ -7,14 +9,6 @@ use pcimg::points::PointColumns;
 
 fn sample(name: &str) -> PathBuf {
     Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/fixtures/")).join(name)
-}
-
-fn attr<'a>(p: &'a PointColumns, name: &str) -> &'a [f32] {
-    &p.attributes
-        .iter()
-        .find(|a| a.name == name)
-        .unwrap_or_else(|| panic!("no attribute {name}"))
-        .values
 }
 
 fn close(a: f64, b: f64) -> bool {
@@ -51,7 +45,7 @@ fn autzen_laz() {
         ]
     );
     for c in ["red", "green", "blue"] {
-        let v = attr(&pts, c);
+        let v = common::attr(&pts, c);
         let mx = v.iter().cloned().fold(0.0f32, f32::max);
         assert!(mx <= 255.0 && mx > 1.0, "{c} max {mx}");
     }
@@ -122,7 +116,7 @@ fn cgal_binary_ply() {
     assert_eq!(pts.len(), 22_300);
     assert_eq!(info.attribute_names, ["red", "green", "blue", "label"]);
     for c in ["red", "green", "blue"] {
-        let v = attr(&pts, c);
+        let v = common::attr(&pts, c);
         assert!(v.iter().all(|&x| (0.0..=255.0).contains(&x)));
         assert!(v.iter().any(|&x| x > 1.0));
     }

@@ -325,6 +325,17 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     if s.skipped > 0 {
         writeln!(out, "  skipped {} malformed line(s)", count(s.skipped))?;
     }
+    if s.left_out > 0 {
+        writeln!(
+            out,
+            "  left out {} point(s) the input marks as holding no measurement \
+             (NaN coordinates, invalid state)",
+            count(s.left_out)
+        )?;
+    }
+    for n in &s.notes {
+        writeln!(out, "  {}", sanitize(n))?;
+    }
     writeln!(
         out,
         "  {:.2} s: {:.2} M points/s, {:.0} MB/s of input",

@@ -62,6 +62,9 @@ pub struct PartReport {
     /// Points per classification code, as recorded when the part was written.
     #[serde(skip_serializing_if = "Vec::is_empty")]
     pub class_counts: Vec<(u8, u64)>,
+    /// What the source says of itself: `VIEWPOINT` (PCD), `SCANS` (E57, JSON).
+    #[serde(skip_serializing_if = "std::collections::BTreeMap::is_empty")]
+    pub from_source: std::collections::BTreeMap<String, String>,
     pub bands: Vec<BandReport>,
     pub levels: Vec<LevelReport>,
 }
@@ -113,6 +116,7 @@ fn part_report(p: &Part, tiles: bool) -> PartReport {
         crs: p.meta.crs.clone(),
         max_quantization_error: p.meta.max_quantization_error,
         class_counts: p.meta.class_counts.clone(),
+        from_source: p.meta.from_source.iter().cloned().collect(),
         bands: p
             .bands
             .iter()
@@ -288,6 +292,9 @@ pub fn render_text(r: &DatasetReport) -> String {
                 .collect();
             let _ = writeln!(o, "  classes  {}", classes.join(" · "));
         }
+        for (k, v) in &p.from_source {
+            source_lines(&mut o, k, v);
+        }
         let _ = writeln!(o, "  bands    {}", p.bands.len());
         for (b, band) in p.bands.iter().enumerate() {
             let mut off = match band.range {
@@ -340,6 +347,46 @@ pub fn render_text(r: &DatasetReport) -> String {
         }
     }
     o
+}
+
+/// A `from_source` item as lines: E57 scans one a line, others as they are.
+fn source_lines(o: &mut String, key: &str, value: &str) {
+    use std::fmt::Write;
+    let scans: Option<Vec<serde_json::Value>> = (key == crate::store::spec::key::SCANS)
+        .then(|| serde_json::from_str(value).ok())
+        .flatten();
+    let Some(scans) = scans else {
+        let _ = writeln!(
+            o,
+            "  {:<8} {}",
+            sanitize(&key.to_ascii_lowercase()),
+            sanitize(value)
+        );
+        return;
+    };
+    let _ = writeln!(o, "  scans    {}", scans.len());
+    for s in &scans {
+        let num = |k: &str| {
+            s[k].as_array()
+                .map(|a| a.iter().filter_map(|v| v.as_f64()).collect::<Vec<_>>())
+                .unwrap_or_default()
+        };
+        let list = |v: Vec<f64>| {
+            v.iter()
+                .map(|c| format!("{c}"))
+                .collect::<Vec<_>>()
+                .join(", ")
+        };
+        let _ = writeln!(
+            o,
+            "    {:>3}  {:<24} {:>12} points  rotation (w x y z) ({})  translation ({})",
+            s["scan"].as_u64().unwrap_or(0),
+            sanitize(s["name"].as_str().unwrap_or("-")),
+            count(s["points"].as_u64().unwrap_or(0)),
+            list(num("rotation")),
+            list(num("translation"))
+        );
+    }
 }
 
 pub fn run(a: Args) -> anyhow::Result<()> {

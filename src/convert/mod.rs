@@ -95,6 +95,11 @@ pub struct ConvertSummary {
     pub input_bytes: u64,
     pub points: u64,
     pub skipped: u64,
+    /// Points the input marks as holding no measurement (PCD NaN slots, E57
+    /// invalid states), left out.
+    pub left_out: u64,
+    /// What the reader left aside (embedded images, fields too wide to be bands).
+    pub notes: Vec<String>,
     /// Colour values beyond the colour scale decided on the input's first points,
     /// clamped to 0–255.
     pub clamped_colours: u64,

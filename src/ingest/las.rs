@@ -451,6 +451,8 @@ pub(crate) fn open_header(path: &Path) -> Result<Opened, IngestError> {
             crs_wkt: crs_of(&header),
             attribute_names: attribute_names(&format),
             file_bytes: file_len,
+            notes: Vec::new(),
+            metadata: Vec::new(),
         };
         Ok(Opened {
             file,

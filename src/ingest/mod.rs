@@ -2,9 +2,11 @@
 //! [`PointColumns`] chunks.
 //!
 //! * Formats: text (`.xyz .txt .csv .asc .pts`), PLY (ASCII, binary little- and
-//!   big-endian; `.ply`), LAS 1.0–1.4 and LAZ (`.las .laz`).
+//!   big-endian; `.ply`), LAS 1.0–1.4 and LAZ (`.las .laz`), PCD 0.5–0.7 (ascii,
+//!   binary, binary_compressed; `.pcd`), E57 (`.e57`).
 //! * Detection: content first where it is cheap and certain (PLY magic `ply\n`,
-//!   LAS signature `LASF`), then the file extension; anything else is an error.
+//!   LAS signature `LASF`, E57 signature `ASTM-E57`, a PCD header's first line),
+//!   then the file extension; anything else is an error.
 //! * Chunking: a reader delivers the points in windows of about
 //!   [`ReadOptions::chunk_points`] points, so an input larger than memory is never
 //!   held whole. Text and PLY are memory-mapped and parsed in parallel with rayon.
@@ -22,11 +24,13 @@
 pub mod ahead;
 pub mod color;
 pub(crate) mod contain;
+pub mod e57;
 pub mod error;
 pub mod las;
 pub mod las_records;
 pub(crate) mod lines;
 pub mod multi;
+pub mod pcd;
 pub mod ply;
 pub mod text;
 
@@ -55,6 +59,12 @@ pub struct SourceInfo {
     /// Names of the attribute columns every chunk carries, in order.
     pub attribute_names: Vec<String>,
     pub file_bytes: u64,
+    /// Lines for the conversion's summary on what the reader leaves aside
+    /// (embedded images, fields too wide to be bands).
+    pub notes: Vec<String>,
+    /// Items about the source for the part's metadata, name and value
+    /// (`VIEWPOINT`, `SCANS`: see `store::spec::key`).
+    pub metadata: Vec<(String, String)>,
 }
 
 /// How to read an input.
@@ -95,6 +105,11 @@ pub trait PointReader: Send {
     fn bytes_done(&self) -> u64;
     /// Number of malformed lines skipped so far (with `skip_invalid`).
     fn skipped(&self) -> u64;
+    /// Points so far that the file itself marks as holding no measurement and
+    /// that were left out: PCD's NaN slots, E57's invalid states.
+    fn left_out(&self) -> u64 {
+        0
+    }
     /// Colour values so far that did not fit the file's colour scale (decided on
     /// its first points, see [`color`]) and were clamped to 0–255.
     fn clamped_colours(&self) -> u64 {
@@ -175,6 +190,8 @@ pub enum InputKind {
     Text,
     Ply,
     Las,
+    Pcd,
+    E57,
 }
 
 /// Extensions read as text.
@@ -186,6 +203,8 @@ pub fn kind_by_extension(path: &Path) -> Option<InputKind> {
     match ext.as_str() {
         "ply" => Some(InputKind::Ply),
         "las" | "laz" => Some(InputKind::Las),
+        "pcd" => Some(InputKind::Pcd),
+        "e57" => Some(InputKind::E57),
         e if TEXT_EXTENSIONS.contains(&e) => Some(InputKind::Text),
         _ => None,
     }
@@ -193,10 +212,10 @@ pub fn kind_by_extension(path: &Path) -> Option<InputKind> {
 
 /// Detects the format of `path` from its first bytes, then its extension.
 pub fn detect(path: &Path) -> Result<InputKind, IngestError> {
-    let mut magic = [0u8; 4];
+    let mut magic = [0u8; 8];
     let mut n = 0;
     let mut f = std::fs::File::open(path).map_err(|e| IngestError::io(path, "cannot open", e))?;
-    while n < 4 {
+    while n < 8 {
         match f.read(&mut magic[n..]) {
             Ok(0) => break,
             Ok(k) => n += k,
@@ -204,11 +223,17 @@ pub fn detect(path: &Path) -> Result<InputKind, IngestError> {
             Err(e) => return Err(IngestError::io(path, "cannot read", e)),
         }
     }
-    if n == 4 && (&magic == b"ply\n" || &magic == b"ply\r") {
+    if n >= 4 && (&magic[..4] == b"ply\n" || &magic[..4] == b"ply\r") {
         return Ok(InputKind::Ply);
     }
-    if n == 4 && &magic == b"LASF" {
+    if n >= 4 && &magic[..4] == b"LASF" {
         return Ok(InputKind::Las);
+    }
+    if n == 8 && &magic == b"ASTM-E57" {
+        return Ok(InputKind::E57);
+    }
+    if pcd::header::sniff(&magic[..n]) {
+        return Ok(InputKind::Pcd);
     }
     if let Some(kind) = kind_by_extension(path) {
         return Ok(kind);
@@ -222,12 +247,12 @@ pub fn detect(path: &Path) -> Result<InputKind, IngestError> {
         "" => Err(IngestError::format(
             path,
             "unknown input format: no file extension and no recognised signature \
-             (supported: .xyz .txt .csv .asc .pts .ply .las .laz)",
+             (supported: .xyz .txt .csv .asc .pts .ply .las .laz .pcd .e57)",
         )),
         e => Err(IngestError::format(
             path,
             format!(
-                "unknown input format '.{}' (supported: .xyz .txt .csv .asc .pts .ply .las .laz)",
+                "unknown input format '.{}' (supported: .xyz .txt .csv .asc .pts .ply .las .laz .pcd .e57)",
                 crate::text::sanitize(e)
             ),
         )),
@@ -250,6 +275,8 @@ pub fn open(path: &Path, opts: &ReadOptions) -> Result<Box<dyn PointReader>, Ing
         InputKind::Text => Box::new(text::TextReader::open(path, opts)?),
         InputKind::Ply => ply::open(path, opts)?,
         InputKind::Las => las::open(path, opts)?,
+        InputKind::Pcd => pcd::open(path, opts)?,
+        InputKind::E57 => e57::open(path, opts)?,
     };
     let attributes = reader.info().attribute_names.len();
     if attributes > crate::points::MAX_ATTRIBUTES {
@@ -378,14 +405,14 @@ mod tests {
     #[test]
     fn unknown_extension_is_an_error() {
         let dir = tempfile::tempdir().unwrap();
-        let p = dir.path().join("cloud.e57");
+        let p = dir.path().join("cloud.e58");
         std::fs::File::create(&p)
             .unwrap()
             .write_all(b"1 2 3\n")
             .unwrap();
         let e = open(&p, &ReadOptions::default()).err().unwrap();
         let s = e.to_string();
-        assert!(s.contains("cloud.e57") && s.contains(".e57"), "{s}");
+        assert!(s.contains("cloud.e58") && s.contains(".e58"), "{s}");
         let p = dir.path().join("noext");
         std::fs::File::create(&p)
             .unwrap()

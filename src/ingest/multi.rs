@@ -39,6 +39,7 @@ pub struct MultiReader {
     bytes_before: u64,
     skipped_before: u64,
     clamped_before: u64,
+    left_out_before: u64,
     /// Sampling rate asked for, applied to every file opened from now on.
     every: Option<u64>,
 }
@@ -95,6 +96,7 @@ impl MultiReader {
             bytes_before: 0,
             skipped_before: 0,
             clamped_before: 0,
+            left_out_before: 0,
             every: None,
         })
     }
@@ -144,6 +146,7 @@ impl MultiReader {
         if let Some(r) = self.current.take() {
             self.skipped_before += r.skipped();
             self.clamped_before += r.clamped_colours();
+            self.left_out_before += r.left_out();
         }
         self.bytes_before += self.sizes[self.at];
         self.at += 1;
@@ -209,6 +212,21 @@ fn merge(infos: &[SourceInfo]) -> Result<SourceInfo, IngestError> {
         crs_wkt: crs.map(|(_, c)| c.clone()),
         attribute_names: first.attribute_names.clone(),
         file_bytes: infos.iter().map(|i| i.file_bytes).sum(),
+        notes: infos
+            .iter()
+            .flat_map(|i| {
+                i.notes
+                    .iter()
+                    .map(|n| format!("{}: {n}", super::error::show_path(&i.path)))
+            })
+            .collect(),
+        // One file's description of itself (a viewpoint, its scans) would
+        // mislead about the others: kept only when every file has the same.
+        metadata: if infos.iter().all(|i| i.metadata == first.metadata) {
+            first.metadata.clone()
+        } else {
+            Vec::new()
+        },
     })
 }
 
@@ -344,6 +362,10 @@ impl PointReader for MultiReader {
         self.clamped_before + self.current.as_ref().map_or(0, |r| r.clamped_colours())
     }
 
+    fn left_out(&self) -> u64 {
+        self.left_out_before + self.current.as_ref().map_or(0, |r| r.left_out())
+    }
+
     fn row_source(&self) -> Option<std::sync::Arc<dyn crate::points::RowSource>> {
         // One file's rows only: point indices run over every file.
         if self.paths.len() != 1 {
@@ -379,6 +401,8 @@ mod tests {
             crs_wkt: crs.map(String::from),
             attribute_names: names.iter().map(|s| s.to_string()).collect(),
             file_bytes: 100,
+            notes: Vec::new(),
+            metadata: Vec::new(),
         }
     }
 

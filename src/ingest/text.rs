@@ -348,6 +348,8 @@ impl TextReader {
             crs_wkt: None,
             attribute_names: layout.attr_names.clone(),
             file_bytes: data.len() as u64,
+            notes: Vec::new(),
+            metadata: Vec::new(),
         };
         Ok(LineReader::new(info, map, engine))
     }

@@ -31,6 +31,10 @@ pub struct PartMeta {
     /// when the part has no classification band or predates the item.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub class_counts: Vec<(u8, u64)>,
+    /// The items the source gave about itself (`key::FROM_SOURCE`: a PCD
+    /// viewpoint, E57 scans), name and value.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub from_source: Vec<(String, String)>,
     /// Every default-domain item, as stored (unsanitized: sanitize before display).
     /// Not kept in the dataset index (the fields above are): empty for a part
     /// opened from it.
@@ -245,6 +249,10 @@ fn parse_meta(items: &BTreeMap<String, String>) -> std::result::Result<PartMeta,
             .map(|s| metadata::parse_class_counts(s))
             .transpose()?
             .unwrap_or_default(),
+        from_source: key::FROM_SOURCE
+            .iter()
+            .filter_map(|k| items.get(*k).map(|v| (k.to_string(), v.clone())))
+            .collect(),
         items: items.clone(),
     })
 }

@@ -73,6 +73,14 @@ pub mod key {
     /// (codes ascending, absent codes left out), for parts with a
     /// `classification` band; counted when the part is written.
     pub const CLASS_COUNTS: &str = "CLASS_COUNTS";
+    /// PCD inputs: the `VIEWPOINT` of the header, `tx ty tz qw qx qy qz`.
+    pub const VIEWPOINT: &str = "VIEWPOINT";
+    /// E57 inputs: the scans, as JSON: `[{"scan", "name", "guid", "points",
+    /// "rotation": [w, x, y, z], "translation": [x, y, z]}]`; `scan` is the
+    /// value of the `scan` band.
+    pub const SCANS: &str = "SCANS";
+    /// The items above: what a source says of itself, shown by `info`.
+    pub const FROM_SOURCE: &[&str] = &[VIEWPOINT, SCANS];
     /// Per-band minimum and maximum of the stored values (before the band offset),
     /// as GDAL names its band statistics, so `gdalinfo` shows them.
     pub const STATISTICS_MINIMUM: &str = "STATISTICS_MINIMUM";

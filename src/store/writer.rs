@@ -34,6 +34,9 @@ pub struct WriteOptions {
     pub source: Option<String>,
     /// Coordinate reference system (WKT or `EPSG:n`), recorded in the metadata.
     pub crs: Option<String>,
+    /// Items the source gives about itself (`key::FROM_SOURCE`), recorded in
+    /// the metadata.
+    pub from_source: Vec<(String, String)>,
     /// Write BigTIFF even when classic TIFF would do.
     pub force_bigtiff: bool,
     /// When set (Ctrl-C), the write stops at the next tile batch or phase with an
@@ -581,6 +584,9 @@ fn metadata_xml(a: &Arranged, opts: &WriteOptions, index: &[LevelIndex]) -> Stri
             key::CLASS_COUNTS,
             metadata::class_counts(&counts),
         ));
+    }
+    for (k, v) in &opts.from_source {
+        items.push(Item::dataset(k, v.clone()));
     }
     for (b, (lo, hi)) in stored_ranges(a).into_iter().enumerate() {
         if lo <= hi {

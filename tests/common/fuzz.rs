@@ -34,7 +34,9 @@ pub enum Outcome {
 
 /// Small seed files, `n` points each: text (`.xyz`), CSV with a header, PTS with
 /// a count line, ASCII and binary (both byte orders) PLY with a face element,
-/// LAS, LAZ, and a dataset part (`.tif`, from the text). Written under `dir`.
+/// LAS, LAZ, PCD (ascii, binary, binary_compressed), E57 (floats in one scan,
+/// scaled integers in two), and a dataset part (`.tif`, from the text).
+/// Written under `dir`.
 pub fn seeds(dir: &Path, n: u64) -> anyhow::Result<Vec<(Vec<u8>, String)>> {
     let xyz = dir.join("seed.xyz");
     pcimg::synth::write_text(&xyz, n, 1)?;
@@ -100,6 +102,17 @@ pub fn seeds(dir: &Path, n: u64) -> anyhow::Result<Vec<(Vec<u8>, String)>> {
         let p = dir.join(format!("seed.{ext}"));
         pcimg::synth::write_las(&p, n, 2)?;
         out.push((std::fs::read(&p)?, ext.to_string()));
+    }
+    use pcimg::synth_formats::{PcdData, write_e57, write_pcd};
+    for data in [PcdData::Ascii, PcdData::Binary, PcdData::Compressed] {
+        let p = dir.join("seed.pcd");
+        write_pcd(&p, n, 3, data)?;
+        out.push((std::fs::read(&p)?, "pcd".to_string()));
+    }
+    for (scaled, scans) in [(false, 1), (true, 2)] {
+        let p = dir.join("seed.e57");
+        write_e57(&p, n, 4, scaled, scans)?;
+        out.push((std::fs::read(&p)?, "e57".to_string()));
     }
     let part = dir.join("seed.tif");
     let o = ConvertOptions {
@@ -181,7 +194,7 @@ pub fn options(rng: &mut Rng, ext: &str, output: &Path) -> ConvertOptions {
                 2 => Some("_ x y z".into()),
                 _ => None,
             }
-            .filter(|_| !matches!(ext, "ply" | "las" | "laz" | "tif")),
+            .filter(|_| !matches!(ext, "ply" | "las" | "laz" | "pcd" | "e57" | "tif")),
             skip_invalid: below(rng, 2) == 0,
             chunk_points: [1usize, 7, 500, 4096][below(rng, 4) as usize],
         },

@@ -67,3 +67,29 @@ pub fn multiset(rows: Vec<Vec<u64>>) -> Vec<Vec<u64>> {
     rows.sort();
     rows
 }
+
+/// The values of attribute `name` (the test fails when there is none).
+pub fn attr<'a>(p: &'a PointColumns, name: &str) -> &'a [f32] {
+    &p.attributes
+        .iter()
+        .find(|a| a.name == name)
+        .unwrap_or_else(|| panic!("no attribute {name}"))
+        .values
+}
+
+/// `convert`'s options with every default but the output and the memory budget.
+pub fn convert_options(output: std::path::PathBuf, memory: u64) -> pcimg::convert::ConvertOptions {
+    pcimg::convert::ConvertOptions {
+        output,
+        force: false,
+        memory,
+        partition: pcimg::convert::Partition::Spatial,
+        compression: pcimg::store::Compression::None,
+        layout: pcimg::store::Layout::Hilbert,
+        read: pcimg::ingest::ReadOptions::default(),
+        allow_lossy: false,
+        cancel: std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false)),
+        sample_points: pcimg::convert::DEFAULT_SAMPLE_POINTS,
+        io: pcimg::store::TileIo::Auto,
+    }
+}

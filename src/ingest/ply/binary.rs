@@ -173,28 +173,6 @@ struct BinaryPly {
     after: Vec<Element>,
 }
 
-/// Whether point `i` has finite coordinates.
-fn finite_at(c: &PointColumns, i: usize) -> bool {
-    c.x[i].is_finite() && c.y[i].is_finite() && c.z[i].is_finite()
-}
-
-/// Drops the points with a non-finite coordinate; returns how many were dropped.
-fn drop_non_finite(c: &mut PointColumns) -> u64 {
-    let keep: Vec<bool> = (0..c.len()).map(|i| finite_at(c, i)).collect();
-    let dropped = keep.iter().filter(|k| !**k).count() as u64;
-    fn retain<T: Copy>(v: &mut Vec<T>, keep: &[bool]) {
-        let mut k = keep.iter();
-        v.retain(|_| k.next().copied().unwrap_or(false));
-    }
-    retain(&mut c.x, &keep);
-    retain(&mut c.y, &keep);
-    retain(&mut c.z, &keep);
-    for a in &mut c.attributes {
-        retain(&mut a.values, &keep);
-    }
-    dropped
-}
-
 /// Output slices for a run of records.
 struct Task<'a> {
     first: usize,
@@ -385,11 +363,11 @@ impl BinaryPly {
         // Non-finite coordinates cannot be stored: skip them or report the first.
         if !all_finite {
             if self.skip_invalid {
-                self.skipped += drop_non_finite(&mut cols);
+                self.skipped += cols.drop_non_finite();
                 if cols.is_empty() {
                     return Ok(Some(cols));
                 }
-            } else if let Some(i) = (0..n).find(|&i| !finite_at(&cols, i)) {
+            } else if let Some(i) = (0..n).find(|&i| !cols.finite_at(i)) {
                 let vertex = self.done - n as u64 + i as u64;
                 return Err(IngestError::binary(
                     &self.info.path,

@@ -336,6 +336,8 @@ pub fn open(path: &Path, opts: &ReadOptions) -> Result<Box<dyn PointReader>, Ing
         crs_wkt: None,
         attribute_names: plan.layout.attr_names.clone(),
         file_bytes: map.len() as u64,
+        notes: Vec::new(),
+        metadata: Vec::new(),
     };
     if header.encoding == Encoding::Ascii {
         return ascii::open(path, opts, map, &header, plan, info);
