@@ -38,36 +38,21 @@ impl Tmux {
 
     /// A 120 × 40 session `t` running `command`.
     pub fn start(&self, command: &str) {
-        self.run(&[
-            "new-session",
-            "-d",
-            "-s",
-            "t",
-            "-x",
-            "120",
-            "-y",
-            "40",
-            command,
-        ]);
+        self.session((120, 40), &[command]);
+    }
+
+    /// A session `t` of `size` running `command` (a program and its arguments).
+    fn session(&self, size: (u16, u16), command: &[&str]) {
+        let (x, y) = (size.0.to_string(), size.1.to_string());
+        let mut args = vec!["new-session", "-d", "-s", "t", "-x", &x, "-y", &y];
+        args.extend_from_slice(command);
+        self.run(&args);
     }
 
     /// Starts a shell in a `size` window and types `pcimg inspect PATH
     /// --renderer cpu EXTRA` into it.
     pub fn inspect(&self, size: (u16, u16), path: &std::path::Path, extra: &str) {
-        let (x, y) = (size.0.to_string(), size.1.to_string());
-        self.run(&[
-            "new-session",
-            "-d",
-            "-s",
-            "t",
-            "-x",
-            &x,
-            "-y",
-            &y,
-            "env",
-            "PS1=$ ",
-            "sh",
-        ]);
+        self.session(size, &["env", "PS1=$ ", "sh"]);
         let line = format!(
             "NODEVICE_SELECT=1 '{}' inspect '{}' --renderer cpu {extra}",
             env!("CARGO_BIN_EXE_pcimg"),
