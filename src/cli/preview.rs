@@ -44,7 +44,11 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     if a.view.print_camera {
         note!("{}", cam.to_json());
     }
-    let (term_cols, term_rows, _) = term::terminal_pixels();
+    // The size detection read (TIOCGWINSZ), 80×24 should the kernel not say.
+    let (term_cols, term_rows) = found
+        .winsize
+        .filter(|w| w.cols > 0 && w.rows > 0)
+        .map_or((80, 24), |w| (w.cols, w.rows));
     let (cols, rows, w, h) =
         frame_size((term_cols, term_rows), found.cell_pixels, a.cols, graphics);
     let printed = view::render_once(ds, &a.view, &cam, w, h).and_then(|(frame, report)| {

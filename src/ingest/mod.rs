@@ -33,6 +33,7 @@ pub mod multi;
 pub mod pcd;
 pub mod ply;
 pub mod text;
+pub mod value;
 
 use std::io::Read;
 use std::path::{Path, PathBuf};

@@ -34,16 +34,6 @@ impl std::str::FromStr for Protocol {
     }
 }
 
-/// The terminal's size in cells and, when it reports it, in pixels.
-pub fn terminal_pixels() -> (u16, u16, Option<(u32, u32)>) {
-    let (cols, rows) = crossterm::terminal::size().unwrap_or((80, 24));
-    let px = crossterm::terminal::window_size()
-        .ok()
-        .filter(|w| w.width > 0 && w.height > 0)
-        .map(|w| (w.width as u32, w.height as u32));
-    (cols, rows, px)
-}
-
 /// Prints `frame` at the cursor over `cols` × `rows` cells as `choice` says:
 /// sixel at the frame's own pixel size (render it at the cell size × cells), kitty
 /// and iTerm2 scaled by the terminal to the cells (through tmux: kitty as Unicode

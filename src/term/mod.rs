@@ -13,7 +13,7 @@ pub mod tmux;
 pub mod typed;
 
 pub use detect::{Detection, Graphics, TerminalEnv, detect};
-pub use inline::{Protocol, print_frame, terminal_pixels};
+pub use inline::{Protocol, print_frame};
 
 /// A frame of `w` × `h` pixels whose bytes count 0..250 over and over (tests).
 #[cfg(test)]

@@ -137,6 +137,8 @@ pub fn on_signal() {
 #[derive(Default)]
 struct Shown {
     image: Option<PaneImage>,
+    /// The image arrived since the last draw (the next draw sends it).
+    unsent: bool,
     frame: Option<Arc<Frame>>,
     arrivals: VecDeque<Instant>,
 }
@@ -286,10 +288,16 @@ fn event_loop(
         }
         if dirty {
             let t = Instant::now();
-            let image_bytes = shown.image.as_ref().map_or(0, |i| i.bytes());
+            // Only a draw that sends a new image says how fast the link is.
+            let image_bytes = if shown.unsent {
+                shown.image.as_ref().map_or(0, |i| i.bytes())
+            } else {
+                0
+            };
             session
                 .terminal
                 .draw(|f| ui::draw(f, app, shown.image.as_ref()))?;
+            shown.unsent = false;
             link.record(image_bytes, t.elapsed());
             app.link_rate = link.rate;
             dirty = false;
@@ -402,6 +410,7 @@ fn event_loop(
                     }
                     app.frame = f.status;
                     shown.image = Some(f.image);
+                    shown.unsent = true;
                     shown.frame = Some(f.frame);
                     dirty = true;
                 }

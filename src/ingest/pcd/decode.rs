@@ -31,25 +31,7 @@ pub struct Elem {
     pub role: Role,
 }
 
-/// A destination value: coordinates are `f64`, attributes `f32` (or `f64` while
-/// the attribute offsets are chosen).
-pub trait Val: Copy + Send + Default {
-    fn from_f64(v: f64) -> Self;
-}
-
-impl Val for f64 {
-    #[inline(always)]
-    fn from_f64(v: f64) -> Self {
-        v
-    }
-}
-
-impl Val for f32 {
-    #[inline(always)]
-    fn from_f64(v: f64) -> Self {
-        v as f32
-    }
-}
+pub use crate::ingest::value::Val;
 
 /// Columns of consecutive points to fill.
 pub struct Out<'a, A> {

@@ -10,6 +10,7 @@ use crate::bigvec;
 use crate::ingest::color::ColorNormalizer;
 use crate::ingest::error::IngestError;
 use crate::ingest::lines::Role;
+use crate::ingest::value::Val;
 use crate::ingest::{PointReader, ReadOptions, SourceInfo};
 use crate::points::{Attribute, PointColumns};
 use memmap2::Mmap;
@@ -182,28 +183,9 @@ struct Task<'a> {
     attrs: Vec<&'a mut [f32]>,
 }
 
-/// A destination column type.
-trait OutValue: Copy + Send {
-    fn from_f64(v: f64) -> Self;
-}
-
-impl OutValue for f64 {
-    #[inline(always)]
-    fn from_f64(v: f64) -> Self {
-        v
-    }
-}
-
-impl OutValue for f32 {
-    #[inline(always)]
-    fn from_f64(v: f64) -> Self {
-        v as f32
-    }
-}
-
 /// Decodes one property of consecutive records into `out`: one tight loop per
 /// (type, endianness), so the type dispatch happens once per column and task.
-fn decode_column<const BE: bool, O: OutValue>(
+fn decode_column<const BE: bool, O: Val>(
     recs: &[u8],
     stride: usize,
     off: usize,
