@@ -26,6 +26,7 @@ pub mod clock;
 pub mod convert;
 pub mod ingest;
 pub mod lod;
+pub mod remote;
 pub mod points;
 pub mod render;
 pub mod store;

@@ -144,51 +144,33 @@ pub(super) fn shell_quoted(s: &str) -> String {
     }
 }
 
+/// Each overview node's layer and children, from the index.
+fn tree_of(index: &IndexFile) -> Vec<(u32, Vec<Child>)> {
+    index
+        .nodes
+        .iter()
+        .map(|n| (n.layer, n.children.clone()))
+        .collect()
+}
+
 impl Dataset {
     /// Opens a `.tif` part or a directory of them (sorted by name).
     pub fn open(path: &Path) -> Result<Dataset> {
+        let text = path.to_string_lossy();
+        if let Some(local) = crate::remote::file_url_path(&text) {
+            return Self::open(&local);
+        }
+        if crate::remote::is_url(&text) {
+            return Self::open_url(&text);
+        }
         let meta = std::fs::metadata(path)
             .map_err(|e| StoreError::new(path, format!("cannot open: {e}")))?;
         if meta.is_dir()
             && let Some((index, index_bytes)) = IndexFile::load(path)?
         {
-            let tree: Vec<(u32, Vec<Child>)> = index
-                .nodes
-                .iter()
-                .map(|n| (n.layer, n.children.clone()))
-                .collect();
+            let tree = tree_of(&index);
             let (parts, nodes) = index.open_parts(path)?;
-            let np = parts.len();
-            let overview = (!nodes.is_empty()).then(|| {
-                let mut parents = vec![None; np + nodes.len()];
-                for (k, (_, children)) in tree.iter().enumerate() {
-                    for &c in children {
-                        parents[child_number(np, c)] = Some(np + k);
-                    }
-                }
-                let mut covers: Vec<Bounds> = Vec::with_capacity(nodes.len());
-                for (_, children) in &tree {
-                    let b = children.iter().fold(Bounds::EMPTY, |b, c| match *c {
-                        Child::Part(i) => b.union(&parts[i].meta.bounds),
-                        Child::Node(j) => b.union(&covers[j]),
-                    });
-                    covers.push(b);
-                }
-                Overview {
-                    nodes,
-                    layers: tree.iter().map(|t| t.0).collect(),
-                    children: tree.into_iter().map(|t| t.1).collect(),
-                    parents,
-                    covers,
-                }
-            });
-            return Ok(Dataset {
-                path: path.to_path_buf(),
-                parts,
-                overview,
-                index_bytes: Some(index_bytes),
-                hint: None,
-            });
+            return Ok(Self::assemble(path, tree, parts, nodes, index_bytes));
         }
         let parts = if meta.is_dir() {
             list_parts(path)?
@@ -231,6 +213,90 @@ impl Dataset {
             hint,
             ..Default::default()
         })
+    }
+
+    /// A dataset in object storage: its index in one request (its parts are
+    /// fetched from when their tiles are read), or a single `.tif` part.
+    pub fn open_url(url: &str) -> Result<Dataset> {
+        let url = url.trim_end_matches('/');
+        let path = Path::new(url);
+        let remote = std::sync::Arc::new(
+            crate::remote::Remote::open(url).map_err(|m| StoreError::new(Path::new(""), m))?,
+        );
+        Self::open_remote(remote)
+    }
+
+    /// A dataset in a given object store (an index under its prefix, or a `.tif`).
+    pub fn open_remote(remote: std::sync::Arc<crate::remote::Remote>) -> Result<Dataset> {
+        let url = remote.url.as_str();
+        let path = Path::new(url);
+        let lower = url.to_ascii_lowercase();
+        if lower.ends_with(".tif") || lower.ends_with(".tiff") {
+            let file = std::sync::Arc::new(remote.file(""));
+            return Ok(Dataset {
+                path: path.to_path_buf(),
+                parts: vec![Part::open_remote(file, 0, None)?],
+                ..Default::default()
+            });
+        }
+        let Some((text, size, _)) = remote
+            .get(super::index::INDEX_FILE)
+            .map_err(|m| StoreError::new(Path::new(""), m))?
+        else {
+            return Err(StoreError::new(
+                &path.join(super::index::INDEX_FILE),
+                format!(
+                    "not found: a dataset in object storage is opened from its index;                      check the URL, or make the index locally with `pcimg index DIR` and                      upload DIR/{} beside the parts (or convert with `-o {}`)",
+                    super::index::INDEX_FILE,
+                    shell_quoted(url)
+                ),
+            ));
+        };
+        let index = IndexFile::parse(&text, path)?;
+        let tree = tree_of(&index);
+        let (parts, nodes) = index.remote_parts(&remote);
+        Ok(Self::assemble(path, tree, parts, nodes, size))
+    }
+
+    /// A dataset opened from its index: parts, overview nodes and their tree.
+    fn assemble(
+        path: &Path,
+        tree: Vec<(u32, Vec<Child>)>,
+        parts: Vec<Part>,
+        nodes: Vec<Part>,
+        index_bytes: u64,
+    ) -> Dataset {
+        let np = parts.len();
+        let overview = (!nodes.is_empty()).then(|| {
+            let mut parents = vec![None; np + nodes.len()];
+            for (k, (_, children)) in tree.iter().enumerate() {
+                for &c in children {
+                    parents[child_number(np, c)] = Some(np + k);
+                }
+            }
+            let mut covers: Vec<Bounds> = Vec::with_capacity(nodes.len());
+            for (_, children) in &tree {
+                let b = children.iter().fold(Bounds::EMPTY, |b, c| match *c {
+                    Child::Part(i) => b.union(&parts[i].meta.bounds),
+                    Child::Node(j) => b.union(&covers[j]),
+                });
+                covers.push(b);
+            }
+            Overview {
+                nodes,
+                layers: tree.iter().map(|t| t.0).collect(),
+                children: tree.into_iter().map(|t| t.1).collect(),
+                parents,
+                covers,
+            }
+        });
+        Dataset {
+            path: path.to_path_buf(),
+            parts,
+            overview,
+            index_bytes: Some(index_bytes),
+            hint: None,
+        }
     }
 
     /// The most levels a part has (at least 1).

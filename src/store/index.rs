@@ -25,6 +25,10 @@ pub struct FileEntry {
     /// Relative to the dataset directory, `/`-separated.
     pub file: String,
     pub bytes: u64,
+    /// Bytes at the head of the file holding every IFD, tile index and the
+    /// metadata (0: unknown, an older part): a reader fetches them in one range.
+    #[serde(default)]
+    pub head: u64,
     /// Modification time: seconds and nanoseconds since the Unix epoch.
     pub mtime: (i64, u32),
     pub header: PartHeader,
@@ -79,6 +83,7 @@ pub fn entry_of(part: &Part, file: &str) -> Result<FileEntry> {
     Ok(FileEntry {
         file: file.to_string(),
         bytes: meta.len(),
+        head: 0,
         mtime: mtime_of(&meta),
         header: part.header(),
     })
@@ -110,6 +115,14 @@ impl IndexFile {
             Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(None),
             Err(e) => return Err(StoreError::new(&path, format!("cannot read: {e}"))),
         };
+        let idx = Self::parse(&text, dir)?;
+        Ok(Some((idx, text.len() as u64)))
+    }
+
+    /// An index's text, checked; `dir` names the dataset in messages (a
+    /// directory, or the URL of one in object storage).
+    pub fn parse(text: &[u8], dir: &Path) -> Result<IndexFile> {
+        let path = dir.join(INDEX_FILE);
         let idx: IndexFile = serde_json::from_slice(&text).map_err(|e| {
             StoreError::new(
                 &path,
@@ -133,7 +146,7 @@ impl IndexFile {
             ));
         }
         idx.check_structure(dir)?;
-        Ok(Some((idx, text.len() as u64)))
+        Ok(idx)
     }
 
     /// Children that exist and come before their parent; names inside the folder.
@@ -237,6 +250,22 @@ impl IndexFile {
             .map(|n| open(n.entry))
             .collect::<Result<Vec<_>>>()?;
         Ok((parts, nodes))
+    }
+
+    /// The parts and nodes of a dataset in object storage, unopened: nothing is
+    /// fetched until a tile is read.
+    pub fn remote_parts(
+        self,
+        remote: &std::sync::Arc<crate::remote::Remote>,
+    ) -> (Vec<Part>, Vec<Part>) {
+        let dir = Path::new(&remote.url);
+        let open = |e: FileEntry| {
+            let file = std::sync::Arc::new(remote.file(&e.file));
+            Part::from_header_remote(dir, file, (e.bytes, e.head), e.header)
+        };
+        let parts = self.parts.into_iter().map(open).collect();
+        let nodes = self.nodes.into_iter().map(|n| open(n.entry)).collect();
+        (parts, nodes)
     }
 
     /// Writes the index into `dir` atomically (a temporary file renamed).

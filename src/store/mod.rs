@@ -11,6 +11,8 @@ pub mod metadata;
 pub mod out;
 pub mod paper;
 pub mod sink;
+mod remote_open;
+mod source;
 pub mod spec;
 pub mod tiles;
 pub mod writer;

@@ -184,7 +184,8 @@ impl Part {
     ) -> std::result::Result<Planes, String> {
         let l = &self.levels[level];
         let dec: Vec<usize> = std::iter::once(0).chain(bands.iter().copied()).collect();
-        let planes = self.read_tile(l, t, Some(l.tile_width * l.tile_height), &dec)?;
+        let src = self.chunks(l, &[t], &dec, false)?;
+        let planes = self.read_tile(&src, l, t, Some(l.tile_width * l.tile_height), &dec)?;
         let w = l
             .tile_width
             .min(l.width - (t % l.tiles_across) * l.tile_width) as usize;

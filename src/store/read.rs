@@ -5,6 +5,7 @@
 use super::codec::TileCodec;
 use super::error::{Result, StoreError};
 use super::reader::{Level, Part};
+use super::source::Chunks;
 use super::spec;
 use crate::bigvec;
 use rayon::prelude::*;
@@ -105,6 +106,11 @@ impl Part {
             .map(|t| known.get(t).copied().flatten().map(|c| c as usize))
             .collect();
         let fail = |m: String| StoreError::new(&self.path, format!("level {level}: {m}"));
+        // The stored bytes: the map, or for a remote part exactly these chunks,
+        // fetched now (x too where counts are unknown: it finds the points).
+        let src = self
+            .chunks(l, tiles, bands, counts.is_none())
+            .map_err(fail)?;
         if let Some(counts) = counts {
             // Every count is known: fill disjoint slices of the output in parallel.
             let total: usize = counts.iter().sum();
@@ -125,7 +131,7 @@ impl Part {
             }
             outs.into_par_iter()
                 .zip(tiles.par_iter())
-                .try_for_each(|(o, &t)| self.fill_tile(l, t, bands, o))
+                .try_for_each(|(o, &t)| self.fill_tile(&src, l, t, bands, o))
                 .map_err(fail)?;
             for col in columns.iter_mut() {
                 // SAFETY: fill_tile succeeded for every tile, and the tiles' slices
@@ -146,7 +152,7 @@ impl Part {
         for batch in tiles.chunks(8) {
             let got: Vec<Vec<Vec<f32>>> = batch
                 .par_iter()
-                .map(|&t| self.read_tile(l, t, known.get(&t).copied().flatten(), bands))
+                .map(|&t| self.read_tile(&src, l, t, known.get(&t).copied().flatten(), bands))
                 .collect::<std::result::Result<_, String>>()
                 .map_err(fail)?;
             held += got
@@ -183,6 +189,7 @@ impl Part {
     /// planes are gathered straight from the memory map.
     fn fill_tile(
         &self,
+        src: &Chunks,
         l: &Level,
         t: u32,
         bands: &[usize],
@@ -193,7 +200,7 @@ impl Part {
         let pixels = (l.tile_width * l.tile_height) as usize;
         let Some(lut) = l.z_lut.as_deref().filter(|lut| lut.len() >= n) else {
             // No Z-order tiles: take the general path.
-            let cols = self.read_tile(l, t, Some(n as u32), bands)?;
+            let cols = self.read_tile(src, l, t, Some(n as u32), bands)?;
             for (o, c) in outs.into_iter().zip(cols) {
                 if c.len() != o.len() {
                     return Err(format!("tile {t} holds fewer points than its index says"));
@@ -204,10 +211,9 @@ impl Part {
             }
             return Ok(());
         };
-        let data: &[u8] = &self.map;
         let native = self.little_endian == cfg!(target_endian = "little");
         if !l.planar_separate {
-            let cols = self.read_tile(l, t, Some(n as u32), bands)?;
+            let cols = self.read_tile(src, l, t, Some(n as u32), bands)?;
             for (o, c) in outs.into_iter().zip(cols) {
                 if c.len() < o.len() {
                     return Err(format!("tile {t} holds fewer points than its index says"));
@@ -221,7 +227,7 @@ impl Part {
         for &b in bands {
             let c = b * per_band + t as usize;
             if let (Some(&o), Some(&n)) = (l.offsets.get(c), l.counts.get(c)) {
-                self.map.will_need(o, n);
+                src.will_need(o, n);
             }
         }
         for (o, &b) in outs.into_iter().zip(bands) {
@@ -233,7 +239,7 @@ impl Part {
                     b + 1
                 ));
             }
-            let stored = &data[off..off + len];
+            let stored = src.get(off as u64, len as u64)?;
             let raw = (l.compression == spec::compression::NONE && native && len >= pixels * 4)
                 .then(|| bytemuck::try_cast_slice::<u8, f32>(&stored[..pixels * 4]).ok())
                 .flatten();
@@ -260,12 +266,12 @@ impl Part {
     /// Decodes one tile: per requested band, the tile's points in reading order.
     pub(super) fn read_tile(
         &self,
+        src: &Chunks,
         l: &Level,
         t: u32,
         points: Option<u32>,
         bands: &[usize],
     ) -> std::result::Result<Vec<Vec<f32>>, String> {
-        let data: &[u8] = &self.map;
         let per_band = (l.tiles_across * l.tiles_down) as usize;
         let pixels = (l.tile_width * l.tile_height) as usize;
         // Pixels of this tile inside the image, in reading order.
@@ -290,13 +296,9 @@ impl Part {
                 t as usize
             }
         };
-        let stored = |c: usize| -> &[u8] {
-            let (o, n) = (l.offsets[c], l.counts[c]);
-            if n == 0 {
-                &[]
-            } else {
-                &data[o as usize..(o + n) as usize]
-            }
+        let stored = |c: usize| -> std::result::Result<&[u8], String> {
+            src.get(l.offsets[c], l.counts[c])
+                .map_err(|m| format!("tile {t}: {m}"))
         };
         // The bands to decode: the requested ones, plus x to find valid pixels
         // when the tile index does not give the count.
@@ -308,20 +310,23 @@ impl Part {
         // tile's chunks, all at once.
         for c in decode.iter().map(|&b| chunk(b)) {
             if let (Some(&o), Some(&n)) = (l.offsets.get(c), l.counts.get(c)) {
-                self.map.will_need(o, n);
+                src.will_need(o, n);
             }
         }
         let raw_native = l.compression == spec::compression::NONE
             && l.planar_separate
             && self.little_endian == cfg!(target_endian = "little");
         let mut planes: Vec<Vec<f32>> = Vec::with_capacity(decode.len());
+        // Planes read straight from the stored bytes (uncompressed, native order).
+        let mut raw: Vec<&[u8]> = vec![&[]; decode.len()];
         if l.planar_separate {
-            for &b in &decode {
-                let bytes = stored(chunk(b));
+            for (k, &b) in decode.iter().enumerate() {
+                let bytes = stored(chunk(b))?;
                 if bytes.is_empty() {
                     planes.push(vec![f32::NAN; pixels]);
                 } else if raw_native && bytes.len() >= pixels * 4 {
-                    planes.push(Vec::new()); // read straight from the map below
+                    raw[k] = &bytes[..pixels * 4];
+                    planes.push(Vec::new()); // read straight from the bytes below
                 } else {
                     let codec = l.codec(self.little_endian, 1);
                     planes.push(
@@ -332,7 +337,7 @@ impl Part {
                 }
             }
         } else {
-            let bytes = stored(chunk(0));
+            let bytes = stored(chunk(0))?;
             let all = if bytes.is_empty() {
                 vec![f32::NAN; pixels * self.samples]
             } else {
@@ -346,8 +351,8 @@ impl Part {
         }
         let sample = |k: usize, p: usize| -> f32 {
             if planes[k].is_empty() {
-                let o = l.offsets[chunk(decode[k])] as usize + p * 4;
-                f32::from_le_bytes([data[o], data[o + 1], data[o + 2], data[o + 3]])
+                let (o, d) = (p * 4, raw[k]);
+                f32::from_le_bytes([d[o], d[o + 1], d[o + 2], d[o + 3]])
             } else {
                 planes[k][p]
             }
@@ -366,8 +371,7 @@ impl Part {
         Ok((0..bands.len())
             .map(|k| {
                 if planes[k].is_empty() {
-                    let base = l.offsets[chunk(decode[k])] as usize;
-                    let bytes = &data[base..base + pixels * 4];
+                    let bytes = raw[k];
                     selected
                         .iter()
                         .map(|&p| {

@@ -132,6 +132,9 @@ pub struct Part {
     /// A part described by the dataset index: its headers are read on its first
     /// tile read (`summary.rs`).
     pub(super) lazy: Option<Arc<super::summary::Deferred>>,
+    /// Where tiles are read from for a part in object storage (its `map` then
+    /// holds only the head: headers and tile index).
+    pub(super) remote: Option<Arc<crate::remote::RemoteFile>>,
 }
 
 /// The bytes of a part: a read-only memory map, or a buffer (tests, fuzzing).
@@ -292,7 +295,7 @@ impl Part {
         Self::parse(name, Bytes::Owned(bytes))
     }
 
-    fn parse(path: &Path, map: Bytes) -> Result<Part> {
+    pub(super) fn parse(path: &Path, map: Bytes) -> Result<Part> {
         let err = |m: String| StoreError::new(path, m);
         let data: &[u8] = &map;
         let file_bytes = data.len() as u64;
@@ -466,6 +469,7 @@ impl Part {
             samples,
             map: Arc::new(map),
             lazy: None,
+            remote: None,
         })
     }
 

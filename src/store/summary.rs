@@ -26,6 +26,10 @@ pub(super) struct Deferred {
     dataset: PathBuf,
     /// Size and modification time when indexed.
     expect: (u64, (i64, u32)),
+    /// For a part in object storage: the object and its head's length (0:
+    /// unknown). Its size is checked instead of the modification time, and its
+    /// ETag pinned by the first request.
+    remote: Option<(Arc<crate::remote::RemoteFile>, u64)>,
     opened: OnceLock<std::result::Result<Part, String>>,
 }
 
@@ -77,15 +81,47 @@ impl Part {
             lazy: Some(Arc::new(Deferred {
                 dataset: dataset.to_path_buf(),
                 expect: (file_bytes, mtime),
+                remote: None,
                 opened: OnceLock::new(),
             })),
+            remote: None,
         }
+    }
+
+    /// A part in object storage described by its index entry: nothing is
+    /// fetched until a tile is read, then its head (`head` bytes, one request).
+    pub fn from_header_remote(
+        dataset: &Path,
+        file: Arc<crate::remote::RemoteFile>,
+        (file_bytes, head): (u64, u64),
+        h: PartHeader,
+    ) -> Part {
+        let mut p = Part::from_header(dataset, Path::new(&file.url()), (file_bytes, (0, 0)), h);
+        p.lazy = Some(Arc::new(Deferred {
+            dataset: dataset.to_path_buf(),
+            expect: (file_bytes, (0, 0)),
+            remote: Some((file, head)),
+            opened: OnceLock::new(),
+        }));
+        p
     }
 
     /// Whether the part's file has been read (always, but for parts opened from an
     /// index before their first tile read).
     pub fn is_open(&self) -> bool {
         self.lazy.as_ref().is_none_or(|d| d.opened.get().is_some())
+    }
+
+    /// Whether `p`, read from the file, is the part the index describes.
+    fn same_shape(&self, p: &Part) -> bool {
+        p.file_bytes == self.file_bytes
+            && p.meta.point_count == self.meta.point_count
+            && p.levels.len() == self.levels.len()
+            && p.bands.len() == self.bands.len()
+            && p.levels
+                .iter()
+                .zip(&self.levels)
+                .all(|(a, b)| a.tiles.len() == b.tiles.len())
     }
 
     /// For a part opened from the index: the part read from its file (opened on
@@ -96,6 +132,15 @@ impl Part {
             return Ok(None);
         };
         let r = d.opened.get_or_init(|| {
+            if let Some((file, head)) = &d.remote {
+                let p = Part::open_remote(file.clone(), *head, Some(d.expect.0))
+                    .map_err(|e| e.message)?;
+                return if self.same_shape(&p) {
+                    Ok(p)
+                } else {
+                    Err("changed since the dataset was indexed: upload the dataset again".into())
+                };
+            }
             let fix = format!("; re-index with {}", super::index::fix_command(&d.dataset));
             let meta = std::fs::metadata(&self.path).map_err(|e| {
                 format!("is listed in the dataset's index but cannot be read ({e}){fix}")
@@ -110,15 +155,7 @@ impl Part {
                 ));
             }
             let p = Part::open(&self.path).map_err(|e| format!("{}{fix}", e.message))?;
-            let same = p.file_bytes == self.file_bytes
-                && p.meta.point_count == self.meta.point_count
-                && p.levels.len() == self.levels.len()
-                && p.bands.len() == self.bands.len()
-                && p.levels
-                    .iter()
-                    .zip(&self.levels)
-                    .all(|(a, b)| a.tiles.len() == b.tiles.len());
-            if same {
+            if self.same_shape(&p) {
                 Ok(p)
             } else {
                 Err(format!("changed since the dataset was indexed{fix}"))

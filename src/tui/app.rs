@@ -519,6 +519,21 @@ impl App {
         if f.unreadable > 0 {
             s.push_str(&format!(" | {} tiles unreadable", f.unreadable));
         }
+        // A dataset in object storage: requests in flight, bytes received, failures
+        // (counters only: the loading worker does the waiting).
+        let net = crate::remote::stats();
+        if net.requests > 0 {
+            s.push_str(&format!(
+                " | net {} in flight, {:.1} MB{}",
+                net.in_flight,
+                net.bytes as f64 / 1e6,
+                if net.failed > 0 {
+                    format!(", {} failed", net.failed)
+                } else {
+                    String::new()
+                }
+            ));
+        }
         if !self.terminal_note.is_empty() {
             s.push_str(&format!(" | {}", self.terminal_note));
         }

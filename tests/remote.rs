@@ -1,0 +1,151 @@
+//! Datasets in object storage (issue 30), over object_store's in-memory store
+//! with added latency: a dataset of 144 parts opens with one request (its index);
+//! a part is fetched from only when its tiles are read; the first frame's tiles
+//! need a few dozen requests; what comes back equals the local dataset's points.
+
+use object_store::memory::InMemory;
+use object_store::throttle::{ThrottleConfig, ThrottledStore};
+use object_store::{ObjectStore, ObjectStoreExt, PutPayload};
+use pcimg::points::{Attribute, PointColumns};
+use pcimg::remote::Remote;
+use pcimg::store::overview::{IndexOptions, build_index};
+use pcimg::store::{Dataset, WriteOptions, write_part};
+use std::path::Path;
+use std::sync::Arc;
+use std::sync::atomic::Ordering;
+use std::time::Duration;
+
+/// `nx` × `ny` parts of a terrain, each its own file, indexed.
+fn dataset(dir: &Path, nx: usize, ny: usize, per_part: usize) -> std::path::PathBuf {
+    let ds = dir.join("grid.pcimg");
+    std::fs::create_dir(&ds).unwrap();
+    let mut r = pcimg::synth::Rng::new(3);
+    for j in 0..ny {
+        for i in 0..nx {
+            let mut c = PointColumns {
+                attributes: vec![Attribute::new("intensity", Vec::new())],
+                ..Default::default()
+            };
+            for _ in 0..per_part {
+                let (x, y) = (i as f64 + r.f64(), j as f64 + r.f64());
+                c.x.push(500_000.0 + 10.0 * x);
+                c.y.push(4_000_000.0 + 10.0 * y);
+                c.z.push(100.0 + (x * 0.7).sin() + (y * 0.3).cos());
+                c.attributes[0].values.push((r.f64() * 255.0).round() as f32);
+            }
+            let f = ds.join(format!("tile-{i:02}-{j:02}.tif"));
+            write_part(&f, &c, &WriteOptions::default()).unwrap();
+        }
+    }
+    build_index(&ds, &IndexOptions::default(), &|_| {}).unwrap();
+    ds
+}
+
+/// Every file under `dir` put into an in-memory store under `prefix`, behind
+/// `latency` per request.
+fn upload(dir: &Path, prefix: &str, latency: Duration) -> Arc<dyn ObjectStore> {
+    let mem = InMemory::new();
+    let mut stack = vec![dir.to_path_buf()];
+    let rt = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()
+        .unwrap();
+    while let Some(d) = stack.pop() {
+        for e in std::fs::read_dir(&d).unwrap() {
+            let p = e.unwrap().path();
+            if p.is_dir() {
+                stack.push(p);
+                continue;
+            }
+            let rel = p.strip_prefix(dir).unwrap().to_string_lossy().replace('\\', "/");
+            let loc = object_store::path::Path::from(format!("{prefix}/{rel}"));
+            let bytes = std::fs::read(&p).unwrap();
+            rt.block_on(mem.put(&loc, PutPayload::from(bytes))).unwrap();
+        }
+    }
+    let cfg = ThrottleConfig {
+        wait_get_per_call: latency,
+        ..Default::default()
+    };
+    Arc::new(ThrottledStore::new(mem, cfg))
+}
+
+#[test]
+fn a_remote_dataset_opens_with_one_request_and_reads_parts_only_when_needed() {
+    let dir = tempfile::tempdir().unwrap();
+    let local = dataset(dir.path(), 12, 12, 300);
+    let store = upload(&local, "city.pcimg", Duration::from_millis(5));
+    let remote = Arc::new(Remote::with_store(store, "city.pcimg", "memory://city.pcimg"));
+    let ds = Dataset::open_remote(remote.clone()).unwrap();
+    let count = || remote.requests.load(Ordering::Relaxed);
+    assert_eq!(count(), 1, "opening is one request for the index");
+    assert_eq!(ds.parts.len(), 144);
+    assert!(ds.parts.iter().all(|p| !p.is_open()));
+    let here = Dataset::open(&local).unwrap();
+    assert_eq!(ds.points(), here.points());
+
+    // One part's level 0: its head, then its tiles (merged into few requests).
+    let bands: Vec<usize> = (0..4).collect();
+    let a = ds.parts[17].read_level(0, &bands).unwrap();
+    let b = here.parts[17].read_level(0, &bands).unwrap();
+    assert_eq!(a.columns, b.columns);
+    let after_one = count();
+    assert!(
+        (3..=5).contains(&after_one),
+        "the index, the part's head (with its ETag) and its tiles: {after_one} requests"
+    );
+    assert_eq!(ds.parts.iter().filter(|p| p.is_open()).count(), 1);
+    // Read again: from the memory cache.
+    let _ = ds.parts[17].read_level(0, &bands).unwrap();
+    assert_eq!(count(), after_one);
+
+    // The first frame of the whole dataset: the overview's top tiles.
+    let first = ds.overview_first(1 << 40);
+    assert!(!first.is_empty());
+    let before = count();
+    for &(part, level, tile, _) in &first {
+        let p = ds.part(part).unwrap();
+        let got = p.read_tiles(level, &[tile], &bands).unwrap();
+        let want = here.part(part).unwrap().read_tiles(level, &[tile], &bands).unwrap();
+        assert_eq!(got.columns, want.columns);
+    }
+    let frame = count() - before;
+    let nodes = ds.overview.as_ref().unwrap().nodes.len() as u64;
+    assert!(
+        frame <= 3 * nodes && frame <= 48,
+        "first frame took {frame} requests for {nodes} overview nodes"
+    );
+    // No part below the overview was touched.
+    assert_eq!(ds.parts.iter().filter(|p| p.is_open()).count(), 1);
+}
+
+#[test]
+fn a_remote_part_of_an_older_layout_opens_by_successive_ranges() {
+    let dir = tempfile::tempdir().unwrap();
+    let local = dataset(dir.path(), 1, 1, 5000);
+    let store = upload(&local, "one", Duration::ZERO);
+    let remote = Arc::new(Remote::with_store(store, "one/tile-00-00.tif", "memory://one/tile-00-00.tif"));
+    let ds = Dataset::open_remote(remote.clone()).unwrap();
+    let here = Dataset::open(&local.join("tile-00-00.tif")).unwrap();
+    let bands: Vec<usize> = (0..4).collect();
+    for l in 0..here.parts[0].levels.len() {
+        assert_eq!(
+            ds.parts[0].read_level(l, &bands).unwrap().columns,
+            here.parts[0].read_level(l, &bands).unwrap().columns
+        );
+    }
+}
+
+#[test]
+fn remote_errors_name_the_url_and_what_to_fix() {
+    let dir = tempfile::tempdir().unwrap();
+    let local = dataset(dir.path(), 1, 1, 100);
+    let store = upload(&local, "here", Duration::ZERO);
+    let remote = Arc::new(Remote::with_store(store.clone(), "elsewhere", "memory://b/elsewhere"));
+    let e = Dataset::open_remote(remote).unwrap_err().to_string();
+    assert!(e.contains("memory://b/elsewhere/pcimg-index.json"), "{e}");
+    assert!(e.contains("not found") && e.contains("pcimg index"), "{e}");
+    let remote = Arc::new(Remote::with_store(store, "here/nothing.tif", "memory://b/here/nothing.tif"));
+    let e = Dataset::open_remote(remote).unwrap_err().to_string();
+    assert!(e.contains("memory://b/here/nothing.tif") && e.contains("404"), "{e}");
+}
