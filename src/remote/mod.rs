@@ -26,7 +26,9 @@ pub fn is_url(s: &str) -> bool {
 /// A `file://` URL's local path (read as any local dataset: memory-mapped).
 pub fn file_url_path(s: &str) -> Option<std::path::PathBuf> {
     let u = url::Url::parse(s).ok()?;
-    (u.scheme() == "file").then(|| u.to_file_path().ok()).flatten()
+    (u.scheme() == "file")
+        .then(|| u.to_file_path().ok())
+        .flatten()
 }
 
 fn runtime() -> &'static tokio::runtime::Runtime {

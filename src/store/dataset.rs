@@ -220,9 +220,10 @@ impl Dataset {
     pub fn open_url(url: &str) -> Result<Dataset> {
         let url = url.trim_end_matches('/');
         let path = Path::new(url);
-        let remote = std::sync::Arc::new(
-            crate::remote::Remote::open(url).map_err(|m| StoreError::new(Path::new(""), m))?,
-        );
+        let remote = std::sync::Arc::new(crate::remote::Remote::open(url).map_err(|m| {
+            let m = m.strip_prefix(&format!("{url}: ")).map(str::to_string);
+            StoreError::new(path, m.unwrap_or_default())
+        })?);
         Self::open_remote(remote)
     }
 

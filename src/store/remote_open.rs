@@ -36,7 +36,12 @@ impl Sparse<'_> {
                     r.start, r.end
                 ));
             }
-            if r.end > r.start && !self.have.iter().any(|h| h.start <= r.start && r.end <= h.end) {
+            if r.end > r.start
+                && !self
+                    .have
+                    .iter()
+                    .any(|h| h.start <= r.start && r.end <= h.end)
+            {
                 want.push(r.clone());
             }
         }
@@ -122,7 +127,10 @@ impl Part {
         let path = Path::new(&url);
         // Messages from the fetch already name the URL.
         let err = |m: String| {
-            let m = m.strip_prefix(&format!("{url}: ")).map(str::to_string).unwrap_or(m);
+            let m = m
+                .strip_prefix(&format!("{url}: "))
+                .map(str::to_string)
+                .unwrap_or(m);
             StoreError::new(path, m)
         };
         // The first request tells the size (and pins the ETag).

@@ -83,8 +83,7 @@ impl Part {
             .map(|(o, n)| o..o + n)
             .collect();
         let got = remote.read_ranges(&ranges)?;
-        let mut v: Vec<(u64, bytes::Bytes)> =
-            ranges.iter().map(|r| r.start).zip(got).collect();
+        let mut v: Vec<(u64, bytes::Bytes)> = ranges.iter().map(|r| r.start).zip(got).collect();
         v.sort_by_key(|e| e.0);
         Ok(Chunks::Fetched(v))
     }
