@@ -46,7 +46,10 @@ fn every_directory_and_value_lies_before_the_first_tile() {
             assert!(w.structures.len() > 3 * 4, "{what}");
             assert!(w.tiles.len() >= 5 * 5, "{what}");
             let (head, first) = (w.head_end(), w.first_tile());
-            assert!(head <= first, "{what}: head ends at {head}, a tile starts at {first}");
+            assert!(
+                head <= first,
+                "{what}: head ends at {head}, a tile starts at {first}"
+            );
             assert_eq!(s.head, head, "{what}: the summary's head");
             assert_eq!(head_of(&path).unwrap(), head, "{what}");
             let part = Part::open(&path).unwrap();

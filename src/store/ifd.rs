@@ -240,11 +240,7 @@ impl Tiff {
     /// out-of-line tag value (the tiles' own bytes excluded): a reader that
     /// fetches `[0, head_len)` has every directory, tile index and metadata.
     pub fn head_len(&self) -> u64 {
-        let (count_size, entry_size, next_size) = if self.big {
-            (8, 20, 8)
-        } else {
-            (2, 12, 4)
-        };
+        let (count_size, entry_size, next_size) = if self.big { (8, 20, 8) } else { (2, 12, 4) };
         let mut end = if self.big { 16 } else { 8 };
         for ifd in &self.ifds {
             let n = ifd.entries.len() as u64;

@@ -92,8 +92,8 @@ pub fn entry_of(part: &Part, file: &str) -> Result<FileEntry> {
 /// The head's length of the part at `path` when it was written head-first
 /// (every directory and value before the first tile), else 0.
 pub fn head_of(path: &Path) -> Result<u64> {
-    let file =
-        std::fs::File::open(path).map_err(|e| StoreError::new(path, format!("cannot open: {e}")))?;
+    let file = std::fs::File::open(path)
+        .map_err(|e| StoreError::new(path, format!("cannot open: {e}")))?;
     // SAFETY: a read-only map of a part, read only through the bounds-checked
     // directory parser; a part is replaced by rename, never changed in place.
     let map = unsafe { memmap2::Mmap::map(&file) }

@@ -165,7 +165,7 @@ struct Arranged {
     /// `tile_order`), found while arranging (empty for the paper layout).
     tile_bounds: Vec<Option<[[f32; 3]; 2]>>,
     /// Whether every level's tiles were written while the points were arranged
-    /// (level 0: tile `tile_order[t]`'s bands from `level0_at` on; level `k`:
+    /// (level 0: tile `tile_order[t]`'s bands from its region's start on; level `k`:
     /// group `tile_order[t · 4^k] / 4^k`'s in the level's region, see
     /// [`coarse`]), band-interleaved as `encode` lays them out.
     levels_written: bool,
@@ -195,19 +195,22 @@ impl Arranged {
     }
 }
 
-
-/// Where level `level`'s tile data begins in an uncompressed file whose tiles
-/// start at `first`: every level's tiles come first, level after level, the
-/// `filled(k)` tiles holding points of level `k` in slots of `bands` band tiles
-/// (tile `s`'s band `b` at slot `s · bands + b`).
+/// Where level `level`'s tile data begins in an uncompressed file of `levels`
+/// levels whose tiles start at `first`: the coarsest level's tiles first, level
+/// 0's last (as a Cloud Optimized GeoTIFF orders them), the `filled(k)` tiles
+/// holding points of level `k` in slots of `bands` band tiles (tile `s`'s band
+/// `b` at slot `s · bands + b`). `level == levels` gives the end of level 0's.
 pub(super) fn region_start(
     filled: impl Fn(usize) -> u64,
     bands: usize,
     first: u64,
+    levels: usize,
     level: usize,
 ) -> u64 {
+    // (Level 0's region ends where the data ends: after every level's.)
+    let above = if level >= levels { 0 } else { level + 1 };
     first
-        + (0..level)
+        + (above..levels)
             .map(|k| filled(k) * bands as u64 * TILE_BYTES)
             .sum::<u64>()
 }
@@ -275,8 +278,9 @@ fn scan_bounds(path: &Path, chunks: &[PointColumns]) -> Result<Bounds> {
 
 /// Sorts and arranges `part`'s points for `layout`. Given `level0` (Hilbert
 /// layout, uncompressed), each tile's level-0 bands are encoded as soon as the
-/// tile is arranged, in cache, and sent there for the file from `level0_at` on
-/// (the first disk block after the largest head the part can have),
+/// tile is arranged, in cache, and sent to level 0's region of the file (whose
+/// tile data begins at `tiles_at`, the first disk block after the largest head
+/// the part can have),
 /// so the disk writes most of the file while the rest is still being arranged.
 fn arrange(
     path: &Path,
@@ -284,7 +288,7 @@ fn arrange(
     layout: Layout,
     ph: &mut Phases,
     level0: Option<&TileSink>,
-    level0_at: u64,
+    tiles_at: u64,
 ) -> Result<Arranged> {
     let from_source = part.positions_from_source();
     let PartBuilder {
@@ -365,7 +369,9 @@ fn arrange(
                 .collect();
             // Levels 1 and up from the tiles' level-1 points, each coarse tile
             // written as soon as the tiles below it are arranged.
-            let coarse = level0.map(|_| Coarse::new(n, m, level0_at, lut.clone()));
+            let coarse = level0.map(|_| Coarse::new(n, m, tiles_at, lut.clone()));
+            let filled = |l| geometry.filled_tiles(l);
+            let level0_at = region_start(filled, nb, tiles_at, geometry.levels(), 0);
             let on_tile = |t: usize, o: &[[f32; 3]], i: &[u32], tile: Option<layout::TileRows>| {
                 let mut b = [[f32::INFINITY; 3], [f32::NEG_INFINITY; 3]];
                 for p in o {
@@ -767,18 +773,21 @@ fn write(
         .copied()
         .chain(part.attributes.iter().map(|(a, _)| a.as_str()))
         .collect();
-    let level0_at = align_up(head_bound(part.count, &names, opts), out::DIRECT_ALIGN as u64);
+    let tiles_at = align_up(
+        head_bound(part.count, &names, opts),
+        out::DIRECT_ALIGN as u64,
+    );
     let a = if opts.layout == Layout::Hilbert && opts.compression == Compression::None {
         let cancelled = || opts.cancelled();
         let (a, written) = sink::with_sink(&tiles, &cancelled, |sink| {
-            arrange(path, part, opts.layout, &mut ph, Some(sink), level0_at)
+            arrange(path, part, opts.layout, &mut ph, Some(sink), tiles_at)
         });
         let a = a?;
         written.map_err(|e| write_failed(&e))?;
         ph.mark("levels written");
         a
     } else {
-        arrange(path, part, opts.layout, &mut ph, None, level0_at)?
+        arrange(path, part, opts.layout, &mut ph, None, tiles_at)?
     };
     stop()?;
     if opts.release_pool {
@@ -788,7 +797,7 @@ fn write(
     let xml = metadata_xml(&a, opts, &index);
     ph.mark("tile index");
     let bigtiff = opts.force_bigtiff || size_estimate(&a, &xml) >= u32::MAX as u64 - (64 << 20);
-    let (bytes, head) = encode(&file, &tiles, &a, opts, &xml, &index, bigtiff, level0_at)
+    let (bytes, head) = encode(&file, &tiles, &a, opts, &xml, &index, bigtiff, tiles_at)
         .map_err(|e| write_failed(&e))?;
     let direct = tiles.is_direct();
     drop(tiles);
@@ -928,7 +937,10 @@ fn directory(
         d.push((tag::NEW_SUBFILE_TYPE, Value::Long(vec![1])));
     }
     if opts.compression != Compression::None {
-        d.push((tag::PREDICTOR, Value::Short(vec![opts.compression.predictor()])));
+        d.push((
+            tag::PREDICTOR,
+            Value::Short(vec![opts.compression.predictor()]),
+        ));
     }
     if nb > 1 {
         d.push((tag::EXTRA_SAMPLES, Value::Short(vec![0; nb - 1])));
@@ -1005,7 +1017,7 @@ fn align_up(v: u64, to: u64) -> u64 {
 
 /// Writes every level's tiles after the head, then the head (every directory,
 /// tile offsets and byte counts and the metadata) at the start of the file.
-/// Uncompressed tiles begin at `level0_at` when they were written while the
+/// Uncompressed tiles begin at `tiles_at` when they were written while the
 /// points were arranged, else at the first disk block after the head;
 /// compressed ones right after it. Returns the file's length and the head's.
 #[allow(clippy::too_many_arguments)]
@@ -1017,7 +1029,7 @@ fn encode(
     xml: &str,
     index: &[LevelIndex],
     big: bool,
-    level0_at: u64,
+    tiles_at: u64,
 ) -> std::io::Result<(u64, u64)> {
     let g = a.geometry;
     let nb = a.names.len();
@@ -1039,13 +1051,13 @@ fn encode(
     let level_tiles = |k: usize| index[k].tiles.len() as u64;
     let end = if opts.compression == Compression::None {
         // Every tile is TILE_PIXELS samples: every level's tile data lies in one
-        // region, level after level ([`region_start`]: tile t's band b at slot
+        // region, the coarsest first ([`region_start`]: tile t's band b at slot
         // t * nb + b of its level's region), encoded and written by the rayon
         // pool. They may have been written already, while the points were
         // arranged: the slot of level k's image tile t is then
         // tile_order[t * 4^k] / 4^k.
         let first = if a.levels_written {
-            level0_at
+            tiles_at
         } else {
             align_up(head_len, out::DIRECT_ALIGN as u64)
         };
@@ -1057,7 +1069,7 @@ fn encode(
         for level in 0..g.levels() {
             let tiles = &index[level].tiles;
             let filled = tiles.len();
-            let start = region_start(level_tiles, nb, first, level);
+            let start = region_start(level_tiles, nb, first, g.levels(), level);
             let written = a.levels_written;
             let per_tile = groups(a.m);
             let cancelled = || opts.cancelled();
@@ -1093,13 +1105,14 @@ fn encode(
                 }
             }
         }
-        region_start(level_tiles, nb, first, g.levels())
+        region_start(level_tiles, nb, first, g.levels(), g.levels())
     } else {
-        // Compressed tiles (sizes known once encoded) follow the head, each
-        // level's aligned to 8 bytes so readers can view planes in place.
+        // Compressed tiles (sizes known once encoded) follow the head, the
+        // coarsest level's first, each level's aligned to 8 bytes so readers can
+        // view planes in place.
         let mut w = Out::new(file);
         w.seek(std::io::SeekFrom::Start(head_len))?;
-        for level in 0..g.levels() {
+        for level in (0..g.levels()).rev() {
             let at = w.stream_position()?;
             if at % 8 != 0 {
                 w.write_all(&[0u8; 8][..(8 - at % 8) as usize])?;

@@ -110,7 +110,8 @@ impl Walk {
                 continue;
             }
             let place = if at < header { at } else { at + shift };
-            out[place as usize..place as usize + w].copy_from_slice(&(v + shift).to_le_bytes()[..w]);
+            out[place as usize..place as usize + w]
+                .copy_from_slice(&(v + shift).to_le_bytes()[..w]);
         }
         out[header as usize..head as usize].fill(0);
         out
