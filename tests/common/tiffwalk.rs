@@ -99,7 +99,7 @@ impl Walk {
         let header = if self.big { 16 } else { 8 };
         let head = self.head_end();
         let mut out = b.to_vec();
-        while out.len() % 8 != 0 {
+        while !out.len().is_multiple_of(8) {
             out.push(0);
         }
         let shift = out.len() as u64 - header;
