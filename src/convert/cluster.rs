@@ -252,7 +252,10 @@ pub fn make_plan(
         let i = r.info();
         declared.push(i.declared_points.zip(i.declared_bounds));
     }
+    // Nothing is written: the job's output check and staging go to a scratch
+    // path (the dataset directory may already hold this plan).
     let o_plan = ConvertOptions {
+        output: std::env::temp_dir().join(format!("pcimg-plan-{}", std::process::id())),
         force: true,
         ..o.clone()
     };
