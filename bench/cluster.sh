@@ -19,7 +19,7 @@ in=$w/in8000000.xyz
 echo "input: $(du -h "$in" | cut -f1), 8 M points; memory $mem per shard"
 for r in $(seq "$runs"); do
   for n in 2000000 8000000; do
-    rm -rf "$w/o$n"  # (a directory holding a plan is refused as an output)
+    rm -rf "$w/o$n"
     k=1; [ $n = 8000000 ] && k=4
     echo "plan $n: $(t "$bin" convert --plan "$w/p$n.json" --shards $k --memory $mem -o "$w/o$n" "$w/in$n.xyz") s"
   done
