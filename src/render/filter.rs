@@ -140,9 +140,20 @@ impl Slab {
         c.yaw = f.y.atan2(f.x);
         c.pitch = f.z.clamp(-1.0, 1.0).asin();
         c.target = glam::DVec3::from(self.point);
+        // Frame the cut: the data's extent across the image (level, along the
+        // plane) at a 16:9 aspect, and up it.
         let e = bounds.extent();
-        let span = (e[0] * e[0] + e[1] * e[1] + e[2] * e[2]).sqrt();
-        c.distance = (span * 0.5 / (0.5 * c.fov_y).tan()).max(1e-3);
+        let mut u = glam::DVec3::Z.cross(f).normalize_or_zero();
+        if u == glam::DVec3::ZERO {
+            u = glam::DVec3::X;
+        }
+        let v = u.cross(f);
+        let across = |d: glam::DVec3| e[0] * d.x.abs() + e[1] * d.y.abs() + e[2] * d.z.abs();
+        let (run, rise) = (across(u), across(v));
+        let t = (0.5 * c.fov_y).tan();
+        c.distance = (run * 0.55 / (t * 16.0 / 9.0))
+            .max(rise * 0.6 / t)
+            .max(1e-3);
         c.set_clip_from_bounds(bounds);
         c
     }
