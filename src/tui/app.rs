@@ -247,6 +247,20 @@ impl App {
     }
 
     /// Whether some part has a `classification` band.
+    /// The bands `v` cycles through: every band some part has, z first, x and
+    /// y left out.
+    pub fn band_names(&self) -> Vec<String> {
+        let mut names: Vec<String> = vec!["z".into()];
+        for p in &self.dataset.parts {
+            for b in &p.bands {
+                if !names.contains(&b.name) && !["x", "y", "z"].contains(&b.name.as_str()) {
+                    names.push(b.name.clone());
+                }
+            }
+        }
+        names
+    }
+
     pub fn has_classes(&self) -> bool {
         self.dataset
             .parts
@@ -415,32 +429,52 @@ impl App {
             }
             ToggleSection => {
                 if let Some(s) = self.section.take() {
-                    self.settings.filter.clip = s.saved_clip;
+                    self.settings.filter.slab = s.saved_slab;
                     self.camera = s.saved_camera;
                 } else {
-                    let at = self.picks.last().map(|p| p.position);
+                    let picks: Vec<[f64; 3]> = self.picks.iter().map(|p| p.position).collect();
                     let s = Section::through(
                         &self.dataset.bounds(),
                         &self.camera,
-                        at,
+                        &picks,
                         &self.settings.filter,
                     );
-                    self.settings.filter.clip = Some(s.clip(&self.dataset.bounds()));
+                    self.settings.filter.slab = Some(s.slab);
                     self.camera = s.profile_camera(&self.dataset.bounds(), &self.camera);
                     self.section = Some(s);
                 }
             }
-            SlabWidth(d) | SlabMove(d) => {
+            SlabWidth(d) | SlabMove(d) | SlabTurn(d) => {
                 let Some(s) = self.section.as_mut() else {
-                    self.message = "no section: z shows one (through the last pick)".into();
+                    self.message = "no section: z shows one (through the last picks)".into();
                     return Effect::Redraw;
                 };
-                if matches!(cmd, SlabWidth(_)) {
-                    s.resize(d);
-                } else {
-                    s.shift(d);
+                match cmd {
+                    SlabWidth(_) => s.resize(d),
+                    SlabMove(_) => s.shift(d),
+                    _ => {
+                        s.turn(d);
+                        self.camera = s.profile_camera(&self.dataset.bounds(), &self.camera);
+                    }
                 }
-                self.settings.filter.clip = Some(s.clip(&self.dataset.bounds()));
+                self.settings.filter.slab = Some(s.slab);
+            }
+            CycleBand => {
+                let bands = self.band_names();
+                if bands.is_empty() {
+                    self.message = "the data has no bands besides x y z".into();
+                    return Effect::Redraw;
+                }
+                let next = match &self.settings.color {
+                    ColorMode::Band(b) => bands
+                        .iter()
+                        .position(|n| n == b)
+                        .map_or(0, |i| (i + 1) % bands.len()),
+                    _ => 0,
+                };
+                self.settings.color = ColorMode::Band(bands[next].clone());
+                self.settings.ramp = None;
+                self.settings.range = None;
             }
             EdlStrength(d) => {
                 let p = &mut self.settings.edl_params;
@@ -501,8 +535,13 @@ impl App {
         if !self.settings.filter.is_empty() {
             s.push_str(" | filtered");
         }
-        if self.section.is_some() {
-            s.push_str(" | section");
+        if let Some(sec) = &self.section {
+            let n = sec.slab.normal;
+            s.push_str(&format!(
+                " | section {}° {} thick",
+                (n[1].atan2(n[0]).to_degrees().rem_euclid(180.0)).round(),
+                crate::text::sanitize(&format!("{:.3}", 2.0 * sec.slab.half))
+            ));
         }
         if self.picking {
             s.push_str(" | pick: arrows move, Enter picks");
@@ -703,20 +742,35 @@ mod tests {
         assert!(a.pick_pending);
         assert_eq!(a.apply(Command::Quit), Effect::Render, "q leaves pick mode");
         assert!(!a.picking);
-        // A section clips to a slab and looks at it level; z again restores.
+        // A section draws a slab and looks at it level; z again restores.
         let before = a.camera;
         a.apply(Command::ToggleSection);
-        let clip = a.settings.filter.clip.unwrap();
+        let slab = a.settings.filter.slab.unwrap();
         let b = a.dataset.bounds();
-        let s = a.section.unwrap();
-        assert!(clip.max[s.axis] - clip.min[s.axis] < 0.02 * b.extent()[s.axis]);
-        assert_eq!(a.camera.pitch, 0.0);
+        assert!(2.0 * slab.half < 0.02 * b.extent()[0].max(b.extent()[1]));
+        assert!(a.camera.pitch.abs() < 1e-9);
+        assert!(a.status_line().contains("section"), "{}", a.status_line());
         a.apply(Command::SlabWidth(1));
-        let wider = a.settings.filter.clip.unwrap();
-        assert!(wider.max[s.axis] - wider.min[s.axis] > clip.max[s.axis] - clip.min[s.axis]);
+        assert!(a.settings.filter.slab.unwrap().half > slab.half);
+        let yaw = a.camera.yaw;
+        a.apply(Command::SlabTurn(1));
+        assert_ne!(a.settings.filter.slab.unwrap().normal, slab.normal);
+        assert!(
+            (a.camera.yaw - yaw).abs() > 0.1,
+            "the profile turns with it"
+        );
         a.apply(Command::ToggleSection);
-        assert_eq!(a.settings.filter.clip, None);
+        assert_eq!(a.settings.filter.slab, None);
         assert_eq!(a.camera, before);
+        // v cycles the bands: z first, then the part's, and back.
+        let bands = a.band_names();
+        assert!(bands.len() >= 2 && bands.contains(&"classification".to_string()));
+        a.apply(Command::CycleBand);
+        assert_eq!(a.settings.color, ColorMode::Band("z".into()));
+        for _ in 0..bands.len() {
+            a.apply(Command::CycleBand);
+        }
+        assert_eq!(a.settings.color, ColorMode::Band("z".into()));
         // EDL keys turn it on and stay in range.
         for _ in 0..20 {
             a.apply(Command::EdlStrength(1));
