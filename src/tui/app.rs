@@ -4,6 +4,7 @@
 //! change and says what the event loop must do next; nothing here touches a
 //! terminal, a thread or a file, so every key can be tested on its own.
 
+pub use super::clipbox::ClipBox;
 use super::keys::Command;
 pub use super::section::Section;
 use crate::camera::Camera;
@@ -220,10 +221,19 @@ pub struct App {
     pub legend_row: usize,
     /// The section (a slab seen from the side), while one is shown.
     pub section: Option<Section>,
+    /// The clip box the keys move and size, while one is on (mirrored in the
+    /// filter's clip).
+    pub clip: Option<ClipBox>,
+    /// The last clip box, shown again by `o`.
+    pub clip_hidden: Option<ClipBox>,
 }
 
 impl App {
     pub fn new(dataset: Arc<Dataset>, camera: Camera, settings: Settings) -> App {
+        let settings_clip = settings
+            .filter
+            .clip
+            .map(|c| ClipBox::start(&dataset.bounds(), Some(c)));
         App {
             dataset,
             part: 0,
@@ -243,6 +253,8 @@ impl App {
             picks: Vec::new(),
             legend_row: 0,
             section: None,
+            clip: settings_clip,
+            clip_hidden: None,
         }
     }
 
@@ -444,10 +456,36 @@ impl App {
                     self.section = Some(s);
                 }
             }
+            ToggleClip => {
+                if let Some(c) = self.clip.take() {
+                    self.clip_hidden = Some(c);
+                } else {
+                    let c = self
+                        .clip_hidden
+                        .take()
+                        .unwrap_or_else(|| ClipBox::start(&self.dataset.bounds(), None));
+                    self.clip = Some(c);
+                }
+                self.settings.filter.clip = self.clip.map(|c| c.bounds);
+            }
+            SlabWidth(d) | SlabMove(d) | SlabTurn(d) if self.section.is_none() => {
+                let Some(c) = self.clip.as_mut() else {
+                    self.message = "no section or clip box: z shows a section, o a clip box".into();
+                    return Effect::Redraw;
+                };
+                match cmd {
+                    SlabWidth(_) => c.resize(d),
+                    SlabMove(_) => c.shift(d),
+                    _ => {
+                        c.next_axis(d);
+                        return Effect::Redraw;
+                    }
+                }
+                self.settings.filter.clip = Some(c.bounds);
+            }
             SlabWidth(d) | SlabMove(d) | SlabTurn(d) => {
                 let Some(s) = self.section.as_mut() else {
-                    self.message = "no section: z shows one (through the last picks)".into();
-                    return Effect::Redraw;
+                    return Effect::None;
                 };
                 match cmd {
                     SlabWidth(_) => s.resize(d),
@@ -543,6 +581,10 @@ impl App {
                 crate::text::sanitize(&format!("{:.3}", 2.0 * sec.slab.half))
             ));
         }
+        if let Some(c) = &self.clip {
+            s.push_str(" | ");
+            s.push_str(&crate::text::sanitize(&c.describe()));
+        }
         if self.picking {
             s.push_str(" | pick: arrows move, Enter picks");
         }
@@ -597,6 +639,7 @@ impl App {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::points::Bounds;
     use crate::store::{self, WriteOptions};
 
     fn app() -> (tempfile::TempDir, App) {
@@ -691,6 +734,64 @@ mod tests {
         a.apply(Command::ResetView);
         assert_eq!(a.camera.target, home.target);
         assert_eq!(a.camera.distance, home.distance);
+    }
+
+    #[test]
+    fn clip_box_moves_and_sizes_by_keys() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("c.tif");
+        store::write_part(
+            &path,
+            &crate::synth::scene_classified(20_000, 3),
+            &WriteOptions::default(),
+        )
+        .unwrap();
+        let ds = Arc::new(Dataset::open(&path).unwrap());
+        let b = ds.bounds();
+        let mut a = App::new(ds, Camera::fit(&b), Settings::default());
+        assert_eq!(
+            a.apply(Command::SlabWidth(1)),
+            Effect::Redraw,
+            "nothing to size"
+        );
+        assert!(a.message.contains("o a clip box"), "{}", a.message);
+        assert_eq!(a.apply(Command::ToggleClip), Effect::Render);
+        let first = a.settings.filter.clip.expect("o shows a clip box");
+        assert!((first.extent()[0] - 0.5 * b.extent()[0]).abs() < 1e-6);
+        assert!(a.status_line().contains("clip *x"), "{}", a.status_line());
+        a.apply(Command::SlabWidth(1));
+        let wider = a.settings.filter.clip.unwrap();
+        assert!(wider.extent()[0] > first.extent()[0]);
+        assert_eq!(wider.extent()[1], first.extent()[1]);
+        a.apply(Command::SlabTurn(1));
+        assert_eq!(a.clip.unwrap().axis, 1);
+        a.apply(Command::SlabMove(1));
+        let moved = a.settings.filter.clip.unwrap();
+        assert!(moved.min[1] > wider.min[1] && moved.min[0] == wider.min[0]);
+        // Off, and on again where it was.
+        a.apply(Command::ToggleClip);
+        assert_eq!(a.settings.filter.clip, None);
+        a.apply(Command::ToggleClip);
+        assert_eq!(a.settings.filter.clip, Some(moved));
+        // While a section is shown the same keys act on the section.
+        a.apply(Command::ToggleSection);
+        a.apply(Command::SlabMove(1));
+        assert_eq!(a.settings.filter.clip, Some(moved));
+        // A --clip box is the one the keys start from.
+        let given = Bounds {
+            min: b.min,
+            max: b.center(),
+        };
+        let settings = Settings {
+            filter: Filter {
+                clip: Some(given),
+                ..Filter::default()
+            },
+            ..Settings::default()
+        };
+        let mut a = App::new(a.dataset.clone(), Camera::fit(&b), settings);
+        a.apply(Command::SlabMove(-1));
+        assert!(a.settings.filter.clip.unwrap().min[0] < given.min[0]);
     }
 
     #[test]

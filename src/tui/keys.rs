@@ -45,6 +45,8 @@ pub enum Command {
     ToggleClassRow(usize),
     /// A section through the last pick, seen from the side, on / off.
     ToggleSection,
+    /// `o`: the clip box on / off (the `--clip` box, or the middle of the data).
+    ToggleClip,
     /// The section's slab thicker (+1) or thinner (-1).
     SlabWidth(i8),
     /// The section's slab moved forward (+1) or back by its thickness.
@@ -122,6 +124,7 @@ pub fn command_for(key: KeyEvent) -> Option<Command> {
         KeyCode::Char('.') => LegendRow(1),
         KeyCode::Char(' ') => ToggleClass,
         KeyCode::Char('z') => ToggleSection,
+        KeyCode::Char('o') => ToggleClip,
         KeyCode::Char('(') => SlabWidth(-1),
         KeyCode::Char(')') => SlabWidth(1),
         KeyCode::Char('{') => SlabMove(-1),
@@ -177,6 +180,10 @@ pub const HELP: &[(&str, &str)] = &[
     (
         "( / ) , { / } , / \\",
         "section slab thinner / thicker, back / forward, turn it 15° left / right",
+    ),
+    (
+        "o",
+        "clip box on / off; without a section ( ) size it, { } move it, / \\ choose its axis",
     ),
     ("p", "point size 1 → 2 → 3"),
     (
