@@ -310,7 +310,61 @@ fn ab() {
     }
 }
 
+/// `PCIMG_RENDER_IDS=<points> cargo bench --bench render`: the CPU rasterizer
+/// without and with the per-pixel id buffer picking reads (`keep_ids`),
+/// interleaved, 15 rounds; the median and range of each frame's time.
+fn ab_ids(n: usize) {
+    let opts = RenderOptions {
+        width: 1280,
+        height: 720,
+        ..Default::default()
+    };
+    let bounds = Bounds {
+        min: [500_000.0, 4_000_000.0, -60.0],
+        max: [500_000.0 + SIZE as f64, 4_000_000.0 + SIZE as f64, 60.0],
+    };
+    let cam = Camera::fit(&bounds);
+    let c = terrain(n);
+    let batch = PointBatch {
+        origin: [bounds.min[0], bounds.min[1], 0.0],
+        x: &c.x,
+        y: &c.y,
+        z: &c.z,
+        color: &c.c,
+    };
+    let mut plain = CpuRasterizer::new();
+    let mut ids = CpuRasterizer::new();
+    ids.keep_ids(true);
+    let mut runs = [Vec::new(), Vec::new()];
+    for round in 0..16 {
+        for (k, r) in [&mut plain, &mut ids].into_iter().enumerate() {
+            let f = r.render(&cam, &[batch], &opts).expect("frame");
+            // The first round warms caches and allocations.
+            if round > 0 {
+                runs[k].push(f.stats.render_ms);
+            }
+        }
+    }
+    for (name, mut v) in ["cpu", "cpu+ids"].into_iter().zip(runs) {
+        v.sort_by(f64::total_cmp);
+        println!(
+            "{n} points {name:8} median {:7.1} ms, range {:.1}-{:.1} ms ({} frames)",
+            v[v.len() / 2],
+            v[0],
+            v[v.len() - 1],
+            v.len()
+        );
+    }
+}
+
 fn main() {
+    if let Some(n) = std::env::var("PCIMG_RENDER_IDS")
+        .ok()
+        .and_then(|v| v.parse::<usize>().ok())
+    {
+        ab_ids(n.max(1));
+        return;
+    }
     if std::env::var_os("PCIMG_RENDER_AB").is_some() {
         ab();
         return;

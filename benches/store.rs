@@ -1,6 +1,6 @@
 //! Store throughput: writing 10 M points (sort + layout + pyramid + write; points in
 //! random order, and in scan order for uncompressed parts) and
-//! reading level 0 and level 2 back, uncompressed and Deflate, from the page cache;
+//! reading level 0 and level 2 back, uncompressed, Deflate and Zstd, from the page cache;
 //! and filling a part's builder from a spatial conversion's temporary region file
 //! (2.5 M points, x y z intensity: a part of `--memory 256MiB`), through decoded
 //! `f64` columns against straight from the packed records.
@@ -28,7 +28,7 @@ fn bench(c: &mut Criterion) {
     let mut g = c.benchmark_group("store");
     g.sample_size(10).measurement_time(Duration::from_secs(20));
     g.throughput(Throughput::Elements(n));
-    for comp in [Compression::None, Compression::Deflate] {
+    for comp in [Compression::None, Compression::Deflate, Compression::Zstd] {
         let path = dir.path().join(format!("{}.tif", comp.name()));
         let opts = WriteOptions {
             compression: comp,

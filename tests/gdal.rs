@@ -474,3 +474,79 @@ fn gdal_reads_overview_nodes() {
         assert!(source.starts_with("pcimg overview of t"), "{source}");
     }
 }
+
+/// GDAL reads a head-first part (every IFD and value before the first tile)
+/// and the same part rewritten in the older layout (IFDs after the tiles) to
+/// the same checksums, every band and overview, uncompressed and compressed.
+#[test]
+fn gdal_reads_head_first_and_older_layouts_alike() {
+    if !gdal() {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    for c in [Compression::None, Compression::Zstd, Compression::Deflate] {
+        let new = write(dir.path(), &format!("{c:?}.tif"), 2 * 65_536 + 17, c);
+        let bytes = std::fs::read(&new).unwrap();
+        let w = common::tiffwalk::Walk::new(&bytes);
+        assert!(w.head_end() <= w.first_tile(), "{c:?}: not head-first");
+        let old = dir.path().join(format!("{c:?}-old.tif"));
+        std::fs::write(&old, w.to_old_layout(&bytes)).unwrap();
+        let sums = |p: &Path| -> Vec<String> {
+            let info = run("gdalinfo", &["-checksum", p.to_str().unwrap()]);
+            info.lines()
+                .filter(|l| l.contains("Checksum=") || l.contains("Overviews checksum"))
+                .map(|l| l.trim().to_string())
+                .collect()
+        };
+        let (a, b) = (sums(&new), sums(&old));
+        // 5 bands, each with its checksum and its overview's.
+        assert_eq!(a.len(), 5 * 2, "{c:?}: {a:?}");
+        assert_eq!(a, b, "{c:?}");
+    }
+}
+
+/// A Python with GDAL's bindings (python3-gdal), for its COG validator.
+fn python_with_gdal() -> Option<&'static str> {
+    let found = ["/usr/bin/python3", "python3"].into_iter().find(|py| {
+        Command::new(py)
+            .args([
+                "-c",
+                "import osgeo_utils.samples.validate_cloud_optimized_geotiff",
+            ])
+            .output()
+            .is_ok_and(|o| o.status.success())
+    });
+    if found.is_none() {
+        assert!(
+            std::env::var("CI").ok().as_deref() != Some("true"),
+            "python3-gdal is required in CI (.ci/run installs it)"
+        );
+        eprintln!("note: no python3 with GDAL's bindings, skipping this test outside CI");
+    }
+    found
+}
+
+/// GDAL's `validate_cloud_optimized_geotiff.py` accepts a part as a Cloud
+/// Optimized GeoTIFF: IFDs first, then the tiles, the coarsest level's first.
+#[test]
+fn gdal_validates_parts_as_cloud_optimized() {
+    let Some(py) = python_with_gdal() else {
+        return;
+    };
+    let dir = tempfile::tempdir().unwrap();
+    for c in [Compression::None, Compression::Zstd] {
+        // Three levels.
+        let path = write(dir.path(), &format!("{c:?}.tif"), 5 * 65_536 + 3, c);
+        let out = Command::new(py)
+            .args(["-m", "osgeo_utils.samples.validate_cloud_optimized_geotiff"])
+            .arg(&path)
+            .output()
+            .unwrap();
+        let text = String::from_utf8_lossy(&out.stdout);
+        assert!(
+            out.status.success() && text.contains("is a valid cloud optimized GeoTIFF"),
+            "{c:?}: {text}{}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+    }
+}

@@ -626,3 +626,216 @@ fn filters_hide_the_same_points_on_the_gpu() {
     let same = c.pixels().zip(g.pixels()).filter(|(a, b)| a == b).count();
     assert!(same as f64 > 0.99 * (320.0 * 240.0), "{same}");
 }
+
+#[test]
+fn the_cpu_rasterizer_keeps_the_point_that_won_each_pixel() {
+    use pcimg::render::cpu::CpuStrategy;
+    // A 20 x 20 grid 1 m apart far from the datum; point 400 hovers 5 m above
+    // grid point (7, 11) and hides it; points 401 and 402 lie at the same
+    // place (3, 3, 2): a depth tie the smaller colour (402's) wins; 403 and 404
+    // tie with the same colour too, at (15, 5, 2): the smaller index wins.
+    let origin = [637_000.0, 5_100_000.0, 300.0];
+    let (mut x, mut y, mut z) = (Vec::new(), Vec::new(), Vec::new());
+    for i in 0..20 {
+        for j in 0..20 {
+            x.push(i as f32);
+            y.push(j as f32);
+            z.push(0.0);
+        }
+    }
+    for (px, py, pz) in [(7.0, 11.0, 5.0), (3.0, 3.0, 2.0), (3.0, 3.0, 2.0)] {
+        x.push(px);
+        y.push(py);
+        z.push(pz);
+    }
+    for _ in 0..2 {
+        x.push(15.0);
+        y.push(5.0);
+        z.push(2.0);
+    }
+    let bounds = Bounds {
+        min: origin,
+        max: [origin[0] + 19.0, origin[1] + 19.0, origin[2] + 5.0],
+    };
+    let mut cam = Camera::fit(&bounds);
+    cam.pitch = -80.0f64.to_radians();
+    cam.yaw = 0.3;
+    cam.set_clip_from_bounds(&bounds);
+    // Point 405 lies behind grid point (12, 4) on the ray from the eye: occluded.
+    let eye = cam.eye().to_array();
+    let front = [origin[0] + 12.0, origin[1] + 4.0, origin[2]];
+    let behind: [f64; 3] = std::array::from_fn(|a| eye[a] + (front[a] - eye[a]) * 1.05);
+    x.push((behind[0] - origin[0]) as f32);
+    y.push((behind[1] - origin[1]) as f32);
+    z.push((behind[2] - origin[2]) as f32);
+    let mut color: Vec<u32> = (0..x.len() as u32)
+        .map(|i| 0xff00_0000 | (i * 7919 + 17))
+        .collect();
+    color[401] = 0xff00_ff00;
+    color[402] = 0xff00_00ff;
+    color[403] = 0xff12_3456;
+    color[404] = 0xff12_3456;
+    let b = PointBatch {
+        origin,
+        x: &x,
+        y: &y,
+        z: &z,
+        color: &color,
+    };
+    for strategy in [CpuStrategy::PerThread, CpuStrategy::SharedAtomic] {
+        for (size, edl) in [(1, false), (3, true)] {
+            let opts = RenderOptions {
+                width: 400,
+                height: 300,
+                point_size: size,
+                eye_dome_lighting: edl,
+                ..Default::default()
+            };
+            let mut r = CpuRasterizer::with_strategy(strategy);
+            // Off by default: no id buffer, nothing to read.
+            r.render(&cam, &[b], &opts).unwrap();
+            assert!(r.last_ids().is_none());
+            assert!(r.keep_ids(true));
+            let frame = r.render(&cam, &[b], &opts).unwrap();
+            let ids = r.last_ids().unwrap().to_vec();
+            assert_eq!(ids.len(), 400 * 300);
+            let at = |p: [f64; 3]| {
+                let [sx, sy] = cam.project(p, 400, 300).unwrap();
+                let h = pick::from_ids(&ids, &[b], 400, 300, sx as u32, sy as u32, 0)
+                    .unwrap()
+                    .unwrap();
+                assert_eq!(h.position, p, "{strategy:?} size {size}");
+                h.index
+            };
+            let world = |i: usize| {
+                [
+                    origin[0] + x[i] as f64,
+                    origin[1] + y[i] as f64,
+                    origin[2] + z[i] as f64,
+                ]
+            };
+            for (i, j) in [(0usize, 0usize), (3, 17), (19, 19), (12, 4)] {
+                assert_eq!(at(world(i * 20 + j)), i * 20 + j);
+            }
+            assert_eq!(at(world(400)), 400, "the hovering point");
+            assert_eq!(at(world(401)), 402, "a depth tie: the colour drawn");
+            assert_eq!(at(world(403)), 403, "a full tie: the smaller index");
+            // Every pixel agrees with the frame and with picking by projection.
+            let batches = [b];
+            for py in (0..300).step_by(7) {
+                for px in (0..400).step_by(5) {
+                    let id = ids[py * 400 + px];
+                    let by_proj =
+                        pick::pick(&cam, &batches, &opts, px as u32, py as u32, 0).unwrap();
+                    assert_eq!(
+                        by_proj.map(|h| pick::point_id(h.batch, h.index)),
+                        (id != pick::NO_POINT).then_some(id),
+                        "pixel ({px}, {py})"
+                    );
+                    if id != pick::NO_POINT && !edl {
+                        let c = color[id as usize];
+                        let shown = frame.pixel(px as u32, py as u32).unwrap();
+                        assert_eq!(shown[..3], [c as u8, (c >> 8) as u8, (c >> 16) as u8]);
+                    }
+                }
+            }
+            // An occluded point is never picked: 405 appears in no pixel, nor
+            // do the losers of the ties.
+            assert_eq!(at(world(12 * 20 + 4)), 12 * 20 + 4);
+            assert!(!ids.contains(&pick::point_id(0, 405)));
+            assert!(!ids.contains(&pick::point_id(0, 401)));
+            assert!(!ids.contains(&pick::point_id(0, 404)));
+            // Background: none.
+            assert_eq!(pick::from_ids(&ids, &[b], 400, 300, 0, 0, 2).unwrap(), None);
+            assert!(pick::from_ids(&ids, &[b], 400, 300, 400, 0, 0).is_err());
+            assert!(pick::from_ids(&ids[1..], &[b], 400, 300, 0, 0, 0).is_err());
+            r.keep_ids(false);
+            r.render(&cam, &[b], &opts).unwrap();
+            assert!(r.last_ids().is_none());
+        }
+    }
+}
+
+#[test]
+fn a_slab_draws_only_the_points_within_it_and_loads_only_the_tiles_it_crosses() {
+    use pcimg::render::filter::{Slab, parse_slab};
+    let dir = tempfile::tempdir().unwrap();
+    let part = classified_part(dir.path(), 400_000);
+    let ds = Arc::new(Dataset::open(&part).unwrap());
+    let b = ds.bounds();
+    let cam = Camera::fit(&b);
+    // A vertical plane at 30° through the centre, 6 m thick.
+    let c = b.center();
+    let (s30, c30) = 30f64.to_radians().sin_cos();
+    let slab = Slab::new(c, [c30, s30, 0.0], 6.0).unwrap();
+    let f = Filter {
+        slab: Some(slab),
+        ..Filter::default()
+    };
+    let all = lod::select(&ds, &cam, 640, 480, LodMode::Fixed(0), u64::MAX);
+    let some = lod::select_region(&ds, &cam, 640, 480, LodMode::Fixed(0), u64::MAX, &|t| {
+        f.may_show(t)
+    });
+    assert!(!some.tiles.is_empty() && some.tiles.len() < all.tiles.len());
+    assert!(some.tiles.iter().all(|t| slab.touches(&t.bounds)));
+    // Count, over every point, those within the slab: all lie in the tiles
+    // kept, and exactly those are drawn.
+    let cache = TileCache::new(ds.clone(), u64::MAX, 1);
+    let every = cache.load_all(&all.tiles).unwrap();
+    let world = |t: &lod::LoadedTile, i: usize| {
+        [
+            t.x[i] as f64 + t.origin[0],
+            t.y[i] as f64 + t.origin[1],
+            t.z[i] as f64 + t.origin[2],
+        ]
+    };
+    let within: u64 = every
+        .iter()
+        .map(|t| (0..t.len()).filter(|&i| slab.contains(world(t, i))).count() as u64)
+        .sum();
+    assert!(within > 0 && within < 400_000 / 10, "{within}");
+    let tiles = cache.load_all(&some.tiles).unwrap();
+    let ranges = ColorRanges::from_tiles(&tiles, &b);
+    let scene = Scene::build(tiles, &Style::default(), &ranges, &f);
+    assert_eq!(scene.shown_points(), within);
+    for (t, h) in scene.tiles.iter().zip(&scene.hidden) {
+        let z = h.as_deref().unwrap();
+        for (i, zi) in z.iter().enumerate() {
+            assert_eq!(!zi.is_nan(), slab.contains(world(t, i)));
+        }
+    }
+    // The same from the command line: drawn from the side, a pick in the
+    // middle of the profile finds a point within the slab.
+    let arg = format!("{},{},{},{c30},{s30},0,6", c[0], c[1], c[2]);
+    assert_eq!(parse_slab(&arg).unwrap().normal, slab.normal);
+    let png = dir.path().join("slab.png");
+    let o = render(&part, (320, 240), &["--slab", &arg], &png);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let img = image::open(&png).unwrap().to_rgb8();
+    let lit: Vec<(u32, u32)> = img
+        .enumerate_pixels()
+        .filter(|(_, _, p)| p.0 != [0, 0, 0])
+        .map(|(x, y, _)| (x, y))
+        .collect();
+    assert!(!lit.is_empty(), "the profile shows the slab's points");
+    for &(px, py) in lit.iter().step_by(lit.len().div_ceil(4)) {
+        let o = render(
+            &part,
+            (320, 240),
+            &["--slab", &arg, "--pick", &format!("{px},{py}")],
+            &dir.path().join("pick.png"),
+        );
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+        let p = ["x", "y", "z"].map(|k| v[k].as_f64().unwrap());
+        assert!(slab.distance(p).abs() <= 3.0 + 1e-3, "{v}");
+    }
+    let o = render(
+        &part,
+        (64, 48),
+        &["--slab", "0,0,0,0,0,0,1"],
+        &dir.path().join("bad.png"),
+    );
+    assert!(!o.status.success());
+    assert!(String::from_utf8_lossy(&o.stderr).contains("--slab"));
+}

@@ -16,7 +16,8 @@ pub struct Args {
     /// Several files (tiles of one survey, `tiles/*.laz`) or a directory (its
     /// point-cloud files, in name order) become one dataset; they must carry the
     /// same attributes and coordinate reference system.
-    #[arg(required = true, num_args = 1.., value_name = "INPUT")]
+    /// With --plan and no inputs, a cluster shard runs instead.
+    #[arg(required_unless_present = "plan", num_args = 1.., value_name = "INPUT")]
     pub inputs: Vec<PathBuf>,
     /// Output: a directory of parts (default: INPUT with extension .pcimg, for a
     /// directory DIR.pcimg beside it; several files need -o), or a single .tif
@@ -67,6 +68,22 @@ pub struct Args {
     /// No progress bars or summary (with --timings, the summary is printed).
     #[arg(short, long)]
     pub quiet: bool,
+    /// Conversion on a cluster (docs/cluster.md). With INPUTS: write the plan
+    /// (every global choice, the shards' cells and inputs, a hash) to this file,
+    /// and convert nothing; -o names the dataset directory the shards write to.
+    /// Without INPUTS: run one shard of this plan (--shard).
+    #[arg(long, value_name = "PLAN.json")]
+    pub plan: Option<PathBuf>,
+    /// With --plan INPUTS: the number of shards, balanced by point count
+    /// (default: one per spatial region).
+    #[arg(long, requires = "plan")]
+    pub shards: Option<usize>,
+    /// With --plan and no INPUTS: the shard to run, `I/N` with I from 0 to N-1;
+    /// or `N` or nothing, the index then taken from SLURM_ARRAY_TASK_ID (use
+    /// `--array=0-(N-1)`) or JOB_COMPLETION_INDEX (Kubernetes Indexed Job), both
+    /// 0-based. -o overrides the plan's output directory.
+    #[arg(long, value_name = "I/N", requires = "plan")]
+    pub shard: Option<String>,
     /// Also print the wall and CPU time of each phase (passes over the input, and
     /// the store's phases summed over parts).
     #[arg(long)]
@@ -215,19 +232,15 @@ fn default_output(args: &[PathBuf]) -> anyhow::Result<PathBuf> {
     }
 }
 
-pub fn run(a: Args) -> anyhow::Result<()> {
-    let output = match a.output.clone() {
-        Some(o) => o,
-        None => default_output(&a.inputs)?,
-    };
-    let inputs = input_files(&a.inputs)?;
+/// The conversion options the arguments give, writing to `output`.
+fn options(a: &Args, output: PathBuf) -> ConvertOptions {
     let cancel = Arc::new(AtomicBool::new(false));
     {
         let c = cancel.clone();
         // A second handler cannot be set (tests run several conversions): ignore.
         let _ = ctrlc::set_handler(move || c.store(true, std::sync::atomic::Ordering::Relaxed));
     }
-    let opts = ConvertOptions {
+    ConvertOptions {
         output,
         force: a.force,
         memory: a.memory.unwrap_or_else(budget::default_budget),
@@ -251,7 +264,79 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         cancel,
         sample_points: convert::DEFAULT_SAMPLE_POINTS,
         io: a.io,
+    }
+}
+
+/// `convert --plan`: writes a cluster plan, or runs one shard of one.
+fn run_cluster(a: &Args, plan: &std::path::Path, opts: ConvertOptions) -> anyhow::Result<()> {
+    use crate::convert::cluster;
+    let bars = Bars::new(a.quiet);
+    let shown = |p: &std::path::Path| sanitize(&p.display().to_string());
+    if a.inputs.is_empty() {
+        if a.shards.is_some() {
+            anyhow::bail!(
+                "--shards is for planning (--plan with INPUTS); a shard takes --shard I/N"
+            );
+        }
+        let (cp, _) = cluster::ClusterPlan::load(plan)?;
+        let env = |k: &str| std::env::var(k).ok();
+        let i = cluster::shard_index(a.shard.as_deref(), cp.shards.len(), &env)?;
+        let t = std::time::Instant::now();
+        let r = cluster::run_shard(plan, i, a.output.as_deref(), &opts, &bars);
+        bars.finish();
+        let r = r?;
+        if !a.quiet {
+            super::print_out(&format!(
+                "shard {i}/{}: {} points in {} part(s), {:.2} s; receipt {}\n",
+                r.shards,
+                count(r.points),
+                r.parts.len(),
+                t.elapsed().as_secs_f64(),
+                cluster::RECEIPTS
+            ))?;
+        }
+        return Ok(());
+    }
+    if a.shard.is_some() {
+        anyhow::bail!("--shard runs a planned shard: give --plan PLAN.json without INPUTS");
+    }
+    let inputs = input_files(&a.inputs)?;
+    let t = std::time::Instant::now();
+    let cp = cluster::make_plan(&inputs, &opts, a.shards, &bars);
+    bars.finish();
+    let cp = cp?;
+    let hash = cp.save(plan)?;
+    if !a.quiet {
+        let most = cp.shards.iter().map(|s| s.points).max().unwrap_or(0);
+        super::print_out(&format!(
+            "planned {} points in {} region(s), {} shard(s) (largest {} points) -> {} \
+             (hash {hash}, {:.2} s); output {}\n",
+            count(cp.plan.points),
+            cp.plan.regions.len(),
+            cp.shards.len(),
+            count(most),
+            shown(plan),
+            t.elapsed().as_secs_f64(),
+            shown(&cp.output)
+        ))?;
+    }
+    Ok(())
+}
+
+pub fn run(a: Args) -> anyhow::Result<()> {
+    if a.plan.is_some() && a.inputs.is_empty() {
+        let plan = a.plan.clone().unwrap_or_default();
+        return run_cluster(&a, &plan, options(&a, PathBuf::new()));
+    }
+    let output = match a.output.clone() {
+        Some(o) => o,
+        None => default_output(&a.inputs)?,
     };
+    let inputs = input_files(&a.inputs)?;
+    let opts = options(&a, output);
+    if let Some(plan) = &a.plan {
+        return run_cluster(&a, plan, opts);
+    }
     let bars = Bars::new(a.quiet);
     let result = convert::convert_files(&inputs, &opts, &bars);
     bars.finish();

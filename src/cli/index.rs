@@ -1,5 +1,6 @@
 //! `pcimg index DIR`: (re)builds a dataset directory's index and overview, for
-//! parts made separately, added, replaced or removed since the last index.
+//! parts made separately, added, replaced or removed since the last index; the
+//! finalize step of a cluster conversion (its receipts checked against the plan).
 
 use crate::store::overview::{IndexOptions, IndexReport, build_index};
 use crate::text::{bytes, count, sanitize};
@@ -45,6 +46,9 @@ pub fn run(a: Args) -> anyhow::Result<()> {
             sanitize(&a.dir.display().to_string())
         );
     }
+    // A dataset made by cluster shards (docs/cluster.md): every shard's receipt
+    // checked against its plan first.
+    let checked = crate::convert::cluster::check_receipts(&a.dir)?;
     let cancel = Arc::new(AtomicBool::new(false));
     {
         let c = cancel.clone();
@@ -68,6 +72,14 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     }
     let r = r?;
     if !a.quiet {
+        if let Some(c) = checked {
+            super::print_out(&format!(
+                "receipts of {} shard(s) match the plan: {} part(s), {} points\n",
+                count(c.shards as u64),
+                count(c.parts as u64),
+                count(c.points)
+            ))?;
+        }
         super::print_out(&format!("{}\n", describe(&r)))?;
     }
     Ok(())

@@ -81,9 +81,14 @@ pub fn open(ds: Arc<Dataset>, a: &Args, temporary: Option<&Path>) -> anyhow::Res
     let filter = view::filter_for(v, &ds)?;
     let (edl, edl_params) = view::edl_for(v)?;
     let mut extra_bands = view::bands_for(&style, &filter);
-    // The legend's class toggles and the `C` key need the classes at hand.
-    if view::has_band(&ds, "classification") && !extra_bands.iter().any(|b| b == "classification") {
-        extra_bands.push("classification".into());
+    // The legend's class toggles, the `C` key and `v` (every band in turn)
+    // need the bands at hand: tiles load all of them.
+    for p in &ds.parts {
+        for b in &p.bands {
+            if !["x", "y", "z"].contains(&b.name.as_str()) && !extra_bands.contains(&b.name) {
+                extra_bands.push(b.name.clone());
+            }
+        }
     }
     let settings = Settings {
         lod,

@@ -4,9 +4,9 @@
 
 use super::turntable;
 use super::view::{self, Drawing, ViewArgs};
+use crate::render::ColorMode;
 use crate::render::legend::{self, Legend};
 use crate::render::scene::Style;
-use crate::render::{ColorMode, pick};
 use crate::store::Dataset;
 use std::path::PathBuf;
 use std::sync::Arc;
@@ -118,9 +118,10 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     if let Some(n) = a.turntable {
         return turntable::run(&mut drawing, &cam, n, &a.output, a.legend);
     }
+    drawing.keep_ids(pick_at.is_some());
     let mut d = drawing.draw(&cam)?;
     if let Some((x, y)) = pick_at {
-        let hit = pick::pick(&cam, &d.scene.batches(), &drawing.opts, x, y, 3)?;
+        let hit = drawing.pick(&d, &cam, x, y, 3)?;
         let json = match hit {
             None => "null".to_string(),
             Some(h) => {

@@ -69,6 +69,11 @@ pub struct ViewArgs {
     /// coordinates); tiles outside it are not loaded.
     #[arg(long, value_name = "BOX", allow_hyphen_values = true)]
     pub clip: Option<String>,
+    /// Draw only what lies within THICK of the plane through X,Y,Z with normal
+    /// NX,NY,NZ (dataset coordinates), seen across it as a profile unless
+    /// --camera or --view says otherwise; tiles the slab misses are not loaded.
+    #[arg(long, value_name = "X,Y,Z,NX,NY,NZ,THICK", allow_hyphen_values = true)]
+    pub slab: Option<String>,
     /// Splat size in pixels, 1 to 3.
     #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..=3))]
     pub point_size: u32,
@@ -137,6 +142,13 @@ pub fn camera_for(a: &ViewArgs, ds: &Dataset) -> anyhow::Result<Camera> {
     if let Some(v) = &a.view {
         cam.apply_view(&camera::parse_view(v)?);
     }
+    if let Some(s) = &a.slab
+        && a.camera.is_none()
+        && a.view.is_none()
+    {
+        let slab = filter::parse_slab(s).map_err(anyhow::Error::msg)?;
+        cam = slab.profile_camera(&bounds, &cam);
+    }
     cam.set_clip_from_bounds(&bounds);
     Ok(cam)
 }
@@ -190,7 +202,7 @@ pub fn style_for(a: &ViewArgs, ds: &Dataset) -> anyhow::Result<Style> {
     Ok(Style { mode, ramp, range })
 }
 
-/// The filter from `--classes`, `--exclude-classes`, `--where` and `--clip`,
+/// The filter from `--classes`, `--exclude-classes`, `--where`, `--clip` and `--slab`,
 /// checked against `ds`.
 pub fn filter_for(a: &ViewArgs, ds: &Dataset) -> anyhow::Result<Filter> {
     let include = a
@@ -226,10 +238,17 @@ pub fn filter_for(a: &ViewArgs, ds: &Dataset) -> anyhow::Result<Filter> {
         .map(filter::parse_clip)
         .transpose()
         .map_err(anyhow::Error::msg)?;
+    let slab = a
+        .slab
+        .as_deref()
+        .map(filter::parse_slab)
+        .transpose()
+        .map_err(anyhow::Error::msg)?;
     Ok(Filter {
         classes: ClassMask::new(include.as_deref(), &exclude),
         wheres,
         clip,
+        slab,
     })
 }
 
@@ -328,19 +347,39 @@ impl Drawing {
         })
     }
 
+    /// Keeps (or not) the id of the point drawn at each pixel in the next
+    /// frames, for [`Drawing::pick`].
+    pub fn keep_ids(&mut self, on: bool) {
+        self.renderer.keep_ids(on);
+    }
+
+    /// The point drawn nearest pixel `(x, y)` of `d` (the last frame drawn).
+    pub fn pick(
+        &self,
+        d: &Drawn,
+        cam: &Camera,
+        x: u32,
+        y: u32,
+        radius: u32,
+    ) -> anyhow::Result<Option<render::pick::Hit>> {
+        Ok(render::pick::pick_drawn(
+            self.renderer.as_ref(),
+            cam,
+            &d.scene.batches(),
+            &self.opts,
+            x,
+            y,
+            radius,
+        )?)
+    }
+
     /// Selects (culling by the clip box too), loads, colours and renders a frame.
     pub fn draw(&mut self, cam: &Camera) -> anyhow::Result<Drawn> {
         let (width, height) = (self.opts.width, self.opts.height);
         let t = Instant::now();
-        let sel = lod::select_clipped(
-            &self.ds,
-            cam,
-            width,
-            height,
-            self.mode,
-            self.memory,
-            self.filter.clip.as_ref(),
-        );
+        let sel = lod::select_region(&self.ds, cam, width, height, self.mode, self.memory, &|b| {
+            self.filter.may_show(b)
+        });
         let select_ms = t.elapsed().as_secs_f64() * 1e3;
         let t = Instant::now();
         let tiles = self

@@ -202,7 +202,7 @@ pub(super) fn spill_all(
 }
 
 /// The region whose box is nearest to cell `c` (for cells the sample missed).
-fn nearest_region(regions: &[Region], c: [usize; 3]) -> usize {
+pub(super) fn nearest_region(regions: &[Region], c: [usize; 3]) -> usize {
     let dist = |r: &Region| -> usize {
         (0..3)
             .map(|a| {

@@ -46,6 +46,8 @@ pub(super) struct Job<'a> {
     /// Parts go into a temporary directory renamed into place at the end (for a
     /// single-file output the store's own temporary file does this).
     staging: Option<spill::TempDir>,
+    /// Parts are named `<part_prefix><k:05>.tif` (`part-`; a cluster shard's own).
+    part_prefix: String,
     timings: Timings,
     /// Time spent writing parts so far (passes report their time less this).
     written: Span,
@@ -124,6 +126,7 @@ impl<'a> Job<'a> {
             about,
             write_opts,
             staging,
+            part_prefix: "part-".into(),
             timings: Timings::default(),
             written: Span::default(),
             start,
@@ -134,9 +137,21 @@ impl<'a> Job<'a> {
     /// Where part `k` is written.
     pub(super) fn part_path(&self, k: usize) -> PathBuf {
         match &self.staging {
-            Some(d) => d.path.join(format!("part-{k:05}.tif")),
+            Some(d) => d.path.join(format!("{}{k:05}.tif", self.part_prefix)),
             None => self.o.output.clone(),
         }
+    }
+
+    /// Writes the parts into `dir` (replacing the staging directory), named
+    /// `<prefix><k:05>.tif`: a cluster shard publishes them itself.
+    pub(super) fn stage_in(&mut self, dir: spill::TempDir, prefix: &str) {
+        self.staging = Some(dir);
+        self.part_prefix = prefix.to_string();
+    }
+
+    /// The staging directory, if any.
+    pub(super) fn staging(&self) -> Option<&std::path::Path> {
+        self.staging.as_ref().map(|d| d.path.as_path())
     }
 
     /// Where the next part is written.

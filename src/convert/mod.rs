@@ -7,6 +7,7 @@
 //! single part), sharing one conversion's state through `job::Job`.
 
 pub mod budget;
+pub mod cluster;
 mod distribute;
 mod job;
 mod output;

@@ -9,5 +9,5 @@ pub mod select;
 pub use cache::{Extra, LoadedTile, TileCache, TileKey};
 pub use select::{
     DEFAULT_BUDGET_CAP, LodMode, Selection, TileRef, budget_for_pixels, distance_level,
-    level_count, select, select_clipped,
+    level_count, select, select_clipped, select_region,
 };

@@ -258,14 +258,28 @@ pub fn select_clipped(
     memory_budget: u64,
     clip: Option<&Bounds>,
 ) -> Selection {
+    let keep = |b: &Bounds| clip.is_none_or(|c| c.intersects(b));
+    select_region(ds, camera, width, height, mode, memory_budget, &keep)
+}
+
+/// [`select`] drawing only what `may_show` lets through: tiles whose bounds it
+/// refuses (a clip box, a slab) are culled like those outside the view.
+pub fn select_region(
+    ds: &Dataset,
+    camera: &Camera,
+    width: u32,
+    height: u32,
+    mode: LodMode,
+    memory_budget: u64,
+    may_show: &dyn Fn(&Bounds) -> bool,
+) -> Selection {
     let aspect = width as f64 / height.max(1) as f64;
     let frustum: Frustum = camera.frustum(aspect);
     let eye = camera.eye().to_array();
     let mut sel = Selection::default();
     let mut chosen: Vec<TileRef> = Vec::new();
     let visible = |t: &TileRef| {
-        clip.is_none_or(|c| c.intersects(&t.bounds))
-            && frustum.contains_aabb(&t.bounds) != Containment::Outside
+        may_show(&t.bounds) && frustum.contains_aabb(&t.bounds) != Containment::Outside
     };
     match mode {
         LodMode::Distance | LodMode::Fixed(_) => {

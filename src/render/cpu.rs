@@ -53,6 +53,10 @@ pub struct CpuRasterizer {
     per_thread: Vec<Mutex<Vec<u64>>>,
     shared: Vec<AtomicU64>,
     depth: Vec<f32>,
+    /// Whether [`Rasterizer::last_ids`] is filled (a second projection pass).
+    keep_ids: bool,
+    /// Per pixel of the last frame, the point that won it (see [`super::pick::point_id`]).
+    ids: Vec<u64>,
 }
 
 impl Default for CpuRasterizer {
@@ -181,6 +185,8 @@ impl CpuRasterizer {
             per_thread: Vec::new(),
             shared: Vec::new(),
             depth: Vec::new(),
+            keep_ids: false,
+            ids: Vec::new(),
         }
     }
 
@@ -256,7 +262,46 @@ fn resolve_px(v: u64, bg: [u8; 3], out: &mut [u8], d: &mut f32) {
     }
 }
 
+/// The id pass: per pixel, the smallest [`super::pick::point_id`] among the
+/// points whose packed value is the one the frame resolved there (read back
+/// from its colour and depth before eye-dome lighting), so the id is the point
+/// the image shows, ties broken like the frame's minimum. Runs only when ids
+/// are asked for: the frame path itself is unchanged.
+fn winners(
+    projs: &[Projector],
+    batches: &[PointBatch<'_>],
+    items: &[(usize, usize, usize)],
+    rgba: &[u8],
+    depth: &[f32],
+) -> Vec<u64> {
+    let ids: Vec<AtomicU64> = (0..depth.len())
+        .map(|_| AtomicU64::new(super::pick::NO_POINT))
+        .collect();
+    items.par_iter().for_each(|&(bi, s, e)| {
+        projs[bi].splat(&batches[bi], s, e, |i, v, j| {
+            let d = depth[i];
+            if d == f32::INFINITY {
+                return;
+            }
+            let c = u32::from_le_bytes([rgba[i * 4], rgba[i * 4 + 1], rgba[i * 4 + 2], 0]);
+            if v == ((d.to_bits() as u64) << 32 | c as u64) {
+                ids[i].fetch_min(super::pick::point_id(bi, j), Ordering::Relaxed);
+            }
+        });
+    });
+    ids.into_iter().map(AtomicU64::into_inner).collect()
+}
+
 impl Rasterizer for CpuRasterizer {
+    fn keep_ids(&mut self, on: bool) -> bool {
+        self.keep_ids = on;
+        true
+    }
+
+    fn last_ids(&self) -> Option<&[u64]> {
+        (self.keep_ids && !self.ids.is_empty()).then_some(self.ids.as_slice())
+    }
+
     fn name(&self) -> String {
         let t = rayon::current_num_threads();
         let s = if t == 1 { "" } else { "s" };
@@ -381,6 +426,10 @@ impl Rasterizer for CpuRasterizer {
                         }
                     });
             }
+        }
+        self.ids.clear();
+        if self.keep_ids {
+            self.ids = winners(&projs, batches, &items, &rgba, &self.depth);
         }
         if opts.eye_dome_lighting {
             edl::apply(&mut rgba, &self.depth, w, h, &opts.edl);

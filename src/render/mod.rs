@@ -254,6 +254,20 @@ pub enum RenderError {
 pub trait Rasterizer: Send {
     /// What renders, e.g. `"cpu (2 threads)"` or `"wgpu Vulkan: llvmpipe (LLVM 15...)"`.
     fn name(&self) -> String;
+    /// Asks the rasterizer to keep, per pixel, which point won it (for
+    /// picking); off by default, since it costs a second projection pass.
+    /// Returns whether this rasterizer can (those that cannot are picked by
+    /// [`pick::pick`]'s projection).
+    fn keep_ids(&mut self, on: bool) -> bool {
+        let _ = on;
+        false
+    }
+    /// Per pixel of the last frame, row-major, the [`pick::point_id`] of the
+    /// point drawn there ([`pick::NO_POINT`]: none); `None` unless
+    /// [`Rasterizer::keep_ids`] was on for that frame.
+    fn last_ids(&self) -> Option<&[u64]> {
+        None
+    }
     /// Draws all batches with `camera` (the camera's aspect is replaced by the
     /// frame's) and returns the image.
     fn render(

@@ -1,10 +1,11 @@
-//! Picking: which point a frame shows at a pixel. The frame path keeps no
-//! per-pixel point index (that would add a 4-byte write per splat to every
-//! frame); instead a pick projects the frame's points again with the CPU
-//! rasterizer's own transform (`Projector`) and keeps, for the pixels near
-//! the cursor, the point with the smallest packed `depth << 32 | colour`: the
-//! very point the CPU rasterizer drew there. It costs one pass over the drawn
-//! points, only when the user picks.
+//! Picking: which point a frame shows at a pixel. A rasterizer asked to
+//! (`Rasterizer::keep_ids`) keeps, per pixel, the id of the point that won it
+//! ([`point_id`]: batch and index); [`from_ids`] reads that buffer. The CPU
+//! rasterizer fills it with a second projection pass over the frame's points
+//! only when a pick is asked for, so frames nobody picks in cost nothing more.
+//! For a rasterizer without an id buffer (wgpu), [`pick`] projects the points
+//! again with the CPU rasterizer's own transform (`Projector`) and keeps, near
+//! the cursor, the point with the smallest packed `depth << 32 | colour`.
 
 use glam::DVec3;
 use rayon::prelude::*;
@@ -22,6 +23,88 @@ pub struct Hit {
     pub pixel: (u32, u32),
     /// Its world position (`origin + stored`, in f64).
     pub position: [f64; 3],
+}
+
+/// An id buffer's value where no point was drawn.
+pub const NO_POINT: u64 = u64::MAX;
+
+/// The id of point `index` of batch `batch` in an id buffer.
+pub fn point_id(batch: usize, index: usize) -> u64 {
+    ((batch as u64) << 32) | index as u64
+}
+
+/// The pixel nearest `(x, y)` within `radius` whose id is set in `ids` (a
+/// `width`×`height` buffer from `Rasterizer::last_ids`), resolved to its point
+/// in `batches` (those the frame was drawn from). Ties in distance go to the
+/// smaller id.
+pub fn from_ids(
+    ids: &[u64],
+    batches: &[PointBatch<'_>],
+    width: u32,
+    height: u32,
+    x: u32,
+    y: u32,
+    radius: u32,
+) -> Result<Option<Hit>, RenderError> {
+    if ids.len() != width as usize * height as usize {
+        return Err(RenderError::InvalidInput(format!(
+            "id buffer holds {} pixels, not {width}x{height}",
+            ids.len()
+        )));
+    }
+    if x >= width || y >= height {
+        return Err(RenderError::InvalidOptions(format!(
+            "pixel ({x}, {y}) lies outside the {width}x{height} frame"
+        )));
+    }
+    let r = radius.min(256) as i64;
+    let mut best: Option<(i64, u64, (u32, u32))> = None;
+    for py in (y as i64 - r).max(0)..=(y as i64 + r).min(height as i64 - 1) {
+        for px in (x as i64 - r).max(0)..=(x as i64 + r).min(width as i64 - 1) {
+            let id = ids[py as usize * width as usize + px as usize];
+            if id == NO_POINT {
+                continue;
+            }
+            let d2 = (px - x as i64).pow(2) + (py - y as i64).pow(2);
+            if best.is_none_or(|b| (d2, id) < (b.0, b.1)) {
+                best = Some((d2, id, (px as u32, py as u32)));
+            }
+        }
+    }
+    let Some((_, id, pixel)) = best else {
+        return Ok(None);
+    };
+    let (bi, j) = ((id >> 32) as usize, (id & 0xffff_ffff) as usize);
+    let b = batches.get(bi).filter(|b| j < b.len()).ok_or_else(|| {
+        RenderError::InvalidInput(format!(
+            "id buffer names point {j} of batch {bi}, which the frame does not hold"
+        ))
+    })?;
+    let p = DVec3::from(b.origin) + DVec3::new(b.x[j] as f64, b.y[j] as f64, b.z[j] as f64);
+    Ok(Some(Hit {
+        batch: bi,
+        index: j,
+        pixel,
+        position: p.to_array(),
+    }))
+}
+
+/// The point `renderer` drew nearest `(x, y)` in its last frame (drawn from
+/// `batches` with `camera` and `opts`): read from its id buffer when it kept
+/// one, else found by [`pick`]'s projection.
+pub fn pick_drawn(
+    renderer: &dyn super::Rasterizer,
+    camera: &Camera,
+    batches: &[PointBatch<'_>],
+    opts: &RenderOptions,
+    x: u32,
+    y: u32,
+    radius: u32,
+) -> Result<Option<Hit>, RenderError> {
+    match renderer.last_ids() {
+        Some(ids) => from_ids(ids, batches, opts.width, opts.height, x, y, radius),
+        None => pick(camera, batches, opts, x, y, radius),
+    }
 }
 
 /// The point drawn nearest pixel `(x, y)` (column, row from the top-left),

@@ -25,7 +25,7 @@ pub struct Coarse {
     n: usize,
     /// Attributes a point.
     m: usize,
-    /// Where the file's tile data begins (level 0's region).
+    /// Where the file's tile data begins (the coarsest level's region).
     first: u64,
     /// Each tile's level-1 points, `TILE_PIXELS / 4` of `3 + m` values (x y z,
     /// then the row), written by the tile's own arranging thread.
@@ -130,7 +130,13 @@ impl Coarse {
             rows.extend_from_slice(&p[3..]);
         }
         let nb = 3 + m;
-        let start = super::writer::region_start(|l| self.g.filled_tiles(l), nb, self.first, k);
+        let start = super::writer::region_start(
+            |l| self.g.filled_tiles(l),
+            nb,
+            self.first,
+            self.g.levels(),
+            k,
+        );
         (0..super::tiles::groups(m))
             .flat_map(|group| {
                 super::tiles::hilbert_bands(&self.lut, count, group, |i| pos[i], &rows, m)

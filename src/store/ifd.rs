@@ -1,6 +1,8 @@
 //! A small, defensive TIFF/BigTIFF directory parser over a byte slice (the memory
 //! map): header, IFD chain and tag values, every read bounds-checked, every error
-//! naming the byte offset. Pixel data is not touched here.
+//! naming the byte offset. Pixel data is not touched here. Also the writer of a
+//! part's head ([`Head`]): the header and every directory with its values, laid
+//! out before the tile data, so a reader fetches them in one range.
 
 use std::collections::BTreeMap;
 
@@ -230,6 +232,229 @@ impl Tiff {
             .map_err(|m| format!("tag {tag} of the IFD at byte {}: {m}", ifd.offset))?;
         let end = raw.iter().position(|&c| c == 0).unwrap_or(raw.len());
         Ok(Some(String::from_utf8_lossy(&raw[..end]).into_owned()))
+    }
+}
+
+impl Tiff {
+    /// Bytes from the start of the file to the end of the furthest directory or
+    /// out-of-line tag value (the tiles' own bytes excluded): a reader that
+    /// fetches `[0, head_len)` has every directory, tile index and metadata.
+    pub fn head_len(&self) -> u64 {
+        let (count_size, entry_size, next_size) = if self.big { (8, 20, 8) } else { (2, 12, 4) };
+        let mut end = if self.big { 16 } else { 8 };
+        for ifd in &self.ifds {
+            let n = ifd.entries.len() as u64;
+            end = end.max(ifd.offset + count_size + n * entry_size + next_size);
+            for e in ifd.entries.values() {
+                let size = type_size(e.typ).unwrap_or(1) * e.count;
+                end = end.max(e.at + size);
+            }
+        }
+        end
+    }
+
+    /// The smallest tile offset of any directory (`None`: no tile has bytes).
+    pub fn first_tile(&self, data: &[u8]) -> Result<Option<u64>, String> {
+        let mut first: Option<u64> = None;
+        for ifd in &self.ifds {
+            let offsets = self.uints(data, ifd, 324)?.unwrap_or_default();
+            let counts = self.uints(data, ifd, 325)?.unwrap_or_default();
+            for (o, c) in offsets.iter().zip(&counts) {
+                if *c > 0 {
+                    first = Some(first.map_or(*o, |f| f.min(*o)));
+                }
+            }
+        }
+        Ok(first)
+    }
+
+    /// The head's length when every directory and value lies before the first
+    /// tile (a part written head-first), else 0 (an older part: directories
+    /// after the tiles).
+    pub fn head_first_len(&self, data: &[u8]) -> u64 {
+        let head = self.head_len();
+        match self.first_tile(data) {
+            Ok(Some(first)) if head <= first => head,
+            Ok(None) => head,
+            _ => 0,
+        }
+    }
+}
+
+/// A tag value to write.
+#[derive(Debug, Clone)]
+pub enum Value {
+    Short(Vec<u16>),
+    Long(Vec<u32>),
+    Long8(Vec<u64>),
+    /// Text; the terminating NUL is added.
+    Ascii(String),
+}
+
+impl Value {
+    fn typ(&self) -> u16 {
+        match self {
+            Value::Short(_) => 3,
+            Value::Long(_) => 4,
+            Value::Long8(_) => 16,
+            Value::Ascii(_) => 2,
+        }
+    }
+    fn count(&self) -> u64 {
+        match self {
+            Value::Short(v) => v.len() as u64,
+            Value::Long(v) => v.len() as u64,
+            Value::Long8(v) => v.len() as u64,
+            Value::Ascii(s) => s.len() as u64 + 1,
+        }
+    }
+    fn bytes(&self) -> Vec<u8> {
+        let mut b = Vec::new();
+        match self {
+            Value::Short(v) => v.iter().for_each(|x| b.extend_from_slice(&x.to_ne_bytes())),
+            Value::Long(v) => v.iter().for_each(|x| b.extend_from_slice(&x.to_ne_bytes())),
+            Value::Long8(v) => v.iter().for_each(|x| b.extend_from_slice(&x.to_ne_bytes())),
+            Value::Ascii(s) => {
+                b.extend_from_slice(s.as_bytes());
+                b.push(0);
+            }
+        }
+        b
+    }
+    fn len(&self) -> u64 {
+        type_size(self.typ()).unwrap_or(1) * self.count()
+    }
+}
+
+/// One directory to write: its entries (sorted by tag when written).
+pub type Dir = Vec<(u16, Value)>;
+
+/// The head of a TIFF or BigTIFF file in native byte order: the header, then
+/// each directory followed by its out-of-line values (each at an 8-byte
+/// boundary), the directories chained in order. Its length depends only on
+/// the tags and their counts, so it can be sized before the tile offsets are
+/// known and written once they are.
+pub struct Head {
+    pub big: bool,
+    pub dirs: Vec<Dir>,
+}
+
+fn sorted(d: &Dir) -> Vec<&(u16, Value)> {
+    let mut d: Vec<&(u16, Value)> = d.iter().collect();
+    d.sort_by_key(|e| e.0);
+    d
+}
+
+fn align8(v: u64) -> u64 {
+    v.div_ceil(8) * 8
+}
+
+impl Head {
+    fn sizes(&self) -> (u64, u64, u64, u64) {
+        if self.big {
+            (16, 8, 20, 8)
+        } else {
+            (8, 2, 12, 4)
+        }
+    }
+
+    /// Bytes the head takes.
+    pub fn len(&self) -> u64 {
+        self.layout().1
+    }
+
+    /// Whether there is no directory (never written so).
+    pub fn is_empty(&self) -> bool {
+        self.dirs.is_empty()
+    }
+
+    /// Offsets of each directory, and the head's end.
+    fn layout(&self) -> (Vec<u64>, u64) {
+        let (header, count, entry, next) = self.sizes();
+        let inline = if self.big { 8 } else { 4 };
+        let mut at = header;
+        let mut starts = Vec::with_capacity(self.dirs.len());
+        for d in &self.dirs {
+            at = align8(at);
+            starts.push(at);
+            at += count + d.len() as u64 * entry + next;
+            for (_, v) in sorted(d) {
+                if v.len() > inline {
+                    at = align8(at) + v.len();
+                }
+            }
+        }
+        (starts, at)
+    }
+
+    /// The head's bytes.
+    pub fn to_bytes(&self) -> Vec<u8> {
+        let (header, _, _, _) = self.sizes();
+        let (starts, end) = self.layout();
+        let inline = if self.big { 8 } else { 4 };
+        let mut b = vec![0u8; end as usize];
+        let le = cfg!(target_endian = "little");
+        b[..2].copy_from_slice(if le { b"II" } else { b"MM" });
+        let put = |b: &mut Vec<u8>, at: u64, v: &[u8]| {
+            b[at as usize..at as usize + v.len()].copy_from_slice(v);
+        };
+        let first = starts.first().copied().unwrap_or(0);
+        if self.big {
+            put(&mut b, 2, &43u16.to_ne_bytes());
+            put(&mut b, 4, &8u16.to_ne_bytes());
+            put(&mut b, 8, &first.to_ne_bytes());
+        } else {
+            put(&mut b, 2, &42u16.to_ne_bytes());
+            put(&mut b, 4, &(first as u32).to_ne_bytes());
+        }
+        debug_assert!(first >= header);
+        for (k, d) in self.dirs.iter().enumerate() {
+            let d = sorted(d);
+            let mut at = starts[k];
+            if self.big {
+                put(&mut b, at, &(d.len() as u64).to_ne_bytes());
+                at += 8;
+            } else {
+                put(&mut b, at, &(d.len() as u16).to_ne_bytes());
+                at += 2;
+            }
+            let entries_at = at;
+            let entry = if self.big { 20 } else { 12 };
+            let mut value_at = entries_at + d.len() as u64 * entry + if self.big { 8 } else { 4 };
+            for (i, (tag, v)) in d.iter().enumerate() {
+                let e = entries_at + i as u64 * entry;
+                put(&mut b, e, &tag.to_ne_bytes());
+                put(&mut b, e + 2, &v.typ().to_ne_bytes());
+                let bytes = v.bytes();
+                let field = if self.big {
+                    put(&mut b, e + 4, &v.count().to_ne_bytes());
+                    e + 12
+                } else {
+                    put(&mut b, e + 4, &(v.count() as u32).to_ne_bytes());
+                    e + 8
+                };
+                if v.len() <= inline {
+                    put(&mut b, field, &bytes);
+                } else {
+                    value_at = align8(value_at);
+                    if self.big {
+                        put(&mut b, field, &value_at.to_ne_bytes());
+                    } else {
+                        put(&mut b, field, &(value_at as u32).to_ne_bytes());
+                    }
+                    put(&mut b, value_at, &bytes);
+                    value_at += bytes.len() as u64;
+                }
+            }
+            let next_at = entries_at + d.len() as u64 * entry;
+            let next = starts.get(k + 1).copied().unwrap_or(0);
+            if self.big {
+                put(&mut b, next_at, &next.to_ne_bytes());
+            } else {
+                put(&mut b, next_at, &(next as u32).to_ne_bytes());
+            }
+        }
+        b
     }
 }
 

@@ -83,10 +83,23 @@ pub fn entry_of(part: &Part, file: &str) -> Result<FileEntry> {
     Ok(FileEntry {
         file: file.to_string(),
         bytes: meta.len(),
-        head: 0,
+        head: head_of(&part.path)?,
         mtime: mtime_of(&meta),
         header: part.header(),
     })
+}
+
+/// The head's length of the part at `path` when it was written head-first
+/// (every directory and value before the first tile), else 0.
+pub fn head_of(path: &Path) -> Result<u64> {
+    let file = std::fs::File::open(path)
+        .map_err(|e| StoreError::new(path, format!("cannot open: {e}")))?;
+    // SAFETY: a read-only map of a part, read only through the bounds-checked
+    // directory parser; a part is replaced by rename, never changed in place.
+    let map = unsafe { memmap2::Mmap::map(&file) }
+        .map_err(|e| StoreError::new(path, format!("cannot map: {e}")))?;
+    let tiff = super::ifd::Tiff::parse(&map).map_err(|e| StoreError::new(path, e))?;
+    Ok(tiff.head_first_len(&map))
 }
 
 /// The command that rebuilds `dir`'s index, quoted for a message.

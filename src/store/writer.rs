@@ -6,6 +6,7 @@ use super::builder::PartBuilder;
 use super::coarse::Coarse;
 use super::codec::{self, Compression};
 use super::error::{Result, StoreError};
+use super::ifd::{Dir, Head, Value};
 use super::layout::{self, Layout};
 use super::metadata::{self, Item, LevelIndex, TileEntry};
 use super::out::{self, Out, TileBuf, TileIo, TileWriter};
@@ -22,8 +23,6 @@ use std::io::{Seek, Write};
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
-use tiff::encoder::{TiffEncoder, TiffKind, TiffKindBig, TiffKindStandard};
-use tiff::tags::Tag;
 
 /// How to write a part.
 #[derive(Debug, Clone, Default)]
@@ -68,6 +67,9 @@ pub struct PartSummary {
     pub points: u64,
     pub level_points: Vec<u64>,
     pub bytes: u64,
+    /// Bytes at the head of the file holding every directory, tile index and the
+    /// metadata; the tiles follow.
+    pub head: u64,
     pub bounds: Bounds,
     pub origin: [f64; 3],
     /// Largest difference between a source coordinate and its stored value.
@@ -163,7 +165,7 @@ struct Arranged {
     /// `tile_order`), found while arranging (empty for the paper layout).
     tile_bounds: Vec<Option<[[f32; 3]; 2]>>,
     /// Whether every level's tiles were written while the points were arranged
-    /// (level 0: tile `tile_order[t]`'s bands from [`LEVEL0_AT`] on; level `k`:
+    /// (level 0: tile `tile_order[t]`'s bands from its region's start on; level `k`:
     /// group `tile_order[t · 4^k] / 4^k`'s in the level's region, see
     /// [`coarse`]), band-interleaved as `encode` lays them out.
     levels_written: bool,
@@ -193,22 +195,22 @@ impl Arranged {
     }
 }
 
-/// Where level 0's tile data begins in an uncompressed file: the TIFF header (8
-/// or 16 bytes) padded to the direct-write alignment, as `encode` writes it.
-const LEVEL0_AT: u64 = out::DIRECT_ALIGN as u64;
-
-/// Where level `level`'s tile data begins in an uncompressed file whose tiles
-/// start at `first`: every level's tiles come first, level after level, the
-/// `filled(k)` tiles holding points of level `k` in slots of `bands` band tiles
-/// (tile `s`'s band `b` at slot `s · bands + b`).
+/// Where level `level`'s tile data begins in an uncompressed file of `levels`
+/// levels whose tiles start at `first`: the coarsest level's tiles first, level
+/// 0's last (as a Cloud Optimized GeoTIFF orders them), the `filled(k)` tiles
+/// holding points of level `k` in slots of `bands` band tiles (tile `s`'s band
+/// `b` at slot `s · bands + b`). `level == levels` gives the end of level 0's.
 pub(super) fn region_start(
     filled: impl Fn(usize) -> u64,
     bands: usize,
     first: u64,
+    levels: usize,
     level: usize,
 ) -> u64 {
+    // (Level 0's region ends where the data ends: after every level's.)
+    let above = if level >= levels { 0 } else { level + 1 };
     first
-        + (0..level)
+        + (above..levels)
             .map(|k| filled(k) * bands as u64 * TILE_BYTES)
             .sum::<u64>()
 }
@@ -276,7 +278,9 @@ fn scan_bounds(path: &Path, chunks: &[PointColumns]) -> Result<Bounds> {
 
 /// Sorts and arranges `part`'s points for `layout`. Given `level0` (Hilbert
 /// layout, uncompressed), each tile's level-0 bands are encoded as soon as the
-/// tile is arranged, in cache, and sent there for the file from [`LEVEL0_AT`] on,
+/// tile is arranged, in cache, and sent to level 0's region of the file (whose
+/// tile data begins at `tiles_at`, the first disk block after the largest head
+/// the part can have),
 /// so the disk writes most of the file while the rest is still being arranged.
 fn arrange(
     path: &Path,
@@ -284,6 +288,7 @@ fn arrange(
     layout: Layout,
     ph: &mut Phases,
     level0: Option<&TileSink>,
+    tiles_at: u64,
 ) -> Result<Arranged> {
     let from_source = part.positions_from_source();
     let PartBuilder {
@@ -364,7 +369,9 @@ fn arrange(
                 .collect();
             // Levels 1 and up from the tiles' level-1 points, each coarse tile
             // written as soon as the tiles below it are arranged.
-            let coarse = level0.map(|_| Coarse::new(n, m, LEVEL0_AT, lut.clone()));
+            let coarse = level0.map(|_| Coarse::new(n, m, tiles_at, lut.clone()));
+            let filled = |l| geometry.filled_tiles(l);
+            let level0_at = region_start(filled, nb, tiles_at, geometry.levels(), 0);
             let on_tile = |t: usize, o: &[[f32; 3]], i: &[u32], tile: Option<layout::TileRows>| {
                 let mut b = [[f32::INFINITY; 3], [f32::NEG_INFINITY; 3]];
                 for p in o {
@@ -377,7 +384,7 @@ fn arrange(
                 let (Some(sink), Some(coarse)) = (level0.filter(|s| !s.stopped()), &coarse) else {
                     return;
                 };
-                let at = |b: usize| LEVEL0_AT + (t * nb + b) as u64 * TILE_BYTES;
+                let at = |b: usize| level0_at + (t * nb + b) as u64 * TILE_BYTES;
                 // The attribute rows in slot order: read with the positions, or
                 // gathered now.
                 let mut slot_rows = Vec::with_capacity(o.len() * m);
@@ -759,17 +766,28 @@ fn write(
     // Uncompressed tiles of the Hilbert layout have their place in the file
     // before the rest is known: level 0 (three quarters of the file) is written
     // while the points are arranged, so the disk works while the CPU does.
+    // They begin at the first disk block after the largest head the part can
+    // have (its exact length waits for the metadata).
+    let names: Vec<&str> = spec::COORDINATE_BANDS
+        .iter()
+        .copied()
+        .chain(part.attributes.iter().map(|(a, _)| a.as_str()))
+        .collect();
+    let tiles_at = align_up(
+        head_bound(part.count, &names, opts),
+        out::DIRECT_ALIGN as u64,
+    );
     let a = if opts.layout == Layout::Hilbert && opts.compression == Compression::None {
         let cancelled = || opts.cancelled();
         let (a, written) = sink::with_sink(&tiles, &cancelled, |sink| {
-            arrange(path, part, opts.layout, &mut ph, Some(sink))
+            arrange(path, part, opts.layout, &mut ph, Some(sink), tiles_at)
         });
         let a = a?;
         written.map_err(|e| write_failed(&e))?;
         ph.mark("levels written");
         a
     } else {
-        arrange(path, part, opts.layout, &mut ph, None)?
+        arrange(path, part, opts.layout, &mut ph, None, tiles_at)?
     };
     stop()?;
     if opts.release_pool {
@@ -779,21 +797,10 @@ fn write(
     let xml = metadata_xml(&a, opts, &index);
     ph.mark("tile index");
     let bigtiff = opts.force_bigtiff || size_estimate(&a, &xml) >= u32::MAX as u64 - (64 << 20);
-    let mut w = Out::new(&file);
-    let io = |e: tiff::TiffError| write_failed(&e);
-    if bigtiff {
-        encode::<TiffKindBig>(&mut w, &tiles, &a, opts, &xml, &index, true).map_err(io)?
-    } else {
-        encode::<TiffKindStandard>(&mut w, &tiles, &a, opts, &xml, &index, false).map_err(io)?
-    }
-    w.flush()
-        .map_err(|e| StoreError::new(path, format!("write failed: {e}")))?;
+    let (bytes, head) = encode(&file, &tiles, &a, opts, &xml, &index, bigtiff, tiles_at)
+        .map_err(|e| write_failed(&e))?;
     let direct = tiles.is_direct();
     drop(tiles);
-    let bytes = w
-        .stream_position()
-        .map_err(|e| StoreError::new(path, format!("write failed: {e}")))?;
-    drop(w);
     drop(file);
     ph.mark("tiles+write");
     stop()?;
@@ -811,6 +818,7 @@ fn write(
         points: g.points,
         level_points: level_points(&index),
         bytes,
+        head,
         bounds: a.bounds,
         origin: a.origin,
         max_quantization_error: a.max_error,
@@ -886,69 +894,182 @@ fn encode_job(
         .collect()
 }
 
+/// The directory of `level`, its tile offsets and byte counts given.
 #[allow(clippy::too_many_arguments)]
-fn encode<K: TiffKind>(
-    w: &mut Out,
+fn directory(
+    a: &Arranged,
+    opts: &WriteOptions,
+    xml: &str,
+    software: &str,
+    level: usize,
+    offsets: &[u64],
+    counts: &[u64],
+    big: bool,
+) -> Dir {
+    let nb = a.names.len();
+    let size = a.geometry.size(level);
+    let mut d: Dir = vec![
+        (tag::IMAGE_WIDTH, Value::Long(vec![size])),
+        (tag::IMAGE_LENGTH, Value::Long(vec![size])),
+        (tag::BITS_PER_SAMPLE, Value::Short(vec![32; nb])),
+        (
+            tag::COMPRESSION,
+            Value::Short(vec![opts.compression.tiff_code()]),
+        ),
+        (tag::PHOTOMETRIC, Value::Short(vec![1])),
+        (tag::SAMPLES_PER_PIXEL, Value::Short(vec![nb as u16])),
+        (tag::PLANAR_CONFIGURATION, Value::Short(vec![2])),
+        (tag::SOFTWARE, Value::Ascii(software.into())),
+        (tag::TILE_WIDTH, Value::Long(vec![TILE_SIZE])),
+        (tag::TILE_LENGTH, Value::Long(vec![TILE_SIZE])),
+        (tag::SAMPLE_FORMAT, Value::Short(vec![3; nb])),
+        (tag::GDAL_NODATA, Value::Ascii("nan".into())),
+    ];
+    if big {
+        d.push((tag::TILE_OFFSETS, Value::Long8(offsets.to_vec())));
+        d.push((tag::TILE_BYTE_COUNTS, Value::Long8(counts.to_vec())));
+    } else {
+        let long = |v: &[u64]| Value::Long(v.iter().map(|&x| x as u32).collect());
+        d.push((tag::TILE_OFFSETS, long(offsets)));
+        d.push((tag::TILE_BYTE_COUNTS, long(counts)));
+    }
+    if level > 0 {
+        d.push((tag::NEW_SUBFILE_TYPE, Value::Long(vec![1])));
+    }
+    if opts.compression != Compression::None {
+        d.push((
+            tag::PREDICTOR,
+            Value::Short(vec![opts.compression.predictor()]),
+        ));
+    }
+    if nb > 1 {
+        d.push((tag::EXTRA_SAMPLES, Value::Short(vec![0; nb - 1])));
+    }
+    if level == 0 {
+        d.push((tag::GDAL_METADATA, Value::Ascii(xml.into())));
+    }
+    d
+}
+
+/// The `Software` tag's text.
+fn software() -> String {
+    format!("{} {}", spec::SOFTWARE_PREFIX, env!("CARGO_PKG_VERSION"))
+}
+
+/// An upper bound of the head's length (BigTIFF, the largest) for a part of
+/// `n` points whose bands are named `names`, before the points are arranged:
+/// uncompressed tiles are written from the next disk block on while they are.
+/// Every tag's count is known; the metadata's length is bounded from what it
+/// holds (the tile index exactly, the rest generously).
+fn head_bound(n: usize, names: &[&str], opts: &WriteOptions) -> u64 {
+    let g = Geometry::for_points(n as u64);
+    let nb = names.len();
+    // The tile index: a header, per level a header and 56 bytes a tile, base64.
+    let index: u64 = 12
+        + (0..g.levels())
+            .map(|l| 12 + 56 * g.filled_tiles(l))
+            .sum::<u64>();
+    // Text values are escaped twice (`&` becomes `&amp;amp;`): at most 10 bytes
+    // a byte.
+    let text: u64 = [&opts.source, &opts.crs]
+        .iter()
+        .filter_map(|s| s.as_ref().map(|s| s.len() as u64))
+        .chain(
+            opts.from_source
+                .iter()
+                .map(|(k, v)| (k.len() + v.len()) as u64 + 100),
+        )
+        .sum::<u64>()
+        * 10;
+    let bands: u64 = names.iter().map(|s| 700 + 10 * s.len() as u64).sum();
+    // Classification counts: at most 256 `code:count` pairs.
+    let classes = 256 * 26;
+    let xml = 16384 + index.div_ceil(3) * 4 + text + bands + classes;
+    let dirs: Vec<Dir> = (0..g.levels())
+        .map(|level| {
+            let across = g.tiles_across(level) as usize;
+            let zeros = vec![0u64; across * across * nb];
+            let mut d = vec![
+                (tag::TILE_OFFSETS, Value::Long8(zeros.clone())),
+                (tag::TILE_BYTE_COUNTS, Value::Long8(zeros)),
+                (tag::BITS_PER_SAMPLE, Value::Short(vec![32; nb])),
+                (tag::SAMPLE_FORMAT, Value::Short(vec![3; nb])),
+                (tag::EXTRA_SAMPLES, Value::Short(vec![0; nb])),
+                (tag::SOFTWARE, Value::Ascii(software())),
+                (tag::GDAL_NODATA, Value::Ascii("nan".into())),
+            ];
+            // The other tags are inline: 12 of them at most.
+            for t in 0..12 {
+                d.push((t, Value::Short(vec![0])));
+            }
+            if level == 0 {
+                d.push((tag::GDAL_METADATA, Value::Ascii("x".repeat(xml as usize))));
+            }
+            d
+        })
+        .collect();
+    Head { big: true, dirs }.len()
+}
+
+fn align_up(v: u64, to: u64) -> u64 {
+    v.div_ceil(to) * to
+}
+
+/// Writes every level's tiles after the head, then the head (every directory,
+/// tile offsets and byte counts and the metadata) at the start of the file.
+/// Uncompressed tiles begin at `tiles_at` when they were written while the
+/// points were arranged, else at the first disk block after the head;
+/// compressed ones right after it. Returns the file's length and the head's.
+#[allow(clippy::too_many_arguments)]
+fn encode(
+    file: &File,
     tile_writer: &TileWriter,
     a: &Arranged,
     opts: &WriteOptions,
     xml: &str,
     index: &[LevelIndex],
     big: bool,
-) -> tiff::TiffResult<()> {
+    tiles_at: u64,
+) -> std::io::Result<(u64, u64)> {
     let g = a.geometry;
     let nb = a.names.len();
     let lut = tile_z_to_raster(spec::TILE_LOG2);
-    let software = format!("{} {}", spec::SOFTWARE_PREFIX, env!("CARGO_PKG_VERSION"));
-    let hole = w.hole();
-    let mut enc = TiffEncoder::<&mut Out, K>::new_generic(w)?;
-    // Where the uncompressed tile data begins (all levels, reserved with level 0),
-    // and the tiles each level fills.
-    let mut tiles_at = 0;
+    let software = software();
+    let per_band = |level: usize| (g.tiles_across(level) as usize).pow(2);
+    let mut offsets: Vec<Vec<u64>> = (0..g.levels())
+        .map(|l| vec![0u64; per_band(l) * nb])
+        .collect();
+    let mut counts = offsets.clone();
+    let head_of = |offsets: &[Vec<u64>], counts: &[Vec<u64>]| Head {
+        big,
+        dirs: (0..g.levels())
+            .map(|l| directory(a, opts, xml, &software, l, &offsets[l], &counts[l], big))
+            .collect(),
+    };
+    // The head's length depends only on the counts of its values.
+    let head_len = head_of(&offsets, &counts).len();
     let level_tiles = |k: usize| index[k].tiles.len() as u64;
-    for level in 0..g.levels() {
-        let across = g.tiles_across(level) as usize;
-        let per_band = across * across;
-        let mut offsets = vec![0u64; per_band * nb];
-        let mut counts = vec![0u64; per_band * nb];
-        // Tiles holding points: in Z-order (Hilbert layout) or raster order (paper).
-        let tiles = &index[level].tiles;
-        let filled = tiles.len();
-        let mut dir = enc.image_directory()?;
-        // Align tile data to 8 bytes so readers can view planes in place, and
-        // uncompressed tiles to whole disk blocks for direct writes (all levels'
-        // tiles come first, reserved with level 0's).
-        let align = match opts.compression {
-            Compression::None => out::DIRECT_ALIGN as u64,
-            _ => 8,
+    let end = if opts.compression == Compression::None {
+        // Every tile is TILE_PIXELS samples: every level's tile data lies in one
+        // region, the coarsest first ([`region_start`]: tile t's band b at slot
+        // t * nb + b of its level's region), encoded and written by the rayon
+        // pool. They may have been written already, while the points were
+        // arranged: the slot of level k's image tile t is then
+        // tile_order[t * 4^k] / 4^k.
+        let first = if a.levels_written {
+            tiles_at
+        } else {
+            align_up(head_len, out::DIRECT_ALIGN as u64)
         };
-        if level == 0 || opts.compression != Compression::None {
-            let at = dir.write_data(&[0u8; 0][..])?;
-            if at % align != 0 {
-                let pad = vec![0u8; (align - at % align) as usize];
-                dir.write_data(&pad[..])?;
-            }
+        if head_len > first {
+            return Err(std::io::Error::other(format!(
+                "the head ({head_len} bytes) outgrew the {first} bytes reserved for it"
+            )));
         }
-        if opts.compression == Compression::None {
-            // Every tile is TILE_PIXELS samples: every level's tile data is
-            // reserved as one hole, level after level ([`region_start`]:
-            // tile t's band b at slot t * nb + b of its level's region), and the
-            // tiles are encoded and written into it by the rayon pool. They may
-            // have been written already, while the points were arranged: the
-            // slot of level k's image tile t is then tile_order[t * 4^k] / 4^k.
-            if level == 0 {
-                let len = region_start(level_tiles, nb, 0, g.levels());
-                hole.set(len);
-                tiles_at = out::reserve(len, |piece| dir.write_data(piece))?;
-                debug_assert_eq!(hole.get(), 0);
-                if a.levels_written && tiles_at != LEVEL0_AT {
-                    return Err(tiff::TiffError::IoError(std::io::Error::other(format!(
-                        "the tiles were written from byte {LEVEL0_AT} but belong at byte \
-                         {tiles_at}"
-                    ))));
-                }
-            }
-            let start = region_start(level_tiles, nb, tiles_at, level);
+        for level in 0..g.levels() {
+            let tiles = &index[level].tiles;
+            let filled = tiles.len();
+            let start = region_start(level_tiles, nb, first, g.levels(), level);
             let written = a.levels_written;
             let per_tile = groups(a.m);
             let cancelled = || opts.cancelled();
@@ -970,6 +1091,7 @@ fn encode<K: TiffKind>(
                         .collect::<Vec<_>>()
                 }),
             )?;
+            let pb = per_band(level);
             for (t, tile) in tiles.iter().enumerate() {
                 let slot = if written {
                     a.stored_tile(t << (2 * level)) >> (2 * level)
@@ -978,71 +1100,56 @@ fn encode<K: TiffKind>(
                 };
                 for b in 0..nb {
                     let r = tile.index as usize;
-                    offsets[b * per_band + r] = start + (slot * nb + b) as u64 * TILE_BYTES;
-                    counts[b * per_band + r] = TILE_BYTES;
+                    offsets[level][b * pb + r] = start + (slot * nb + b) as u64 * TILE_BYTES;
+                    counts[level][b * pb + r] = TILE_BYTES;
                 }
             }
-        } else {
+        }
+        region_start(level_tiles, nb, first, g.levels(), g.levels())
+    } else {
+        // Compressed tiles (sizes known once encoded) follow the head, the
+        // coarsest level's first, each level's aligned to 8 bytes so readers can
+        // view planes in place.
+        let mut w = Out::new(file);
+        w.seek(std::io::SeekFrom::Start(head_len))?;
+        for level in (0..g.levels()).rev() {
+            let at = w.stream_position()?;
+            if at % 8 != 0 {
+                w.write_all(&[0u8; 8][..(8 - at % 8) as usize])?;
+            }
             encode_batches(
-                &mut dir,
+                &mut w,
                 opts,
                 a,
                 &lut,
                 level,
-                tiles,
+                &index[level].tiles,
                 opts.compression,
-                &mut offsets,
-                &mut counts,
+                &mut offsets[level],
+                &mut counts[level],
             )?;
         }
-        if level > 0 {
-            dir.write_tag(Tag::NewSubfileType, 1u32)?;
-        }
-        let size = g.size(level);
-        dir.write_tag(Tag::ImageWidth, size)?;
-        dir.write_tag(Tag::ImageLength, size)?;
-        dir.write_tag(Tag::BitsPerSample, &vec![32u16; nb][..])?;
-        dir.write_tag(Tag::Compression, opts.compression.tiff_code())?;
-        dir.write_tag(Tag::PhotometricInterpretation, 1u16)?;
-        dir.write_tag(Tag::SamplesPerPixel, nb as u16)?;
-        dir.write_tag(Tag::PlanarConfiguration, 2u16)?;
-        dir.write_tag(Tag::Software, software.as_str())?;
-        if opts.compression != Compression::None {
-            dir.write_tag(Tag::Predictor, opts.compression.predictor())?;
-        }
-        dir.write_tag(Tag::TileWidth, TILE_SIZE)?;
-        dir.write_tag(Tag::TileLength, TILE_SIZE)?;
-        if big {
-            dir.write_tag(Tag::TileOffsets, &offsets[..])?;
-            dir.write_tag(Tag::TileByteCounts, &counts[..])?;
-        } else {
-            let o: Vec<u32> = offsets.iter().map(|&v| v as u32).collect();
-            let c: Vec<u32> = counts.iter().map(|&v| v as u32).collect();
-            if offsets.iter().any(|&v| v > u32::MAX as u64) {
-                return Err(tiff::TiffError::LimitsExceeded);
-            }
-            dir.write_tag(Tag::TileOffsets, &o[..])?;
-            dir.write_tag(Tag::TileByteCounts, &c[..])?;
-        }
-        if nb > 1 {
-            dir.write_tag(Tag::ExtraSamples, &vec![0u16; nb - 1][..])?;
-        }
-        dir.write_tag(Tag::SampleFormat, &vec![3u16; nb][..])?;
-        if level == 0 {
-            dir.write_tag(Tag::from_u16_exhaustive(tag::GDAL_METADATA), xml)?;
-        }
-        dir.write_tag(Tag::from_u16_exhaustive(tag::GDAL_NODATA), "nan")?;
-        dir.finish()?;
+        w.flush()?;
+        w.stream_position()?
+    };
+    if !big && end > u32::MAX as u64 {
+        return Err(std::io::Error::other(
+            "the file outgrew classic TIFF's 4 GiB (BigTIFF was not chosen)",
+        ));
     }
-    Ok(())
+    let head = head_of(&offsets, &counts).to_bytes();
+    debug_assert_eq!(head.len() as u64, head_len);
+    out::write_all_at(file, &head, 0)?;
+    file.set_len(end)?;
+    Ok((end, head_len))
 }
 
 /// Compressed tiles (sizes known only once encoded): encoded in batches on the
 /// rayon pool by a producer thread while this thread writes the previous batch,
 /// so encoding and the copy into the page cache overlap.
 #[allow(clippy::too_many_arguments)]
-fn encode_batches<K: TiffKind>(
-    dir: &mut tiff::encoder::DirectoryEncoder<'_, &mut Out, K>,
+fn encode_batches(
+    w: &mut Out,
     opts: &WriteOptions,
     a: &Arranged,
     lut: &[u32],
@@ -1051,11 +1158,11 @@ fn encode_batches<K: TiffKind>(
     compression: Compression,
     offsets: &mut [u64],
     counts: &mut [u64],
-) -> tiff::TiffResult<()> {
+) -> std::io::Result<()> {
     let nb = a.names.len();
     let per_band = offsets.len() / nb;
     let filled = tiles.len();
-    std::thread::scope(|scope| -> tiff::TiffResult<()> {
+    std::thread::scope(|scope| -> std::io::Result<()> {
         let (tx, rx) = std::sync::mpsc::sync_channel::<Vec<(usize, usize, Encoded)>>(1);
         scope.spawn(move || {
             for start in (0..filled).step_by(BATCH_TILES) {
@@ -1082,7 +1189,7 @@ fn encode_batches<K: TiffKind>(
         });
         for batch in rx {
             if opts.cancelled() {
-                return Err(std::io::Error::from(std::io::ErrorKind::Interrupted).into());
+                return Err(std::io::Error::from(std::io::ErrorKind::Interrupted));
             }
             for (t, b, e) in &batch {
                 let bytes: &[u8] = match e {
@@ -1090,7 +1197,8 @@ fn encode_batches<K: TiffKind>(
                     Encoded::Bytes(v) => v,
                 };
                 let r = tiles[*t].index as usize;
-                offsets[b * per_band + r] = dir.write_data(bytes)?;
+                offsets[b * per_band + r] = w.stream_position()?;
+                w.write_all(bytes)?;
                 counts[b * per_band + r] = bytes.len() as u64;
             }
         }

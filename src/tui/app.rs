@@ -4,6 +4,7 @@
 //! change and says what the event loop must do next; nothing here touches a
 //! terminal, a thread or a file, so every key can be tested on its own.
 
+pub use super::clipbox::ClipBox;
 use super::keys::Command;
 pub use super::section::Section;
 use crate::camera::Camera;
@@ -220,10 +221,19 @@ pub struct App {
     pub legend_row: usize,
     /// The section (a slab seen from the side), while one is shown.
     pub section: Option<Section>,
+    /// The clip box the keys move and size, while one is on (mirrored in the
+    /// filter's clip).
+    pub clip: Option<ClipBox>,
+    /// The last clip box, shown again by `o`.
+    pub clip_hidden: Option<ClipBox>,
 }
 
 impl App {
     pub fn new(dataset: Arc<Dataset>, camera: Camera, settings: Settings) -> App {
+        let settings_clip = settings
+            .filter
+            .clip
+            .map(|c| ClipBox::start(&dataset.bounds(), Some(c)));
         App {
             dataset,
             part: 0,
@@ -243,10 +253,26 @@ impl App {
             picks: Vec::new(),
             legend_row: 0,
             section: None,
+            clip: settings_clip,
+            clip_hidden: None,
         }
     }
 
     /// Whether some part has a `classification` band.
+    /// The bands `v` cycles through: every band some part has, z first, x and
+    /// y left out.
+    pub fn band_names(&self) -> Vec<String> {
+        let mut names: Vec<String> = vec!["z".into()];
+        for p in &self.dataset.parts {
+            for b in &p.bands {
+                if !names.contains(&b.name) && !["x", "y", "z"].contains(&b.name.as_str()) {
+                    names.push(b.name.clone());
+                }
+            }
+        }
+        names
+    }
+
     pub fn has_classes(&self) -> bool {
         self.dataset
             .parts
@@ -415,32 +441,78 @@ impl App {
             }
             ToggleSection => {
                 if let Some(s) = self.section.take() {
-                    self.settings.filter.clip = s.saved_clip;
+                    self.settings.filter.slab = s.saved_slab;
                     self.camera = s.saved_camera;
                 } else {
-                    let at = self.picks.last().map(|p| p.position);
+                    let picks: Vec<[f64; 3]> = self.picks.iter().map(|p| p.position).collect();
                     let s = Section::through(
                         &self.dataset.bounds(),
                         &self.camera,
-                        at,
+                        &picks,
                         &self.settings.filter,
                     );
-                    self.settings.filter.clip = Some(s.clip(&self.dataset.bounds()));
+                    self.settings.filter.slab = Some(s.slab);
                     self.camera = s.profile_camera(&self.dataset.bounds(), &self.camera);
                     self.section = Some(s);
                 }
             }
-            SlabWidth(d) | SlabMove(d) => {
-                let Some(s) = self.section.as_mut() else {
-                    self.message = "no section: z shows one (through the last pick)".into();
+            ToggleClip => {
+                if let Some(c) = self.clip.take() {
+                    self.clip_hidden = Some(c);
+                } else {
+                    let c = self
+                        .clip_hidden
+                        .take()
+                        .unwrap_or_else(|| ClipBox::start(&self.dataset.bounds(), None));
+                    self.clip = Some(c);
+                }
+                self.settings.filter.clip = self.clip.map(|c| c.bounds);
+            }
+            SlabWidth(d) | SlabMove(d) | SlabTurn(d) if self.section.is_none() => {
+                let Some(c) = self.clip.as_mut() else {
+                    self.message = "no section or clip box: z shows a section, o a clip box".into();
                     return Effect::Redraw;
                 };
-                if matches!(cmd, SlabWidth(_)) {
-                    s.resize(d);
-                } else {
-                    s.shift(d);
+                match cmd {
+                    SlabWidth(_) => c.resize(d),
+                    SlabMove(_) => c.shift(d),
+                    _ => {
+                        c.next_axis(d);
+                        return Effect::Redraw;
+                    }
                 }
-                self.settings.filter.clip = Some(s.clip(&self.dataset.bounds()));
+                self.settings.filter.clip = Some(c.bounds);
+            }
+            SlabWidth(d) | SlabMove(d) | SlabTurn(d) => {
+                let Some(s) = self.section.as_mut() else {
+                    return Effect::None;
+                };
+                match cmd {
+                    SlabWidth(_) => s.resize(d),
+                    SlabMove(_) => s.shift(d),
+                    _ => {
+                        s.turn(d);
+                        self.camera = s.profile_camera(&self.dataset.bounds(), &self.camera);
+                    }
+                }
+                self.settings.filter.slab = Some(s.slab);
+            }
+            CycleBand => {
+                let bands = self.band_names();
+                if bands.is_empty() {
+                    self.message = "the data has no bands besides x y z".into();
+                    return Effect::Redraw;
+                }
+                let next = match &self.settings.color {
+                    ColorMode::Band(b) => bands
+                        .iter()
+                        .position(|n| n == b)
+                        .map_or(0, |i| (i + 1) % bands.len()),
+                    _ => 0,
+                };
+                self.settings.color = ColorMode::Band(bands[next].clone());
+                self.settings.ramp = None;
+                self.settings.range = None;
             }
             EdlStrength(d) => {
                 let p = &mut self.settings.edl_params;
@@ -501,8 +573,17 @@ impl App {
         if !self.settings.filter.is_empty() {
             s.push_str(" | filtered");
         }
-        if self.section.is_some() {
-            s.push_str(" | section");
+        if let Some(sec) = &self.section {
+            let n = sec.slab.normal;
+            s.push_str(&format!(
+                " | section {}° {} thick",
+                (n[1].atan2(n[0]).to_degrees().rem_euclid(180.0)).round(),
+                crate::text::sanitize(&format!("{:.3}", 2.0 * sec.slab.half))
+            ));
+        }
+        if let Some(c) = &self.clip {
+            s.push_str(" | ");
+            s.push_str(&crate::text::sanitize(&c.describe()));
         }
         if self.picking {
             s.push_str(" | pick: arrows move, Enter picks");
@@ -573,6 +654,7 @@ impl App {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::points::Bounds;
     use crate::store::{self, WriteOptions};
 
     fn app() -> (tempfile::TempDir, App) {
@@ -670,6 +752,64 @@ mod tests {
     }
 
     #[test]
+    fn clip_box_moves_and_sizes_by_keys() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("c.tif");
+        store::write_part(
+            &path,
+            &crate::synth::scene_classified(20_000, 3),
+            &WriteOptions::default(),
+        )
+        .unwrap();
+        let ds = Arc::new(Dataset::open(&path).unwrap());
+        let b = ds.bounds();
+        let mut a = App::new(ds, Camera::fit(&b), Settings::default());
+        assert_eq!(
+            a.apply(Command::SlabWidth(1)),
+            Effect::Redraw,
+            "nothing to size"
+        );
+        assert!(a.message.contains("o a clip box"), "{}", a.message);
+        assert_eq!(a.apply(Command::ToggleClip), Effect::Render);
+        let first = a.settings.filter.clip.expect("o shows a clip box");
+        assert!((first.extent()[0] - 0.5 * b.extent()[0]).abs() < 1e-6);
+        assert!(a.status_line().contains("clip *x"), "{}", a.status_line());
+        a.apply(Command::SlabWidth(1));
+        let wider = a.settings.filter.clip.unwrap();
+        assert!(wider.extent()[0] > first.extent()[0]);
+        assert_eq!(wider.extent()[1], first.extent()[1]);
+        a.apply(Command::SlabTurn(1));
+        assert_eq!(a.clip.unwrap().axis, 1);
+        a.apply(Command::SlabMove(1));
+        let moved = a.settings.filter.clip.unwrap();
+        assert!(moved.min[1] > wider.min[1] && moved.min[0] == wider.min[0]);
+        // Off, and on again where it was.
+        a.apply(Command::ToggleClip);
+        assert_eq!(a.settings.filter.clip, None);
+        a.apply(Command::ToggleClip);
+        assert_eq!(a.settings.filter.clip, Some(moved));
+        // While a section is shown the same keys act on the section.
+        a.apply(Command::ToggleSection);
+        a.apply(Command::SlabMove(1));
+        assert_eq!(a.settings.filter.clip, Some(moved));
+        // A --clip box is the one the keys start from.
+        let given = Bounds {
+            min: b.min,
+            max: b.center(),
+        };
+        let settings = Settings {
+            filter: Filter {
+                clip: Some(given),
+                ..Filter::default()
+            },
+            ..Settings::default()
+        };
+        let mut a = App::new(a.dataset.clone(), Camera::fit(&b), settings);
+        a.apply(Command::SlabMove(-1));
+        assert!(a.settings.filter.clip.unwrap().min[0] < given.min[0]);
+    }
+
+    #[test]
     fn legend_toggles_pick_mode_and_sections() {
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join("c.tif");
@@ -718,20 +858,35 @@ mod tests {
         assert!(a.pick_pending);
         assert_eq!(a.apply(Command::Quit), Effect::Render, "q leaves pick mode");
         assert!(!a.picking);
-        // A section clips to a slab and looks at it level; z again restores.
+        // A section draws a slab and looks at it level; z again restores.
         let before = a.camera;
         a.apply(Command::ToggleSection);
-        let clip = a.settings.filter.clip.unwrap();
+        let slab = a.settings.filter.slab.unwrap();
         let b = a.dataset.bounds();
-        let s = a.section.unwrap();
-        assert!(clip.max[s.axis] - clip.min[s.axis] < 0.02 * b.extent()[s.axis]);
-        assert_eq!(a.camera.pitch, 0.0);
+        assert!(2.0 * slab.half < 0.02 * b.extent()[0].max(b.extent()[1]));
+        assert!(a.camera.pitch.abs() < 1e-9);
+        assert!(a.status_line().contains("section"), "{}", a.status_line());
         a.apply(Command::SlabWidth(1));
-        let wider = a.settings.filter.clip.unwrap();
-        assert!(wider.max[s.axis] - wider.min[s.axis] > clip.max[s.axis] - clip.min[s.axis]);
+        assert!(a.settings.filter.slab.unwrap().half > slab.half);
+        let yaw = a.camera.yaw;
+        a.apply(Command::SlabTurn(1));
+        assert_ne!(a.settings.filter.slab.unwrap().normal, slab.normal);
+        assert!(
+            (a.camera.yaw - yaw).abs() > 0.1,
+            "the profile turns with it"
+        );
         a.apply(Command::ToggleSection);
-        assert_eq!(a.settings.filter.clip, None);
+        assert_eq!(a.settings.filter.slab, None);
         assert_eq!(a.camera, before);
+        // v cycles the bands: z first, then the part's, and back.
+        let bands = a.band_names();
+        assert!(bands.len() >= 2 && bands.contains(&"classification".to_string()));
+        a.apply(Command::CycleBand);
+        assert_eq!(a.settings.color, ColorMode::Band("z".into()));
+        for _ in 0..bands.len() {
+            a.apply(Command::CycleBand);
+        }
+        assert_eq!(a.settings.color, ColorMode::Band("z".into()));
         // EDL keys turn it on and stay in range.
         for _ in 0..20 {
             a.apply(Command::EdlStrength(1));

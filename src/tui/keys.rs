@@ -45,10 +45,16 @@ pub enum Command {
     ToggleClassRow(usize),
     /// A section through the last pick, seen from the side, on / off.
     ToggleSection,
+    /// `o`: the clip box on / off (the `--clip` box, or the middle of the data).
+    ToggleClip,
     /// The section's slab thicker (+1) or thinner (-1).
     SlabWidth(i8),
     /// The section's slab moved forward (+1) or back by its thickness.
     SlabMove(i8),
+    /// The section's plane turned about the vertical by 15° (+1: anticlockwise).
+    SlabTurn(i8),
+    /// Colour by the next band (`band:NAME`), through all the data's bands.
+    CycleBand,
     BudgetDown,
     BudgetUp,
     /// Switch between the distance rule and view-dependent selection.
@@ -118,10 +124,14 @@ pub fn command_for(key: KeyEvent) -> Option<Command> {
         KeyCode::Char('.') => LegendRow(1),
         KeyCode::Char(' ') => ToggleClass,
         KeyCode::Char('z') => ToggleSection,
+        KeyCode::Char('o') => ToggleClip,
         KeyCode::Char('(') => SlabWidth(-1),
         KeyCode::Char(')') => SlabWidth(1),
         KeyCode::Char('{') => SlabMove(-1),
         KeyCode::Char('}') => SlabMove(1),
+        KeyCode::Char('/') => SlabTurn(1),
+        KeyCode::Char('\\') => SlabTurn(-1),
+        KeyCode::Char('v') => CycleBand,
         KeyCode::Char('b') => BudgetDown,
         KeyCode::Char('B') => BudgetUp,
         KeyCode::Char('m') => ToggleDistanceRule,
@@ -160,12 +170,20 @@ pub const HELP: &[(&str, &str)] = &[
     ),
     ("X", "forget the picks (two picks give their distances)"),
     (
-        "z",
-        "section through the last pick, seen from the side, on / off",
+        "v",
+        "colour by the next band (band:NAME, every band in turn), ramp legend",
     ),
     (
-        "( / ) , { / }",
-        "section slab thinner / thicker, move it back / forward",
+        "z",
+        "section through the two last picks (or the last, across the view), from the side, on / off",
+    ),
+    (
+        "( / ) , { / } , / \\",
+        "section slab thinner / thicker, back / forward, turn it 15° left / right",
+    ),
+    (
+        "o",
+        "clip box on / off; without a section ( ) size it, { } move it, / \\ choose its axis",
     ),
     ("p", "point size 1 → 2 → 3"),
     (

@@ -9,6 +9,7 @@
 //! rendering: it sends requests and polls for finished frames between key presses.
 
 pub mod app;
+pub mod clipbox;
 pub mod keys;
 pub mod panels;
 pub mod protocol;

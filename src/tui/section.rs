@@ -1,94 +1,93 @@
-//! The inspector's section: a slab (a thickness around a vertical plane
-//! through the last picked point, across the axis the view looks along) drawn
-//! alone and seen from the side, as a profile. It is a clip box, so tiles
-//! outside it are not loaded.
+//! The inspector's section: a slab (a thickness around a vertical plane) drawn
+//! alone and seen from the side, as a profile. The plane passes through the
+//! two last picked points (the profile line surveyors draw), else through the
+//! last pick (or the centre of the data) across the view; keys turn it about
+//! the vertical, move it and size it. Tiles the slab misses are not loaded.
 
 use crate::camera::Camera;
 use crate::points::Bounds;
-use crate::render::filter::Filter;
+use crate::render::filter::{Filter, Slab};
 
 /// Factor per `(` / `)` on the slab's thickness.
 const WIDTH_STEP: f64 = 1.5;
 
-/// A slab across axis `axis` (0: x, 1: y), `center ± half` along it.
+/// Turn per `/` / `\` of the plane about the vertical: 15°.
+const TURN_STEP: f64 = std::f64::consts::PI / 12.0;
+
+/// A section: its slab and what it replaced.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Section {
-    pub axis: usize,
-    pub center: f64,
-    pub half: f64,
-    /// Where it passes through (the pick, or the centre of the data).
-    pub through: [f64; 3],
-    /// What the section replaced, restored when it closes.
-    pub saved_clip: Option<Bounds>,
+    pub slab: Slab,
+    /// The filter's slab before (from `--slab`), restored when it closes.
+    pub saved_slab: Option<Slab>,
     pub saved_camera: Camera,
 }
 
 impl Section {
-    /// A slab through `at` (else the centre of `bounds`) across the horizontal
-    /// axis nearest the view direction, 1% of the data's extent along it thick
-    /// (at least a millimetre).
+    /// A vertical slab through `picks`' two points when there are two (and
+    /// they are apart horizontally), else through the last one (or the centre
+    /// of `bounds`) across the view's horizontal direction; 1% of the data's
+    /// extent across it thick (at least a millimetre).
     pub fn through(
         bounds: &Bounds,
         camera: &Camera,
-        at: Option<[f64; 3]>,
+        picks: &[[f64; 3]],
         filter: &Filter,
     ) -> Section {
         let f = camera.forward();
-        let axis = if f.x.abs() >= f.y.abs() { 0 } else { 1 };
-        let p = at.unwrap_or(bounds.center());
-        let half = (bounds.extent()[axis] * 0.005).max(0.001);
+        let mut normal = if f.x.abs() + f.y.abs() > 1e-9 {
+            [f.x, f.y, 0.0]
+        } else {
+            [1.0, 0.0, 0.0]
+        };
+        let mut point = picks.last().copied().unwrap_or(bounds.center());
+        if let [a, b] = picks {
+            let (dx, dy) = (b[0] - a[0], b[1] - a[1]);
+            if dx.hypot(dy) > 1e-9 {
+                normal = [-dy, dx, 0.0];
+                point = std::array::from_fn(|k| 0.5 * (a[k] + b[k]));
+            }
+        }
+        let e = bounds.extent();
+        let l = normal[0].hypot(normal[1]);
+        let across = (e[0] * normal[0].abs() + e[1] * normal[1].abs()) / l;
+        let thick = (across * 0.01).max(0.002);
+        let slab = Slab::new(point, normal, thick).unwrap_or(Slab {
+            point,
+            normal: [1.0, 0.0, 0.0],
+            half: thick * 0.5,
+        });
         Section {
-            axis,
-            center: p[axis],
-            half,
-            through: p,
-            saved_clip: filter.clip,
+            slab,
+            saved_slab: filter.slab,
             saved_camera: *camera,
         }
     }
 
-    /// The clip box: `bounds` cut down to the slab.
-    pub fn clip(&self, bounds: &Bounds) -> Bounds {
-        let mut b = *bounds;
-        b.min[self.axis] = self.center - self.half;
-        b.max[self.axis] = self.center + self.half;
-        b
-    }
-
     /// Thicker (`d > 0`) or thinner.
     pub fn resize(&mut self, d: i8) {
-        self.half = (self.half * WIDTH_STEP.powi(d as i32)).max(0.0005);
+        self.slab.half = (self.slab.half * WIDTH_STEP.powi(d as i32)).max(0.0005);
     }
 
-    /// Moves the slab by `d` thicknesses along its axis.
+    /// Moves the slab by `d` thicknesses along its normal.
     pub fn shift(&mut self, d: i8) {
-        self.center += d as f64 * 2.0 * self.half;
+        let step = d as f64 * 2.0 * self.slab.half;
+        for k in 0..3 {
+            self.slab.point[k] += step * self.slab.normal[k];
+        }
     }
 
-    /// A level camera looking across the slab at the point it passes through,
-    /// from the side the current view looks from, far enough to see the whole
-    /// profile.
+    /// Turns the plane about the vertical through its point by `d` steps of 15°.
+    pub fn turn(&mut self, d: i8) {
+        self.slab.rotate(d as f64 * TURN_STEP);
+    }
+
+    /// A level camera looking across the slab at its point, from the side the
+    /// current view looks from, far enough to see the whole profile.
     pub fn profile_camera(&self, bounds: &Bounds, current: &Camera) -> Camera {
-        let mut c = *current;
-        let f = current.forward();
-        let along = if self.axis == 0 { f.x } else { f.y };
-        c.mode = crate::camera::CameraMode::Orbit;
-        c.yaw = match (self.axis, along >= 0.0) {
-            (0, true) => 0.0,
-            (0, false) => std::f64::consts::PI,
-            (_, true) => std::f64::consts::FRAC_PI_2,
-            (_, false) => -std::f64::consts::FRAC_PI_2,
-        };
-        c.pitch = 0.0;
-        let mut t = bounds.center();
-        t[self.axis] = self.center;
-        t[2] = self.through[2].clamp(bounds.min[2], bounds.max[2]);
-        c.target = glam::DVec3::from(t);
-        let e = bounds.extent();
-        let span = e[1 - self.axis].max(e[2]);
-        c.distance = (span * 0.6 / (0.5 * c.fov_y).tan()).max(1e-3);
-        c.set_clip_from_bounds(bounds);
-        c
+        let mut slab = self.slab;
+        slab.point[2] = slab.point[2].clamp(bounds.min[2], bounds.max[2]);
+        slab.profile_camera(bounds, current)
     }
 }
 
@@ -97,26 +96,40 @@ mod tests {
     use super::*;
 
     #[test]
-    fn slab_follows_the_view_and_the_pick() {
+    fn slab_follows_the_view_and_the_picks() {
         let b = Bounds {
             min: [0.0, 0.0, 0.0],
             max: [100.0, 200.0, 10.0],
         };
         let mut cam = Camera::fit(&b);
-        cam.yaw = 0.1; // looking along +x
-        let s = Section::through(&b, &cam, Some([30.0, 40.0, 5.0]), &Filter::default());
-        assert_eq!(s.axis, 0);
-        let c = s.clip(&b);
-        assert!((c.min[0] - 29.5).abs() < 1e-9 && (c.max[0] - 30.5).abs() < 1e-9);
-        assert_eq!((c.min[1], c.max[1]), (0.0, 200.0));
+        cam.yaw = 0.0; // looking along +x
+        let s = Section::through(&b, &cam, &[[30.0, 40.0, 5.0]], &Filter::default());
+        assert_eq!(s.slab.normal, [1.0, 0.0, 0.0]);
+        assert!((s.slab.half - 0.5).abs() < 1e-9);
+        assert!(s.slab.contains([30.4, 190.0, 0.0]) && !s.slab.contains([30.6, 40.0, 5.0]));
         let p = s.profile_camera(&b, &cam);
-        assert_eq!((p.yaw, p.pitch), (0.0, 0.0));
+        assert!(p.yaw.abs() < 1e-9 && p.pitch.abs() < 1e-9);
         let mut s2 = s;
         s2.resize(1);
-        assert!(s2.half > s.half);
+        assert!(s2.slab.half > s.slab.half);
         s2.shift(1);
-        assert!(s2.center > s.center);
-        cam.yaw = std::f64::consts::FRAC_PI_2; // along +y
-        assert_eq!(Section::through(&b, &cam, None, &Filter::default()).axis, 1);
+        assert!(s2.slab.point[0] > s.slab.point[0]);
+        // A quarter turn in six steps: the plane now runs along x.
+        for _ in 0..6 {
+            s2.turn(1);
+        }
+        assert!(
+            (s2.slab.normal[1] - 1.0).abs() < 1e-9,
+            "{:?}",
+            s2.slab.normal
+        );
+        // Two picks: the plane holds both, vertical; the camera looks across it.
+        let picks = [[10.0, 10.0, 1.0], [50.0, 50.0, 3.0]];
+        let s3 = Section::through(&b, &cam, &picks, &Filter::default());
+        assert!(s3.slab.contains(picks[0]) && s3.slab.contains(picks[1]));
+        assert!(s3.slab.contains([30.0, 30.0, 9.0]) && !s3.slab.contains([40.0, 20.0, 2.0]));
+        let p = s3.profile_camera(&b, &cam);
+        let f = p.forward();
+        assert!((f.x + f.y).abs() < 1e-9 && f.z.abs() < 1e-9, "{f:?}");
     }
 }

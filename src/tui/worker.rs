@@ -312,15 +312,9 @@ impl Worker {
             },
             m => m,
         };
-        let sel = lod::select_clipped(
-            &self.ds,
-            &req.camera,
-            width,
-            height,
-            mode,
-            s.memory,
-            s.filter.clip.as_ref(),
-        );
+        let sel = lod::select_region(&self.ds, &req.camera, width, height, mode, s.memory, &|b| {
+            s.filter.may_show(b)
+        });
         let select_ms = ms(t);
         self.cache.request(&sel.tiles);
         let mut tiles = self.cache.ready(&sel.tiles);
@@ -393,6 +387,7 @@ impl Worker {
         };
         let t = Instant::now();
         let renderer = self.renderer.as_mut().expect("created at the top");
+        renderer.keep_ids(req.pick && req.cursor.is_some());
         let mut frame = renderer.render(&req.camera, &batches, &opts)?;
         let renderer_name = renderer.name();
         let render_ms = ms(t);
@@ -406,7 +401,8 @@ impl Worker {
             (true, Some((x, y))) => {
                 let radius = req_pick_radius(width);
                 Some(
-                    match pick::pick(&req.camera, &batches, &opts, x, y, radius)? {
+                    match pick::pick_drawn(&**renderer, &req.camera, &batches, &opts, x, y, radius)?
+                    {
                         Some(h) => Some(
                             point_record(&self.ds, tiles[h.batch].key, h.index)
                                 .map_err(anyhow::Error::msg)?,

@@ -3,6 +3,7 @@
 
 pub mod fuzz;
 pub mod pty;
+pub mod tiffwalk;
 pub mod tmux;
 
 use pcimg::points::{Attribute, PointColumns};
