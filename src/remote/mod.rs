@@ -215,7 +215,7 @@ impl Remote {
         let shown = self.url_of(name);
         let this = self;
         block_on(async move {
-            let f = InFlight::start(&this);
+            let f = InFlight::start(this);
             let r = async {
                 let got = store.get_opts(&loc, Default::default()).await?;
                 let (size, etag) = (got.meta.size, got.meta.e_tag.clone());

@@ -136,7 +136,7 @@ impl IndexFile {
     /// directory, or the URL of one in object storage).
     pub fn parse(text: &[u8], dir: &Path) -> Result<IndexFile> {
         let path = dir.join(INDEX_FILE);
-        let idx: IndexFile = serde_json::from_slice(&text).map_err(|e| {
+        let idx: IndexFile = serde_json::from_slice(text).map_err(|e| {
             StoreError::new(
                 &path,
                 format!(

@@ -3,6 +3,8 @@
 //! the index records the head's length, otherwise (older parts, IFDs after the
 //! tiles) as the TIFF header and IFDs by successive ranges.
 
+// A slice of one range is a request for one range (`ensure`, `read_ranges`).
+#![allow(clippy::single_range_in_vec_init)]
 use super::error::{Result, StoreError};
 use super::reader::{Bytes, Part};
 use crate::remote::RemoteFile;
