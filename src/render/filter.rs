@@ -271,7 +271,10 @@ impl Filter {
                 *k &= s >= w.lo && s <= w.hi;
             }
         }
-        if let Some(c) = &self.clip {
+        // The clip box and the slab test each point's world position.
+        let clip = self.clip.as_ref();
+        let slab = self.slab.as_ref();
+        if clip.is_some() || slab.is_some() {
             let o = t.origin;
             for (i, k) in keep.iter_mut().enumerate() {
                 let p = [
@@ -279,18 +282,8 @@ impl Filter {
                     t.y[i] as f64 + o[1],
                     t.z[i] as f64 + o[2],
                 ];
-                *k &= (0..3).all(|a| p[a] >= c.min[a] && p[a] <= c.max[a]);
-            }
-        }
-        if let Some(sl) = &self.slab {
-            let o = t.origin;
-            for (i, k) in keep.iter_mut().enumerate() {
-                let p = [
-                    t.x[i] as f64 + o[0],
-                    t.y[i] as f64 + o[1],
-                    t.z[i] as f64 + o[2],
-                ];
-                *k &= sl.contains(p);
+                *k &= clip.is_none_or(|c| (0..3).all(|a| p[a] >= c.min[a] && p[a] <= c.max[a]))
+                    && slab.is_none_or(|sl| sl.contains(p));
             }
         }
         if keep.iter().all(|&k| k) {
