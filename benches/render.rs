@@ -310,8 +310,9 @@ fn ab() {
     }
 }
 
-/// `PCIMG_RENDER_IDS=<points> cargo bench --bench render`: the CPU rasterizer
-/// without and with the per-pixel id buffer picking reads (`keep_ids`),
+/// `PCIMG_RENDER_IDS=<points> cargo bench --bench render`: the CPU and (where
+/// an adapter exists) wgpu rasterizers without and with the per-pixel id
+/// buffer picking reads (`keep_ids`),
 /// interleaved, 15 rounds; the median and range of each frame's time.
 fn ab_ids(n: usize) {
     let opts = RenderOptions {
@@ -332,20 +333,39 @@ fn ab_ids(n: usize) {
         z: &c.z,
         color: &c.c,
     };
-    let mut plain = CpuRasterizer::new();
-    let mut ids = CpuRasterizer::new();
-    ids.keep_ids(true);
-    let mut runs = [Vec::new(), Vec::new()];
+    let mut rs: Vec<(String, Box<dyn Rasterizer>)> = vec![
+        ("cpu".into(), Box::new(CpuRasterizer::new())),
+        ("cpu+ids".into(), Box::new(CpuRasterizer::new())),
+    ];
+    for ids in [false, true] {
+        match GpuRasterizer::new() {
+            Ok(g) => {
+                if !ids {
+                    println!("gpu: {}", g.name());
+                }
+                let name = if ids { "gpu+ids" } else { "gpu" };
+                rs.push((name.into(), Box::new(g)));
+            }
+            Err(e) => {
+                eprintln!("no wgpu adapter, GPU rows skipped: {e}");
+                break;
+            }
+        }
+    }
+    for (name, r) in rs.iter_mut() {
+        r.keep_ids(name.ends_with("+ids"));
+    }
+    let mut runs = vec![Vec::new(); rs.len()];
     for round in 0..16 {
-        for (k, r) in [&mut plain, &mut ids].into_iter().enumerate() {
+        for (k, (_, r)) in rs.iter_mut().enumerate() {
             let f = r.render(&cam, &[batch], &opts).expect("frame");
-            // The first round warms caches and allocations.
+            // The first round warms caches, allocations and uploads.
             if round > 0 {
                 runs[k].push(f.stats.render_ms);
             }
         }
     }
-    for (name, mut v) in ["cpu", "cpu+ids"].into_iter().zip(runs) {
+    for ((name, _), mut v) in rs.iter().zip(runs) {
         v.sort_by(f64::total_cmp);
         println!(
             "{n} points {name:8} median {:7.1} ms, range {:.1}-{:.1} ms ({} frames)",

@@ -630,10 +630,20 @@ fn filters_hide_the_same_points_on_the_gpu() {
 #[test]
 fn the_cpu_rasterizer_keeps_the_point_that_won_each_pixel() {
     use pcimg::render::cpu::CpuStrategy;
-    // A 20 x 20 grid 1 m apart far from the datum; point 400 hovers 5 m above
-    // grid point (7, 11) and hides it; points 401 and 402 lie at the same
-    // place (3, 3, 2): a depth tie the smaller colour (402's) wins; 403 and 404
-    // tie with the same colour too, at (15, 5, 2): the smaller index wins.
+    for strategy in [CpuStrategy::PerThread, CpuStrategy::SharedAtomic] {
+        let mut r = CpuRasterizer::with_strategy(strategy);
+        kept_ids_are_the_points_drawn(&mut r, &format!("{strategy:?}"), true);
+    }
+}
+
+/// The id-buffer test scene: a 20 x 20 grid 1 m apart far from the datum;
+/// point 400 hovers 5 m above grid point (7, 11) and hides it; points 401 and
+/// 402 lie at the same place (3, 3, 2): a depth tie the smaller colour (402's)
+/// wins; 403 and 404 tie with the same colour too, at (15, 5, 2): the smaller
+/// index wins; point 405 lies behind grid point (12, 4) on the ray from the
+/// eye: occluded. `exact`: the renderer resolves like the CPU one (64-bit
+/// depth and colour), so every pixel's id agrees with picking by projection.
+fn kept_ids_are_the_points_drawn(r: &mut dyn Rasterizer, label: &str, exact: bool) {
     let origin = [637_000.0, 5_100_000.0, 300.0];
     let (mut x, mut y, mut z) = (Vec::new(), Vec::new(), Vec::new());
     for i in 0..20 {
@@ -661,7 +671,6 @@ fn the_cpu_rasterizer_keeps_the_point_that_won_each_pixel() {
     cam.pitch = -80.0f64.to_radians();
     cam.yaw = 0.3;
     cam.set_clip_from_bounds(&bounds);
-    // Point 405 lies behind grid point (12, 4) on the ray from the eye: occluded.
     let eye = cam.eye().to_array();
     let front = [origin[0] + 12.0, origin[1] + 4.0, origin[2]];
     let behind: [f64; 3] = std::array::from_fn(|a| eye[a] + (front[a] - eye[a]) * 1.05);
@@ -682,78 +691,115 @@ fn the_cpu_rasterizer_keeps_the_point_that_won_each_pixel() {
         z: &z,
         color: &color,
     };
-    for strategy in [CpuStrategy::PerThread, CpuStrategy::SharedAtomic] {
-        for (size, edl) in [(1, false), (3, true)] {
-            let opts = RenderOptions {
-                width: 400,
-                height: 300,
-                point_size: size,
-                eye_dome_lighting: edl,
-                ..Default::default()
-            };
-            let mut r = CpuRasterizer::with_strategy(strategy);
-            // Off by default: no id buffer, nothing to read.
-            r.render(&cam, &[b], &opts).unwrap();
-            assert!(r.last_ids().is_none());
-            assert!(r.keep_ids(true));
-            let frame = r.render(&cam, &[b], &opts).unwrap();
-            let ids = r.last_ids().unwrap().to_vec();
-            assert_eq!(ids.len(), 400 * 300);
-            let at = |p: [f64; 3]| {
-                let [sx, sy] = cam.project(p, 400, 300).unwrap();
-                let h = pick::from_ids(&ids, &[b], 400, 300, sx as u32, sy as u32, 0)
-                    .unwrap()
-                    .unwrap();
-                assert_eq!(h.position, p, "{strategy:?} size {size}");
-                h.index
-            };
-            let world = |i: usize| {
-                [
-                    origin[0] + x[i] as f64,
-                    origin[1] + y[i] as f64,
-                    origin[2] + z[i] as f64,
-                ]
-            };
-            for (i, j) in [(0usize, 0usize), (3, 17), (19, 19), (12, 4)] {
-                assert_eq!(at(world(i * 20 + j)), i * 20 + j);
-            }
-            assert_eq!(at(world(400)), 400, "the hovering point");
-            assert_eq!(at(world(401)), 402, "a depth tie: the colour drawn");
-            assert_eq!(at(world(403)), 403, "a full tie: the smaller index");
-            // Every pixel agrees with the frame and with picking by projection.
-            let batches = [b];
-            for py in (0..300).step_by(7) {
-                for px in (0..400).step_by(5) {
-                    let id = ids[py * 400 + px];
+    // An empty batch first: ids name their batch.
+    let none = PointBatch {
+        origin,
+        x: &[],
+        y: &[],
+        z: &[],
+        color: &[],
+    };
+    let batches = [none, b];
+    let id = |i: usize| pick::point_id(1, i);
+    for (size, edl) in [(1, false), (3, true)] {
+        let opts = RenderOptions {
+            width: 400,
+            height: 300,
+            point_size: size,
+            eye_dome_lighting: edl,
+            ..Default::default()
+        };
+        let what = format!("{label}, size {size}");
+        // Off: no id buffer, nothing to read.
+        r.keep_ids(false);
+        r.render(&cam, &batches, &opts).unwrap();
+        assert!(r.last_ids().is_none(), "{what}");
+        assert!(r.keep_ids(true));
+        let frame = r.render(&cam, &batches, &opts).unwrap();
+        let ids = r.last_ids().unwrap().to_vec();
+        assert_eq!(ids.len(), 400 * 300);
+        let at = |p: [f64; 3]| {
+            let [sx, sy] = cam.project(p, 400, 300).unwrap();
+            let h = pick::from_ids(&ids, &batches, 400, 300, sx as u32, sy as u32, 0)
+                .unwrap()
+                .unwrap();
+            assert_eq!(h.position, p, "{what}");
+            assert_eq!(h.batch, 1, "{what}");
+            h.index
+        };
+        let world = |i: usize| {
+            [
+                origin[0] + x[i] as f64,
+                origin[1] + y[i] as f64,
+                origin[2] + z[i] as f64,
+            ]
+        };
+        for (i, j) in [(0usize, 0usize), (3, 17), (19, 19), (12, 4)] {
+            assert_eq!(at(world(i * 20 + j)), i * 20 + j, "{what}");
+        }
+        assert_eq!(at(world(400)), 400, "the hovering point: {what}");
+        assert_eq!(at(world(401)), 402, "a depth tie: the colour drawn: {what}");
+        assert_eq!(at(world(403)), 403, "a full tie: the smaller index: {what}");
+        // Every pixel agrees with the frame (and, where the renderer resolves
+        // like the CPU one, with picking by projection).
+        let mut drawn = 0;
+        for py in (0..300).step_by(7) {
+            for px in (0..400).step_by(5) {
+                let got = ids[py * 400 + px];
+                if exact {
                     let by_proj =
                         pick::pick(&cam, &batches, &opts, px as u32, py as u32, 0).unwrap();
                     assert_eq!(
                         by_proj.map(|h| pick::point_id(h.batch, h.index)),
-                        (id != pick::NO_POINT).then_some(id),
-                        "pixel ({px}, {py})"
+                        (got != pick::NO_POINT).then_some(got),
+                        "pixel ({px}, {py}): {what}"
                     );
-                    if id != pick::NO_POINT && !edl {
-                        let c = color[id as usize];
-                        let shown = frame.pixel(px as u32, py as u32).unwrap();
-                        assert_eq!(shown[..3], [c as u8, (c >> 8) as u8, (c >> 16) as u8]);
+                }
+                if got != pick::NO_POINT && !edl {
+                    drawn += 1;
+                    assert_eq!(got >> 32, 1);
+                    let c = color[(got & 0xffff_ffff) as usize];
+                    let shown = frame.pixel(px as u32, py as u32).unwrap();
+                    let want = [c as u8, (c >> 8) as u8, (c >> 16) as u8];
+                    if exact {
+                        assert_eq!(shown[..3], want, "pixel ({px}, {py}): {what}");
+                    } else {
+                        // BGR565: the top 5, 6, 5 bits.
+                        let top = |v: u8, bits: u32| v >> (8 - bits);
+                        assert_eq!(
+                            [top(shown[0], 5), top(shown[1], 6), top(shown[2], 5)],
+                            [top(want[0], 5), top(want[1], 6), top(want[2], 5)],
+                            "pixel ({px}, {py}): {what}"
+                        );
                     }
                 }
             }
-            // An occluded point is never picked: 405 appears in no pixel, nor
-            // do the losers of the ties.
-            assert_eq!(at(world(12 * 20 + 4)), 12 * 20 + 4);
-            assert!(!ids.contains(&pick::point_id(0, 405)));
-            assert!(!ids.contains(&pick::point_id(0, 401)));
-            assert!(!ids.contains(&pick::point_id(0, 404)));
-            // Background: none.
-            assert_eq!(pick::from_ids(&ids, &[b], 400, 300, 0, 0, 2).unwrap(), None);
-            assert!(pick::from_ids(&ids, &[b], 400, 300, 400, 0, 0).is_err());
-            assert!(pick::from_ids(&ids[1..], &[b], 400, 300, 0, 0, 0).is_err());
-            r.keep_ids(false);
-            r.render(&cam, &[b], &opts).unwrap();
-            assert!(r.last_ids().is_none());
         }
+        assert!(edl || drawn > 0, "{what}");
+        // Every point but the hidden, occluded and tie-losing ones shows.
+        let distinct: std::collections::HashSet<u64> = ids
+            .iter()
+            .copied()
+            .filter(|&i| i != pick::NO_POINT)
+            .collect();
+        assert!(distinct.len() >= 395, "{what}: {} points", distinct.len());
+        // An occluded point is never picked: 405 appears in no pixel, nor
+        // do the losers of the ties.
+        assert_eq!(at(world(12 * 20 + 4)), 12 * 20 + 4);
+        assert!(!ids.contains(&id(405)), "{what}");
+        assert!(!ids.contains(&id(401)), "{what}");
+        assert!(!ids.contains(&id(404)), "{what}");
+        // Background: none.
+        assert_eq!(
+            pick::from_ids(&ids, &batches, 400, 300, 0, 0, 2).unwrap(),
+            None
+        );
+        assert!(pick::from_ids(&ids, &batches, 400, 300, 400, 0, 0).is_err());
+        assert!(pick::from_ids(&ids[1..], &batches, 400, 300, 0, 0, 0).is_err());
     }
+    r.keep_ids(false);
+    r.render(&cam, &batches, &RenderOptions::default()).unwrap();
+    assert!(r.last_ids().is_none(), "{label}");
 }
 
 #[test]
@@ -838,4 +884,84 @@ fn a_slab_draws_only_the_points_within_it_and_loads_only_the_tiles_it_crosses() 
     );
     assert!(!o.status.success());
     assert!(String::from_utf8_lossy(&o.stderr).contains("--slab"));
+}
+
+/// A GPU rasterizer, or `None` (a note, and a failure under `CI=true`) when
+/// this machine has no wgpu adapter.
+fn gpu_or_skip(opts: pcimg::render::gpu::GpuOptions) -> Option<pcimg::render::gpu::GpuRasterizer> {
+    match pcimg::render::gpu::GpuRasterizer::with_options(opts) {
+        Ok(g) => Some(g),
+        Err(e) => {
+            assert!(
+                std::env::var("CI").ok().as_deref() != Some("true"),
+                "no wgpu adapter under CI: {e}"
+            );
+            eprintln!("note: skipping, no wgpu adapter: {e}");
+            None
+        }
+    }
+}
+
+#[test]
+fn the_gpu_rasterizer_keeps_the_point_that_won_each_pixel() {
+    use pcimg::render::gpu::GpuOptions;
+    let Some(mut gpu) = gpu_or_skip(GpuOptions::default()) else {
+        return;
+    };
+    // The 64-bit framebuffer resolves like the CPU: every pixel must agree.
+    let exact = gpu.has_int64_atomics();
+    let name = gpu.name();
+    kept_ids_are_the_points_drawn(&mut gpu, &name, exact);
+    // The 32-bit fallback (16-bit log depth, BGR565) keeps its own winners.
+    let Some(mut g32) = gpu_or_skip(GpuOptions {
+        force_32bit_atomics: true,
+        ..GpuOptions::default()
+    }) else {
+        return;
+    };
+    let name = g32.name();
+    kept_ids_are_the_points_drawn(&mut g32, &name, false);
+}
+
+#[test]
+fn render_pick_agrees_between_the_gpu_and_the_cpu() {
+    let dir = tempfile::tempdir().unwrap();
+    let part = classified_part(dir.path(), 50_000);
+    let pick = |renderer: &str, at: &str| {
+        let o = exe()
+            .arg("render")
+            .arg(&part)
+            .args(["--renderer", renderer, "--width", "320", "--height", "240"])
+            .args(["--point-size", "2", "--view", "30,-40", "--pick", at, "-o"])
+            .arg(dir.path().join(format!("{renderer}.png")))
+            .output()
+            .unwrap();
+        (
+            o.status.success(),
+            o.stdout,
+            String::from_utf8_lossy(&o.stderr).to_string(),
+        )
+    };
+    let mut hits = 0;
+    for at in ["160,120", "100,90", "230,150", "5,5"] {
+        let (ok, cpu, err) = pick("cpu", at);
+        assert!(ok, "{err}");
+        let (ok, gpu, err) = pick("gpu", at);
+        if !ok {
+            assert!(
+                err.contains("no GPU adapter")
+                    && std::env::var("CI").ok().as_deref() != Some("true"),
+                "{err}"
+            );
+            eprintln!("note: skipping, no wgpu adapter: {err}");
+            return;
+        }
+        let (c, g): (serde_json::Value, serde_json::Value) = (
+            serde_json::from_slice(&cpu).unwrap(),
+            serde_json::from_slice(&gpu).unwrap(),
+        );
+        assert_eq!(c, g, "--pick {at}");
+        hits += !c.is_null() as usize;
+    }
+    assert!(hits >= 2, "{hits} of the pixels hit a point");
 }

@@ -21,7 +21,7 @@ use std::time::Instant;
 use bytemuck::{Pod, Zeroable};
 
 use super::{
-    Camera, Frame, FrameStats, PointBatch, Rasterizer, RenderError, RenderOptions, edl,
+    Camera, Frame, FrameStats, PointBatch, Rasterizer, RenderError, RenderOptions, edl, pick,
     total_points,
 };
 
@@ -30,6 +30,10 @@ const RASTERIZE32: &str = include_str!("../../shaders/rasterize_u32.wgsl");
 /// Appended to both rasterizers (WGSL has no includes).
 const PROJECT: &str = include_str!("../../shaders/project.wgsl");
 const RESOLVE: &str = include_str!("../../shaders/resolve.wgsl");
+/// The id pass, with the framebuffer test for the 64- or 32-bit path.
+const IDS: &str = include_str!("../../shaders/ids.wgsl");
+const IDS_MATCH64: &str = include_str!("../../shaders/ids_match64.wgsl");
+const IDS_MATCH32: &str = include_str!("../../shaders/ids_match32.wgsl");
 
 const WORKGROUP: u32 = 256;
 const MAX_GROUPS_X: u32 = 65535;
@@ -58,7 +62,9 @@ struct RasterParams {
     off: f32,
     log2_near: f32,
     depth_scale: f32,
-    _pad: [u32; 3],
+    /// The frame-wide id of this chunk's first point (the id pass only).
+    id_base: u32,
+    _pad: [u32; 2],
 }
 
 #[repr(C)]
@@ -84,8 +90,12 @@ fn dispatch_shape(n: u32) -> (u32, u32, u32) {
 /// One uploaded slice of a batch: at most `chunk_points` points.
 struct Chunk {
     count: u32,
+    /// First point's index within its batch.
+    start: u32,
     params: wgpu::Buffer,
     bind_group: wgpu::BindGroup,
+    /// The same buffers bound for the id pass.
+    ids_bind_group: wgpu::BindGroup,
     _buffers: [wgpu::Buffer; 4],
 }
 
@@ -146,7 +156,16 @@ struct Targets {
     raster_bg: wgpu::BindGroup,
     clear_bg: wgpu::BindGroup,
     resolve_bg: wgpu::BindGroup,
-    _fb: wgpu::Buffer,
+    fb: wgpu::Buffer,
+    /// Made on the first frame that keeps ids.
+    ids: Option<IdTargets>,
+}
+
+/// The per-pixel id buffer, its readback copy and its binding.
+struct IdTargets {
+    buf: wgpu::Buffer,
+    staging: wgpu::Buffer,
+    bind_group: wgpu::BindGroup,
 }
 
 /// The wgpu compute rasterizer.
@@ -158,6 +177,10 @@ pub struct GpuRasterizer {
     raster: wgpu::ComputePipeline,
     clear: wgpu::ComputePipeline,
     resolve: wgpu::ComputePipeline,
+    ids_pipeline: wgpu::ComputePipeline,
+    /// Whether frames fill `ids` ([`Rasterizer::keep_ids`]).
+    keep_ids: bool,
+    ids: Vec<u64>,
     chunk_points: usize,
     points_per_thread: u32,
     early_out: bool,
@@ -377,6 +400,8 @@ impl GpuRasterizer {
         ) + PROJECT;
         let raster_mod = module(&raster_src, "rasterize");
         let resolve_mod = module(RESOLVE, "resolve");
+        let ids_src = [IDS, if int64 { IDS_MATCH64 } else { IDS_MATCH32 }, PROJECT].concat();
+        let ids_pipeline = pipeline(&module(&ids_src, "ids"), "main");
         let raster = pipeline(
             &raster_mod,
             if int64 && merge_runs {
@@ -415,6 +440,9 @@ impl GpuRasterizer {
             raster,
             clear,
             resolve,
+            ids_pipeline,
+            keep_ids: false,
+            ids: Vec::new(),
             chunk_points,
             points_per_thread,
             early_out,
@@ -573,9 +601,51 @@ impl GpuRasterizer {
             raster_bg,
             clear_bg,
             resolve_bg,
-            _fb: fb,
+            fb,
+            ids: None,
         });
         Ok(())
+    }
+
+    /// Makes the id buffer for the current frame size, once.
+    fn id_targets(&mut self) {
+        let Some(t) = self.targets.as_mut() else {
+            return;
+        };
+        if t.ids.is_some() {
+            return;
+        }
+        let bytes = (t.width as u64 * t.height as u64).next_multiple_of(4) * 4;
+        let buf = |label: &str, usage: wgpu::BufferUsages| {
+            self.device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some(label),
+                size: bytes,
+                usage,
+                mapped_at_creation: false,
+            })
+        };
+        use wgpu::BufferUsages as U;
+        let ids = buf("ids", U::STORAGE | U::COPY_SRC | U::COPY_DST);
+        let staging = buf("ids staging", U::MAP_READ | U::COPY_DST);
+        let bind_group = self.device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some("ids"),
+            layout: &self.ids_pipeline.get_bind_group_layout(1),
+            entries: &[
+                wgpu::BindGroupEntry {
+                    binding: 0,
+                    resource: ids.as_entire_binding(),
+                },
+                wgpu::BindGroupEntry {
+                    binding: 1,
+                    resource: t.fb.as_entire_binding(),
+                },
+            ],
+        });
+        t.ids = Some(IdTargets {
+            buf: ids,
+            staging,
+            bind_group,
+        });
     }
 
     /// Uploads `b` unless cached; returns whether it uploaded.
@@ -591,6 +661,7 @@ impl GpuRasterizer {
         }
         let d = &self.device;
         let layout = self.raster.get_bind_group_layout(0);
+        let ids_layout = self.ids_pipeline.get_bind_group_layout(0);
         let mut chunks = Vec::new();
         let n = b.len();
         let mut s = 0;
@@ -616,36 +687,42 @@ impl GpuRasterizer {
                 usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
                 mapped_at_creation: false,
             });
-            let bind_group = d.create_bind_group(&wgpu::BindGroupDescriptor {
-                label: Some("points"),
-                layout: &layout,
-                entries: &[
-                    wgpu::BindGroupEntry {
-                        binding: 0,
-                        resource: params.as_entire_binding(),
-                    },
-                    wgpu::BindGroupEntry {
-                        binding: 1,
-                        resource: bx.as_entire_binding(),
-                    },
-                    wgpu::BindGroupEntry {
-                        binding: 2,
-                        resource: by.as_entire_binding(),
-                    },
-                    wgpu::BindGroupEntry {
-                        binding: 3,
-                        resource: bz.as_entire_binding(),
-                    },
-                    wgpu::BindGroupEntry {
-                        binding: 4,
-                        resource: bc.as_entire_binding(),
-                    },
-                ],
-            });
+            let bind = |label: &str, layout: &wgpu::BindGroupLayout| {
+                d.create_bind_group(&wgpu::BindGroupDescriptor {
+                    label: Some(label),
+                    layout,
+                    entries: &[
+                        wgpu::BindGroupEntry {
+                            binding: 0,
+                            resource: params.as_entire_binding(),
+                        },
+                        wgpu::BindGroupEntry {
+                            binding: 1,
+                            resource: bx.as_entire_binding(),
+                        },
+                        wgpu::BindGroupEntry {
+                            binding: 2,
+                            resource: by.as_entire_binding(),
+                        },
+                        wgpu::BindGroupEntry {
+                            binding: 3,
+                            resource: bz.as_entire_binding(),
+                        },
+                        wgpu::BindGroupEntry {
+                            binding: 4,
+                            resource: bc.as_entire_binding(),
+                        },
+                    ],
+                })
+            };
+            let bind_group = bind("points", &layout);
+            let ids_bind_group = bind("points (ids)", &ids_layout);
             chunks.push(Chunk {
                 count: (e - s) as u32,
+                start: s as u32,
                 params,
                 bind_group,
+                ids_bind_group,
                 _buffers: [bx, by, bz, bc],
             });
             s = e;
@@ -697,6 +774,18 @@ impl GpuRasterizer {
 }
 
 /// Byte offset of the depth plane in the resolved buffer (aligned for binding).
+/// A device id tag (`0xffffffff - frame-wide index`, 0: none) as the
+/// [`pick::point_id`] of that point, `starts` giving each batch's first index.
+fn frame_id(tag: u32, starts: &[u64]) -> u64 {
+    if tag == 0 {
+        return pick::NO_POINT;
+    }
+    let g = (u32::MAX - tag) as u64;
+    // The last batch starting at or before `g` (empty batches share starts).
+    let bi = starts.partition_point(|&s| s <= g).saturating_sub(1);
+    pick::point_id(bi, (g - starts[bi]) as usize)
+}
+
 fn depth_offset(pixels: u64) -> u64 {
     (pixels * 4).next_multiple_of(256)
 }
@@ -706,6 +795,15 @@ fn pack_background(bg: [u8; 3]) -> u32 {
 }
 
 impl Rasterizer for GpuRasterizer {
+    fn keep_ids(&mut self, on: bool) -> bool {
+        self.keep_ids = on;
+        true
+    }
+
+    fn last_ids(&self) -> Option<&[u64]> {
+        (self.keep_ids && !self.ids.is_empty()).then_some(self.ids.as_slice())
+    }
+
     fn name(&self) -> String {
         let backend = match self.info.backend {
             wgpu::Backend::Vulkan => "Vulkan",
@@ -734,6 +832,12 @@ impl Rasterizer for GpuRasterizer {
         let total = total_points(batches)?;
         let (w, h) = (opts.width, opts.height);
         self.targets(w, h)?;
+        // Ids are u32 on the device, 0xffffffff reserved for "no point".
+        let with_ids = self.keep_ids && (total as u64) < u32::MAX as u64;
+        self.ids.clear();
+        if with_ids {
+            self.id_targets();
+        }
         self.frame += 1;
 
         // Upload (or find cached) point buffers.
@@ -780,7 +884,14 @@ impl Rasterizer for GpuRasterizer {
             }),
         );
         let mut work: Vec<(&Chunk, (u32, u32))> = Vec::new();
-        for b in batches.iter().filter(|b| !b.is_empty()) {
+        // Where each batch's points start in the frame-wide id numbering.
+        let mut starts = Vec::with_capacity(batches.len());
+        let mut next = 0u64;
+        for b in batches {
+            starts.push(next);
+            next += b.len() as u64;
+        }
+        for (bi, b) in batches.iter().enumerate().filter(|(_, b)| !b.is_empty()) {
             let Some(entry) = self.cache.get(&batch_key(b)) else {
                 continue;
             };
@@ -798,7 +909,8 @@ impl Rasterizer for GpuRasterizer {
                     off: (point_size as f32 - 1.0) * 0.5,
                     log2_near,
                     depth_scale,
-                    _pad: [0; 3],
+                    id_base: (starts[bi] + c.start as u64).min(u32::MAX as u64) as u32,
+                    _pad: [0; 2],
                 };
                 self.queue
                     .write_buffer(&c.params, 0, bytemuck::bytes_of(&p));
@@ -833,6 +945,21 @@ impl Rasterizer for GpuRasterizer {
                 pass.dispatch_workgroups(*gx, *gy, 1);
             }
         }
+        let ids = t.ids.as_ref().filter(|_| with_ids);
+        if let Some(it) = ids {
+            enc.clear_buffer(&it.buf, 0, None);
+            let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor {
+                label: Some("ids"),
+                timestamp_writes: None,
+            });
+            pass.set_pipeline(&self.ids_pipeline);
+            pass.set_bind_group(1, &it.bind_group, &[]);
+            for (c, _) in &work {
+                let (gx, gy, _) = dispatch_shape(c.count);
+                pass.set_bind_group(0, &c.ids_bind_group, &[]);
+                pass.dispatch_workgroups(gx, gy, 1);
+            }
+        }
         {
             let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor {
                 label: Some("resolve"),
@@ -849,18 +976,44 @@ impl Rasterizer for GpuRasterizer {
             px as u64 * 4
         };
         enc.copy_buffer_to_buffer(&t.out, 0, &t.staging, 0, read_bytes);
+        let id_bytes = px as u64 * 4;
+        if let Some(it) = ids {
+            enc.copy_buffer_to_buffer(&it.buf, 0, &it.staging, 0, id_bytes);
+        }
         self.queue.submit(Some(enc.finish()));
 
         let slice = t.staging.slice(..read_bytes);
         let (tx, rx) = std::sync::mpsc::channel();
+        let tx2 = tx.clone();
         slice.map_async(wgpu::MapMode::Read, move |r| {
             let _ = tx.send(r);
         });
+        let id_slice = ids.map(|it| it.staging.slice(..id_bytes));
+        if let Some(s) = &id_slice {
+            s.map_async(wgpu::MapMode::Read, move |r| {
+                let _ = tx2.send(r);
+            });
+        } else {
+            drop(tx2);
+        }
         self.wait()?;
-        match rx.try_recv() {
-            Ok(Ok(())) => {}
-            Ok(Err(e)) => return Err(RenderError::Gpu(format!("reading back the frame: {e}"))),
-            Err(_) => return Err(RenderError::Gpu("frame readback did not complete".into())),
+        for _ in 0..1 + id_slice.is_some() as usize {
+            match rx.try_recv() {
+                Ok(Ok(())) => {}
+                Ok(Err(e)) => {
+                    return Err(RenderError::Gpu(format!("reading back the frame: {e}")));
+                }
+                Err(_) => return Err(RenderError::Gpu("frame readback did not complete".into())),
+            }
+        }
+        if let (Some(s), Some(it)) = (&id_slice, ids) {
+            let read = s.get_mapped_range().map(|view| {
+                view.chunks_exact(4)
+                    .map(|c| frame_id(u32::from_le_bytes([c[0], c[1], c[2], c[3]]), &starts))
+                    .collect::<Vec<u64>>()
+            });
+            it.staging.unmap();
+            self.ids = read.map_err(|e| RenderError::Gpu(format!("mapping the ids: {e}")))?;
         }
         let read = slice.get_mapped_range().map(|view| {
             let rgba = view[..px as usize * 4].to_vec();

@@ -1,11 +1,12 @@
 //! Picking: which point a frame shows at a pixel. A rasterizer asked to
 //! (`Rasterizer::keep_ids`) keeps, per pixel, the id of the point that won it
 //! ([`point_id`]: batch and index); [`from_ids`] reads that buffer. The CPU
-//! rasterizer fills it with a second projection pass over the frame's points
-//! only when a pick is asked for, so frames nobody picks in cost nothing more.
-//! For a rasterizer without an id buffer (wgpu), [`pick`] projects the points
-//! again with the CPU rasterizer's own transform (`Projector`) and keeps, near
-//! the cursor, the point with the smallest packed `depth << 32 | colour`.
+//! and wgpu rasterizers fill it with a second projection pass over the frame's
+//! points only when a pick is asked for, so frames nobody picks in cost nothing
+//! more. Without an id buffer (a frame too large for 32-bit device ids),
+//! [`pick`] projects the points again with the CPU rasterizer's own transform
+//! (`Projector`) and keeps, near the cursor, the point with the smallest packed
+//! `depth << 32 | colour`.
 
 use glam::DVec3;
 use rayon::prelude::*;
