@@ -38,9 +38,10 @@ pub struct Args {
     /// Tile compression: none (fastest to load), deflate, zstd (lossless, with the
     /// floating-point predictor), or lerc, lerc_zstd, lerc_deflate (LERC, as GDAL
     /// writes it: coordinates within --max-error, attributes lossless; the
-    /// smallest files).
-    #[arg(long, default_value = "none", value_parser = Compression::parse)]
-    pub compression: Compression,
+    /// smallest files). Default: none for a local output, lerc_zstd for one in
+    /// object storage (`Compression::default_for`).
+    #[arg(long, value_parser = Compression::parse)]
+    pub compression: Option<Compression>,
     /// LERC codecs: the largest error allowed in a coordinate, in the input's
     /// units. Default: half a LAS file's scale factor (the coordinates come back
     /// exactly on their lattice), lossless for other inputs.
@@ -249,6 +250,7 @@ fn parse_max_error(s: &str) -> Result<f64, String> {
 }
 
 fn options(a: &Args, output: PathBuf) -> ConvertOptions {
+    let remote = crate::remote::is_url(&output.to_string_lossy());
     let cancel = Arc::new(AtomicBool::new(false));
     {
         let c = cancel.clone();
@@ -264,7 +266,9 @@ fn options(a: &Args, output: PathBuf) -> ConvertOptions {
         } else {
             Partition::Spatial
         },
-        compression: a.compression,
+        compression: a
+            .compression
+            .unwrap_or_else(|| Compression::default_for(remote)),
         max_error: a.max_error,
         layout: if a.layout == "paper" {
             Layout::Paper

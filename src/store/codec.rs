@@ -119,6 +119,15 @@ pub fn compression_name(code: u16) -> String {
     }
 }
 
+/// Name of a level's codec: [`compression_name`], LERC's with its additional
+/// compression (`lerc_zstd`).
+pub fn level_codec_name(code: u16, lerc_extra: u32) -> String {
+    match Compression::from_codes(code, lerc_extra) {
+        Some(c) if c.is_lerc() => c.name().into(),
+        _ => compression_name(code),
+    }
+}
+
 /// Encodes one tile of one band (`width` samples per row, native byte order).
 /// `max_error` bounds |decoded - value| for the LERC codecs (0: lossless); the
 /// other codecs are lossless.
@@ -288,23 +297,20 @@ impl TileCodec {
         if self.compression == comp::LERC {
             return self.decode_lerc(stored, count);
         }
-        let owned;
-        let raw: &[u8] = match self.compression {
-            comp::NONE => stored,
+        let mut owned = match self.compression {
+            comp::NONE => None,
             comp::ADOBE_DEFLATE | comp::DEFLATE => {
                 let mut v = Vec::with_capacity(nbytes);
                 flate2::read::ZlibDecoder::new(stored)
                     .take(nbytes as u64)
                     .read_to_end(&mut v)
                     .map_err(|e| format!("deflate stream is corrupt: {e}"))?;
-                owned = v;
-                &owned
+                Some(v)
             }
-            comp::ZSTD => {
-                owned = zstd::bulk::decompress(stored, nbytes)
-                    .map_err(|e| format!("zstd stream is corrupt: {e}"))?;
-                &owned
-            }
+            comp::ZSTD => Some(
+                zstd_decompress(stored, nbytes)
+                    .map_err(|e| format!("zstd stream is corrupt: {e}"))?,
+            ),
             c => {
                 return Err(format!(
                     "compression {} is not supported",
@@ -312,21 +318,22 @@ impl TileCodec {
                 ));
             }
         };
-        if raw.len() < nbytes {
-            return Err(format!(
-                "tile holds {} bytes, {} expected",
-                raw.len(),
-                nbytes
-            ));
+        let have = owned.as_ref().map_or(stored.len(), Vec::len);
+        if have < nbytes {
+            return Err(format!("tile holds {have} bytes, {nbytes} expected"));
         }
-        let raw = &raw[..nbytes];
         if self.predictor == pred::FLOATING_POINT {
+            let raw = match &mut owned {
+                Some(v) => &mut v[..nbytes],
+                None => owned.insert(stored[..nbytes].to_vec()),
+            };
             return Ok(unpredict_float(
                 raw,
                 self.width * self.samples,
                 self.samples,
             ));
         }
+        let raw = &owned.as_deref().unwrap_or(stored)[..nbytes];
         Ok(if self.little_endian {
             raw.chunks_exact(4)
                 .map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]]))
@@ -337,6 +344,25 @@ impl TileCodec {
                 .collect()
         })
     }
+}
+
+thread_local! {
+    /// Each thread's Zstd decompression context, kept between tiles.
+    static ZSTD: std::cell::RefCell<Option<zstd::bulk::Decompressor<'static>>> =
+        const { std::cell::RefCell::new(None) };
+}
+
+/// Decompresses a Zstd frame of at most `capacity` bytes with this thread's
+/// context.
+fn zstd_decompress(stored: &[u8], capacity: usize) -> std::io::Result<Vec<u8>> {
+    ZSTD.with(|z| {
+        let mut z = z.borrow_mut();
+        let d = match &mut *z {
+            Some(d) => d,
+            None => z.insert(zstd::bulk::Decompressor::new()?),
+        };
+        d.decompress(stored, capacity)
+    })
 }
 
 impl TileCodec {
@@ -358,7 +384,7 @@ impl TileCodec {
                 &owned
             }
             spec::lerc::ADD_ZSTD => {
-                owned = zstd::bulk::decompress(stored, limit)
+                owned = zstd_decompress(stored, limit)
                     .map_err(|e| format!("zstd stream around the LERC blob is corrupt: {e}"))?;
                 &owned
             }
@@ -389,28 +415,64 @@ impl TileCodec {
     }
 }
 
-/// Undoes the floating-point predictor: rows of `row_samples` samples, differenced
-/// with a stride of `stride` bytes.
-fn unpredict_float(raw: &[u8], row_samples: usize, stride: usize) -> Vec<f32> {
+/// Undoes the floating-point predictor in place: rows of `row_samples`
+/// samples, differenced with a stride of `stride` bytes, each row's bytes
+/// regrouped most significant first.
+fn unpredict_float(raw: &mut [u8], row_samples: usize, stride: usize) -> Vec<f32> {
     let mut out = Vec::with_capacity(raw.len() / 4);
-    let mut row = vec![0u8; row_samples * 4];
-    for src in raw.chunks(row_samples * 4) {
-        let n = src.len();
-        row[..n].copy_from_slice(src);
-        for i in stride..n {
-            row[i] = row[i].wrapping_add(row[i - stride]);
+    for row in raw.chunks_mut(row_samples * 4) {
+        if stride == 1 {
+            running_sum(row);
+        } else {
+            for i in stride..row.len() {
+                row[i] = row[i].wrapping_add(row[i - stride]);
+            }
         }
-        let w = n / 4;
-        for i in 0..w {
-            out.push(f32::from_be_bytes([
-                row[i],
-                row[w + i],
-                row[2 * w + i],
-                row[3 * w + i],
-            ]));
-        }
+        let w = row.len() / 4;
+        let (b0, rest) = row.split_at(w);
+        let (b1, rest) = rest.split_at(w);
+        let (b2, b3) = rest.split_at(w);
+        out.extend(
+            b0.iter()
+                .zip(b1)
+                .zip(b2)
+                .zip(&b3[..w])
+                .map(|(((&a, &b), &c), &d)| f32::from_be_bytes([a, b, c, d])),
+        );
     }
     out
+}
+
+/// Running (wrapping) sum of `bytes` in place: the horizontal differencing of
+/// one byte a sample undone. On x86-64, 16 bytes at a time (SSE2: log-step
+/// sums within a vector, then the previous vector's last byte added).
+fn running_sum(bytes: &mut [u8]) {
+    let mut carry = 0u8;
+    #[cfg(target_arch = "x86_64")]
+    let bytes = {
+        use std::arch::x86_64::*;
+        let mut chunks = bytes.chunks_exact_mut(16);
+        for c in &mut chunks {
+            // SAFETY: SSE2 is part of every x86-64 CPU; the unaligned load and
+            // store cover exactly the 16 bytes of `c`.
+            unsafe {
+                let p = c.as_mut_ptr() as *mut __m128i;
+                let mut x = _mm_loadu_si128(p);
+                x = _mm_add_epi8(x, _mm_slli_si128::<1>(x));
+                x = _mm_add_epi8(x, _mm_slli_si128::<2>(x));
+                x = _mm_add_epi8(x, _mm_slli_si128::<4>(x));
+                x = _mm_add_epi8(x, _mm_slli_si128::<8>(x));
+                x = _mm_add_epi8(x, _mm_set1_epi8(carry as i8));
+                _mm_storeu_si128(p, x);
+                carry = (_mm_extract_epi16::<7>(x) >> 8) as u8;
+            }
+        }
+        chunks.into_remainder()
+    };
+    for b in bytes {
+        carry = carry.wrapping_add(*b);
+        *b = carry;
+    }
 }
 
 #[cfg(test)]
@@ -489,6 +551,26 @@ mod tests {
             let lossy = encode(&lattice, 256, c, 0.005).unwrap().len();
             let exact = encode(&lattice, 256, c, 0.0).unwrap().len();
             assert!(lossy * 4 < exact * 3, "{c:?}: {lossy} vs {exact}");
+        }
+    }
+
+    /// The vector running sum is the byte-by-byte one, at every length.
+    #[test]
+    fn running_sum_matches_the_plain_loop() {
+        let mut r = crate::synth::Rng::new(3);
+        for len in [0, 1, 15, 16, 17, 31, 32, 33, 1000, 1024] {
+            let v: Vec<u8> = (0..len).map(|_| r.next_u64() as u8).collect();
+            let mut fast = v.clone();
+            running_sum(&mut fast);
+            let mut acc = 0u8;
+            let plain: Vec<u8> = v
+                .iter()
+                .map(|b| {
+                    acc = acc.wrapping_add(*b);
+                    acc
+                })
+                .collect();
+            assert_eq!(fast, plain, "length {len}");
         }
     }
 
