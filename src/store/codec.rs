@@ -176,7 +176,7 @@ const F32_EXACT_INTEGERS: f32 = 16_777_216.0;
 fn encode_lerc(values: &[f32], width: usize, max_error: f64) -> Result<Vec<u8>, String> {
     use lerc::bitmask::BitMask;
     let n = values.len();
-    if width == 0 || n % width != 0 {
+    if width == 0 || !n.is_multiple_of(width) {
         return Err(format!("a LERC tile of {n} samples is not rows of {width}"));
     }
     let mut invalid = 0usize;
@@ -218,8 +218,51 @@ fn encode_lerc(values: &[f32], width: usize, max_error: f64) -> Result<Vec<u8>, 
         lerc::Precision::Lossless
     };
     let (w, h) = (width as u32, (n / width) as u32);
-    lerc::encode_borrowed(w, h, 1, 1, values, &[mask], None, precision)
-        .map_err(|e| format!("LERC encoding failed: {e}"))
+    let blob = lerc::encode_borrowed(w, h, 1, 1, values, &[mask], None, precision)
+        .map_err(|e| format!("LERC encoding failed: {e}"))?;
+    Ok(lerc_v3_as_v4(&blob).unwrap_or(blob))
+}
+
+/// A Lerc2 version 3 blob of Float32 samples, one depth, as version 4 (the
+/// version libtiff expects in TIFF, `spec::lerc::VERSION`; it warns at every
+/// other): the same tiles, the header with its depth (1), and the value range
+/// after the mask. `lerc-rs` writes the lowest version a blob needs: 3 for
+/// limited-error tiles, 6 for floating-point lossless ones (left as they are).
+/// `None` for any other blob.
+fn lerc_v3_as_v4(b: &[u8]) -> Option<Vec<u8>> {
+    let i32_at = |o: usize| Some(i32::from_le_bytes(b.get(o..o + 4)?.try_into().ok()?));
+    let f64_at = |o: usize| Some(f64::from_le_bytes(b.get(o..o + 8)?.try_into().ok()?));
+    // Version 3: magic, version, checksum, rows, columns, valid pixels, micro
+    // block size, blob size, data type, max error, min, max; then the mask's
+    // byte count and bytes.
+    const HEAD3: usize = 62;
+    const FLOAT: i32 = 6;
+    if b.get(..6)? != b"Lerc2 " || i32_at(6)? != 3 || i32_at(34)? != FLOAT {
+        return None;
+    }
+    if i32_at(30)? as usize != b.len() {
+        return None;
+    }
+    let valid = i32_at(22)?;
+    let (lo, hi) = (f64_at(46)?, f64_at(54)?);
+    let mask_end = HEAD3 + 4 + usize::try_from(i32_at(HEAD3)?).ok()?;
+    let rest = b.get(mask_end..)?;
+    let mut v = Vec::with_capacity(b.len() + 12);
+    v.extend_from_slice(&b[..22]);
+    v.extend_from_slice(&1i32.to_le_bytes());
+    v.extend_from_slice(&b[22..mask_end]);
+    // Version 4 keeps each depth's range where the values are not all one.
+    if valid > 0 && lo != hi {
+        v.extend_from_slice(&(lo as f32).to_le_bytes());
+        v.extend_from_slice(&(hi as f32).to_le_bytes());
+    }
+    v.extend_from_slice(rest);
+    let len = i32::try_from(v.len()).ok()?;
+    v[6..10].copy_from_slice(&4i32.to_le_bytes());
+    v[34..38].copy_from_slice(&len.to_le_bytes());
+    let sum = lerc::checksum::fletcher32(&v[14..]);
+    v[10..14].copy_from_slice(&sum.to_le_bytes());
+    Some(v)
 }
 
 /// TIFF floating-point predictor on rows of one sample per pixel: bytes of each row
@@ -552,6 +595,53 @@ mod tests {
             let exact = encode(&lattice, 256, c, 0.0).unwrap().len();
             assert!(lossy * 4 < exact * 3, "{c:?}: {lossy} vs {exact}");
         }
+    }
+
+    /// Limited-error blobs are written as Lerc2 version 4 (what libtiff
+    /// expects), lossless floating-point ones as version 6; both decode to what
+    /// the version-3 blob gives, for tiles full, partly empty, empty and flat.
+    #[test]
+    fn lerc_blobs_are_version_4_where_they_can_be() {
+        let n = 64 * 64;
+        let ramp: Vec<f32> = (0..n).map(|i| (i % 97) as f32 * 0.013).collect();
+        let mut holes = ramp.clone();
+        for v in holes.iter_mut().skip(1000) {
+            *v = f32::NAN;
+        }
+        let flat = vec![2.5f32; n];
+        let empty = vec![f32::NAN; n];
+        for (v, e) in [
+            (&ramp, 0.001),
+            (&holes, 0.001),
+            (&flat, 0.001),
+            (&empty, 0.001),
+        ] {
+            let blob = encode_lerc(v, 64, e).unwrap();
+            assert_eq!(lerc::decode_info(&blob).unwrap().version, 4);
+            let codec = codec_of(Compression::Lerc, 64);
+            let back = codec.decode(&blob, n).unwrap();
+            if v.iter().all(|x| !x.is_nan()) {
+                let mut plain = vec![0f32; n];
+                let v3 = lerc::encode_borrowed(
+                    64,
+                    64,
+                    1,
+                    1,
+                    v,
+                    &[lerc::bitmask::BitMask::all_valid(n)],
+                    None,
+                    lerc::Precision::Tolerance((e as f32).next_down()),
+                );
+                lerc::decode_into(&v3.unwrap(), &mut plain).unwrap();
+                assert!(back == plain, "version 4 decodes otherwise than version 3");
+            }
+            for (a, b) in v.iter().zip(&back) {
+                // The bound, plus the f32 rounding of what LERC gives back.
+                assert!(a.is_nan() && b.is_nan() || (a - b).abs() <= 0.001 + 1e-6);
+            }
+        }
+        let lossless = encode_lerc(&ramp, 64, 0.0).unwrap();
+        assert_eq!(lerc::decode_info(&lossless).unwrap().version, 6);
     }
 
     /// The vector running sum is the byte-by-byte one, at every length.
