@@ -100,7 +100,10 @@ fn lerc_gives_las_coordinates_back_on_their_lattice() {
     let lerc = part("autzen_trim.laz", "lerc.tif", Compression::LercZstd, None);
     assert_eq!(lerc.meta.codec_max_error, Some([0.005; 3]));
     assert!(lerc.meta.max_quantization_error.unwrap() > 0.005);
-    assert!(lerc.file_bytes * 4 < plain.file_bytes, "LERC is far smaller");
+    assert!(
+        lerc.file_bytes * 4 < plain.file_bytes,
+        "LERC is far smaller"
+    );
     let bands: Vec<usize> = (0..plain.bands.len()).collect();
     for level in 0..plain.levels.len() {
         let (a, b) = (
@@ -112,14 +115,22 @@ fn lerc_gives_las_coordinates_back_on_their_lattice() {
             for (x, y) in a.columns[*k].iter().zip(&b.columns[*k]) {
                 if *k < 3 {
                     // (f32 at ~600 ft from the origin: steps of 6e-5.)
-                    assert!((x - y).abs() <= 1.3e-4, "level {level} band {k}: {x} vs {y}");
+                    assert!(
+                        (x - y).abs() <= 1.3e-4,
+                        "level {level} band {k}: {x} vs {y}"
+                    );
                 } else {
                     assert_eq!(x.to_bits(), y.to_bits(), "level {level} band {k}");
                 }
             }
         }
     }
-    let narrow = part("autzen_trim.laz", "narrow.tif", Compression::Lerc, Some(0.001));
+    let narrow = part(
+        "autzen_trim.laz",
+        "narrow.tif",
+        Compression::Lerc,
+        Some(0.001),
+    );
     assert_eq!(narrow.meta.codec_max_error, Some([0.001; 3]));
     let ply = part("bun_zipper.ply", "bunny.tif", Compression::Lerc, None);
     assert_eq!(ply.meta.codec_max_error, Some([0.0; 3]));
