@@ -1,11 +1,12 @@
 #!/usr/bin/env bash
 # Bytes a point per codec next to LAZ, pyramid included: converts INPUT (LAS/LAZ)
-# with each of pcimg's codecs, then re-encodes the uncompressed part with GDAL's
-# LERC (the candidate of issue 30, not written by pcimg yet) for reference:
-# every band at once at the part's MAX_QUANTIZATION_ERROR (pyramid included),
-# and band by band with its own error bound (x y z at that bound, integer-valued
-# bands at 0.5, lossless for integers, the others lossless): gdal_translate -b
-# drops the overviews, so those rows are level 0 only.
+# with each of pcimg's codecs (the LERC ones at their default bound: half the LAS
+# scale for x y z, attributes lossless), then re-encodes the uncompressed part
+# with GDAL's LERC for reference: every band at once at the part's
+# MAX_QUANTIZATION_ERROR (pyramid included), and band by band with its own error
+# bound (x y z at that bound, integer-valued bands at 0.5, lossless for integers,
+# the others lossless): gdal_translate -b drops the overviews, so those rows are
+# level 0 only.
 #
 #   bash bench/codecs.sh [PCIMG_BINARY] [INPUT]
 #   (defaults: target/release/pcimg, fixtures/autzen_trim.laz)
@@ -24,7 +25,7 @@ row() { awk -v n="$1" -v b="$2" -v p="$points" -v l="$laz" \
   'BEGIN { printf "%-34s %10d bytes  %6.2f B/point  %5.2f x input\n", n, b, b / p, b / l }'; }
 echo "input: $INPUT, $points points"
 row "input ($(basename "$INPUT"))" "$laz"
-for c in none deflate zstd; do
+for c in none deflate zstd lerc lerc_deflate lerc_zstd; do
   [ -d "$OUT/$c" ] || "$BIN" convert "$INPUT" -o "$OUT/$c" -q --compression "$c"
   row "pcimg --compression $c" "$(du -sb "$OUT/$c" | cut -f1)"
 done

@@ -1,6 +1,7 @@
 //! Store throughput: writing 10 M points (sort + layout + pyramid + write; points in
 //! random order, and in scan order for uncompressed parts) and
-//! reading level 0 and level 2 back, uncompressed, Deflate and Zstd, from the page cache;
+//! reading level 0 and level 2 back, uncompressed, Deflate, Zstd and the LERC codecs
+//! (coordinates within 5 mm), from the page cache;
 //! and filling a part's builder from a spatial conversion's temporary region file
 //! (2.5 M points, x y z intensity: a part of `--memory 256MiB`), through decoded
 //! `f64` columns against straight from the packed records.
@@ -28,10 +29,19 @@ fn bench(c: &mut Criterion) {
     let mut g = c.benchmark_group("store");
     g.sample_size(10).measurement_time(Duration::from_secs(20));
     g.throughput(Throughput::Elements(n));
-    for comp in [Compression::None, Compression::Deflate, Compression::Zstd] {
+    for comp in [
+        Compression::None,
+        Compression::Deflate,
+        Compression::Zstd,
+        Compression::Lerc,
+        Compression::LercDeflate,
+        Compression::LercZstd,
+    ] {
         let path = dir.path().join(format!("{}.tif", comp.name()));
         let opts = WriteOptions {
             compression: comp,
+            // LERC: coordinates within 5 mm, as a LAS file's of scale 0.01.
+            coord_max_error: [0.005; 3],
             ..Default::default()
         };
         write_part(&path, &cloud, &opts).unwrap();

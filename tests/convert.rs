@@ -78,6 +78,70 @@ fn entries(dir: &Path) -> Vec<String> {
     v
 }
 
+/// LERC on a LAS input: coordinates within half the LAS scale by default
+/// (`CODEC_MAX_ERROR`), and in fact back on the LAS lattice (within f32
+/// rounding of the uncompressed part's values); every attribute, whole
+/// numbers and GPS time alike, bit for bit; `--max-error` narrows the bound,
+/// and a non-LAS input is lossless.
+#[test]
+fn lerc_gives_las_coordinates_back_on_their_lattice() {
+    let dir = tempfile::tempdir().unwrap();
+    let part = |input: &str, name: &str, c: Compression, e: Option<f64>| {
+        let out = dir.path().join(name);
+        let o = convert::ConvertOptions {
+            compression: c,
+            max_error: e,
+            ..common::convert_options(out.clone(), 1 << 30)
+        };
+        convert::convert(&fixture(input), &o, &Quiet).unwrap();
+        Dataset::open(&out).unwrap().parts.remove(0)
+    };
+    let plain = part("autzen_trim.laz", "none.tif", Compression::None, None);
+    let lerc = part("autzen_trim.laz", "lerc.tif", Compression::LercZstd, None);
+    assert_eq!(lerc.meta.codec_max_error, Some([0.005; 3]));
+    assert!(lerc.meta.max_quantization_error.unwrap() > 0.005);
+    assert!(
+        lerc.file_bytes * 4 < plain.file_bytes,
+        "LERC is far smaller"
+    );
+    let bands: Vec<usize> = (0..plain.bands.len()).collect();
+    for level in 0..plain.levels.len() {
+        let (a, b) = (
+            plain.read_level(level, &bands).unwrap(),
+            lerc.read_level(level, &bands).unwrap(),
+        );
+        assert_eq!(a.len(), b.len());
+        for k in &bands {
+            for (x, y) in a.columns[*k].iter().zip(&b.columns[*k]) {
+                if *k < 3 {
+                    // (f32 at ~600 ft from the origin: steps of 6e-5.)
+                    assert!(
+                        (x - y).abs() <= 1.3e-4,
+                        "level {level} band {k}: {x} vs {y}"
+                    );
+                } else {
+                    assert_eq!(x.to_bits(), y.to_bits(), "level {level} band {k}");
+                }
+            }
+        }
+    }
+    let narrow = part(
+        "autzen_trim.laz",
+        "narrow.tif",
+        Compression::Lerc,
+        Some(0.001),
+    );
+    assert_eq!(narrow.meta.codec_max_error, Some([0.001; 3]));
+    let ply = part("bun_zipper.ply", "bunny.tif", Compression::Lerc, None);
+    assert_eq!(ply.meta.codec_max_error, Some([0.0; 3]));
+    let ply_plain = part("bun_zipper.ply", "bunny-none.tif", Compression::None, None);
+    let (a, b) = (
+        ply_plain.read_level(0, &[0, 1, 2]).unwrap(),
+        ply.read_level(0, &[0, 1, 2]).unwrap(),
+    );
+    assert!(a.columns == b.columns, "lossless without a lattice");
+}
+
 #[test]
 fn real_samples_convert_with_reference_counts_and_bounds() {
     let dir = tempfile::tempdir().unwrap();

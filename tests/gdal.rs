@@ -237,6 +237,97 @@ fn gdal_decodes_every_pixel_of_every_level() {
     }
 }
 
+/// LERC parts (each band's tile its own blob, as GDAL writes `-co
+/// COMPRESS=LERC*` with `INTERLEAVE=BAND`): GDAL decodes every level to our
+/// reader's values, bit for bit, and those are the uncompressed part's:
+/// coordinates within the part's CODEC_MAX_ERROR (plus f32 rounding),
+/// attributes (whole numbers and floats) exactly.
+#[test]
+fn gdal_decodes_lerc_parts_like_our_reader() {
+    if !gdal() {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let n = 140_000;
+    let cloud = common::random_cloud(n, 42, 0);
+    let plain = dir.path().join("plain.tif");
+    write_part(&plain, &cloud, &WriteOptions::default()).unwrap();
+    let plain = Part::open(&plain).unwrap();
+    let e = 0.005;
+    let g = pcimg::store::zorder::Geometry::for_points(n as u64);
+    assert!(g.levels() >= 2, "the test wants an overview");
+    for c in [
+        Compression::Lerc,
+        Compression::LercDeflate,
+        Compression::LercZstd,
+    ] {
+        let path = dir.path().join(format!("{}.tif", c.name()));
+        let opts = WriteOptions {
+            compression: c,
+            coord_max_error: [e; 3],
+            ..Default::default()
+        };
+        let s = write_part(&path, &cloud, &opts).unwrap();
+        assert!(
+            s.max_quantization_error >= e,
+            "{c:?}: the bound includes LERC's"
+        );
+        let part = Part::open(&path).unwrap();
+        assert_eq!(part.meta.codec_max_error, Some([e; 3]));
+        let info = run("gdalinfo", &[path.to_str().unwrap()]);
+        assert!(info.contains("COMPRESSION=LERC"), "{c:?}: {info}");
+        // Limited-error tiles (x y z here) carry the LERC version libtiff
+        // expects: no warning. (Lossless floating-point ones, this cloud's
+        // attributes, need version 6: GDAL reads them with a warning.)
+        let x = dir.path().join(format!("x-{}.tif", c.name()));
+        let out = Command::new("gdal_translate")
+            .args(["-b", "1", "-b", "2", "-b", "3"])
+            .args([&path, &x])
+            .output()
+            .unwrap();
+        let said = String::from_utf8_lossy(&out.stderr);
+        assert!(
+            out.status.success() && !said.contains("Warning"),
+            "{c:?}: {said}"
+        );
+        for level in 0..g.levels() {
+            let raw = dir.path().join(format!("l{level}-{}.bin", c.name()));
+            let mut opts = vec!["-of", "ENVI", "-ot", "Float32"];
+            let ovr = (level as i64 - 1).to_string();
+            if level > 0 {
+                opts.extend(["-ovr", ovr.as_str()]);
+            }
+            translate(&path, &raw, &opts);
+            let bytes = std::fs::read(&raw).unwrap();
+            let side = g.size(level) as usize;
+            assert_eq!(bytes.len(), 4 * 5 * side * side, "{c:?} level {level}");
+            let bands: Vec<usize> = (0..5).collect();
+            let ours = part.read_level(level, &bands).unwrap();
+            let before = plain.read_level(level, &bands).unwrap();
+            let points = g.level_points(level) as usize;
+            assert_eq!(ours.len(), points);
+            for r in 0..points {
+                let (px, py) = z_pixel(r as u64);
+                for band in 0..5 {
+                    let at = 4 * (band * side * side + py as usize * side + px as usize);
+                    let theirs = f32::from_ne_bytes(bytes[at..at + 4].try_into().unwrap());
+                    let (v, was) = (ours.columns[band][r], before.columns[band][r]);
+                    let at = format!("{c:?} level {level} rank {r} band {band}");
+                    if band < 3 {
+                        // LERC's bound, plus the f32 rounding of its result.
+                        let bound = e + (was.abs() * f32::EPSILON) as f64;
+                        assert!((v - was).abs() as f64 <= bound, "{at}: {v} vs {was}");
+                    } else {
+                        assert_eq!(v.to_bits(), was.to_bits(), "{at}");
+                    }
+                    // The same decoder's arithmetic: the same values.
+                    assert_eq!(theirs.to_bits(), v.to_bits(), "{at}: {theirs} vs {v}");
+                }
+            }
+        }
+    }
+}
+
 #[test]
 fn gdal_rewritten_file_still_opens_with_the_same_points() {
     if !gdal() {
@@ -534,7 +625,7 @@ fn gdal_validates_parts_as_cloud_optimized() {
         return;
     };
     let dir = tempfile::tempdir().unwrap();
-    for c in [Compression::None, Compression::Zstd] {
+    for c in [Compression::None, Compression::Zstd, Compression::LercZstd] {
         // Three levels.
         let path = write(dir.path(), &format!("{c:?}.tif"), 5 * 65_536 + 3, c);
         let out = Command::new(py)

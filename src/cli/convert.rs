@@ -35,9 +35,18 @@ pub struct Args {
     /// pass, parts in file order.
     #[arg(long, default_value = "spatial", value_parser = ["spatial", "stream"])]
     pub partition: String,
-    /// Tile compression: none (fastest to load), deflate or zstd.
-    #[arg(long, default_value = "none", value_parser = Compression::parse)]
-    pub compression: Compression,
+    /// Tile compression: none (fastest to load), deflate, zstd (lossless, with the
+    /// floating-point predictor), or lerc, lerc_zstd, lerc_deflate (LERC, as GDAL
+    /// writes it: coordinates within --max-error, attributes lossless; the
+    /// smallest files). Default: none for a local output, lerc_zstd for one in
+    /// object storage (`Compression::default_for`).
+    #[arg(long, value_parser = Compression::parse)]
+    pub compression: Option<Compression>,
+    /// LERC codecs: the largest error allowed in a coordinate, in the input's
+    /// units. Default: half a LAS file's scale factor (the coordinates come back
+    /// exactly on their lattice), lossless for other inputs.
+    #[arg(long, value_name = "UNITS", value_parser = parse_max_error)]
+    pub max_error: Option<f64>,
     /// Point layout: hilbert (Hilbert order, centroid representatives: every level
     /// a spatially even sample) or paper (as Du & Li 2009: file order, row-major
     /// image, every other row and column per level; converts about twice as fast,
@@ -233,7 +242,15 @@ fn default_output(args: &[PathBuf]) -> anyhow::Result<PathBuf> {
 }
 
 /// The conversion options the arguments give, writing to `output`.
+fn parse_max_error(s: &str) -> Result<f64, String> {
+    match s.trim().parse::<f64>() {
+        Ok(e) if e.is_finite() && e >= 0.0 => Ok(e),
+        _ => Err(format!("'{s}' is not a distance >= 0")),
+    }
+}
+
 fn options(a: &Args, output: PathBuf) -> ConvertOptions {
+    let remote = crate::remote::is_url(&output.to_string_lossy());
     let cancel = Arc::new(AtomicBool::new(false));
     {
         let c = cancel.clone();
@@ -249,7 +266,10 @@ fn options(a: &Args, output: PathBuf) -> ConvertOptions {
         } else {
             Partition::Spatial
         },
-        compression: a.compression,
+        compression: a
+            .compression
+            .unwrap_or_else(|| Compression::default_for(remote)),
+        max_error: a.max_error,
         layout: if a.layout == "paper" {
             Layout::Paper
         } else {

@@ -2,7 +2,7 @@
 //! or (with `--json`) as stable JSON for scripts.
 
 use crate::points::Bounds;
-use crate::store::codec::compression_name;
+use crate::store::codec::level_codec_name;
 use crate::store::{Dataset, Part};
 use crate::text::{bytes, count, sanitize};
 use serde::Serialize;
@@ -140,7 +140,7 @@ fn part_report(p: &Part, tiles: bool) -> PartReport {
                 tiles_with_data: l.tiles.len(),
                 points: l.points,
                 bytes: l.bytes,
-                compression: compression_name(l.compression),
+                compression: level_codec_name(l.compression, l.lerc_extra),
                 tile_index: l.indexed,
                 tile_list: tiles.then(|| {
                     l.tiles

@@ -340,6 +340,7 @@ pub fn make_plan(
                     points: one.points,
                     points_per_part: job.per_part,
                     compression: o.compression,
+                    max_error: o.max_error,
                     layout: o.layout,
                 };
                 let cells = Cells::of(&plan);
@@ -539,6 +540,7 @@ pub fn run_shard(
             force: true,
             memory: cp.memory,
             compression: cp.plan.compression,
+            max_error: cp.plan.max_error,
             layout: cp.plan.layout,
             read: cp.plan.read.clone(),
             ..o.clone()

@@ -97,6 +97,7 @@ impl<'a> Job<'a> {
         };
         let write_opts = WriteOptions {
             compression: o.compression,
+            coord_max_error: coord_max_error(o.max_error, info.coordinate_step),
             layout: o.layout,
             source: source_name(inputs),
             crs: info.crs_wkt.clone(),
@@ -351,5 +352,16 @@ impl<'a> Job<'a> {
             phases: std::mem::take(&mut self.timings.0),
             index,
         })
+    }
+}
+
+/// The LERC codecs' error bound of each coordinate: the one asked for, else
+/// half the input's lattice step (the coordinates come back on the lattice),
+/// else 0 (lossless).
+pub(crate) fn coord_max_error(asked: Option<f64>, step: Option<[f64; 3]>) -> [f64; 3] {
+    match (asked, step) {
+        (Some(e), _) => [e; 3],
+        (None, Some(s)) if s.iter().all(|v| v.is_finite() && *v > 0.0) => s.map(|v| v / 2.0),
+        _ => [0.0; 3],
     }
 }

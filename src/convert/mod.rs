@@ -54,6 +54,11 @@ pub struct ConvertOptions {
     pub memory: u64,
     pub partition: Partition,
     pub compression: Compression,
+    /// The LERC codecs: the largest error allowed in a coordinate, in source
+    /// units. `None`: half the input's coordinate step where it has one (LAS
+    /// scale factors: the coordinates come back on their lattice), else
+    /// lossless.
+    pub max_error: Option<f64>,
     pub layout: Layout,
     pub read: ReadOptions,
     /// Accept parts where f32 cannot keep 1 mm.

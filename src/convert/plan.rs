@@ -40,6 +40,10 @@ pub struct Plan {
     /// Points one part holds at most.
     pub points_per_part: u64,
     pub compression: Compression,
+    /// The LERC codecs' error bound for the coordinates (`--max-error`), when
+    /// given; else each shard takes the input's lattice (plans before it: none).
+    #[serde(default)]
+    pub max_error: Option<f64>,
     pub layout: Layout,
 }
 
@@ -116,6 +120,7 @@ impl Plan {
             points: over.points,
             points_per_part: job.per_part,
             compression: job.o.compression,
+            max_error: job.o.max_error,
             layout: job.o.layout,
         };
         (plan, cells)
@@ -185,6 +190,7 @@ mod tests {
             points: 50_000,
             points_per_part: 10_000,
             compression: Compression::Zstd,
+            max_error: Some(0.005),
             layout: Layout::Hilbert,
         };
         let again = Cells::of(&plan);

@@ -453,6 +453,7 @@ pub(crate) fn open_header(path: &Path) -> Result<Opened, IngestError> {
             file_bytes: file_len,
             notes: Vec::new(),
             metadata: Vec::new(),
+            coordinate_step: Some(scales.map(f64::abs)),
         };
         Ok(Opened {
             file,

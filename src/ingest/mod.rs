@@ -66,6 +66,10 @@ pub struct SourceInfo {
     /// Items about the source for the part's metadata, name and value
     /// (`VIEWPOINT`, `SCANS`: see `store::spec::key`).
     pub metadata: Vec<(String, String)>,
+    /// The step of the file's coordinate lattice on each axis, where the file
+    /// stores coordinates as whole multiples of one (LAS scale factors): a
+    /// lossy codec within half of it gives them back on the lattice.
+    pub coordinate_step: Option<[f64; 3]>,
 }
 
 /// How to read an input.

@@ -227,6 +227,16 @@ fn merge(infos: &[SourceInfo]) -> Result<SourceInfo, IngestError> {
         } else {
             Vec::new()
         },
+        // Every file on a lattice: the finest step on each axis.
+        coordinate_step: infos
+            .iter()
+            .map(|i| i.coordinate_step)
+            .collect::<Option<Vec<[f64; 3]>>>()
+            .map(|s| {
+                s.iter().fold([f64::INFINITY; 3], |a, b| {
+                    [0, 1, 2].map(|k| a[k].min(b[k].abs()))
+                })
+            }),
     })
 }
 
@@ -403,6 +413,7 @@ mod tests {
             file_bytes: 100,
             notes: Vec::new(),
             metadata: Vec::new(),
+            coordinate_step: None,
         }
     }
 

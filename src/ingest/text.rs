@@ -350,6 +350,7 @@ impl TextReader {
             file_bytes: data.len() as u64,
             notes: Vec::new(),
             metadata: Vec::new(),
+            coordinate_step: None,
         };
         Ok(LineReader::new(info, map, engine))
     }

@@ -277,13 +277,12 @@ fn build_nodes(
     o: &IndexOptions,
     progress: &(dyn Fn(usize) + Sync),
 ) -> Result<Vec<NodeEntry>> {
-    let compression = o
-        .compression
-        .unwrap_or(match parts[0].levels[0].compression {
-            c if c == Compression::Zstd.tiff_code() => Compression::Zstd,
-            c if c == Compression::Deflate.tiff_code() => Compression::Deflate,
-            _ => Compression::None,
-        });
+    let compression = o.compression.unwrap_or_else(|| {
+        let l = &parts[0].levels[0];
+        // (LERC nodes keep their coordinates losslessly: they are read
+        // back from parts whose values already carry the parts' bound.)
+        Compression::from_codes(l.compression, l.lerc_extra).unwrap_or(Compression::None)
+    });
     let top = |p: &Part| p.levels.last().and_then(|l| l.points).unwrap_or(0);
     let file_name = |f: &Path| f.file_name().map(|n| n.to_string_lossy().into_owned());
     let mut names: Vec<String> = files

@@ -20,6 +20,7 @@ impl Level {
             little_endian,
             width: self.tile_width as usize,
             samples,
+            lerc_extra: self.lerc_extra,
         }
     }
 }

@@ -27,6 +27,10 @@ pub struct PartMeta {
     pub source: Option<String>,
     pub crs: Option<String>,
     pub max_quantization_error: Option<f64>,
+    /// The LERC codecs' error bound of each coordinate band (`CODEC_MAX_ERROR`),
+    /// for parts written with one.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub codec_max_error: Option<[f64; 3]>,
     /// Points per classification code (`CLASS_COUNTS`), codes ascending; empty
     /// when the part has no classification band or predates the item.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
@@ -99,6 +103,10 @@ pub struct Level {
     pub tiles_down: u32,
     pub compression: u16,
     pub predictor: u16,
+    /// LERC tiles: the additional compression of each blob (`spec::lerc`; the
+    /// second value of the `LercParameters` tag, none without it).
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub lerc_extra: u32,
     pub planar_separate: bool,
     /// Points in the level, when known (pcimg's own levels).
     pub points: Option<u64>,
@@ -115,6 +123,10 @@ pub struct Level {
     /// For square power-of-two tiles: raster offset of each Z-rank in a tile.
     #[serde(skip)]
     pub(super) z_lut: Option<Arc<Vec<u32>>>,
+}
+
+fn is_zero(v: &u32) -> bool {
+    *v == 0
 }
 
 /// One part (one TIFF file), opened with headers only.
@@ -247,6 +259,10 @@ fn parse_meta(items: &BTreeMap<String, String>) -> std::result::Result<PartMeta,
         max_quantization_error: items
             .get(key::MAX_QUANTIZATION_ERROR)
             .and_then(|s| s.trim().parse().ok()),
+        codec_max_error: items
+            .get(key::CODEC_MAX_ERROR)
+            .and_then(|s| metadata::parse_f64s(s, 3, key::CODEC_MAX_ERROR).ok())
+            .map(|v| [v[0], v[1], v[2]]),
         class_counts: items
             .get(key::CLASS_COUNTS)
             .map(|s| metadata::parse_class_counts(s))
@@ -551,6 +567,18 @@ impl Part {
         }
         let compression = tiff.uint(data, ifd, tag::COMPRESSION)?.unwrap_or(1) as u16;
         let predictor = tiff.uint(data, ifd, tag::PREDICTOR)?.unwrap_or(1) as u16;
+        let lerc_extra = match tiff.uints(data, ifd, tag::LERC_PARAMETERS)? {
+            Some(p) if compression == spec::compression::LERC => match p.get(1) {
+                Some(&e) => u32::try_from(e).unwrap_or(u32::MAX),
+                None => {
+                    return Err(format!(
+                        "LercParameters holds {} value(s), 2 expected",
+                        p.len()
+                    ));
+                }
+            },
+            _ => spec::lerc::ADD_NONE,
+        };
         let level = Level {
             index: 0,
             width,
@@ -561,6 +589,7 @@ impl Part {
             tiles_down,
             compression,
             predictor,
+            lerc_extra,
             planar_separate,
             points: None,
             bytes: counts.iter().sum(),

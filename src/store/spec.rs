@@ -39,6 +39,9 @@ pub mod tag {
     pub const SAMPLE_FORMAT: u16 = 339;
     pub const GDAL_METADATA: u16 = 42112;
     pub const GDAL_NODATA: u16 = 42113;
+    /// LERC's parameters (libtiff's `TIFFTAG_LERC_PARAMETERS`): LONG[2], the LERC
+    /// version and the additional compression.
+    pub const LERC_PARAMETERS: u16 = 50674;
 }
 
 /// TIFF compression codes.
@@ -47,6 +50,19 @@ pub mod compression {
     pub const ADOBE_DEFLATE: u16 = 8;
     pub const DEFLATE: u16 = 32946;
     pub const ZSTD: u16 = 50000;
+    /// LERC (libtiff's `COMPRESSION_LERC`), parameters in [`super::tag::LERC_PARAMETERS`].
+    pub const LERC: u16 = 34887;
+}
+
+/// Values of the `LercParameters` tag (libtiff's `tif_lerc.c`).
+pub mod lerc {
+    /// The LERC version libtiff names (`LERC_VERSION_2_4`); the blobs carry
+    /// their own (Lerc2 v3 to v6, whatever each needs), which libtiff reads.
+    pub const VERSION: u32 = 4;
+    /// Additional compression of each blob: none, Deflate (zlib), Zstd.
+    pub const ADD_NONE: u32 = 0;
+    pub const ADD_DEFLATE: u32 = 1;
+    pub const ADD_ZSTD: u32 = 2;
 }
 
 /// TIFF predictor codes.
@@ -68,7 +84,14 @@ pub mod key {
     pub const BANDS: &str = "BANDS";
     pub const SOURCE: &str = "SOURCE";
     pub const CRS: &str = "CRS";
+    /// An upper bound of |value read - source value| for any coordinate, in
+    /// source units: f32 storage relative to the origin, plus the codec's bound
+    /// ([`CODEC_MAX_ERROR`]) where the codec is lossy.
     pub const MAX_QUANTIZATION_ERROR: &str = "MAX_QUANTIZATION_ERROR";
+    /// LERC parts: the error bound each coordinate band's tiles were encoded
+    /// with, `x y z` (0: lossless); attributes are always lossless. Absent for
+    /// lossless codecs.
+    pub const CODEC_MAX_ERROR: &str = "CODEC_MAX_ERROR";
     /// Points per classification code, `CODE:COUNT` pairs separated by spaces
     /// (codes ascending, absent codes left out), for parts with a
     /// `classification` band; counted when the part is written.

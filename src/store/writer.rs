@@ -28,6 +28,11 @@ use std::sync::atomic::{AtomicBool, Ordering};
 #[derive(Debug, Clone, Default)]
 pub struct WriteOptions {
     pub compression: Compression,
+    /// The LERC codecs: the largest error allowed in each coordinate band
+    /// (`x y z`, source units; 0: lossless). Attributes are always lossless.
+    /// A LAS input's is half its scale factors: the coordinates were whole
+    /// multiples of them, and come back on that lattice.
+    pub coord_max_error: [f64; 3],
     pub layout: Layout,
     /// The input's file name, recorded in the metadata.
     pub source: Option<String>,
@@ -125,6 +130,15 @@ pub fn quantization_bound(bounds: &Bounds, origin: [f64; 3]) -> f64 {
             half_ulp + 4.0 * f64::EPSILON * mag
         })
         .fold(0.0, f64::max)
+}
+
+/// The codec's error bound of each coordinate band (0 for lossless codecs).
+fn codec_bound(opts: &WriteOptions) -> [f64; 3] {
+    if opts.compression.is_lerc() {
+        opts.coord_max_error.map(|e| e.max(0.0))
+    } else {
+        [0.0; 3]
+    }
 }
 
 /// A part's attribute rows: held (interleaved, in input order), or given again by
@@ -580,6 +594,12 @@ fn metadata_xml(a: &Arranged, opts: &WriteOptions, index: &[LevelIndex]) -> Stri
         Item::dataset(key::BANDS, a.names.join(" ")),
         Item::dataset(key::MAX_QUANTIZATION_ERROR, format!("{:e}", a.max_error)),
     ];
+    if opts.compression.is_lerc() {
+        items.push(Item::dataset(
+            key::CODEC_MAX_ERROR,
+            metadata::f64s(&codec_bound(opts)),
+        ));
+    }
     if let Some(s) = &opts.source {
         items.push(Item::dataset(key::SOURCE, s.clone()));
     }
@@ -777,7 +797,17 @@ fn write(
         head_bound(part.count, &names, opts),
         out::DIRECT_ALIGN as u64,
     );
-    let a = if opts.layout == Layout::Hilbert && opts.compression == Compression::None {
+    if let Some(e) = opts
+        .coord_max_error
+        .iter()
+        .find(|e| !e.is_finite() || **e < 0.0)
+    {
+        return Err(StoreError::new(
+            path,
+            format!("the coordinates' error bound {e} is not a finite number >= 0"),
+        ));
+    }
+    let mut a = if opts.layout == Layout::Hilbert && opts.compression == Compression::None {
         let cancelled = || opts.cancelled();
         let (a, written) = sink::with_sink(&tiles, &cancelled, |sink| {
             arrange(path, part, opts.layout, &mut ph, Some(sink), tiles_at)
@@ -789,6 +819,12 @@ fn write(
     } else {
         arrange(path, part, opts.layout, &mut ph, None, tiles_at)?
     };
+    // A lossy codec adds its bound, and the f32 rounding of what it gives back,
+    // to f32's.
+    let lossy = codec_bound(opts).into_iter().fold(0.0, f64::max);
+    if lossy > 0.0 {
+        a.max_error = 2.0 * a.max_error + lossy;
+    }
     stop()?;
     if opts.release_pool {
         crate::alloc::release_pool();
@@ -829,10 +865,12 @@ fn write(
     })
 }
 
-/// A tile ready to be written: raw samples (native order) or encoded bytes.
+/// A tile ready to be written: raw samples (native order) or encoded bytes, or
+/// why it could not be encoded.
 enum Encoded {
     Raw(TileBuf),
     Bytes(Vec<u8>),
+    Failed(String),
 }
 
 /// Tiles encoded per parallel batch (bounds memory: about three batches of
@@ -848,21 +886,28 @@ fn encode_job(
     (t, raster): (usize, u32),
     group: usize,
     compression: Compression,
+    coord_max_error: [f64; 3],
 ) -> Vec<(usize, Encoded)> {
     let g = a.geometry;
     let count = g.tile_points(level, t as u64) as usize;
     let stride = 1usize << (2 * level);
     let base = t * TILE_PIXELS;
     let m = a.m;
-    let done = |buf: TileBuf| match compression {
+    let done = |b: usize, buf: TileBuf| match compression {
         Compression::None => Encoded::Raw(buf),
-        c => Encoded::Bytes(codec::encode(&buf, TILE_SIZE as usize, c)),
+        c => {
+            let e = coord_max_error.get(b).copied().unwrap_or(0.0);
+            match codec::encode(&buf, TILE_SIZE as usize, c, e) {
+                Ok(v) => Encoded::Bytes(v),
+                Err(m) => Encoded::Failed(format!("level {level} tile {t} band {}: {m}", b + 1)),
+            }
+        }
     };
     if a.layout == Layout::Paper {
         // The paper's layout: input order, row-major (`paper.rs`).
         if group < 3 {
             let buf = paper::tile_pixels(|i| a.pos[i][group], g, level, raster);
-            return vec![(group, done(buf))];
+            return vec![(group, done(group, buf))];
         }
         // The tile's rows (runs of neighbouring points, in input order), then
         // each band placed from them.
@@ -876,7 +921,7 @@ fn encode_job(
         return (0..m)
             .map(|k| {
                 let buf = scatter_tile(&pixels, pixels.len(), |j| rows[j * m + k]);
-                (3 + k, done(buf))
+                (3 + k, done(3 + k, buf))
             })
             .collect();
     }
@@ -890,7 +935,7 @@ fn encode_job(
     }
     hilbert_bands(lut, count, group, |i| pos[at(i)], &rows, m)
         .into_iter()
-        .map(|(b, buf)| (b, done(buf)))
+        .map(|(b, buf)| (b, done(b, buf)))
         .collect()
 }
 
@@ -936,11 +981,14 @@ fn directory(
     if level > 0 {
         d.push((tag::NEW_SUBFILE_TYPE, Value::Long(vec![1])));
     }
-    if opts.compression != Compression::None {
+    if opts.compression.predictor() != spec::predictor::NONE {
         d.push((
             tag::PREDICTOR,
             Value::Short(vec![opts.compression.predictor()]),
         ));
+    }
+    if let Some(p) = opts.compression.lerc_parameters() {
+        d.push((tag::LERC_PARAMETERS, Value::Long(p.to_vec())));
     }
     if nb > 1 {
         d.push((tag::EXTRA_SAMPLES, Value::Short(vec![0; nb - 1])));
@@ -1080,7 +1128,7 @@ fn encode(
                 (0..jobs).into_par_iter().map(|j| {
                     let (t, group) = (j / per_tile, j % per_tile);
                     let tile = (t, tiles[t].index);
-                    encode_job(a, &lut, level, tile, group, Compression::None)
+                    encode_job(a, &lut, level, tile, group, Compression::None, [0.0; 3])
                         .into_iter()
                         .map(move |(b, e)| {
                             let Encoded::Raw(v) = e else {
@@ -1175,10 +1223,18 @@ fn encode_batches(
                     .into_par_iter()
                     .map(|(t, group)| {
                         let tile = (t, tiles[t].index);
-                        encode_job(a, lut, level, tile, group, compression)
-                            .into_iter()
-                            .map(|(b, e)| (t, b, e))
-                            .collect()
+                        encode_job(
+                            a,
+                            lut,
+                            level,
+                            tile,
+                            group,
+                            compression,
+                            opts.coord_max_error,
+                        )
+                        .into_iter()
+                        .map(|(b, e)| (t, b, e))
+                        .collect()
                     })
                     .collect();
                 let batch: Vec<(usize, usize, Encoded)> = encoded.into_iter().flatten().collect();
@@ -1195,6 +1251,7 @@ fn encode_batches(
                 let bytes: &[u8] = match e {
                     Encoded::Raw(v) => bytemuck::cast_slice(&v[..]),
                     Encoded::Bytes(v) => v,
+                    Encoded::Failed(m) => return Err(std::io::Error::other(m.clone())),
                 };
                 let r = tiles[*t].index as usize;
                 offsets[b * per_band + r] = w.stream_position()?;

@@ -182,6 +182,7 @@ pub fn options(rng: &mut Rng, ext: &str, output: &Path) -> ConvertOptions {
             Partition::Spatial
         },
         compression: [Compression::None, Compression::Deflate][below(rng, 2) as usize],
+        max_error: None,
         layout: if below(rng, 4) == 0 {
             Layout::Paper
         } else {

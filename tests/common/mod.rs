@@ -86,6 +86,7 @@ pub fn convert_options(output: std::path::PathBuf, memory: u64) -> pcimg::conver
         memory,
         partition: pcimg::convert::Partition::Spatial,
         compression: pcimg::store::Compression::None,
+        max_error: None,
         layout: pcimg::store::Layout::Hilbert,
         read: pcimg::ingest::ReadOptions::default(),
         allow_lossy: false,

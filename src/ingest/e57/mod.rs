@@ -136,6 +136,7 @@ pub fn open(path: &Path, opts: &ReadOptions) -> Result<Box<dyn PointReader>, Ing
             crate::store::spec::key::SCANS.to_string(),
             scans_json(&scans),
         )],
+        coordinate_step: None,
     };
     Ok(Box::new(E57Input {
         info,

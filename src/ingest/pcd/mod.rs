@@ -233,6 +233,7 @@ pub fn open(path: &Path, opts: &ReadOptions) -> Result<Box<dyn PointReader>, Ing
         file_bytes: map.len() as u64,
         notes: plan.notes.clone(),
         metadata,
+        coordinate_step: None,
     };
     // Offsets only matter for values f32 cannot hold near 65536 and beyond.
     let wide = plan.elems.iter().any(|e| {

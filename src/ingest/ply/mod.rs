@@ -338,6 +338,7 @@ pub fn open(path: &Path, opts: &ReadOptions) -> Result<Box<dyn PointReader>, Ing
         file_bytes: map.len() as u64,
         notes: Vec::new(),
         metadata: Vec::new(),
+        coordinate_step: None,
     };
     if header.encoding == Encoding::Ascii {
         return ascii::open(path, opts, map, &header, plan, info);
