@@ -14,6 +14,7 @@ mod output;
 pub mod partition;
 mod plan;
 mod sample;
+pub mod upload;
 mod scan;
 pub mod spill;
 mod write;
@@ -66,6 +67,22 @@ pub struct ConvertOptions {
     pub sample_points: u64,
     /// How the parts' uncompressed tile data is written.
     pub io: store::TileIo,
+    /// Called with each part's path as soon as it is written (complete, under
+    /// its final name in the staging directory): an upload to object storage.
+    pub on_part: Option<PartHook>,
+}
+
+/// What is done with each part as soon as it is written ([`ConvertOptions::on_part`]):
+/// text to add to the part's progress line, or an error that stops the conversion.
+#[derive(Clone)]
+pub struct PartHook(
+    pub Arc<dyn Fn(&Path) -> anyhow::Result<String> + Send + Sync + std::panic::RefUnwindSafe>,
+);
+
+impl std::fmt::Debug for PartHook {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str("PartHook")
+    }
 }
 
 /// Receives progress; the command line draws bars from it.
