@@ -426,14 +426,15 @@ fn an_interrupted_upload_leaves_nothing_under_the_prefix() {
     let mut seen = String::new();
     {
         use std::io::BufRead;
+        let mut sent = false;
         for line in std::io::BufReader::new(stderr).lines() {
             let line = line.unwrap();
             seen.push_str(&line);
             seen.push('\n');
-            if line.contains("part 1 written") {
+            if !sent && line.contains("part 1 written") {
                 // SAFETY: a signal to our own child, by its id.
                 unsafe { libc::kill(child.id() as i32, libc::SIGINT) };
-                break;
+                sent = true;
             }
         }
     }
@@ -441,6 +442,12 @@ fn an_interrupted_upload_leaves_nothing_under_the_prefix() {
     assert!(
         !out.status.success(),
         "the conversion finished before the interrupt reached it:\n{seen}"
+    );
+    assert!(
+        seen.contains("part 1 written") && seen.contains("uploading")
+            && seen.contains("removing what was uploaded")
+            && seen.contains("interrupted"),
+        "{seen}"
     );
     assert_eq!(
         weed.list("cut.pcimg").unwrap(),

@@ -131,6 +131,8 @@ impl Remote {
     /// tools are (`AWS_*` with `AWS_ENDPOINT`/`AWS_ENDPOINT_URL` and
     /// `AWS_ALLOW_HTTP` for S3-compatible servers, `GOOGLE_*`, `AZURE_*`).
     pub fn open(url: &str) -> Result<Remote, String> {
+        // The client is made here: TLS (ring) must be installed first.
+        let _ = runtime();
         let trimmed = url.trim_end_matches('/');
         let u = url::Url::parse(trimmed).map_err(|e| format!("{trimmed}: not a URL: {e}"))?;
         let fail = |e: object_store::Error| format!("{trimmed}: {}", explain(&e));
