@@ -250,14 +250,18 @@ impl RemoteFile {
         }
         // Then the disk cache.
         if !missing.is_empty() && super::disk::enabled() {
-            let mut c = cache().lock().unwrap_or_else(|p| p.into_inner());
+            let mut found = Vec::new();
             for (slot, r) in out.iter_mut().zip(ranges) {
                 if slot.is_none()
                     && let Some(b) = super::disk::get(url, &etag, r)
                 {
-                    c.put(key(r), b.clone());
+                    found.push((key(r), b.clone()));
                     *slot = Some(b);
                 }
+            }
+            let mut c = cache().lock().unwrap_or_else(|p| p.into_inner());
+            for (k, b) in found {
+                c.put(k, b);
             }
             missing = ranges
                 .iter()
