@@ -17,10 +17,11 @@ cd "$(dirname "$0")/.."
 POINTS=${POINTS:-200000000}
 MEMORY=${MEMORY:-256MiB}
 REPS=${REPS:-5}
+COMPRESSION=${COMPRESSION:-zstd}
 DELAY_MS=${DELAY_MS:-50}
 DIR=${DIR:-/tmp/pcimg-remote-bench}
 BIN=$PWD/target/release/pcimg
-cargo build --release -q
+[ "${BUILD:-1}" = 0 ] || cargo build --release -q
 rm -rf "$DIR"
 mkdir -p "$DIR"
 echo "machine: $(nproc) cores, $(free -g | awk '/Mem:/ {print $2}') GiB; $(date -u +%FT%TZ); $(weed version 2>&1 | head -1)"
@@ -95,11 +96,11 @@ t0=$(date +%s.%N)
 "$BIN" synth -n "$POINTS" --order scan -o "$DIR/in.las" >/dev/null
 echo "synth: $(echo "$(date +%s.%N) - $t0" | bc) s, $(du -h "$DIR/in.las" | cut -f1)"
 t0=$(date +%s.%N)
-"$BIN" convert "$DIR/in.las" -o "$DIR/local.pcimg" --memory "$MEMORY" --compression zstd -q
+"$BIN" convert "$DIR/in.las" -o "$DIR/local.pcimg" --memory "$MEMORY" --compression "$COMPRESSION" -q
 echo "convert (local): $(echo "$(date +%s.%N) - $t0" | bc) s, $(du -sh "$DIR/local.pcimg" | cut -f1), $(ls "$DIR/local.pcimg"/part-*.tif | wc -l) parts"
 t0=$(date +%s.%N)
 AWS_ENDPOINT=$direct TMPDIR=$DIR "$BIN" convert "$DIR/in.las" -o s3://bench/city.pcimg \
-  --memory "$MEMORY" --compression zstd -q 2> "$DIR/up.txt" || { cat "$DIR/up.txt"; exit 1; }
+  --memory "$MEMORY" --compression "$COMPRESSION" -q 2> "$DIR/up.txt" || { cat "$DIR/up.txt"; exit 1; }
 echo "convert -o s3:// (direct, no added latency): $(echo "$(date +%s.%N) - $t0" | bc) s; $(grep network "$DIR/up.txt")"
 rm -f "$DIR/in.las"
 

@@ -245,7 +245,10 @@ fn uploads_arrive_whole_and_an_interrupted_one_leaves_nothing() {
     std::thread::sleep(Duration::from_millis(150));
     cancel.store(true, Ordering::Relaxed);
     let e = up.wait().unwrap_err();
-    assert!(e.contains("memory://b/up/big.bin") && e.contains("interrupted"), "{e}");
+    assert!(
+        e.contains("memory://b/up/big.bin") && e.contains("interrupted"),
+        "{e}"
+    );
     assert!(t.elapsed() < Duration::from_secs(3), "{:?}", t.elapsed());
     let v: Vec<object_store::ObjectMeta> = rt
         .block_on(futures_util::TryStreamExt::try_collect(slow.list(None)))

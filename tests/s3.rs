@@ -213,7 +213,11 @@ fn local_files(dir: &Path) -> Vec<(String, u64)> {
             if p.is_dir() {
                 stack.push(p);
             } else {
-                let rel = p.strip_prefix(dir).unwrap().to_string_lossy().replace('\\', "/");
+                let rel = p
+                    .strip_prefix(dir)
+                    .unwrap()
+                    .to_string_lossy()
+                    .replace('\\', "/");
                 out.push((rel, std::fs::metadata(&p).unwrap().len()));
             }
         }
@@ -350,8 +354,14 @@ fn a_dataset_converted_to_s3_reads_back_as_the_local_one() {
     // every range from the disk.
     assert_eq!(cold.2, 0, "nothing on disk at first: {cold:?}");
     assert!(warm.2 > 0, "ranges served from the disk: {warm:?}");
-    assert_eq!(warm.1, index_bytes, "only the index's bytes came over the network: {warm:?}");
-    assert!(warm.0 < cold.0, "fewer requests warm {warm:?} than cold {cold:?}");
+    assert_eq!(
+        warm.1, index_bytes,
+        "only the index's bytes came over the network: {warm:?}"
+    );
+    assert!(
+        warm.0 < cold.0,
+        "fewer requests warm {warm:?} than cold {cold:?}"
+    );
     // A changed object under the same name is never served from the cache: its
     // ETag differs, so its ranges are fetched again.
 
@@ -376,7 +386,10 @@ fn a_dataset_converted_to_s3_reads_back_as_the_local_one() {
     );
     // A dataset that is not there: 404 / not found, naming the index's URL.
     let missing = format!("s3://{BUCKET}/nothing.pcimg");
-    let e = err(&weed.pcimg(&["info", &missing]), "info of a missing dataset");
+    let e = err(
+        &weed.pcimg(&["info", &missing]),
+        "info of a missing dataset",
+    );
     assert!(
         e.contains(&format!("{missing}/pcimg-index.json")) && e.contains("not found"),
         "{e}"
@@ -405,7 +418,10 @@ fn a_dataset_converted_to_s3_reads_back_as_the_local_one() {
     let from_s3 = raw(&vsi, &d.join("s3.raw"));
     let from_disk = raw(local.join(part).to_str().unwrap(), &d.join("disk.raw"));
     assert!(!from_s3.is_empty());
-    assert!(from_s3 == from_disk, "band values through /vsis3/ differ from the local part's");
+    assert!(
+        from_s3 == from_disk,
+        "band values through /vsis3/ differ from the local part's"
+    );
 }
 
 #[test]
@@ -415,7 +431,17 @@ fn an_interrupted_upload_leaves_nothing_under_the_prefix() {
     let input = synth(dir.path(), 600_000);
     let url = format!("s3://{BUCKET}/cut.pcimg");
     let mut child = weed
-        .pcimg_with(SECRET, &["convert", input.to_str().unwrap(), "-o", &url, "--memory", "1MiB"])
+        .pcimg_with(
+            SECRET,
+            &[
+                "convert",
+                input.to_str().unwrap(),
+                "-o",
+                &url,
+                "--memory",
+                "1MiB",
+            ],
+        )
         .env("TMPDIR", dir.path())
         .stdout(Stdio::piped())
         .stderr(Stdio::piped())
@@ -444,7 +470,8 @@ fn an_interrupted_upload_leaves_nothing_under_the_prefix() {
         "the conversion finished before the interrupt reached it:\n{seen}"
     );
     assert!(
-        seen.contains("part 1 written") && seen.contains("uploading")
+        seen.contains("part 1 written")
+            && seen.contains("uploading")
             && seen.contains("removing what was uploaded")
             && seen.contains("interrupted"),
         "{seen}"

@@ -474,7 +474,12 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         writeln!(out, "  {}", super::index::describe(r))?;
     }
     if let Some(r) = &remote {
-        writeln!(out, "  uploaded {} to {}", bytes(r.sent()), sanitize(&r.url))?;
+        writeln!(
+            out,
+            "  uploaded {} to {}",
+            bytes(r.sent()),
+            sanitize(&r.url)
+        )?;
     }
     if a.timings {
         writeln!(

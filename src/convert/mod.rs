@@ -14,9 +14,9 @@ mod output;
 pub mod partition;
 mod plan;
 mod sample;
-pub mod upload;
 mod scan;
 pub mod spill;
+pub mod upload;
 mod write;
 
 use job::Job;

@@ -74,14 +74,14 @@ impl RemoteOutput {
         let stamp = std::time::SystemTime::now()
             .duration_since(std::time::UNIX_EPOCH)
             .map_or(0, |d| d.as_nanos());
-        let dir = std::env::temp_dir().join(format!(
-            "pcimg-upload-{}-{stamp}",
-            std::process::id()
-        ));
+        let dir = std::env::temp_dir().join(format!("pcimg-upload-{}-{stamp}", std::process::id()));
         std::fs::create_dir_all(&dir)
             .map_err(|e| anyhow!("{}: cannot create: {e}", dir.display()))?;
         let scratch = super::spill::TempDir { path: dir };
-        let uploader = Arc::new(Uploader::new(remote.clone(), Arc::new(AtomicBool::new(false))));
+        let uploader = Arc::new(Uploader::new(
+            remote.clone(),
+            Arc::new(AtomicBool::new(false)),
+        ));
         let out = RemoteOutput {
             url: url.to_string(),
             local: scratch.path.join(name),
@@ -170,7 +170,9 @@ impl RemoteOutput {
             bail!("{e}: cannot remove an object the dataset does not hold");
         }
         if let Some((path, name)) = index {
-            self.uploader.put_now(&path, &name).map_err(|m| anyhow!(m))?;
+            self.uploader
+                .put_now(&path, &name)
+                .map_err(|m| anyhow!(m))?;
         }
         progress.advance(self.uploader.sent(), 0);
         Ok(())

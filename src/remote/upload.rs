@@ -101,7 +101,10 @@ impl Uploader {
 
     /// Uploads not finished yet.
     pub fn pending(&self) -> usize {
-        lock(&self.tasks).values().filter(|t| !t.is_finished()).count()
+        lock(&self.tasks)
+            .values()
+            .filter(|t| !t.is_finished())
+            .count()
     }
 
     /// Waits for every upload started; the first error if any failed.
@@ -115,8 +118,9 @@ impl Uploader {
                         lock(&self.error).get_or_insert(e);
                     }
                     Err(e) => {
-                        lock(&self.error)
-                            .get_or_insert_with(|| format!("{}: upload failed: {e}", self.remote.url_of(&name)));
+                        lock(&self.error).get_or_insert_with(|| {
+                            format!("{}: upload failed: {e}", self.remote.url_of(&name))
+                        });
                     }
                 }
             }
