@@ -255,3 +255,40 @@ fn uploads_arrive_whole_and_an_interrupted_one_leaves_nothing() {
         .unwrap();
     assert!(v.is_empty(), "{v:?}");
 }
+
+#[test]
+fn a_queued_upload_survives_its_directory_being_moved() {
+    // The conversion publishes (renames) its staging directory while uploads of
+    // its last parts still wait their turn: each file is opened when queued.
+    use pcimg::remote::upload::Uploader;
+    use std::sync::atomic::AtomicBool;
+    let dir = tempfile::tempdir().unwrap();
+    let stage = dir.path().join("stage");
+    std::fs::create_dir(&stage).unwrap();
+    let slow: Arc<dyn ObjectStore> = Arc::new(ThrottledStore::new(
+        InMemory::new(),
+        ThrottleConfig {
+            wait_put_per_call: Duration::from_millis(150),
+            ..Default::default()
+        },
+    ));
+    let remote = Arc::new(Remote::with_store(slow.clone(), "ds", "memory://b/ds"));
+    let up = Uploader::new(remote, Arc::new(AtomicBool::new(false)));
+    let mut want = Vec::new();
+    for i in 0..8 {
+        let p = stage.join(format!("part-{i:05}.tif"));
+        want.push(noise(&p, 5000 + i, i as u64));
+        up.start(&p, &format!("part-{i:05}.tif")).unwrap();
+    }
+    std::fs::rename(&stage, dir.path().join("published")).unwrap();
+    up.wait().unwrap();
+    let rt = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()
+        .unwrap();
+    for (i, w) in want.iter().enumerate() {
+        let loc = object_store::path::Path::from(format!("ds/part-{i:05}.tif"));
+        let got = rt.block_on(async { slow.get(&loc).await.unwrap().bytes().await.unwrap() });
+        assert_eq!(got.as_ref(), &w[..]);
+    }
+}

@@ -75,9 +75,10 @@ pub struct ConvertOptions {
 /// What is done with each part as soon as it is written ([`ConvertOptions::on_part`]):
 /// text to add to the part's progress line, or an error that stops the conversion.
 #[derive(Clone)]
-pub struct PartHook(
-    pub Arc<dyn Fn(&Path) -> anyhow::Result<String> + Send + Sync + std::panic::RefUnwindSafe>,
-);
+pub struct PartHook(pub Arc<PartFn>);
+
+/// The function a [`PartHook`] calls with a written part's path.
+pub type PartFn = dyn Fn(&Path) -> anyhow::Result<String> + Send + Sync + std::panic::RefUnwindSafe;
 
 impl std::fmt::Debug for PartHook {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {

@@ -83,13 +83,17 @@ impl Uploader {
             self.files.clone(),
             self.error.clone(),
         );
+        // Opened now: the conversion may move its directory (publishing it)
+        // before this upload's turn comes; the open file stays readable.
+        let shown = crate::text::sanitize(&local.display().to_string());
+        let file = std::fs::File::open(local).map_err(|e| format!("{shown}: cannot open: {e}"))?;
         let (local, name2) = (local.to_path_buf(), name.to_string());
         let task = super::runtime().spawn(async move {
             if let Some(b) = before {
                 let _ = b.await;
             }
             let _permit = files.acquire_owned().await.map_err(|e| e.to_string())?;
-            let r = put_file(&remote, &local, &name2, &cancel, &sent).await;
+            let r = put_file(&remote, file, &local, &name2, &cancel, &sent).await;
             if let Err(e) = &r {
                 lock(&error).get_or_insert_with(|| e.clone());
             }
@@ -182,6 +186,7 @@ fn lock<T>(m: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
 /// or on `cancel`. The bytes uploaded.
 async fn put_file(
     remote: &Remote,
+    mut file: std::fs::File,
     local: &PathBuf,
     name: &str,
     cancel: &AtomicBool,
@@ -193,7 +198,6 @@ async fn put_file(
     if cancel.load(Ordering::Relaxed) {
         return Err(cancelled());
     }
-    let mut file = std::fs::File::open(local).map_err(|e| format!("{shown}: cannot open: {e}"))?;
     let size = file
         .metadata()
         .map_err(|e| format!("{shown}: cannot read: {e}"))?
