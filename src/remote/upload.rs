@@ -7,7 +7,7 @@ use super::{InFlight, Remote, explain};
 use object_store::{ObjectStoreExt, PutPayload, WriteMultipart};
 use std::collections::HashMap;
 use std::io::Read;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
@@ -187,7 +187,7 @@ fn lock<T>(m: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
 async fn put_file(
     remote: &Remote,
     mut file: std::fs::File,
-    local: &PathBuf,
+    local: &Path,
     name: &str,
     cancel: &AtomicBool,
     sent: &AtomicU64,
