@@ -181,3 +181,114 @@ fn remote_errors_name_the_url_and_what_to_fix() {
         "{e}"
     );
 }
+
+/// A file of `n` pseudo-random bytes.
+fn noise(path: &Path, n: usize, seed: u64) -> Vec<u8> {
+    let mut r = pcimg::synth::Rng::new(seed);
+    let v: Vec<u8> = (0..n).map(|_| (r.f64() * 256.0) as u8).collect();
+    std::fs::write(path, &v).unwrap();
+    v
+}
+
+#[test]
+fn uploads_arrive_whole_and_an_interrupted_one_leaves_nothing() {
+    use pcimg::remote::upload::{MULTIPART_ABOVE, Uploader};
+    use std::sync::atomic::AtomicBool;
+    let dir = tempfile::tempdir().unwrap();
+    let small = dir.path().join("small.bin");
+    let big = dir.path().join("big.bin");
+    let small_bytes = noise(&small, 1000, 1);
+    // Above the multipart threshold, and not a whole number of parts.
+    let big_bytes = noise(&big, MULTIPART_ABOVE as usize + 4321, 2);
+    let mem = Arc::new(InMemory::new());
+    let rt = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()
+        .unwrap();
+    let listed = |prefix: &str| -> Vec<String> {
+        use futures_util::TryStreamExt;
+        let p = object_store::path::Path::from(prefix);
+        let v: Vec<object_store::ObjectMeta> =
+            rt.block_on(mem.list(Some(&p)).try_collect()).unwrap();
+        v.into_iter().map(|m| m.location.to_string()).collect()
+    };
+    let remote = Arc::new(Remote::with_store(mem.clone(), "up", "memory://b/up"));
+    let up = Uploader::new(remote.clone(), Arc::new(AtomicBool::new(false)));
+    up.start(&small, "a/small.bin").unwrap();
+    up.start(&big, "big.bin").unwrap();
+    up.wait().unwrap();
+    assert_eq!(up.sent(), (small_bytes.len() + big_bytes.len()) as u64);
+    let get = |name: &str| {
+        let loc = object_store::path::Path::from(name);
+        rt.block_on(async { mem.get(&loc).await.unwrap().bytes().await.unwrap() })
+    };
+    assert_eq!(get("up/a/small.bin").as_ref(), &small_bytes[..]);
+    assert_eq!(get("up/big.bin").as_ref(), &big_bytes[..]);
+    // Removing what was uploaded.
+    assert!(up.remove_all().is_empty());
+    assert!(listed("up").is_empty());
+
+    // Interrupted in the middle of a slow multipart upload (each part takes
+    // 400 ms): aborted, nothing visible, the error says so.
+    let slow: Arc<dyn ObjectStore> = Arc::new(ThrottledStore::new(
+        InMemory::new(),
+        ThrottleConfig {
+            wait_put_per_call: Duration::from_millis(400),
+            ..Default::default()
+        },
+    ));
+    let remote = Arc::new(Remote::with_store(slow.clone(), "up", "memory://b/up"));
+    let cancel = Arc::new(AtomicBool::new(false));
+    let up = Uploader::new(remote, cancel.clone());
+    let t = std::time::Instant::now();
+    up.start(&big, "big.bin").unwrap();
+    std::thread::sleep(Duration::from_millis(150));
+    cancel.store(true, Ordering::Relaxed);
+    let e = up.wait().unwrap_err();
+    assert!(
+        e.contains("memory://b/up/big.bin") && e.contains("interrupted"),
+        "{e}"
+    );
+    assert!(t.elapsed() < Duration::from_secs(3), "{:?}", t.elapsed());
+    let v: Vec<object_store::ObjectMeta> = rt
+        .block_on(futures_util::TryStreamExt::try_collect(slow.list(None)))
+        .unwrap();
+    assert!(v.is_empty(), "{v:?}");
+}
+
+#[test]
+fn a_queued_upload_survives_its_directory_being_moved() {
+    // The conversion publishes (renames) its staging directory while uploads of
+    // its last parts still wait their turn: each file is opened when queued.
+    use pcimg::remote::upload::Uploader;
+    use std::sync::atomic::AtomicBool;
+    let dir = tempfile::tempdir().unwrap();
+    let stage = dir.path().join("stage");
+    std::fs::create_dir(&stage).unwrap();
+    let slow: Arc<dyn ObjectStore> = Arc::new(ThrottledStore::new(
+        InMemory::new(),
+        ThrottleConfig {
+            wait_put_per_call: Duration::from_millis(150),
+            ..Default::default()
+        },
+    ));
+    let remote = Arc::new(Remote::with_store(slow.clone(), "ds", "memory://b/ds"));
+    let up = Uploader::new(remote, Arc::new(AtomicBool::new(false)));
+    let mut want = Vec::new();
+    for i in 0..8 {
+        let p = stage.join(format!("part-{i:05}.tif"));
+        want.push(noise(&p, 5000 + i, i as u64));
+        up.start(&p, &format!("part-{i:05}.tif")).unwrap();
+    }
+    std::fs::rename(&stage, dir.path().join("published")).unwrap();
+    up.wait().unwrap();
+    let rt = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()
+        .unwrap();
+    for (i, w) in want.iter().enumerate() {
+        let loc = object_store::path::Path::from(format!("ds/part-{i:05}.tif"));
+        let got = rt.block_on(async { slow.get(&loc).await.unwrap().bytes().await.unwrap() });
+        assert_eq!(got.as_ref(), &w[..]);
+    }
+}

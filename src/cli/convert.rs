@@ -21,7 +21,9 @@ pub struct Args {
     pub inputs: Vec<PathBuf>,
     /// Output: a directory of parts (default: INPUT with extension .pcimg, for a
     /// directory DIR.pcimg beside it; several files need -o), or a single .tif
-    /// when the input fits one part.
+    /// when the input fits one part. An object-storage URL (s3://bucket/city.pcimg,
+    /// gs://, az://) writes the parts in a temporary directory ($TMPDIR), uploads
+    /// each as soon as it is written and the index last.
     #[arg(short, long)]
     pub output: Option<PathBuf>,
     /// Memory budget, e.g. 256MiB or 4G (default: half the available memory). It
@@ -284,6 +286,7 @@ fn options(a: &Args, output: PathBuf) -> ConvertOptions {
         cancel,
         sample_points: convert::DEFAULT_SAMPLE_POINTS,
         io: a.io,
+        on_part: None,
     }
 }
 
@@ -353,12 +356,46 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         None => default_output(&a.inputs)?,
     };
     let inputs = input_files(&a.inputs)?;
-    let opts = options(&a, output);
+    let mut opts = options(&a, output);
+    let url = convert::upload::is_remote(&opts.output).map(str::to_string);
     if let Some(plan) = &a.plan {
+        if let Some(url) = &url {
+            anyhow::bail!(
+                "{}: a cluster plan's shards write to a shared directory; convert to object                  storage without --plan, or upload the finished dataset",
+                sanitize(url)
+            );
+        }
         return run_cluster(&a, plan, opts);
     }
+    // Object storage: written locally, uploaded part by part, the index last.
+    let remote = match &url {
+        Some(u) => Some(convert::upload::RemoteOutput::prepare(
+            u,
+            a.force,
+            opts.cancel.clone(),
+        )?),
+        None => None,
+    };
+    if let Some(r) = &remote {
+        opts.output = r.local.clone();
+        opts.on_part = Some(r.hook());
+    }
     let bars = Bars::new(a.quiet);
-    let result = convert::convert_files(&inputs, &opts, &bars);
+    let mut result = convert::convert_files(&inputs, &opts, &bars);
+    if let Some(r) = &remote {
+        result = result.and_then(|mut s| {
+            r.finish(&bars)?;
+            s.output = PathBuf::from(&r.url);
+            Ok(s)
+        });
+        if result.is_err() {
+            bars.note(&format!(
+                "removing what was uploaded to {}",
+                sanitize(&r.url)
+            ));
+            r.abort(&bars);
+        }
+    }
     bars.finish();
     let s = result?;
     if a.quiet && !a.timings {
@@ -455,6 +492,14 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     )?;
     if let Some(r) = &s.index {
         writeln!(out, "  {}", super::index::describe(r))?;
+    }
+    if let Some(r) = &remote {
+        writeln!(
+            out,
+            "  uploaded {} to {}",
+            bytes(r.sent()),
+            sanitize(&r.url)
+        )?;
     }
     if a.timings {
         writeln!(

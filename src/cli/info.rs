@@ -18,6 +18,8 @@ pub struct Args {
     /// Also list every tile of every level with its points and bounds.
     #[arg(long)]
     pub tiles: bool,
+    #[command(flatten)]
+    pub cache: super::remote::CacheArgs,
 }
 
 #[derive(Debug, Serialize)]
@@ -390,6 +392,7 @@ fn source_lines(o: &mut String, key: &str, value: &str) {
 }
 
 pub fn run(a: Args) -> anyhow::Result<()> {
+    a.cache.apply()?;
     let ds = Dataset::open(&a.path)?;
     if let Some(h) = &ds.hint {
         note!("{h}");

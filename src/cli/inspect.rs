@@ -53,6 +53,7 @@ pub fn no_device_select() {
 pub fn run(a: Args) -> anyhow::Result<()> {
     no_device_select();
     // The dataset first: a wrong path is the error to report, terminal or not.
+    a.view.cache.apply()?;
     let ds = Arc::new(Dataset::open(&a.view.path)?);
     if let Some(h) = &ds.hint {
         note!("{h}");

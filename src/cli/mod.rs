@@ -16,6 +16,7 @@ pub mod index;
 pub mod info;
 pub mod inspect;
 pub mod preview;
+pub mod remote;
 pub mod render;
 pub mod synth;
 pub mod turntable;
@@ -134,7 +135,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
             .ok_or_else(|| anyhow::anyhow!("give a command or a dataset path (see --help)"))?;
         return inspect::run(inspect::defaults(&path));
     };
-    match command {
+    let r = match command {
         Command::Inspect(a) => inspect::run(a),
         Command::Info(a) => info::run(a),
         Command::Convert(a) => convert::run(a),
@@ -144,7 +145,9 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Preview(a) => preview::run(a),
         Command::Synth(a) => synth::run(a),
         Command::Doctor(a) => doctor::run(a),
-    }
+    };
+    remote::print_stats_if_asked();
+    r
 }
 
 #[cfg(test)]

@@ -22,6 +22,7 @@ pub struct Args {
 
 pub fn run(a: Args) -> anyhow::Result<()> {
     // The dataset first: a wrong path is the error to report, terminal or not.
+    a.view.cache.apply()?;
     let ds = Arc::new(Dataset::open(&a.view.path)?);
     if let Some(h) = &ds.hint {
         note!("{h}");

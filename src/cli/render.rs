@@ -106,6 +106,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         let _ = std::fs::remove_file(&tmp);
         std::process::exit(130);
     });
+    a.view.cache.apply()?;
     let ds = Arc::new(Dataset::open(&a.view.path)?);
     if let Some(h) = &ds.hint {
         note!("{h}");

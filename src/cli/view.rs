@@ -95,6 +95,8 @@ pub struct ViewArgs {
     /// Print the camera as JSON (for --camera) on stderr.
     #[arg(long)]
     pub print_camera: bool,
+    #[command(flatten)]
+    pub cache: super::remote::CacheArgs,
 }
 
 /// Parses `--lod` (see [`lod_for`]).

@@ -180,19 +180,25 @@ impl<'a> Job<'a> {
         }
     }
 
-    /// Notes a written part: its timings and a progress line.
-    fn record(&mut self, s: PartSummary) {
+    /// Notes a written part: its timings and a progress line; hands it to the
+    /// part hook (an upload) at once.
+    fn record(&mut self, s: PartSummary) -> Result<()> {
+        let after = match &self.o.on_part {
+            Some(hook) => (hook.0)(&s.path)?,
+            None => String::new(),
+        };
         for (name, d) in &s.phases {
             self.timings.add(&format!("write: {name}"), *d);
             self.written = self.written + *d;
         }
         self.progress.note(&format!(
-            "part {} written: {} points, {}",
+            "part {} written: {} points, {}{after}",
             self.parts.len() + 1,
             crate::text::count(s.points),
             crate::text::bytes(s.bytes)
         ));
         self.parts.push(s);
+        Ok(())
     }
 
     /// Writes a part from consecutive chunks of points, whose bounds the caller
@@ -216,8 +222,7 @@ impl<'a> Job<'a> {
         let s =
             store::write_part_owned(&self.part_path(k), chunks, Some(*bounds), &self.opts_now())
                 .map_err(|e| self.public(e))?;
-        self.record(s);
-        Ok(())
+        self.record(s)
     }
 
     /// Writes one set of columns as a part.
@@ -243,8 +248,7 @@ impl<'a> Job<'a> {
         check_precision(&self.about, &bounds, origin, k, self.o, self.as_file)?;
         let s = store::write_part_built(&self.part_path(k), b, &self.opts_now())
             .map_err(|e| self.public(e))?;
-        self.record(s);
-        Ok(())
+        self.record(s)
     }
 
     /// The builder of a part collected while reading, around the centre of the

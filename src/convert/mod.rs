@@ -16,6 +16,7 @@ mod plan;
 mod sample;
 mod scan;
 pub mod spill;
+pub mod upload;
 mod write;
 
 use job::Job;
@@ -71,6 +72,23 @@ pub struct ConvertOptions {
     pub sample_points: u64,
     /// How the parts' uncompressed tile data is written.
     pub io: store::TileIo,
+    /// Called with each part's path as soon as it is written (complete, under
+    /// its final name in the staging directory): an upload to object storage.
+    pub on_part: Option<PartHook>,
+}
+
+/// What is done with each part as soon as it is written ([`ConvertOptions::on_part`]):
+/// text to add to the part's progress line, or an error that stops the conversion.
+#[derive(Clone)]
+pub struct PartHook(pub Arc<PartFn>);
+
+/// The function a [`PartHook`] calls with a written part's path.
+pub type PartFn = dyn Fn(&Path) -> anyhow::Result<String> + Send + Sync + std::panic::RefUnwindSafe;
+
+impl std::fmt::Debug for PartHook {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str("PartHook")
+    }
 }
 
 /// Receives progress; the command line draws bars from it.

@@ -1,7 +1,8 @@
 //! One object read by byte ranges: nearby ranges merged into one request, the
 //! merged requests sent concurrently, the bytes kept in a process-wide LRU cache
 //! keyed by URL, ETag and range (a changed object is never served stale: every
-//! ranged request after the first is conditional on the ETag first seen).
+//! ranged request after the first is conditional on the ETag first seen), and
+//! optionally on disk (`disk.rs`).
 
 use super::{InFlight, Remote, explain};
 use bytes::Bytes;
@@ -168,13 +169,57 @@ impl RemoteFile {
 
     pub async fn read_ranges_async(&self, ranges: &[Range<u64>]) -> Result<Vec<Bytes>, String> {
         let url = self.url();
+        // With a disk cache that saw this object before: one HEAD tells whether
+        // it is unchanged (its ETag), and the ranges come from the disk.
+        if self.seen.get().is_none()
+            && super::disk::enabled()
+            && super::disk::etag_hint(&url).is_some()
+        {
+            self.head().await?;
+        }
         // The first request fixes the ETag every later one is checked against.
         if self.seen.get().is_none()
             && let Some(r) = ranges.iter().find(|r| r.end > r.start)
         {
-            let _ = self.fetch_merged(&url, std::slice::from_ref(r)).await?;
+            let got = self.fetch_merged(&url, std::slice::from_ref(r)).await?;
+            // Kept under the ETag it revealed (it was fetched without one).
+            if let (Some(b), Some(etag)) = (got.first(), self.seen.get().and_then(|s| s.1.clone()))
+            {
+                let k = (url.clone(), etag.clone(), r.start, r.end);
+                cache()
+                    .lock()
+                    .unwrap_or_else(|p| p.into_inner())
+                    .put(k, b.clone());
+                if super::disk::enabled() {
+                    super::disk::put(&url, &etag, r, b);
+                }
+            }
+        }
+        if let Some(etag) = self.seen.get().and_then(|s| s.1.as_deref())
+            && super::disk::enabled()
+        {
+            super::disk::set_etag_hint(&url, etag);
         }
         self.fetch_merged(&url, ranges).await
+    }
+
+    /// The object's size and ETag by a HEAD request (pinning them as the first
+    /// ranged request does).
+    async fn head(&self) -> Result<(), String> {
+        use object_store::ObjectStoreExt;
+        let loc = self.remote.location(&self.name);
+        let f = InFlight::start(&self.remote);
+        match self.remote.store.head(&loc).await {
+            Ok(meta) => {
+                f.done(0, true);
+                let _ = self.seen.set((meta.size, meta.e_tag));
+                Ok(())
+            }
+            Err(e) => {
+                f.done(0, false);
+                Err(format!("{}: {}", self.url(), explain(&e)))
+            }
+        }
     }
 
     async fn fetch_merged(&self, url: &str, ranges: &[Range<u64>]) -> Result<Vec<Bytes>, String> {
@@ -203,6 +248,28 @@ impl RemoteFile {
                 out.push(hit);
             }
         }
+        // Then the disk cache.
+        if !missing.is_empty() && super::disk::enabled() {
+            let mut found = Vec::new();
+            for (slot, r) in out.iter_mut().zip(ranges) {
+                if slot.is_none()
+                    && let Some(b) = super::disk::get(url, &etag, r)
+                {
+                    found.push((key(r), b.clone()));
+                    *slot = Some(b);
+                }
+            }
+            let mut c = cache().lock().unwrap_or_else(|p| p.into_inner());
+            for (k, b) in found {
+                c.put(k, b);
+            }
+            missing = ranges
+                .iter()
+                .zip(&out)
+                .filter(|(_, s)| s.is_none())
+                .map(|(r, _)| r.clone())
+                .collect();
+        }
         if !missing.is_empty() {
             let merged = merge(&missing, MERGE_GAP);
             let got: Vec<(Range<u64>, Bytes)> = futures_util::stream::iter(merged)
@@ -221,6 +288,9 @@ impl RemoteFile {
                 let (m, b) = &got[i];
                 let b = b.slice((r.start - m.start) as usize..(r.end - m.start) as usize);
                 c.put(key(r), b.clone());
+                if super::disk::enabled() {
+                    super::disk::put(url, &etag, r, &b);
+                }
                 *slot = Some(b);
             }
         }

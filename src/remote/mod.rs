@@ -4,12 +4,14 @@
 //! and errors that name the URL and say what to fix. Ranged, cached reads of one
 //! object are `file.rs`.
 
+pub mod disk;
 pub mod file;
+pub mod upload;
 
 pub use file::RemoteFile;
 
-use object_store::ObjectStore;
 use object_store::path::Path as ObjPath;
+use object_store::{ObjectStore, ObjectStoreExt};
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, OnceLock};
 use std::time::Duration;
@@ -129,6 +131,8 @@ impl Remote {
     /// tools are (`AWS_*` with `AWS_ENDPOINT`/`AWS_ENDPOINT_URL` and
     /// `AWS_ALLOW_HTTP` for S3-compatible servers, `GOOGLE_*`, `AZURE_*`).
     pub fn open(url: &str) -> Result<Remote, String> {
+        // The client is made here: TLS (ring) must be installed first.
+        let _ = runtime();
         let trimmed = url.trim_end_matches('/');
         let u = url::Url::parse(trimmed).map_err(|e| format!("{trimmed}: not a URL: {e}"))?;
         let fail = |e: object_store::Error| format!("{trimmed}: {}", explain(&e));
@@ -237,6 +241,47 @@ impl Remote {
                 }
             }
         })
+    }
+
+    /// Whether the object `name` exists (one HEAD request).
+    pub fn exists(&self, name: &str) -> Result<bool, String> {
+        let loc = self.location(name);
+        let f = InFlight::start(self);
+        match block_on(self.store.head(&loc)) {
+            Ok(_) => {
+                f.done(0, true);
+                Ok(true)
+            }
+            Err(object_store::Error::NotFound { .. }) => {
+                f.done(0, true);
+                Ok(false)
+            }
+            Err(e) => {
+                f.done(0, false);
+                Err(format!("{}: {}", self.url_of(name), explain(&e)))
+            }
+        }
+    }
+
+    /// The name of some object under the prefix, if any (one listing request).
+    pub fn first_object(&self) -> Result<Option<String>, String> {
+        use futures_util::StreamExt;
+        let f = InFlight::start(self);
+        let mut list = self.store.list(Some(&self.prefix));
+        match block_on(list.next()) {
+            None => {
+                f.done(0, true);
+                Ok(None)
+            }
+            Some(Ok(meta)) => {
+                f.done(0, true);
+                Ok(Some(meta.location.to_string()))
+            }
+            Some(Err(e)) => {
+                f.done(0, false);
+                Err(format!("{}: {}", self.url, explain(&e)))
+            }
+        }
     }
 
     /// A ranged reader of the object `name`.

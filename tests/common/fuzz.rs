@@ -203,6 +203,7 @@ pub fn options(rng: &mut Rng, ext: &str, output: &Path) -> ConvertOptions {
         cancel: Arc::new(AtomicBool::new(false)),
         sample_points: 1000,
         io: TileIo::Buffered,
+        on_part: None,
     }
 }
 

@@ -93,5 +93,6 @@ pub fn convert_options(output: std::path::PathBuf, memory: u64) -> pcimg::conver
         cancel: std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false)),
         sample_points: pcimg::convert::DEFAULT_SAMPLE_POINTS,
         io: pcimg::store::TileIo::Auto,
+        on_part: None,
     }
 }

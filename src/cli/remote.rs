@@ -1,0 +1,47 @@
+//! Options for datasets in object storage, shared by `info`, `render`, `preview`
+//! and `inspect` (`--cache`, `--cache-size`), and the network counters printed
+//! on exit when `PCIMG_NET_STATS` is set.
+
+use std::path::PathBuf;
+
+#[derive(Debug, Clone, Default, clap::Args)]
+pub struct CacheArgs {
+    /// For a dataset in object storage: keep the fetched byte ranges in this
+    /// directory too, so that a later run reads them from the disk (keyed by URL,
+    /// ETag and range: a changed object is fetched again; a later run still asks
+    /// the server once per object whether it changed).
+    #[arg(long, value_name = "DIR")]
+    pub cache: Option<PathBuf>,
+    /// The disk cache's size limit, e.g. 500MiB or 10G (the least recently used
+    /// ranges are removed beyond it).
+    #[arg(long, value_parser = crate::convert::budget::parse_size, default_value = "2GiB", requires = "cache")]
+    pub cache_size: u64,
+}
+
+impl CacheArgs {
+    /// Turns the disk cache on when `--cache` is given.
+    pub fn apply(&self) -> anyhow::Result<()> {
+        if let Some(dir) = &self.cache {
+            crate::remote::disk::configure(dir, self.cache_size).map_err(|m| anyhow::anyhow!(m))?;
+        }
+        Ok(())
+    }
+}
+
+/// With `PCIMG_NET_STATS` set (not `0`), the network's counters on stderr:
+/// requests, bytes received, failures and the disk cache's hits (benchmarks).
+pub fn print_stats_if_asked() {
+    if std::env::var("PCIMG_NET_STATS").is_ok_and(|v| !v.is_empty() && v != "0") {
+        let s = crate::remote::stats();
+        let (hits, misses, bad) = crate::remote::disk::counters();
+        note!(
+            "pcimg: network: {} requests, {} bytes received, {} failed; disk cache: {} hits, {} misses, {} ignored",
+            s.requests,
+            s.bytes,
+            s.failed,
+            hits,
+            misses,
+            bad
+        );
+    }
+}

@@ -1,0 +1,274 @@
+//! Local files uploaded to object storage in the background: `put` for small
+//! files, a multipart upload (aborted on failure or cancel) above
+//! [`MULTIPART_ABOVE`]; every object started is remembered so that a failed or
+//! interrupted upload can delete what it wrote.
+
+use super::{InFlight, Remote, explain};
+use object_store::{ObjectStoreExt, PutPayload, WriteMultipart};
+use std::collections::HashMap;
+use std::io::Read;
+use std::path::Path;
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::{Arc, Mutex};
+use std::time::Duration;
+use tokio::task::JoinHandle;
+
+/// Files larger than this go up as multipart uploads (S3's parts are 5 MiB at
+/// least; below this size one request is cheaper than several).
+pub const MULTIPART_ABOVE: u64 = 16 << 20;
+/// Bytes of one part of a multipart upload (the file is read this much at a time).
+pub const PART_SIZE: usize = 8 << 20;
+/// Parts of one multipart upload in flight at once.
+const PARTS_AT_ONCE: usize = 4;
+/// Files uploaded at once.
+const FILES_AT_ONCE: usize = 4;
+
+/// Uploads files into a [`Remote`]'s prefix in the background.
+pub struct Uploader {
+    remote: Arc<Remote>,
+    /// Set to stop: multipart uploads abort between parts; nothing new starts.
+    cancel: Arc<AtomicBool>,
+    /// Bytes of finished uploads (and of the parts handed over so far).
+    sent: Arc<AtomicU64>,
+    files: Arc<tokio::sync::Semaphore>,
+    /// Every object an upload was started for, and its latest upload.
+    tasks: Mutex<HashMap<String, JoinHandle<Result<u64, String>>>>,
+    started: Mutex<Vec<String>>,
+    /// The first error, reported by the next call.
+    error: Arc<Mutex<Option<String>>>,
+}
+
+impl Uploader {
+    pub fn new(remote: Arc<Remote>, cancel: Arc<AtomicBool>) -> Uploader {
+        Uploader {
+            remote,
+            cancel,
+            sent: Default::default(),
+            files: Arc::new(tokio::sync::Semaphore::new(FILES_AT_ONCE)),
+            tasks: Default::default(),
+            started: Default::default(),
+            error: Default::default(),
+        }
+    }
+
+    /// Bytes uploaded so far.
+    pub fn sent(&self) -> u64 {
+        self.sent.load(Ordering::Relaxed)
+    }
+
+    /// The objects an upload was started for (in order).
+    pub fn started(&self) -> Vec<String> {
+        lock(&self.started).clone()
+    }
+
+    /// Starts uploading `local` as the object `name` (relative to the prefix)
+    /// and returns; a later upload of the same name waits for this one first.
+    /// Fails with the first error any upload met so far.
+    pub fn start(&self, local: &Path, name: &str) -> Result<(), String> {
+        if let Some(e) = lock(&self.error).clone() {
+            return Err(e);
+        }
+        let mut tasks = lock(&self.tasks);
+        let before = tasks.remove(name);
+        {
+            let mut s = lock(&self.started);
+            if !s.iter().any(|n| n == name) {
+                s.push(name.to_string());
+            }
+        }
+        let (remote, cancel, sent, files, error) = (
+            self.remote.clone(),
+            self.cancel.clone(),
+            self.sent.clone(),
+            self.files.clone(),
+            self.error.clone(),
+        );
+        // Opened now: the conversion may move its directory (publishing it)
+        // before this upload's turn comes; the open file stays readable.
+        let shown = crate::text::sanitize(&local.display().to_string());
+        let file = std::fs::File::open(local).map_err(|e| format!("{shown}: cannot open: {e}"))?;
+        let (local, name2) = (local.to_path_buf(), name.to_string());
+        let task = super::runtime().spawn(async move {
+            if let Some(b) = before {
+                let _ = b.await;
+            }
+            let _permit = files.acquire_owned().await.map_err(|e| e.to_string())?;
+            let r = put_file(&remote, file, &local, &name2, &cancel, &sent).await;
+            if let Err(e) = &r {
+                lock(&error).get_or_insert_with(|| e.clone());
+            }
+            r
+        });
+        tasks.insert(name.to_string(), task);
+        Ok(())
+    }
+
+    /// Uploads not finished yet.
+    pub fn pending(&self) -> usize {
+        lock(&self.tasks)
+            .values()
+            .filter(|t| !t.is_finished())
+            .count()
+    }
+
+    /// Waits for every upload started; the first error if any failed.
+    pub fn wait(&self) -> Result<(), String> {
+        let tasks: Vec<_> = lock(&self.tasks).drain().collect();
+        super::block_on(async {
+            for (name, t) in tasks {
+                match t.await {
+                    Ok(Ok(_)) => {}
+                    Ok(Err(e)) => {
+                        lock(&self.error).get_or_insert(e);
+                    }
+                    Err(e) => {
+                        lock(&self.error).get_or_insert_with(|| {
+                            format!("{}: upload failed: {e}", self.remote.url_of(&name))
+                        });
+                    }
+                }
+            }
+        });
+        match lock(&self.error).clone() {
+            Some(e) => Err(e),
+            None => Ok(()),
+        }
+    }
+
+    /// Uploads `local` as `name` now and waits for it (the last object).
+    pub fn put_now(&self, local: &Path, name: &str) -> Result<(), String> {
+        self.start(local, name)?;
+        self.wait()
+    }
+
+    /// Stops every upload (multipart ones are aborted) and deletes every object
+    /// an upload was started for. Returns the objects it could not delete.
+    pub fn remove_all(&self) -> Vec<String> {
+        self.cancel.store(true, Ordering::Relaxed);
+        let _ = self.wait();
+        let names = self.started();
+        self.delete(&names)
+    }
+
+    /// Deletes the objects `names` (absent ones are fine); the ones that could
+    /// not be deleted, with why.
+    pub fn delete(&self, names: &[String]) -> Vec<String> {
+        let remote = &self.remote;
+        super::block_on(async {
+            use futures_util::StreamExt;
+            futures_util::stream::iter(names.iter())
+                .map(|n| async move {
+                    let f = InFlight::start(remote);
+                    match remote.store.delete(&remote.location(n)).await {
+                        Ok(()) | Err(object_store::Error::NotFound { .. }) => {
+                            f.done(0, true);
+                            None
+                        }
+                        Err(e) => {
+                            f.done(0, false);
+                            Some(format!("{}: {}", remote.url_of(n), explain(&e)))
+                        }
+                    }
+                })
+                .buffer_unordered(8)
+                .filter_map(|r| async move { r })
+                .collect()
+                .await
+        })
+    }
+}
+
+fn lock<T>(m: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
+    m.lock().unwrap_or_else(|p| p.into_inner())
+}
+
+/// Uploads one file: one `put`, or a multipart upload aborted on any failure
+/// or on `cancel`. The bytes uploaded.
+async fn put_file(
+    remote: &Remote,
+    mut file: std::fs::File,
+    local: &Path,
+    name: &str,
+    cancel: &AtomicBool,
+    sent: &AtomicU64,
+) -> Result<u64, String> {
+    let url = remote.url_of(name);
+    let shown = crate::text::sanitize(&local.display().to_string());
+    let cancelled = || format!("{url}: upload interrupted");
+    if cancel.load(Ordering::Relaxed) {
+        return Err(cancelled());
+    }
+    let size = file
+        .metadata()
+        .map_err(|e| format!("{shown}: cannot read: {e}"))?
+        .len();
+    let loc = remote.location(name);
+    let fail = |e: object_store::Error| format!("{url}: cannot upload: {}", explain(&e));
+    if size <= MULTIPART_ABOVE {
+        let mut data = Vec::with_capacity(size as usize);
+        file.read_to_end(&mut data)
+            .map_err(|e| format!("{shown}: cannot read: {e}"))?;
+        let n = data.len() as u64;
+        let f = InFlight::start(remote);
+        let r = remote.store.put(&loc, PutPayload::from(data)).await;
+        f.done(0, r.is_ok());
+        r.map_err(fail)?;
+        sent.fetch_add(n, Ordering::Relaxed);
+        return Ok(n);
+    }
+    let f = InFlight::start(remote);
+    let up = remote.store.put_multipart(&loc).await;
+    f.done(0, up.is_ok());
+    let mut w = WriteMultipart::new_with_chunk_size(up.map_err(fail)?, PART_SIZE);
+    let mut done = 0u64;
+    loop {
+        if cancel.load(Ordering::Relaxed) {
+            let _ = w.abort().await;
+            return Err(cancelled());
+        }
+        if let Err(e) = w.wait_for_capacity(PARTS_AT_ONCE).await {
+            let _ = w.abort().await;
+            return Err(fail(e));
+        }
+        let mut chunk = vec![0u8; PART_SIZE];
+        let mut got = 0;
+        while got < chunk.len() {
+            match file.read(&mut chunk[got..]) {
+                Ok(0) => break,
+                Ok(n) => got += n,
+                Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
+                Err(e) => {
+                    let _ = w.abort().await;
+                    return Err(format!("{shown}: cannot read: {e}"));
+                }
+            }
+        }
+        if got == 0 {
+            break;
+        }
+        chunk.truncate(got);
+        w.put(chunk.into());
+        done += got as u64;
+        sent.fetch_add(got as u64, Ordering::Relaxed);
+    }
+    // The last parts, still abortable by `cancel`.
+    loop {
+        if cancel.load(Ordering::Relaxed) {
+            let _ = w.abort().await;
+            return Err(cancelled());
+        }
+        match tokio::time::timeout(Duration::from_millis(100), w.wait_for_capacity(0)).await {
+            Ok(Ok(())) => break,
+            Ok(Err(e)) => {
+                let _ = w.abort().await;
+                return Err(fail(e));
+            }
+            Err(_) => {}
+        }
+    }
+    let f = InFlight::start(remote);
+    let r = w.finish().await;
+    f.done(0, r.is_ok());
+    r.map_err(fail)?;
+    Ok(done)
+}

