@@ -728,3 +728,39 @@ fn given_bounds_write_the_same_part_and_are_checked() {
     let left: Vec<_> = std::fs::read_dir(dir.path()).unwrap().collect();
     assert_eq!(left.len(), 2, "only a.tif and b.tif: {left:?}");
 }
+
+/// Compressed parts written from every worker of the global rayon pool at once
+/// (as the overview writes its nodes): a worker must not wait on encoding jobs
+/// queued behind it on its own pool. Before the fix this hung with every
+/// worker parked; the test fails after a minute instead of hanging.
+#[test]
+fn compressed_parts_written_from_every_rayon_worker_at_once_finish() {
+    use rayon::prelude::*;
+    let dir = tempfile::tempdir().unwrap();
+    let root = dir.path().to_path_buf();
+    let (tx, rx) = std::sync::mpsc::channel();
+    std::thread::spawn(move || {
+        let writers = rayon::current_num_threads() * 2;
+        let r: Vec<u64> = (0..writers)
+            .into_par_iter()
+            .map(|k| {
+                let opts = WriteOptions {
+                    compression: if k % 2 == 0 {
+                        Compression::Zstd
+                    } else {
+                        Compression::LercZstd
+                    },
+                    ..Default::default()
+                };
+                let path = root.join(format!("p{k}.tif"));
+                write_part(&path, &random_cloud(150_000, k as u64, 2), &opts).unwrap();
+                Part::open(&path).unwrap().meta.point_count
+            })
+            .collect();
+        let _ = tx.send(r);
+    });
+    let counts = rx
+        .recv_timeout(std::time::Duration::from_secs(90))
+        .expect("parallel compressed writes did not finish: a deadlock");
+    assert!(counts.iter().all(|&c| c == 150_000), "{counts:?}");
+}

@@ -1210,54 +1210,70 @@ fn encode_batches(
     let nb = a.names.len();
     let per_band = offsets.len() / nb;
     let filled = tiles.len();
+    let encode = |start: usize| -> Vec<(usize, usize, Encoded)> {
+        let end = (start + BATCH_TILES).min(filled);
+        let per_tile = groups(a.m);
+        let jobs: Vec<(usize, usize)> = (start..end)
+            .flat_map(|t| (0..per_tile).map(move |g| (t, g)))
+            .collect();
+        let encoded: Vec<Vec<(usize, usize, Encoded)>> = jobs
+            .into_par_iter()
+            .map(|(t, group)| {
+                let tile = (t, tiles[t].index);
+                encode_job(
+                    a,
+                    lut,
+                    level,
+                    tile,
+                    group,
+                    compression,
+                    opts.coord_max_error,
+                )
+                .into_iter()
+                .map(|(b, e)| (t, b, e))
+                .collect()
+            })
+            .collect();
+        encoded.into_iter().flatten().collect()
+    };
+    let mut write = |batch: Vec<(usize, usize, Encoded)>| -> std::io::Result<()> {
+        if opts.cancelled() {
+            return Err(std::io::Error::from(std::io::ErrorKind::Interrupted));
+        }
+        for (t, b, e) in &batch {
+            let bytes: &[u8] = match e {
+                Encoded::Raw(v) => bytemuck::cast_slice(&v[..]),
+                Encoded::Bytes(v) => v,
+                Encoded::Failed(m) => return Err(std::io::Error::other(m.clone())),
+            };
+            let r = tiles[*t].index as usize;
+            offsets[b * per_band + r] = w.stream_position()?;
+            w.write_all(bytes)?;
+            counts[b * per_band + r] = bytes.len() as u64;
+        }
+        Ok(())
+    };
+    // On a rayon worker (parts or overview nodes written in parallel), the
+    // worker must not block on a channel fed by jobs queued on its own pool:
+    // with every worker so blocked, nothing would run them. There the batches
+    // are encoded in turn (the encoding itself still spreads over the pool).
+    if rayon::current_thread_index().is_some() {
+        for start in (0..filled).step_by(BATCH_TILES) {
+            write(encode(start))?;
+        }
+        return Ok(());
+    }
     std::thread::scope(|scope| -> std::io::Result<()> {
         let (tx, rx) = std::sync::mpsc::sync_channel::<Vec<(usize, usize, Encoded)>>(1);
         scope.spawn(move || {
             for start in (0..filled).step_by(BATCH_TILES) {
-                let end = (start + BATCH_TILES).min(filled);
-                let per_tile = groups(a.m);
-                let jobs: Vec<(usize, usize)> = (start..end)
-                    .flat_map(|t| (0..per_tile).map(move |g| (t, g)))
-                    .collect();
-                let encoded: Vec<Vec<(usize, usize, Encoded)>> = jobs
-                    .into_par_iter()
-                    .map(|(t, group)| {
-                        let tile = (t, tiles[t].index);
-                        encode_job(
-                            a,
-                            lut,
-                            level,
-                            tile,
-                            group,
-                            compression,
-                            opts.coord_max_error,
-                        )
-                        .into_iter()
-                        .map(|(b, e)| (t, b, e))
-                        .collect()
-                    })
-                    .collect();
-                let batch: Vec<(usize, usize, Encoded)> = encoded.into_iter().flatten().collect();
-                if tx.send(batch).is_err() {
+                if tx.send(encode(start)).is_err() {
                     return; // the writer failed and stopped listening
                 }
             }
         });
         for batch in rx {
-            if opts.cancelled() {
-                return Err(std::io::Error::from(std::io::ErrorKind::Interrupted));
-            }
-            for (t, b, e) in &batch {
-                let bytes: &[u8] = match e {
-                    Encoded::Raw(v) => bytemuck::cast_slice(&v[..]),
-                    Encoded::Bytes(v) => v,
-                    Encoded::Failed(m) => return Err(std::io::Error::other(m.clone())),
-                };
-                let r = tiles[*t].index as usize;
-                offsets[b * per_band + r] = w.stream_position()?;
-                w.write_all(bytes)?;
-                counts[b * per_band + r] = bytes.len() as u64;
-            }
+            write(batch)?;
         }
         Ok(())
     })
