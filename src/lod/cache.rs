@@ -407,10 +407,18 @@ impl TileCache {
         use rayon::prelude::*;
         let ds: &Dataset = &self.ds;
         let extra: &[String] = &self.extra;
-        let out: Vec<Arc<LoadedTile>> = tiles
-            .par_iter()
-            .map(|t| load_tile_with(ds, TileKey::from(t), extra).map(Arc::new))
-            .collect::<Result<_, String>>()?;
+        let load = || {
+            tiles
+                .par_iter()
+                .map(|t| load_tile_with(ds, TileKey::from(t), extra).map(Arc::new))
+                .collect::<Result<Vec<_>, String>>()
+        };
+        // Tiles in object storage wait on the network, not the CPU: loaded by
+        // more threads than cores, so a frame's requests overlap.
+        let out: Vec<Arc<LoadedTile>> = match network_pool().filter(|_| ds.is_remote()) {
+            Some(pool) => pool.install(load)?,
+            None => load()?,
+        };
         for t in &out {
             self.loads.fetch_add(1, Ordering::Relaxed);
             self.load_us
@@ -506,3 +514,21 @@ impl Drop for TileCache {
         }
     }
 }
+
+/// Threads that load remote tiles for [`TileCache::load_all`] (their time is
+/// spent waiting on requests); `None` if the pool cannot be built.
+fn network_pool() -> Option<&'static rayon::ThreadPool> {
+    static POOL: std::sync::OnceLock<Option<rayon::ThreadPool>> = std::sync::OnceLock::new();
+    POOL.get_or_init(|| {
+        rayon::ThreadPoolBuilder::new()
+            .num_threads(NETWORK_LOADERS)
+            .thread_name(|i| format!("pcimg-load-{i}"))
+            .build()
+            .ok()
+    })
+    .as_ref()
+}
+
+/// Remote tiles loaded at once by [`TileCache::load_all`] (the remote reader
+/// itself keeps at most 16 requests in flight per read).
+const NETWORK_LOADERS: usize = 16;

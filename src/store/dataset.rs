@@ -228,6 +228,11 @@ impl Dataset {
     }
 
     /// A dataset in a given object store (an index under its prefix, or a `.tif`).
+    /// Whether the dataset was opened from object storage (a URL).
+    pub fn is_remote(&self) -> bool {
+        crate::remote::is_url(&self.path.to_string_lossy())
+    }
+
     pub fn open_remote(remote: std::sync::Arc<crate::remote::Remote>) -> Result<Dataset> {
         let url = remote.url.as_str();
         let path = Path::new(url);
