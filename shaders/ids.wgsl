@@ -4,30 +4,10 @@
 // written, it records its id there. Ids are `0xffffffff - (id_base + i)` under
 // `atomicMax` into a buffer cleared to 0 (no point), so the smallest id wins,
 // as the CPU rasterizer's `winners` breaks ties. The framebuffer is read as
-// plain words, so no 64-bit atomics are needed here. The host appends one of
-// the `matches` functions below (64- or 32-bit framebuffer), then project.wgsl.
+// plain words, so no 64-bit atomics are needed here. The host appends
+// ids_match64.wgsl or ids_match32.wgsl (`matches`, per framebuffer), then project.wgsl.
 
-struct Params {
-    mvp: mat4x4<f32>,
-    width: u32,
-    height: u32,
-    point_size: u32,
-    count: u32,
-    hw: f32,
-    hh: f32,
-    off: f32,
-    log2_near: f32,
-    depth_scale: f32,
-    id_base: u32,
-    _pad1: u32,
-    _pad2: u32,
-}
-
-@group(0) @binding(0) var<uniform> params: Params;
-@group(0) @binding(1) var<storage, read> xs: array<f32>;
-@group(0) @binding(2) var<storage, read> ys: array<f32>;
-@group(0) @binding(3) var<storage, read> zs: array<f32>;
-@group(0) @binding(4) var<storage, read> cs: array<u32>;
+// Params and the point bindings (group 0): project.wgsl, appended by the host.
 @group(1) @binding(0) var<storage, read_write> ids: array<atomic<u32>>;
 
 @compute @workgroup_size(256)

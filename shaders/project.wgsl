@@ -1,6 +1,29 @@
-// Shared by rasterize.wgsl and rasterize_u32.wgsl (the host appends it to each):
-// the transform and clip test of point `i`, and the pixel a 1-pixel point hits.
-// Must match `Projector` in src/render/cpu.rs.
+// Shared by rasterize.wgsl, rasterize_u32.wgsl and ids.wgsl (the host appends it to each):
+// the per-dispatch parameters and point columns (group 0), the transform and clip
+// test of point `i`, and the pixel a 1-pixel point hits.
+// Must match `RasterParams` and `Projector` in src/render/gpu.rs and cpu.rs.
+
+struct Params {
+    mvp: mat4x4<f32>,
+    width: u32,
+    height: u32,
+    point_size: u32,
+    count: u32,
+    hw: f32,
+    hh: f32,
+    off: f32,
+    log2_near: f32,  // 32-bit path: depth16 = (log2(w) - log2_near) * depth_scale
+    depth_scale: f32,
+    id_base: u32,    // the id pass: frame-wide id of this chunk's first point
+    _pad1: u32,
+    _pad2: u32,
+}
+
+@group(0) @binding(0) var<uniform> params: Params;
+@group(0) @binding(1) var<storage, read> xs: array<f32>;
+@group(0) @binding(2) var<storage, read> ys: array<f32>;
+@group(0) @binding(3) var<storage, read> zs: array<f32>;
+@group(0) @binding(4) var<storage, read> cs: array<u32>;
 
 // Screen position (x, y) and clip w of point `i`, with w = 1.0 when the point
 // is inside the clip volume and 0.0 when it is not.

@@ -7,27 +7,7 @@
 // a plain atomicLoad depth test that skips most atomicMin calls on dense input.
 // Each invocation handles POINTS_PER_THREAD points (strided by the workgroup size).
 
-struct Params {
-    mvp: mat4x4<f32>,
-    width: u32,
-    height: u32,
-    point_size: u32,
-    count: u32,
-    hw: f32,
-    hh: f32,
-    off: f32,
-    log2_near: f32,  // 32-bit path: depth16 = (log2(w) - log2_near) * depth_scale
-    depth_scale: f32,
-    _pad0: u32,
-    _pad1: u32,
-    _pad2: u32,
-}
-
-@group(0) @binding(0) var<uniform> params: Params;
-@group(0) @binding(1) var<storage, read> xs: array<f32>;
-@group(0) @binding(2) var<storage, read> ys: array<f32>;
-@group(0) @binding(3) var<storage, read> zs: array<f32>;
-@group(0) @binding(4) var<storage, read> cs: array<u32>;
+// Params and the point bindings (group 0): project.wgsl, appended by the host.
 @group(1) @binding(0) var<storage, read_write> fb: array<atomic<u64>>;
 
 const POINTS_PER_THREAD: u32 = 1u; // replaced by the host

@@ -27,7 +27,8 @@ use super::{
 
 const RASTERIZE64: &str = include_str!("../../shaders/rasterize.wgsl");
 const RASTERIZE32: &str = include_str!("../../shaders/rasterize_u32.wgsl");
-/// Appended to both rasterizers (WGSL has no includes).
+/// Appended to the rasterizers and the id pass (WGSL has no includes): their
+/// parameters, point bindings and transform.
 const PROJECT: &str = include_str!("../../shaders/project.wgsl");
 const RESOLVE: &str = include_str!("../../shaders/resolve.wgsl");
 /// The id pass, with the framebuffer test for the 64- or 32-bit path.
