@@ -6,7 +6,8 @@
 //! (2.5 M points, x y z intensity: a part of `--memory 256MiB`), through decoded
 //! `f64` columns against straight from the packed records.
 //!
-//! `cargo bench --bench store` (set `PCIMG_BENCH_POINTS` for another size;
+//! `cargo bench --bench store` (set `PCIMG_BENCH_POINTS` for another size,
+//! `PCIMG_BENCH_CODECS=none,lerc_zstd` for some codecs only;
 //! `cargo bench --bench store -- read-back` for the builder fill alone).
 
 use criterion::{Criterion, Throughput, criterion_group, criterion_main};
@@ -19,6 +20,12 @@ fn points() -> u64 {
         .ok()
         .and_then(|s| s.parse().ok())
         .unwrap_or(10_000_000)
+}
+
+/// Whether codec `name` is measured: all, or those `PCIMG_BENCH_CODECS` lists
+/// (`none,lerc_zstd`), so a run measuring one codec does not write the others.
+fn wanted(name: &str) -> bool {
+    std::env::var("PCIMG_BENCH_CODECS").map_or(true, |l| l.split(',').any(|c| c == name))
 }
 
 fn bench(c: &mut Criterion) {
@@ -36,7 +43,10 @@ fn bench(c: &mut Criterion) {
         Compression::Lerc,
         Compression::LercDeflate,
         Compression::LercZstd,
-    ] {
+    ]
+    .into_iter()
+    .filter(|c| wanted(c.name()))
+    {
         let path = dir.path().join(format!("{}.tif", comp.name()));
         let opts = WriteOptions {
             compression: comp,

@@ -173,7 +173,7 @@ const F32_EXACT_INTEGERS: f32 = 16_777_216.0;
 /// intensities) is coded with LERC's error 0.5, which gives every whole number
 /// back exactly; other tiles within `max_error` (0: bit-exact, LERC's
 /// floating-point lossless coding).
-fn encode_lerc(values: &[f32], width: usize, max_error: f64) -> Result<Vec<u8>, String> {
+pub(super) fn encode_lerc(values: &[f32], width: usize, max_error: f64) -> Result<Vec<u8>, String> {
     use lerc::bitmask::BitMask;
     let n = values.len();
     if width == 0 || !n.is_multiple_of(width) {
@@ -408,7 +408,59 @@ fn zstd_decompress(stored: &[u8], capacity: usize) -> std::io::Result<Vec<u8>> {
     })
 }
 
+thread_local! {
+    /// Each thread's buffer for a LERC blob unwrapped from Deflate or Zstd.
+    static BLOB: std::cell::RefCell<Vec<u8>> = const { std::cell::RefCell::new(Vec::new()) };
+}
+
 impl TileCodec {
+    /// A LERC tile of a Z-ordered part straight into its points: `out[z]` gets
+    /// the sample at Z-index `z` of the square tile (`super::lerc_z`). `Ok(false)`
+    /// when this is not a LERC tile or its blob is of a kind only `lerc-rs`
+    /// decodes (then nothing is written: use [`TileCodec::decode`]).
+    pub fn decode_lerc_z(
+        &self,
+        stored: &[u8],
+        out: &mut [std::mem::MaybeUninit<f32>],
+    ) -> Result<bool, String> {
+        if self.compression != comp::LERC || self.samples != 1 {
+            return Ok(false);
+        }
+        let side = self.width;
+        if self.lerc_extra == spec::lerc::ADD_NONE {
+            return super::lerc_z::decode(stored, side, out);
+        }
+        let limit = side * side * 8 + 65_536;
+        BLOB.with(|b| {
+            let mut blob = b.borrow_mut();
+            blob.clear();
+            match self.lerc_extra {
+                spec::lerc::ADD_DEFLATE => {
+                    flate2::read::ZlibDecoder::new(stored)
+                        .take(limit as u64)
+                        .read_to_end(&mut blob)
+                        .map_err(|e| {
+                            format!("deflate stream around the LERC blob is corrupt: {e}")
+                        })?;
+                }
+                spec::lerc::ADD_ZSTD => {
+                    blob.reserve(limit);
+                    ZSTD.with(|z| {
+                        let mut z = z.borrow_mut();
+                        let d = match &mut *z {
+                            Some(d) => d,
+                            None => z.insert(zstd::bulk::Decompressor::new()?),
+                        };
+                        d.decompress_to_buffer(stored, &mut *blob)
+                    })
+                    .map_err(|e| format!("zstd stream around the LERC blob is corrupt: {e}"))?;
+                }
+                _ => return Ok(false),
+            }
+            super::lerc_z::decode(&blob, side, out)
+        })
+    }
+
     /// A LERC tile: the blob (decompressed first where the part says so), one
     /// band of `count` Float32 samples, rows of `width`; masked pixels as NaN.
     fn decode_lerc(&self, stored: &[u8], count: usize) -> Result<Vec<f32>, String> {

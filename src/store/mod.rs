@@ -7,6 +7,7 @@ pub mod codec;
 pub mod error;
 pub mod hilbert;
 pub mod layout;
+mod lerc_z;
 pub mod metadata;
 pub mod out;
 pub mod paper;

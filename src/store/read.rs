@@ -250,6 +250,10 @@ impl Part {
                         v.write(plane[p as usize]);
                     }
                 }
+                None if l.tile_width == l.tile_height
+                    && l.codec(self.little_endian, 1)
+                        .decode_lerc_z(stored, o)
+                        .map_err(|m| format!("tile {t} band {}: {m}", b + 1))? => {}
                 None => {
                     let plane = l
                         .codec(self.little_endian, 1)
