@@ -391,3 +391,72 @@ fn a_converted_dataset_reads_warm_without_heads_and_a_replaced_part_is_an_error(
     let ds = Dataset::open_remote(r3).unwrap();
     assert_eq!(read_all(&ds, &[0]), cold[..first].to_vec());
 }
+
+/// This process's open files whose path contains `marker`.
+fn open_files_named(marker: &str) -> usize {
+    std::fs::read_dir("/proc/self/fd")
+        .map(|d| {
+            d.filter_map(|e| std::fs::read_link(e.ok()?.path()).ok())
+                .filter(|p| p.to_string_lossy().contains(marker))
+                .count()
+        })
+        .unwrap_or(0)
+}
+
+#[test]
+fn queued_uploads_hold_no_open_file_each() {
+    // Thousands of parts queued at once must stay within the open-file limit:
+    // a queued file is held by a hard link and opened when its upload starts.
+    use pcimg::remote::upload::Uploader;
+    use std::sync::atomic::AtomicBool;
+    if !Path::new("/proc/self/fd").is_dir() {
+        eprintln!("note: no /proc/self/fd, skipping");
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let slow: Arc<dyn ObjectStore> = Arc::new(ThrottledStore::new(
+        InMemory::new(),
+        ThrottleConfig {
+            wait_put_per_call: Duration::from_millis(20),
+            ..Default::default()
+        },
+    ));
+    let remote = Arc::new(Remote::with_store(slow.clone(), "ds", "memory://b/fds"));
+    let up = Uploader::new(remote, Arc::new(AtomicBool::new(false)));
+    let n = 300;
+    let mut want = Vec::new();
+    for i in 0..n {
+        let p = dir.path().join(format!("fdtest-part-{i:05}.tif"));
+        want.push(noise(&p, 100 + i, i as u64));
+        up.start(&p, &format!("part-{i:05}.tif")).unwrap();
+    }
+    // The sources are gone before most uploads start: the links keep them.
+    for i in 0..n {
+        std::fs::remove_file(dir.path().join(format!("fdtest-part-{i:05}.tif"))).unwrap();
+    }
+    let queued = open_files_named("fdtest-part-");
+    assert!(up.pending() > n / 2, "{} pending", up.pending());
+    assert!(queued <= 8, "{queued} files open with {n} uploads queued");
+    up.wait().unwrap();
+    assert_eq!(open_files_named("fdtest-part-"), 0);
+    let q = up.queue_dir().unwrap();
+    assert_eq!(std::fs::read_dir(q).unwrap().count(), 0, "links removed");
+    for (i, w) in want.iter().enumerate() {
+        assert_eq!(
+            up.uploaded(&format!("part-{i:05}.tif")).unwrap().0,
+            w.len() as u64
+        );
+    }
+    let rt = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()
+        .unwrap();
+    for i in [0, n / 2, n - 1] {
+        let loc = object_store::path::Path::from(format!("ds/part-{i:05}.tif"));
+        let got = rt.block_on(async { slow.get(&loc).await.unwrap().bytes().await.unwrap() });
+        assert_eq!(got.as_ref(), &want[i][..]);
+    }
+    let q = q.to_path_buf();
+    drop(up);
+    assert!(!q.exists(), "the queue folder is removed");
+}
