@@ -7,7 +7,8 @@
 # (`--cache`), next to the same render from the local dataset. Also the upload
 # (`convert -o s3://`, straight to weed, no added latency).
 #
-#   bash bench/remote.sh                          # 200 M points, --memory 256MiB: 144 parts
+#   bash bench/remote.sh                          # 200 M points, --memory 282.5MiB: 144 parts
+#   INPUT=in.las bash bench/remote.sh             # an input made before (synth -n 200000000 --order scan)
 #   POINTS=2000000 MEMORY=64MiB bash bench/remote.sh   # a quick check
 #
 # Needs about 15 GB of disk for 200 M points (LAS input, local dataset, weed's
@@ -15,7 +16,7 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 POINTS=${POINTS:-200000000}
-MEMORY=${MEMORY:-256MiB}
+MEMORY=${MEMORY:-282.5MiB}
 REPS=${REPS:-5}
 COMPRESSION=${COMPRESSION:-zstd}
 DELAY_MS=${DELAY_MS:-50}
@@ -93,8 +94,12 @@ direct=http://127.0.0.1:$S3
 delayed=http://127.0.0.1:$PROXY
 
 t0=$(date +%s.%N)
-"$BIN" synth -n "$POINTS" --order scan -o "$DIR/in.las" >/dev/null
-echo "synth: $(echo "$(date +%s.%N) - $t0" | bc) s, $(du -h "$DIR/in.las" | cut -f1)"
+if [ -n "${INPUT:-}" ]; then
+  ln -s "$(realpath "$INPUT")" "$DIR/in.las"
+else
+  "$BIN" synth -n "$POINTS" --order scan -o "$DIR/in.las" >/dev/null
+fi
+echo "synth: $(echo "$(date +%s.%N) - $t0" | bc) s, $(du -hL "$DIR/in.las" | cut -f1)"
 t0=$(date +%s.%N)
 "$BIN" convert "$DIR/in.las" -o "$DIR/local.pcimg" --memory "$MEMORY" --compression "$COMPRESSION" -q
 echo "convert (local): $(echo "$(date +%s.%N) - $t0" | bc) s, $(du -sh "$DIR/local.pcimg" | cut -f1), $(ls "$DIR/local.pcimg"/part-*.tif | wc -l) parts"

@@ -104,6 +104,16 @@ fn lerc_gives_las_coordinates_back_on_their_lattice() {
         lerc.file_bytes * 4 < plain.file_bytes,
         "LERC is far smaller"
     );
+    // `info` states the bound in the data's own unit (autzen is in feet).
+    let text = pcimg::cli::info::render_text(&pcimg::cli::info::report(
+        &Dataset::open(&dir.path().join("lerc.tif")).unwrap(),
+        false,
+    ));
+    let line = text
+        .lines()
+        .find(|l| l.contains("stored coordinates within"))
+        .unwrap_or_else(|| panic!("{text}"));
+    assert!(line.contains(" foot (") && line.contains(" mm)"), "{line}");
     let bands: Vec<usize> = (0..plain.bands.len()).collect();
     for level in 0..plain.levels.len() {
         let (a, b) = (

@@ -3,6 +3,7 @@
 //! a part is fetched from only when its tiles are read; the first frame's tiles
 //! need a few dozen requests; what comes back equals the local dataset's points.
 
+mod common;
 use object_store::memory::InMemory;
 use object_store::throttle::{ThrottleConfig, ThrottledStore};
 use object_store::{ObjectStore, ObjectStoreExt, PutPayload};
@@ -291,4 +292,171 @@ fn a_queued_upload_survives_its_directory_being_moved() {
         let got = rt.block_on(async { slow.get(&loc).await.unwrap().bytes().await.unwrap() });
         assert_eq!(got.as_ref(), &w[..]);
     }
+}
+
+/// Every level of every band of `ds`'s parts `which`, read.
+fn read_all(ds: &Dataset, which: &[usize]) -> Vec<Vec<Vec<f32>>> {
+    let mut out = Vec::new();
+    for &i in which {
+        let p = &ds.parts[i];
+        let bands: Vec<usize> = (0..p.bands.len()).collect();
+        for l in 0..p.levels.len() {
+            out.push(p.read_level(l, &bands).unwrap().columns);
+        }
+    }
+    out
+}
+
+#[test]
+fn a_converted_dataset_reads_warm_without_heads_and_a_replaced_part_is_an_error() {
+    use pcimg::convert::{Quiet, upload::RemoteOutput};
+    use pcimg::store::index::{INDEX_FILE, IndexFile};
+    use std::sync::atomic::AtomicBool;
+    let dir = tempfile::tempdir().unwrap();
+    let input = dir.path().join("in.xyz");
+    pcimg::synth::write_text(&input, 450_000, 7).unwrap();
+    // `convert -o URL` into an in-memory store (the ETags its uploads return).
+    let mem = Arc::new(InMemory::new());
+    let url = "memory://b/etag.pcimg";
+    let remote = |url: &str| Arc::new(Remote::with_store(mem.clone(), "etag.pcimg", url));
+    let cancel = Arc::new(AtomicBool::new(false));
+    let out = RemoteOutput::prepare_in(remote(url), false, cancel.clone()).unwrap();
+    let mut o = common::convert_options(out.local.clone(), 1 << 20);
+    o.on_part = Some(out.hook());
+    o.cancel = cancel;
+    pcimg::convert::convert(&input, &o, &Quiet).unwrap();
+    out.finish(&Quiet).unwrap();
+    drop(out);
+    let (text, _, _) = remote(url).get(INDEX_FILE).unwrap().unwrap();
+    let index = IndexFile::parse(&text, Path::new(url)).unwrap();
+    assert_eq!(index.uploaded_to.as_deref(), Some(url));
+    assert!(index.parts.len() >= 3, "{} parts", index.parts.len());
+    assert!(index.parts.iter().all(|p| p.etag.is_some()));
+    assert!(index.nodes.iter().all(|n| n.entry.etag.is_some()));
+
+    let cache = dir.path().join("cache");
+    pcimg::remote::disk::configure(&cache, 64 << 20).unwrap();
+    let every: Vec<usize> = (0..index.parts.len()).collect();
+    // Cold: the index, then each part's head and tiles; no HEAD is needed,
+    // so every request but the index's is a ranged GET of data.
+    let r1 = remote(url);
+    let ds = Dataset::open_remote(r1.clone()).unwrap();
+    let cold = read_all(&ds, &every);
+    let cold_requests = r1.requests.load(Ordering::Relaxed);
+    assert!(cold_requests > 1 + every.len() as u64, "{cold_requests}");
+    // Warm, as a new process (the memory cache forgotten): the index only.
+    pcimg::remote::file::forget_cached(url);
+    let (hits0, _, _) = pcimg::remote::disk::counters();
+    let r2 = remote(url);
+    let ds = Dataset::open_remote(r2.clone()).unwrap();
+    assert_eq!(read_all(&ds, &every), cold);
+    assert_eq!(
+        r2.requests.load(Ordering::Relaxed),
+        1,
+        "a warm open and read of every part is the index request alone (no HEAD)"
+    );
+    assert!(pcimg::remote::disk::counters().0 > hits0);
+
+    // A part replaced behind the index (other bytes, so another ETag): what
+    // the cache does not hold is refused, never mixed with the indexed data.
+    let victim = &index.parts[1].file;
+    let other = &index.parts[2].file;
+    let rt = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()
+        .unwrap();
+    let loc = |n: &str| object_store::path::Path::from(format!("etag.pcimg/{n}"));
+    let bytes = rt
+        .block_on(async { mem.get(&loc(other)).await.unwrap().bytes().await })
+        .unwrap();
+    rt.block_on(mem.put(&loc(victim), PutPayload::from(bytes)))
+        .unwrap();
+    pcimg::remote::file::forget_cached(url);
+    pcimg::remote::disk::disable();
+    let ds = Dataset::open_remote(remote(url)).unwrap();
+    let p = &ds.parts[1];
+    let e = p.read_level(0, &[0, 1, 2]).unwrap_err().to_string();
+    assert!(
+        e.contains(&format!("{url}/{victim}")) && e.contains("changed since the index was written"),
+        "{e}"
+    );
+    // The parts not replaced still read as before.
+    let first = ds.parts[0].levels.len();
+    assert_eq!(read_all(&ds, &[0]), cold[..first].to_vec());
+
+    // The same index read from another URL (a copy made by other tools): the
+    // recorded ETags are not trusted there; it reads as an index without them.
+    let copy = "memory://b/copy.pcimg";
+    let r3 = Arc::new(Remote::with_store(mem.clone(), "etag.pcimg", copy));
+    let ds = Dataset::open_remote(r3).unwrap();
+    assert_eq!(read_all(&ds, &[0]), cold[..first].to_vec());
+}
+
+/// This process's open files whose path contains `marker`.
+fn open_files_named(marker: &str) -> usize {
+    std::fs::read_dir("/proc/self/fd")
+        .map(|d| {
+            d.filter_map(|e| std::fs::read_link(e.ok()?.path()).ok())
+                .filter(|p| p.to_string_lossy().contains(marker))
+                .count()
+        })
+        .unwrap_or(0)
+}
+
+#[test]
+fn queued_uploads_hold_no_open_file_each() {
+    // Thousands of parts queued at once must stay within the open-file limit:
+    // a queued file is held by a hard link and opened when its upload starts.
+    use pcimg::remote::upload::Uploader;
+    use std::sync::atomic::AtomicBool;
+    if !Path::new("/proc/self/fd").is_dir() {
+        eprintln!("note: no /proc/self/fd, skipping");
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let slow: Arc<dyn ObjectStore> = Arc::new(ThrottledStore::new(
+        InMemory::new(),
+        ThrottleConfig {
+            wait_put_per_call: Duration::from_millis(20),
+            ..Default::default()
+        },
+    ));
+    let remote = Arc::new(Remote::with_store(slow.clone(), "ds", "memory://b/fds"));
+    let up = Uploader::new(remote, Arc::new(AtomicBool::new(false)));
+    let n = 300;
+    let mut want = Vec::new();
+    for i in 0..n {
+        let p = dir.path().join(format!("fdtest-part-{i:05}.tif"));
+        want.push(noise(&p, 100 + i, i as u64));
+        up.start(&p, &format!("part-{i:05}.tif")).unwrap();
+    }
+    // The sources are gone before most uploads start: the links keep them.
+    for i in 0..n {
+        std::fs::remove_file(dir.path().join(format!("fdtest-part-{i:05}.tif"))).unwrap();
+    }
+    let queued = open_files_named("fdtest-part-");
+    assert!(up.pending() > n / 2, "{} pending", up.pending());
+    assert!(queued <= 8, "{queued} files open with {n} uploads queued");
+    up.wait().unwrap();
+    assert_eq!(open_files_named("fdtest-part-"), 0);
+    let q = up.queue_dir().unwrap();
+    assert_eq!(std::fs::read_dir(q).unwrap().count(), 0, "links removed");
+    for (i, w) in want.iter().enumerate() {
+        assert_eq!(
+            up.uploaded(&format!("part-{i:05}.tif")).unwrap().0,
+            w.len() as u64
+        );
+    }
+    let rt = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()
+        .unwrap();
+    for i in [0, n / 2, n - 1] {
+        let loc = object_store::path::Path::from(format!("ds/part-{i:05}.tif"));
+        let got = rt.block_on(async { slow.get(&loc).await.unwrap().bytes().await.unwrap() });
+        assert_eq!(got.as_ref(), &want[i][..]);
+    }
+    let q = q.to_path_buf();
+    drop(up);
+    assert!(!q.exists(), "the queue folder is removed");
 }

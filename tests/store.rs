@@ -142,9 +142,185 @@ proptest! {
         n in prop_oneof![0usize..300, 65_530usize..65_542, 130_000usize..140_000],
         seed in any::<u64>(),
         dup in prop_oneof![Just(0usize), 2usize..10],
-        comp in prop_oneof![Just(Compression::None), Just(Compression::Deflate), Just(Compression::Zstd)],
+        comp in prop_oneof![
+            Just(Compression::None),
+            Just(Compression::Deflate),
+            Just(Compression::Zstd),
+            Just(Compression::Lerc),
+            Just(Compression::LercDeflate),
+            Just(Compression::LercZstd),
+        ],
+        lossy in prop_oneof![Just(0.0f64), 0.0005f64..0.05],
     ) {
-        check_round_trip(&random_cloud(n, seed, dup), comp);
+        let pts = random_cloud(n, seed, dup);
+        if comp.is_lerc() && lossy > 0.0 {
+            check_lossy_round_trip(&pts, comp, lossy);
+        } else {
+            // (LERC at error 0 is lossless: the same exact check.)
+            check_round_trip(&pts, comp);
+        }
+    }
+}
+
+/// A LERC part whose coordinates may move by `bound` (source units): every
+/// level holds the stated count of the input's points, each found in the input
+/// (attributes exact, the lossless ones) with its coordinates within the part's
+/// stated error (which covers the codec's bound), and inside its tile's bounds
+/// within that error too.
+fn check_lossy_round_trip(pts: &PointColumns, compression: Compression, bound: f64) {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("part.tif");
+    let opts = WriteOptions {
+        compression,
+        coord_max_error: [bound; 3],
+        ..Default::default()
+    };
+    let summary = write_part(&path, pts, &opts).unwrap();
+    let part = Part::open(&path).unwrap();
+    let n = pts.len();
+    assert_eq!(part.meta.point_count, n as u64);
+    let err = summary.max_quantization_error;
+    assert!(
+        err >= bound,
+        "stated error {err} below the codec's bound {bound}"
+    );
+    // Input points by their attributes' bits (duplicates listed twice).
+    let mut source: HashMap<Vec<u32>, Vec<[f64; 3]>> = HashMap::new();
+    for i in 0..n {
+        let key = pts
+            .attributes
+            .iter()
+            .map(|a| a.values[i].to_bits())
+            .collect();
+        source
+            .entry(key)
+            .or_default()
+            .push([pts.x[i], pts.y[i], pts.z[i]]);
+    }
+    let g = Geometry::for_points(n as u64);
+    assert_eq!(part.levels.len(), g.levels());
+    let bands: Vec<usize> = (0..part.bands.len()).collect();
+    let mut worst = 0.0f64;
+    for k in 0..part.levels.len() {
+        let p = part.read_level(k, &bands).unwrap();
+        assert_eq!(p.len() as u64, g.level_points(k), "level {k}");
+        let mut left = source.clone();
+        for i in 0..p.len() {
+            let key: Vec<u32> = (3..bands.len())
+                .map(|b| p.columns[b][i].to_bits())
+                .collect();
+            let xyz = [0, 1, 2].map(|a| p.offsets[a] + p.columns[a][i] as f64);
+            let cands = left
+                .get_mut(&key)
+                .unwrap_or_else(|| panic!("level {k}: point {i}'s attributes are not an input's"));
+            let dist = |c: &[f64; 3]| (0..3).map(|a| (c[a] - xyz[a]).abs()).fold(0.0, f64::max);
+            let (j, d) = cands
+                .iter()
+                .enumerate()
+                .map(|(j, c)| (j, dist(c)))
+                .min_by(|a, b| a.1.total_cmp(&b.1))
+                .unwrap_or_else(|| panic!("level {k}: point {i} appears too often"));
+            assert!(
+                d <= err + 1e-9,
+                "level {k}: point {i} moved {d} (bound {err})"
+            );
+            worst = worst.max(d);
+            cands.swap_remove(j);
+        }
+        for t in &part.levels[k].tiles {
+            let q = part.read_tiles(k, &[t.index], &[0, 1, 2]).unwrap();
+            assert_eq!(q.len() as u32, t.points.unwrap());
+            for i in 0..q.len() {
+                for a in 0..3 {
+                    let v = q.offsets[a] + q.columns[a][i] as f64;
+                    assert!(v >= t.bounds.min[a] - err && v <= t.bounds.max[a] + err);
+                }
+            }
+        }
+    }
+    // The codec did use its room (else this checks a lossless part), unless
+    // the part is tiny.
+    if n > 1000 {
+        assert!(worst > f32::EPSILON as f64 * 1000.0, "worst error {worst}");
+    }
+}
+
+/// A LERC tile with damaged bytes: reading it is an error naming the file and
+/// the tile, never a panic and never silently wrong values.
+#[test]
+fn a_corrupt_lerc_tile_is_an_error_naming_the_file_and_tile() {
+    let dir = tempfile::tempdir().unwrap();
+    let c = random_cloud(5000, 21, 0);
+    for compression in [
+        Compression::Lerc,
+        Compression::LercDeflate,
+        Compression::LercZstd,
+    ] {
+        let path = dir.path().join(format!("{compression:?}.tif"));
+        let opts = WriteOptions {
+            compression,
+            coord_max_error: [0.001; 3],
+            ..Default::default()
+        };
+        write_part(&path, &c, &opts).unwrap();
+        let good = std::fs::read(&path).unwrap();
+        let mut tiff = tiff::decoder::Decoder::new(std::io::Cursor::new(&good)).unwrap();
+        let offsets = tiff.get_tag_u64_vec(tiff::tags::Tag::TileOffsets).unwrap();
+        let counts = tiff
+            .get_tag_u64_vec(tiff::tags::Tag::TileByteCounts)
+            .unwrap();
+        // Band 1's (x's) first stored tile of level 0.
+        let (at, len) = offsets
+            .iter()
+            .zip(&counts)
+            .find(|(_, n)| **n > 16)
+            .map(|(o, n)| (*o as usize, *n as usize))
+            .unwrap();
+        let mut rng = pcimg::synth::Rng::new(5);
+        for round in 0..12 {
+            let mut bad = good.clone();
+            match round % 3 {
+                // One flipped bit, past the blob's first bytes.
+                0 => bad[at + 8 + (rng.next_u64() as usize % (len - 8))] ^= 1 << (round % 8),
+                // A run of bytes overwritten.
+                1 => {
+                    let from = at + rng.next_u64() as usize % (len / 2);
+                    bad[from..from + 8.min(len / 2)].fill(0xff);
+                }
+                // The tile's bytes zeroed.
+                _ => bad[at..at + len].fill(0),
+            }
+            let broken = dir.path().join(format!("bad-{compression:?}-{round}.tif"));
+            std::fs::write(&broken, &bad).unwrap();
+            let r = std::panic::catch_unwind(|| {
+                let part = Part::open(&broken)?;
+                let bands: Vec<usize> = (0..part.bands.len()).collect();
+                part.read_level(0, &bands).map(|p| p.columns)
+            });
+            let shown = broken.display().to_string();
+            match r {
+                Err(_) => panic!("{shown}: reading a corrupt LERC tile panicked"),
+                Ok(Err(e)) => {
+                    let e = e.to_string();
+                    assert!(e.contains(&shown) && e.contains("tile"), "{e}");
+                }
+                // A change LERC's checksum cannot see (none: it covers the
+                // blob) would read back other values: refused above.
+                Ok(Ok(cols)) => {
+                    let part = Part::open(&path).unwrap();
+                    let bands: Vec<usize> = (0..part.bands.len()).collect();
+                    let want = part.read_level(0, &bands).unwrap().columns;
+                    panic!(
+                        "{shown}: a corrupt tile read without an error ({})",
+                        if cols == want {
+                            "same values"
+                        } else {
+                            "other values"
+                        }
+                    );
+                }
+            }
+        }
     }
 }
 

@@ -487,8 +487,8 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     )?;
     writeln!(
         out,
-        "  stored coordinates within {:.4} mm of the source",
-        s.max_quantization_error * 1000.0
+        "  stored coordinates within {} of the source",
+        crate::store::crs::distance(s.max_quantization_error, s.crs.as_deref())
     )?;
     if let Some(r) = &s.index {
         writeln!(out, "  {}", super::index::describe(r))?;

@@ -267,8 +267,8 @@ pub fn render_text(r: &DatasetReport) -> String {
         if let Some(e) = p.max_quantization_error {
             let _ = writeln!(
                 o,
-                "  stored coordinates within {:.3} mm of the source",
-                e * 1000.0
+                "  stored coordinates within {} of the source",
+                crate::store::crs::distance(e, p.crs.as_deref())
             );
         }
         let _ = writeln!(

@@ -353,6 +353,7 @@ impl<'a> Job<'a> {
             points_per_part: self.per_part,
             elapsed: self.start.elapsed(),
             max_quantization_error: worst,
+            crs: self.info.crs_wkt.clone(),
             phases: std::mem::take(&mut self.timings.0),
             index,
         })

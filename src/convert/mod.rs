@@ -131,6 +131,8 @@ pub struct ConvertSummary {
     pub points_per_part: u64,
     pub elapsed: Duration,
     pub max_quantization_error: f64,
+    /// The input's coordinate reference system (WKT or `EPSG:n`), if it names one.
+    pub crs: Option<String>,
     /// Wall and CPU time per phase, in first-seen order: the passes over the
     /// input, then the store's phases summed over parts.
     pub phases: Vec<(String, Span)>,

@@ -41,9 +41,19 @@ impl RemoteOutput {
     /// refused without `force`), and makes the local temporary directory (in
     /// `$TMPDIR`: the parts and the conversion's spill files).
     pub fn prepare(url: &str, force: bool, cancel: Arc<AtomicBool>) -> Result<RemoteOutput> {
-        let url = url.trim_end_matches('/');
-        let shown = crate::text::sanitize(url);
         let remote = Arc::new(Remote::open(url).map_err(|m| anyhow!(m))?);
+        Self::prepare_in(remote, force, cancel)
+    }
+
+    /// As [`RemoteOutput::prepare`], into a given store (tests: an in-memory one).
+    pub fn prepare_in(
+        remote: Arc<Remote>,
+        force: bool,
+        cancel: Arc<AtomicBool>,
+    ) -> Result<RemoteOutput> {
+        let url = remote.url.clone();
+        let url = url.as_str();
+        let shown = crate::text::sanitize(url);
         let lower = url.to_ascii_lowercase();
         let as_file = lower.ends_with(".tif") || lower.ends_with(".tiff");
         let mut old = Vec::new();
@@ -170,11 +180,35 @@ impl RemoteOutput {
             bail!("{e}: cannot remove an object the dataset does not hold");
         }
         if let Some((path, name)) = index {
+            self.record_etags(&path)?;
             self.uploader
                 .put_now(&path, &name)
                 .map_err(|m| anyhow!(m))?;
         }
         progress.advance(self.uploader.sent(), 0);
+        Ok(())
+    }
+
+    /// Writes into the local index each object's ETag as its upload returned
+    /// it, and the URL they hold for: a reader then learns no ETag by request
+    /// (no HEAD per part with a warm disk cache) and sends its range requests
+    /// conditional on these. An entry whose upload returned no ETag, or another
+    /// size, keeps none (the reader asks, as for an index written locally).
+    fn record_etags(&self, index: &Path) -> Result<()> {
+        let dir = index.parent().unwrap_or(Path::new("."));
+        let text =
+            std::fs::read(index).map_err(|e| anyhow!("{}: cannot read: {e}", index.display()))?;
+        let mut ix = IndexFile::parse(&text, dir)?;
+        let fill = |e: &mut crate::store::index::FileEntry| {
+            e.etag = match self.uploader.uploaded(&e.file) {
+                Some((size, Some(etag))) if size == e.bytes && !etag.is_empty() => Some(etag),
+                _ => None,
+            };
+        };
+        ix.parts.iter_mut().for_each(fill);
+        ix.nodes.iter_mut().for_each(|n| fill(&mut n.entry));
+        ix.uploaded_to = Some(self.url.clone());
+        ix.save(dir)?;
         Ok(())
     }
 

@@ -1,8 +1,9 @@
 //! One object read by byte ranges: nearby ranges merged into one request, the
 //! merged requests sent concurrently, the bytes kept in a process-wide LRU cache
 //! keyed by URL, ETag and range (a changed object is never served stale: every
-//! ranged request after the first is conditional on the ETag first seen), and
-//! optionally on disk (`disk.rs`).
+//! ranged request after the first is conditional on the ETag first seen, or
+//! every one on the ETag the dataset index records), and optionally on disk
+//! (`disk.rs`).
 
 use super::{InFlight, Remote, explain};
 use bytes::Bytes;
@@ -25,8 +26,12 @@ pub const MEMORY_CACHE: u64 = 512 << 20;
 pub struct RemoteFile {
     pub remote: Arc<Remote>,
     pub name: String,
-    /// Size and ETag, from the first response.
+    /// Size and ETag, from the first response (or from the dataset index).
     seen: OnceLock<(u64, Option<String>)>,
+    /// Whether `seen` came from the dataset index (`convert -o URL` recorded
+    /// the ETag its upload returned): a mismatch then means the object was
+    /// replaced behind the index.
+    pinned: bool,
 }
 
 /// Key of a cached range: URL, ETag, range.
@@ -80,6 +85,24 @@ impl Lru {
     }
 }
 
+/// Drops from the in-memory cache every range of the objects whose URL starts
+/// with `url` (tests and benchmarks: a later read is then served as by a new
+/// process, from the disk cache or the store).
+pub fn forget_cached(url: &str) {
+    let mut c = cache().lock().unwrap_or_else(|p| p.into_inner());
+    let gone: Vec<Key> = c
+        .map
+        .keys()
+        .filter(|k| k.0.starts_with(url))
+        .cloned()
+        .collect();
+    for k in gone {
+        if let Some((b, _)) = c.map.remove(&k) {
+            c.bytes -= b.len() as u64;
+        }
+    }
+}
+
 /// `ranges` sorted and merged where they overlap or lie within `gap` bytes.
 pub fn merge(ranges: &[Range<u64>], gap: u64) -> Vec<Range<u64>> {
     let mut v: Vec<Range<u64>> = ranges.iter().filter(|r| r.end > r.start).cloned().collect();
@@ -100,6 +123,19 @@ impl RemoteFile {
             remote,
             name: name.to_string(),
             seen: OnceLock::new(),
+            pinned: false,
+        }
+    }
+
+    /// An object whose size and ETag the dataset index records: no request
+    /// learns them (no HEAD, even with a warm disk cache); every range is
+    /// fetched conditional on that ETag, and cached under it.
+    pub fn pinned(remote: Arc<Remote>, name: &str, size: u64, etag: String) -> RemoteFile {
+        RemoteFile {
+            remote,
+            name: name.to_string(),
+            seen: OnceLock::from((size, Some(etag))),
+            pinned: true,
         }
     }
 
@@ -144,6 +180,17 @@ impl RemoteFile {
                     ));
                 }
                 let first = self.seen.get_or_init(|| meta.clone());
+                // (A store that ignored the condition: the ETag says it.)
+                if self.pinned && meta.1.is_some() && meta.1 != first.1 {
+                    return Err(format!(
+                        "{}: the part changed since the index was written (ETag {} now, {} in \
+                         the index): re-run `pcimg convert -o URL`, or upload the dataset again \
+                         together with its index",
+                        self.url(),
+                        crate::text::sanitize(meta.1.as_deref().unwrap_or_default()),
+                        crate::text::sanitize(first.1.as_deref().unwrap_or_default()),
+                    ));
+                }
                 if first.0 != meta.0 {
                     return Err(format!(
                         "{}: changed while being read ({} bytes, {} before): open the dataset again",
@@ -153,6 +200,15 @@ impl RemoteFile {
                     ));
                 }
                 Ok(b)
+            }
+            Err(object_store::Error::Precondition { .. }) if self.pinned => {
+                f.done(0, false);
+                Err(format!(
+                    "{}: the part changed since the index was written (its ETag is not the one \
+                     the dataset index records): re-run `pcimg convert -o URL`, or upload the \
+                     dataset again together with its index",
+                    self.url()
+                ))
             }
             Err(e) => {
                 f.done(0, false);

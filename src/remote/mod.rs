@@ -288,6 +288,12 @@ impl Remote {
     pub fn file(self: &Arc<Self>, name: &str) -> RemoteFile {
         RemoteFile::new(self.clone(), name)
     }
+
+    /// A ranged reader of the object `name` whose size and ETag are known (the
+    /// dataset index records them): no request asks for them.
+    pub fn file_pinned(self: &Arc<Self>, name: &str, size: u64, etag: String) -> RemoteFile {
+        RemoteFile::pinned(self.clone(), name, size, etag)
+    }
 }
 
 /// What went wrong and what to do about it, from an object_store error.

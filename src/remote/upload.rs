@@ -1,13 +1,16 @@
 //! Local files uploaded to object storage in the background: `put` for small
 //! files, a multipart upload (aborted on failure or cancel) above
 //! [`MULTIPART_ABOVE`]; every object started is remembered so that a failed or
-//! interrupted upload can delete what it wrote.
+//! interrupted upload can delete what it wrote, and every object uploaded its
+//! ETag (for the dataset index). A queued file is held by a hard link in a
+//! queue directory, not an open file, and opened when its upload starts (a
+//! conversion of thousands of parts would otherwise hit the open-file limit).
 
 use super::{InFlight, Remote, explain};
 use object_store::{ObjectStoreExt, PutPayload, WriteMultipart};
 use std::collections::HashMap;
 use std::io::Read;
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
@@ -36,10 +39,61 @@ pub struct Uploader {
     started: Mutex<Vec<String>>,
     /// The first error, reported by the next call.
     error: Arc<Mutex<Option<String>>>,
+    /// Object name → size and ETag of its finished upload.
+    uploaded: Arc<Mutex<HashMap<String, (u64, Option<String>)>>>,
+    /// Where queued files are hard-linked until their upload starts.
+    queue: Option<QueueDir>,
+    queued: AtomicU64,
+}
+
+/// A directory removed with everything in it when dropped.
+struct QueueDir(PathBuf);
+impl Drop for QueueDir {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_dir_all(&self.0);
+    }
+}
+
+/// A file waiting for its upload: a hard link (opened, then removed, when the
+/// upload starts), or the file already open where no link could be made.
+struct Queued {
+    link: Option<PathBuf>,
+    file: Option<std::fs::File>,
+}
+
+impl Queued {
+    fn open(mut self, shown: &str) -> Result<std::fs::File, String> {
+        match (self.file.take(), &self.link) {
+            (Some(f), _) => Ok(f),
+            (None, Some(p)) => {
+                std::fs::File::open(p).map_err(|e| format!("{shown}: cannot open: {e}"))
+            }
+            (None, None) => Err(format!("{shown}: cannot open")),
+        }
+        // (The link goes with `self`: the open file keeps the data.)
+    }
+}
+
+impl Drop for Queued {
+    fn drop(&mut self) {
+        if let Some(p) = &self.link {
+            let _ = std::fs::remove_file(p);
+        }
+    }
 }
 
 impl Uploader {
     pub fn new(remote: Arc<Remote>, cancel: Arc<AtomicBool>) -> Uploader {
+        static N: AtomicU64 = AtomicU64::new(0);
+        let stamp = std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .map_or(0, |d| d.as_nanos());
+        let dir = std::env::temp_dir().join(format!(
+            "pcimg-queue-{}-{stamp}-{}",
+            std::process::id(),
+            N.fetch_add(1, Ordering::Relaxed)
+        ));
+        let queue = std::fs::create_dir_all(&dir).ok().map(|()| QueueDir(dir));
         Uploader {
             remote,
             cancel,
@@ -48,7 +102,21 @@ impl Uploader {
             tasks: Default::default(),
             started: Default::default(),
             error: Default::default(),
+            uploaded: Default::default(),
+            queue,
+            queued: AtomicU64::new(0),
         }
+    }
+
+    /// The size and ETag of the finished upload of `name` (the ETag where the
+    /// store returned one).
+    pub fn uploaded(&self, name: &str) -> Option<(u64, Option<String>)> {
+        lock(&self.uploaded).get(name).cloned()
+    }
+
+    /// Where queued files wait (hard links), if anywhere (tests).
+    pub fn queue_dir(&self) -> Option<&Path> {
+        self.queue.as_ref().map(|q| q.0.as_path())
     }
 
     /// Bytes uploaded so far.
@@ -76,28 +144,58 @@ impl Uploader {
                 s.push(name.to_string());
             }
         }
-        let (remote, cancel, sent, files, error) = (
+        let (remote, cancel, sent, files, error, uploaded) = (
             self.remote.clone(),
             self.cancel.clone(),
             self.sent.clone(),
             self.files.clone(),
             self.error.clone(),
+            self.uploaded.clone(),
         );
-        // Opened now: the conversion may move its directory (publishing it)
-        // before this upload's turn comes; the open file stays readable.
+        // Held now: the conversion may move its directory (publishing it)
+        // before this upload's turn comes. A hard link keeps the file without
+        // holding it open; where none can be made, the file is opened now.
         let shown = crate::text::sanitize(&local.display().to_string());
-        let file = std::fs::File::open(local).map_err(|e| format!("{shown}: cannot open: {e}"))?;
+        let queued = self.queue.as_ref().and_then(|q| {
+            let leaf = local.file_name().map(|n| n.to_string_lossy().into_owned());
+            let link = q.0.join(format!(
+                "{}-{}",
+                self.queued.fetch_add(1, Ordering::Relaxed),
+                leaf.unwrap_or_default()
+            ));
+            std::fs::hard_link(local, &link).ok().map(|()| Queued {
+                link: Some(link),
+                file: None,
+            })
+        });
+        let queued = match queued {
+            Some(q) => q,
+            None => Queued {
+                link: None,
+                file: Some(
+                    std::fs::File::open(local).map_err(|e| format!("{shown}: cannot open: {e}"))?,
+                ),
+            },
+        };
         let (local, name2) = (local.to_path_buf(), name.to_string());
         let task = super::runtime().spawn(async move {
             if let Some(b) = before {
                 let _ = b.await;
             }
             let _permit = files.acquire_owned().await.map_err(|e| e.to_string())?;
-            let r = put_file(&remote, file, &local, &name2, &cancel, &sent).await;
-            if let Err(e) = &r {
-                lock(&error).get_or_insert_with(|| e.clone());
+            let r = match queued.open(&shown) {
+                Ok(file) => put_file(&remote, file, &local, &name2, &cancel, &sent).await,
+                Err(e) => Err(e),
+            };
+            match &r {
+                Ok(done) => {
+                    lock(&uploaded).insert(name2.clone(), done.clone());
+                }
+                Err(e) => {
+                    lock(&error).get_or_insert_with(|| e.clone());
+                }
             }
-            r
+            r.map(|d| d.0)
         });
         tasks.insert(name.to_string(), task);
         Ok(())
@@ -191,7 +289,7 @@ async fn put_file(
     name: &str,
     cancel: &AtomicBool,
     sent: &AtomicU64,
-) -> Result<u64, String> {
+) -> Result<(u64, Option<String>), String> {
     let url = remote.url_of(name);
     let shown = crate::text::sanitize(&local.display().to_string());
     let cancelled = || format!("{url}: upload interrupted");
@@ -212,9 +310,9 @@ async fn put_file(
         let f = InFlight::start(remote);
         let r = remote.store.put(&loc, PutPayload::from(data)).await;
         f.done(0, r.is_ok());
-        r.map_err(fail)?;
+        let put = r.map_err(fail)?;
         sent.fetch_add(n, Ordering::Relaxed);
-        return Ok(n);
+        return Ok((n, put.e_tag));
     }
     let f = InFlight::start(remote);
     let up = remote.store.put_multipart(&loc).await;
@@ -269,6 +367,6 @@ async fn put_file(
     let f = InFlight::start(remote);
     let r = w.finish().await;
     f.done(0, r.is_ok());
-    r.map_err(fail)?;
-    Ok(done)
+    let put = r.map_err(fail)?;
+    Ok((done, put.e_tag))
 }

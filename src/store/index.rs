@@ -32,6 +32,12 @@ pub struct FileEntry {
     /// Modification time: seconds and nanoseconds since the Unix epoch.
     pub mtime: (i64, u32),
     pub header: PartHeader,
+    /// The object's ETag in the store [`IndexFile::uploaded_to`] names, as its
+    /// upload returned it (`convert -o URL`); absent in an index written locally.
+    /// A reader of that store keys its caches by it and sends every range
+    /// request conditional on it, so it needs no HEAD to learn it.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub etag: Option<String>,
 }
 
 /// What an overview node stands for: a part, or a node of the layer below.
@@ -62,6 +68,11 @@ pub struct IndexFile {
     pub parts: Vec<FileEntry>,
     /// Overview nodes, each after its children; the root last.
     pub nodes: Vec<NodeEntry>,
+    /// The URL the dataset was uploaded to when the entries' `etag`s were
+    /// recorded: they are used only when the dataset is read from that URL (a
+    /// copy elsewhere, made by other tools, may carry other ETags).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub uploaded_to: Option<String>,
 }
 
 /// Modification time of `meta` as stored in the index.
@@ -86,6 +97,7 @@ pub fn entry_of(part: &Part, file: &str) -> Result<FileEntry> {
         head: head_of(&part.path)?,
         mtime: mtime_of(&meta),
         header: part.header(),
+        etag: None,
     })
 }
 
@@ -117,6 +129,7 @@ impl IndexFile {
             version: INDEX_VERSION,
             parts,
             nodes,
+            uploaded_to: None,
         }
     }
 
@@ -272,9 +285,14 @@ impl IndexFile {
         remote: &std::sync::Arc<crate::remote::Remote>,
     ) -> (Vec<Part>, Vec<Part>) {
         let dir = Path::new(&remote.url);
+        // The ETags hold for the store they were recorded in.
+        let pinned = self.uploaded_to.as_deref() == Some(remote.url.as_str());
         let open = |e: FileEntry| {
-            let file = std::sync::Arc::new(remote.file(&e.file));
-            Part::from_header_remote(dir, file, (e.bytes, e.head), e.header)
+            let file = match e.etag.filter(|t| pinned && !t.is_empty()) {
+                Some(etag) => remote.file_pinned(&e.file, e.bytes, etag),
+                None => remote.file(&e.file),
+            };
+            Part::from_header_remote(dir, std::sync::Arc::new(file), (e.bytes, e.head), e.header)
         };
         let parts = self.parts.into_iter().map(open).collect();
         let nodes = self.nodes.into_iter().map(|n| open(n.entry)).collect();

@@ -4,6 +4,7 @@
 pub mod builder;
 pub mod coarse;
 pub mod codec;
+pub mod crs;
 pub mod error;
 pub mod hilbert;
 pub mod layout;

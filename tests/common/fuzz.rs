@@ -122,6 +122,16 @@ pub fn seeds(dir: &Path, n: u64) -> anyhow::Result<Vec<(Vec<u8>, String)>> {
     };
     convert::convert(&xyz, &o, &Quiet)?;
     out.push((std::fs::read(&part)?, "tif".to_string()));
+    // And a LERC one (lossy coordinates): damaged LERC blobs are read too.
+    let lerc = dir.join("seed-lerc.tif");
+    let o = ConvertOptions {
+        compression: Compression::LercZstd,
+        max_error: Some(0.004),
+        memory: 1 << 30,
+        ..options(&mut Rng::new(0), "xyz", &lerc)
+    };
+    convert::convert(&xyz, &o, &Quiet)?;
+    out.push((std::fs::read(&lerc)?, "tif".to_string()));
     Ok(out)
 }
 
@@ -181,8 +191,16 @@ pub fn options(rng: &mut Rng, ext: &str, output: &Path) -> ConvertOptions {
         } else {
             Partition::Spatial
         },
-        compression: [Compression::None, Compression::Deflate][below(rng, 2) as usize],
-        max_error: None,
+        compression: [
+            Compression::None,
+            Compression::Deflate,
+            Compression::Lerc,
+            Compression::LercDeflate,
+            Compression::LercZstd,
+        ][below(rng, 5) as usize],
+        // The LERC codecs' coordinate bound (ignored by the others): lossless,
+        // or a few millimetres.
+        max_error: [None, Some(0.004)][below(rng, 2) as usize],
         layout: if below(rng, 4) == 0 {
             Layout::Paper
         } else {
