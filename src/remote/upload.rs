@@ -23,6 +23,9 @@ pub const MULTIPART_ABOVE: u64 = 16 << 20;
 pub const PART_SIZE: usize = 8 << 20;
 /// Parts of one multipart upload in flight at once.
 const PARTS_AT_ONCE: usize = 4;
+/// Each uploaded object's size and ETag (where the store gave one), by name.
+type Uploaded = HashMap<String, (u64, Option<String>)>;
+
 /// Files uploaded at once.
 const FILES_AT_ONCE: usize = 4;
 
@@ -40,7 +43,7 @@ pub struct Uploader {
     /// The first error, reported by the next call.
     error: Arc<Mutex<Option<String>>>,
     /// Object name → size and ETag of its finished upload.
-    uploaded: Arc<Mutex<HashMap<String, (u64, Option<String>)>>>,
+    uploaded: Arc<Mutex<Uploaded>>,
     /// Where queued files are hard-linked until their upload starts.
     queue: Option<QueueDir>,
     queued: AtomicU64,

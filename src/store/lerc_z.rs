@@ -164,7 +164,11 @@ fn fletcher32(data: &[u8]) -> u32 {
         }
         let sum_a: u64 = a.iter().map(|&v| v as u64).sum();
         let sum_c: u64 = c.iter().map(|&v| v as u64).sum();
-        let ja: u64 = a.iter().enumerate().map(|(j, &v)| j as u64 * v as u64).sum();
+        let ja: u64 = a
+            .iter()
+            .enumerate()
+            .map(|(j, &v)| j as u64 * v as u64)
+            .sum();
         s2 += 8 * k * s1 + 8 * sum_c - ja;
         s1 += sum_a;
         for w in groups.remainder().chunks_exact(2) {
@@ -205,7 +209,10 @@ fn rle_mask(c: &mut Cursor, len: usize, out: &mut Vec<u8>) -> Result<(), String>
         }
     }
     if out.len() != len {
-        return Err(format!("LERC mask holds {} bytes, {len} expected", out.len()));
+        return Err(format!(
+            "LERC mask holds {} bytes, {len} expected",
+            out.len()
+        ));
     }
     Ok(())
 }
@@ -252,7 +259,10 @@ pub(super) fn decode(
         ));
     }
     let blob = &blob[..h.size];
-    let mut c = Cursor { b: blob, pos: c.pos };
+    let mut c = Cursor {
+        b: blob,
+        pos: c.pos,
+    };
     let mask_bytes = c.i32()?;
     let pixels = side * side;
     MASK.with(|m| {
@@ -751,7 +761,10 @@ mod tests {
         if !decode(blob, side, &mut got).unwrap() {
             return None;
         }
-        Some((got.iter().map(|v| unsafe { v.assume_init() }).collect(), want))
+        Some((
+            got.iter().map(|v| unsafe { v.assume_init() }).collect(),
+            want,
+        ))
     }
 
     fn same(a: &[f32], b: &[f32]) {
@@ -825,7 +838,9 @@ mod tests {
     /// from the blob and from the padded copy (the block at the very end).
     #[test]
     fn unpacking_by_eights_agrees() {
-        let raw: Vec<u8> = (0..2000u32).map(|i| (i * 2654435761u32 >> 13) as u8).collect();
+        let raw: Vec<u8> = (0..2000u32)
+            .map(|i| (i.wrapping_mul(2654435761u32) >> 13) as u8)
+            .collect();
         let mut pad = [0u8; 256 * 4 + 8];
         for bits in 1..32u32 {
             for count in [8usize, 64, 256] {
@@ -836,7 +851,10 @@ mod tests {
                     unpack_eights(&mut Cursor { b, pos: 0 }, bits, &mut a, &mut pad).unwrap();
                     let mut w = vec![0u32; count];
                     unpack(&mut Cursor { b, pos: 0 }, count, bits, &mut w).unwrap();
-                    assert!(a.iter().zip(&w).all(|(&a, &w)| a as u32 == w), "{bits} bits");
+                    assert!(
+                        a.iter().zip(&w).all(|(&a, &w)| a as u32 == w),
+                        "{bits} bits"
+                    );
                 }
             }
         }
