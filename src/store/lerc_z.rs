@@ -416,7 +416,13 @@ fn tiles(
                                 step: inv_scale,
                                 max: h.z_max,
                             };
-                            place(c, bits, lut, &rel, scale, slots, &mut scratch)?;
+                            let block = Block {
+                                bits,
+                                lut,
+                                rel: &rel,
+                                scale,
+                            };
+                            place(c, block, slots, &mut scratch)?;
                             continue;
                         }
                         unstuff(c, count, bits, lut, &mut q)?;
@@ -480,14 +486,23 @@ struct Scale {
     max: f64,
 }
 
+/// A bit-stuffed block as its head describes it.
+#[derive(Clone, Copy)]
+struct Block<'a> {
+    /// Bits a value (or a look-up-table entry) takes.
+    bits: u32,
+    /// Whether the values index a look-up table.
+    lut: bool,
+    /// Z-index inside the block of each pixel, in raster order.
+    rel: &'a [u32],
+    scale: Scale,
+}
+
 /// A whole block of bit-stuffed integers straight to its slots: value `i` (raster
 /// order) goes to `slots[rel[i]]`.
 fn place(
     c: &mut Cursor,
-    bits: u32,
-    lut: bool,
-    rel: &[u32],
-    s: Scale,
+    b: Block,
     slots: &mut [std::mem::MaybeUninit<f32>],
     scratch: &mut Scratch,
 ) -> Result<(), String> {
@@ -497,9 +512,9 @@ fn place(
         && !tests_force_plain()
     {
         // SAFETY: this CPU has AVX2 and BMI2 (checked just now).
-        return unsafe { place_avx2(c, bits, lut, rel, s, slots, scratch) };
+        return unsafe { place_avx2(c, b, slots, scratch) };
     }
-    place_body(c, bits, lut, rel, s, slots, scratch)
+    place_body(c, b, slots, scratch)
 }
 
 /// Whether a test asks for the portable path on a CPU with AVX2.
@@ -512,31 +527,32 @@ fn tests_force_plain() -> bool {
 }
 
 /// [`place_body`] compiled for AVX2 and BMI2: the scaling four `f64` at a
-/// time, shifts by a register without flags (measured: bench/RESULTS.md).
+/// time, shifts by a register without flags (not measured apart from the rest
+/// of the decoder: bench/RESULTS.md, issue 30 part 5).
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2,bmi2")]
 unsafe fn place_avx2(
     c: &mut Cursor,
-    bits: u32,
-    lut: bool,
-    rel: &[u32],
-    s: Scale,
+    b: Block,
     slots: &mut [std::mem::MaybeUninit<f32>],
     scratch: &mut Scratch,
 ) -> Result<(), String> {
-    place_body(c, bits, lut, rel, s, slots, scratch)
+    place_body(c, b, slots, scratch)
 }
 
 #[inline(always)]
 fn place_body(
     c: &mut Cursor,
-    bits: u32,
-    lut: bool,
-    rel: &[u32],
-    s: Scale,
+    b: Block,
     slots: &mut [std::mem::MaybeUninit<f32>],
     scratch: &mut Scratch,
 ) -> Result<(), String> {
+    let Block {
+        bits,
+        lut,
+        rel,
+        scale: s,
+    } = b;
     let count = rel.len();
     assert!(slots.len() == count && count.is_power_of_two());
     let wrap = count - 1;
