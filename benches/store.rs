@@ -36,17 +36,7 @@ fn bench(c: &mut Criterion) {
     let mut g = c.benchmark_group("store");
     g.sample_size(10).measurement_time(Duration::from_secs(20));
     g.throughput(Throughput::Elements(n));
-    for comp in [
-        Compression::None,
-        Compression::Deflate,
-        Compression::Zstd,
-        Compression::Lerc,
-        Compression::LercDeflate,
-        Compression::LercZstd,
-    ]
-    .into_iter()
-    .filter(|c| wanted(c.name()))
-    {
+    for comp in Compression::ALL.into_iter().filter(|c| wanted(c.name())) {
         let path = dir.path().join(format!("{}.tif", comp.name()));
         let opts = WriteOptions {
             compression: comp,

@@ -23,6 +23,16 @@ pub enum Compression {
 }
 
 impl Compression {
+    /// Every codec, fastest to read first.
+    pub const ALL: [Compression; 6] = [
+        Compression::None,
+        Compression::Deflate,
+        Compression::Zstd,
+        Compression::Lerc,
+        Compression::LercDeflate,
+        Compression::LercZstd,
+    ];
+
     pub fn tiff_code(self) -> u16 {
         match self {
             Compression::None => comp::NONE,
@@ -398,13 +408,22 @@ thread_local! {
 /// Decompresses a Zstd frame of at most `capacity` bytes with this thread's
 /// context.
 fn zstd_decompress(stored: &[u8], capacity: usize) -> std::io::Result<Vec<u8>> {
+    let mut out = Vec::new();
+    zstd_decompress_into(stored, capacity, &mut out)?;
+    Ok(out)
+}
+
+/// [`zstd_decompress`] into `out` (cleared first, its allocation reused).
+fn zstd_decompress_into(stored: &[u8], capacity: usize, out: &mut Vec<u8>) -> std::io::Result<()> {
+    out.clear();
+    out.reserve(capacity);
     ZSTD.with(|z| {
         let mut z = z.borrow_mut();
         let d = match &mut *z {
             Some(d) => d,
             None => z.insert(zstd::bulk::Decompressor::new()?),
         };
-        d.decompress(stored, capacity)
+        d.decompress_to_buffer(stored, out).map(|_| ())
     })
 }
 
@@ -444,16 +463,8 @@ impl TileCodec {
                         })?;
                 }
                 spec::lerc::ADD_ZSTD => {
-                    blob.reserve(limit);
-                    ZSTD.with(|z| {
-                        let mut z = z.borrow_mut();
-                        let d = match &mut *z {
-                            Some(d) => d,
-                            None => z.insert(zstd::bulk::Decompressor::new()?),
-                        };
-                        d.decompress_to_buffer(stored, &mut *blob)
-                    })
-                    .map_err(|e| format!("zstd stream around the LERC blob is corrupt: {e}"))?;
+                    zstd_decompress_into(stored, limit, &mut blob)
+                        .map_err(|e| format!("zstd stream around the LERC blob is corrupt: {e}"))?;
                 }
                 _ => return Ok(false),
             }
@@ -574,14 +585,7 @@ fn running_sum(bytes: &mut [u8]) {
 mod tests {
     use super::*;
 
-    const ALL: [Compression; 6] = [
-        Compression::None,
-        Compression::Deflate,
-        Compression::Zstd,
-        Compression::Lerc,
-        Compression::LercDeflate,
-        Compression::LercZstd,
-    ];
+    const ALL: [Compression; 6] = Compression::ALL;
 
     fn codec_of(c: Compression, width: usize) -> TileCodec {
         TileCodec {

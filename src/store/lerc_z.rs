@@ -362,7 +362,6 @@ fn tiles(
     let mut scratch = Scratch {
         q: [0; 256],
         vals: [0.0; 256],
-        pad: [0; 256 * 4 + 8],
     };
     let blocks = side / m;
     for by in 0..blocks {
@@ -573,14 +572,14 @@ fn place_body(
         let mut table = [0u32; 256];
         let table = lut_table(c, bits, &mut table)?;
         let index_bits = u32::BITS - (table.len() as u32 - 1).leading_zeros();
-        unpack_some(c, index_bits, q, &mut scratch.pad)?;
+        unpack_some(c, index_bits, q)?;
         for v in q.iter_mut() {
             *v = *table
                 .get(*v as usize)
                 .ok_or("LERC block indexes past its look-up table")? as i32;
         }
     } else {
-        unpack_some(c, bits, q, &mut scratch.pad)?;
+        unpack_some(c, bits, q)?;
     }
     // Below 2^31 (bits < 32): exact through i32, which converts to f64 in one
     // instruction; the loop is vectorized.
@@ -601,20 +600,13 @@ fn place_body(
 struct Scratch {
     q: [i32; 256],
     vals: [f32; 256],
-    /// A block's packed bits copied where fewer than 8 bytes follow them.
-    pad: [u8; 256 * 4 + 8],
 }
 
 /// [`unpack_with`] for a multiple of 8 integers into `q`, with the width a
 /// constant: 8 integers take exactly `bits` bytes, so each one's byte and shift
 /// within its group of 8 are known when compiled.
 #[inline(always)]
-fn unpack_eights(
-    c: &mut Cursor,
-    bits: u32,
-    q: &mut [i32],
-    pad: &mut [u8; 256 * 4 + 8],
-) -> Result<(), String> {
+fn unpack_eights(c: &mut Cursor, bits: u32, q: &mut [i32]) -> Result<(), String> {
     #[inline(always)]
     fn run<const B: usize>(data: &[u8], q: &mut [i32]) {
         let mask = (1u64 << B) - 1;
@@ -628,21 +620,12 @@ fn unpack_eights(
             }
         }
     }
-    let count = q.len();
-    let bytes = count * bits as usize / 8;
-    let start = c.pos;
-    let src = c.take(bytes)?;
-    if q.len() > 256 {
-        return Err("LERC block of more than 256 values".into());
+    if !(1..32).contains(&bits) {
+        return Err(format!("LERC block packs {bits}-bit values"));
     }
-    let data: &[u8] = match c.b.get(start..start + bytes + 8) {
-        Some(d) => d,
-        None => {
-            pad[..bytes].copy_from_slice(src);
-            &pad[..bytes + 8]
-        }
-    };
-    macro_rules! widths {
+    let bytes = q.len() * bits as usize / 8;
+    with_packed(c, bytes, |data| {
+        macro_rules! widths {
         ($($b:literal)*) => {
             match bits {
                 $($b => run::<$b>(data, q),)*
@@ -650,8 +633,30 @@ fn unpack_eights(
             }
         };
     }
-    widths!(1 2 3 4 5 6 7 8 9 10 11 12 13 14 15 16 17 18 19 20 21 22 23 24 25 26 27 28 29 30 31);
-    Ok(())
+        widths!(1 2 3 4 5 6 7 8 9 10 11 12 13 14 15 16 17 18 19 20 21 22 23 24 25 26 27 28 29 30 31);
+        Ok(())
+    })?
+}
+
+/// The next `bytes` bytes of packed integers handed to `f` with at least 8
+/// readable bytes after the last one (so each integer can be read as a `u64`
+/// from its first byte): straight from the blob where they follow (nearly
+/// always), else from a zero-padded copy (at most a block of 256 31-bit values).
+#[inline(always)]
+fn with_packed<R>(c: &mut Cursor, bytes: usize, f: impl FnOnce(&[u8]) -> R) -> Result<R, String> {
+    let start = c.pos;
+    let src = c.take(bytes)?;
+    Ok(match c.b.get(start..start + bytes + 8) {
+        Some(d) => f(d),
+        None => {
+            let mut pad = [0u8; 256 * 4 + 8];
+            let pad = pad
+                .get_mut(..bytes + 8)
+                .ok_or("LERC block packs more than 256 values")?;
+            pad[..bytes].copy_from_slice(src);
+            f(pad)
+        }
+    })
 }
 
 /// `count` integers of `bits` (1 to 31) bits each, packed least significant bit
@@ -666,26 +671,15 @@ fn unpack_with(
     mut put: impl FnMut(usize, u32),
 ) -> Result<(), String> {
     let bytes = (count * bits as usize).div_ceil(8);
-    let start = c.pos;
-    let src = c.take(bytes)?;
     let mask = (1u64 << bits) - 1;
-    let mut run = |data: &[u8]| {
+    with_packed(c, bytes, |data| {
         for i in 0..count {
             let bit = i * bits as usize;
             let at = bit >> 3;
             let w = u64::from_le_bytes(data[at..at + 8].try_into().unwrap());
             put(i, ((w >> (bit & 7)) & mask) as u32);
         }
-    };
-    match c.b.get(start..start + bytes + 8) {
-        Some(d) => run(d),
-        None => {
-            let mut pad = [0u8; 256 * 4 + 8];
-            pad[..bytes].copy_from_slice(src);
-            run(&pad[..bytes + 8]);
-        }
-    }
-    Ok(())
+    })
 }
 
 /// One block's bit-stuffed integers (Lerc2 v3 and later: least significant bit
@@ -733,14 +727,9 @@ fn lut_table<'t>(
 
 /// [`unpack_eights`] where `q.len()` is a multiple of 8, else one at a time.
 #[inline(always)]
-fn unpack_some(
-    c: &mut Cursor,
-    bits: u32,
-    q: &mut [i32],
-    pad: &mut [u8; 256 * 4 + 8],
-) -> Result<(), String> {
+fn unpack_some(c: &mut Cursor, bits: u32, q: &mut [i32]) -> Result<(), String> {
     if q.len().is_multiple_of(8) {
-        unpack_eights(c, bits, q, pad)
+        unpack_eights(c, bits, q)
     } else {
         unpack_with(c, q.len(), bits, |i, v| q[i] = v as i32)
     }
@@ -857,14 +846,13 @@ mod tests {
         let raw: Vec<u8> = (0..2000u32)
             .map(|i| (i.wrapping_mul(2654435761u32) >> 13) as u8)
             .collect();
-        let mut pad = [0u8; 256 * 4 + 8];
         for bits in 1..32u32 {
             for count in [8usize, 64, 256] {
                 let bytes = count * bits as usize / 8;
                 for tail in [0usize, 8] {
                     let b = &raw[..bytes + tail];
                     let mut a = vec![0i32; count];
-                    unpack_eights(&mut Cursor { b, pos: 0 }, bits, &mut a, &mut pad).unwrap();
+                    unpack_eights(&mut Cursor { b, pos: 0 }, bits, &mut a).unwrap();
                     let mut w = vec![0u32; count];
                     unpack(&mut Cursor { b, pos: 0 }, count, bits, &mut w).unwrap();
                     assert!(
