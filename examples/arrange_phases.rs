@@ -2,7 +2,7 @@
 //! medians of several runs: `cargo run --release --example arrange_phases -- 8000000 7`
 //! (points, runs). Run with `RAYON_NUM_THREADS=1` for the cost of one core, which
 //! a shared machine's load disturbs less than wall time.
-use pcimg::store::layout::{self, Positions};
+use pcimg::store::write::layout::{self, Positions};
 
 fn main() {
     let mut args = std::env::args().skip(1);

@@ -3,7 +3,7 @@
 
 mod common;
 
-use pcimg::store::zorder::z_pixel;
+use pcimg::store::tiff::zorder::z_pixel;
 use pcimg::store::{Compression, Part, WriteOptions, write_part};
 use std::path::Path;
 use std::process::Command;
@@ -187,7 +187,7 @@ fn gdal_decodes_every_pixel_of_every_level() {
     for c in [Compression::Zstd, Compression::Deflate, Compression::None] {
         let path = write(dir.path(), &format!("all-{}.tif", c.name()), n, c);
         let part = Part::open(&path).unwrap();
-        let g = pcimg::store::zorder::Geometry::for_points(n as u64);
+        let g = pcimg::store::tiff::zorder::Geometry::for_points(n as u64);
         assert!(g.levels() >= 3, "the test wants overviews");
         for level in 0..g.levels() {
             let raw = dir.path().join(format!("l{level}-{}.bin", c.name()));
@@ -254,7 +254,7 @@ fn gdal_decodes_lerc_parts_like_our_reader() {
     write_part(&plain, &cloud, &WriteOptions::default()).unwrap();
     let plain = Part::open(&plain).unwrap();
     let e = 0.005;
-    let g = pcimg::store::zorder::Geometry::for_points(n as u64);
+    let g = pcimg::store::tiff::zorder::Geometry::for_points(n as u64);
     assert!(g.levels() >= 2, "the test wants an overview");
     for c in [
         Compression::Lerc,
@@ -540,8 +540,8 @@ fn gdal_reads_overview_nodes() {
         let opts = WriteOptions::default();
         pcimg::store::write_part(&ds.join(format!("t{k}.tif")), &c, &opts).unwrap();
     }
-    let o = pcimg::store::overview::IndexOptions::default();
-    pcimg::store::overview::build_index(&ds, &o, &|_| {}).unwrap();
+    let o = pcimg::store::dataset::overview::IndexOptions::default();
+    pcimg::store::dataset::overview::build_index(&ds, &o, &|_| {}).unwrap();
     let opened = pcimg::store::Dataset::open(&ds).unwrap();
     let nodes = &opened.overview.as_ref().unwrap().nodes;
     assert!(!nodes.is_empty());

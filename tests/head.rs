@@ -6,7 +6,7 @@
 mod common;
 
 use common::tiffwalk::Walk;
-use pcimg::store::index::{entry_of, head_of};
+use pcimg::store::dataset::index::{entry_of, head_of};
 use pcimg::store::{Compression, Part, WriteOptions, write_part};
 
 fn levels_of(p: &Part) -> Vec<Vec<Vec<u32>>> {

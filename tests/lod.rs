@@ -218,7 +218,7 @@ fn unreadable_tiles_are_not_retried_and_coarser_tiles_stand_in() {
     write_part(&path, &pcimg::synth::scene(400_000, 3), &opts).unwrap();
     // Corrupt the first band of every level-0 tile.
     let mut bytes = std::fs::read(&path).unwrap();
-    let t = pcimg::store::ifd::Tiff::parse(&bytes).unwrap();
+    let t = pcimg::store::tiff::ifd::Tiff::parse(&bytes).unwrap();
     let offsets = t.uints(&bytes, &t.ifds[0], 324).unwrap().unwrap();
     let counts = t.uints(&bytes, &t.ifds[0], 325).unwrap().unwrap();
     let first_band = offsets.len() / 4;

@@ -9,7 +9,7 @@ mod common;
 use pcimg::camera::{self, Camera, Containment};
 use pcimg::lod::{self, LodMode};
 use pcimg::points::{Attribute, PointColumns};
-use pcimg::store::overview::{IndexOptions, build_index};
+use pcimg::store::dataset::overview::{IndexOptions, build_index};
 use pcimg::store::{Dataset, WriteOptions, write_part};
 use std::path::{Path, PathBuf};
 use std::process::Command;

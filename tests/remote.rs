@@ -9,7 +9,7 @@ use object_store::throttle::{ThrottleConfig, ThrottledStore};
 use object_store::{ObjectStore, ObjectStoreExt, PutPayload};
 use pcimg::points::{Attribute, PointColumns};
 use pcimg::remote::Remote;
-use pcimg::store::overview::{IndexOptions, build_index};
+use pcimg::store::dataset::overview::{IndexOptions, build_index};
 use pcimg::store::{Dataset, WriteOptions, write_part};
 use std::path::Path;
 use std::sync::Arc;
@@ -310,7 +310,7 @@ fn read_all(ds: &Dataset, which: &[usize]) -> Vec<Vec<Vec<f32>>> {
 #[test]
 fn a_converted_dataset_reads_warm_without_heads_and_a_replaced_part_is_an_error() {
     use pcimg::convert::{Quiet, upload::RemoteOutput};
-    use pcimg::store::index::{INDEX_FILE, IndexFile};
+    use pcimg::store::dataset::index::{INDEX_FILE, IndexFile};
     use std::sync::atomic::AtomicBool;
     let dir = tempfile::tempdir().unwrap();
     let input = dir.path().join("in.xyz");

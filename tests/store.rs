@@ -5,7 +5,7 @@ mod common;
 
 use common::random_cloud;
 use pcimg::points::PointColumns;
-use pcimg::store::zorder::Geometry;
+use pcimg::store::tiff::zorder::Geometry;
 use pcimg::store::{Compression, Dataset, Part, TileIo, WriteOptions, write_part};
 use proptest::prelude::*;
 use std::collections::HashMap;
@@ -551,7 +551,8 @@ fn a_cancelled_write_stops_and_leaves_nothing() {
     };
     let e = write_part(&path, &c, &opts).unwrap_err();
     assert!(
-        e.to_string().contains(pcimg::store::writer::INTERRUPTED),
+        e.to_string()
+            .contains(pcimg::store::write::part::INTERRUPTED),
         "{e}"
     );
     assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 0);
@@ -696,7 +697,7 @@ fn set_item(bytes: &mut [u8], name: &str, value: &str) {
 fn tile_offset_past_the_end_is_refused() {
     let dir = tempfile::tempdir().unwrap();
     let (_, mut bytes) = good_file(dir.path());
-    let t = pcimg::store::ifd::Tiff::parse(&bytes).unwrap();
+    let t = pcimg::store::tiff::ifd::Tiff::parse(&bytes).unwrap();
     let entry = t.ifds[0].entries[&324];
     let at = entry.at as usize;
     let past = (bytes.len() as u32 + 100).to_le_bytes();
@@ -715,7 +716,7 @@ fn corrupt_compressed_tile_is_an_error_at_read() {
     };
     write_part(&path, &random_cloud(1000, 5, 0), &opts).unwrap();
     let mut bytes = std::fs::read(&path).unwrap();
-    let t = pcimg::store::ifd::Tiff::parse(&bytes).unwrap();
+    let t = pcimg::store::tiff::ifd::Tiff::parse(&bytes).unwrap();
     let off = t.uints(&bytes, &t.ifds[0], 324).unwrap().unwrap()[0] as usize;
     for b in &mut bytes[off..off + 16] {
         *b ^= 0x5a;
@@ -763,7 +764,7 @@ fn fuzz_regressions_stay_bounded() {
 /// the input points at pixels (2^k·x, 2^k·y) of the row-major image, the tile index
 /// counts and bounds what each tile holds.
 fn check_paper_layout(pts: &PointColumns, compression: Compression) {
-    use pcimg::store::{Layout, paper};
+    use pcimg::store::{Layout, write::paper};
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("paper.tif");
     let opts = WriteOptions {

@@ -477,7 +477,7 @@ fn the_worker_picks_the_point_under_the_crosshair() {
             load_threads: 2,
         },
     );
-    app.settings.color = pcimg::render::ColorMode::Classification;
+    app.settings.style.mode = pcimg::render::ColorMode::Classification;
     // Straight down at the centre of the scene: the crosshair's point is there.
     app.camera.pitch = -89.0f64.to_radians();
     let area = ui::areas(ratatui::layout::Rect::new(0, 0, 160, 48), &app).view_inner;

@@ -2,7 +2,7 @@
 //! or (with `--json`) as stable JSON for scripts.
 
 use crate::points::Bounds;
-use crate::store::codec::level_codec_name;
+use crate::store::tiff::codec::level_codec_name;
 use crate::store::{Dataset, Part};
 use crate::text::{bytes, count, sanitize};
 use serde::Serialize;
@@ -216,7 +216,7 @@ pub fn render_text(r: &DatasetReport) -> String {
         Some(b) => writeln!(
             o,
             "index    {} ({}): opened without reading the parts' headers",
-            crate::store::index::INDEX_FILE,
+            crate::store::dataset::index::INDEX_FILE,
             bytes(b)
         ),
         None if r.parts.len() > 1 => writeln!(o, "index    none (`pcimg index` makes one)"),

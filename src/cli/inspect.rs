@@ -93,9 +93,7 @@ pub fn open(ds: Arc<Dataset>, a: &Args, temporary: Option<&Path>) -> anyhow::Res
     }
     let settings = Settings {
         lod,
-        color: style.mode,
-        ramp: style.ramp,
-        range: style.range,
+        style,
         filter,
         point_size: v.point_size,
         edl,

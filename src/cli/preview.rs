@@ -54,7 +54,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         frame_size((term_cols, term_rows), found.cell_pixels, a.cols, graphics);
     let printed = view::render_once(ds, &a.view, &cam, w, h).and_then(|(frame, report)| {
         Ok((
-            term::print_frame(&frame, &found.choice, cols, rows)?,
+            term::print_frame(&crate::pixels(&frame), &found.choice, cols, rows)?,
             report,
         ))
     });

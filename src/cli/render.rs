@@ -4,9 +4,6 @@
 
 use super::turntable;
 use super::view::{self, Drawing, ViewArgs};
-use crate::render::ColorMode;
-use crate::render::legend::{self, Legend};
-use crate::render::scene::Style;
 use crate::store::Dataset;
 use std::path::PathBuf;
 use std::sync::Arc;
@@ -56,30 +53,6 @@ fn parse_pick(s: &str, width: u32, height: u32) -> anyhow::Result<(u32, u32)> {
     Ok((x, y))
 }
 
-/// The legend for `style` over `ds` (classes from the parts' recorded counts).
-pub fn legend_for(
-    ds: &Dataset,
-    style: &Style,
-    filter: &crate::render::filter::Filter,
-    ranges: &crate::render::scene::ColorRanges,
-) -> Option<Legend> {
-    match &style.mode {
-        ColorMode::Classification => {
-            Some(Legend::Classes(legend::class_entries(ds, &filter.classes)))
-        }
-        m if m.uses_ramp() => {
-            let (lo, hi) = style.value_range(ranges)?;
-            Some(Legend::Ramp {
-                title: m.band().unwrap_or("value").to_string(),
-                ramp: style.ramp(),
-                lo,
-                hi,
-            })
-        }
-        _ => None,
-    }
-}
-
 pub fn run(a: Args) -> anyhow::Result<()> {
     let png = a
         .output
@@ -119,23 +92,17 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     if let Some(n) = a.turntable {
         return turntable::run(&mut drawing, &cam, n, &a.output, a.legend);
     }
-    drawing.keep_ids(pick_at.is_some());
-    let mut d = drawing.draw(&cam)?;
+    let d = drawing.draw(&cam, pick_at, a.legend)?;
     if let Some((x, y)) = pick_at {
-        let hit = drawing.pick(&d, &cam, x, y, 3)?;
-        let json = match hit {
+        let json = match d.pick.flatten() {
             None => "null".to_string(),
             Some(h) => {
-                let key = d.scene.tiles[h.batch].key;
-                let rec = crate::lod::point::point_record(&ds, key, h.index)
+                let rec = crate::lod::point::point_record(&ds, d.tile_of(&h), h.index)
                     .map_err(anyhow::Error::msg)?;
                 pick_json((x, y), h.pixel, &rec)
             }
         };
         super::print_out(&format!("{json}\n"))?;
-    }
-    if a.legend {
-        decorate(&mut d.frame, &drawing, &d.ranges, &cam);
     }
     d.frame.save_png(&a.output)?;
     note!("{}", view::describe(&d.report));
@@ -146,21 +113,6 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// Draws the legend and the scale bar onto `frame`.
-pub fn decorate(
-    frame: &mut crate::render::Frame,
-    drawing: &Drawing,
-    ranges: &crate::render::scene::ColorRanges,
-    cam: &crate::camera::Camera,
-) {
-    if let Some(l) = legend_for(&drawing.ds, &drawing.style, &drawing.filter, ranges) {
-        legend::draw(frame, &l);
-    }
-    legend::draw_scale_bar(frame, cam);
-}
-
-/// The JSON `--pick` prints: the pixel asked, the pixel the point covers, its
-/// part, x y z and every attribute (and the class's name when it has one).
 pub fn pick_json(asked: (u32, u32), at: (u32, u32), r: &crate::lod::point::PointRecord) -> String {
     // Stored values are f32: digits beyond a micro-unit are noise.
     let round = |v: f64| (v * 1e6).round() / 1e6;

@@ -31,11 +31,8 @@ pub fn run(d: &mut Drawing, cam: &Camera, n: u32, out: &Path, legend: bool) -> a
     for i in 0..n {
         let mut c = *cam;
         c.yaw = frame_yaw(cam.yaw, i, n);
-        let mut drawn = d.draw(&c)?;
+        let drawn = d.draw(&c, None, legend)?;
         points += drawn.report.selection.points;
-        if legend {
-            super::render::decorate(&mut drawn.frame, d, &drawn.ranges, &c);
-        }
         match frame_path(out, i) {
             Some(p) => drawn.frame.save_png(&p)?,
             None => frames.push(drawn.frame),

@@ -3,18 +3,18 @@
 //! rasterize).
 
 use crate::camera::{self, Camera};
-use crate::lod::{self, LodMode, Selection, TileCache};
+use crate::lod::{self, LodMode, TileCache};
 use crate::render::classes::{self, ClassMask};
 use crate::render::color::ColorMode;
 use crate::render::edl::EdlParams;
 use crate::render::filter::{self, Filter, Where};
+use crate::render::pipeline::{Drawn, FrameReport, FrameRequest, Loading, Overlays, Pipeline};
 use crate::render::ramp::{self, Ramp};
-use crate::render::scene::{ColorRanges, Scene, Style};
-use crate::render::{self, Frame, RenderOptions, RendererChoice};
+use crate::render::scene::Style;
+use crate::render::{Frame, RendererChoice};
 use crate::store::Dataset;
 use std::path::PathBuf;
 use std::sync::Arc;
-use std::time::Instant;
 
 #[derive(Debug, Clone, clap::Args)]
 pub struct ViewArgs {
@@ -286,39 +286,19 @@ pub fn bands_for(style: &Style, filter: &Filter) -> Vec<String> {
     b
 }
 
-/// What one frame took, for the report and the status line.
-#[derive(Debug, Clone, Default)]
-pub struct FrameReport {
-    pub selection: Selection,
-    pub select_ms: f64,
-    pub load_ms: f64,
-    /// Colouring the loaded points and applying the filter.
-    pub color_ms: f64,
-    pub render_ms: f64,
-    pub renderer: String,
-}
-
-/// Everything a frame is drawn from, parsed and checked once (a turntable
-/// draws many frames from one).
+/// Everything `render`, `preview` and the turntable draw frames from, parsed and
+/// checked once (a turntable draws many frames from one); the drawing itself is
+/// the frame pipeline's ([`Pipeline`]), as in the inspector.
 pub struct Drawing {
-    pub ds: Arc<Dataset>,
     pub style: Style,
     pub filter: Filter,
-    pub opts: RenderOptions,
+    width: u32,
+    height: u32,
+    point_size: u32,
+    edl: (bool, EdlParams),
     mode: LodMode,
     memory: u64,
-    cache: TileCache,
-    renderer: Box<dyn render::Rasterizer>,
-    /// Colour ranges, fixed by the first frame (a turntable keeps one scale).
-    ranges: Option<ColorRanges>,
-}
-
-/// One drawn frame with the scene it was drawn from (for picking and legends).
-pub struct Drawn {
-    pub frame: Frame,
-    pub report: FrameReport,
-    pub scene: Scene,
-    pub ranges: ColorRanges,
+    pipeline: Pipeline,
 }
 
 impl Drawing {
@@ -326,91 +306,56 @@ impl Drawing {
         let mode = lod_for(&a.lod, lod::budget_for_pixels(width, height, a.budget), &ds)?;
         let style = style_for(a, &ds)?;
         let filter = filter_for(a, &ds)?;
-        let (edl_on, edl) = edl_for(a)?;
+        let edl = edl_for(a)?;
         let choice: RendererChoice = a.renderer.parse()?;
         let cache = TileCache::with_bands(ds.clone(), a.memory, 1, bands_for(&style, &filter));
+        let mut pipeline = Pipeline::new(ds, cache, choice, Loading::Wait);
+        // A rasterizer that cannot start is the first error, before any loading.
+        pipeline.renderer()?;
         Ok(Drawing {
-            ds,
             style,
             filter,
-            opts: RenderOptions {
-                width,
-                height,
-                point_size: a.point_size,
-                eye_dome_lighting: edl_on,
-                edl,
-                background: [0, 0, 0],
-            },
+            width,
+            height,
+            point_size: a.point_size,
+            edl,
             mode,
             memory: a.memory,
-            cache,
-            renderer: render::create(choice)?,
-            ranges: None,
+            pipeline,
         })
     }
 
-    /// Keeps (or not) the id of the point drawn at each pixel in the next
-    /// frames, for [`Drawing::pick`].
-    pub fn keep_ids(&mut self, on: bool) {
-        self.renderer.keep_ids(on);
+    pub fn dataset(&self) -> &Arc<Dataset> {
+        self.pipeline.dataset()
     }
 
-    /// The point drawn nearest pixel `(x, y)` of `d` (the last frame drawn).
-    pub fn pick(
-        &self,
-        d: &Drawn,
+    /// Draws the frame `cam` sees (colour ranges fixed by the first frame, so a
+    /// turntable keeps one scale); picks the point nearest `pick` (3 pixels
+    /// around); with `legend`, the legend and the scale bar over it.
+    pub fn draw(
+        &mut self,
         cam: &Camera,
-        x: u32,
-        y: u32,
-        radius: u32,
-    ) -> anyhow::Result<Option<render::pick::Hit>> {
-        Ok(render::pick::pick_drawn(
-            self.renderer.as_ref(),
-            cam,
-            &d.scene.batches(),
-            &self.opts,
-            x,
-            y,
-            radius,
-        )?)
-    }
-
-    /// Selects (culling by the clip box too), loads, colours and renders a frame.
-    pub fn draw(&mut self, cam: &Camera) -> anyhow::Result<Drawn> {
-        let (width, height) = (self.opts.width, self.opts.height);
-        let t = Instant::now();
-        let sel = lod::select_region(&self.ds, cam, width, height, self.mode, self.memory, &|b| {
-            self.filter.may_show(b)
-        });
-        let select_ms = t.elapsed().as_secs_f64() * 1e3;
-        let t = Instant::now();
-        let tiles = self
-            .cache
-            .load_all(&sel.tiles)
-            .map_err(anyhow::Error::msg)?;
-        let load_ms = t.elapsed().as_secs_f64() * 1e3;
-        let t = Instant::now();
-        let ranges = *self
-            .ranges
-            .get_or_insert_with(|| ColorRanges::for_style(&tiles, &self.ds.bounds(), &self.style));
-        let scene = Scene::build(tiles, &self.style, &ranges, &self.filter);
-        let color_ms = t.elapsed().as_secs_f64() * 1e3;
-        let t = Instant::now();
-        let frame = self.renderer.render(cam, &scene.batches(), &self.opts)?;
-        let render_ms = t.elapsed().as_secs_f64() * 1e3;
-        Ok(Drawn {
-            frame,
-            report: FrameReport {
-                selection: sel,
-                select_ms,
-                load_ms,
-                color_ms,
-                render_ms,
-                renderer: self.renderer.name(),
+        pick: Option<(u32, u32)>,
+        legend: bool,
+    ) -> anyhow::Result<Drawn> {
+        Ok(self.pipeline.draw(&FrameRequest {
+            camera: cam,
+            width: self.width,
+            height: self.height,
+            style: &self.style,
+            filter: &self.filter,
+            mode: self.mode,
+            memory: self.memory,
+            point_size: self.point_size,
+            eye_dome_lighting: self.edl.0,
+            edl: self.edl.1,
+            pick: pick.map(|(x, y)| (x, y, 3)),
+            overlays: Overlays {
+                legend,
+                scale_bar: legend,
+                ..Default::default()
             },
-            scene,
-            ranges,
-        })
+        })?)
     }
 }
 
@@ -422,7 +367,7 @@ pub fn render_once(
     width: u32,
     height: u32,
 ) -> anyhow::Result<(Frame, FrameReport)> {
-    let d = Drawing::new(ds, a, width, height)?.draw(cam)?;
+    let d = Drawing::new(ds, a, width, height)?.draw(cam, None, false)?;
     Ok((d.frame, d.report))
 }
 

@@ -305,14 +305,14 @@ impl<'a> Job<'a> {
         let mut index = None;
         if let Some(stage) = &self.staging {
             let t_index = self.begin();
-            let io = store::overview::IndexOptions {
+            let io = store::dataset::overview::IndexOptions {
                 compression: Some(self.o.compression),
                 cancel: Some(self.o.cancel.clone()),
             };
             let progress = self.progress;
             progress.phase("overview", self.parts.len() as u64 / 3 + 1, "nodes");
             let done = |d: usize| progress.advance(d as u64, 0);
-            let built = store::overview::build_index(&stage.path, &io, &done);
+            let built = store::dataset::overview::build_index(&stage.path, &io, &done);
             index = Some(built.map_err(|e| self.public(e))?);
             self.pass("index and overview", t_index);
         }

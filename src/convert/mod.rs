@@ -137,7 +137,7 @@ pub struct ConvertSummary {
     /// input, then the store's phases summed over parts.
     pub phases: Vec<(String, Span)>,
     /// The index and overview of a directory output.
-    pub index: Option<store::overview::IndexReport>,
+    pub index: Option<store::dataset::overview::IndexReport>,
 }
 
 /// Wall and CPU time per named phase, summed, in first-seen order.

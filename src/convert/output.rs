@@ -116,8 +116,8 @@ fn check_dataset_dir(dir: &Path) -> Result<()> {
         let entry = entry?;
         let path = entry.path();
         let name = crate::text::sanitize(&entry.file_name().to_string_lossy());
-        let ours = entry.file_name() == crate::store::index::INDEX_FILE
-            || (entry.file_name() == crate::store::index::OVERVIEW_DIR
+        let ours = entry.file_name() == crate::store::dataset::index::INDEX_FILE
+            || (entry.file_name() == crate::store::dataset::index::OVERVIEW_DIR
                 && entry.file_type()?.is_dir()
                 && std::fs::read_dir(&path)?
                     .all(|e| e.is_ok_and(|e| crate::store::Part::open(&e.path()).is_ok())));

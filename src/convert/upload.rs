@@ -7,7 +7,7 @@
 use super::{PartHook, Progress};
 use crate::remote::Remote;
 use crate::remote::upload::Uploader;
-use crate::store::index::{INDEX_FILE, IndexFile};
+use crate::store::dataset::index::{INDEX_FILE, IndexFile};
 use anyhow::{Result, anyhow, bail};
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
@@ -199,7 +199,7 @@ impl RemoteOutput {
         let text =
             std::fs::read(index).map_err(|e| anyhow!("{}: cannot read: {e}", index.display()))?;
         let mut ix = IndexFile::parse(&text, dir)?;
-        let fill = |e: &mut crate::store::index::FileEntry| {
+        let fill = |e: &mut crate::store::dataset::index::FileEntry| {
             e.etag = match self.uploader.uploaded(&e.file) {
                 Some((size, Some(etag))) if size == e.bytes && !etag.is_empty() => Some(etag),
                 _ => None,

@@ -13,8 +13,8 @@ use crate::lod::point::PointRecord;
 use crate::render::color::ColorMode;
 use crate::render::edl::EdlParams;
 use crate::render::filter::Filter;
-use crate::render::legend::{self, ClassEntry};
-use crate::render::ramp::Ramp;
+use crate::render::legend::{ClassEntry, Legend};
+use crate::render::scene::{ColorRanges, Style};
 use crate::store::Dataset;
 use std::sync::Arc;
 
@@ -44,10 +44,8 @@ impl LodChoice {
 #[derive(Debug, Clone, PartialEq)]
 pub struct Settings {
     pub lod: LodChoice,
-    pub color: ColorMode,
-    /// The ramp and range of ramp modes (`None`: the defaults).
-    pub ramp: Option<Ramp>,
-    pub range: Option<(f64, f64)>,
+    /// The colour mode, and the ramp and range of ramp modes.
+    pub style: Style,
     /// Which points are drawn (classes, band ranges, the clip box).
     pub filter: Filter,
     /// Splat side in pixels, 1..=3.
@@ -64,9 +62,7 @@ impl Default for Settings {
     fn default() -> Self {
         Settings {
             lod: LodChoice::View,
-            color: ColorMode::Rgb,
-            ramp: None,
-            range: None,
+            style: Style::of(ColorMode::Rgb),
             filter: Filter::default(),
             point_size: 1,
             edl: false,
@@ -78,15 +74,6 @@ impl Default for Settings {
 }
 
 impl Settings {
-    /// The colour style frames are drawn in.
-    pub fn style(&self) -> crate::render::scene::Style {
-        crate::render::scene::Style {
-            mode: self.color.clone(),
-            ramp: self.ramp,
-            range: self.range,
-        }
-    }
-
     /// The level selection mode for `lod::select`.
     pub fn lod_mode(&self) -> LodMode {
         match self.lod {
@@ -181,8 +168,8 @@ pub struct FrameStatus {
     pub bytes: usize,
     /// 1: full resolution; n: 1/n of the pane's pixels each way (while moving).
     pub scale: u32,
-    /// A ramp mode's legend: band, ramp, the values at its ends.
-    pub ramp: Option<(String, Ramp, f64, f64)>,
+    /// The colour ranges the frame was coloured with (the legend's values).
+    pub ranges: ColorRanges,
     /// Ground units a pixel of the frame spans at the orbit target.
     pub units_per_pixel: f64,
 }
@@ -281,8 +268,21 @@ impl App {
     }
 
     /// The classes present with their counts and whether each is shown.
-    pub fn legend(&self) -> Vec<ClassEntry> {
-        legend::class_entries(&self.dataset, &self.settings.filter.classes)
+    pub fn legend(&self) -> Option<Legend> {
+        Legend::for_style(
+            &self.dataset,
+            &self.settings.style,
+            &self.settings.filter,
+            &self.frame.ranges,
+        )
+    }
+
+    /// The legend's class rows (none unless colouring by class).
+    pub fn class_rows(&self) -> Vec<ClassEntry> {
+        match self.legend() {
+            Some(Legend::Classes(rows)) => rows,
+            _ => Vec::new(),
+        }
     }
 
     /// Records a picked point (keeps the last two: a measurement).
@@ -383,23 +383,23 @@ impl App {
                 let has_classes = self.has_classes();
                 let i = COLOR_CYCLE
                     .iter()
-                    .position(|c| *c == self.settings.color)
+                    .position(|c| *c == self.settings.style.mode)
                     .unwrap_or(COLOR_CYCLE.len() - 1);
                 let mut next = (i + 1) % COLOR_CYCLE.len();
                 if COLOR_CYCLE[next] == ColorMode::Classification && !has_classes {
                     next = (next + 1) % COLOR_CYCLE.len();
                 }
-                self.settings.color = COLOR_CYCLE[next].clone();
+                self.settings.style.mode = COLOR_CYCLE[next].clone();
                 // A ramp or range from the command line was for the mode it named.
-                self.settings.ramp = None;
-                self.settings.range = None;
+                self.settings.style.ramp = None;
+                self.settings.style.range = None;
             }
             ColorClasses => {
                 if !self.has_classes() {
                     self.message = "the data has no classification band".into();
                     return Effect::Redraw;
                 }
-                self.settings.color = ColorMode::Classification;
+                self.settings.style.mode = ColorMode::Classification;
             }
             TogglePick => {
                 self.picking = !self.picking;
@@ -416,7 +416,7 @@ impl App {
             }
             ClearPicks => self.picks.clear(),
             LegendRow(d) => {
-                let n = self.legend().len();
+                let n = self.class_rows().len();
                 if n == 0 {
                     return Effect::None;
                 }
@@ -424,14 +424,16 @@ impl App {
                 return Effect::Redraw;
             }
             ToggleClassRow(row) => {
-                if self.settings.color != ColorMode::Classification || row >= self.legend().len() {
+                if self.settings.style.mode != ColorMode::Classification
+                    || row >= self.class_rows().len()
+                {
                     return Effect::None;
                 }
                 self.legend_row = row;
                 return self.apply(ToggleClass);
             }
             ToggleClass => {
-                let entries = self.legend();
+                let entries = self.class_rows();
                 let Some(e) = entries.get(self.legend_row.min(entries.len().saturating_sub(1)))
                 else {
                     self.message = "no classes to show or hide".into();
@@ -503,16 +505,16 @@ impl App {
                     self.message = "the data has no bands besides x y z".into();
                     return Effect::Redraw;
                 }
-                let next = match &self.settings.color {
+                let next = match &self.settings.style.mode {
                     ColorMode::Band(b) => bands
                         .iter()
                         .position(|n| n == b)
                         .map_or(0, |i| (i + 1) % bands.len()),
                     _ => 0,
                 };
-                self.settings.color = ColorMode::Band(bands[next].clone());
-                self.settings.ramp = None;
-                self.settings.range = None;
+                self.settings.style.mode = ColorMode::Band(bands[next].clone());
+                self.settings.style.ramp = None;
+                self.settings.style.range = None;
             }
             EdlStrength(d) => {
                 let p = &mut self.settings.edl_params;
@@ -561,7 +563,7 @@ impl App {
             } else {
                 self.settings.budget
             }),
-            self.settings.color.name(),
+            self.settings.style.mode.name(),
             self.settings.point_size,
             if self.settings.edl {
                 let p = self.settings.edl_params;
@@ -826,15 +828,15 @@ mod tests {
         for _ in 0..3 {
             a.apply(Command::CycleColor);
         }
-        assert_eq!(a.settings.color, ColorMode::Classification);
-        let codes: Vec<u8> = a.legend().iter().map(|e| e.code).collect();
+        assert_eq!(a.settings.style.mode, ColorMode::Classification);
+        let codes: Vec<u8> = a.class_rows().iter().map(|e| e.code).collect();
         assert_eq!(codes, vec![2, 5, 6]);
         // Select the second row (vegetation) and hide it, then show it again.
         assert_eq!(a.apply(Command::LegendRow(1)), Effect::Redraw);
         assert_eq!(a.apply(Command::ToggleClass), Effect::Render);
         assert!(!a.settings.filter.classes.shows(5));
         assert!(a.settings.filter.classes.shows(2));
-        assert!(!a.legend()[1].shown);
+        assert!(!a.class_rows()[1].shown);
         a.apply(Command::ToggleClass);
         assert!(a.settings.filter.classes.all());
         a.apply(Command::LegendRow(-2));
@@ -882,11 +884,11 @@ mod tests {
         let bands = a.band_names();
         assert!(bands.len() >= 2 && bands.contains(&"classification".to_string()));
         a.apply(Command::CycleBand);
-        assert_eq!(a.settings.color, ColorMode::Band("z".into()));
+        assert_eq!(a.settings.style.mode, ColorMode::Band("z".into()));
         for _ in 0..bands.len() {
             a.apply(Command::CycleBand);
         }
-        assert_eq!(a.settings.color, ColorMode::Band("z".into()));
+        assert_eq!(a.settings.style.mode, ColorMode::Band("z".into()));
         // EDL keys turn it on and stay in range.
         for _ in 0..20 {
             a.apply(Command::EdlStrength(1));
@@ -912,7 +914,7 @@ mod tests {
             ColorMode::Rgb,
         ] {
             a.apply(Command::CycleColor);
-            assert_eq!(a.settings.color, want);
+            assert_eq!(a.settings.style.mode, want);
         }
         for want in [2, 3, 1] {
             a.apply(Command::CyclePointSize);

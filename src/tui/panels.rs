@@ -5,7 +5,8 @@
 
 use super::app::{App, format_xyz};
 use crate::render::classes;
-use crate::render::color::{ColorMode, unpack_rgb};
+use crate::render::color::unpack_rgb;
+use crate::render::legend::Legend;
 use crate::render::legend::{tick_label, ticks, value_label};
 use crate::render::pick::distance;
 use crate::text::{count, sanitize};
@@ -21,9 +22,8 @@ const RAMP_CELLS: usize = 24;
 /// The panel's lines.
 pub fn lines(app: &App) -> Vec<Line<'static>> {
     let mut out: Vec<Line<'static>> = Vec::new();
-    match &app.settings.color {
-        ColorMode::Classification => {
-            let entries = app.legend();
+    match app.legend() {
+        Some(Legend::Classes(entries)) => {
             if entries.is_empty() {
                 out.push(Line::from("no class counts recorded (convert again)").dark_gray());
             }
@@ -51,26 +51,30 @@ pub fn lines(app: &App) -> Vec<Line<'static>> {
                 out.push(line);
             }
         }
-        _ => {
-            if let Some((band, ramp, lo, hi)) = &app.frame.ramp {
-                let lut = ramp.lut();
-                let bar: Vec<Span<'static>> = (0..RAMP_CELLS)
-                    .map(|i| {
-                        let [r, g, b] = unpack_rgb(lut[i * 255 / (RAMP_CELLS - 1)]);
-                        Span::from("█").fg(Color::Rgb(r, g, b))
-                    })
-                    .collect();
-                out.push(Line::from(format!("{} ({})", sanitize(band), ramp.name())));
-                out.push(Line::from(bar));
-                let t = ticks(*lo, *hi, 3);
-                out.push(Line::from(format!(
-                    "{:<10}{:^6}{:>10}",
-                    tick_label(t[0], hi - lo),
-                    tick_label(t[1], hi - lo),
-                    tick_label(t[2], hi - lo)
-                )));
-            }
+        Some(Legend::Ramp {
+            title: band,
+            ramp,
+            lo,
+            hi,
+        }) => {
+            let lut = ramp.lut();
+            let bar: Vec<Span<'static>> = (0..RAMP_CELLS)
+                .map(|i| {
+                    let [r, g, b] = unpack_rgb(lut[i * 255 / (RAMP_CELLS - 1)]);
+                    Span::from("█").fg(Color::Rgb(r, g, b))
+                })
+                .collect();
+            out.push(Line::from(format!("{} ({})", sanitize(&band), ramp.name())));
+            out.push(Line::from(bar));
+            let t = ticks(lo, hi, 3);
+            out.push(Line::from(format!(
+                "{:<10}{:^6}{:>10}",
+                tick_label(t[0], hi - lo),
+                tick_label(t[1], hi - lo),
+                tick_label(t[2], hi - lo)
+            )));
         }
+        None => {}
     }
     if app.frame.units_per_pixel.is_finite() && app.frame.units_per_pixel > 0.0 {
         out.push(
@@ -144,8 +148,8 @@ pub fn draw(f: &mut Frame, app: &App, area: Rect) {
     if area.height == 0 {
         return;
     }
-    let title = match app.settings.color {
-        ColorMode::Classification => " classes (, . select · space show/hide) ",
+    let title = match app.settings.style.mode {
+        crate::render::ColorMode::Classification => " classes (, . select · space show/hide) ",
         _ if app.picks.is_empty() => " legend ",
         _ => " legend · picks ",
     };

@@ -201,7 +201,10 @@ fn iterm_for_pane(frame: &Frame, cells: (u16, u16), passthrough: bool) -> anyhow
     let mut s = String::new();
     erase_pane(&mut s, cells);
     s.push_str(&crate::term::inline::iterm_sequence(
-        frame, cells.0, cells.1, true,
+        &crate::pixels(frame),
+        cells.0,
+        cells.1,
+        true,
     )?);
     Ok(if passthrough {
         sixel::tmux_passthrough(&s)
@@ -233,7 +236,7 @@ pub fn encode(
         },
         Graphics::Kitty => PaneImage::Kitty {
             transmit: kitty::transmit(
-                frame,
+                &crate::pixels(frame),
                 kitty::Placement {
                     id: KITTY_IMAGE_ID,
                     cols: cells.0,

@@ -9,14 +9,11 @@ use super::app::{FrameStatus, Settings};
 use super::protocol::{self, PaneImage};
 use crate::camera::Camera;
 use crate::lod::point::{PointRecord, point_record};
-use crate::lod::{self, LoadedTile, LodMode, TileCache, TileKey, TileRef};
-use crate::render::color::ColorMode;
-use crate::render::filter::Filter;
-use crate::render::scene::{ColorRanges, Style, band_range, colorize_style};
-use crate::render::{self, Frame, PointBatch, Rasterizer, RenderOptions, RendererChoice};
-use crate::render::{legend, marks, pick};
+use crate::lod::{self, LoadedTile, LodMode, TileCache, TileRef};
+use crate::render::pipeline::{FrameRequest, Loading, Overlays, Pipeline};
+use crate::render::{self, Frame, RendererChoice};
 use crate::store::Dataset;
-use std::collections::{BTreeMap, HashMap};
+use std::collections::BTreeMap;
 use std::sync::Arc;
 use std::sync::mpsc::{Receiver, RecvTimeoutError, Sender, TryRecvError, channel};
 use std::time::{Duration, Instant};
@@ -136,26 +133,9 @@ impl Drop for RenderWorker {
     }
 }
 
-/// Colour columns of loaded tiles, for one colour style (orbiting recolours
-/// nothing), and their heights with hidden points NaN for one filter.
-struct ColorCache {
-    style: Option<Style>,
-    columns: HashMap<TileKey, Vec<u32>>,
-    filter: Option<Filter>,
-    hidden: HashMap<TileKey, Option<Vec<f32>>>,
-}
-
 struct Worker {
-    ds: Arc<Dataset>,
     opts: WorkerOptions,
-    cache: TileCache,
-    renderer: Option<Box<dyn Rasterizer>>,
-    /// When the current wait for tiles began.
-    loading_since: Option<Instant>,
-    ranges: ColorRanges,
-    /// The tiles the colour ranges came from (a band's range is found in them).
-    first: Vec<Arc<LoadedTile>>,
-    colors: ColorCache,
+    pipeline: Pipeline,
 }
 
 fn run(
@@ -171,22 +151,8 @@ fn run(
         opts.extra_bands.clone(),
     );
     let first = first_tiles(&ds, &cache);
-    let ranges = ColorRanges::from_tiles(&first, &ds.bounds());
-    let mut w = Worker {
-        ds,
-        opts,
-        cache,
-        renderer: None,
-        loading_since: None,
-        ranges,
-        first,
-        colors: ColorCache {
-            style: None,
-            columns: HashMap::new(),
-            filter: None,
-            hidden: HashMap::new(),
-        },
-    };
+    let pipeline = Pipeline::new(ds, cache, opts.renderer, Loading::Stream).with_reference(first);
+    let mut w = Worker { opts, pipeline };
     let mut current: Option<(Request, Instant)> = None;
     let mut pending = 0usize;
     loop {
@@ -209,7 +175,7 @@ fn run(
             current = Some((r, Instant::now()));
             dirty = true;
         }
-        if w.cache.arrivals.try_iter().count() > 0 {
+        if w.pipeline.cache().arrivals.try_iter().count() > 0 {
             dirty = true;
         }
         let Some((req, received)) = current.as_mut() else {
@@ -235,7 +201,7 @@ fn run(
                 }
             }
         }
-        for e in w.cache.take_errors() {
+        for e in w.pipeline.cache().take_errors() {
             let _ = reports.send(Report::Error(e));
         }
     }
@@ -280,20 +246,6 @@ fn first_tiles(ds: &Dataset, cache: &TileCache) -> Vec<Arc<LoadedTile>> {
 }
 
 impl Worker {
-    fn renderer(&mut self) -> anyhow::Result<&mut Box<dyn Rasterizer>> {
-        if self.renderer.is_none() {
-            let r = match render::create(self.opts.renderer) {
-                Ok(r) => r,
-                Err(e) if self.opts.renderer == RendererChoice::Gpu => {
-                    return Err(anyhow::anyhow!("{e}"));
-                }
-                Err(_) => render::create(RendererChoice::Cpu)?,
-            };
-            self.renderer = Some(r);
-        }
-        Ok(self.renderer.as_mut().expect("created above"))
-    }
-
     fn frame(&mut self, req: &Request, received: Instant) -> anyhow::Result<FrameReady> {
         let (cols, rows) = (req.cells.0.max(1), req.cells.1.max(1));
         let scale = req.scale.max(1);
@@ -303,94 +255,12 @@ impl Worker {
         );
         let (width, height) = ((full.0 / scale).max(1), (full.1 / scale).max(1));
         let s = &req.settings;
-        self.renderer()?;
-
-        let t = Instant::now();
         let mode = match s.lod_mode() {
             LodMode::View { budget } => LodMode::View {
                 budget: lod::budget_for_pixels(width, height, budget),
             },
             m => m,
         };
-        let sel = lod::select_region(&self.ds, &req.camera, width, height, mode, s.memory, &|b| {
-            s.filter.may_show(b)
-        });
-        let select_ms = ms(t);
-        self.cache.request(&sel.tiles);
-        let mut tiles = self.cache.ready(&sel.tiles);
-        let unreadable = self.cache.unreadable(&sel.tiles);
-        let pending = sel.tiles.len() - tiles.len() - unreadable;
-        if tiles.len() < sel.tiles.len() {
-            // Coarser tiles already in memory stand in for those still missing.
-            let have: std::collections::HashSet<TileKey> = tiles.iter().map(|t| t.key).collect();
-            let extra = self.cache.stand_ins(&sel.tiles);
-            tiles.extend(extra.into_iter().filter(|t| !have.contains(&t.key)));
-        }
-        // Load time: from the request that found tiles missing until all arrived.
-        let load_ms = if pending > 0 {
-            ms(*self.loading_since.get_or_insert(received))
-        } else {
-            self.loading_since.take().map_or(0.0, ms)
-        };
-
-        let style = s.style();
-        if self.colors.style.as_ref() != Some(&style) {
-            self.colors.columns.clear();
-            if let ColorMode::Band(b) = &style.mode {
-                self.ranges.band = band_range(&self.first, b).unwrap_or((0.0, 1.0));
-            }
-            self.colors.style = Some(style.clone());
-        }
-        if self.colors.filter.as_ref() != Some(&s.filter) {
-            self.colors.hidden.clear();
-            self.colors.filter = Some(s.filter.clone());
-        }
-        let keep: std::collections::HashSet<TileKey> = tiles.iter().map(|t| t.key).collect();
-        self.colors.columns.retain(|k, _| keep.contains(k));
-        self.colors.hidden.retain(|k, _| keep.contains(k));
-        for t in &tiles {
-            if !self.colors.columns.contains_key(&t.key) {
-                let c = colorize_style(t, &style, &self.ranges);
-                self.colors.columns.insert(t.key, c);
-            }
-            self.colors
-                .hidden
-                .entry(t.key)
-                .or_insert_with(|| s.filter.hidden_z(t));
-        }
-        let batches: Vec<PointBatch<'_>> = tiles
-            .iter()
-            .map(|t| PointBatch {
-                origin: t.origin,
-                x: &t.x,
-                y: &t.y,
-                z: self.colors.hidden[&t.key].as_deref().unwrap_or(&t.z),
-                color: &self.colors.columns[&t.key],
-            })
-            .collect();
-        let points: u64 = tiles.iter().map(|t| t.len() as u64).sum();
-        let levels = tiles
-            .iter()
-            .filter(|t| !self.ds.is_overview(t.key.part))
-            .fold(None, |acc: Option<(usize, usize)>, t| {
-                let l = t.key.level;
-                Some(acc.map_or((l, l), |(lo, hi)| (lo.min(l), hi.max(l))))
-            });
-
-        let opts = RenderOptions {
-            width,
-            height,
-            point_size: s.point_size,
-            eye_dome_lighting: s.edl,
-            edl: s.edl_params,
-            background: [0, 0, 0],
-        };
-        let t = Instant::now();
-        let renderer = self.renderer.as_mut().expect("created at the top");
-        renderer.keep_ids(req.pick && req.cursor.is_some());
-        let mut frame = renderer.render(&req.camera, &batches, &opts)?;
-        let renderer_name = renderer.name();
-        let render_ms = ms(t);
         let cursor_px = req.cursor.map(|(x, y)| {
             (
                 ((x * width as f64) as u32).min(width - 1),
@@ -398,63 +268,75 @@ impl Worker {
             )
         });
         let pick = match (req.pick, cursor_px) {
-            (true, Some((x, y))) => {
-                let radius = req_pick_radius(width);
-                Some(
-                    match pick::pick_drawn(&**renderer, &req.camera, &batches, &opts, x, y, radius)?
-                    {
-                        Some(h) => Some(
-                            point_record(&self.ds, tiles[h.batch].key, h.index)
-                                .map_err(anyhow::Error::msg)?,
-                        ),
-                        None => None,
-                    },
-                )
-            }
+            (true, Some((x, y))) => Some((x, y, req_pick_radius(width))),
             _ => None,
         };
-        drop(batches);
-        overlay(&mut frame, req, cursor_px);
+        let d = self.pipeline.draw(&FrameRequest {
+            camera: &req.camera,
+            width,
+            height,
+            style: &s.style,
+            filter: &s.filter,
+            mode,
+            memory: s.memory,
+            point_size: s.point_size,
+            eye_dome_lighting: s.edl,
+            edl: s.edl_params,
+            pick,
+            overlays: Overlays {
+                marks: &req.marks,
+                crosshair: cursor_px,
+                legend: false,
+                scale_bar: true,
+            },
+        })?;
+        let ds = self.pipeline.dataset();
+        let pick = match d.pick {
+            Some(Some(h)) => Some(Some(
+                point_record(ds, d.tile_of(&h), h.index).map_err(anyhow::Error::msg)?,
+            )),
+            Some(None) => Some(None),
+            None => None,
+        };
 
         let t = Instant::now();
-        let image = protocol::encode(self.opts.encoding, &frame, (cols, rows), full)?;
+        let image = protocol::encode(self.opts.encoding, &d.frame, (cols, rows), full)?;
         let encode_ms = ms(t);
 
+        let cache = self.pipeline.cache();
         let mut loaded: BTreeMap<(usize, usize), usize> = BTreeMap::new();
-        for k in self.cache.loaded() {
+        for k in cache.loaded() {
             *loaded.entry((k.part, k.level)).or_default() += 1;
         }
+        let r = d.report;
         let status = FrameStatus {
-            levels,
-            points,
-            tiles: tiles.len(),
-            pending,
-            unreadable,
-            dropped: sel.dropped_tiles,
-            overview_tiles: sel.overview_tiles,
+            levels: r.levels,
+            points: r.points,
+            tiles: d.tiles.len(),
+            pending: r.pending,
+            unreadable: r.unreadable,
+            dropped: r.selection.dropped_tiles,
+            overview_tiles: r.selection.overview_tiles,
             budget: match mode {
                 LodMode::View { budget } => budget,
                 _ => 0,
             },
-            select_ms,
-            load_ms,
-            render_ms,
+            select_ms: r.select_ms,
+            load_ms: r.load_ms,
+            render_ms: r.render_ms,
             encode_ms,
-            renderer: renderer_name,
-            cache_bytes: self.cache.stats().bytes,
+            renderer: r.renderer,
+            cache_bytes: cache.stats().bytes,
             loaded: loaded.into_iter().collect(),
             bytes: image.bytes(),
             scale,
-            ramp: style.value_range(&self.ranges).map(|(lo, hi)| {
-                let band = style.mode.band().unwrap_or("value").to_string();
-                (band, style.ramp(), lo, hi)
-            }),
+            ranges: d.ranges,
             units_per_pixel: 1.0 / req.camera.pixels_per_unit(req.camera.distance, height),
         };
         Ok(FrameReady {
             seq: req.seq,
             image,
-            frame: Arc::new(frame),
+            frame: Arc::new(d.frame),
             cells: (cols, rows),
             status,
             requested: received,
@@ -466,22 +348,6 @@ impl Worker {
 /// Pixels around the crosshair a pick searches: about half a terminal cell.
 fn req_pick_radius(width: u32) -> u32 {
     (width / 200).clamp(2, 8)
-}
-
-/// Draws the picked points, their measurement line, the crosshair and the
-/// scale bar over a frame.
-fn overlay(frame: &mut Frame, req: &Request, cursor: Option<(u32, u32)>) {
-    let cam = &req.camera;
-    if let [a, b] = req.marks[..] {
-        marks::segment(frame, cam, a, b, [255, 220, 0]);
-    }
-    for m in &req.marks {
-        marks::mark(frame, cam, *m, [255, 220, 0]);
-    }
-    if let Some((x, y)) = cursor {
-        marks::crosshair(frame, x, y, (frame.height / 40).max(6));
-    }
-    legend::draw_scale_bar(frame, cam);
 }
 
 fn ms(t: Instant) -> f64 {

@@ -1,0 +1,401 @@
+//! Point columns: the in-memory form of a point cloud that flows from the input
+//! readers into the image store. Coordinates are `f64` (georeferenced inputs keep
+//! millimetres); every other attribute is an `f32` column plus an `f64` offset.
+
+/// Metadata keys the input readers set on their columns, which the store keeps as
+/// they are (its `spec::key` re-exports them).
+pub mod key {
+    /// PCD inputs: the `VIEWPOINT` of the header, `tx ty tz qw qx qy qz`.
+    pub const VIEWPOINT: &str = "VIEWPOINT";
+    /// E57 inputs: the scans, as JSON: `[{"scan", "name", "guid", "points",
+    /// "rotation": [w, x, y, z], "translation": [x, y, z]}]`; `scan` is the
+    /// value of the `scan` band.
+    pub const SCANS: &str = "SCANS";
+}
+
+/// The ASPRS class code of a stored `classification` value: a whole number
+/// 0..=255, else `None` (such points belong to no class).
+#[inline(always)]
+pub fn class_code(v: f32) -> Option<u8> {
+    ((0.0..=255.0).contains(&v) && v.fract() == 0.0).then_some(v as u8)
+}
+
+/// One scalar attribute column (intensity, red, classification, gps_time...).
+///
+/// The true value of point `i` is `offset + values[i] as f64`. Readers use the offset
+/// for attributes whose magnitude would cost precision in `f32` (GPS time).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Attribute {
+    pub name: String,
+    pub offset: f64,
+    pub values: Vec<f32>,
+}
+
+impl Attribute {
+    pub fn new(name: impl Into<String>, values: Vec<f32>) -> Self {
+        Self {
+            name: name.into(),
+            offset: 0.0,
+            values,
+        }
+    }
+}
+
+/// Most attribute columns (bands besides x y z) a point may carry: every band of
+/// every level costs at least one 256 KiB tile, and readers refuse wider inputs.
+pub const MAX_ATTRIBUTES: usize = 64;
+
+/// A set of points as columns of equal length.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct PointColumns {
+    pub x: Vec<f64>,
+    pub y: Vec<f64>,
+    pub z: Vec<f64>,
+    pub attributes: Vec<Attribute>,
+}
+
+/// Attribute values (and, where it can, coordinates) that a reader can produce again
+/// for any point, from where the input itself keeps them (an uncompressed LAS file's
+/// memory map), so a part need not hold a copy: the store then asks for the rows
+/// (and positions) of one tile's points at a time.
+///
+/// Point `i` is the `i`-th point the reader delivered; a row is the values of the
+/// reader's attributes in their order, exactly as its chunks deliver them (offsets
+/// included: `Attribute::offset` is the chunks' own).
+pub trait RowSource: Send + Sync {
+    /// Points it can give rows for.
+    fn len(&self) -> usize;
+    fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+    /// Values in a row (the reader's attributes).
+    fn width(&self) -> usize;
+    /// Appends the rows of points `idx` (each below [`RowSource::len`]) to `out`.
+    fn gather(&self, idx: &[u32], out: &mut Vec<f32>);
+    /// Whether it gives the points' coordinates as well ([`RowSource::positions`]).
+    fn has_positions(&self) -> bool {
+        false
+    }
+    /// Appends the coordinates of points `idx` less `origin`, each exactly
+    /// `(c - origin) as f32` of the `f64` coordinate `c` the reader's chunks
+    /// delivered, to `out`; nothing where it has none ([`RowSource::has_positions`]).
+    fn positions(&self, _idx: &[u32], _origin: [f64; 3], _out: &mut Vec<[f32; 3]>) {}
+    /// [`RowSource::positions`] and [`RowSource::gather`] of points `idx`, each
+    /// point read once for both where the source can (the default reads twice).
+    fn positions_and_rows(
+        &self,
+        idx: &[u32],
+        origin: [f64; 3],
+        pos: &mut Vec<[f32; 3]>,
+        rows: &mut Vec<f32>,
+    ) {
+        self.positions(idx, origin, pos);
+        self.gather(idx, rows);
+    }
+    /// [`RowSource::positions`] of the points `range`, in order.
+    fn positions_in(
+        &self,
+        _range: std::ops::Range<usize>,
+        _origin: [f64; 3],
+        _out: &mut Vec<[f32; 3]>,
+    ) {
+    }
+}
+
+/// What a first pass keeps of a chunk whose points a [`RowSource`] gives again,
+/// positions and rows: how many, their bounds, the attributes (names and
+/// offsets) with the range of each one's values, and the first point with a
+/// coordinate that is not finite. A reader that gives its rows back can make
+/// this straight from its input, without the chunk's columns.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ChunkExtent {
+    pub len: usize,
+    /// The bounds of the finite coordinates (`Bounds::EMPTY` when none).
+    pub bounds: Bounds,
+    pub attributes: Vec<(String, f64)>,
+    /// Each attribute's smallest and largest value, NaN ignored
+    /// (`(inf, -inf)` when it has none).
+    pub ranges: Vec<(f32, f32)>,
+    /// The first point (its index in the chunk and its coordinates) with a
+    /// coordinate that is NaN or infinite.
+    pub not_finite: Option<(usize, [f64; 3])>,
+}
+
+impl ChunkExtent {
+    /// The extent of the points `c`.
+    pub fn of(c: &PointColumns) -> ChunkExtent {
+        use rayon::prelude::*;
+        let at = |i: usize| [c.x[i], c.y[i], c.z[i]];
+        ChunkExtent {
+            len: c.len(),
+            bounds: c.bounds(),
+            attributes: c
+                .attributes
+                .iter()
+                .map(|a| (a.name.clone(), a.offset))
+                .collect(),
+            ranges: c
+                .attributes
+                .par_iter()
+                .map(|a| {
+                    a.values
+                        .iter()
+                        .fold((f32::INFINITY, f32::NEG_INFINITY), |r, &v| {
+                            (r.0.min(v), r.1.max(v))
+                        })
+                })
+                .collect(),
+            not_finite: (0..c.len())
+                .into_par_iter()
+                .find_first(|&i| !at(i).iter().all(|v| v.is_finite()))
+                .map(|i| (i, at(i))),
+        }
+    }
+}
+
+/// Axis-aligned bounds in source coordinates.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct Bounds {
+    pub min: [f64; 3],
+    pub max: [f64; 3],
+}
+
+impl Bounds {
+    /// The empty bounds: `min` is +inf and `max` is -inf, so any point extends it.
+    pub const EMPTY: Bounds = Bounds {
+        min: [f64::INFINITY; 3],
+        max: [f64::NEG_INFINITY; 3],
+    };
+
+    pub fn is_empty(&self) -> bool {
+        (0..3).any(|a| self.min[a] > self.max[a])
+    }
+
+    pub fn extend(&mut self, p: [f64; 3]) {
+        for a in 0..3 {
+            self.min[a] = self.min[a].min(p[a]);
+            self.max[a] = self.max[a].max(p[a]);
+        }
+    }
+
+    pub fn union(&self, o: &Bounds) -> Bounds {
+        let mut b = *self;
+        for a in 0..3 {
+            b.min[a] = b.min[a].min(o.min[a]);
+            b.max[a] = b.max[a].max(o.max[a]);
+        }
+        b
+    }
+
+    pub fn center(&self) -> [f64; 3] {
+        [0, 1, 2].map(|a| 0.5 * (self.min[a] + self.max[a]))
+    }
+
+    pub fn extent(&self) -> [f64; 3] {
+        [0, 1, 2].map(|a| (self.max[a] - self.min[a]).max(0.0))
+    }
+
+    /// Whether the two boxes share a point (touching counts).
+    pub fn intersects(&self, o: &Bounds) -> bool {
+        (0..3).all(|a| self.min[a] <= o.max[a] && o.min[a] <= self.max[a])
+    }
+
+    pub fn contains(&self, o: &Bounds) -> bool {
+        (0..3).all(|a| self.min[a] <= o.min[a] && o.max[a] <= self.max[a])
+    }
+}
+
+impl PointColumns {
+    pub fn len(&self) -> usize {
+        self.x.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.x.is_empty()
+    }
+
+    /// Whether point `i` has finite coordinates.
+    pub fn finite_at(&self, i: usize) -> bool {
+        self.x[i].is_finite() && self.y[i].is_finite() && self.z[i].is_finite()
+    }
+
+    /// Drops the points with a non-finite coordinate (NaN or infinity); returns
+    /// how many were dropped.
+    pub fn drop_non_finite(&mut self) -> u64 {
+        let keep: Vec<bool> = (0..self.len()).map(|i| self.finite_at(i)).collect();
+        let dropped = keep.iter().filter(|k| !**k).count() as u64;
+        if dropped == 0 {
+            return 0;
+        }
+        fn retain<T: Copy>(v: &mut Vec<T>, keep: &[bool]) {
+            let mut k = keep.iter();
+            v.retain(|_| k.next().copied().unwrap_or(false));
+        }
+        retain(&mut self.x, &keep);
+        retain(&mut self.y, &keep);
+        retain(&mut self.z, &keep);
+        for a in &mut self.attributes {
+            retain(&mut a.values, &keep);
+        }
+        dropped
+    }
+
+    /// An empty set with the same attribute names and offsets as `self`.
+    pub fn empty_like(&self) -> Self {
+        self.map_columns(|_| Vec::new(), |_| Vec::new())
+    }
+
+    /// A set with the same attribute names and offsets, each coordinate column
+    /// made by `xyz` and each attribute column by `attr` from `self`'s.
+    fn map_columns(
+        &self,
+        xyz: impl Fn(&[f64]) -> Vec<f64>,
+        attr: impl Fn(&[f32]) -> Vec<f32>,
+    ) -> Self {
+        Self {
+            x: xyz(&self.x),
+            y: xyz(&self.y),
+            z: xyz(&self.z),
+            attributes: self
+                .attributes
+                .iter()
+                .map(|a| Attribute {
+                    name: a.name.clone(),
+                    offset: a.offset,
+                    values: attr(&a.values),
+                })
+                .collect(),
+        }
+    }
+
+    /// Every `n`-th point (the first, the `n + 1`-th...), as a new set.
+    pub fn every_nth(&self, n: usize) -> Self {
+        let n = n.max(1);
+        self.map_columns(
+            |v| v.iter().step_by(n).copied().collect(),
+            |v| v.iter().step_by(n).copied().collect(),
+        )
+    }
+
+    /// Checks that every column has the same length; readers call this before
+    /// handing columns on.
+    pub fn check_lengths(&self) -> Result<(), String> {
+        let n = self.x.len();
+        if self.y.len() != n || self.z.len() != n {
+            return Err(format!(
+                "coordinate columns differ in length: x {} y {} z {}",
+                n,
+                self.y.len(),
+                self.z.len()
+            ));
+        }
+        for a in &self.attributes {
+            if a.values.len() != n {
+                return Err(format!(
+                    "attribute '{}' has {} values for {} points",
+                    a.name,
+                    a.values.len(),
+                    n
+                ));
+            }
+        }
+        Ok(())
+    }
+
+    /// The bounds of all points (`Bounds::EMPTY` when there are none).
+    pub fn bounds(&self) -> Bounds {
+        use rayon::prelude::*;
+        let axis = |col: &[f64]| {
+            col.par_chunks(1 << 16)
+                .map(|c| {
+                    c.iter()
+                        .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), &v| {
+                            (lo.min(v), hi.max(v))
+                        })
+                })
+                .reduce(
+                    || (f64::INFINITY, f64::NEG_INFINITY),
+                    |a, b| (a.0.min(b.0), a.1.max(b.1)),
+                )
+        };
+        if self.is_empty() {
+            return Bounds::EMPTY;
+        }
+        let r = [axis(&self.x), axis(&self.y), axis(&self.z)];
+        Bounds {
+            min: r.map(|a| a.0),
+            max: r.map(|a| a.1),
+        }
+    }
+
+    /// Appends all points of `other`, whose attributes must match by name and order.
+    /// Appends points `from..to` of `src`, which has the same attributes (their
+    /// offsets are taken from `src`).
+    pub fn append_range(&mut self, src: &PointColumns, from: usize, to: usize) {
+        self.x.extend_from_slice(&src.x[from..to]);
+        self.y.extend_from_slice(&src.y[from..to]);
+        self.z.extend_from_slice(&src.z[from..to]);
+        for (d, s) in self.attributes.iter_mut().zip(&src.attributes) {
+            d.offset = s.offset;
+            d.values.extend_from_slice(&s.values[from..to]);
+        }
+    }
+
+    pub fn append(&mut self, other: &PointColumns) -> Result<(), String> {
+        if self.attributes.len() != other.attributes.len()
+            || self
+                .attributes
+                .iter()
+                .zip(&other.attributes)
+                .any(|(a, b)| a.name != b.name)
+        {
+            return Err("attribute columns differ between chunks".into());
+        }
+        self.x.extend_from_slice(&other.x);
+        self.y.extend_from_slice(&other.y);
+        self.z.extend_from_slice(&other.z);
+        for (a, b) in self.attributes.iter_mut().zip(&other.attributes) {
+            if a.values.is_empty() {
+                a.offset = b.offset;
+            }
+            if a.offset == b.offset {
+                a.values.extend_from_slice(&b.values);
+            } else {
+                let shift = b.offset - a.offset;
+                a.values
+                    .extend(b.values.iter().map(|&v| (v as f64 + shift) as f32));
+            }
+        }
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn every_nth_keeps_every_column_in_step() {
+        let c = PointColumns {
+            x: (0..10).map(f64::from).collect(),
+            y: (0..10).map(|i| f64::from(i) * 2.0).collect(),
+            z: vec![5.0; 10],
+            attributes: vec![Attribute {
+                name: "intensity".into(),
+                offset: 3.0,
+                values: (0..10).map(|i| i as f32).collect(),
+            }],
+        };
+        let t = c.every_nth(4);
+        assert_eq!(t.x, [0.0, 4.0, 8.0]);
+        assert_eq!(t.y, [0.0, 8.0, 16.0]);
+        assert_eq!(t.z, [5.0; 3]);
+        assert_eq!(t.attributes[0].values, [0.0, 4.0, 8.0]);
+        assert_eq!(
+            (t.attributes[0].name.as_str(), t.attributes[0].offset),
+            ("intensity", 3.0)
+        );
+        assert!(c.empty_like().is_empty());
+        assert_eq!(c.every_nth(0).len(), 10);
+    }
+}

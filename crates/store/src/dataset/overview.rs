@@ -1,0 +1,366 @@
+//! Building a dataset directory's index and overview (`pcimg index`, and `convert`
+//! last): overview nodes above the parts, each an ordinary part of one tile made
+//! from its children's coarsest levels only (no pass over the points): the level
+//! one coarser that each child's pyramid would have made, joined. A node's
+//! children are a compact group of the layer below (a k-d split of their
+//! centres); layer after layer up to one root; then the index, written last.
+
+use crate::dataset::index::{
+    Child, FileEntry, INDEX_FILE, IndexFile, NodeEntry, OVERVIEW_DIR, entry_of,
+};
+use crate::dataset::list_parts;
+use crate::error::{Result, StoreError};
+use crate::points::{Attribute, PointColumns};
+use crate::read::part::Part;
+use crate::spec::TILE_PIXELS;
+use crate::tiff::codec::Compression;
+use crate::write::part::{WriteOptions, write_part};
+use rayon::prelude::*;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
+use std::time::Instant;
+
+/// A node's children's coarsest levels hold at most this many points: four tiles.
+/// The node keeps a quarter of them (one tile), so that it refines into four
+/// times its points, as a level of a part's own pyramid does.
+pub const GROUP_POINTS: u64 = 4 * TILE_PIXELS as u64;
+
+/// What building the index did.
+#[derive(Debug, Clone, Default)]
+pub struct IndexReport {
+    pub parts: usize,
+    pub points: u64,
+    pub nodes: usize,
+    pub layers: u32,
+    /// Points stored in the overview nodes (all levels).
+    pub node_points: u64,
+    pub node_bytes: u64,
+    pub index_bytes: u64,
+    pub seconds: f64,
+    /// Why there is no overview, when there is none.
+    pub no_overview: Option<String>,
+}
+
+/// One member of a layer: a part or a node, with what grouping needs.
+struct Member<'a> {
+    child: Child,
+    part: &'a Part,
+    top_points: u64,
+    center: [f64; 3],
+}
+
+/// Groups a layer's members into compact runs whose coarsest levels hold at most
+/// [`GROUP_POINTS`] (so a node, a quarter of that, fits one tile): the members are
+/// split in two at the median of their points along the longer side of their
+/// centres' box (a k-d split), again and again, never into fewer than two.
+fn group(members: &mut [Member]) -> Vec<std::ops::Range<usize>> {
+    let mut runs = Vec::new();
+    split(members, 0, &mut runs);
+    runs
+}
+
+fn split(m: &mut [Member], at: usize, runs: &mut Vec<std::ops::Range<usize>>) {
+    let sum: u64 = m.iter().map(|x| x.top_points).sum();
+    if sum <= GROUP_POINTS || m.len() < 4 {
+        runs.push(at..at + m.len());
+        return;
+    }
+    let extent = |a: usize| {
+        let (lo, hi) = m
+            .iter()
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), x| {
+                (lo.min(x.center[a]), hi.max(x.center[a]))
+            });
+        hi - lo
+    };
+    let axis = if extent(0) >= extent(1) { 0 } else { 1 };
+    m.sort_by(|a, b| a.center[axis].total_cmp(&b.center[axis]));
+    let mut half = 0;
+    let mut mid = m.len() / 2;
+    for (i, x) in m.iter().enumerate() {
+        half += x.top_points;
+        if 2 * half >= sum {
+            mid = i + 1;
+            break;
+        }
+    }
+    let mid = mid.clamp(2, m.len() - 2);
+    let (left, right) = m.split_at_mut(mid);
+    split(left, at, runs);
+    split(right, at + mid, runs);
+}
+
+/// The level one coarser than a part's coarsest, as its pyramid would make it:
+/// every fourth point of the coarsest level in its Z order (the first of each 2×2
+/// block, which the layout made the block's representative), every band, as
+/// columns in source units.
+fn next_coarser(part: &Part) -> Result<PointColumns> {
+    let top = part.levels.len() - 1;
+    let bands: Vec<usize> = (0..part.bands.len()).collect();
+    let p = part.read_level(top, &bands)?;
+    let quarter = |c: Vec<f32>| -> Vec<f32> { c.into_iter().step_by(4).collect() };
+    let mut cols = p.columns.into_iter().map(quarter);
+    let mut coord = |o: f64| -> Vec<f64> {
+        cols.next()
+            .unwrap_or_default()
+            .into_iter()
+            .map(|v| v as f64 + o)
+            .collect()
+    };
+    let (x, y, z) = (
+        coord(p.offsets[0]),
+        coord(p.offsets[1]),
+        coord(p.offsets[2]),
+    );
+    let attributes = p.bands[3..]
+        .iter()
+        .zip(&p.offsets[3..])
+        .zip(cols)
+        .map(|((name, &offset), values)| Attribute {
+            name: name.clone(),
+            offset,
+            values,
+        })
+        .collect();
+    Ok(PointColumns {
+        x,
+        y,
+        z,
+        attributes,
+    })
+}
+
+/// Appends `b` to `a`, bringing `b`'s attributes to `a`'s offsets.
+fn append(a: &mut PointColumns, b: PointColumns) {
+    if a.x.is_empty() && a.attributes.is_empty() {
+        *a = b;
+        return;
+    }
+    a.x.extend(b.x);
+    a.y.extend(b.y);
+    a.z.extend(b.z);
+    for (ta, tb) in a.attributes.iter_mut().zip(b.attributes) {
+        let shift = (tb.offset - ta.offset) as f32;
+        ta.values.extend(tb.values.into_iter().map(|v| v + shift));
+    }
+}
+
+/// A node's file name: its layer and its number in the layer.
+fn node_name(layer: u32, k: usize) -> String {
+    format!("node-{layer}-{k:05}.tif")
+}
+
+/// Why the parts cannot share an overview, if they cannot.
+fn incompatible(parts: &[Part]) -> Option<String> {
+    let names = |p: &Part| p.bands.iter().map(|b| b.name.clone()).collect::<Vec<_>>();
+    let first = names(&parts[0]);
+    parts.iter().find(|p| names(p) != first).map(|p| {
+        format!(
+            "{} has other bands than {}",
+            p.path.display(),
+            parts[0].path.display()
+        )
+    })
+}
+
+/// Options of [`build_index`].
+#[derive(Debug, Clone, Default)]
+pub struct IndexOptions {
+    /// Compression of the overview nodes (`None`: as the first part's level 0).
+    pub compression: Option<Compression>,
+    pub cancel: Option<Arc<AtomicBool>>,
+}
+
+/// Builds the overview of the parts in `dir` and writes its index, replacing any
+/// earlier overview and index. `progress(done)` counts nodes written.
+pub fn build_index(
+    dir: &Path,
+    o: &IndexOptions,
+    progress: &(dyn Fn(usize) + Sync),
+) -> Result<IndexReport> {
+    let t0 = Instant::now();
+    let files = list_parts(dir)?;
+    let parts: Vec<Part> = files
+        .par_iter()
+        .map(|f| Part::open(f))
+        .collect::<Result<_>>()?;
+    if let Some(empty) = parts.iter().find(|p| p.meta.point_count == 0) {
+        return Err(StoreError::new(
+            &empty.path,
+            "holds no points: a dataset's index lists parts with points only; move it out \
+             of the directory",
+        ));
+    }
+    let name = |f: &Path| f.file_name().map(|n| n.to_string_lossy().into_owned());
+    let entries: Vec<FileEntry> = parts
+        .iter()
+        .zip(&files)
+        .map(|(p, f)| entry_of(p, &name(f).unwrap_or_default()))
+        .collect::<Result<_>>()?;
+    let mut report = IndexReport {
+        parts: parts.len(),
+        points: parts.iter().map(|p| p.meta.point_count).sum(),
+        ..Default::default()
+    };
+    report.no_overview = if parts.len() < 2 {
+        Some("a single part is its own overview".into())
+    } else {
+        incompatible(&parts)
+    };
+    // Remove an earlier index first: the directory is unfinished until the new one
+    // is written.
+    let index_path = dir.join(INDEX_FILE);
+    if index_path.exists() {
+        std::fs::remove_file(&index_path)
+            .map_err(|e| StoreError::new(&index_path, format!("cannot remove: {e}")))?;
+    }
+    let old = dir.join(OVERVIEW_DIR);
+    let nodes = if report.no_overview.is_none() {
+        let tmp = dir.join(format!(".{OVERVIEW_DIR}-tmp-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&tmp);
+        std::fs::create_dir(&tmp)
+            .map_err(|e| StoreError::new(&tmp, format!("cannot create: {e}")))?;
+        let built = build_nodes(&parts, &files, &tmp, o, progress);
+        let built = built.and_then(|nodes| {
+            remove_overview(&old)?;
+            std::fs::rename(&tmp, &old)
+                .map_err(|e| StoreError::new(&old, format!("cannot rename into place: {e}")))?;
+            Ok(nodes)
+        });
+        match built {
+            Ok(n) => n,
+            Err(e) => {
+                let _ = std::fs::remove_dir_all(&tmp);
+                return Err(e);
+            }
+        }
+    } else {
+        remove_overview(&old)?;
+        Vec::new()
+    };
+    report.nodes = nodes.len();
+    report.layers = nodes.iter().map(|n| n.layer).max().unwrap_or(0);
+    report.node_points = nodes.iter().map(|n| n.entry.header.meta.point_count).sum();
+    report.node_bytes = nodes.iter().map(|n| n.entry.bytes).sum();
+    report.index_bytes = IndexFile::new(entries, nodes).save(dir)?;
+    report.seconds = t0.elapsed().as_secs_f64();
+    Ok(report)
+}
+
+/// Removes an earlier overview folder, which must hold only node files.
+fn remove_overview(old: &Path) -> Result<()> {
+    if !old.exists() {
+        return Ok(());
+    }
+    let foreign = std::fs::read_dir(old)
+        .map_err(|e| StoreError::new(old, format!("cannot list: {e}")))?
+        .filter_map(|e| e.ok())
+        .find(|e| {
+            let n = e.file_name().to_string_lossy().into_owned();
+            !(n.starts_with("node-") && n.ends_with(".tif"))
+        });
+    if let Some(f) = foreign {
+        return Err(StoreError::new(
+            &f.path(),
+            "is not an overview node: pcimg replaces the overview folder only when it \
+             holds nothing else",
+        ));
+    }
+    std::fs::remove_dir_all(old).map_err(|e| StoreError::new(old, format!("cannot remove: {e}")))
+}
+
+/// Writes the nodes layer by layer into `tmp`; their entries name them inside
+/// the final overview folder.
+fn build_nodes(
+    parts: &[Part],
+    files: &[PathBuf],
+    tmp: &Path,
+    o: &IndexOptions,
+    progress: &(dyn Fn(usize) + Sync),
+) -> Result<Vec<NodeEntry>> {
+    let compression = o.compression.unwrap_or_else(|| {
+        let l = &parts[0].levels[0];
+        // (LERC nodes keep their coordinates losslessly: they are read
+        // back from parts whose values already carry the parts' bound.)
+        Compression::from_codes(l.compression, l.lerc_extra).unwrap_or(Compression::None)
+    });
+    let top = |p: &Part| p.levels.last().and_then(|l| l.points).unwrap_or(0);
+    let file_name = |f: &Path| f.file_name().map(|n| n.to_string_lossy().into_owned());
+    let mut names: Vec<String> = files
+        .iter()
+        .map(|f| file_name(f).unwrap_or_default())
+        .collect();
+    let mut opened: Vec<Part> = Vec::new();
+    let mut nodes: Vec<NodeEntry> = Vec::new();
+    let mut members: Vec<Child> = (0..parts.len()).map(Child::Part).collect();
+    let done = AtomicUsize::new(0);
+    let mut layer = 0;
+    while members.len() > 1 {
+        layer += 1;
+        let member = |&child: &Child| -> Member {
+            let part = match child {
+                Child::Part(i) => &parts[i],
+                Child::Node(k) => &opened[k],
+            };
+            Member {
+                child,
+                part,
+                top_points: top(part),
+                center: part.meta.bounds.center(),
+            }
+        };
+        let mut m: Vec<Member> = members.iter().map(member).collect();
+        let runs = group(&mut m);
+        let written: Vec<(Part, NodeEntry)> = runs
+            .par_iter()
+            .enumerate()
+            .map(|(k, run)| {
+                if o.cancel.as_ref().is_some_and(|c| c.load(Ordering::Relaxed)) {
+                    return Err(StoreError::new(tmp, crate::write::part::INTERRUPTED));
+                }
+                let kids = &m[run.clone()];
+                let mut pts = PointColumns::default();
+                for kid in kids {
+                    append(&mut pts, next_coarser(kid.part)?);
+                }
+                let child_names: Vec<String> = kids
+                    .iter()
+                    .map(|kid| match kid.child {
+                        Child::Part(i) => names[i].clone(),
+                        Child::Node(j) => format!("{OVERVIEW_DIR}/{}", names[parts.len() + j]),
+                    })
+                    .collect();
+                let path = tmp.join(node_name(layer, k));
+                let opts = WriteOptions {
+                    compression,
+                    source: Some(format!("pcimg overview of {}", child_names.join(" "))),
+                    crs: kids[0].part.meta.crs.clone(),
+                    cancel: o.cancel.clone(),
+                    ..Default::default()
+                };
+                write_part(&path, &pts, &opts)?;
+                let part = Part::open(&path)?;
+                let entry = entry_of(&part, &format!("{OVERVIEW_DIR}/{}", node_name(layer, k)))?;
+                progress(done.fetch_add(1, Ordering::Relaxed) + 1);
+                Ok((
+                    part,
+                    NodeEntry {
+                        entry,
+                        layer,
+                        children: kids.iter().map(|kid| kid.child).collect(),
+                    },
+                ))
+            })
+            .collect::<Result<_>>()?;
+        drop(m);
+        members.clear();
+        for (part, entry) in written {
+            members.push(Child::Node(opened.len()));
+            names.push(node_name(layer, members.len() - 1));
+            opened.push(part);
+            nodes.push(entry);
+        }
+    }
+    Ok(nodes)
+}

@@ -1,0 +1,125 @@
+//! The file format's constants in one place: tags, metadata keys, layout numbers.
+//! docs/format.md is the prose version of this file; the writer and the reader
+//! both take every format decision from here.
+
+/// Format version written in `PCIMG_FORMAT`; a reader refuses newer major versions.
+pub const FORMAT_VERSION: u32 = 1;
+
+/// Tile edge in pixels (a power of two, so a tile holds one aligned Z-order block).
+pub const TILE_LOG2: u32 = 8;
+pub const TILE_SIZE: u32 = 1 << TILE_LOG2;
+pub const TILE_PIXELS: usize = (TILE_SIZE * TILE_SIZE) as usize;
+/// Bytes of one band's tile, uncompressed (`f32` samples).
+pub const TILE_BYTES: u64 = (TILE_PIXELS * 4) as u64;
+
+/// Bands every part starts with, in this order.
+pub const COORDINATE_BANDS: [&str; 3] = ["x", "y", "z"];
+
+/// `Software` tag written in every IFD; an overview without it was made by another
+/// tool (gdaladdo) and carries no pcimg tile index.
+pub const SOFTWARE_PREFIX: &str = "pcimg";
+
+/// TIFF tags used by the format (numbers from TIFF 6.0, BigTIFF and GDAL).
+pub mod tag {
+    pub const NEW_SUBFILE_TYPE: u16 = 254;
+    pub const IMAGE_WIDTH: u16 = 256;
+    pub const IMAGE_LENGTH: u16 = 257;
+    pub const BITS_PER_SAMPLE: u16 = 258;
+    pub const COMPRESSION: u16 = 259;
+    pub const PHOTOMETRIC: u16 = 262;
+    pub const SAMPLES_PER_PIXEL: u16 = 277;
+    pub const PLANAR_CONFIGURATION: u16 = 284;
+    pub const SOFTWARE: u16 = 305;
+    pub const PREDICTOR: u16 = 317;
+    pub const TILE_WIDTH: u16 = 322;
+    pub const TILE_LENGTH: u16 = 323;
+    pub const TILE_OFFSETS: u16 = 324;
+    pub const TILE_BYTE_COUNTS: u16 = 325;
+    pub const EXTRA_SAMPLES: u16 = 338;
+    pub const SAMPLE_FORMAT: u16 = 339;
+    pub const GDAL_METADATA: u16 = 42112;
+    pub const GDAL_NODATA: u16 = 42113;
+    /// LERC's parameters (libtiff's `TIFFTAG_LERC_PARAMETERS`): LONG[2], the LERC
+    /// version and the additional compression.
+    pub const LERC_PARAMETERS: u16 = 50674;
+}
+
+/// TIFF compression codes.
+pub mod compression {
+    pub const NONE: u16 = 1;
+    pub const ADOBE_DEFLATE: u16 = 8;
+    pub const DEFLATE: u16 = 32946;
+    pub const ZSTD: u16 = 50000;
+    /// LERC (libtiff's `COMPRESSION_LERC`), parameters in [`super::tag::LERC_PARAMETERS`].
+    pub const LERC: u16 = 34887;
+}
+
+/// Values of the `LercParameters` tag (libtiff's `tif_lerc.c`).
+pub mod lerc {
+    /// The LERC version libtiff names (`LERC_VERSION_2_4`); the blobs carry
+    /// their own (Lerc2 v3 to v6, whatever each needs), which libtiff reads.
+    pub const VERSION: u32 = 4;
+    /// Additional compression of each blob: none, Deflate (zlib), Zstd.
+    pub const ADD_NONE: u32 = 0;
+    pub const ADD_DEFLATE: u32 = 1;
+    pub const ADD_ZSTD: u32 = 2;
+}
+
+/// TIFF predictor codes.
+pub mod predictor {
+    pub const NONE: u16 = 1;
+    pub const HORIZONTAL: u16 = 2;
+    pub const FLOATING_POINT: u16 = 3;
+}
+
+/// GDAL_METADATA item names (default domain unless noted).
+pub mod key {
+    pub const FORMAT: &str = "PCIMG_FORMAT";
+    pub const POINT_COUNT: &str = "POINT_COUNT";
+    pub const ORIGIN: &str = "ORIGIN";
+    pub const BOUNDS_MIN: &str = "BOUNDS_MIN";
+    pub const BOUNDS_MAX: &str = "BOUNDS_MAX";
+    pub const LEVEL_POINTS: &str = "LEVEL_POINTS";
+    pub const LAYOUT: &str = "LAYOUT";
+    pub const BANDS: &str = "BANDS";
+    pub const SOURCE: &str = "SOURCE";
+    pub const CRS: &str = "CRS";
+    /// An upper bound of |value read - source value| for any coordinate, in
+    /// source units: f32 storage relative to the origin, plus the codec's bound
+    /// ([`CODEC_MAX_ERROR`]) where the codec is lossy.
+    pub const MAX_QUANTIZATION_ERROR: &str = "MAX_QUANTIZATION_ERROR";
+    /// LERC parts: the error bound each coordinate band's tiles were encoded
+    /// with, `x y z` (0: lossless); attributes are always lossless. Absent for
+    /// lossless codecs.
+    pub const CODEC_MAX_ERROR: &str = "CODEC_MAX_ERROR";
+    /// Points per classification code, `CODE:COUNT` pairs separated by spaces
+    /// (codes ascending, absent codes left out), for parts with a
+    /// `classification` band; counted when the part is written.
+    pub const CLASS_COUNTS: &str = "CLASS_COUNTS";
+    /// What a source says of itself, set by the readers on their columns' metadata
+    /// (`VIEWPOINT` of PCD, `SCANS` of E57): defined beside the columns.
+    pub use crate::points::key::{SCANS, VIEWPOINT};
+    /// The items above: what a source says of itself, shown by `info`.
+    pub const FROM_SOURCE: &[&str] = &[VIEWPOINT, SCANS];
+    /// Per-band minimum and maximum of the stored values (before the band offset),
+    /// as GDAL names its band statistics, so `gdalinfo` shows them.
+    pub const STATISTICS_MINIMUM: &str = "STATISTICS_MINIMUM";
+    pub const STATISTICS_MAXIMUM: &str = "STATISTICS_MAXIMUM";
+    /// Per-level, per-tile bounds and counts (base64), in domain [`TILE_INDEX_DOMAIN`].
+    pub const TILE_INDEX: &str = "TILE_INDEX";
+    pub const TILE_INDEX_DOMAIN: &str = "pcimg";
+}
+
+/// Values of the `LAYOUT` item: how points are placed in the image. A part without
+/// the item is read as [`layout::HILBERT`].
+pub mod layout {
+    /// Hilbert order along the image's Z-order curve, centroid representatives.
+    pub const HILBERT: &str = "hilbert-centroid";
+    /// The paper's placement: input order, row-major, plain nearest-neighbour
+    /// pyramid (level k keeps pixel (2^k·i, 2^k·j) of level 0).
+    pub const PAPER: &str = "paper";
+}
+
+/// Magic and version of the binary tile index blob.
+pub const TILE_INDEX_MAGIC: &[u8; 4] = b"PCTI";
+pub const TILE_INDEX_VERSION: u32 = 1;

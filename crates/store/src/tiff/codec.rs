@@ -1,0 +1,776 @@
+//! Tile payloads: Float32 samples to bytes and back, with optional Deflate or Zstd
+//! compression and TIFF's floating-point predictor (3), or LERC (limited-error
+//! raster compression, as GDAL and libtiff write it in TIFF: one LERC blob per
+//! band tile, optionally Deflate- or Zstd-compressed again; the `lerc-rs` crate).
+
+use crate::spec::{self, compression as comp, predictor as pred};
+use std::io::{Read, Write};
+
+/// Compression of a part's tiles.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
+pub enum Compression {
+    /// Fastest to load: tiles are read straight out of the memory map.
+    #[default]
+    None,
+    Deflate,
+    Zstd,
+    /// LERC: each band tile within its own error bound (`TileError`).
+    Lerc,
+    /// LERC, the blob Deflate-compressed again (GDAL's `LERC_DEFLATE`).
+    LercDeflate,
+    /// LERC, the blob Zstd-compressed again (GDAL's `LERC_ZSTD`).
+    LercZstd,
+}
+
+impl Compression {
+    /// Every codec, fastest to read first.
+    pub const ALL: [Compression; 6] = [
+        Compression::None,
+        Compression::Deflate,
+        Compression::Zstd,
+        Compression::Lerc,
+        Compression::LercDeflate,
+        Compression::LercZstd,
+    ];
+
+    pub fn tiff_code(self) -> u16 {
+        match self {
+            Compression::None => comp::NONE,
+            Compression::Deflate => comp::ADOBE_DEFLATE,
+            Compression::Zstd => comp::ZSTD,
+            _ => comp::LERC,
+        }
+    }
+
+    pub fn predictor(self) -> u16 {
+        match self {
+            Compression::Deflate | Compression::Zstd => pred::FLOATING_POINT,
+            _ => pred::NONE,
+        }
+    }
+
+    /// The LERC codes (`LercParameters`: version, additional compression), for
+    /// the LERC codecs.
+    pub fn lerc_parameters(self) -> Option<[u32; 2]> {
+        let extra = match self {
+            Compression::Lerc => spec::lerc::ADD_NONE,
+            Compression::LercDeflate => spec::lerc::ADD_DEFLATE,
+            Compression::LercZstd => spec::lerc::ADD_ZSTD,
+            _ => return None,
+        };
+        Some([spec::lerc::VERSION, extra])
+    }
+
+    /// The codec a part was written with, from its first level's TIFF codes.
+    pub fn from_codes(compression: u16, lerc_extra: u32) -> Option<Self> {
+        Some(match (compression, lerc_extra) {
+            (comp::NONE, _) => Compression::None,
+            (comp::ADOBE_DEFLATE | comp::DEFLATE, _) => Compression::Deflate,
+            (comp::ZSTD, _) => Compression::Zstd,
+            (comp::LERC, spec::lerc::ADD_NONE) => Compression::Lerc,
+            (comp::LERC, spec::lerc::ADD_DEFLATE) => Compression::LercDeflate,
+            (comp::LERC, spec::lerc::ADD_ZSTD) => Compression::LercZstd,
+            _ => return None,
+        })
+    }
+
+    /// The codec written when none is named: for local output, the one read
+    /// fastest from the page cache; for output to object storage, where bytes
+    /// are time, the smallest that reads fast enough (bench/RESULTS.md, issue
+    /// 30).
+    pub fn default_for(remote: bool) -> Self {
+        if remote {
+            Compression::LercZstd
+        } else {
+            Compression::None
+        }
+    }
+
+    pub fn name(self) -> &'static str {
+        match self {
+            Compression::None => "none",
+            Compression::Deflate => "deflate",
+            Compression::Zstd => "zstd",
+            Compression::Lerc => "lerc",
+            Compression::LercDeflate => "lerc_deflate",
+            Compression::LercZstd => "lerc_zstd",
+        }
+    }
+
+    pub fn is_lerc(self) -> bool {
+        self.lerc_parameters().is_some()
+    }
+
+    pub fn parse(s: &str) -> Result<Self, String> {
+        match s.to_ascii_lowercase().replace('-', "_").as_str() {
+            "none" => Ok(Compression::None),
+            "deflate" | "zip" => Ok(Compression::Deflate),
+            "zstd" => Ok(Compression::Zstd),
+            "lerc" => Ok(Compression::Lerc),
+            "lerc_deflate" => Ok(Compression::LercDeflate),
+            "lerc_zstd" => Ok(Compression::LercZstd),
+            _ => Err(format!(
+                "unknown compression '{s}' (expected none, deflate, zstd, lerc, lerc_deflate \
+                 or lerc_zstd)"
+            )),
+        }
+    }
+}
+
+/// Name of a TIFF compression code for messages and `info`.
+pub fn compression_name(code: u16) -> String {
+    match code {
+        comp::NONE => "none".into(),
+        comp::ADOBE_DEFLATE | comp::DEFLATE => "deflate".into(),
+        comp::ZSTD => "zstd".into(),
+        comp::LERC => "lerc".into(),
+        5 => "lzw".into(),
+        c => format!("code {c}"),
+    }
+}
+
+/// Name of a level's codec: [`compression_name`], LERC's with its additional
+/// compression (`lerc_zstd`).
+pub fn level_codec_name(code: u16, lerc_extra: u32) -> String {
+    match Compression::from_codes(code, lerc_extra) {
+        Some(c) if c.is_lerc() => c.name().into(),
+        _ => compression_name(code),
+    }
+}
+
+/// Encodes one tile of one band (`width` samples per row, native byte order).
+/// `max_error` bounds |decoded - value| for the LERC codecs (0: lossless); the
+/// other codecs are lossless.
+pub fn encode(
+    values: &[f32],
+    width: usize,
+    c: Compression,
+    max_error: f64,
+) -> Result<Vec<u8>, String> {
+    Ok(match c {
+        Compression::None => bytemuck::cast_slice(values).to_vec(),
+        Compression::Deflate => deflate(&predict_float(values, width)),
+        Compression::Zstd => {
+            let raw = predict_float(values, width);
+            zstd::bulk::compress(&raw, 3).unwrap_or_default()
+        }
+        Compression::Lerc => encode_lerc(values, width, max_error)?,
+        Compression::LercDeflate => deflate(&encode_lerc(values, width, max_error)?),
+        Compression::LercZstd => {
+            // GDAL's default level for LERC_ZSTD: the blobs are small.
+            zstd::bulk::compress(&encode_lerc(values, width, max_error)?, 9)
+                .map_err(|e| format!("zstd: {e}"))?
+        }
+    })
+}
+
+fn deflate(raw: &[u8]) -> Vec<u8> {
+    let mut e = flate2::write::ZlibEncoder::new(
+        Vec::with_capacity(raw.len() / 2),
+        flate2::Compression::new(6),
+    );
+    // Writing into a Vec cannot fail.
+    let _ = e.write_all(raw);
+    e.finish().unwrap_or_default()
+}
+
+/// Largest integer an `f32` holds exactly with all smaller ones (2^24).
+const F32_EXACT_INTEGERS: f32 = 16_777_216.0;
+
+/// One LERC blob (Lerc2, Float32, one band, one depth) of a band's tile: NaN
+/// samples (pixels without a point) are left out by the blob's validity mask
+/// and read back as NaN. A tile of whole numbers (classes, returns, colours,
+/// intensities) is coded with LERC's error 0.5, which gives every whole number
+/// back exactly; other tiles within `max_error` (0: bit-exact, LERC's
+/// floating-point lossless coding).
+pub(crate) fn encode_lerc(values: &[f32], width: usize, max_error: f64) -> Result<Vec<u8>, String> {
+    use lerc::bitmask::BitMask;
+    let n = values.len();
+    if width == 0 || !n.is_multiple_of(width) {
+        return Err(format!("a LERC tile of {n} samples is not rows of {width}"));
+    }
+    let mut invalid = 0usize;
+    let mut whole = true;
+    let mut finite = true;
+    for &v in values {
+        if v.is_nan() {
+            invalid += 1;
+        } else {
+            finite &= v.is_finite();
+            whole &= v.trunc() == v && v.abs() <= F32_EXACT_INTEGERS;
+        }
+    }
+    let mask = if invalid == 0 {
+        BitMask::all_valid(n)
+    } else {
+        let mut m = BitMask::new(n);
+        for (i, v) in values.iter().enumerate() {
+            if !v.is_nan() {
+                m.set_valid(i);
+            }
+        }
+        m
+    };
+    // An infinity has no place in a limited-error range: such tiles are coded
+    // losslessly.
+    let error = if !finite {
+        0.0
+    } else if whole && max_error < 0.5 {
+        0.5
+    } else {
+        max_error.max(0.0)
+    };
+    // (The bound as an f32 no larger than asked.)
+    let precision = if error > 0.0 {
+        let e = error as f32;
+        lerc::Precision::Tolerance(if e as f64 > error { e.next_down() } else { e })
+    } else {
+        lerc::Precision::Lossless
+    };
+    let (w, h) = (width as u32, (n / width) as u32);
+    let blob = lerc::encode_borrowed(w, h, 1, 1, values, &[mask], None, precision)
+        .map_err(|e| format!("LERC encoding failed: {e}"))?;
+    Ok(lerc_v3_as_v4(&blob).unwrap_or(blob))
+}
+
+/// A Lerc2 version 3 blob of Float32 samples, one depth, as version 4 (the
+/// version libtiff expects in TIFF, `spec::lerc::VERSION`; it warns at every
+/// other): the same tiles, the header with its depth (1), and the value range
+/// after the mask. `lerc-rs` writes the lowest version a blob needs: 3 for
+/// limited-error tiles, 6 for floating-point lossless ones (left as they are).
+/// `None` for any other blob.
+fn lerc_v3_as_v4(b: &[u8]) -> Option<Vec<u8>> {
+    let i32_at = |o: usize| Some(i32::from_le_bytes(b.get(o..o + 4)?.try_into().ok()?));
+    let f64_at = |o: usize| Some(f64::from_le_bytes(b.get(o..o + 8)?.try_into().ok()?));
+    // Version 3: magic, version, checksum, rows, columns, valid pixels, micro
+    // block size, blob size, data type, max error, min, max; then the mask's
+    // byte count and bytes.
+    const HEAD3: usize = 62;
+    const FLOAT: i32 = 6;
+    if b.get(..6)? != b"Lerc2 " || i32_at(6)? != 3 || i32_at(34)? != FLOAT {
+        return None;
+    }
+    if i32_at(30)? as usize != b.len() {
+        return None;
+    }
+    let valid = i32_at(22)?;
+    let (lo, hi) = (f64_at(46)?, f64_at(54)?);
+    let mask_end = HEAD3 + 4 + usize::try_from(i32_at(HEAD3)?).ok()?;
+    let rest = b.get(mask_end..)?;
+    let mut v = Vec::with_capacity(b.len() + 12);
+    v.extend_from_slice(&b[..22]);
+    v.extend_from_slice(&1i32.to_le_bytes());
+    v.extend_from_slice(&b[22..mask_end]);
+    // Version 4 keeps each depth's range where the values are not all one.
+    if valid > 0 && lo != hi {
+        v.extend_from_slice(&(lo as f32).to_le_bytes());
+        v.extend_from_slice(&(hi as f32).to_le_bytes());
+    }
+    v.extend_from_slice(rest);
+    let len = i32::try_from(v.len()).ok()?;
+    v[6..10].copy_from_slice(&4i32.to_le_bytes());
+    v[34..38].copy_from_slice(&len.to_le_bytes());
+    let sum = lerc::checksum::fletcher32(&v[14..]);
+    v[10..14].copy_from_slice(&sum.to_le_bytes());
+    Some(v)
+}
+
+/// TIFF floating-point predictor on rows of one sample per pixel: bytes of each row
+/// regrouped most significant first, then differenced.
+fn predict_float(values: &[f32], width: usize) -> Vec<u8> {
+    let mut out = vec![0u8; values.len() * 4];
+    for (row, dst) in values.chunks(width).zip(out.chunks_mut(width * 4)) {
+        let w = row.len();
+        for (i, v) in row.iter().enumerate() {
+            let b = v.to_be_bytes();
+            for k in 0..4 {
+                dst[k * w + i] = b[k];
+            }
+        }
+        for i in (1..dst.len()).rev() {
+            dst[i] = dst[i].wrapping_sub(dst[i - 1]);
+        }
+    }
+    out
+}
+
+/// How a stored tile is to be decoded.
+#[derive(Debug, Clone, Copy)]
+pub struct TileCodec {
+    pub compression: u16,
+    pub predictor: u16,
+    pub little_endian: bool,
+    /// Pixels per row of the tile.
+    pub width: usize,
+    /// Samples per pixel in this chunk (1 for separate planes).
+    pub samples: usize,
+    /// LERC tiles: the additional compression of each blob (`spec::lerc`).
+    pub lerc_extra: u32,
+}
+
+impl TileCodec {
+    pub fn check(&self) -> Result<(), String> {
+        match self.compression {
+            comp::NONE | comp::ADOBE_DEFLATE | comp::DEFLATE | comp::ZSTD => {}
+            comp::LERC => {
+                if self.lerc_extra > spec::lerc::ADD_ZSTD {
+                    return Err(format!(
+                        "LERC tiles use additional compression {}, which pcimg does not read \
+                         (0 none, 1 deflate, 2 zstd)",
+                        self.lerc_extra
+                    ));
+                }
+                if self.samples != 1 {
+                    return Err(
+                        "LERC tiles of several samples a pixel (pixel-interleaved) are not read \
+                         by pcimg: rewrite the part with -co INTERLEAVE=BAND"
+                            .into(),
+                    );
+                }
+            }
+            c => {
+                return Err(format!(
+                    "tiles use compression {} which pcimg does not read (none, deflate, zstd or \
+                     lerc)",
+                    compression_name(c)
+                ));
+            }
+        }
+        match self.predictor {
+            pred::NONE | pred::FLOATING_POINT => Ok(()),
+            p => Err(format!(
+                "tiles use predictor {p}, which is not valid for Float32 (expected 1 or 3)"
+            )),
+        }
+    }
+
+    /// Decodes a stored tile into `count` samples (pixel-interleaved if `samples > 1`).
+    pub fn decode(&self, stored: &[u8], count: usize) -> Result<Vec<f32>, String> {
+        let nbytes = count * 4;
+        if self.compression == comp::LERC {
+            return self.decode_lerc(stored, count);
+        }
+        let mut owned = match self.compression {
+            comp::NONE => None,
+            comp::ADOBE_DEFLATE | comp::DEFLATE => {
+                let mut v = Vec::with_capacity(nbytes);
+                flate2::read::ZlibDecoder::new(stored)
+                    .take(nbytes as u64)
+                    .read_to_end(&mut v)
+                    .map_err(|e| format!("deflate stream is corrupt: {e}"))?;
+                Some(v)
+            }
+            comp::ZSTD => Some(
+                zstd_decompress(stored, nbytes)
+                    .map_err(|e| format!("zstd stream is corrupt: {e}"))?,
+            ),
+            c => {
+                return Err(format!(
+                    "compression {} is not supported",
+                    compression_name(c)
+                ));
+            }
+        };
+        let have = owned.as_ref().map_or(stored.len(), Vec::len);
+        if have < nbytes {
+            return Err(format!("tile holds {have} bytes, {nbytes} expected"));
+        }
+        if self.predictor == pred::FLOATING_POINT {
+            let raw = match &mut owned {
+                Some(v) => &mut v[..nbytes],
+                None => owned.insert(stored[..nbytes].to_vec()),
+            };
+            return Ok(unpredict_float(
+                raw,
+                self.width * self.samples,
+                self.samples,
+            ));
+        }
+        let raw = &owned.as_deref().unwrap_or(stored)[..nbytes];
+        Ok(if self.little_endian {
+            raw.chunks_exact(4)
+                .map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]]))
+                .collect()
+        } else {
+            raw.chunks_exact(4)
+                .map(|b| f32::from_be_bytes([b[0], b[1], b[2], b[3]]))
+                .collect()
+        })
+    }
+}
+
+thread_local! {
+    /// Each thread's Zstd decompression context, kept between tiles.
+    static ZSTD: std::cell::RefCell<Option<zstd::bulk::Decompressor<'static>>> =
+        const { std::cell::RefCell::new(None) };
+}
+
+/// Decompresses a Zstd frame of at most `capacity` bytes with this thread's
+/// context.
+fn zstd_decompress(stored: &[u8], capacity: usize) -> std::io::Result<Vec<u8>> {
+    let mut out = Vec::new();
+    zstd_decompress_into(stored, capacity, &mut out)?;
+    Ok(out)
+}
+
+/// [`zstd_decompress`] into `out` (cleared first, its allocation reused).
+fn zstd_decompress_into(stored: &[u8], capacity: usize, out: &mut Vec<u8>) -> std::io::Result<()> {
+    out.clear();
+    out.reserve(capacity);
+    ZSTD.with(|z| {
+        let mut z = z.borrow_mut();
+        let d = match &mut *z {
+            Some(d) => d,
+            None => z.insert(zstd::bulk::Decompressor::new()?),
+        };
+        d.decompress_to_buffer(stored, out).map(|_| ())
+    })
+}
+
+thread_local! {
+    /// Each thread's buffer for a LERC blob unwrapped from Deflate or Zstd.
+    static BLOB: std::cell::RefCell<Vec<u8>> = const { std::cell::RefCell::new(Vec::new()) };
+}
+
+impl TileCodec {
+    /// A LERC tile of a Z-ordered part straight into its points: `out[z]` gets
+    /// the sample at Z-index `z` of the square tile (`crate::tiff::lerc_z`). `Ok(false)`
+    /// when this is not a LERC tile or its blob is of a kind only `lerc-rs`
+    /// decodes (then nothing is written: use [`TileCodec::decode`]).
+    pub fn decode_lerc_z(
+        &self,
+        stored: &[u8],
+        out: &mut [std::mem::MaybeUninit<f32>],
+    ) -> Result<bool, String> {
+        if self.compression != comp::LERC || self.samples != 1 {
+            return Ok(false);
+        }
+        let side = self.width;
+        if self.lerc_extra == spec::lerc::ADD_NONE {
+            return crate::tiff::lerc_z::decode(stored, side, out);
+        }
+        let limit = side * side * 8 + 65_536;
+        BLOB.with(|b| {
+            let mut blob = b.borrow_mut();
+            blob.clear();
+            match self.lerc_extra {
+                spec::lerc::ADD_DEFLATE => {
+                    flate2::read::ZlibDecoder::new(stored)
+                        .take(limit as u64)
+                        .read_to_end(&mut blob)
+                        .map_err(|e| {
+                            format!("deflate stream around the LERC blob is corrupt: {e}")
+                        })?;
+                }
+                spec::lerc::ADD_ZSTD => {
+                    zstd_decompress_into(stored, limit, &mut blob)
+                        .map_err(|e| format!("zstd stream around the LERC blob is corrupt: {e}"))?;
+                }
+                _ => return Ok(false),
+            }
+            crate::tiff::lerc_z::decode(&blob, side, out)
+        })
+    }
+
+    /// A LERC tile: the blob (decompressed first where the part says so), one
+    /// band of `count` Float32 samples, rows of `width`; masked pixels as NaN.
+    fn decode_lerc(&self, stored: &[u8], count: usize) -> Result<Vec<f32>, String> {
+        // A blob is at most about the raw samples plus its mask and headers.
+        let limit = count * 8 + 65_536;
+        let owned;
+        let blob: &[u8] = match self.lerc_extra {
+            spec::lerc::ADD_NONE => stored,
+            spec::lerc::ADD_DEFLATE => {
+                let mut v = Vec::with_capacity(count * 2);
+                flate2::read::ZlibDecoder::new(stored)
+                    .take(limit as u64)
+                    .read_to_end(&mut v)
+                    .map_err(|e| format!("deflate stream around the LERC blob is corrupt: {e}"))?;
+                owned = v;
+                &owned
+            }
+            spec::lerc::ADD_ZSTD => {
+                owned = zstd_decompress(stored, limit)
+                    .map_err(|e| format!("zstd stream around the LERC blob is corrupt: {e}"))?;
+                &owned
+            }
+            e => return Err(format!("LERC additional compression {e} is not supported")),
+        };
+        let info = lerc::decode_info(blob).map_err(|e| format!("LERC blob is corrupt: {e}"))?;
+        let want_rows = count / self.width.max(1);
+        if info.width as usize != self.width
+            || info.height as usize != want_rows
+            || info.bands != 1
+            || info.depth != 1
+        {
+            return Err(format!(
+                "LERC blob is {}x{} with {} band(s) of depth {}; a {}x{} tile of one band expected",
+                info.width, info.height, info.bands, info.depth, self.width, want_rows
+            ));
+        }
+        if info.data_type != lerc::DataType::Float {
+            return Err(format!(
+                "LERC blob holds {:?} samples; Float32 expected",
+                info.data_type
+            ));
+        }
+        let mut out = vec![0f32; count];
+        lerc::decode_into_with_nodata(blob, &mut out, f32::NAN)
+            .map_err(|e| format!("LERC blob is corrupt: {e}"))?;
+        Ok(out)
+    }
+}
+
+/// Undoes the floating-point predictor in place: rows of `row_samples`
+/// samples, differenced with a stride of `stride` bytes, each row's bytes
+/// regrouped most significant first.
+fn unpredict_float(raw: &mut [u8], row_samples: usize, stride: usize) -> Vec<f32> {
+    let mut out = Vec::with_capacity(raw.len() / 4);
+    for row in raw.chunks_mut(row_samples * 4) {
+        if stride == 1 {
+            running_sum(row);
+        } else {
+            for i in stride..row.len() {
+                row[i] = row[i].wrapping_add(row[i - stride]);
+            }
+        }
+        let w = row.len() / 4;
+        let (b0, rest) = row.split_at(w);
+        let (b1, rest) = rest.split_at(w);
+        let (b2, b3) = rest.split_at(w);
+        out.extend(
+            b0.iter()
+                .zip(b1)
+                .zip(b2)
+                .zip(&b3[..w])
+                .map(|(((&a, &b), &c), &d)| f32::from_be_bytes([a, b, c, d])),
+        );
+    }
+    out
+}
+
+/// Running (wrapping) sum of `bytes` in place: the horizontal differencing of
+/// one byte a sample undone. On x86-64, 16 bytes at a time (SSE2: log-step
+/// sums within a vector, then the previous vector's last byte added).
+fn running_sum(bytes: &mut [u8]) {
+    let mut carry = 0u8;
+    #[cfg(target_arch = "x86_64")]
+    let bytes = {
+        use std::arch::x86_64::*;
+        let mut chunks = bytes.chunks_exact_mut(16);
+        for c in &mut chunks {
+            // SAFETY: SSE2 is part of every x86-64 CPU; the unaligned load and
+            // store cover exactly the 16 bytes of `c`.
+            unsafe {
+                let p = c.as_mut_ptr() as *mut __m128i;
+                let mut x = _mm_loadu_si128(p);
+                x = _mm_add_epi8(x, _mm_slli_si128::<1>(x));
+                x = _mm_add_epi8(x, _mm_slli_si128::<2>(x));
+                x = _mm_add_epi8(x, _mm_slli_si128::<4>(x));
+                x = _mm_add_epi8(x, _mm_slli_si128::<8>(x));
+                x = _mm_add_epi8(x, _mm_set1_epi8(carry as i8));
+                _mm_storeu_si128(p, x);
+                carry = (_mm_extract_epi16::<7>(x) >> 8) as u8;
+            }
+        }
+        chunks.into_remainder()
+    };
+    for b in bytes {
+        carry = carry.wrapping_add(*b);
+        *b = carry;
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const ALL: [Compression; 6] = Compression::ALL;
+
+    fn codec_of(c: Compression, width: usize) -> TileCodec {
+        TileCodec {
+            compression: c.tiff_code(),
+            predictor: c.predictor(),
+            little_endian: cfg!(target_endian = "little"),
+            width,
+            samples: 1,
+            lerc_extra: c.lerc_parameters().map_or(0, |p| p[1]),
+        }
+    }
+
+    /// LERC within a bound: coordinates on a LAS lattice (integers times 0.01,
+    /// relative to an origin off the lattice) come back within the bound and,
+    /// at half the lattice step, on the lattice to f32 rounding; whole numbers
+    /// exactly whatever the bound; NaN (no point) as NaN; infinities exactly.
+    #[test]
+    fn lerc_keeps_its_bound_and_whole_numbers() {
+        let mut r = crate::rng::Rng::new(9);
+        let n = 256 * 256;
+        let lattice: Vec<f32> = (0..n)
+            .map(|i| {
+                if i > n - 300 {
+                    f32::NAN
+                } else {
+                    ((r.f64() * 60000.0).round() * 0.01 - 299.993) as f32
+                }
+            })
+            .collect();
+        let whole: Vec<f32> = (0..n).map(|i| ((i * 7919) % 65536) as f32).collect();
+        let mut odd = whole.clone();
+        odd[5] = f32::INFINITY;
+        odd[9] = f32::NAN;
+        for c in [
+            Compression::Lerc,
+            Compression::LercDeflate,
+            Compression::LercZstd,
+        ] {
+            let codec = codec_of(c, 256);
+            for (v, e) in [
+                (&lattice, 0.005),
+                (&lattice, 0.0),
+                (&whole, 0.0),
+                (&odd, 0.0),
+            ] {
+                let bytes = encode(v, 256, c, e).unwrap();
+                let back = codec.decode(&bytes, n).unwrap();
+                let mut worst = 0f64;
+                for (a, b) in v.iter().zip(&back) {
+                    if a.is_nan() || !a.is_finite() || e == 0.0 {
+                        assert!(a.to_bits() == b.to_bits() || (a.is_nan() && b.is_nan()));
+                    } else {
+                        worst = worst.max((*a as f64 - *b as f64).abs());
+                    }
+                }
+                // Within the bound, and in fact on the lattice (f32 rounding of
+                // values up to 300: 2^-15).
+                assert!(worst <= 4e-5, "{c:?} {e}: {worst}");
+            }
+            // Within a bound: smaller than lossless (random values, no
+            // neighbour alike: a third smaller).
+            let lossy = encode(&lattice, 256, c, 0.005).unwrap().len();
+            let exact = encode(&lattice, 256, c, 0.0).unwrap().len();
+            assert!(lossy * 4 < exact * 3, "{c:?}: {lossy} vs {exact}");
+        }
+    }
+
+    /// Limited-error blobs are written as Lerc2 version 4 (what libtiff
+    /// expects), lossless floating-point ones as version 6; both decode to what
+    /// the version-3 blob gives, for tiles full, partly empty, empty and flat.
+    #[test]
+    fn lerc_blobs_are_version_4_where_they_can_be() {
+        let n = 64 * 64;
+        let ramp: Vec<f32> = (0..n).map(|i| (i % 97) as f32 * 0.013).collect();
+        let mut holes = ramp.clone();
+        for v in holes.iter_mut().skip(1000) {
+            *v = f32::NAN;
+        }
+        let flat = vec![2.5f32; n];
+        let empty = vec![f32::NAN; n];
+        for (v, e) in [
+            (&ramp, 0.001),
+            (&holes, 0.001),
+            (&flat, 0.001),
+            (&empty, 0.001),
+        ] {
+            let blob = encode_lerc(v, 64, e).unwrap();
+            assert_eq!(lerc::decode_info(&blob).unwrap().version, 4);
+            let codec = codec_of(Compression::Lerc, 64);
+            let back = codec.decode(&blob, n).unwrap();
+            if v.iter().all(|x| !x.is_nan()) {
+                let mut plain = vec![0f32; n];
+                let v3 = lerc::encode_borrowed(
+                    64,
+                    64,
+                    1,
+                    1,
+                    v,
+                    &[lerc::bitmask::BitMask::all_valid(n)],
+                    None,
+                    lerc::Precision::Tolerance((e as f32).next_down()),
+                );
+                lerc::decode_into(&v3.unwrap(), &mut plain).unwrap();
+                assert!(back == plain, "version 4 decodes otherwise than version 3");
+            }
+            for (a, b) in v.iter().zip(&back) {
+                // The bound, plus the f32 rounding of what LERC gives back.
+                assert!(a.is_nan() && b.is_nan() || (a - b).abs() <= 0.001 + 1e-6);
+            }
+        }
+        let lossless = encode_lerc(&ramp, 64, 0.0).unwrap();
+        assert_eq!(lerc::decode_info(&lossless).unwrap().version, 6);
+    }
+
+    /// The vector running sum is the byte-by-byte one, at every length.
+    #[test]
+    fn running_sum_matches_the_plain_loop() {
+        let mut r = crate::rng::Rng::new(3);
+        for len in [0, 1, 15, 16, 17, 31, 32, 33, 1000, 1024] {
+            let v: Vec<u8> = (0..len).map(|_| r.next_u64() as u8).collect();
+            let mut fast = v.clone();
+            running_sum(&mut fast);
+            let mut acc = 0u8;
+            let plain: Vec<u8> = v
+                .iter()
+                .map(|b| {
+                    acc = acc.wrapping_add(*b);
+                    acc
+                })
+                .collect();
+            assert_eq!(fast, plain, "length {len}");
+        }
+    }
+
+    #[test]
+    fn corrupt_lerc_is_an_error() {
+        let v: Vec<f32> = (0..64).map(|i| i as f32 * 0.5).collect();
+        for c in [Compression::Lerc, Compression::LercZstd] {
+            let good = encode(&v, 8, c, 0.0).unwrap();
+            let codec = codec_of(c, 8);
+            assert_eq!(codec.decode(&good, 64).unwrap(), v);
+            assert!(codec.decode(&good[..good.len() / 2], 64).is_err());
+            // A blob of another size than the tile's.
+            assert!(codec_of(c, 16).decode(&good, 256).is_err());
+            let mut bad = good.clone();
+            let k = bad.len() - 3;
+            bad[k] ^= 0x5a;
+            assert!(codec.decode(&bad, 64).is_err() || c == Compression::LercZstd);
+        }
+    }
+
+    #[test]
+    fn round_trip_every_compression() {
+        let v: Vec<f32> = (0..256 * 4)
+            .map(|i| {
+                if i % 7 == 0 {
+                    f32::NAN
+                } else {
+                    i as f32 * 0.37 - 50.0
+                }
+            })
+            .collect();
+        for c in ALL {
+            let bytes = encode(&v, 256, c, 0.0).unwrap();
+            let codec = codec_of(c, 256);
+            let back = codec.decode(&bytes, v.len()).unwrap();
+            assert_eq!(back.len(), v.len());
+            for (a, b) in v.iter().zip(&back) {
+                assert!(a.to_bits() == b.to_bits(), "{c:?}");
+            }
+        }
+    }
+
+    #[test]
+    fn corrupt_streams_are_errors() {
+        let codec = TileCodec {
+            compression: comp::ADOBE_DEFLATE,
+            predictor: 3,
+            little_endian: true,
+            width: 4,
+            samples: 1,
+            lerc_extra: 0,
+        };
+        assert!(codec.decode(b"not deflate", 16).is_err());
+        let good = encode(&[1.0; 16], 4, Compression::Deflate, 0.0).unwrap();
+        assert!(codec.decode(&good[..good.len() / 2], 16).is_err());
+    }
+}

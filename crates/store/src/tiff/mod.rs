@@ -1,0 +1,11 @@
+//! The TIFF layer: the bounds-checked directory parser and the writer of a part's
+//! head (`ifd`), tile payload codecs (`codec`, the fast LERC path `lerc_z`), the
+//! image geometry of Z-ordered tiles (`zorder`, `tiles`) and the part's
+//! self-description (`metadata`).
+
+pub mod codec;
+pub mod ifd;
+mod lerc_z;
+pub mod metadata;
+pub mod tiles;
+pub mod zorder;
