@@ -148,7 +148,7 @@ pub fn camera_for(a: &ViewArgs, ds: &Dataset) -> anyhow::Result<Camera> {
         && a.camera.is_none()
         && a.view.is_none()
     {
-        let slab = filter::parse_slab(s).map_err(anyhow::Error::msg)?;
+        let slab = filter::parse_slab(s).map_err(|e| anyhow::anyhow!("--slab {e}"))?;
         cam = slab.profile_camera(&bounds, &cam);
     }
     cam.set_clip_from_bounds(&bounds);
@@ -179,7 +179,10 @@ fn no_band(ds: &Dataset, name: &str, what: &str) -> anyhow::Error {
 
 /// The colour style from `--color`, `--ramp` and `--range`, checked against `ds`.
 pub fn style_for(a: &ViewArgs, ds: &Dataset) -> anyhow::Result<Style> {
-    let mode: ColorMode = a.color.parse()?;
+    let mode: ColorMode = a
+        .color
+        .parse()
+        .map_err(|e| anyhow::anyhow!("--color {}: {e}", a.color))?;
     if let ColorMode::Band(b) = &mode
         && !has_band(ds, b)
     {
@@ -194,7 +197,7 @@ pub fn style_for(a: &ViewArgs, ds: &Dataset) -> anyhow::Result<Style> {
         .as_deref()
         .map(ramp::parse_range)
         .transpose()
-        .map_err(anyhow::Error::msg)?;
+        .map_err(|e| anyhow::anyhow!("--range {e}"))?;
     if (ramp.is_some() || range.is_some()) && !mode.uses_ramp() {
         anyhow::bail!(
             "--ramp and --range apply to --color intensity, height or band:NAME, not {}",
@@ -228,7 +231,7 @@ pub fn filter_for(a: &ViewArgs, ds: &Dataset) -> anyhow::Result<Filter> {
         .iter()
         .map(|w| Where::parse(w))
         .collect::<Result<_, _>>()
-        .map_err(anyhow::Error::msg)?;
+        .map_err(|e| anyhow::anyhow!("--where {e}"))?;
     for w in &wheres {
         if !has_band(ds, &w.band) {
             return Err(no_band(ds, &w.band, "--where"));
@@ -239,13 +242,13 @@ pub fn filter_for(a: &ViewArgs, ds: &Dataset) -> anyhow::Result<Filter> {
         .as_deref()
         .map(filter::parse_clip)
         .transpose()
-        .map_err(anyhow::Error::msg)?;
+        .map_err(|e| anyhow::anyhow!("--clip {e}"))?;
     let slab = a
         .slab
         .as_deref()
         .map(filter::parse_slab)
         .transpose()
-        .map_err(anyhow::Error::msg)?;
+        .map_err(|e| anyhow::anyhow!("--slab {e}"))?;
     Ok(Filter {
         classes: ClassMask::new(include.as_deref(), &exclude),
         wheres,

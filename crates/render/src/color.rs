@@ -82,7 +82,7 @@ impl std::str::FromStr for ColorMode {
                 let name = s.trim()[5..].trim();
                 if name.is_empty() {
                     return Err(RenderError::InvalidOptions(
-                        "--color band:NAME needs a band name, e.g. band:gps_time".into(),
+                        "band:NAME needs a band name, e.g. band:gps_time".into(),
                     ));
                 }
                 Ok(Self::Band(name.to_string()))

@@ -22,7 +22,7 @@ impl Where {
     pub fn parse(s: &str) -> Result<Where, String> {
         let bad = || {
             format!(
-                "--where '{s}': expected NAME=VALUE or NAME=LO..HI (either end may be left \
+                "'{s}': expected NAME=VALUE or NAME=LO..HI (either end may be left \
                  out), e.g. return_number=1 or z=400..450"
             )
         };
@@ -51,7 +51,7 @@ impl Where {
         };
         if lo > hi {
             return Err(format!(
-                "--where '{s}': the low end lies above the high end"
+                "'{s}': the low end lies above the high end"
             ));
         }
         Ok(Where {
@@ -170,7 +170,7 @@ impl Slab {
 pub fn parse_slab(s: &str) -> Result<Slab, String> {
     let bad = || {
         format!(
-            "--slab '{s}': expected seven numbers X,Y,Z,NX,NY,NZ,THICK (a point, the \
+            "'{s}': expected seven numbers X,Y,Z,NX,NY,NZ,THICK (a point, the \
              plane's normal, not zero, and a positive thickness)"
         )
     };
@@ -191,14 +191,14 @@ pub fn parse_clip(s: &str) -> Result<Bounds, String> {
         .split(',')
         .map(|t| t.trim().parse::<f64>())
         .collect::<Result<_, _>>()
-        .map_err(|_| format!("--clip '{s}': expected six numbers MINX,MINY,MINZ,MAXX,MAXY,MAXZ"))?;
+        .map_err(|_| format!("'{s}': expected six numbers MINX,MINY,MINZ,MAXX,MAXY,MAXZ"))?;
     if v.len() != 6 || v.iter().any(|x| !x.is_finite()) {
         return Err(format!(
-            "--clip '{s}': expected six finite numbers MINX,MINY,MINZ,MAXX,MAXY,MAXZ"
+            "'{s}': expected six finite numbers MINX,MINY,MINZ,MAXX,MAXY,MAXZ"
         ));
     }
     if (0..3).any(|a| v[a] > v[a + 3]) {
-        return Err(format!("--clip '{s}': a minimum lies above its maximum"));
+        return Err(format!("'{s}': a minimum lies above its maximum"));
     }
     Ok(Bounds {
         min: [v[0], v[1], v[2]],

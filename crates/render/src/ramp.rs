@@ -99,7 +99,7 @@ impl Ramp {
 
 /// Parses `--range LO,HI` (finite, LO < HI).
 pub fn parse_range(s: &str) -> Result<(f64, f64), String> {
-    let bad = || format!("--range '{s}': expected LO,HI with LO below HI, e.g. 0,255");
+    let bad = || format!("'{s}': expected LO,HI with LO below HI, e.g. 0,255");
     let (a, b) = s.split_once(',').ok_or_else(bad)?;
     let lo: f64 = a.trim().parse().map_err(|_| bad())?;
     let hi: f64 = b.trim().parse().map_err(|_| bad())?;
