@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # PCD and E57 inputs against LAS of the same points (issue 28): binary and
 # binary_compressed PCD, E57 with float and with scaled-integer coordinates, and
-# LAS, N points each (default 20 M, made by examples/make_e57_pcd.rs), each
+# LAS, N points each (default 20 M, made by benches/make_e57_pcd.rs), each
 # converted REPS times (default 3, interleaved so the VM's drift hits every
 # format alike) at --memory 256MiB. Prints per format the median wall time
 # (fastest-slowest), M points/s and the largest peak resident memory.

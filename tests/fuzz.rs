@@ -1,5 +1,5 @@
 //! A short, deterministic run of the mutation fuzzer (`tests/common/fuzz.rs`;
-//! `examples/fuzz_inputs.rs` runs it for as long as asked): damaged inputs of
+//! `benches/fuzz_inputs.rs` runs it for as long as asked): damaged inputs of
 //! every format and damaged dataset parts must be refused with an error, never
 //! panic or abort, and a refused conversion leaves no file behind.
 

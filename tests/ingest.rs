@@ -148,7 +148,7 @@ fn truncated_laz_is_an_error() {
 
 /// A LAZ chunk table whose chunk count is corrupt, or a laszip VLR whose chunk
 /// size or point size is, is refused before the `laz` crate reserves memory for that many chunks
-/// or points (`examples/fuzz_inputs.rs` found a
+/// or points (`benches/fuzz_inputs.rs` found a
 /// count that made it ask for 47 GB and abort the process). The table's offset is
 /// the first 8 bytes of the point data; its count is the table's second u32.
 #[test]

@@ -1,4 +1,4 @@
-//! The mutation fuzzer's cases, shared by `examples/fuzz_inputs.rs` (long runs)
+//! The mutation fuzzer's cases, shared by `benches/fuzz_inputs.rs` (long runs)
 //! and `tests/fuzz.rs` (a short, deterministic run in CI): seed files of every
 //! input format and a dataset part, their mutations, the options each case
 //! converts with, and what became of it.

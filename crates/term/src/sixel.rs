@@ -14,7 +14,7 @@
 
 use super::palette::{self, Indexed};
 
-/// Colours per frame. Measured on 1200×800 frames (`examples/sixel_png.rs`): 32
+/// Colours per frame. Measured on 1200×800 frames (`benches/sixel_png.rs`): 32
 /// adaptive colours cost fewer bytes than a fixed 6×6×6 cube with a grey ramp
 /// (254 K against 274 K for a height-coloured synthetic scan, 113 K against 122 K
 /// for Autzen in its own RGB) and keep muted colours that the cube turned grey;
@@ -115,7 +115,7 @@ pub fn tmux_passthrough(seq: &str) -> String {
 
 /// Colours of a frame sent while the camera moves: with half-resolution frames
 /// enlarged, 114 K against 165 K at 32 colours for a 1200×800 frame
-/// (`examples/tui_latency.rs`, bench/RESULTS.md).
+/// (`benches/tui_latency.rs`, bench/RESULTS.md).
 pub const MOVING_COLORS: usize = 16;
 
 /// Encodes an RGBA image (alpha ignored) as one sixel image: `ESC P … ESC \`.

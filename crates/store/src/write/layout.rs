@@ -2,7 +2,7 @@
 //! Hilbert sort (`hilbert.rs`, re-exported here), representatives moved to the
 //! first slot of every block up the pyramid (a voxel-like choice at level 1, the
 //! centroid rule above), so that every down-sampled level is a spatially even
-//! sample (`docs/notes/lod-layout.md` and `examples/lod_quality.rs` for the
+//! sample (`docs/notes/lod-layout.md` and `benches/lod_quality.rs` for the
 //! measurements behind this); where the positions come from ([`Positions`]).
 
 use crate::bigvec;
