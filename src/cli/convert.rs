@@ -12,7 +12,8 @@ use std::sync::{Arc, Mutex};
 
 #[derive(Debug, clap::Args)]
 pub struct Args {
-    /// Input point cloud(s): .xyz .txt .csv .asc .pts (text), .ply, .las, .laz.
+    /// Input point cloud(s): .xyz .txt .csv .asc .pts (text), .ply, .las, .laz,
+    /// .pcd, .e57.
     /// Several files (tiles of one survey, `tiles/*.laz`) or a directory (its
     /// point-cloud files, in name order) become one dataset; they must carry the
     /// same attributes and coordinate reference system.
@@ -30,13 +31,9 @@ pub struct Args {
     /// bounds resident memory and decides how many points one part (image) holds.
     #[arg(long, value_parser = budget::parse_size)]
     pub memory: Option<u64>,
-    /// spatial: non-overlapping spatial parts (one pass when the input fits one
-    /// part; else a first pass that reads a sample, about 4 M points, to place the
-    /// parts, and a second that reads every point into temporary files beside the
-    /// output, 12 bytes a point plus 4 per attribute); stream: the paper's single
-    /// pass, parts in file order.
-    #[arg(long, default_value = "spatial", value_parser = ["spatial", "stream"])]
-    pub partition: String,
+    /// How points are grouped into parts.
+    #[arg(long, value_enum, default_value_t = PartitionArg::Spatial)]
+    pub partition: PartitionArg,
     /// Tile compression: none (fastest to load), deflate, zstd (lossless, with the
     /// floating-point predictor), or lerc, lerc_zstd, lerc_deflate (LERC, as GDAL
     /// writes it: coordinates within --max-error, attributes lossless; the
@@ -49,12 +46,9 @@ pub struct Args {
     /// exactly on their lattice), lossless for other inputs.
     #[arg(long, value_name = "UNITS", value_parser = parse_max_error)]
     pub max_error: Option<f64>,
-    /// Point layout: hilbert (Hilbert order, centroid representatives: every level
-    /// a spatially even sample) or paper (as Du & Li 2009: file order, row-major
-    /// image, every other row and column per level; converts about twice as fast,
-    /// but its coarser levels thin the cloud as unevenly as the file's order).
-    #[arg(long, default_value = "hilbert", value_parser = ["hilbert", "paper"])]
-    pub layout: String,
+    /// Point layout within a part.
+    #[arg(long, value_enum, default_value_t = LayoutArg::Hilbert)]
+    pub layout: LayoutArg,
     /// Text columns, e.g. "x y z intensity r g b"; "_" skips a column.
     #[arg(long)]
     pub columns: Option<String>,
@@ -96,9 +90,55 @@ pub struct Args {
     #[arg(long, value_name = "I/N", requires = "plan")]
     pub shard: Option<String>,
     /// Also print the wall and CPU time of each phase (passes over the input, and
-    /// the store's phases summed over parts).
+    /// the store's phases summed over parts), and how --memory was shared out.
     #[arg(long)]
     pub timings: bool,
+    /// For an output in object storage: print the network's counters on exit
+    /// (requests, bytes received, failures; benchmarks).
+    #[arg(long)]
+    pub net_stats: bool,
+}
+
+/// `--partition`'s values.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum PartitionArg {
+    /// Non-overlapping spatial parts (one pass when the input fits one part;
+    /// else a first pass that reads a sample, about 4 M points, to place the
+    /// parts, and a second that reads every point into temporary files beside
+    /// the output, 12 bytes a point plus 4 per attribute).
+    Spatial,
+    /// The paper's single pass, parts in file order.
+    Stream,
+}
+
+impl From<PartitionArg> for Partition {
+    fn from(p: PartitionArg) -> Partition {
+        match p {
+            PartitionArg::Spatial => Partition::Spatial,
+            PartitionArg::Stream => Partition::Stream,
+        }
+    }
+}
+
+/// `--layout`'s values.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum LayoutArg {
+    /// Hilbert order, centroid representatives: every level a spatially even
+    /// sample.
+    Hilbert,
+    /// As Du & Li 2009: file order, row-major image, every other row and column
+    /// per level; converts about twice as fast, but its coarser levels thin the
+    /// cloud as unevenly as the file's order.
+    Paper,
+}
+
+impl From<LayoutArg> for Layout {
+    fn from(l: LayoutArg) -> Layout {
+        match l {
+            LayoutArg::Hilbert => Layout::Hilbert,
+            LayoutArg::Paper => Layout::Paper,
+        }
+    }
 }
 
 /// Progress bars on stderr, a new one for each phase (so no frame of one phase
@@ -197,7 +237,7 @@ fn input_files(args: &[PathBuf]) -> anyhow::Result<Vec<PathBuf>> {
         if here.is_empty() {
             anyhow::bail!(
                 "{shown}: a directory with no point-cloud files (.xyz .txt .csv .asc .pts .ply \
-                 .las .laz) in it"
+                 .las .laz .pcd .e57) in it"
             );
         }
         here.sort();
@@ -263,20 +303,12 @@ fn options(a: &Args, output: PathBuf) -> ConvertOptions {
         output,
         force: a.force,
         memory: a.memory.unwrap_or_else(budget::default_budget),
-        partition: if a.partition == "stream" {
-            Partition::Stream
-        } else {
-            Partition::Spatial
-        },
+        partition: a.partition.into(),
         compression: a
             .compression
             .unwrap_or_else(|| Compression::default_for(remote)),
         max_error: a.max_error,
-        layout: if a.layout == "paper" {
-            Layout::Paper
-        } else {
-            Layout::Hilbert
-        },
+        layout: a.layout.into(),
         read: ReadOptions {
             columns: a.columns.clone(),
             skip_invalid: a.skip_invalid,
@@ -502,6 +534,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         )?;
     }
     if a.timings {
+        writeln!(out, "  memory budget {}", budget::Budget::new(opts.memory))?;
         writeln!(
             out,
             "  phases (wall time, its share, and CPU time: user and system, all threads):"

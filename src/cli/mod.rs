@@ -45,7 +45,7 @@ pub struct Cli {
 pub enum Command {
     /// List a dataset's parts, bands, pyramid levels, bounds and metadata.
     Info(info::Args),
-    /// Convert a point cloud (text, PLY, LAS/LAZ) into an image dataset, out of core.
+    /// Convert a point cloud (text, PLY, LAS/LAZ, PCD, E57) into an image dataset, out of core.
     Convert(convert::Args),
     /// Rebuild a dataset directory's index and overview (for parts made separately).
     Index(index::Args),
@@ -82,23 +82,32 @@ pub fn print_out(text: &str) -> anyhow::Result<()> {
     }
 }
 
-/// The commands' names, for [`misspelt_command`].
-const COMMANDS: [&str; 9] = [
-    "info", "convert", "index", "inspect", "demo", "render", "preview", "synth", "help",
-];
+/// The commands' names, for [`misspelt_command`]: those of clap's definition
+/// of [`Cli`], with the `help` it adds.
+fn commands() -> Vec<String> {
+    let mut cli = <Cli as clap::CommandFactory>::command();
+    cli.build();
+    cli.get_subcommands()
+        .map(|c| c.get_name().to_string())
+        .collect()
+}
 
 /// When the first argument is neither a command nor an existing path but is
 /// within two edits of a command's name (`pcimg conver x.xyz`), the message to
 /// print instead of clap's, which would take it for a dataset path.
 pub fn misspelt_command(args: &[std::ffi::OsString]) -> Option<String> {
     let first = args.get(1)?.to_str()?;
-    if first.starts_with('-') || COMMANDS.contains(&first) || std::path::Path::new(first).exists() {
+    if first.starts_with('-') {
+        return None;
+    }
+    let commands = commands();
+    if commands.iter().any(|c| c == first) || std::path::Path::new(first).exists() {
         return None;
     }
     let lower = first.to_ascii_lowercase();
-    let best = COMMANDS
+    let best = commands
         .iter()
-        .map(|c| (edit_distance(&lower, c), *c))
+        .map(|c| (edit_distance(&lower, c), c.as_str()))
         .min()?;
     (best.0 <= 2).then(|| {
         format!(
@@ -135,6 +144,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
             .ok_or_else(|| anyhow::anyhow!("give a command or a dataset path (see --help)"))?;
         return inspect::run(inspect::defaults(&path));
     };
+    let net_stats = command.net_stats();
     let r = match command {
         Command::Inspect(a) => inspect::run(a),
         Command::Info(a) => info::run(a),
@@ -146,8 +156,23 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Synth(a) => synth::run(a),
         Command::Doctor(a) => doctor::run(a),
     };
-    remote::print_stats_if_asked();
+    remote::print_stats_if_asked(net_stats);
     r
+}
+
+impl Command {
+    /// Whether `--net-stats` was given (the commands that read or write object
+    /// storage take it).
+    fn net_stats(&self) -> bool {
+        match self {
+            Command::Info(a) => a.cache.net_stats,
+            Command::Convert(a) => a.net_stats,
+            Command::Inspect(a) => a.view.cache.net_stats,
+            Command::Render(a) => a.view.cache.net_stats,
+            Command::Preview(a) => a.view.cache.net_stats,
+            Command::Index(_) | Command::Demo(_) | Command::Synth(_) | Command::Doctor(_) => false,
+        }
+    }
 }
 
 #[cfg(test)]
@@ -186,5 +211,40 @@ mod tests {
                 .unwrap()
                 .contains("pcimg help")
         );
+        assert!(
+            misspelt_command(&args(&["pcimg", "docter"]))
+                .unwrap()
+                .contains("`pcimg doctor`")
+        );
+    }
+
+    #[test]
+    fn every_command_is_known_for_misspellings() {
+        let known = commands();
+        // Every subcommand clap parses (each parsed on its own, so a new
+        // variant of `Command` is covered without editing this list)...
+        let cli = <Cli as clap::CommandFactory>::command();
+        for sub in cli.get_subcommands() {
+            assert!(
+                known.iter().any(|k| k == sub.get_name()),
+                "{}",
+                sub.get_name()
+            );
+        }
+        // ... and, by name, the ones there are today and clap's `help`.
+        for name in [
+            "info", "convert", "index", "inspect", "demo", "render", "preview", "synth", "doctor",
+            "help",
+        ] {
+            assert!(
+                known.iter().any(|k| k == name),
+                "{name} missing from {known:?}"
+            );
+        }
+        // A command's own name is never taken for a misspelling.
+        for name in &known {
+            let args: Vec<std::ffi::OsString> = vec!["pcimg".into(), name.into()];
+            assert_eq!(misspelt_command(&args), None, "{name}");
+        }
     }
 }

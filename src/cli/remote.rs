@@ -1,6 +1,6 @@
 //! Options for datasets in object storage, shared by `info`, `render`, `preview`
-//! and `inspect` (`--cache`, `--cache-size`), and the network counters printed
-//! on exit when `PCIMG_NET_STATS` is set.
+//! and `inspect` (`--cache`, `--cache-size`, `--net-stats`), and the network
+//! counters printed on exit with `--net-stats` (also `convert`'s).
 
 use std::path::PathBuf;
 
@@ -16,6 +16,10 @@ pub struct CacheArgs {
     /// ranges are removed beyond it).
     #[arg(long, value_parser = crate::convert::budget::parse_size, default_value = "2GiB", requires = "cache")]
     pub cache_size: u64,
+    /// For a dataset in object storage: print the network's counters on exit
+    /// (requests, bytes received, failures, the disk cache's hits; benchmarks).
+    #[arg(long)]
+    pub net_stats: bool,
 }
 
 impl CacheArgs {
@@ -28,10 +32,10 @@ impl CacheArgs {
     }
 }
 
-/// With `PCIMG_NET_STATS` set (not `0`), the network's counters on stderr:
-/// requests, bytes received, failures and the disk cache's hits (benchmarks).
-pub fn print_stats_if_asked() {
-    if std::env::var("PCIMG_NET_STATS").is_ok_and(|v| !v.is_empty() && v != "0") {
+/// When `asked` (`--net-stats`), the network's counters on stderr: requests,
+/// bytes received, failures and the disk cache's hits (benchmarks).
+pub fn print_stats_if_asked(asked: bool) {
+    if asked {
         let s = crate::remote::stats();
         let (hits, misses, bad) = crate::remote::disk::counters();
         note!(

@@ -136,8 +136,8 @@ pub(super) fn spill_all(
     tag: &str,
     feed: impl FnOnce(&mut dyn FnMut(PointColumns) -> Result<()>) -> Result<()>,
 ) -> Result<Vec<Spilled>> {
-    // A quarter of the budget for write buffers, shared by the regions.
-    let buffer = (o.memory / 4 / regions.len().max(1) as u64).clamp(64 << 10, 8 << 20) as usize;
+    // A share of the budget for write buffers, shared by the regions.
+    let buffer = super::budget::Budget::new(o.memory).spill_buffer(regions.len());
     let mut writers: Vec<spill::SpillWriter> = (0..regions.len())
         .map(|r| spill::SpillWriter::create(dir.join(format!("{tag}-{r:05}.bin")), buffer))
         .collect::<std::io::Result<_>>()?;

@@ -4,7 +4,7 @@
 //! path), the phases' timings, and publishing the parts at the end.
 
 use super::{
-    Collect, ConvertOptions, ConvertSummary, F32_MM_RADIUS, OriginTooFar, Progress, Result,
+    Collect, ConvertOptions, ConvertSummary, F32_MM_RADIUS, Outcome, Progress, Result, Retry,
     Timings, budget, check_cancel, check_precision, f32_rounding, output, output_is_file, reach,
     source_name, spill,
 };
@@ -72,7 +72,8 @@ impl<'a> Job<'a> {
         let mut read = o.read.clone();
         let opened = ingest::multi::open_all(inputs, &read)?;
         let info = opened.info().clone();
-        let per_part = budget::points_per_part(o.memory, info.attribute_names.len());
+        let shares = budget::Budget::new(o.memory);
+        let per_part = shares.points_per_part(info.attribute_names.len());
         if o.memory < budget::MIN_KEPT && collect == Collect::Extents {
             progress.note(&format!(
                 "--memory {} is below {}, the smallest budget a conversion keeps to: parts \
@@ -86,9 +87,11 @@ impl<'a> Job<'a> {
         // Freed large buffers are kept for the next ones (a part's sort keys reuse
         // the input columns' pages, the next part reuses this one's), within a
         // share of the budget.
-        crate::alloc::set_pool_limit((o.memory / 4).min(usize::MAX as u64) as usize);
+        crate::alloc::set_pool_limit(shares.pool_limit());
         // Reader windows are a small share of the budget.
-        read.chunk_points = read.chunk_points.min((per_part / 8).max(1 << 16) as usize);
+        read.chunk_points = read
+            .chunk_points
+            .min(shares.window_points(per_part) as usize);
         drop(opened);
         let reader = ingest::multi::open_all(inputs, &read)?;
         let about = match inputs {
@@ -231,19 +234,28 @@ impl<'a> Job<'a> {
         self.write_chunks(vec![pts], &bounds)
     }
 
-    /// Writes a part collected by a store builder (its own origin and bounds).
-    /// `while_reading`: the origin was chosen before the points' bounds were
-    /// known (a single part collected as it is read), so a better one can be had
-    /// by reading again ([`OriginTooFar`]); a spatial region's origin is already
-    /// placed from its own points, and reading again would place it the same way.
-    pub(super) fn write_built(&mut self, b: store::PartBuilder, while_reading: bool) -> Result<()> {
+    /// Writes a single part collected while it was read: its origin was chosen
+    /// before the points' bounds were known, so a better one can be had by
+    /// reading again ([`Retry::OriginTooFar`], nothing written); else as
+    /// [`Job::write_built`].
+    pub(super) fn write_collected(&mut self, b: store::PartBuilder) -> Result<Outcome<()>> {
         check_cancel(self.o)?;
         let (bounds, origin) = (b.bounds(), b.origin());
         let (here, best) = (reach(&bounds, origin), reach(&bounds, bounds.center()));
         let costly = f32_rounding(here) >= 1e-4 && f32_rounding(here) > 4.0 * f32_rounding(best);
-        if while_reading && ((here >= F32_MM_RADIUS && best < F32_MM_RADIUS) || costly) {
-            return Err(OriginTooFar.into());
+        if (here >= F32_MM_RADIUS && best < F32_MM_RADIUS) || costly {
+            return Ok(Outcome::Retry(Retry::OriginTooFar));
         }
+        self.write_built(b)?;
+        Ok(Outcome::Done(()))
+    }
+
+    /// Writes a part collected by a store builder (its own origin and bounds;
+    /// a spatial region's origin is already placed from its own points, and
+    /// reading again would place it the same way).
+    pub(super) fn write_built(&mut self, b: store::PartBuilder) -> Result<()> {
+        check_cancel(self.o)?;
+        let (bounds, origin) = (b.bounds(), b.origin());
         let k = self.parts.len();
         check_precision(&self.about, &bounds, origin, k, self.o, self.as_file)?;
         let s = store::write_part_built(&self.part_path(k), b, &self.opts_now())

@@ -238,21 +238,67 @@ fn normalize(
     }
 }
 
-/// The part collected while reading, around the centre of the input's declared
-/// bounds or of its first window, reaches farther from it than f32 keeps 1 mm,
-/// though not from its own centre; or loses 0.1 mm or more there, over 4 times
-/// what its own centre would (a wrong header): the conversion starts over, holding
-/// the points as read until their bounds are known.
-#[derive(Debug)]
-struct OriginTooFar;
+/// What an attempt at a conversion (or one of its stages) came to: done, or to
+/// be started over in the next [`Collect`] mode, for a [`Retry`] reason. The
+/// callers match it; no error is inspected for its type.
+#[must_use]
+enum Outcome<T> {
+    Done(T),
+    Retry(Retry),
+}
 
-impl std::fmt::Display for OriginTooFar {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.write_str("the points reach too far from the origin chosen while reading")
+/// Why an attempt starts over ([`Outcome::Retry`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum Retry {
+    /// The first pass read only the points' extents ([`Collect::Extents`]) but
+    /// the points must be read whole: they spread wider than f32 keeps 1 mm
+    /// across, so they are partitioned from a sample of them. The conversion
+    /// starts over.
+    NeedColumns,
+    /// The part collected while reading, around the centre of the input's
+    /// declared bounds or of its first window, reaches farther from it than f32
+    /// keeps 1 mm, though not from its own centre; or loses 0.1 mm or more
+    /// there, over 4 times what its own centre would (a wrong header): the
+    /// conversion starts over, holding the points as read until their bounds
+    /// are known.
+    OriginTooFar,
+}
+
+impl Retry {
+    /// The mode an attempt in mode `from` starts over in, if any is left.
+    fn next(self, from: Collect) -> Option<Collect> {
+        match self {
+            Retry::NeedColumns if from == Collect::Extents => Some(Collect::Early),
+            Retry::OriginTooFar if from != Collect::Held => Some(Collect::Held),
+            _ => None,
+        }
+    }
+
+    /// What the user is told when the conversion starts over.
+    fn note(self) -> &'static str {
+        match self {
+            Retry::NeedColumns => {
+                "the points spread wider than f32 keeps 1 mm across: reading the input \
+                 again to partition them"
+            }
+            Retry::OriginTooFar => {
+                "the points lie too far from the centre of the header's bounds or of the \
+                 first window for f32 to keep their precision: reading the input again \
+                 around their own centre"
+            }
+        }
     }
 }
 
-impl std::error::Error for OriginTooFar {}
+impl std::fmt::Display for Retry {
+    /// The error of a retry no mode is left for.
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            Retry::NeedColumns => "the points must be read whole to be partitioned",
+            Retry::OriginTooFar => "the points reach too far from the origin chosen while reading",
+        })
+    }
+}
 
 /// Converts one input file into a dataset.
 pub fn convert(
@@ -277,26 +323,21 @@ pub fn convert_files(
         output: output::resolve(&o.output)?,
         ..o.clone()
     };
-    let r = match convert_with(inputs, o, progress, Collect::Extents) {
-        Err(e) if e.downcast_ref::<NeedColumns>().is_some() => {
-            progress.note(
-                "the points spread wider than f32 keeps 1 mm across: reading the input \
-                 again to partition them",
-            );
-            convert_with(inputs, o, progress, Collect::Early)
+    // Extents, then Early where the points must be read whole, then Held where
+    // the origin chosen while reading proved too far.
+    let mut collect = Collect::Extents;
+    let r = loop {
+        match convert_with(inputs, o, progress, collect) {
+            Ok(Outcome::Done(s)) => break Ok(s),
+            Ok(Outcome::Retry(why)) => match why.next(collect) {
+                Some(next) => {
+                    progress.note(why.note());
+                    collect = next;
+                }
+                None => break Err(anyhow::anyhow!("{why}")),
+            },
+            Err(e) => break Err(e),
         }
-        r => r,
-    };
-    let r = match r {
-        Err(e) if e.downcast_ref::<OriginTooFar>().is_some() => {
-            progress.note(
-                "the points lie too far from the centre of the header's bounds or of the \
-                 first window for f32 to keep their precision: reading the input again \
-                 around their own centre",
-            );
-            convert_with(inputs, o, progress, Collect::Held)
-        }
-        r => r,
     };
     // Whatever stopped a conversion that was asked to stop, it was the request.
     match r {
@@ -322,7 +363,7 @@ fn source_name(inputs: &[PathBuf]) -> Option<String> {
 }
 
 /// How the first pass collects a single part's points (each mode falls back to
-/// the next when it cannot finish: [`NeedColumns`], [`OriginTooFar`]).
+/// the next when it cannot finish: [`Retry`]).
 #[derive(Debug, Clone, Copy, PartialEq)]
 enum Collect {
     /// Where the reader gives every point's position and rows again (an
@@ -335,50 +376,41 @@ enum Collect {
     Held,
 }
 
-/// The first pass read only the points' extents ([`Collect::Extents`]) but the
-/// points must be read whole: they spread wider than f32 keeps 1 mm across, so
-/// they are partitioned from a sample of them. The conversion starts over.
-#[derive(Debug)]
-struct NeedColumns;
-
-impl std::fmt::Display for NeedColumns {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.write_str("the points must be read whole to be partitioned")
-    }
-}
-
-impl std::error::Error for NeedColumns {}
-
 /// [`convert`], the first pass collecting a single part as `collect` says:
 /// scan, then write the single part; or, for several spatial parts, scan → plan
-/// → distribute → write.
+/// → distribute → write. A [`Retry`] leaves nothing written.
 fn convert_with(
     inputs: &[PathBuf],
     o: &ConvertOptions,
     progress: &dyn Progress,
     collect: Collect,
-) -> Result<ConvertSummary> {
+) -> Result<Outcome<ConvertSummary>> {
     let (mut job, mut reader) = Job::open(inputs, o, progress, collect)?;
     let t_read = job.begin();
-    let total = match o.partition {
-        Partition::Stream => scan::stream(&mut job, &mut *reader, t_read)?,
+    let written = match o.partition {
+        Partition::Stream => Outcome::Done(scan::stream(&mut job, &mut *reader, t_read)?),
         Partition::Spatial
             if collect == Collect::Extents
                 && o.layout != Layout::Paper
                 && job.info.declared_points.is_some_and(|n| n <= job.per_part)
                 && reader.gives_extents()? =>
         {
-            let one = scan::extents(&mut job, &mut *reader, t_read)?;
-            write::one_part(&mut job, one)?
+            match scan::extents(&mut job, &mut *reader, t_read)? {
+                Outcome::Done(one) => write::one_part(&mut job, one)?,
+                Outcome::Retry(why) => Outcome::Retry(why),
+            }
         }
         Partition::Spatial => {
             match scan::scan(&mut job, &mut *reader, collect != Collect::Held, t_read)? {
                 Scanned::One(one) => write::one_part(&mut job, one)?,
-                Scanned::Many(over) => spatial_parts(&mut job, &mut reader, over)?,
+                Scanned::Many(over) => Outcome::Done(spatial_parts(&mut job, &mut reader, over)?),
             }
         }
     };
-    job.finish(total, &*reader)
+    Ok(match written {
+        Outcome::Done(total) => Outcome::Done(job.finish(total, &*reader)?),
+        Outcome::Retry(why) => Outcome::Retry(why),
+    })
 }
 
 /// Several spatial parts from what the scan found: the plan, pass 2's

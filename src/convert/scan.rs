@@ -7,7 +7,7 @@
 
 use super::job::{Job, PassStart};
 use super::sample::{MIN_SAMPLE, Sample};
-use super::{NeedColumns, Result, check_cancel, normalize, too_wide};
+use super::{Outcome, Result, Retry, check_cancel, normalize, too_wide};
 use crate::ingest::PointReader;
 use crate::points::{Bounds, PointColumns};
 use crate::store::{Layout, PartBuilder};
@@ -86,13 +86,13 @@ pub(super) fn stream(
 }
 
 /// Pass 1 over the chunks' extents: the reader gives every point again when the
-/// part is written, and the input declares no more points than one part. Fails
-/// with [`NeedColumns`] where the points must be read whole after all.
+/// part is written, and the input declares no more points than one part. Comes
+/// to [`Retry::NeedColumns`] where the points must be read whole after all.
 pub(super) fn extents(
     job: &mut Job,
     reader: &mut dyn PointReader,
     t_read: PassStart,
-) -> Result<OnePart> {
+) -> Result<Outcome<OnePart>> {
     let mut total = 0u64;
     let mut bounds = Bounds::EMPTY;
     let mut built: Option<PartBuilder> = None;
@@ -106,28 +106,28 @@ pub(super) fn extents(
             None => {
                 let mut b = job.new_part(e.bounds);
                 let Some(rows) = reader.row_source() else {
-                    return Err(NeedColumns.into());
+                    return Ok(Outcome::Retry(Retry::NeedColumns));
                 };
                 b.rows_from(rows);
                 built.insert(b)
             }
         };
         if (b.len() + e.len) as u64 > job.per_part {
-            return Err(NeedColumns.into());
+            return Ok(Outcome::Retry(Retry::NeedColumns));
         }
         b.push_extent(&job.part_path(0), &e)
             .map_err(|e| job.public(e))?;
     }
     job.pass("read", t_read);
     if !job.as_file && too_wide(&bounds) {
-        return Err(NeedColumns.into());
+        return Ok(Outcome::Retry(Retry::NeedColumns));
     }
-    Ok(OnePart {
+    Ok(Outcome::Done(OnePart {
         built,
         held: Vec::new(),
         bounds,
         points: total,
-    })
+    }))
 }
 
 /// Pass 1 of spatial partitioning: bounds and a sample; points kept while they

@@ -8,12 +8,13 @@ use super::job::Job;
 use super::partition::{self, CountGrid};
 use super::plan::Plan;
 use super::scan::OnePart;
-use super::{MAX_EXTENT, Result, check_cancel, spill};
+use super::{MAX_EXTENT, Outcome, Result, check_cancel, spill};
 use crate::store::PartBuilder;
 use std::path::Path;
 
-/// Writes the single part the scan collected; returns its points.
-pub(super) fn one_part(job: &mut Job, one: OnePart) -> Result<u64> {
+/// Writes the single part the scan collected; returns its points (or the
+/// [`Retry`](super::Retry) a part collected while reading came to).
+pub(super) fn one_part(job: &mut Job, one: OnePart) -> Result<Outcome<u64>> {
     let OnePart {
         built,
         held,
@@ -24,12 +25,14 @@ pub(super) fn one_part(job: &mut Job, one: OnePart) -> Result<u64> {
     job.progress.phase("write", points, "points");
     job.last_part = true;
     if let Some(b) = built.filter(|b| !b.is_empty()) {
-        job.write_built(b, true)?;
+        if let Outcome::Retry(why) = job.write_collected(b)? {
+            return Ok(Outcome::Retry(why));
+        }
     } else if points > 0 {
         job.write_chunks(held, &bounds)?;
     }
     job.progress.advance(points, points);
-    Ok(points)
+    Ok(Outcome::Done(points))
 }
 
 /// Pass 3: each region's file (in `dir`, `total` points in all) becomes one part,
@@ -98,7 +101,7 @@ pub(super) fn region(
         drop(blocks);
         let _ = std::fs::remove_file(&f.path);
         job.pass("read back", t_back);
-        job.write_built(b, false)?;
+        job.write_built(b)?;
     } else if !split {
         let t_split = job.begin();
         let like = plan.like();
@@ -134,13 +137,13 @@ pub(super) fn region(
             b.push_packed(&job.next_path(), r, names)
                 .map_err(|e| job.public(e))?;
             if room(&b) == 0 {
-                job.write_built(std::mem::replace(&mut b, new_part()), false)?;
+                job.write_built(std::mem::replace(&mut b, new_part()))?;
             }
         }
         drop(blocks);
         let _ = std::fs::remove_file(&f.path);
         if !b.is_empty() {
-            job.write_built(b, false)?;
+            job.write_built(b)?;
         }
     }
     Ok(None)
