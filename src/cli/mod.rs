@@ -133,7 +133,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         let path = cli
             .path
             .ok_or_else(|| anyhow::anyhow!("give a command or a dataset path (see --help)"))?;
-        return inspect::run(inspect::defaults(&path));
+        return inspect::run(inspect::defaults(&path)).map_err(remote::with_advice);
     };
     let r = match command {
         Command::Inspect(a) => inspect::run(a),
@@ -147,7 +147,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Doctor(a) => doctor::run(a),
     };
     remote::print_stats_if_asked();
-    r
+    r.map_err(remote::with_advice)
 }
 
 #[cfg(test)]

@@ -7,6 +7,9 @@ use std::path::{Path, PathBuf};
 pub struct StoreError {
     pub path: PathBuf,
     pub message: String,
+    /// For a request to object storage that failed: its URL and what happened
+    /// (the command line says what to do from it). Shown through `message`.
+    pub remote: Option<crate::remote::RemoteError>,
 }
 
 impl StoreError {
@@ -14,6 +17,16 @@ impl StoreError {
         StoreError {
             path: path.to_path_buf(),
             message: message.into(),
+            remote: None,
+        }
+    }
+
+    /// A failed request: the path is its URL, the message what happened.
+    pub fn remote(e: crate::remote::RemoteError) -> Self {
+        StoreError {
+            path: PathBuf::from(&e.url),
+            message: e.problem.to_string(),
+            remote: Some(e),
         }
     }
 }
