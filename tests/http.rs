@@ -116,19 +116,48 @@ fn info_json(text: &str) -> serde_json::Value {
     v
 }
 
-/// The fixture converted into `dir/vol.pcimg`, in several parts.
-fn convert(dir: &Path) -> PathBuf {
-    let input = Path::new(env!("CARGO_MANIFEST_DIR")).join("fixtures/autzen_trim.laz");
-    let out = dir.join("vol.pcimg");
+/// `input` converted into `dir/NAME` (in several parts where it is large
+/// enough for the 1 MiB budget).
+fn convert(input: &Path, dir: &Path, name: &str) -> PathBuf {
+    let out = dir.join(name);
     let o = pcimg()
         .args(["convert", "-q", "--memory", "1MiB", "--compression", "zstd"])
-        .arg(&input)
+        .arg(input)
         .arg("-o")
         .arg(&out)
         .output()
         .unwrap();
     ok(&o, "convert");
     out
+}
+
+/// The inputs: the fixture (one part) and a synthetic scan of 200,000 points
+/// (several parts and an overview in a subfolder).
+fn datasets(dir: &Path) -> Vec<PathBuf> {
+    let fixture = Path::new(env!("CARGO_MANIFEST_DIR")).join("fixtures/autzen_trim.laz");
+    let scan = dir.join("scan.las");
+    let o = pcimg()
+        .args(["synth", "-n", "200000", "-o"])
+        .arg(&scan)
+        .output()
+        .unwrap();
+    ok(&o, "pcimg synth");
+    let v = vec![
+        convert(&fixture, dir, "autzen.pcimg"),
+        convert(&scan, dir, "scan.pcimg"),
+    ];
+    let parts = std::fs::read_dir(&v[1])
+        .unwrap()
+        .filter(|e| {
+            e.as_ref()
+                .unwrap()
+                .path()
+                .extension()
+                .is_some_and(|x| x == "tif")
+        })
+        .count();
+    assert!(parts > 1, "the synthetic scan in several parts: {parts}");
+    v
 }
 
 fn render_args(src: &str, png: &Path) -> Vec<String> {
@@ -145,22 +174,32 @@ fn render_args(src: &str, png: &Path) -> Vec<String> {
 fn a_dataset_served_over_plain_http_reads_as_the_local_one() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
-    let local = convert(d);
+    let locals = datasets(d);
     let Some(server) = Server::start(d) else {
         return;
     };
-    let url = server.url("vol.pcimg");
+    for local in &locals {
+        reads_as_local(&server, local);
+    }
+}
+
+/// `info` and `render` of `local`'s URL equal `local`'s.
+fn reads_as_local(server: &Server, local: &Path) {
+    let d = local.parent().unwrap();
+    let name = local.file_name().unwrap().to_str().unwrap();
+    let url = server.url(name);
 
     // info: the same facts (but where the dataset is).
     let here = pcimg()
         .args(["info", "--json"])
-        .arg(&local)
+        .arg(local)
         .output()
         .unwrap();
     let there = pcimg().args(["info", "--json", &url]).output().unwrap();
     assert_eq!(
         info_json(&ok(&here, "info")),
-        info_json(&ok(&there, "info http://"))
+        info_json(&ok(&there, "info http://")),
+        "{url}"
     );
     let text = ok(
         &pcimg().args(["info", &url]).output().unwrap(),
@@ -169,13 +208,13 @@ fn a_dataset_served_over_plain_http_reads_as_the_local_one() {
     assert!(text.contains(&url), "{text}");
 
     // render: the same PNG, byte for byte.
-    let png_here = d.join("here.png");
+    let png_here = d.join(format!("{name}.here.png"));
     let o = pcimg()
         .args(render_args(local.to_str().unwrap(), &png_here))
         .output()
         .unwrap();
     ok(&o, "render");
-    let png_there = d.join("there.png");
+    let png_there = d.join(format!("{name}.there.png"));
     let o = pcimg()
         .args(render_args(&url, &png_there))
         .env("PCIMG_NET_STATS", "1")
@@ -185,13 +224,13 @@ fn a_dataset_served_over_plain_http_reads_as_the_local_one() {
     assert_eq!(
         std::fs::read(&png_there).unwrap(),
         std::fs::read(&png_here).unwrap(),
-        "the render from http:// differs from the local render"
+        "the render from {url} differs from the local render"
     );
     let stats = String::from_utf8_lossy(&o.stderr);
     assert!(stats.contains(", 0 failed"), "{stats}");
 
     // One part by its own URL (its header and IFDs read by ranges).
-    let part = std::fs::read_dir(&local)
+    let part = std::fs::read_dir(local)
         .unwrap()
         .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
         .filter(|n| n.ends_with(".tif"))
@@ -224,10 +263,15 @@ fn a_missing_dataset_over_http_names_the_url_the_status_and_what_to_do() {
         "info of a missing dataset",
     );
     assert!(
-        e.starts_with(&format!("pcimg: {url}/pcimg-index.json: not found (HTTP 404)")),
+        e.starts_with(&format!(
+            "pcimg: {url}/pcimg-index.json: not found (HTTP 404)"
+        )),
         "{e}"
     );
-    assert!(e.contains("check the URL") && e.contains("pcimg index"), "{e}");
+    assert!(
+        e.contains("check the URL") && e.contains("pcimg index") && !e.contains("-o http"),
+        "{e}"
+    );
     let url = server.url("nothing.tif");
     let png = dir.path().join("x.png");
     let e = err(
@@ -239,7 +283,9 @@ fn a_missing_dataset_over_http_names_the_url_the_status_and_what_to_do() {
         "render of a missing part",
     );
     assert!(
-        e.starts_with(&format!("pcimg: {url}: not found (HTTP 404); check the URL")),
+        e.starts_with(&format!(
+            "pcimg: {url}: not found (HTTP 404); check the URL"
+        )),
         "{e}"
     );
 }

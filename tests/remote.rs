@@ -175,7 +175,10 @@ fn remote_errors_name_the_url_and_what_to_fix() {
     assert_eq!(failed.problem, pcimg::remote::Problem::NotFound);
     let e = e.to_string();
     assert!(e.contains("memory://b/elsewhere/pcimg-index.json"), "{e}");
-    assert!(e.contains("not found") && e.contains("dataset index"), "{e}");
+    assert!(
+        e.contains("not found") && e.contains("dataset index"),
+        "{e}"
+    );
     let remote = Arc::new(Remote::with_store(
         store,
         "here/nothing.tif",

@@ -96,7 +96,18 @@ pub fn advice(e: &RemoteError) -> Option<String> {
     Some(match &e.problem {
         // (Their text says it.)
         Problem::BadUrl(_) | Problem::Changed(_) | Problem::Other(_) => return None,
-        Problem::NotFound => match e.url.strip_suffix(&format!("/{}", crate::store::index::INDEX_FILE)) {
+        Problem::NotFound => match e
+            .url
+            .strip_suffix(&format!("/{}", crate::store::index::INDEX_FILE))
+        {
+            // A static server is written to by copying files, a bucket also by
+            // `convert -o URL`.
+            Some(_) if web => format!(
+                "check the URL (a dataset's URL is the folder that holds {index} and the parts); \
+                 a dataset without an index gets one with `pcimg index DIR` on a local copy: \
+                 copy DIR/{index} to the server beside the parts",
+                index = crate::store::index::INDEX_FILE,
+            ),
             Some(dataset) => format!(
                 "check the URL (a dataset's URL is the folder that holds {index} and the parts); \
                  a dataset without an index gets one with `pcimg index DIR` on a local copy: \
@@ -114,12 +125,12 @@ pub fn advice(e: &RemoteError) -> Option<String> {
                 .into()
         }
         Problem::Denied { status: 401, .. } => format!("set the credentials ({credentials})"),
-        Problem::Denied { .. } => format!(
-            "check the credentials ({credentials}) and that they may read this bucket"
-        ),
-        Problem::Status { status: 429 | 503, .. } => {
-            "the server is busy or throttling (pcimg retried): try again later".into()
+        Problem::Denied { .. } => {
+            format!("check the credentials ({credentials}) and that they may read this bucket")
         }
+        Problem::Status {
+            status: 429 | 503, ..
+        } => "the server is busy or throttling (pcimg retried): try again later".into(),
         Problem::Status { status, .. } if *status >= 500 => {
             "the server failed (pcimg retried): try again later, or see the server's log".into()
         }

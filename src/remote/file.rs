@@ -272,7 +272,7 @@ impl RemoteFile {
                             }));
                         }
                         self.check(meta)?;
-                        Ok(b)
+                        Ok::<_, RemoteError>(b)
                     }
                     Err(e) => {
                         f.done(0, false);
@@ -462,8 +462,7 @@ mod tests {
                 let Ok(mut conn) = conn else { continue };
                 let mut head = Vec::new();
                 let mut byte = [0u8; 1];
-                while !head.ends_with(b"\r\n\r\n") && conn.read(&mut byte).is_ok_and(|n| n == 1)
-                {
+                while !head.ends_with(b"\r\n\r\n") && conn.read(&mut byte).is_ok_and(|n| n == 1) {
                     head.push(byte[0]);
                 }
                 let head = String::from_utf8_lossy(&head).to_ascii_lowercase();

@@ -456,8 +456,18 @@ impl Problem {
         let detail = short(&last.to_string());
         match e {
             E::NotFound { .. } => return Problem::NotFound,
-            E::PermissionDenied { .. } => return Problem::Denied { status: 403, detail },
-            E::Unauthenticated { .. } => return Problem::Denied { status: 401, detail },
+            E::PermissionDenied { .. } => {
+                return Problem::Denied {
+                    status: 403,
+                    detail,
+                };
+            }
+            E::Unauthenticated { .. } => {
+                return Problem::Denied {
+                    status: 401,
+                    detail,
+                };
+            }
             E::Precondition { .. } => {
                 return Problem::Changed(
                     "changed while being read (its ETag no longer matches): open the dataset again"
@@ -474,9 +484,13 @@ impl Problem {
                 _ => Problem::Status { status, detail },
             };
         }
-        if ["accessdenied", "signaturedoesnotmatch", "invalidaccesskeyid"]
-            .iter()
-            .any(|w| lower.contains(w))
+        if [
+            "accessdenied",
+            "signaturedoesnotmatch",
+            "invalidaccesskeyid",
+        ]
+        .iter()
+        .any(|w| lower.contains(w))
         {
             return Problem::Denied {
                 status: 403,
@@ -512,7 +526,9 @@ fn status_in(text: &str) -> Option<u16> {
 
 /// The body after "status code: 503 Service Unavailable: ".
 fn body_in(text: &str) -> String {
-    let at = text.find("status code: ").map_or(0, |i| i + "status code: ".len());
+    let at = text
+        .find("status code: ")
+        .map_or(0, |i| i + "status code: ".len());
     let rest = &text[at..];
     // "503 Service Unavailable: body"
     rest.split_once(": ")
@@ -531,14 +547,16 @@ fn network_condition(e: &object_store::Error) -> Option<Net> {
             match io.kind() {
                 I::ConnectionRefused => return Some(Net::Refused),
                 I::TimedOut => return Some(Net::TimedOut),
-                I::ConnectionReset
-                | I::ConnectionAborted
-                | I::BrokenPipe
-                | I::UnexpectedEof => return Some(Net::Cut),
+                I::ConnectionReset | I::ConnectionAborted | I::BrokenPipe | I::UnexpectedEof => {
+                    return Some(Net::Cut);
+                }
                 _ => {}
             }
         }
         let words = err.to_string().to_ascii_lowercase();
+        if words.contains("connection refused") {
+            return Some(Net::Refused);
+        }
         if words.contains("dns error") || words.contains("failed to lookup address") {
             return Some(Net::UnknownHost);
         }

@@ -252,7 +252,9 @@ impl Dataset {
                 &url,
                 crate::remote::Problem::NotFound,
             ));
-            e.message.push_str(": no dataset index there (a dataset in object storage is opened from its index)");
+            e.message.push_str(
+                ": no dataset index there (a dataset in object storage is opened from its index)",
+            );
             return Err(e);
         };
         let index = IndexFile::parse(&text, path)?;
