@@ -168,9 +168,17 @@ fn remote_errors_name_the_url_and_what_to_fix() {
         "elsewhere",
         "memory://b/elsewhere",
     ));
-    let e = Dataset::open_remote(remote).unwrap_err().to_string();
+    let e = Dataset::open_remote(remote).unwrap_err();
+    // The facts, typed (what to do is the command line's to say).
+    let failed = e.remote.clone().expect("a failed request");
+    assert_eq!(failed.url, "memory://b/elsewhere/pcimg-index.json");
+    assert_eq!(failed.problem, pcimg::remote::Problem::NotFound);
+    let e = e.to_string();
     assert!(e.contains("memory://b/elsewhere/pcimg-index.json"), "{e}");
-    assert!(e.contains("not found") && e.contains("pcimg index"), "{e}");
+    assert!(
+        e.contains("not found") && e.contains("dataset index"),
+        "{e}"
+    );
     let remote = Arc::new(Remote::with_store(
         store,
         "here/nothing.tif",

@@ -7,6 +7,10 @@ use std::path::{Path, PathBuf};
 pub struct StoreError {
     pub path: PathBuf,
     pub message: String,
+    /// For a request to object storage that failed: its URL and what happened
+    /// (the command line says what to do from it). Shown through `message`.
+    #[cfg(feature = "remote")]
+    pub remote: Option<crate::remote::RemoteError>,
 }
 
 impl StoreError {
@@ -14,6 +18,18 @@ impl StoreError {
         StoreError {
             path: path.to_path_buf(),
             message: message.into(),
+            #[cfg(feature = "remote")]
+            remote: None,
+        }
+    }
+
+    /// A failed request: the path is its URL, the message what happened.
+    #[cfg(feature = "remote")]
+    pub fn remote(e: crate::remote::RemoteError) -> Self {
+        StoreError {
+            path: PathBuf::from(&e.url),
+            message: e.problem.to_string(),
+            remote: Some(e),
         }
     }
 }

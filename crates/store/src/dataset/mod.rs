@@ -230,11 +230,8 @@ impl Dataset {
     /// fetched from when their tiles are read), or a single `.tif` part.
     pub fn open_url(url: &str) -> Result<Dataset> {
         let url = url.trim_end_matches('/');
-        let path = Path::new(url);
-        let remote = std::sync::Arc::new(crate::remote::Remote::open(url).map_err(|m| {
-            let m = m.strip_prefix(&format!("{url}: ")).map(str::to_string);
-            StoreError::new(path, m.unwrap_or_default())
-        })?);
+        let remote =
+            std::sync::Arc::new(crate::remote::Remote::open(url).map_err(StoreError::remote)?);
         Self::open_remote(remote)
     }
 
@@ -259,16 +256,18 @@ impl Dataset {
         }
         let Some((text, size, _)) = remote
             .get(crate::dataset::index::INDEX_FILE)
-            .map_err(|m| StoreError::new(Path::new(""), m))?
+            .map_err(StoreError::remote)?
         else {
-            return Err(StoreError::new(
-                &path.join(crate::dataset::index::INDEX_FILE),
-                format!(
-                    "not found: a dataset in object storage is opened from its index;                      check the URL, or make the index locally with `pcimg index DIR` and                      upload DIR/{} beside the parts (or convert with `-o {}`)",
-                    crate::dataset::index::INDEX_FILE,
-                    shell_quoted(url)
-                ),
+            // What to do (index it, upload the index) is the command line's to say.
+            let url = remote.url_of(crate::dataset::index::INDEX_FILE);
+            let mut e = StoreError::remote(crate::remote::RemoteError::new(
+                &url,
+                crate::remote::Problem::NotFound,
             ));
+            e.message.push_str(
+                ": no dataset index there (a dataset in object storage is opened from its index)",
+            );
+            return Err(e);
         };
         let index = IndexFile::parse(&text, path)?;
         let tree = tree_of(&index);

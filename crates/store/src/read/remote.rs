@@ -138,7 +138,9 @@ impl Part {
         // The first request tells the size (and pins the ETag).
         let first = if head > 0 { head } else { FIRST_READ };
         let first = expect.map_or(first, |e| first.min(e));
-        let got = file.read_ranges(&[0..first.max(1)]).map_err(err)?;
+        let got = file
+            .read_ranges(&[0..first.max(1)])
+            .map_err(StoreError::remote)?;
         let size = file.seen().map_or(got[0].len() as u64, |s| s.0);
         if let Some(e) = expect
             && e != size

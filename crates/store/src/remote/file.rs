@@ -3,9 +3,11 @@
 //! keyed by URL, ETag and range (a changed object is never served stale: every
 //! ranged request after the first is conditional on the ETag first seen, or
 //! every one on the ETag the dataset index records), and optionally on disk
-//! (`disk.rs`).
+//! (`disk.rs`). From a server that ignores Range (answers a ranged GET with
+//! the whole object, as Python's `http.server` does) the object is fetched
+//! whole, once, and the ranges cut from it.
 
-use super::{InFlight, Remote, explain};
+use super::{InFlight, Problem, Remote, RemoteError};
 use bytes::Bytes;
 use futures_util::{StreamExt, TryStreamExt};
 use object_store::{GetOptions, GetRange};
@@ -32,6 +34,8 @@ pub struct RemoteFile {
     /// the ETag its upload returned): a mismatch then means the object was
     /// replaced behind the index.
     pinned: bool,
+    /// The whole object, where the server ignores Range (fetched once).
+    whole: tokio::sync::OnceCell<Bytes>,
 }
 
 /// Key of a cached range: URL, ETag, range.
@@ -124,6 +128,7 @@ impl RemoteFile {
             name: name.to_string(),
             seen: OnceLock::new(),
             pinned: false,
+            whole: Default::default(),
         }
     }
 
@@ -136,6 +141,7 @@ impl RemoteFile {
             name: name.to_string(),
             seen: OnceLock::from((size, Some(etag))),
             pinned: true,
+            whole: Default::default(),
         }
     }
 
@@ -149,8 +155,17 @@ impl RemoteFile {
         self.seen.get()
     }
 
-    /// One request for `r`, conditional on the ETag seen first.
-    async fn fetch_one(&self, r: Range<u64>) -> Result<Bytes, String> {
+    fn fail(&self, problem: Problem) -> RemoteError {
+        RemoteError::new(&self.url(), problem)
+    }
+
+    /// One request for `r`, conditional on the ETag seen first (or `r` cut
+    /// from the whole object, where the server ignores Range).
+    async fn fetch_one(&self, r: Range<u64>) -> Result<Bytes, RemoteError> {
+        use std::sync::atomic::Ordering;
+        if self.remote.ignores_range.load(Ordering::Relaxed) {
+            return self.from_whole(r).await;
+        }
         let loc = self.remote.location(&self.name);
         let opts = GetOptions {
             range: Some(GetRange::Bounded(r.clone())),
@@ -169,61 +184,123 @@ impl RemoteFile {
             Ok((b, meta, range)) => {
                 f.done(b.len() as u64, true);
                 if range != r || b.len() as u64 != r.end - r.start {
-                    return Err(format!(
-                        "{}: asked for bytes {}..{}, got {}..{} ({} bytes): the server ignores range requests; serve the dataset from one that supports HTTP Range",
-                        self.url(),
-                        r.start,
-                        r.end,
-                        range.start,
-                        range.end,
-                        b.len()
-                    ));
+                    return Err(self.fail(Problem::WrongRange {
+                        asked: r,
+                        got: range,
+                        bytes: b.len() as u64,
+                    }));
                 }
-                let first = self.seen.get_or_init(|| meta.clone());
-                // (A store that ignored the condition: the ETag says it.)
-                if self.pinned && meta.1.is_some() && meta.1 != first.1 {
-                    return Err(format!(
-                        "{}: the part changed since the index was written (ETag {} now, {} in \
-                         the index): re-run `pcimg convert -o URL`, or upload the dataset again \
-                         together with its index",
-                        self.url(),
-                        crate::text::sanitize(meta.1.as_deref().unwrap_or_default()),
-                        crate::text::sanitize(first.1.as_deref().unwrap_or_default()),
-                    ));
-                }
-                if first.0 != meta.0 {
-                    return Err(format!(
-                        "{}: changed while being read ({} bytes, {} before): open the dataset again",
-                        self.url(),
-                        meta.0,
-                        first.0
-                    ));
-                }
+                self.check(meta)?;
                 Ok(b)
             }
-            Err(object_store::Error::Precondition { .. }) if self.pinned => {
-                f.done(0, false);
-                Err(format!(
-                    "{}: the part changed since the index was written (its ETag is not the one \
-                     the dataset index records): re-run `pcimg convert -o URL`, or upload the \
-                     dataset again together with its index",
-                    self.url()
-                ))
+            Err(e) if ignored_range(&e) => {
+                // A 200 with the whole object (its body not read): from now on
+                // every object of this server is fetched whole.
+                f.done(0, true);
+                self.remote.ignores_range.store(true, Ordering::Relaxed);
+                self.from_whole(r).await
             }
             Err(e) => {
                 f.done(0, false);
-                Err(format!("{}: {}", self.url(), explain(&e)))
+                Err(self.changed_or(&e))
             }
         }
     }
 
+    /// The error for a failed request: for a part pinned by the index, a
+    /// failed ETag condition is a part replaced behind the index.
+    fn changed_or(&self, e: &object_store::Error) -> RemoteError {
+        if self.pinned && matches!(e, object_store::Error::Precondition { .. }) {
+            return self.fail(Problem::Changed(
+                "the part changed since the index was written (its ETag is not the one the \
+                 dataset index records): re-run `pcimg convert -o URL`, or upload the dataset \
+                 again together with its index"
+                    .into(),
+            ));
+        }
+        self.fail(Problem::of(e))
+    }
+
+    /// Checks a response's size and ETag against those seen first (or pinned).
+    fn check(&self, meta: (u64, Option<String>)) -> Result<(), RemoteError> {
+        let first = self.seen.get_or_init(|| meta.clone());
+        // (A store that ignored the condition: the ETag says it.)
+        if self.pinned && meta.1.is_some() && meta.1 != first.1 {
+            return Err(self.fail(Problem::Changed(format!(
+                "the part changed since the index was written (ETag {} now, {} in the \
+                 index): re-run `pcimg convert -o URL`, or upload the dataset again together \
+                 with its index",
+                meta.1.as_deref().unwrap_or_default(),
+                first.1.as_deref().unwrap_or_default(),
+            ))));
+        }
+        if first.0 != meta.0 {
+            return Err(self.fail(Problem::Changed(format!(
+                "changed while being read ({} bytes, {} before): open the dataset again",
+                meta.0, first.0
+            ))));
+        }
+        Ok(())
+    }
+
+    /// Bytes `r` of the object fetched whole (once; later calls wait for the
+    /// first). Its length must be the size the response (and the index) gives.
+    async fn from_whole(&self, r: Range<u64>) -> Result<Bytes, RemoteError> {
+        let whole = self
+            .whole
+            .get_or_try_init(|| async {
+                let loc = self.remote.location(&self.name);
+                let opts = GetOptions {
+                    if_match: self.seen.get().and_then(|s| s.1.clone()),
+                    ..Default::default()
+                };
+                let f = InFlight::start(&self.remote);
+                let got = async {
+                    let g = self.remote.store.get_opts(&loc, opts).await?;
+                    let meta = (g.meta.size, g.meta.e_tag.clone());
+                    Ok::<_, object_store::Error>((g.bytes().await?, meta))
+                }
+                .await;
+                match got {
+                    Ok((b, meta)) => {
+                        f.done(b.len() as u64, true);
+                        if b.len() as u64 != meta.0 {
+                            return Err(self.fail(Problem::WrongRange {
+                                asked: 0..meta.0,
+                                got: 0..b.len() as u64,
+                                bytes: b.len() as u64,
+                            }));
+                        }
+                        self.check(meta)?;
+                        Ok::<_, RemoteError>(b)
+                    }
+                    Err(e) => {
+                        f.done(0, false);
+                        Err(self.changed_or(&e))
+                    }
+                }
+            })
+            .await?;
+        if r.start > r.end || r.end > whole.len() as u64 {
+            return Err(self.fail(Problem::WrongRange {
+                asked: r,
+                got: 0..whole.len() as u64,
+                bytes: whole.len() as u64,
+            }));
+        }
+        Ok(whole.slice(r.start as usize..r.end as usize))
+    }
+
     /// The bytes of each of `ranges`, in order: cached ones from the cache, the
     /// rest merged (`MERGE_GAP`) and fetched concurrently. Blocks the caller.
-    pub fn read_ranges(&self, ranges: &[Range<u64>]) -> Result<Vec<Bytes>, String> {
+    pub fn read_ranges(&self, ranges: &[Range<u64>]) -> Result<Vec<Bytes>, RemoteError> {
         super::block_on(self.read_ranges_async(ranges))
     }
 
-    pub async fn read_ranges_async(&self, ranges: &[Range<u64>]) -> Result<Vec<Bytes>, String> {
+    pub async fn read_ranges_async(
+        &self,
+        ranges: &[Range<u64>],
+    ) -> Result<Vec<Bytes>, RemoteError> {
         let url = self.url();
         // With a disk cache that saw this object before: one HEAD tells whether
         // it is unchanged (its ETag), and the ranges come from the disk.
@@ -261,7 +338,7 @@ impl RemoteFile {
 
     /// The object's size and ETag by a HEAD request (pinning them as the first
     /// ranged request does).
-    async fn head(&self) -> Result<(), String> {
+    async fn head(&self) -> Result<(), RemoteError> {
         use object_store::ObjectStoreExt;
         let loc = self.remote.location(&self.name);
         let f = InFlight::start(&self.remote);
@@ -273,12 +350,16 @@ impl RemoteFile {
             }
             Err(e) => {
                 f.done(0, false);
-                Err(format!("{}: {}", self.url(), explain(&e)))
+                Err(self.fail(Problem::of(&e)))
             }
         }
     }
 
-    async fn fetch_merged(&self, url: &str, ranges: &[Range<u64>]) -> Result<Vec<Bytes>, String> {
+    async fn fetch_merged(
+        &self,
+        url: &str,
+        ranges: &[Range<u64>],
+    ) -> Result<Vec<Bytes>, RemoteError> {
         let etag = self
             .seen
             .get()
@@ -351,5 +432,100 @@ impl RemoteFile {
             }
         }
         Ok(out.into_iter().map(|b| b.unwrap_or_default()).collect())
+    }
+}
+
+/// Whether a ranged GET was answered with the whole object (HTTP 200): the
+/// HTTP store says "Range request not supported", the cloud stores "non-partial
+/// response".
+fn ignored_range(e: &object_store::Error) -> bool {
+    let text = e.to_string().to_ascii_lowercase();
+    text.contains("range request not supported") || text.contains("non-partial response")
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::io::{Read, Write};
+    use std::sync::atomic::{AtomicU64, Ordering};
+
+    /// A static server that ignores Range (as Python's `http.server` does):
+    /// every GET is answered 200 with the whole `body`; the number of requests
+    /// that asked for a range is counted.
+    fn server_ignoring_range(body: Vec<u8>) -> (String, Arc<AtomicU64>) {
+        let listener = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+        let url = format!("http://{}", listener.local_addr().unwrap());
+        let ranged = Arc::new(AtomicU64::new(0));
+        let counted = ranged.clone();
+        std::thread::spawn(move || {
+            for conn in listener.incoming() {
+                let Ok(mut conn) = conn else { continue };
+                let mut head = Vec::new();
+                let mut byte = [0u8; 1];
+                while !head.ends_with(b"\r\n\r\n") && conn.read(&mut byte).is_ok_and(|n| n == 1) {
+                    head.push(byte[0]);
+                }
+                let head = String::from_utf8_lossy(&head).to_ascii_lowercase();
+                if head.contains("\r\nrange:") {
+                    counted.fetch_add(1, Ordering::Relaxed);
+                }
+                let _ = write!(
+                    conn,
+                    "HTTP/1.1 200 OK\r\nContent-Length: {}\r\nConnection: close\r\n\r\n",
+                    body.len()
+                );
+                if !head.starts_with("head ") {
+                    let _ = conn.write_all(&body);
+                }
+            }
+        });
+        (url, ranged)
+    }
+
+    #[test]
+    fn ranges_are_cut_from_the_whole_object_where_the_server_ignores_range() {
+        let body: Vec<u8> = (0..300_000u32).map(|i| (i * 7 % 251) as u8).collect();
+        let (url, ranged) = server_ignoring_range(body.clone());
+        let remote = Arc::new(Remote::open(&url).unwrap());
+        let file = remote.file("data.bin");
+        let want = [10..20, 200_000..200_100, 0..1, 299_990..300_000];
+        let got = file.read_ranges(&want).unwrap();
+        for (r, b) in want.iter().zip(&got) {
+            assert_eq!(&b[..], &body[r.start as usize..r.end as usize], "{r:?}");
+        }
+        // One ranged request learnt it; the object came whole once.
+        assert_eq!(ranged.load(Ordering::Relaxed), 1);
+        assert_eq!(remote.requests.load(Ordering::Relaxed), 2);
+        // A second object is fetched whole at once; a range past its end is an
+        // error naming the URL, never bytes of something else.
+        let other = remote.file("other.bin");
+        assert_eq!(&other.read_ranges(&[5..9]).unwrap()[0][..], &body[5..9]);
+        assert_eq!(ranged.load(Ordering::Relaxed), 1);
+        let e = other.read_ranges(&[299_999..300_001]).unwrap_err();
+        assert_eq!(e.url, format!("{url}/other.bin"));
+        assert!(matches!(e.problem, Problem::WrongRange { .. }), "{e}");
+    }
+
+    #[test]
+    fn a_refused_connection_is_a_network_condition_naming_the_url() {
+        let port = {
+            let l = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+            l.local_addr().unwrap().port()
+        };
+        let url = format!("http://127.0.0.1:{port}/d.pcimg");
+        let remote = Arc::new(Remote::open(&url).unwrap());
+        let e = remote.file("part.tif").read_ranges(&[0..10]).unwrap_err();
+        assert_eq!(e.url, format!("{url}/part.tif"));
+        assert!(
+            matches!(
+                e.problem,
+                Problem::Network {
+                    condition: crate::remote::Net::Refused,
+                    ..
+                }
+            ),
+            "{e:?}"
+        );
+        assert_eq!(e.to_string(), format!("{url}/part.tif: connection refused"));
     }
 }

@@ -1,8 +1,9 @@
 //! Datasets in object storage (`s3://`, `gs://`, `az://`, `http(s)://`): the
 //! `object_store` client built from a URL and the environment, one small tokio
 //! runtime the blocking callers share, counters for the inspector's status line,
-//! and errors that name the URL and say what to fix. Ranged, cached reads of one
-//! object are `file.rs`.
+//! and errors that name the URL and what happened ([`RemoteError`]: the HTTP
+//! status or the network condition; the command line adds what to do). Ranged,
+//! cached reads of one object are `file.rs`.
 
 pub mod disk;
 pub mod file;
@@ -12,7 +13,7 @@ pub use file::RemoteFile;
 
 use object_store::path::Path as ObjPath;
 use object_store::{ObjectStore, ObjectStoreExt};
-use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Arc, OnceLock};
 use std::time::Duration;
 
@@ -95,6 +96,10 @@ pub struct Remote {
     pub url: String,
     /// Requests sent through this dataset (tests, benchmarks).
     pub requests: Arc<AtomicU64>,
+    /// Set once the server answered a ranged GET with the whole object (a
+    /// static file server without Range support): objects are then fetched
+    /// whole, once each, and ranges cut from them.
+    pub ignores_range: Arc<AtomicBool>,
 }
 
 /// Retries with exponential backoff (object_store's), bounded so that a dead
@@ -115,14 +120,15 @@ impl Remote {
     /// The store a URL names, configured from the environment as each cloud's own
     /// tools are (`AWS_*` with `AWS_ENDPOINT`/`AWS_ENDPOINT_URL` and
     /// `AWS_ALLOW_HTTP` for S3-compatible servers, `GOOGLE_*`, `AZURE_*`).
-    pub fn open(url: &str) -> Result<Remote, String> {
+    pub fn open(url: &str) -> Result<Remote, RemoteError> {
         // The client is made here: TLS (ring) must be installed first.
         let _ = runtime();
         let trimmed = url.trim_end_matches('/');
-        let u = url::Url::parse(trimmed).map_err(|e| format!("{trimmed}: not a URL: {e}"))?;
-        let fail = |e: object_store::Error| format!("{trimmed}: {}", explain(&e));
+        let bad = |m: String| RemoteError::new(trimmed, Problem::BadUrl(m));
+        let u = url::Url::parse(trimmed).map_err(|e| bad(format!("not a URL: {e}")))?;
+        let fail = |e: object_store::Error| RemoteError::new(trimmed, Problem::of(&e));
         let (scheme, path) = object_store::ObjectStoreScheme::parse(&u).map_err(|e| {
-            format!("{trimmed}: not an object-store URL this pcimg reads ({e}); use s3://, gs://, az://, http(s):// or file://")
+            bad(format!("not an object-store URL this pcimg reads ({e}); use s3://, gs://, az://, http(s):// or file://"))
         })?;
         use object_store::ObjectStoreScheme as S;
         let store: Arc<dyn ObjectStore> = match scheme {
@@ -147,25 +153,33 @@ impl Remote {
                     .build()
                     .map_err(fail)?,
             ),
+            // The client refuses plain http:// unless told (`ClientOptions`
+            // defaults to HTTPS only: reqwest's `https_only`, whose every
+            // request then fails as a "builder error"). An http:// URL asks for
+            // plain HTTP; an https:// one keeps refusing it (e.g. on a redirect).
             S::Http => Arc::new(
                 object_store::http::HttpBuilder::new()
                     .with_url(&u[..url::Position::BeforePath])
+                    .with_client_options(
+                        object_store::ClientOptions::new().with_allow_http(u.scheme() == "http"),
+                    )
                     .with_retry(retry())
                     .build()
                     .map_err(fail)?,
             ),
             other => {
-                return Err(format!(
-                    "{trimmed}: {other:?} URLs are not read remotely; use s3://, gs://, az:// or http(s)://"
-                ));
+                return Err(bad(format!(
+                    "{other:?} URLs are not read remotely; use s3://, gs://, az:// or http(s)://"
+                )));
             }
         };
-        let prefix = ObjPath::parse(path.as_ref()).map_err(|e| format!("{trimmed}: {e}"))?;
+        let prefix = ObjPath::parse(path.as_ref()).map_err(|e| bad(e.to_string()))?;
         Ok(Remote {
             store,
             prefix,
             url: trimmed.to_string(),
             requests: Default::default(),
+            ignores_range: Default::default(),
         })
     }
 
@@ -176,6 +190,7 @@ impl Remote {
             prefix: ObjPath::from(prefix),
             url: url.trim_end_matches('/').to_string(),
             requests: Default::default(),
+            ignores_range: Default::default(),
         }
     }
 
@@ -198,7 +213,10 @@ impl Remote {
     }
 
     /// The whole object `name`, its size and ETag; `Ok(None)` when it is absent.
-    pub fn get(&self, name: &str) -> Result<Option<(bytes::Bytes, u64, Option<String>)>, String> {
+    pub fn get(
+        &self,
+        name: &str,
+    ) -> Result<Option<(bytes::Bytes, u64, Option<String>)>, RemoteError> {
         let store = self.store.clone();
         let loc = self.location(name);
         let shown = self.url_of(name);
@@ -222,14 +240,14 @@ impl Remote {
                 }
                 Err(e) => {
                     f.done(0, false);
-                    Err(format!("{shown}: {}", explain(&e)))
+                    Err(RemoteError::new(&shown, Problem::of(&e)))
                 }
             }
         })
     }
 
     /// Whether the object `name` exists (one HEAD request).
-    pub fn exists(&self, name: &str) -> Result<bool, String> {
+    pub fn exists(&self, name: &str) -> Result<bool, RemoteError> {
         let loc = self.location(name);
         let f = InFlight::start(self);
         match block_on(self.store.head(&loc)) {
@@ -243,13 +261,13 @@ impl Remote {
             }
             Err(e) => {
                 f.done(0, false);
-                Err(format!("{}: {}", self.url_of(name), explain(&e)))
+                Err(RemoteError::new(&self.url_of(name), Problem::of(&e)))
             }
         }
     }
 
     /// The name of some object under the prefix, if any (one listing request).
-    pub fn first_object(&self) -> Result<Option<String>, String> {
+    pub fn first_object(&self) -> Result<Option<String>, RemoteError> {
         use futures_util::StreamExt;
         let f = InFlight::start(self);
         let mut list = self.store.list(Some(&self.prefix));
@@ -264,7 +282,7 @@ impl Remote {
             }
             Some(Err(e)) => {
                 f.done(0, false);
-                Err(format!("{}: {}", self.url, explain(&e)))
+                Err(RemoteError::new(&self.url, Problem::of(&e)))
             }
         }
     }
@@ -279,6 +297,264 @@ impl Remote {
     pub fn file_pinned(self: &Arc<Self>, name: &str, size: u64, etag: String) -> RemoteFile {
         RemoteFile::pinned(self.clone(), name, size, etag)
     }
+}
+
+/// A request that failed: the URL it was for and what happened. Facts only:
+/// what to do about it is the command line's to say (`cli::remote::advice`).
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error("{}: {problem}", crate::text::sanitize(.url))]
+pub struct RemoteError {
+    pub url: String,
+    pub problem: Problem,
+}
+
+impl RemoteError {
+    pub fn new(url: &str, problem: Problem) -> RemoteError {
+        RemoteError {
+            url: url.to_string(),
+            problem,
+        }
+    }
+}
+
+/// The store's readers report errors as text (`URL: what happened`).
+impl From<RemoteError> for String {
+    fn from(e: RemoteError) -> String {
+        e.to_string()
+    }
+}
+
+/// What went wrong with a request.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum Problem {
+    /// Not a URL, or not one this build reads.
+    BadUrl(String),
+    /// HTTP 404 (or 405 from a static server; S3's `NoSuchBucket`).
+    NotFound,
+    /// HTTP 401 or 403; `detail`: the server's words.
+    Denied { status: u16, detail: String },
+    /// Any other HTTP status, after the retries; `detail`: the server's words.
+    Status { status: u16, detail: String },
+    /// No HTTP answer (after the retries).
+    Network { condition: Net, detail: String },
+    /// The server answered a ranged request with other bytes than asked for.
+    WrongRange {
+        asked: std::ops::Range<u64>,
+        got: std::ops::Range<u64>,
+        bytes: u64,
+    },
+    /// The object is not the one first seen (or recorded in the index); the
+    /// text says what to do (these surface through the readers' text errors).
+    Changed(String),
+    /// A plain http:// request from a client set to HTTPS only (S3 without
+    /// `AWS_ALLOW_HTTP`).
+    PlainHttp,
+    /// Anything else: the store's own words.
+    Other(String),
+}
+
+/// A network condition: what kept the request from an HTTP answer.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Net {
+    /// Nothing listens at the address (the server is down, or the port wrong).
+    Refused,
+    /// The host name does not resolve.
+    UnknownHost,
+    /// No answer in time.
+    TimedOut,
+    /// The connection was reset or closed before the answer was complete.
+    Cut,
+    /// Anything else.
+    Other,
+}
+
+impl std::fmt::Display for Problem {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let with = |f: &mut std::fmt::Formatter<'_>, detail: &str| {
+            if detail.is_empty() {
+                Ok(())
+            } else {
+                write!(f, " ({})", crate::text::sanitize(detail))
+            }
+        };
+        match self {
+            Problem::BadUrl(m) | Problem::Changed(m) | Problem::Other(m) => {
+                f.write_str(&crate::text::sanitize(m))
+            }
+            Problem::NotFound => f.write_str("not found (HTTP 404)"),
+            Problem::PlainHttp => {
+                f.write_str("plain http:// refused: the client is set to HTTPS only")
+            }
+            Problem::Denied { status, detail } => {
+                write!(f, "access denied (HTTP {status})")?;
+                with(f, detail)
+            }
+            Problem::Status { status, detail } => {
+                let reason = reqwest::StatusCode::from_u16(*status)
+                    .ok()
+                    .and_then(|c| c.canonical_reason())
+                    .map(|r| format!(" {r}"))
+                    .unwrap_or_default();
+                write!(f, "the server answered HTTP {status}{reason}")?;
+                with(f, detail)
+            }
+            Problem::Network { condition, detail } => {
+                f.write_str(match condition {
+                    Net::Refused => "connection refused",
+                    Net::UnknownHost => "unknown host (the name does not resolve)",
+                    Net::TimedOut => "no answer in time (timed out)",
+                    Net::Cut => "the connection was cut before the answer was complete",
+                    Net::Other => "network error",
+                })?;
+                with(f, detail)
+            }
+            Problem::WrongRange { asked, got, bytes } => write!(
+                f,
+                "asked for bytes {}..{}, got {}..{} ({bytes} bytes)",
+                asked.start, asked.end, got.start, got.end
+            ),
+        }
+    }
+}
+
+/// The server's words in an error, shortened (it may send a whole page).
+fn short(text: &str) -> String {
+    let t = crate::text::sanitize(text.trim());
+    match t.char_indices().nth(200) {
+        Some((i, _)) => format!("{}…", &t[..i]),
+        None => t,
+    }
+}
+
+impl Problem {
+    /// The facts in an object_store error: its kind, the HTTP status, or the
+    /// network condition found down its chain of sources.
+    pub fn of(e: &object_store::Error) -> Problem {
+        use object_store::Error as E;
+        let text = e.to_string();
+        let lower = text.to_ascii_lowercase();
+        // The last words of the chain: the server's answer or the system's.
+        let mut last: &dyn std::error::Error = e;
+        while let Some(s) = last.source() {
+            last = s;
+        }
+        let detail = short(&last.to_string());
+        match e {
+            E::NotFound { .. } => return Problem::NotFound,
+            E::PermissionDenied { .. } => {
+                return Problem::Denied {
+                    status: 403,
+                    detail,
+                };
+            }
+            E::Unauthenticated { .. } => {
+                return Problem::Denied {
+                    status: 401,
+                    detail,
+                };
+            }
+            E::Precondition { .. } => {
+                return Problem::Changed(
+                    "changed while being read (its ETag no longer matches): open the dataset again"
+                        .into(),
+                );
+            }
+            _ => {}
+        }
+        if let Some(status) = status_in(&text) {
+            let detail = body_in(&text);
+            return match status {
+                404 => Problem::NotFound,
+                401 | 403 => Problem::Denied { status, detail },
+                _ => Problem::Status { status, detail },
+            };
+        }
+        if [
+            "accessdenied",
+            "signaturedoesnotmatch",
+            "invalidaccesskeyid",
+        ]
+        .iter()
+        .any(|w| lower.contains(w))
+        {
+            return Problem::Denied {
+                status: 403,
+                detail: short(&text),
+            };
+        }
+        if lower.contains("nosuchbucket") {
+            return Problem::NotFound;
+        }
+        // reqwest's `https_only` fails an http:// request as a "builder error".
+        if lower.contains("builder error") {
+            return Problem::PlainHttp;
+        }
+        if let Some(condition) = network_condition(e) {
+            // The condition says it; the system's words only where it does not.
+            let detail = if condition == Net::Other || condition == Net::UnknownHost {
+                detail
+            } else {
+                String::new()
+            };
+            return Problem::Network { condition, detail };
+        }
+        Problem::Other(short(&text))
+    }
+}
+
+/// The status in object_store's "Server returned non-2xx status code: 503 …".
+fn status_in(text: &str) -> Option<u16> {
+    let at = text.find("status code: ")? + "status code: ".len();
+    let digits = text.get(at..at + 3)?;
+    digits.parse().ok().filter(|s| (100..600).contains(s))
+}
+
+/// The body after "status code: 503 Service Unavailable: ".
+fn body_in(text: &str) -> String {
+    let at = text
+        .find("status code: ")
+        .map_or(0, |i| i + "status code: ".len());
+    let rest = &text[at..];
+    // "503 Service Unavailable: body"
+    rest.split_once(": ")
+        .map(|(_, body)| short(body))
+        .unwrap_or_default()
+}
+
+/// What kept a request from an HTTP answer, from the error's chain of sources.
+fn network_condition(e: &object_store::Error) -> Option<Net> {
+    use object_store::client::{HttpError, HttpErrorKind as K};
+    let mut found = None;
+    let mut at: Option<&(dyn std::error::Error + 'static)> = Some(e);
+    while let Some(err) = at {
+        if let Some(io) = err.downcast_ref::<std::io::Error>() {
+            use std::io::ErrorKind as I;
+            match io.kind() {
+                I::ConnectionRefused => return Some(Net::Refused),
+                I::TimedOut => return Some(Net::TimedOut),
+                I::ConnectionReset | I::ConnectionAborted | I::BrokenPipe | I::UnexpectedEof => {
+                    return Some(Net::Cut);
+                }
+                _ => {}
+            }
+        }
+        let words = err.to_string().to_ascii_lowercase();
+        if words.contains("connection refused") {
+            return Some(Net::Refused);
+        }
+        if words.contains("dns error") || words.contains("failed to lookup address") {
+            return Some(Net::UnknownHost);
+        }
+        if let Some(h) = err.downcast_ref::<HttpError>() {
+            found = found.or(Some(match h.kind() {
+                K::Timeout => Net::TimedOut,
+                K::Interrupted => Net::Cut,
+                _ => Net::Other,
+            }));
+        }
+        at = err.source();
+    }
+    found
 }
 
 /// What went wrong and what to do about it, from an object_store error.
@@ -317,5 +593,32 @@ pub fn explain(e: &object_store::Error) -> String {
             crate::text::sanitize(&text)
         ),
         _ => crate::text::sanitize(&text),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn statuses_are_read_from_object_store_words() {
+        let text = "Generic HTTP error: Error performing GET http://h/x in 1s - Server returned \
+                    non-2xx status code: 503 Service Unavailable: slow down";
+        assert_eq!(status_in(text), Some(503));
+        assert_eq!(body_in(text), "slow down");
+        assert_eq!(status_in("no status here"), None);
+        let p = Problem::Status {
+            status: 503,
+            detail: body_in(text),
+        };
+        assert_eq!(
+            p.to_string(),
+            "the server answered HTTP 503 Service Unavailable (slow down)"
+        );
+        let e = RemoteError::new("http://h/d.pcimg/pcimg-index.json", Problem::NotFound);
+        assert_eq!(
+            e.to_string(),
+            "http://h/d.pcimg/pcimg-index.json: not found (HTTP 404)"
+        );
     }
 }
