@@ -45,7 +45,10 @@ conv e57_int "$F/bunnyInt21.e57"
 for c in none deflate zstd lerc lerc_deflate lerc_zstd; do
   conv "laz_$c" "$F/autzen_trim.laz" --compression "$c"
 done
-conv laz_parts "$F/autzen_trim.laz" --memory 48MiB
+"$BIN" synth -n 1500000 -o "$W/s.las" >/dev/null 2>&1
+hash_out synth_las "$W/s.las"
+conv synth_parts "$W/s.las" --memory 64MiB
+conv synth_parts_zstd "$W/s.las" --memory 64MiB --compression zstd
 conv laz_paper "$F/autzen_trim.laz" --layout paper
 D=$W/laz.pcimg
 render() {
@@ -53,7 +56,7 @@ render() {
   "$BIN" render "$D" -o "$W/$name.png" --width 320 --height 200 --renderer cpu "$@" \
     > "$W/$name.out" 2>/dev/null || { echo "$name FAILED"; return; }
   hash_out "$name" "$W/$name.png"
-  [ -s "$W/$name.out" ] && echo "$name stdout $(cat "$W/$name.out")"
+  [ -s "$W/$name.out" ] && echo "$name stdout $(sed "s|$W|W|g" "$W/$name.out")"
   return 0
 }
 for c in rgb height intensity classification band:gps_time band:return_number; do
@@ -70,6 +73,7 @@ render frame_points --point-size 2
 render frame_lod --lod 0
 "$BIN" render "$D" -o "$W/turn.png" --width 160 --height 100 --renderer cpu --turntable 4 \
   >/dev/null 2>&1 && hash_out turntable "$W/turn.png" || echo "turntable FAILED"
-D=$W/laz_parts.pcimg
+D=$W/synth_parts.pcimg
 render frame_parts
 render frame_parts_legend --color height --legend
+render frame_parts_pick --pick 100,80 --color intensity
