@@ -9,6 +9,7 @@
 
 // Loops over the three axes index several parallel arrays at once.
 #![allow(clippy::needless_range_loop)]
+#![warn(clippy::undocumented_unsafe_blocks)]
 
 // The layers below the binary, under the names the binary's modules use for them
 // (`crate::store::Dataset`, `pcimg::render::Frame`): each is its own crate

@@ -5,6 +5,7 @@
 
 // Loops over the three axes index several parallel arrays at once.
 #![allow(clippy::needless_range_loop)]
+#![warn(clippy::undocumented_unsafe_blocks)]
 
 #[cfg(target_os = "linux")]
 pub mod alloc;

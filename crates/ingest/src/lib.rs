@@ -21,6 +21,10 @@
 //!   one chunk ahead on its own thread. Pages of a memory map already consumed are
 //!   released as reading advances.
 
+// Loops over the three axes index several parallel arrays at once.
+#![allow(clippy::needless_range_loop)]
+#![warn(clippy::undocumented_unsafe_blocks)]
+
 #[cfg(test)]
 use pcimg_core::rng;
 use pcimg_core::{bigvec, points};

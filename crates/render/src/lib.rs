@@ -35,6 +35,10 @@
 //! the `f32` (monotonic for positive floats). Ties (same depth bits) are broken
 //! by the smaller colour value, so both backends agree exactly.
 
+// Loops over the three axes index several parallel arrays at once.
+#![allow(clippy::needless_range_loop)]
+#![warn(clippy::undocumented_unsafe_blocks)]
+
 use pcimg_core::{points, text};
 use pcimg_store as store;
 

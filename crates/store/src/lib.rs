@@ -48,6 +48,7 @@
 
 // Loops over the three axes index several parallel arrays at once.
 #![allow(clippy::needless_range_loop)]
+#![warn(clippy::undocumented_unsafe_blocks)]
 
 #[cfg(test)]
 use pcimg_core::rng;

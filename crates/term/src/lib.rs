@@ -2,6 +2,10 @@
 //! server), printing a frame inline (kitty, sixel, iTerm2, or Unicode half-blocks),
 //! and our own sixel and kitty encoders.
 
+// Loops over the three axes index several parallel arrays at once.
+#![allow(clippy::needless_range_loop)]
+#![warn(clippy::undocumented_unsafe_blocks)]
+
 use pcimg_core::text;
 
 pub mod detect;

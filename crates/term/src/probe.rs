@@ -48,6 +48,7 @@ impl WinSize {
     pub fn of(fd: RawFd) -> Option<WinSize> {
         // SAFETY: TIOCGWINSZ writes one `winsize` into the struct we pass.
         let mut ws: libc::winsize = unsafe { std::mem::zeroed() };
+        // SAFETY: `ws` is a valid, writable winsize for the ioctl to fill.
         let r = unsafe { libc::ioctl(fd, libc::TIOCGWINSZ, &mut ws) };
         (r == 0).then_some(WinSize {
             cols: ws.ws_col,
@@ -85,13 +86,16 @@ impl RawMode {
     fn enter(fd: RawFd) -> std::io::Result<RawMode> {
         // SAFETY: tcgetattr fills the termios we pass; cfmakeraw edits a copy.
         let mut saved: libc::termios = unsafe { std::mem::zeroed() };
+        // SAFETY: `saved` is a valid termios for tcgetattr to fill.
         if unsafe { libc::tcgetattr(fd, &mut saved) } != 0 {
             return Err(std::io::Error::last_os_error());
         }
         let mut raw = saved;
+        // SAFETY: cfmakeraw edits the termios we own.
         unsafe { libc::cfmakeraw(&mut raw) };
         // Keep output processing as it was: only input changes.
         raw.c_oflag = saved.c_oflag;
+        // SAFETY: `raw` is a valid termios, read by tcsetattr.
         if unsafe { libc::tcsetattr(fd, libc::TCSANOW, &raw) } != 0 {
             return Err(std::io::Error::last_os_error());
         }

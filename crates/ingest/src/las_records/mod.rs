@@ -497,9 +497,11 @@ impl PointReader for RecordReader {
         // SAFETY: the windows cover all n slots of every column and
         // `decode_window` writes each slot of its window.
         for c in xyz.iter_mut() {
+            // SAFETY: as above: every slot of this column was written.
             unsafe { c.set_len(n) };
         }
         for c in attrs.iter_mut() {
+            // SAFETY: as above: every slot of this column was written.
             unsafe { c.set_len(n) };
         }
         let [x, y, z] = xyz;

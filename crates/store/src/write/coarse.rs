@@ -110,6 +110,7 @@ impl Coarse {
         // SAFETY: every tile of the group wrote its share before the counter
         // that brought us here said so (acquire).
         let lead = |t: usize, j: usize| -> &[f32] {
+            // SAFETY: see above: the share was written and published before this read.
             unsafe { std::slice::from_raw_parts(self.at.at(t * share + j * rec), rec) }
         };
         let order = layout::group_tile_order(self.n, k, h, |t| {

@@ -609,7 +609,10 @@ mod tests {
                 keys.write::<false>(&pts, &mut out, 3);
             }
             out.iter()
-                .map(|k| unsafe { k.assume_init() })
+                .map(|k| {
+                    // SAFETY: the key writers initialise every slot of `out`.
+                    unsafe { k.assume_init() }
+                })
                 .collect::<Vec<u64>>()
         };
         let portable = run(false);
