@@ -340,6 +340,69 @@ fn the_inspector_draws_kitty_placeholders_and_deletes_its_image_on_exit() {
     );
 }
 
+/// How many times `needle` occurs in `hay`.
+fn count(hay: &[u8], needle: &[u8]) -> usize {
+    hay.windows(needle.len()).filter(|w| *w == needle).count()
+}
+
+#[test]
+fn the_inspector_places_frames_directly_in_kitty_before_0_28() {
+    // kitty 0.26.5 (Debian 12) and 0.21.2 (Ubuntu 22.04) reject `U=1`: no
+    // placeholders; each frame is placed at the view's first cell instead.
+    let dir = tempfile::tempdir().unwrap();
+    let ds = dataset(dir.path());
+    let mut cmd = clean(&["inspect", ds.to_str().unwrap(), "--renderer", "cpu"]);
+    let mut term = Pty::spawn(&mut cmd, (160, 48), (1600, 960));
+    assert!(term.read_until(Duration::from_secs(20), |o| pty::contains(o, b"\x1b[c")));
+    term.write(b"\x1bP>|kitty(0.26.5)\x1b\\\x1b_Gi=31;OK\x1b\\\x1b[6;20;10t\x1b[?62;c");
+    let drawn = term.read_until(Duration::from_secs(30), |o| {
+        pty::contains(o, b"\x1b_Ga=T,q=2,i=7365481,") && pty::contains(o, b",m=0;")
+    });
+    assert!(drawn, "no kitty frame");
+    let out = String::from_utf8_lossy(&term.output).to_string();
+    let at = out.find("\x1b_Ga=T").unwrap();
+    let head = &out[at..];
+    assert!(head.contains(",C=1,"), "{}", &head[..90]);
+    assert!(!out.contains("U=1") && !out.contains('\u{10EEEE}'));
+    // A key that orbits brings a new frame under the same id (it replaces the
+    // last); the help takes the image off (kitty draws it above text).
+    let frames = |t: &Pty| count(&t.output, b"\x1b_Ga=T,q=2,i=7365481,");
+    let n = frames(&term);
+    term.write(b"l");
+    assert!(term.read_until(Duration::from_secs(30), |o| count(
+        o,
+        b"\x1b_Ga=T,q=2,i=7365481,"
+    ) > n));
+    term.write(b"?");
+    assert!(term.read_until(Duration::from_secs(10), |o| pty::contains(
+        o,
+        b"keys (? closes)"
+    )));
+    let out = String::from_utf8_lossy(&term.output).to_string();
+    let help = out.find("keys (? closes)").unwrap();
+    let deleted = out[..help].rfind("\x1b_Ga=d,d=I,i=7365481,q=2\x1b\\");
+    let placed = out[..help].rfind("\x1b_Ga=T");
+    assert!(
+        deleted > placed,
+        "the image was not taken off before the help"
+    );
+    let n = frames(&term);
+    term.write(b"?");
+    assert!(
+        term.read_until(Duration::from_secs(10), |o| count(
+            o,
+            b"\x1b_Ga=T,q=2,i=7365481,"
+        ) > n),
+        "the image was not placed again after the help"
+    );
+    term.write(b"q");
+    assert!(term.wait(Duration::from_secs(10)).is_some());
+    assert!(pty::contains(
+        &term.output,
+        b"\x1b_Ga=d,d=I,i=7365481,q=2\x1b\\"
+    ));
+}
+
 /// Starts `shell` in a tmux session, attaches a client from a pty whose other
 /// side answers tmux's own queries as `outer` (XTVERSION text, DA1), and returns
 /// the client's pty once `done` exists.
@@ -596,7 +659,11 @@ impl ViewPixels {
 }
 
 /// The share of the rectangle's pixels that differ between two screenshots.
-fn changed(a: &image::RgbImage, b: &image::RgbImage, (x0, y0, x1, y1): (u32, u32, u32, u32)) -> f64 {
+fn changed(
+    a: &image::RgbImage,
+    b: &image::RgbImage,
+    (x0, y0, x1, y1): (u32, u32, u32, u32),
+) -> f64 {
     let mut n = 0usize;
     let mut d = 0usize;
     for y in y0..y1.min(a.height()).min(b.height()) {
@@ -627,7 +694,10 @@ fn wait_for_view(
         if Instant::now() > end {
             let path = std::env::temp_dir().join(format!("pcimg-kitty-{}.png", std::process::id()));
             let _ = shot.save(&path);
-            panic!("{what}: not seen within {limit:?}; last {v:?} (screen saved as {})", path.display());
+            panic!(
+                "{what}: not seen within {limit:?}; last {v:?} (screen saved as {})",
+                path.display()
+            );
         }
         std::thread::sleep(Duration::from_millis(150));
     }
@@ -672,8 +742,18 @@ fn real_kitty_shows_the_inspectors_view_placed_directly_before_0_28() {
     let mut kitty = Reaped(
         Command::new("kitty")
             .args(["--config", "NONE", "-o", &bg, "-o", "foreground=#ffffff"])
-            .args(["-o", "remember_window_size=no", "-o", "initial_window_width=960"])
-            .args(["-o", "initial_window_height=600", "-o", "allow_remote_control=yes"])
+            .args([
+                "-o",
+                "remember_window_size=no",
+                "-o",
+                "initial_window_width=960",
+            ])
+            .args([
+                "-o",
+                "initial_window_height=600",
+                "-o",
+                "allow_remote_control=yes",
+            ])
             .arg("--listen-on")
             .arg(format!("unix:{}", socket.display()))
             .args(["sh", "-c", &script])
@@ -706,7 +786,10 @@ fn real_kitty_shows_the_inspectors_view_placed_directly_before_0_28() {
         std::thread::sleep(Duration::from_millis(50));
     }
     assert_eq!(d["graphics"], "Kitty", "{d:#}");
-    let version = d["probe"]["replies"]["xtversion"].as_str().unwrap_or("").to_string();
+    let version = d["probe"]["replies"]["xtversion"]
+        .as_str()
+        .unwrap_or("")
+        .to_string();
     let v = pcimg::term::detect::kitty_version(&version)
         .unwrap_or_else(|| panic!("kitty said no version: {d:#}"));
     let placeholders = v >= pcimg::term::detect::KITTY_PLACEHOLDERS_SINCE;
@@ -714,14 +797,20 @@ fn real_kitty_shows_the_inspectors_view_placed_directly_before_0_28() {
     // The view's cells, less a margin of two, in pixels (ui::areas: the left
     // panels take 2/5 of the columns, at most 72; status and hint rows below).
     let w = &d["winsize"];
-    let (cols, rows) = (w["cols"].as_u64().unwrap() as u32, w["rows"].as_u64().unwrap() as u32);
+    let (cols, rows) = (
+        w["cols"].as_u64().unwrap() as u32,
+        w["rows"].as_u64().unwrap() as u32,
+    );
     let (cw, ch) = (
         w["width_px"].as_u64().unwrap() as u32 / cols,
         w["height_px"].as_u64().unwrap() as u32 / rows,
     );
     let left = (cols * 2 / 5).clamp(20, 72);
     let rect = ((left + 3) * cw, 3 * ch, (cols - 3) * cw, (rows - 5) * ch);
-    assert!(rect.0 + 10 * cw < rect.2 && rect.1 + 5 * ch < rect.3, "{cols}×{rows} cells");
+    assert!(
+        rect.0 + 10 * cw < rect.2 && rect.1 + 5 * ch < rect.3,
+        "{cols}×{rows} cells"
+    );
     let send = |text: &str| {
         let ok = Command::new("kitty")
             .args(["@", "--to"])
@@ -734,24 +823,44 @@ fn real_kitty_shows_the_inspectors_view_placed_directly_before_0_28() {
     };
 
     let picture = |v: &ViewPixels, _: &image::RgbImage| v.picture();
-    let (first, shot) = wait_for_view(&display, rect, Duration::from_secs(60), "the first frame", picture);
+    let (first, shot) = wait_for_view(
+        &display,
+        rect,
+        Duration::from_secs(60),
+        "the first frame",
+        picture,
+    );
     let to_frame = started.elapsed();
     // Frames that follow (the camera orbits) replace the first: the view holds
     // a picture, a different one.
     send("llll");
-    let (turned, _) = wait_for_view(&display, rect, Duration::from_secs(30), "the orbited frame", |v, now| {
-        v.picture() && changed(&shot, now, rect) > 0.01
-    });
+    let (turned, _) = wait_for_view(
+        &display,
+        rect,
+        Duration::from_secs(30),
+        "the orbited frame",
+        |v, now| v.picture() && changed(&shot, now, rect) > 0.01,
+    );
     // The help over the view: a directly placed image is taken off for it (else it
     // would hide the help), and placed again when the help closes.
     send("?");
     if !placeholders {
-        wait_for_view(&display, rect, Duration::from_secs(30), "the help without the image", |v, _| {
-            v.background > 0.3
-        });
+        wait_for_view(
+            &display,
+            rect,
+            Duration::from_secs(30),
+            "the help without the image",
+            |v, _| v.background > 0.3,
+        );
     }
     send("?");
-    wait_for_view(&display, rect, Duration::from_secs(30), "the frame after the help", picture);
+    wait_for_view(
+        &display,
+        rect,
+        Duration::from_secs(30),
+        "the frame after the help",
+        picture,
+    );
     send("q");
     let end = Instant::now() + Duration::from_secs(20);
     let status = loop {
@@ -763,10 +872,17 @@ fn real_kitty_shows_the_inspectors_view_placed_directly_before_0_28() {
     };
     assert!(status.success(), "kitty ended with {status}");
     let log = std::fs::read_to_string(&kitty_log).unwrap();
-    assert!(!log.contains("PARSE ERROR"), "kitty could not parse what it was sent:\n{log}");
+    assert!(
+        !log.contains("PARSE ERROR"),
+        "kitty could not parse what it was sent:\n{log}"
+    );
     eprintln!(
         "{version}: {} ; first frame {:.1} s after start, view {first:?}, orbited {turned:?}, all {:.1} s",
-        if placeholders { "Unicode placeholders" } else { "placed directly" },
+        if placeholders {
+            "Unicode placeholders"
+        } else {
+            "placed directly"
+        },
         to_frame.as_secs_f64(),
         started.elapsed().as_secs_f64()
     );

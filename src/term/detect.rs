@@ -527,7 +527,14 @@ mod tests {
         assert_eq!(kitty_version("kitty(0.35.2)"), Some((0, 35, 2)));
         assert_eq!(kitty_version("Kitty(0.30)"), Some((0, 30, 0)));
         assert_eq!(kitty_version("kitty(0.36.4-dev)"), Some((0, 36, 4)));
-        for unknown in ["xterm-kitty", "kitty", "kitty()", "kitty(x.y)", "kitty(1)", ""] {
+        for unknown in [
+            "xterm-kitty",
+            "kitty",
+            "kitty()",
+            "kitty(x.y)",
+            "kitty(1)",
+            "",
+        ] {
             assert_eq!(kitty_version(unknown), None, "{unknown}");
         }
         // Placeholders from 0.28.0 on; unknown where the name does not say.
@@ -557,7 +564,8 @@ mod tests {
         }
         let c = outside(Some("kitty(0.26.5)"));
         assert!(
-            c.reason.contains("kitty(0.26.5) has no Unicode placeholders"),
+            c.reason
+                .contains("kitty(0.26.5) has no Unicode placeholders"),
             "{}",
             c.reason
         );

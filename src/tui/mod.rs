@@ -300,16 +300,18 @@ fn event_loop(
         }
         if dirty {
             let t = Instant::now();
+            // A kitty image placed directly would cover the help: not drawn while
+            // it shows (taken off when it opened, above).
+            let covered = app.show_help && protocol::image_above_text(pane.encoding);
+            let image = shown.image.as_ref().filter(|_| !covered);
             // Only a draw that sends a new image says how fast the link is.
             let image_bytes = if shown.unsent {
-                shown.image.as_ref().map_or(0, |i| i.bytes())
+                image.map_or(0, |i| i.bytes())
             } else {
                 0
             };
-            session
-                .terminal
-                .draw(|f| ui::draw(f, app, shown.image.as_ref()))?;
-            shown.unsent = false;
+            session.terminal.draw(|f| ui::draw(f, app, image))?;
+            shown.unsent &= covered;
             link.record(image_bytes, t.elapsed());
             app.link_rate = link.rate;
             dirty = false;

@@ -391,8 +391,13 @@ mod tests {
         assert_eq!(buf[(5, 1)].symbol(), " ");
         assert_eq!(buf[(5, 1)].diff_option, CellDiffOption::None);
         // Each frame goes under the same id, so it replaces the last one.
-        let again = encode(direct, &Frame::background(10, 10, [9, 9, 9]), (4, 2), (40, 40))
-            .unwrap();
+        let again = encode(
+            direct,
+            &Frame::background(10, 10, [9, 9, 9]),
+            (4, 2),
+            (40, 40),
+        )
+        .unwrap();
         let PaneImage::FirstCell { data, .. } = again else {
             panic!("placed directly from the first cell");
         };
