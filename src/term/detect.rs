@@ -199,7 +199,7 @@ pub fn choose(
         .iter()
         .find(|n| kitty_placeholders(n).is_some() || by_name(n).is_some())
         .copied();
-    let choice = |graphics, reason: String, note: Option<String>| {
+    let choice = |graphics: Graphics, reason: String, note: Option<String>| {
         let kitty = graphics == Graphics::Kitty;
         // Inside tmux nothing else works: placed images do not follow the pane.
         let kitty_placeholders = kitty && (in_tmux || placeholders_known == Some(true));
@@ -601,7 +601,19 @@ mod tests {
             assert!(c.kitty_placeholders, "{name}");
         }
         // Other protocols have none.
-        assert!(!outside(Some("XTerm(379)")).kitty_placeholders);
+        let r = Replies {
+            kitty: None,
+            da1: Some(vec![63, 4]),
+            ..answered(Some("XTerm(379)"))
+        };
+        let c = choose(
+            Protocol::Auto,
+            &TerminalEnv::default(),
+            Some(&r),
+            false,
+            None,
+        );
+        assert_eq!((c.graphics, c.kitty_placeholders), (Graphics::Sixel, false));
     }
 
     #[test]
