@@ -340,6 +340,69 @@ fn the_inspector_draws_kitty_placeholders_and_deletes_its_image_on_exit() {
     );
 }
 
+/// How many times `needle` occurs in `hay`.
+fn count(hay: &[u8], needle: &[u8]) -> usize {
+    hay.windows(needle.len()).filter(|w| *w == needle).count()
+}
+
+#[test]
+fn the_inspector_places_frames_directly_in_kitty_before_0_28() {
+    // kitty 0.26.5 (Debian 12) and 0.21.2 (Ubuntu 22.04) reject `U=1`: no
+    // placeholders; each frame is placed at the view's first cell instead.
+    let dir = tempfile::tempdir().unwrap();
+    let ds = dataset(dir.path());
+    let mut cmd = clean(&["inspect", ds.to_str().unwrap(), "--renderer", "cpu"]);
+    let mut term = Pty::spawn(&mut cmd, (160, 48), (1600, 960));
+    assert!(term.read_until(Duration::from_secs(20), |o| pty::contains(o, b"\x1b[c")));
+    term.write(b"\x1bP>|kitty(0.26.5)\x1b\\\x1b_Gi=31;OK\x1b\\\x1b[6;20;10t\x1b[?62;c");
+    let drawn = term.read_until(Duration::from_secs(30), |o| {
+        pty::contains(o, b"\x1b_Ga=T,q=2,i=7365481,") && pty::contains(o, b"m=0;")
+    });
+    assert!(drawn, "no kitty frame");
+    let out = String::from_utf8_lossy(&term.output).to_string();
+    let at = out.find("\x1b_Ga=T").unwrap();
+    let head = &out[at..];
+    assert!(head.contains(",C=1,"), "{}", &head[..90]);
+    assert!(!out.contains("U=1") && !out.contains('\u{10EEEE}'));
+    // A key that orbits brings a new frame under the same id (it replaces the
+    // last); the help takes the image off (kitty draws it above text).
+    let frames = |t: &Pty| count(&t.output, b"\x1b_Ga=T,q=2,i=7365481,");
+    let n = frames(&term);
+    term.write(b"l");
+    assert!(term.read_until(Duration::from_secs(30), |o| count(
+        o,
+        b"\x1b_Ga=T,q=2,i=7365481,"
+    ) > n));
+    term.write(b"?");
+    assert!(term.read_until(Duration::from_secs(10), |o| pty::contains(
+        o,
+        b"keys (? closes)"
+    )));
+    let out = String::from_utf8_lossy(&term.output).to_string();
+    let help = out.find("keys (? closes)").unwrap();
+    let deleted = out[..help].rfind("\x1b_Ga=d,d=I,i=7365481,q=2\x1b\\");
+    let placed = out[..help].rfind("\x1b_Ga=T");
+    assert!(
+        deleted > placed,
+        "the image was not taken off before the help"
+    );
+    let n = frames(&term);
+    term.write(b"?");
+    assert!(
+        term.read_until(Duration::from_secs(10), |o| count(
+            o,
+            b"\x1b_Ga=T,q=2,i=7365481,"
+        ) > n),
+        "the image was not placed again after the help"
+    );
+    term.write(b"q");
+    assert!(term.wait(Duration::from_secs(10)).is_some());
+    assert!(pty::contains(
+        &term.output,
+        b"\x1b_Ga=d,d=I,i=7365481,q=2\x1b\\"
+    ));
+}
+
 /// Starts `shell` in a tmux session, attaches a client from a pty whose other
 /// side answers tmux's own queries as `outer` (XTVERSION text, DA1), and returns
 /// the client's pty once `done` exists.
@@ -504,4 +567,323 @@ fn real_xterm_in_vt340_mode_gets_sixel_without_a_flag() {
     );
     assert_eq!(probe["capped"], false);
     eprintln!("xterm -ti vt340: sixel, probe {} ms", probe["millis"]);
+}
+
+/// A child process ended (and reaped) when dropped, should the test fail first.
+struct Reaped(std::process::Child);
+
+impl Drop for Reaped {
+    fn drop(&mut self) {
+        let _ = self.0.kill();
+        let _ = self.0.wait();
+    }
+}
+
+/// Starts Xvfb on a display it finds free, and returns once it accepts clients
+/// (it writes the display's number to `-displayfd` then).
+fn start_xvfb(size: &str) -> (Reaped, String) {
+    use std::io::BufRead as _;
+    let mut child = Command::new("Xvfb")
+        .args(["-displayfd", "1", "-screen", "0", size, "-nolisten", "tcp"])
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .expect("Xvfb starts");
+    let mut line = String::new();
+    std::io::BufReader::new(child.stdout.take().unwrap())
+        .read_line(&mut line)
+        .unwrap();
+    let n = line.trim();
+    assert!(!n.is_empty(), "Xvfb did not start");
+    let display = format!(":{n}");
+    (Reaped(child), display)
+}
+
+/// The screen of `display`, as RGB (ImageMagick's `import`).
+fn screenshot(display: &str) -> image::RgbImage {
+    let out = Command::new("import")
+        .args(["-display", display, "-window", "root", "png:-"])
+        .stderr(std::process::Stdio::null())
+        .output()
+        .expect("import runs");
+    assert!(out.status.success(), "import failed");
+    image::load_from_memory(&out.stdout).unwrap().to_rgb8()
+}
+
+/// Kitty's background in the test (no frame of ours has this colour).
+const KITTY_BG: [u8; 3] = [0x30, 0x50, 0xa0];
+
+/// What a rectangle of a screenshot holds: the share of its pixels in kitty's
+/// own background (a view without a picture, or glyphs on it), the share lit by
+/// the picture (neither background: bright, or coloured), and how many distinct
+/// colours those have (a picture has many; text has a few and their blends).
+#[derive(Debug, Clone, Copy)]
+struct ViewPixels {
+    background: f64,
+    lit: f64,
+    colours: usize,
+}
+
+fn view_pixels(img: &image::RgbImage, (x0, y0, x1, y1): (u32, u32, u32, u32)) -> ViewPixels {
+    let mut n = 0usize;
+    let mut bg = 0usize;
+    let mut lit = 0usize;
+    let mut colours = std::collections::HashSet::new();
+    for y in y0..y1.min(img.height()) {
+        for x in x0..x1.min(img.width()) {
+            let p = img.get_pixel(x, y).0;
+            n += 1;
+            if p == KITTY_BG {
+                bg += 1;
+            } else if p.iter().any(|&c| c > 40) {
+                lit += 1;
+                colours.insert(p);
+            }
+        }
+    }
+    let n = n.max(1) as f64;
+    ViewPixels {
+        background: bg as f64 / n,
+        lit: lit as f64 / n,
+        colours: colours.len(),
+    }
+}
+
+impl ViewPixels {
+    /// The view is covered by a picture: hardly any of kitty's background shows
+    /// (placeholder glyphs drawn as text leave most of it), and enough of it is
+    /// lit in enough colours to be a rendered scan.
+    fn picture(&self) -> bool {
+        self.background < 0.02 && self.lit > 0.005 && self.colours >= 24
+    }
+}
+
+/// The share of the rectangle's pixels that differ between two screenshots.
+fn changed(
+    a: &image::RgbImage,
+    b: &image::RgbImage,
+    (x0, y0, x1, y1): (u32, u32, u32, u32),
+) -> f64 {
+    let mut n = 0usize;
+    let mut d = 0usize;
+    for y in y0..y1.min(a.height()).min(b.height()) {
+        for x in x0..x1.min(a.width()).min(b.width()) {
+            n += 1;
+            d += usize::from(a.get_pixel(x, y) != b.get_pixel(x, y));
+        }
+    }
+    d as f64 / n.max(1) as f64
+}
+
+/// Waits (polling the screen, up to `limit`) until the view's pixels pass `ok`;
+/// returns them, or panics with the last seen.
+fn wait_for_view(
+    display: &str,
+    rect: (u32, u32, u32, u32),
+    limit: Duration,
+    what: &str,
+    ok: impl Fn(&ViewPixels, &image::RgbImage) -> bool,
+) -> (ViewPixels, image::RgbImage) {
+    let end = Instant::now() + limit;
+    loop {
+        let shot = screenshot(display);
+        let v = view_pixels(&shot, rect);
+        if ok(&v, &shot) {
+            return (v, shot);
+        }
+        if Instant::now() > end {
+            let path = std::env::temp_dir().join(format!("pcimg-kitty-{}.png", std::process::id()));
+            let _ = shot.save(&path);
+            panic!(
+                "{what}: not seen within {limit:?}; last {v:?} (screen saved as {})",
+                path.display()
+            );
+        }
+        std::thread::sleep(Duration::from_millis(150));
+    }
+}
+
+#[test]
+fn real_kitty_shows_the_inspectors_view_placed_directly_before_0_28() {
+    let have = ["kitty", "Xvfb", "import"].iter().all(|p| {
+        Command::new("which")
+            .arg(p)
+            .output()
+            .is_ok_and(|o| o.status.success())
+    });
+    if !have {
+        assert!(
+            std::env::var("CI").ok().as_deref() != Some("true"),
+            "kitty, Xvfb and ImageMagick's import are required in CI (.ci/run installs kitty, xvfb, imagemagick)"
+        );
+        eprintln!("note: kitty, Xvfb or import not found, skipping this test outside CI");
+        return;
+    }
+    let started = Instant::now();
+    let dir = tempfile::tempdir().unwrap();
+    let ds = dataset(dir.path());
+    let (_xvfb, display) = start_xvfb("1024x768x24");
+    let doctor = dir.path().join("doctor.json");
+    let socket = dir.path().join("kitty.sock");
+    let kitty_log = dir.path().join("kitty.stderr");
+    // Kitty's own window at the screen's top-left (no window manager), in a
+    // background colour no frame has; doctor first (what kitty says it is), then
+    // the inspector.
+    let script = format!(
+        "{bin} doctor --json > {doctor}; exec {bin} inspect {ds} --renderer cpu",
+        bin = bin(),
+        doctor = doctor.display(),
+        ds = ds.display()
+    );
+    let bg = format!(
+        "background=#{:02x}{:02x}{:02x}",
+        KITTY_BG[0], KITTY_BG[1], KITTY_BG[2]
+    );
+    let mut kitty = Reaped(
+        Command::new("kitty")
+            .args(["--config", "NONE", "-o", &bg, "-o", "foreground=#ffffff"])
+            .args([
+                "-o",
+                "remember_window_size=no",
+                "-o",
+                "initial_window_width=960",
+            ])
+            .args([
+                "-o",
+                "initial_window_height=600",
+                "-o",
+                "allow_remote_control=yes",
+            ])
+            .arg("--listen-on")
+            .arg(format!("unix:{}", socket.display()))
+            .args(["sh", "-c", &script])
+            .env_remove("TMUX")
+            .env_remove("TMUX_PANE")
+            .env_remove("KITTY_WINDOW_ID")
+            .env_remove("TERM_PROGRAM")
+            .env_remove("LC_TERMINAL")
+            .env("DISPLAY", &display)
+            .env("LIBGL_ALWAYS_SOFTWARE", "1")
+            .env("NODEVICE_SELECT", "1")
+            .stdout(std::process::Stdio::null())
+            .stderr(std::fs::File::create(&kitty_log).unwrap())
+            .spawn()
+            .expect("kitty starts"),
+    );
+    let end = Instant::now() + Duration::from_secs(60);
+    while !doctor.exists() || std::fs::metadata(&doctor).unwrap().len() == 0 {
+        assert!(Instant::now() < end, "kitty did not run pcimg within 60 s");
+        assert!(kitty.0.try_wait().unwrap().is_none(), "kitty ended early");
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    // doctor ends before the inspector starts: its output is complete by now.
+    let mut d: serde_json::Value = serde_json::Value::Null;
+    while Instant::now() < end {
+        if let Ok(v) = serde_json::from_str(&std::fs::read_to_string(&doctor).unwrap()) {
+            d = v;
+            break;
+        }
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    assert_eq!(d["graphics"], "Kitty", "{d:#}");
+    let version = d["probe"]["replies"]["xtversion"]
+        .as_str()
+        .unwrap_or("")
+        .to_string();
+    let v = pcimg::term::detect::kitty_version(&version)
+        .unwrap_or_else(|| panic!("kitty said no version: {d:#}"));
+    let placeholders = v >= pcimg::term::detect::KITTY_PLACEHOLDERS_SINCE;
+    assert_eq!(d["kitty_placeholders"], placeholders, "{d:#}");
+    // The view's cells, less a margin of two, in pixels (ui::areas: the left
+    // panels take 2/5 of the columns, at most 72; status and hint rows below).
+    let w = &d["winsize"];
+    let (cols, rows) = (
+        w["cols"].as_u64().unwrap() as u32,
+        w["rows"].as_u64().unwrap() as u32,
+    );
+    let (cw, ch) = (
+        w["width_px"].as_u64().unwrap() as u32 / cols,
+        w["height_px"].as_u64().unwrap() as u32 / rows,
+    );
+    let left = (cols * 2 / 5).clamp(20, 72);
+    let rect = ((left + 3) * cw, 3 * ch, (cols - 3) * cw, (rows - 5) * ch);
+    assert!(
+        rect.0 + 10 * cw < rect.2 && rect.1 + 5 * ch < rect.3,
+        "{cols}×{rows} cells"
+    );
+    let send = |text: &str| {
+        let ok = Command::new("kitty")
+            .args(["@", "--to"])
+            .arg(format!("unix:{}", socket.display()))
+            .args(["send-text", text])
+            .env("DISPLAY", &display)
+            .output()
+            .is_ok_and(|o| o.status.success());
+        assert!(ok, "kitty @ send-text {text} failed");
+    };
+
+    let picture = |v: &ViewPixels, _: &image::RgbImage| v.picture();
+    let (first, shot) = wait_for_view(
+        &display,
+        rect,
+        Duration::from_secs(60),
+        "the first frame",
+        picture,
+    );
+    let to_frame = started.elapsed();
+    // Frames that follow (the camera orbits) replace the first: the view holds
+    // a picture, a different one.
+    send("llll");
+    let (turned, _) = wait_for_view(
+        &display,
+        rect,
+        Duration::from_secs(30),
+        "the orbited frame",
+        |v, now| v.picture() && changed(&shot, now, rect) > 0.01,
+    );
+    // The help over the view: a directly placed image is taken off for it (else it
+    // would hide the help), and placed again when the help closes.
+    send("?");
+    if !placeholders {
+        wait_for_view(
+            &display,
+            rect,
+            Duration::from_secs(30),
+            "the help without the image",
+            |v, _| v.background > 0.3,
+        );
+    }
+    send("?");
+    wait_for_view(
+        &display,
+        rect,
+        Duration::from_secs(30),
+        "the frame after the help",
+        picture,
+    );
+    send("q");
+    let end = Instant::now() + Duration::from_secs(20);
+    let status = loop {
+        if let Some(s) = kitty.0.try_wait().unwrap() {
+            break s;
+        }
+        assert!(Instant::now() < end, "the inspector did not quit on q");
+        std::thread::sleep(Duration::from_millis(50));
+    };
+    assert!(status.success(), "kitty ended with {status}");
+    let log = std::fs::read_to_string(&kitty_log).unwrap();
+    assert!(
+        !log.contains("PARSE ERROR"),
+        "kitty could not parse what it was sent:\n{log}"
+    );
+    eprintln!(
+        "{version}: {} ; first frame {:.1} s after start, view {first:?}, orbited {turned:?}, all {:.1} s",
+        if placeholders {
+            "Unicode placeholders"
+        } else {
+            "placed directly"
+        },
+        to_frame.as_secs_f64(),
+        started.elapsed().as_secs_f64()
+    );
 }

@@ -39,6 +39,17 @@ pub fn report(d: &Detection) -> String {
             }
         );
     }
+    if c.graphics == term::Graphics::Kitty && !c.passthrough {
+        let _ = writeln!(
+            s,
+            "  inspect: {}",
+            if c.kitty_placeholders {
+                "frames drawn by Unicode placeholder cells"
+            } else {
+                "frames placed directly at the view's first cell"
+            }
+        );
+    }
     if let Some(n) = &c.note {
         let _ = writeln!(s, "  note: {n}");
     }

@@ -71,6 +71,7 @@ pub fn run(ds: Arc<Dataset>, opts: InspectOptions) -> anyhow::Result<Camera> {
     let encoding = protocol::Encoding {
         graphics,
         passthrough: found.choice.passthrough,
+        placeholders: found.choice.kitty_placeholders,
     };
     let cell_pixels = found.cell_pixels;
     // Termination signals end the loop (the first handler of the process wins;
@@ -102,6 +103,7 @@ pub fn run(ds: Arc<Dataset>, opts: InspectOptions) -> anyhow::Result<Camera> {
         &worker,
         Pane {
             graphics,
+            encoding,
             cell_pixels,
         },
         typed,
@@ -148,6 +150,7 @@ struct Shown {
 #[derive(Debug, Clone, Copy)]
 struct Pane {
     graphics: protocol::Graphics,
+    encoding: protocol::Encoding,
     cell_pixels: (u32, u32),
 }
 
@@ -265,7 +268,15 @@ fn event_loop(
             requested_cells = cells;
             want_frame = false;
         }
-        if help_shown && !app.show_help && protocol::image_in_one_cell(pane.graphics) {
+        if !help_shown && app.show_help && protocol::image_above_text(pane.encoding) {
+            // A kitty image placed directly would stay above the help's text:
+            // taken off now, placed again by the redraw when the help closes.
+            use std::io::Write as _;
+            let out = session.terminal.backend_mut();
+            out.write_all(protocol::kitty_delete_sequence(pane.encoding.passthrough).as_bytes())?;
+            out.flush()?;
+        }
+        if help_shown && !app.show_help && protocol::image_in_one_cell(pane.encoding) {
             // The help was drawn over the image's skipped cells; ratatui would not
             // send those again, so its text would stay. Redraw everything once.
             session.terminal.clear()?;
@@ -289,16 +300,18 @@ fn event_loop(
         }
         if dirty {
             let t = Instant::now();
+            // A kitty image placed directly would cover the help: not drawn while
+            // it shows (taken off when it opened, above).
+            let covered = app.show_help && protocol::image_above_text(pane.encoding);
+            let image = shown.image.as_ref().filter(|_| !covered);
             // Only a draw that sends a new image says how fast the link is.
             let image_bytes = if shown.unsent {
-                shown.image.as_ref().map_or(0, |i| i.bytes())
+                image.map_or(0, |i| i.bytes())
             } else {
                 0
             };
-            session
-                .terminal
-                .draw(|f| ui::draw(f, app, shown.image.as_ref()))?;
-            shown.unsent = false;
+            session.terminal.draw(|f| ui::draw(f, app, image))?;
+            shown.unsent &= covered;
             link.record(image_bytes, t.elapsed());
             app.link_rate = link.rate;
             dirty = false;

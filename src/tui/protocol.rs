@@ -3,12 +3,15 @@
 //! only copies into ratatui's buffer.
 //!
 //! Encoding runs on the render worker. Kitty frames all use one image id
-//! ([`KITTY_IMAGE_ID`]) so each frame replaces the last in the terminal's memory,
+//! ([`KITTY_IMAGE_ID`]) so each frame replaces the last in the terminal's memory
+//! (sending an image under an id in use deletes the old one and its placements),
 //! and are shown by Unicode placeholder cells (which tmux keeps like text), scaled
 //! by the terminal to the pane whatever their pixel size: frames rendered at
-//! reduced resolution while the camera moves cost a quarter of the bytes. Sixel
-//! and iTerm2 frames are one escape string in the pane's first cell, the other
-//! cells skipped; sixel comes from our own encoder ([`crate::term::sixel`]).
+//! reduced resolution while the camera moves cost a quarter of the bytes. Where
+//! the terminal has no placeholders (kitty before 0.28), a kitty frame is placed
+//! directly at the pane's first cell instead, like sixel and iTerm2 frames: one
+//! escape string in the pane's first cell, the other cells skipped; sixel comes
+//! from our own encoder ([`crate::term::sixel`]).
 
 use crate::render::Frame;
 use crate::term::{kitty, sixel};
@@ -27,6 +30,9 @@ pub struct Encoding {
     pub graphics: Graphics,
     /// Wrapped in tmux passthrough.
     pub passthrough: bool,
+    /// Kitty frames shown by Unicode placeholder cells; else placed directly at
+    /// the pane's first cell (kitty before 0.28 has no placeholders).
+    pub placeholders: bool,
 }
 
 impl Encoding {
@@ -34,15 +40,28 @@ impl Encoding {
         Encoding {
             graphics,
             passthrough: false,
+            placeholders: true,
         }
     }
 }
 
 /// Whether the protocol draws the whole image from the pane's first cell and
-/// skips the others (sixel, iTerm2): text drawn over such an image is not
-/// replaced by the diff when it goes away, so the screen must be redrawn.
-pub fn image_in_one_cell(graphics: Graphics) -> bool {
-    matches!(graphics, Graphics::Sixel | Graphics::Iterm2)
+/// skips the others (sixel, iTerm2, kitty placed directly): text drawn over such
+/// an image is not replaced by the diff when it goes away, so the screen must be
+/// redrawn.
+pub fn image_in_one_cell(enc: Encoding) -> bool {
+    match enc.graphics {
+        Graphics::Sixel | Graphics::Iterm2 => true,
+        Graphics::Kitty => !enc.placeholders,
+        Graphics::Halfblocks => false,
+    }
+}
+
+/// Whether the image stays above any text drawn over its cells until it is
+/// deleted (kitty placed directly): it must be taken off before text (the help)
+/// is drawn there.
+pub fn image_above_text(enc: Encoding) -> bool {
+    enc.graphics == Graphics::Kitty && !enc.placeholders
 }
 
 /// The one kitty image id the inspector uses (frames replace each other).
@@ -50,7 +69,8 @@ pub const KITTY_IMAGE_ID: u32 = 0x00_70_63_69; // "pci"
 
 /// A frame encoded for the view pane.
 pub enum PaneImage {
-    /// One escape string drawn from the pane's first cell, the others skipped.
+    /// One escape string drawn from the pane's first cell, the others skipped
+    /// (sixel, iTerm2, and kitty placed directly).
     FirstCell { data: String, cells: (u16, u16) },
     /// A kitty image sent with the first cell, shown by placeholder cells.
     Kitty { transmit: String, cells: (u16, u16) },
@@ -234,19 +254,28 @@ pub fn encode(
             data: sixel_for_pane(frame, cells, enc.passthrough, full)?,
             cells,
         },
-        Graphics::Kitty => PaneImage::Kitty {
-            transmit: kitty::transmit(
+        Graphics::Kitty => {
+            let transmit = kitty::transmit(
                 &crate::pixels(frame),
                 kitty::Placement {
                     id: KITTY_IMAGE_ID,
                     cols: cells.0,
                     rows: cells.1,
-                    placeholders: true,
+                    placeholders: enc.placeholders,
                     passthrough: enc.passthrough,
                 },
-            ),
-            cells,
-        },
+            );
+            if enc.placeholders {
+                PaneImage::Kitty { transmit, cells }
+            } else {
+                // Placed at the cursor, which the draw puts on the pane's first
+                // cell, and left there (`C=1`); it replaces the previous frame.
+                PaneImage::FirstCell {
+                    data: transmit,
+                    cells,
+                }
+            }
+        }
         Graphics::Iterm2 => PaneImage::FirstCell {
             data: iterm_for_pane(frame, cells, enc.passthrough)?,
             cells,
@@ -332,5 +361,49 @@ mod tests {
         assert_eq!(buf[(4, 2)].fg, Color::Rgb(0x70, 0x63, 0x69));
         // Outside the image's 4×2 cells nothing is drawn.
         assert_eq!(buf[(5, 1)].symbol(), " ");
+    }
+
+    #[test]
+    fn kitty_frames_without_placeholders_are_placed_at_the_panes_first_cell() {
+        let kitty = Encoding::new(Graphics::Kitty);
+        let direct = Encoding {
+            placeholders: false,
+            ..kitty
+        };
+        assert!(image_in_one_cell(direct) && image_above_text(direct));
+        assert!(!image_in_one_cell(kitty) && !image_above_text(kitty));
+        assert!(!image_above_text(Encoding::new(Graphics::Sixel)));
+        let frame = Frame::background(20, 20, [0, 0, 0]);
+        let img = encode(direct, &frame, (4, 2), (40, 40)).unwrap();
+        assert_eq!(img.cells(), (4, 2));
+        let mut buf = Buffer::empty(Rect::new(0, 0, 6, 3));
+        (&img).render(Rect::new(1, 1, 5, 2), &mut buf);
+        // The first cell holds the whole image, placed where the draw puts the
+        // cursor (that cell) and scaled to the 4×2 cells; no placeholder cells.
+        let first = buf[(1, 1)].symbol();
+        assert!(
+            first.starts_with("\x1b_Ga=T,q=2,i=7365481,f=24,o=z,s=20,v=20,c=4,r=2,C=1,m=0;"),
+            "{first:?}"
+        );
+        assert!(first.ends_with("\x1b\\"));
+        assert!(!first.contains(kitty::PLACEHOLDER) && !first.contains("U=1"));
+        assert_eq!(img.bytes(), first.len());
+        // The image's other cells are left to it; outside them nothing is drawn.
+        assert_eq!(buf[(4, 2)].diff_option, CellDiffOption::Skip);
+        assert_eq!(buf[(2, 1)].diff_option, CellDiffOption::Skip);
+        assert_eq!(buf[(5, 1)].symbol(), " ");
+        assert_eq!(buf[(5, 1)].diff_option, CellDiffOption::None);
+        // Each frame goes under the same id, so it replaces the last one.
+        let again = encode(
+            direct,
+            &Frame::background(10, 10, [9, 9, 9]),
+            (4, 2),
+            (40, 40),
+        )
+        .unwrap();
+        let PaneImage::FirstCell { data, .. } = again else {
+            panic!("placed directly from the first cell");
+        };
+        assert!(data.starts_with("\x1b_Ga=T,q=2,i=7365481,"));
     }
 }

@@ -94,6 +94,8 @@ pub fn draw(f: &mut Frame, app: &App, image: Option<&PaneImage>) {
     f.render_widget(view_block, a.view);
     match image {
         Some(img) => f.render_widget(img, a.view_inner),
+        // Not drawn under the help (a kitty image placed directly would cover it).
+        None if app.show_help => {}
         None => f.render_widget(
             Paragraph::new("rendering the first frame…").dark_gray(),
             a.view_inner,

@@ -103,6 +103,42 @@ pub fn by_name(name: &str) -> Option<Graphics> {
     }
 }
 
+/// The first kitty that draws Unicode placeholders (`U=1`): older ones reject the
+/// key as a malformed command (`invalid key character: 0x55`), draw nothing, and
+/// show the placeholder cells as glyphs. Every kitty since 0.21.2 says its version
+/// to XTVERSION (`kitty(0.26.5)`), and tmux 3.3 and later pass that on.
+pub const KITTY_PLACEHOLDERS_SINCE: (u32, u32, u32) = (0, 28, 0);
+
+/// kitty's version in a terminal's name (`kitty(0.26.5)`: XTVERSION's text, or
+/// tmux's `client_termtype`), when the name holds one.
+pub fn kitty_version(name: &str) -> Option<(u32, u32, u32)> {
+    let n = name.to_ascii_lowercase();
+    let inner = n[n.find("kitty(")? + "kitty(".len()..].split(')').next()?;
+    let mut parts = inner.split('.').map(|p| {
+        let digits: String = p.trim().chars().take_while(char::is_ascii_digit).collect();
+        digits.parse::<u32>().ok()
+    });
+    let major = parts.next()??;
+    let minor = parts.next()??;
+    let patch = parts.next().flatten().unwrap_or(0);
+    Some((major, minor, patch))
+}
+
+/// Whether the terminal named `name` draws kitty's Unicode placeholders: kitty
+/// from [`KITTY_PLACEHOLDERS_SINCE`] by the version in its name; Ghostty and Rio
+/// (taken to, as before). `None` where the name does not say: kitty without its
+/// version (`xterm-kitty`), or any other name.
+pub fn kitty_placeholders(name: &str) -> Option<bool> {
+    let n = name.to_ascii_lowercase();
+    if n.contains("kitty") {
+        kitty_version(&n).map(|v| v >= KITTY_PLACEHOLDERS_SINCE)
+    } else if n.contains("ghostty") || n.starts_with("rio") {
+        Some(true)
+    } else {
+        None
+    }
+}
+
 /// What [`choose`] decided.
 #[derive(Debug, Clone, PartialEq, Eq, Serialize)]
 pub struct Choice {
@@ -114,6 +150,11 @@ pub struct Choice {
     pub passthrough: bool,
     /// Kitty images drawn by Unicode placeholder cells (inside tmux).
     pub placeholders: bool,
+    /// The inspector shows kitty frames by Unicode placeholder cells: inside tmux,
+    /// and where the terminal is known to draw them ([`kitty_placeholders`]);
+    /// elsewhere it places each frame directly at the view's first cell (`a=T`,
+    /// which every kitty draws), and `reason` says why.
+    pub kitty_placeholders: bool,
     /// One line for the status bar when the choice is a fallback: why, and what
     /// would give images.
     pub note: Option<String>,
@@ -136,14 +177,55 @@ pub fn choose(
     let tmux_info = tmux.and_then(|t| t.as_ref().ok());
     let tmux_sixel = tmux_info.is_some_and(|t| t.draws_sixel())
         || (tmux_says && replies.is_some_and(|r| r.sixel()));
-    let choice = |graphics, reason: String, note: Option<String>| Choice {
-        graphics,
-        reason,
-        passthrough: in_tmux
-            && graphics != Graphics::Halfblocks
-            && !(graphics == Graphics::Sixel && tmux_sixel),
-        placeholders: in_tmux && graphics == Graphics::Kitty,
-        note,
+    // The names the terminal goes by, most precise first: what tmux says of the
+    // outer terminal inside tmux, else its own XTVERSION answer, else the
+    // environment. The first that says whether it draws kitty placeholders wins.
+    let names: Vec<&str> = if in_tmux {
+        tmux_info
+            .map(|t| vec![t.termtype.as_str(), t.termname.as_str()])
+            .unwrap_or_default()
+    } else {
+        [
+            replies.and_then(|r| r.xtversion.as_deref()),
+            env.term_program.as_deref(),
+            env.term.as_deref(),
+        ]
+        .into_iter()
+        .flatten()
+        .collect()
+    };
+    let placeholders_known = names.iter().find_map(|n| kitty_placeholders(n));
+    let named = names
+        .iter()
+        .find(|n| kitty_placeholders(n).is_some() || by_name(n).is_some())
+        .copied();
+    let choice = |graphics: Graphics, reason: String, note: Option<String>| {
+        let kitty = graphics == Graphics::Kitty;
+        // Inside tmux nothing else works: placed images do not follow the pane.
+        let kitty_placeholders = kitty && (in_tmux || placeholders_known == Some(true));
+        let reason = if kitty && !kitty_placeholders {
+            let why = match (placeholders_known, named) {
+                (Some(false), Some(n)) => format!("{n} has no Unicode placeholders"),
+                (_, Some(n)) if n.to_ascii_lowercase().contains("kitty") => {
+                    format!("{n} does not say its version")
+                }
+                (_, Some(n)) => format!("{n} is not known to draw Unicode placeholders"),
+                _ => "the terminal is not known to draw Unicode placeholders".to_string(),
+            };
+            format!("{reason}; frames placed directly ({why}; kitty has them from 0.28)")
+        } else {
+            reason
+        };
+        Choice {
+            graphics,
+            reason,
+            passthrough: in_tmux
+                && graphics != Graphics::Halfblocks
+                && !(graphics == Graphics::Sixel && tmux_sixel),
+            placeholders: in_tmux && kitty,
+            kitty_placeholders,
+            note,
+        }
     };
     let forced = match requested {
         Protocol::Kitty => Some(Graphics::Kitty),
@@ -165,7 +247,12 @@ pub fn choose(
             .find(|s| !s.is_empty())
             .unwrap_or("an unknown terminal")
             .to_string();
-        if outer_graphics == Some(Graphics::Kitty) {
+        // A kitty older than 0.28 outside: no placeholders, and images placed
+        // directly do not survive tmux (they stay put when panes scroll, switch or
+        // redraw), so it is drawn as any terminal without images.
+        let old_kitty =
+            outer_graphics == Some(Graphics::Kitty) && placeholders_known == Some(false);
+        if outer_graphics == Some(Graphics::Kitty) && !old_kitty {
             return choice(
                 Graphics::Kitty,
                 format!("tmux, outer terminal {outer_name}: kitty placeholders"),
@@ -180,6 +267,15 @@ pub fn choose(
             Some(Err(e)) => format!("tmux could not be asked ({e})"),
             _ => format!("tmux {version} in {outer_name}"),
         };
+        if old_kitty {
+            return choice(
+                Graphics::Halfblocks,
+                format!("{why}, a kitty without Unicode placeholders (from 0.28)"),
+                Some(format!(
+                    "half-blocks: {why}: this kitty has no Unicode placeholders (kitty has them from 0.28), and tmux cannot carry images placed directly; kitty 0.28+, or pcimg outside tmux, would draw images"
+                )),
+            );
+        }
         return choice(
             Graphics::Halfblocks,
             why.clone(),
@@ -378,5 +474,172 @@ pub fn detect(requested: Protocol, cap: Duration) -> Detection {
         winsize,
         env,
         millis: start.elapsed().as_secs_f64() * 1e3,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A terminal outside tmux that answered XTVERSION with `name`, the kitty query
+    /// OK and DA1.
+    fn answered(name: Option<&str>) -> Replies {
+        Replies {
+            xtversion: name.map(String::from),
+            kitty: Some("OK".into()),
+            cell_pixels: Some((10, 20)),
+            da1: Some(vec![62]),
+        }
+    }
+
+    fn outside(name: Option<&str>) -> Choice {
+        let env = TerminalEnv {
+            term: Some("xterm-kitty".into()),
+            ..Default::default()
+        };
+        choose(Protocol::Auto, &env, Some(&answered(name)), false, None)
+    }
+
+    /// Inside tmux, with the outer terminal as tmux saw it.
+    fn in_tmux(termtype: &str, termname: &str, features: &str) -> Choice {
+        let env = TerminalEnv {
+            term: Some("tmux-256color".into()),
+            tmux: Some("/tmp/tmux-0/default,1,0".into()),
+            tmux_pane: Some("%1".into()),
+            ..Default::default()
+        };
+        let info = TmuxInfo {
+            termtype: termtype.into(),
+            termname: termname.into(),
+            features: features.into(),
+            version: "3.3a".into(),
+            pane: "%1".into(),
+            ..Default::default()
+        };
+        choose(Protocol::Auto, &env, None, false, Some(&Ok(info)))
+    }
+
+    #[test]
+    fn kittys_version_is_read_from_its_name() {
+        assert_eq!(kitty_version("kitty(0.26.5)"), Some((0, 26, 5)));
+        assert_eq!(kitty_version("kitty(0.28.0)"), Some((0, 28, 0)));
+        assert_eq!(kitty_version("kitty(0.21.2)"), Some((0, 21, 2)));
+        assert_eq!(kitty_version("kitty(0.35.2)"), Some((0, 35, 2)));
+        assert_eq!(kitty_version("Kitty(0.30)"), Some((0, 30, 0)));
+        assert_eq!(kitty_version("kitty(0.36.4-dev)"), Some((0, 36, 4)));
+        for unknown in [
+            "xterm-kitty",
+            "kitty",
+            "kitty()",
+            "kitty(x.y)",
+            "kitty(1)",
+            "",
+        ] {
+            assert_eq!(kitty_version(unknown), None, "{unknown}");
+        }
+        // Placeholders from 0.28.0 on; unknown where the name does not say.
+        assert_eq!(kitty_placeholders("kitty(0.26.5)"), Some(false));
+        assert_eq!(kitty_placeholders("kitty(0.21.2)"), Some(false));
+        assert_eq!(kitty_placeholders("kitty(0.27.1)"), Some(false));
+        assert_eq!(kitty_placeholders("kitty(0.28.0)"), Some(true));
+        assert_eq!(kitty_placeholders("kitty(1.0.0)"), Some(true));
+        assert_eq!(kitty_placeholders("xterm-kitty"), None);
+        assert_eq!(kitty_placeholders("ghostty 1.1.3"), Some(true));
+        assert_eq!(kitty_placeholders("XTerm(379)"), None);
+    }
+
+    #[test]
+    fn kitty_gets_placeholders_only_from_0_28_and_direct_placement_before() {
+        for (name, placeholders) in [
+            ("kitty(0.26.5)", false),
+            ("kitty(0.21.2)", false),
+            ("kitty(0.28.0)", true),
+            ("kitty(0.35.2)", true),
+        ] {
+            let c = outside(Some(name));
+            assert_eq!(c.graphics, Graphics::Kitty, "{name}");
+            assert_eq!(c.kitty_placeholders, placeholders, "{name}: {c:?}");
+            assert!(!c.passthrough && !c.placeholders, "{name}");
+            assert_eq!(c.reason.contains("placed directly"), !placeholders, "{c:?}");
+        }
+        let c = outside(Some("kitty(0.26.5)"));
+        assert!(
+            c.reason
+                .contains("kitty(0.26.5) has no Unicode placeholders"),
+            "{}",
+            c.reason
+        );
+        // Unknown version (no XTVERSION answer: kitty before 0.21.2, or another
+        // terminal answering the kitty query): placed directly, which all draw.
+        let c = outside(None);
+        assert_eq!(c.graphics, Graphics::Kitty);
+        assert!(!c.kitty_placeholders);
+        assert!(
+            c.reason.contains("xterm-kitty does not say its version"),
+            "{}",
+            c.reason
+        );
+        // Only the environment (the terminal was not asked): the same.
+        let env = TerminalEnv {
+            kitty_window_id: Some("1".into()),
+            ..Default::default()
+        };
+        let c = choose(Protocol::Auto, &env, None, false, None);
+        assert_eq!((c.graphics, c.kitty_placeholders), (Graphics::Kitty, false));
+        // --protocol kitty on a terminal with a known version follows it.
+        let env = TerminalEnv::default();
+        let r = answered(Some("kitty(0.35.2)"));
+        let c = choose(Protocol::Kitty, &env, Some(&r), false, None);
+        assert!(c.kitty_placeholders);
+        let r = answered(Some("WezTerm 20240203-110809-5046fc22"));
+        let c = choose(Protocol::Kitty, &env, Some(&r), false, None);
+        assert!(!c.kitty_placeholders, "WezTerm has no placeholders");
+        // Ghostty and Rio keep them, as before.
+        for name in ["ghostty 1.1.3", "Rio 0.2.10"] {
+            let c = outside(Some(name));
+            assert_eq!(c.graphics, Graphics::Kitty, "{name}");
+            assert!(c.kitty_placeholders, "{name}");
+        }
+        // Other protocols have none.
+        let r = Replies {
+            kitty: None,
+            da1: Some(vec![63, 4]),
+            ..answered(Some("XTerm(379)"))
+        };
+        let c = choose(
+            Protocol::Auto,
+            &TerminalEnv::default(),
+            Some(&r),
+            false,
+            None,
+        );
+        assert_eq!((c.graphics, c.kitty_placeholders), (Graphics::Sixel, false));
+    }
+
+    #[test]
+    fn inside_tmux_an_old_kitty_outside_falls_back_and_says_why() {
+        let c = in_tmux("kitty(0.26.5)", "xterm-kitty", "");
+        assert_eq!(c.graphics, Graphics::Halfblocks, "{c:?}");
+        assert!(!c.passthrough && !c.placeholders && !c.kitty_placeholders);
+        let note = c.note.unwrap();
+        assert!(
+            note.starts_with(
+                "half-blocks: tmux 3.3a in kitty(0.26.5): this kitty has no Unicode placeholders"
+            ),
+            "{note}"
+        );
+        assert!(note.contains("would"), "{note}");
+        // A new kitty outside: placeholders through passthrough, as before.
+        let c = in_tmux("kitty(0.35.2)", "xterm-kitty", "");
+        assert_eq!(c.graphics, Graphics::Kitty);
+        assert!(c.passthrough && c.placeholders && c.kitty_placeholders);
+        assert!(c.note.is_none());
+        // tmux older than 3.3 does not say the version: as before.
+        let c = in_tmux("", "xterm-kitty", "");
+        assert_eq!(c.graphics, Graphics::Kitty);
+        assert!(c.placeholders && c.kitty_placeholders);
+        // An old kitty, but tmux draws sixel itself: sixel.
+        let c = in_tmux("kitty(0.21.2)", "xterm-kitty", "RGB,sixel");
+        assert_eq!(c.graphics, Graphics::Sixel);
     }
 }

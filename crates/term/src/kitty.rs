@@ -452,6 +452,49 @@ mod tests {
     }
 
     #[test]
+    fn direct_placements_stay_at_the_cursor_and_draw_no_placeholders() {
+        // kitty before 0.28: placed at the cursor (`a=T` with no `U`), the cursor
+        // left where it was (`C=1`), in chunks of which only the first has keys.
+        // Noise, so that even deflated it takes several chunks.
+        let mut x = 1u32;
+        let noise: Vec<u8> = (0..200 * 100 * 4)
+            .map(|_| {
+                x = x.wrapping_mul(1_664_525).wrapping_add(1_013_904_223);
+                (x >> 24) as u8
+            })
+            .collect();
+        let f = crate::Rgba {
+            width: 200,
+            height: 100,
+            rgba: &noise,
+        };
+        let p = Placement {
+            id: 0x0070_6369,
+            cols: 30,
+            rows: 12,
+            placeholders: false,
+            passthrough: false,
+        };
+        let seq = transmit(&f, p);
+        let (head, rgb) = decode(&seq);
+        assert_eq!(
+            head,
+            "\x1b_Ga=T,q=2,i=7365481,f=24,o=z,s=200,v=100,c=30,r=12,C=1,m=1"
+        );
+        let want: Vec<u8> = f.rgba.chunks(4).flat_map(|c| [c[0], c[1], c[2]]).collect();
+        assert_eq!(rgb, want);
+        assert!(!seq.contains("U=1") && !seq.contains(PLACEHOLDER));
+        let chunks: Vec<&str> = seq.split("\x1b\\").filter(|c| !c.is_empty()).collect();
+        assert!(chunks.len() > 1);
+        for (i, c) in chunks.iter().enumerate().skip(1) {
+            let last = i + 1 == chunks.len();
+            let keys = if last { "\x1b_Gm=0;" } else { "\x1b_Gm=1;" };
+            assert!(c.starts_with(keys), "chunk {i}: {}", &c[..12]);
+        }
+        assert!(!seq.contains("\x1bPtmux;"));
+    }
+
+    #[test]
     fn passthrough_wraps_every_chunk_and_placeholders_name_the_cell() {
         let f = frame(200, 100); // 60,000 bytes of RGB: several chunks even deflated
         let p = Placement {
