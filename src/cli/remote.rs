@@ -102,7 +102,7 @@ pub fn advice(e: &RemoteError) -> Option<String> {
         Problem::BadUrl(_) | Problem::Changed(_) | Problem::Other(_) => return None,
         Problem::NotFound => match e
             .url
-            .strip_suffix(&format!("/{}", crate::store::index::INDEX_FILE))
+            .strip_suffix(&format!("/{}", crate::store::dataset::index::INDEX_FILE))
         {
             // A static server is written to by copying files, a bucket also by
             // `convert -o URL`.
@@ -110,14 +110,14 @@ pub fn advice(e: &RemoteError) -> Option<String> {
                 "check the URL (a dataset's URL is the folder that holds {index} and the parts); \
                  a dataset without an index gets one with `pcimg index DIR` on a local copy: \
                  copy DIR/{index} to the server beside the parts",
-                index = crate::store::index::INDEX_FILE,
+                index = crate::store::dataset::index::INDEX_FILE,
             ),
             Some(dataset) => format!(
                 "check the URL (a dataset's URL is the folder that holds {index} and the parts); \
                  a dataset without an index gets one with `pcimg index DIR` on a local copy: \
                  upload DIR/{index} beside the parts, or convert with `-o {}`",
                 quoted(dataset),
-                index = crate::store::index::INDEX_FILE,
+                index = crate::store::dataset::index::INDEX_FILE,
             ),
             None => "check the URL; a dataset copied to the server by hand needs all of its \
                      files (the parts and pcimg-index.json)"
