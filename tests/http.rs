@@ -217,7 +217,7 @@ fn reads_as_local(server: &Server, local: &Path) {
     let png_there = d.join(format!("{name}.there.png"));
     let o = pcimg()
         .args(render_args(&url, &png_there))
-        .env("PCIMG_NET_STATS", "1")
+        .arg("--net-stats")
         .output()
         .unwrap();
     ok(&o, "render http://");
