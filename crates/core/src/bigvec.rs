@@ -83,6 +83,7 @@ pub struct Shared<T>(pub *mut T);
 // SAFETY: only addresses cross threads; every write through them is to slots the
 // writing thread owns (the caller's contract).
 unsafe impl<T> Send for Shared<T> {}
+// SAFETY: as for Send: shared references hand out only the addresses.
 unsafe impl<T> Sync for Shared<T> {}
 
 impl<T> Shared<T> {

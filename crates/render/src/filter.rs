@@ -50,9 +50,7 @@ impl Where {
             None => return Err(bad()),
         };
         if lo > hi {
-            return Err(format!(
-                "'{s}': the low end lies above the high end"
-            ));
+            return Err(format!("'{s}': the low end lies above the high end"));
         }
         Ok(Where {
             band: name.to_string(),

@@ -53,11 +53,7 @@ pub fn print_frame(
         }
     };
     let seq = match choice.graphics {
-        Graphics::Sixel => wrap(super::sixel::encode(
-            &frame.rgba,
-            frame.width,
-            frame.height,
-        )?),
+        Graphics::Sixel => wrap(super::sixel::encode(frame.rgba, frame.width, frame.height)?),
         Graphics::Kitty => kitty_cells(frame, choice, cols, rows),
         Graphics::Iterm2 => wrap(iterm_sequence(frame, cols, rows, false)?),
         Graphics::Halfblocks => {

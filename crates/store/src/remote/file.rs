@@ -164,7 +164,7 @@ impl RemoteFile {
     async fn fetch_one(&self, r: Range<u64>) -> Result<Bytes, RemoteError> {
         use std::sync::atomic::Ordering;
         if self.remote.ignores_range.load(Ordering::Relaxed) {
-            return self.from_whole(r).await;
+            return self.cut_from_whole(r).await;
         }
         let loc = self.remote.location(&self.name);
         let opts = GetOptions {
@@ -198,7 +198,7 @@ impl RemoteFile {
                 // every object of this server is fetched whole.
                 f.done(0, true);
                 self.remote.ignores_range.store(true, Ordering::Relaxed);
-                self.from_whole(r).await
+                self.cut_from_whole(r).await
             }
             Err(e) => {
                 f.done(0, false);
@@ -245,7 +245,7 @@ impl RemoteFile {
 
     /// Bytes `r` of the object fetched whole (once; later calls wait for the
     /// first). Its length must be the size the response (and the index) gives.
-    async fn from_whole(&self, r: Range<u64>) -> Result<Bytes, RemoteError> {
+    async fn cut_from_whole(&self, r: Range<u64>) -> Result<Bytes, RemoteError> {
         let whole = self
             .whole
             .get_or_try_init(|| async {
@@ -445,6 +445,8 @@ fn ignored_range(e: &object_store::Error) -> bool {
 
 #[cfg(test)]
 mod tests {
+    // One range is a list of one here.
+    #![allow(clippy::single_range_in_vec_init)]
     use super::*;
     use std::io::{Read, Write};
     use std::sync::atomic::{AtomicU64, Ordering};

@@ -767,10 +767,12 @@ mod tests {
             return None;
         }
         Some((
-            got.iter().map(|v| {
-                // SAFETY: decode wrote the first n values (it returned true).
-                unsafe { v.assume_init() }
-            }).collect(),
+            got.iter()
+                .map(|v| {
+                    // SAFETY: decode wrote the first n values (it returned true).
+                    unsafe { v.assume_init() }
+                })
+                .collect(),
             want,
         ))
     }

@@ -114,6 +114,7 @@ pub struct TileBuf {
 
 // SAFETY: a TileBuf owns its allocation outright, like a Vec<f32>.
 unsafe impl Send for TileBuf {}
+// SAFETY: as a Vec<f32>: a shared TileBuf is only read.
 unsafe impl Sync for TileBuf {}
 
 impl TileBuf {
