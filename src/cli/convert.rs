@@ -29,7 +29,7 @@ pub struct Args {
     pub output: Option<PathBuf>,
     /// Memory budget, e.g. 256MiB or 4G (default: half the available memory). It
     /// bounds resident memory and decides how many points one part (image) holds.
-    #[arg(long, value_parser = budget::parse_size)]
+    #[arg(long, value_parser = crate::text::parse_size)]
     pub memory: Option<u64>,
     /// How points are grouped into parts.
     #[arg(long, value_enum, default_value_t = PartitionArg::Spatial)]

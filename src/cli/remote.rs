@@ -15,7 +15,7 @@ pub struct CacheArgs {
     pub cache: Option<PathBuf>,
     /// The disk cache's size limit, e.g. 500MiB or 10G (the least recently used
     /// ranges are removed beyond it).
-    #[arg(long, value_parser = crate::convert::budget::parse_size, default_value = "2GiB", requires = "cache")]
+    #[arg(long, value_parser = crate::text::parse_size, default_value = "2GiB", requires = "cache")]
     pub cache_size: u64,
     /// For a dataset in object storage: print the network's counters on exit
     /// (requests, bytes received, failures, the disk cache's hits; benchmarks).

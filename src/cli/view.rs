@@ -90,7 +90,7 @@ pub struct ViewArgs {
     #[arg(long, default_value = "auto")]
     pub renderer: String,
     /// Memory for loaded points, e.g. 1G (tiles beyond it are not loaded).
-    #[arg(long, value_parser = crate::convert::budget::parse_size, default_value = "2G")]
+    #[arg(long, value_parser = crate::text::parse_size, default_value = "2G")]
     pub memory: u64,
     /// Print the camera as JSON (for --camera) on stderr.
     #[arg(long)]

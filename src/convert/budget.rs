@@ -1,35 +1,6 @@
-//! The memory budget: parsing sizes, reading available memory, the paper's rule
+//! The memory budget: reading available memory, the paper's rule
 //! that decides how many points one part (one image) may hold, and [`Budget`],
 //! which hands out every share of `--memory` a conversion takes.
-
-/// Parses a size such as `256MiB`, `2G`, `1.5GiB`, `512M`, `1000000` (bytes).
-pub fn parse_size(s: &str) -> Result<u64, String> {
-    let t = s.trim();
-    let split = t
-        .find(|c: char| !(c.is_ascii_digit() || c == '.'))
-        .unwrap_or(t.len());
-    let (num, unit) = t.split_at(split);
-    let v: f64 = num
-        .parse()
-        .map_err(|_| format!("'{s}' is not a size (try 256MiB or 2G)"))?;
-    let mult: f64 = match unit.trim().to_ascii_lowercase().as_str() {
-        "" | "b" => 1.0,
-        "k" | "kb" | "kib" => 1024.0,
-        "m" | "mb" | "mib" => 1024.0 * 1024.0,
-        "g" | "gb" | "gib" => 1024.0 * 1024.0 * 1024.0,
-        "t" | "tb" | "tib" => 1024.0f64.powi(4),
-        u => {
-            return Err(format!(
-                "unknown size unit '{u}' in '{s}' (use K, M, G or T)"
-            ));
-        }
-    };
-    let bytes = v * mult;
-    if !bytes.is_finite() || bytes < 1.0 {
-        return Err(format!("'{s}' is not a usable size"));
-    }
-    Ok(bytes as u64)
-}
 
 /// The smallest budget a conversion keeps to: below it, its fixed needs (the
 /// region sample, the count grid, reader windows of at least 65,536 points) come
@@ -202,17 +173,6 @@ impl std::fmt::Display for Budget {
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn sizes() {
-        assert_eq!(parse_size("256MiB").unwrap(), 256 << 20);
-        assert_eq!(parse_size("2G").unwrap(), 2 << 30);
-        assert_eq!(parse_size("1.5gb").unwrap(), 3 << 29);
-        assert_eq!(parse_size("4096").unwrap(), 4096);
-        assert!(parse_size("lots").is_err());
-        assert!(parse_size("5 parsecs").is_err());
-        assert!(parse_size("0").is_err());
-    }
 
     #[test]
     fn budget_rule() {

@@ -195,7 +195,7 @@ fn sixel_for_pane(
     erase_pane(&mut s, cells);
     s.push_str(&image);
     Ok(if passthrough {
-        sixel::tmux_passthrough(&s)
+        crate::term::tmux::passthrough(&s)
     } else {
         s
     })
@@ -227,7 +227,7 @@ fn iterm_for_pane(frame: &Frame, cells: (u16, u16), passthrough: bool) -> anyhow
         true,
     )?);
     Ok(if passthrough {
-        sixel::tmux_passthrough(&s)
+        crate::term::tmux::passthrough(&s)
     } else {
         s
     })

@@ -47,7 +47,7 @@ pub fn print_frame(
     use super::Graphics;
     let wrap = |s: String| {
         if choice.passthrough {
-            super::sixel::tmux_passthrough(&s)
+            super::tmux::passthrough(&s)
         } else {
             s
         }

@@ -63,7 +63,7 @@ pub fn transmit(frame: &Rgba<'_>, p: Placement) -> String {
             one.push_str(&format!("\x1b_Gm={more};{chunk}\x1b\\"));
         }
         if p.passthrough {
-            seq.push_str(&super::sixel::tmux_passthrough(&one));
+            seq.push_str(&super::tmux::passthrough(&one));
         } else {
             seq.push_str(&one);
         }
@@ -75,7 +75,7 @@ pub fn transmit(frame: &Rgba<'_>, p: Placement) -> String {
 pub fn delete(id: u32, passthrough: bool) -> String {
     let s = format!("\x1b_Ga=d,d=I,i={id},q=2\x1b\\");
     if passthrough {
-        super::sixel::tmux_passthrough(&s)
+        super::tmux::passthrough(&s)
     } else {
         s
     }

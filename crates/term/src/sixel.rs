@@ -98,21 +98,6 @@ fn push_columns(out: &mut Vec<u8>, cols: &[(u16, u8)]) {
     push_run(out, run.0, run.1);
 }
 
-/// Wraps an escape sequence in tmux's passthrough (`ESC P tmux; … ESC \`, every
-/// inner ESC doubled); tmux forwards it when `allow-passthrough` is on.
-pub fn tmux_passthrough(seq: &str) -> String {
-    let mut s = String::with_capacity(seq.len() + 16);
-    s.push_str("\x1bPtmux;");
-    for ch in seq.chars() {
-        if ch == '\x1b' {
-            s.push('\x1b');
-        }
-        s.push(ch);
-    }
-    s.push_str("\x1b\\");
-    s
-}
-
 /// Colours of a frame sent while the camera moves: with half-resolution frames
 /// enlarged, 114 K against 165 K at 32 colours for a 1200×800 frame
 /// (`benches/tui_latency.rs`, bench/RESULTS.md).
@@ -459,12 +444,6 @@ mod tests {
         assert!(s.contains("!100~"), "{s}");
         assert!(s.contains("!50~"), "{s}");
         assert!(s.len() < 80, "{s}");
-    }
-
-    #[test]
-    fn tmux_passthrough_doubles_every_escape() {
-        let s = tmux_passthrough("\x1bP0;1;0q#0!5~\x1b\\");
-        assert_eq!(s, "\x1bPtmux;\x1b\x1bP0;1;0q#0!5~\x1b\x1b\\\x1b\\");
     }
 
     #[test]

@@ -134,3 +134,29 @@ pub fn restore_passthrough() {
         None => tmux(&["set-option", "-p", "-u", "-t", &pane, "allow-passthrough"]),
     };
 }
+
+/// Wraps an escape sequence in tmux's passthrough (`ESC P tmux; … ESC \`, every
+/// inner ESC doubled); tmux forwards it when `allow-passthrough` is on.
+pub fn passthrough(seq: &str) -> String {
+    let mut s = String::with_capacity(seq.len() + 16);
+    s.push_str("\x1bPtmux;");
+    for ch in seq.chars() {
+        if ch == '\x1b' {
+            s.push('\x1b');
+        }
+        s.push(ch);
+    }
+    s.push_str("\x1b\\");
+    s
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn passthrough_doubles_every_escape() {
+        let s = passthrough("\x1bP0;1;0q#0!5~\x1b\\");
+        assert_eq!(s, "\x1bPtmux;\x1b\x1bP0;1;0q#0!5~\x1b\x1b\\\x1b\\");
+    }
+}
