@@ -134,8 +134,8 @@ pub struct Pipeline {
     loading: Loading,
     choice: RendererChoice,
     renderer: Option<Box<dyn Rasterizer>>,
-    /// The tiles colour ranges come from; `None` until the first frame, whose
-    /// tiles then serve.
+    /// The tiles colour ranges come from; `None`: each frame's own (the first
+    /// frame's fix the ranges).
     reference: Option<Vec<Arc<LoadedTile>>>,
     ranges: Option<ColorRanges>,
     colors: ColorCache,
@@ -237,7 +237,9 @@ impl Pipeline {
 
         let t = Instant::now();
         let bounds = self.ds.bounds();
-        let reference = self.reference.get_or_insert_with(|| tiles.clone());
+        // Without reference tiles the first frame's serve, and are not kept: a
+        // turntable's later frames reuse the ranges, not the points.
+        let reference: &[Arc<LoadedTile>] = self.reference.as_deref().unwrap_or(&tiles);
         let ranges = self
             .ranges
             .get_or_insert_with(|| ColorRanges::from_tiles(reference, &bounds));
