@@ -77,3 +77,41 @@ D=$W/synth_parts.pcimg
 render frame_parts
 render frame_parts_legend --color height --legend
 render frame_parts_pick --pick 100,80 --color intensity
+# The inspector's frames (the same pipeline, driven by keys): in a tmux of a
+# fixed size, each saved with `s` as PNG; tiles settle before each save.
+if command -v tmux >/dev/null; then
+  S=pcimg-identity-$$
+  SOCK=$W/tmux.sock
+  mkdir -p "$W/insp"
+  inspect_frames() {
+    local name=$1 data=$2; shift 2
+    tmux -S "$SOCK" kill-server 2>/dev/null || true
+    rm -f "$W/insp"/*.png
+    tmux -S "$SOCK" -f /dev/null new-session -d -s "$S" -x 120 -y 36 \
+      "cd '$W/insp' && NODEVICE_SELECT=1 '$BIN' inspect '$data' --renderer cpu --protocol halfblocks $*; sleep 60"
+    local n=0
+    for keys in "" c c l; do
+      [ -n "$keys" ] && tmux -S "$SOCK" send-keys -t "$S" "$keys"
+      # Settled: the screen the same twice, half a second apart.
+      local prev="" now
+      for _ in $(seq 40); do
+        sleep 0.5
+        now=$(tmux -S "$SOCK" capture-pane -p -t "$S")
+        [ "$now" = "$prev" ] && break
+        prev=$now
+      done
+      tmux -S "$SOCK" send-keys -t "$S" s
+      local f
+      f=$(printf '%s/insp/pcimg-frame-%03d.png' "$W" "$n")
+      for _ in $(seq 40); do [ -s "$f" ] && break; sleep 0.25; done
+      sleep 0.3
+      if [ -s "$f" ]; then hash_out "${name}_$n${keys:+_$keys}" "$f"; else echo "${name}_$n FAILED"; fi
+      n=$((n + 1))
+    done
+    tmux -S "$SOCK" kill-server 2>/dev/null || true
+  }
+  inspect_frames inspect "$W/laz.pcimg"
+  inspect_frames inspect_parts "$W/synth_parts.pcimg"
+else
+  echo "inspector frames SKIPPED (no tmux)"
+fi

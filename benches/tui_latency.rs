@@ -12,8 +12,9 @@
 //! medians per protocol, for full frames (at rest) and for the reduced frames sent
 //! while the camera moves (1/2 of the pixels each way): key → frame drawn, the
 //! worker's select/render/encode times, and the bytes sent. Then the sixel
-//! choices for moving frames (colours, enlarged half-resolution frames), and, for
-//! comparison, a sixel frame through ratatui-image's own `Sixel` (icy_sixel).
+//! choices for moving frames (colours, enlarged half-resolution frames). (The
+//! comparison with icy_sixel, through ratatui-image, is in bench/history/: that
+//! crate is no longer a dependency.)
 
 use pcimg::camera::Camera;
 use pcimg::render::RendererChoice;
@@ -206,26 +207,6 @@ fn main() -> anyhow::Result<()> {
                 println!("| {what} | {colors} | {:.0} K |", s.len() as f64 / 1024.0);
             }
         }
-    }
-    if let Some(frame) = last_sixel {
-        let (mut enc, mut len) = (vec![], 0);
-        for _ in 0..3 {
-            let img = image::RgbaImage::from_raw(frame.width, frame.height, frame.rgba.clone())
-                .ok_or_else(|| anyhow::anyhow!("frame size"))?;
-            let t = Instant::now();
-            let p = ratatui_image::protocol::sixel::Sixel::new(
-                image::DynamicImage::ImageRgba8(img),
-                ratatui::layout::Size::new(cells.0, cells.1),
-                false,
-            )?;
-            enc.push(t.elapsed().as_secs_f64() * 1e3);
-            len = p.data.len();
-        }
-        println!(
-            "\nThe last sixel frame through ratatui-image's Sixel (icy_sixel): encode {:.1} ms (median of 3), {:.0} K",
-            median(enc),
-            len as f64 / 1024.0
-        );
     }
     Ok(())
 }

@@ -22,7 +22,9 @@ pub use pcimg_store as store;
 pub use pcimg_store::remote;
 pub use pcimg_term as term;
 
-// The binary's own layers: the converter, the inspector, the commands.
+// The binary's own layers: the converter, the inspector, the commands, and the
+// advice they give (the libraries' errors carry facts; `advice` words them).
+pub mod advice;
 pub mod cli;
 pub mod convert;
 pub mod synth;

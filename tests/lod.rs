@@ -256,7 +256,7 @@ fn unreadable_tiles_are_not_retried_and_coarser_tiles_stand_in() {
     }
     let errors = cache.take_errors();
     assert_eq!(errors.len(), fine.len(), "{errors:?}");
-    assert!(errors[0].contains("z.tif"), "{}", errors[0]);
+    assert!(errors[0].to_string().contains("z.tif"), "{}", errors[0]);
     let mut stand: Vec<_> = cache.stand_ins(&fine).iter().map(|t| t.key).collect();
     let mut want: Vec<_> = coarse.iter().map(lod::TileKey::from).collect();
     stand.sort();

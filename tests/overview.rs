@@ -167,7 +167,16 @@ fn top_view_of_many_parts_covers_what_one_part_covers() {
 fn the_index_notices_removed_replaced_and_unlisted_parts() {
     let dir = tempfile::tempdir().unwrap();
     let (many, _) = datasets(dir.path(), 60_000, 3, 2);
-    let open_err = || Dataset::open(&many).unwrap_err().to_string();
+    // The store's error names the file and carries the remedy (rebuild this
+    // dataset's index); the binary's advice names the command.
+    let reindex = Some(pcimg::store::Remedy::Reindex {
+        dataset: many.clone(),
+    });
+    let advised = |e: pcimg::store::StoreError| {
+        assert_eq!(e.remedy.as_deref(), reindex.as_ref(), "{e}");
+        pcimg::advice::store(&e)
+    };
+    let open_err = || advised(Dataset::open(&many).unwrap_err());
     Dataset::open(&many).unwrap();
     let part = many.join("tile-1-1.tif");
     let keep = std::fs::read(&part).unwrap();
@@ -185,7 +194,7 @@ fn the_index_notices_removed_replaced_and_unlisted_parts() {
     let read_err = || {
         let ds = Dataset::open(&many).unwrap();
         let k = ds.parts.iter().position(|p| p.path == part).unwrap();
-        ds.parts[k].read_level(0, &[0]).unwrap_err().to_string()
+        advised(ds.parts[k].read_level(0, &[0]).unwrap_err())
     };
     let other = cell(&terrain(20_000, 99), 3, 2, 1, 1);
     write_part(&part, &other, &WriteOptions::default()).unwrap();
@@ -224,14 +233,19 @@ fn the_index_notices_removed_replaced_and_unlisted_parts() {
     std::fs::remove_file(many.join("pcimg-index.json")).unwrap();
     let ds = Dataset::open(&many).unwrap();
     assert!(ds.overview.is_none() && ds.parts.len() == 6);
-    assert!(ds.hint.as_deref().unwrap().contains("pcimg index"));
+    assert!(ds.unindexed);
+    assert!(
+        pcimg::advice::dataset_note(&ds)
+            .unwrap()
+            .contains("pcimg index")
+    );
 
     // A part damaged after the dataset was opened is named when first read.
     build_index(&many, &IndexOptions::default(), &|_| {}).unwrap();
     let ds = Dataset::open(&many).unwrap();
     std::fs::write(&part, b"II*\0 not a part any more").unwrap();
     let k = ds.parts.iter().position(|p| p.path == part).unwrap();
-    let e = ds.parts[k].read_level(0, &[0]).unwrap_err().to_string();
+    let e = advised(ds.parts[k].read_level(0, &[0]).unwrap_err());
     assert!(
         e.contains("tile-1-1.tif") && e.contains("pcimg index"),
         "{e}"

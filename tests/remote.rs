@@ -170,7 +170,7 @@ fn remote_errors_name_the_url_and_what_to_fix() {
     ));
     let e = Dataset::open_remote(remote).unwrap_err();
     // The facts, typed (what to do is the command line's to say).
-    let failed = e.remote.clone().expect("a failed request");
+    let failed = *e.remote.clone().expect("a failed request");
     assert_eq!(failed.url, "memory://b/elsewhere/pcimg-index.json");
     assert_eq!(failed.problem, pcimg::remote::Problem::NotFound);
     let e = e.to_string();

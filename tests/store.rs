@@ -550,11 +550,7 @@ fn a_cancelled_write_stops_and_leaves_nothing() {
         ..Default::default()
     };
     let e = write_part(&path, &c, &opts).unwrap_err();
-    assert!(
-        e.to_string()
-            .contains(pcimg::store::write::part::INTERRUPTED),
-        "{e}"
-    );
+    assert!(e.to_string().contains(pcimg::store::INTERRUPTED), "{e}");
     assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 0);
     cancel.store(false, std::sync::atomic::Ordering::Relaxed);
     write_part(&path, &c, &opts).unwrap();

@@ -27,7 +27,12 @@ pub fn run(a: Args) -> anyhow::Result<()> {
 pub fn report(d: &Detection) -> String {
     let mut s = String::new();
     let c = &d.choice;
-    let _ = writeln!(s, "image protocol: {} ({})", c.graphics.name(), c.reason);
+    let _ = writeln!(
+        s,
+        "image protocol: {} ({})",
+        c.graphics.name(),
+        crate::advice::protocol_reason(c)
+    );
     if c.passthrough {
         let _ = writeln!(
             s,
@@ -50,7 +55,7 @@ pub fn report(d: &Detection) -> String {
             }
         );
     }
-    if let Some(n) = &c.note {
+    if let Some(n) = crate::advice::protocol_note(c) {
         let _ = writeln!(s, "  note: {n}");
     }
     let _ = writeln!(

@@ -2,7 +2,7 @@
 //! parts made separately, added, replaced or removed since the last index; the
 //! finalize step of a cluster conversion (its receipts checked against the plan).
 
-use crate::store::dataset::overview::{IndexOptions, IndexReport, build_index};
+use crate::store::{IndexOptions, IndexReport, build_index};
 use crate::text::{bytes, count, sanitize};
 use std::path::PathBuf;
 use std::sync::Arc;

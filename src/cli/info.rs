@@ -2,7 +2,7 @@
 //! or (with `--json`) as stable JSON for scripts.
 
 use crate::points::Bounds;
-use crate::store::tiff::codec::level_codec_name;
+use crate::store::level_codec_name;
 use crate::store::{Dataset, Part};
 use crate::text::{bytes, count, sanitize};
 use serde::Serialize;
@@ -394,7 +394,7 @@ fn source_lines(o: &mut String, key: &str, value: &str) {
 pub fn run(a: Args) -> anyhow::Result<()> {
     a.cache.apply()?;
     let ds = Dataset::open(&a.path)?;
-    if let Some(h) = &ds.hint {
+    if let Some(h) = crate::advice::dataset_note(&ds) {
         note!("{h}");
     }
     let r = report(&ds, a.tiles);

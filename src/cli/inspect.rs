@@ -55,7 +55,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     // The dataset first: a wrong path is the error to report, terminal or not.
     a.view.cache.apply()?;
     let ds = Arc::new(Dataset::open(&a.view.path)?);
-    if let Some(h) = &ds.hint {
+    if let Some(h) = crate::advice::dataset_note(&ds) {
         note!("{h}");
     }
     if !have_terminal() {

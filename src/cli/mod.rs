@@ -142,7 +142,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         let path = cli
             .path
             .ok_or_else(|| anyhow::anyhow!("give a command or a dataset path (see --help)"))?;
-        return inspect::run(inspect::defaults(&path)).map_err(remote::with_advice);
+        return inspect::run(inspect::defaults(&path)).map_err(crate::advice::with_advice);
     };
     let net_stats = command.net_stats();
     let r = match command {
@@ -157,7 +157,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Doctor(a) => doctor::run(a),
     };
     remote::print_stats_if_asked(net_stats);
-    r.map_err(remote::with_advice)
+    r.map_err(crate::advice::with_advice)
 }
 
 impl Command {

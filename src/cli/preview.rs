@@ -24,7 +24,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     // The dataset first: a wrong path is the error to report, terminal or not.
     a.view.cache.apply()?;
     let ds = Arc::new(Dataset::open(&a.view.path)?);
-    if let Some(h) = &ds.hint {
+    if let Some(h) = crate::advice::dataset_note(&ds) {
         note!("{h}");
     }
     if !std::io::stdout().is_terminal() {
@@ -37,7 +37,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     // is asked, at most about a second.
     let mut found = term::detect(a.protocol, term::probe::CAP);
     found.prepare();
-    if let Some(n) = &found.choice.note {
+    if let Some(n) = crate::advice::protocol_note(&found.choice) {
         note!("{n}");
     }
     let graphics = found.choice.graphics;

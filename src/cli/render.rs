@@ -81,7 +81,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     });
     a.view.cache.apply()?;
     let ds = Arc::new(Dataset::open(&a.view.path)?);
-    if let Some(h) = &ds.hint {
+    if let Some(h) = crate::advice::dataset_note(&ds) {
         note!("{h}");
     }
     let cam = view::camera_for(&a.view, &ds)?;

@@ -42,7 +42,7 @@ impl Drop for TempDir {
 
 /// Bytes of one record with `attributes` attribute columns.
 pub fn record_size(attributes: usize) -> usize {
-    crate::store::write::builder::packed_size(attributes)
+    crate::store::packed_size(attributes)
 }
 
 /// An I/O error on a temporary file, naming it (the disk that fills up is the

@@ -94,7 +94,7 @@ pub fn run(ds: Arc<Dataset>, opts: InspectOptions) -> anyhow::Result<Camera> {
     );
     let mut app = App::new(ds, opts.camera, opts.settings);
     app.protocol = graphics.name().into();
-    app.terminal_note = found.choice.note.clone().unwrap_or_default();
+    app.terminal_note = crate::advice::protocol_note(&found.choice).unwrap_or_default();
     let typed = crate::term::typed::key_events(found.typed());
     let mut session = terminal::Session::enter(encoding)?;
     let result = event_loop(

@@ -14,13 +14,12 @@
 //! from our own encoder ([`crate::term::sixel`]).
 
 use crate::render::Frame;
+use crate::term::blocks::Blocks;
 use crate::term::{kitty, sixel};
 use ratatui::buffer::{Buffer, CellDiffOption};
-use ratatui::layout::{Rect, Size};
+use ratatui::layout::Rect;
 use ratatui::style::Color;
 use ratatui::widgets::Widget;
-use ratatui_image::protocol::Protocol;
-use ratatui_image::protocol::halfblocks::Halfblocks;
 
 pub use crate::term::Graphics;
 
@@ -75,7 +74,7 @@ pub enum PaneImage {
     /// A kitty image sent with the first cell, shown by placeholder cells.
     Kitty { transmit: String, cells: (u16, u16) },
     /// Unicode half-blocks.
-    Blocks(Protocol),
+    Blocks(Blocks),
 }
 
 impl PaneImage {
@@ -83,10 +82,7 @@ impl PaneImage {
     pub fn cells(&self) -> (u16, u16) {
         match self {
             PaneImage::FirstCell { cells, .. } | PaneImage::Kitty { cells, .. } => *cells,
-            PaneImage::Blocks(p) => {
-                let s = p.size();
-                (s.width, s.height)
-            }
+            PaneImage::Blocks(b) => (b.cols, b.rows),
         }
     }
 
@@ -97,10 +93,7 @@ impl PaneImage {
             PaneImage::Kitty { transmit, cells } => {
                 transmit.len() + cells.0 as usize * cells.1 as usize * 4
             }
-            PaneImage::Blocks(p) => {
-                let s = p.size();
-                s.width as usize * s.height as usize * 20
-            }
+            PaneImage::Blocks(b) => b.cells.len() * 20,
         }
     }
 }
@@ -117,7 +110,19 @@ impl Widget for &PaneImage {
             return;
         }
         match self {
-            PaneImage::Blocks(p) => ratatui_image::Image::new(p).render(area, buf),
+            PaneImage::Blocks(b) => {
+                for y in 0..area.height {
+                    for (x, c) in b.row(y).iter().take(area.width as usize).enumerate() {
+                        if let Some(cell) = buf.cell_mut((area.x + x as u16, area.y + y)) {
+                            let [r, g, bl] = c.upper;
+                            let [r2, g2, b2] = c.lower;
+                            cell.set_char(c.symbol())
+                                .set_fg(Color::Rgb(r, g, bl))
+                                .set_bg(Color::Rgb(r2, g2, b2));
+                        }
+                    }
+                }
+            }
             PaneImage::FirstCell { data, .. } => {
                 for y in area.top()..area.bottom() {
                     for x in area.left()..area.right() {
@@ -163,8 +168,8 @@ pub fn kitty_delete_sequence(passthrough: bool) -> String {
     kitty::delete(KITTY_IMAGE_ID, passthrough)
 }
 
-/// The cells of a pane erased (ECH per row, as ratatui-image does, so no old text
-/// shows through), the cursor back at its first cell.
+/// The cells of a pane erased (ECH per row, so no old text shows through), the
+/// cursor back at its first cell.
 fn erase_pane(s: &mut String, (w, h): (u16, u16)) {
     if h <= 1 {
         s.push_str(&format!("\x1b[{w}X"));
@@ -243,12 +248,7 @@ pub fn encode(
 ) -> anyhow::Result<PaneImage> {
     Ok(match enc.graphics {
         Graphics::Halfblocks => {
-            let image = image::RgbaImage::from_raw(frame.width, frame.height, frame.rgba.clone())
-                .map(image::DynamicImage::ImageRgba8)
-                .ok_or_else(|| anyhow::anyhow!("frame buffer has the wrong size"))?;
-            let blocks = Halfblocks::new(image, Size::new(cells.0, cells.1))
-                .map_err(|e| anyhow::anyhow!("cannot encode the frame: {e}"))?;
-            PaneImage::Blocks(Protocol::Halfblocks(blocks))
+            PaneImage::Blocks(Blocks::of(&crate::pixels(frame), cells.0, cells.1))
         }
         Graphics::Sixel => PaneImage::FirstCell {
             data: sixel_for_pane(frame, cells, enc.passthrough, full)?,

@@ -7,7 +7,7 @@
 use super::app::App;
 use super::keys::HELP;
 use super::protocol::PaneImage;
-use crate::store::tiff::codec::compression_name;
+use crate::store::compression_name;
 use crate::text::{bytes, count, sanitize};
 use ratatui::Frame;
 use ratatui::layout::{Constraint, Layout, Rect};

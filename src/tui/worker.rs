@@ -196,13 +196,16 @@ fn run(
             }
             Err(e) => {
                 pending = 0;
-                if reports.send(Report::Error(format!("{e:#}"))).is_err() {
+                if reports
+                    .send(Report::Error(crate::advice::message(&e)))
+                    .is_err()
+                {
                     return;
                 }
             }
         }
         for e in w.pipeline.cache().take_errors() {
-            let _ = reports.send(Report::Error(e));
+            let _ = reports.send(Report::Error(crate::advice::store(&e)));
         }
     }
 }

@@ -90,7 +90,8 @@ pub fn pool_limit() -> usize {
 }
 
 /// Bytes held in the pool now, and its limit.
-pub fn pool_state() -> (usize, usize) {
+#[cfg(test)]
+fn pool_state() -> (usize, usize) {
     let p = lock();
     (p.bytes, LIMIT.load(Ordering::Relaxed))
 }

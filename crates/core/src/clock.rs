@@ -66,7 +66,7 @@ impl Stamp {
 
 /// User and system CPU time of the process so far (zero where unknown).
 #[cfg(unix)]
-pub fn process_cpu() -> Duration {
+pub(crate) fn process_cpu() -> Duration {
     let mut u = std::mem::MaybeUninit::<libc::rusage>::zeroed();
     // SAFETY: getrusage fills the struct it is given; RUSAGE_SELF is always valid.
     let r = unsafe { libc::getrusage(libc::RUSAGE_SELF, u.as_mut_ptr()) };
@@ -82,7 +82,7 @@ pub fn process_cpu() -> Duration {
 }
 
 #[cfg(not(unix))]
-pub fn process_cpu() -> Duration {
+pub(crate) fn process_cpu() -> Duration {
     Duration::ZERO
 }
 

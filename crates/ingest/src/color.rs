@@ -106,7 +106,7 @@ impl ColorScale {
 }
 
 /// The canonical band name for a source colour property name, if it is one.
-pub fn color_name(name: &str) -> Option<&'static str> {
+pub(crate) fn color_name(name: &str) -> Option<&'static str> {
     match name {
         "r" | "red" | "diffuse_red" => Some("red"),
         "g" | "green" | "diffuse_green" => Some("green"),
@@ -115,7 +115,7 @@ pub fn color_name(name: &str) -> Option<&'static str> {
     }
 }
 
-pub fn is_color(name: &str) -> bool {
+pub(crate) fn is_color(name: &str) -> bool {
     matches!(name, "red" | "green" | "blue")
 }
 
@@ -156,7 +156,7 @@ mod tests {
 /// deciding the scale on the first [`DECIDE_POINTS`] points of the first chunk
 /// that has colour values.
 #[derive(Debug, Clone)]
-pub struct ColorNormalizer {
+pub(crate) struct ColorNormalizer {
     float_source: bool,
     scale: Option<ColorScale>,
     /// Values so far outside the decided scale, clamped to 0–255 (shared, so a
@@ -196,7 +196,7 @@ impl ColorNormalizer {
     }
 
     /// Counts `n` more values clamped (by a reader that scales them itself).
-    pub fn add_clamped(&self, n: u64) {
+    pub(crate) fn add_clamped(&self, n: u64) {
         self.clamped.fetch_add(n, Ordering::Relaxed);
     }
 

@@ -42,6 +42,19 @@ pub enum IngestError {
     /// The file as a whole cannot be read: unknown format, empty file, bad options.
     #[error("{}: {msg}", show_path(path))]
     Format { path: PathBuf, msg: String },
+    /// A text input's columns cannot be named from the file alone (its header
+    /// disagrees with its lines, names a column twice, or it has more columns than
+    /// a part stores): the caller's column layout ([`crate::ReadOptions`]'s
+    /// `columns`, where `_` skips a column) would.
+    #[error("{}: {}{msg}{}", show_path(path), at_line(*line), quoted(text))]
+    Columns {
+        path: PathBuf,
+        /// 1-based line number, where one line shows it.
+        line: Option<u64>,
+        msg: String,
+        /// That line, sanitized and truncated (empty without a line).
+        text: String,
+    },
 }
 
 impl IngestError {
@@ -78,10 +91,21 @@ impl IngestError {
         }
     }
 
+    /// A text input's columns that need naming; `at`: the line that shows it.
+    pub(crate) fn columns(path: &Path, at: Option<(u64, &[u8])>, msg: impl Into<String>) -> Self {
+        IngestError::Columns {
+            path: path.to_path_buf(),
+            line: at.map(|a| a.0),
+            msg: msg.into(),
+            text: at.map(|a| excerpt(a.1)).unwrap_or_default(),
+        }
+    }
+
     /// The 1-based line number, for line errors.
     pub fn line_number(&self) -> Option<u64> {
         match self {
             IngestError::Line { line, .. } => Some(*line),
+            IngestError::Columns { line, .. } => *line,
             _ => None,
         }
     }
@@ -93,6 +117,11 @@ impl IngestError {
             _ => None,
         }
     }
+}
+
+/// `line N: `, or nothing.
+fn at_line(line: Option<u64>) -> String {
+    line.map(|l| format!("line {l}: ")).unwrap_or_default()
 }
 
 /// `: "text"`, or nothing for no text (an error at the end of the file).

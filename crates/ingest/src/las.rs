@@ -74,7 +74,7 @@ enum Msg {
 type Spawn = Box<dyn FnOnce() -> Result<Receiver<Msg>, IngestError> + Send>;
 
 /// Reader for LAS and LAZ files.
-pub struct LasReader {
+pub(crate) struct LasReader {
     info: SourceInfo,
     /// The decoder's channel, once started.
     rx: Option<Receiver<Msg>>,
@@ -467,7 +467,8 @@ pub(crate) fn open_header(path: &Path) -> Result<Opened, IngestError> {
 
 impl LasReader {
     /// Reads `path` through the `las` crate on a decoder thread.
-    pub fn open(path: &Path, opts: &ReadOptions) -> Result<LasReader, IngestError> {
+    #[cfg(test)]
+    pub(crate) fn open(path: &Path, opts: &ReadOptions) -> Result<LasReader, IngestError> {
         LasReader::start(path, open_header(path)?, opts)
     }
 

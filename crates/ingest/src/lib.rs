@@ -96,7 +96,7 @@ pub struct ReadOptions {
 /// (32,000,000 bytes) stays below glibc's largest dynamic mmap threshold (32 MiB):
 /// chunk buffers are then recycled by the allocator instead of being mapped and
 /// zeroed afresh by the kernel for every chunk.
-pub const DEFAULT_CHUNK_POINTS: usize = 4_000_000;
+pub(crate) const DEFAULT_CHUNK_POINTS: usize = 4_000_000;
 
 impl Default for ReadOptions {
     fn default() -> Self {
@@ -207,8 +207,21 @@ pub enum InputKind {
     E57,
 }
 
+impl InputKind {
+    /// The format's name, as a message says it.
+    pub fn name(self) -> &'static str {
+        match self {
+            InputKind::Text => "text",
+            InputKind::Ply => "PLY",
+            InputKind::Las => "LAS/LAZ",
+            InputKind::Pcd => "PCD",
+            InputKind::E57 => "E57",
+        }
+    }
+}
+
 /// Extensions read as text.
-pub const TEXT_EXTENSIONS: &[&str] = &["xyz", "txt", "csv", "asc", "pts"];
+pub(crate) const TEXT_EXTENSIONS: &[&str] = &["xyz", "txt", "csv", "asc", "pts"];
 
 /// The format a file's extension names (any case), if it names one.
 pub fn kind_by_extension(path: &Path) -> Option<InputKind> {
@@ -281,7 +294,10 @@ pub fn open(path: &Path, opts: &ReadOptions) -> Result<Box<dyn PointReader>, Ing
     if opts.columns.is_some() && kind != InputKind::Text {
         return Err(IngestError::format(
             path,
-            "a column layout (--columns) applies only to text inputs",
+            format!(
+                "a column layout applies only to text inputs, and this is {}",
+                kind.name()
+            ),
         ));
     }
     let reader: Box<dyn PointReader> = match kind {
@@ -293,18 +309,15 @@ pub fn open(path: &Path, opts: &ReadOptions) -> Result<Box<dyn PointReader>, Ing
     };
     let attributes = reader.info().attribute_names.len();
     if attributes > crate::points::MAX_ATTRIBUTES {
-        return Err(IngestError::format(
-            path,
-            format!(
-                "{attributes} attribute columns besides x y z; pcimg stores at most {}{}",
-                crate::points::MAX_ATTRIBUTES,
-                if kind == InputKind::Text {
-                    " (--columns with _ skips columns)"
-                } else {
-                    ""
-                }
-            ),
-        ));
+        let msg = format!(
+            "{attributes} attribute columns besides x y z; a part stores at most {}",
+            crate::points::MAX_ATTRIBUTES,
+        );
+        return Err(if kind == InputKind::Text {
+            IngestError::columns(path, None, msg)
+        } else {
+            IngestError::format(path, msg)
+        });
     }
     Ok(reader)
 }

@@ -953,7 +953,7 @@ impl LineEngine {
 
 /// A reader of line-oriented points (text files, ASCII PLY vertex lines): the
 /// memory map, the line engine over it, and the consumed-page release.
-pub struct LineReader {
+pub(crate) struct LineReader {
     pub(crate) info: super::SourceInfo,
     pub(crate) map: std::sync::Arc<memmap2::Mmap>,
     pub(crate) engine: LineEngine,

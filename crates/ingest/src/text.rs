@@ -218,7 +218,7 @@ fn scan_preamble(data: &[u8], start: usize) -> Preamble {
 }
 
 /// Reader for text point clouds (the line reader shared with ASCII PLY).
-pub type TextReader = LineReader;
+pub(crate) type TextReader = LineReader;
 
 impl TextReader {
     pub fn open(path: &Path, opts: &ReadOptions) -> Result<TextReader, IngestError> {
@@ -290,23 +290,19 @@ impl TextReader {
                 Some(h) if h.len() != ncols && pre.header_is_comment => Layout::positional(ncols),
                 // (An empty field miscounts the line: the engine reports it.)
                 Some(h) if h.len() != ncols && !has_empty_field(first_text) => {
-                    return Err(IngestError::line(
+                    return Err(IngestError::columns(
                         path,
-                        first_line,
+                        Some((first_line, first_text)),
                         format!(
                             "the header line names {} column(s) ({}) but the first point line \
-                             has {ncols}: name the columns with --columns",
+                             has {ncols}",
                             h.len(),
                             pcimg_core::text::sanitize(&h.join(" "))
                         ),
-                        first_text,
                     ));
                 }
                 Some(h) if has_xyz(h) => Layout::from_names(h).map_err(|m| {
-                    IngestError::format(
-                        path,
-                        format!("the header line's columns: {m}; name them with --columns"),
-                    )
+                    IngestError::columns(path, None, format!("the header line's columns: {m}"))
                 })?,
                 Some(h) if h.len() == ncols => {
                     let mut names: Vec<String> = vec!["x".into(), "y".into(), "z".into()];
@@ -452,9 +448,9 @@ mod tests {
         let e = read(&p, &ReadOptions::default()).unwrap_err().to_string();
         assert!(e.contains("note.csv: line 1: not a number"), "{e}");
         let p = write(&d, "dup.csv", "x,y,z,x\n1,2,3,4\n");
-        let e = read(&p, &ReadOptions::default()).unwrap_err().to_string();
+        let e = read(&p, &ReadOptions::default()).unwrap_err();
         assert!(
-            e.contains("appears twice") && e.contains("--columns"),
+            e.to_string().contains("appears twice") && matches!(e, IngestError::Columns { .. }),
             "{e}"
         );
     }

@@ -31,7 +31,7 @@ pub enum CameraMode {
 }
 
 /// Largest |pitch|, just short of straight up/down so the view matrix stays defined.
-pub const MAX_PITCH: f64 = 89.9 * std::f64::consts::PI / 180.0;
+pub(crate) const MAX_PITCH: f64 = 89.9 * std::f64::consts::PI / 180.0;
 
 /// A perspective camera with `f64` placement.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
@@ -154,7 +154,7 @@ fn bounds_corners(b: &Bounds) -> [DVec3; 8] {
 }
 
 /// Right-handed view matrix at `eye` looking along `dir` (unit), `up` roughly up.
-pub fn look_to_rh(eye: DVec3, dir: DVec3, up: DVec3) -> DMat4 {
+pub(crate) fn look_to_rh(eye: DVec3, dir: DVec3, up: DVec3) -> DMat4 {
     let f = dir.normalize_or(DVec3::Y);
     let s = f.cross(up).normalize_or(DVec3::X);
     let u = s.cross(f);
@@ -167,7 +167,7 @@ pub fn look_to_rh(eye: DVec3, dir: DVec3, up: DVec3) -> DMat4 {
 }
 
 /// Right-handed perspective projection with depth 0 (near) ..= 1 (far).
-pub fn perspective_rh(fov_y: f64, aspect: f64, near: f64, far: f64) -> DMat4 {
+pub(crate) fn perspective_rh(fov_y: f64, aspect: f64, near: f64, far: f64) -> DMat4 {
     let h = 1.0 / (0.5 * fov_y).tan();
     let w = h / aspect;
     let r = far / (near - far);
@@ -228,7 +228,7 @@ impl Camera {
     }
 
     /// Switches mode keeping the current eye and viewing direction.
-    pub fn set_mode(&mut self, mode: CameraMode) {
+    pub(crate) fn set_mode(&mut self, mode: CameraMode) {
         if mode == self.mode {
             return;
         }
@@ -320,7 +320,7 @@ impl Camera {
     }
 
     /// Near and far planes as used by the projection (invalid values replaced).
-    pub fn near_far(&self) -> (f64, f64) {
+    pub(crate) fn near_far(&self) -> (f64, f64) {
         let near = if self.near.is_finite() && self.near > 0.0 {
             self.near
         } else {
@@ -335,14 +335,14 @@ impl Camera {
     }
 
     /// View matrix for coordinates relative to `origin` (`f64`).
-    pub fn view_f64(&self, origin: [f64; 3]) -> DMat4 {
+    pub(crate) fn view_f64(&self, origin: [f64; 3]) -> DMat4 {
         let o = DVec3::from(origin);
         let eye = self.eye() - o;
         look_to_rh(eye, self.forward(), DVec3::Z)
     }
 
     /// Projection matrix for `aspect` (`f64`, depth 0..1).
-    pub fn proj_f64(&self, aspect: f64) -> DMat4 {
+    pub(crate) fn proj_f64(&self, aspect: f64) -> DMat4 {
         let (near, far) = self.near_far();
         let aspect = if aspect.is_finite() && aspect > 0.0 {
             aspect
@@ -360,7 +360,7 @@ impl Camera {
     }
 
     /// [`Camera::view_proj`] with an explicit aspect (width / height).
-    pub fn view_proj_aspect(&self, origin: [f64; 3], aspect: f64) -> Mat4 {
+    pub(crate) fn view_proj_aspect(&self, origin: [f64; 3], aspect: f64) -> Mat4 {
         (self.proj_f64(aspect) * self.view_f64(origin)).as_mat4()
     }
 
@@ -382,7 +382,8 @@ impl Camera {
     }
 
     /// Projected size in pixels of something `size` world units wide at `distance`.
-    pub fn projected_size(&self, size: f64, distance: f64, viewport_height: u32) -> f64 {
+    #[cfg(test)]
+    pub(crate) fn projected_size(&self, size: f64, distance: f64, viewport_height: u32) -> f64 {
         size * self.pixels_per_unit(distance, viewport_height)
     }
 
@@ -467,7 +468,7 @@ impl Camera {
 
 impl Frustum {
     /// Extracts the planes of a view-projection matrix (depth 0..1), normalized.
-    pub fn from_matrix(m: &DMat4) -> Frustum {
+    pub(crate) fn from_matrix(m: &DMat4) -> Frustum {
         let r0 = m.row(0);
         let r1 = m.row(1);
         let r2 = m.row(2);
@@ -516,7 +517,8 @@ impl Frustum {
     }
 
     /// Whether a world point is inside.
-    pub fn contains_point(&self, p: [f64; 3]) -> bool {
+    #[cfg(test)]
+    pub(crate) fn contains_point(&self, p: [f64; 3]) -> bool {
         let v = DVec3::from(p);
         self.planes
             .iter()

@@ -118,7 +118,7 @@ impl ClassMask {
     /// Whether a point with stored value `v` is shown (values that are not a
     /// code are shown only when every class is).
     #[inline(always)]
-    pub fn shows_value(&self, v: f32) -> bool {
+    pub(crate) fn shows_value(&self, v: f32) -> bool {
         match code_of(v) {
             Some(c) => self.0[c as usize],
             None => self.all(),
@@ -138,7 +138,7 @@ pub fn parse_list(s: &str, what: &str) -> Result<Vec<u8>, String> {
 }
 
 /// A colour column from a `classification` column.
-pub fn colorize(values: &[f32]) -> Vec<u32> {
+pub(crate) fn colorize(values: &[f32]) -> Vec<u32> {
     values
         .iter()
         .map(|&v| code_of(v).map_or(color(255), color))

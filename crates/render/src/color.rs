@@ -316,7 +316,7 @@ pub fn level_color(level: u32) -> u32 {
 }
 
 /// A colour per part index (cycles through 12 distinct colours).
-pub fn part_color(part: usize) -> u32 {
+pub(crate) fn part_color(part: usize) -> u32 {
     PALETTE[part % PALETTE.len()]
 }
 

@@ -292,7 +292,7 @@ impl Filter {
     }
 
     /// `t`'s heights with the hidden points set to NaN; `None` when all are drawn.
-    pub fn hidden_z(&self, t: &LoadedTile) -> Option<Vec<f32>> {
+    pub(crate) fn hidden_z(&self, t: &LoadedTile) -> Option<Vec<f32>> {
         let keep = self.shown(t)?;
         Some(
             t.z.iter()

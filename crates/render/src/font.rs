@@ -5,7 +5,7 @@
 /// Glyph width and height in font pixels, and the advance between glyphs.
 pub const W: u32 = 5;
 pub const H: u32 = 7;
-pub const ADVANCE: u32 = 6;
+pub(crate) const ADVANCE: u32 = 6;
 
 /// Rows of one glyph, top first; bit 4 is the leftmost column.
 fn glyph(c: char) -> [u8; 7] {
@@ -162,14 +162,14 @@ fn glyph(c: char) -> [u8; 7] {
 }
 
 /// The width in pixels of `text` at `scale`.
-pub fn text_width(text: &str, scale: u32) -> u32 {
+pub(crate) fn text_width(text: &str, scale: u32) -> u32 {
     (text.chars().count() as u32 * ADVANCE).saturating_sub(1) * scale
 }
 
 /// Writes `text` into `rgba` (`width` pixels a row) with its top-left corner at
 /// `(x, y)`, each font pixel a `scale`×`scale` square of `color`; what falls
 /// outside the image is clipped.
-pub fn draw_text(
+pub(crate) fn draw_text(
     rgba: &mut [u8],
     width: u32,
     x: i64,

@@ -202,7 +202,7 @@ static QUIET_MESA: Once = Once::new();
 /// Sets `NODEVICE_SELECT=1` (unless already set) so Mesa's Vulkan device-select
 /// layer stays quiet on stderr. Called by [`GpuRasterizer::new`]; programs should
 /// call it (or set the variable) at startup, before spawning threads.
-pub fn quiet_mesa_layers() {
+pub(crate) fn quiet_mesa_layers() {
     QUIET_MESA.call_once(|| {
         if std::env::var_os("NODEVICE_SELECT").is_none() {
             // SAFETY: `set_var` is unsound only against environment reads that
@@ -469,7 +469,7 @@ impl GpuRasterizer {
     }
 
     /// The adapter in use.
-    pub fn adapter_info(&self) -> &wgpu::AdapterInfo {
+    pub(crate) fn adapter_info(&self) -> &wgpu::AdapterInfo {
         &self.info
     }
 

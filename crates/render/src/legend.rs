@@ -135,7 +135,7 @@ pub fn scale_bar(camera: &Camera, height: u32, max_px: f64) -> Option<(f64, f64)
 }
 
 /// A scale bar's label: metres (or the CRS's unit) with a sensible precision.
-pub fn length_label(len: f64) -> String {
+pub(crate) fn length_label(len: f64) -> String {
     if len >= 1.0 {
         format!(
             "{} m",
@@ -250,7 +250,7 @@ pub fn draw(f: &mut Frame, legend: &Legend) {
 }
 
 /// Draws a scale bar for `camera` in the bottom-left corner.
-pub fn draw_scale_bar(f: &mut Frame, camera: &Camera) {
+pub(crate) fn draw_scale_bar(f: &mut Frame, camera: &Camera) {
     let s = text_scale(f);
     let pad = 8 * s as i64;
     let Some((len, px)) = scale_bar(camera, f.height, f.width as f64 / 4.0) else {

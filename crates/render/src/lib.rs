@@ -52,7 +52,7 @@ pub mod font;
 pub mod gpu;
 pub mod legend;
 pub mod lod;
-pub mod marks;
+pub(crate) mod marks;
 pub mod pick;
 pub mod pipeline;
 pub mod ramp;
@@ -81,7 +81,7 @@ pub struct PointBatch<'a> {
 
 impl PointBatch<'_> {
     /// Number of points, or an error when the columns differ in length.
-    pub fn checked_len(&self) -> Result<usize, RenderError> {
+    pub(crate) fn checked_len(&self) -> Result<usize, RenderError> {
         let n = self.x.len();
         if self.y.len() != n || self.z.len() != n || self.color.len() != n {
             return Err(RenderError::InvalidInput(format!(

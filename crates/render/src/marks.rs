@@ -44,7 +44,7 @@ pub fn mark(f: &mut Frame, camera: &Camera, p: [f64; 3], color: [u8; 3]) {
 }
 
 /// A line between the pixels where `a` and `b` land (a measurement).
-pub fn segment(f: &mut Frame, camera: &Camera, a: [f64; 3], b: [f64; 3], color: [u8; 3]) {
+pub(crate) fn segment(f: &mut Frame, camera: &Camera, a: [f64; 3], b: [f64; 3], color: [u8; 3]) {
     let (Some(p), Some(q)) = (
         camera.project(a, f.width, f.height),
         camera.project(b, f.width, f.height),

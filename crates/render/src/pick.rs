@@ -93,7 +93,7 @@ pub fn from_ids(
 /// The point `renderer` drew nearest `(x, y)` in its last frame (drawn from
 /// `batches` with `camera` and `opts`): read from its id buffer when it kept
 /// one, else found by [`pick`]'s projection.
-pub fn pick_drawn(
+pub(crate) fn pick_drawn(
     renderer: &dyn super::Rasterizer,
     camera: &Camera,
     batches: &[PointBatch<'_>],

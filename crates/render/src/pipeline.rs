@@ -109,9 +109,10 @@ impl Drawn {
 /// Why a frame could not be drawn.
 #[derive(Debug, thiserror::Error)]
 pub enum DrawError {
-    /// A tile could not be read (the message names the part and the tile).
+    /// A tile could not be read (the error names the part, and what would put
+    /// it right where the store knows).
     #[error("{0}")]
-    Load(String),
+    Load(crate::store::StoreError),
     #[error(transparent)]
     Render(#[from] RenderError),
 }
@@ -357,7 +358,12 @@ impl Pipeline {
 }
 
 /// Draws `o` over `frame` (in the order [`Overlays`] gives).
-pub fn draw_overlays(frame: &mut Frame, cam: &Camera, o: &Overlays<'_>, legend: Option<&Legend>) {
+pub(crate) fn draw_overlays(
+    frame: &mut Frame,
+    cam: &Camera,
+    o: &Overlays<'_>,
+    legend: Option<&Legend>,
+) {
     if let [a, b] = o.marks[..] {
         marks::segment(frame, cam, a, b, MARK_COLOR);
     }

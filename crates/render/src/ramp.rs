@@ -21,7 +21,7 @@ pub enum Ramp {
 }
 
 /// Every ramp with its name, in the order `--help` lists them.
-pub const RAMPS: [(Ramp, &str); 6] = [
+pub(crate) const RAMPS: [(Ramp, &str); 6] = [
     (Ramp::Turbo, "turbo"),
     (Ramp::Viridis, "viridis"),
     (Ramp::Magma, "magma"),

@@ -51,7 +51,7 @@ impl Style {
     }
 
     /// The value range the ramp spans, in source units (ramp modes only).
-    pub fn value_range(&self, r: &ColorRanges) -> Option<(f64, f64)> {
+    pub(crate) fn value_range(&self, r: &ColorRanges) -> Option<(f64, f64)> {
         let auto = match self.mode {
             ColorMode::Intensity => (r.intensity.0 as f64, r.intensity.1 as f64),
             ColorMode::Height => r.height,
@@ -63,7 +63,7 @@ impl Style {
 }
 
 /// A band's column in `t` with its offset (x, y, z: the coordinates and origin).
-pub fn band_of<'a>(t: &'a LoadedTile, name: &str) -> Option<(&'a [f32], f64)> {
+pub(crate) fn band_of<'a>(t: &'a LoadedTile, name: &str) -> Option<(&'a [f32], f64)> {
     match name {
         "x" => Some((&t.x, t.origin[0])),
         "y" => Some((&t.y, t.origin[1])),
@@ -78,7 +78,7 @@ pub fn band_of<'a>(t: &'a LoadedTile, name: &str) -> Option<(&'a [f32], f64)> {
 
 /// The robust (2nd–98th percentile) range of band `name` over `tiles`, in
 /// source units; `None` when no tile has a finite value of it.
-pub fn band_range(tiles: &[Arc<LoadedTile>], name: &str) -> Option<(f64, f64)> {
+pub(crate) fn band_range(tiles: &[Arc<LoadedTile>], name: &str) -> Option<(f64, f64)> {
     let mut sample: Vec<f32> = Vec::new();
     // Values are sampled relative to the first tile's offset, so large offsets
     // (GPS time, coordinates) keep their precision.
@@ -142,13 +142,13 @@ pub struct Scene {
 
 /// The colour column of one tile in `mode` with the default ramps and ranges.
 /// Modes whose bands the part lacks fall back to height.
-pub fn colorize(t: &LoadedTile, mode: ColorMode, r: &ColorRanges) -> Vec<u32> {
+pub(crate) fn colorize(t: &LoadedTile, mode: ColorMode, r: &ColorRanges) -> Vec<u32> {
     colorize_style(t, &Style::of(mode), r)
 }
 
 /// The colour column of one tile. Modes whose bands the part lacks fall back to
 /// height.
-pub fn colorize_style(t: &LoadedTile, style: &Style, r: &ColorRanges) -> Vec<u32> {
+pub(crate) fn colorize_style(t: &LoadedTile, style: &Style, r: &ColorRanges) -> Vec<u32> {
     let n = t.len();
     let through_ramp = |v: &[f32], off: f64| {
         let (lo, hi) = style.value_range(r).unwrap_or((0.0, 1.0));

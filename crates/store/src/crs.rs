@@ -4,7 +4,7 @@
 
 /// A CRS's unit of length: its name as the CRS spells it and metres per unit.
 #[derive(Debug, Clone, PartialEq)]
-pub struct LinearUnit {
+pub(crate) struct LinearUnit {
     pub name: String,
     pub metres: f64,
 }
@@ -117,7 +117,7 @@ fn horizontal_unit(n: &Node) -> Option<LinearUnit> {
 /// What the x and y coordinates of data in `crs` are measured in: a linear
 /// unit, `Err("degree")`-like for a geographic CRS (the angle's unit name), or
 /// `None` when the CRS does not say (an EPSG code alone, unparsable text).
-pub fn linear_unit(crs: &str) -> Option<Result<LinearUnit, String>> {
+pub(crate) fn linear_unit(crs: &str) -> Option<Result<LinearUnit, String>> {
     let s = crs.trim().as_bytes();
     let mut at = 0;
     let root = parse(s, &mut at, 0)?;

@@ -1,16 +1,37 @@
-//! The store's error: always names the file, then what is wrong with it.
+//! The store's error: always names the file, then what is wrong with it, and
+//! where something would put it right, which [`Remedy`] (a fact, not a command:
+//! the program that uses the store words the advice).
 
 use std::path::{Path, PathBuf};
 
-#[derive(Debug, thiserror::Error)]
+#[derive(Debug, Clone, thiserror::Error)]
 #[error("{}: {message}", crate::text::sanitize(&.path.display().to_string()))]
 pub struct StoreError {
     pub path: PathBuf,
     pub message: String,
+    /// What would put it right, where the store knows (boxed: errors travel
+    /// in every `Result`, and most have none).
+    pub remedy: Option<Box<Remedy>>,
     /// For a request to object storage that failed: its URL and what happened
     /// (the command line says what to do from it). Shown through `message`.
     #[cfg(feature = "remote")]
-    pub remote: Option<crate::remote::RemoteError>,
+    pub remote: Option<Box<crate::remote::RemoteError>>,
+}
+
+/// What would put a [`StoreError`] right.
+#[derive(Debug, Clone, PartialEq, Eq)]
+#[non_exhaustive]
+pub enum Remedy {
+    /// The dataset's index is missing, unreadable or out of date with its parts:
+    /// rebuild it from the parts in `dataset` (a folder, or a URL's local copy).
+    Reindex { dataset: PathBuf },
+    /// `input` is a point cloud, not a dataset: convert it (to `output`, say).
+    Convert { input: PathBuf, output: PathBuf },
+    /// A part in object storage was replaced behind the index that pins it:
+    /// write the dataset again, its index with it.
+    Rewrite,
+    /// The file was written by a newer version of the format.
+    Upgrade,
 }
 
 impl StoreError {
@@ -18,18 +39,28 @@ impl StoreError {
         StoreError {
             path: path.to_path_buf(),
             message: message.into(),
+            remedy: None,
             #[cfg(feature = "remote")]
             remote: None,
         }
     }
 
+    /// The error with what would put it right.
+    pub fn with_remedy(mut self, remedy: Remedy) -> Self {
+        self.remedy = Some(Box::new(remedy));
+        self
+    }
+
     /// A failed request: the path is its URL, the message what happened.
     #[cfg(feature = "remote")]
     pub fn remote(e: crate::remote::RemoteError) -> Self {
+        let remedy = matches!(e.problem, crate::remote::Problem::Replaced { .. })
+            .then(|| Box::new(Remedy::Rewrite));
         StoreError {
             path: PathBuf::from(&e.url),
             message: e.problem.to_string(),
-            remote: Some(e),
+            remedy,
+            remote: Some(Box::new(e)),
         }
     }
 }

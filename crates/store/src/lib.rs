@@ -56,9 +56,9 @@ use pcimg_core::{alloc, bigvec, clock, points, text};
 
 pub mod crs;
 pub mod dataset;
-pub mod error;
+mod error;
 pub mod location;
-pub mod read;
+mod read;
 #[cfg(feature = "remote")]
 pub mod remote;
 /// Without the `remote` feature: the remote types exist, but no value of them
@@ -73,14 +73,16 @@ pub mod spec;
 pub mod tiff;
 pub mod write;
 
-pub use dataset::{Dataset, Overview};
-pub use error::StoreError;
+pub use dataset::overview::{IndexOptions, IndexReport, build_index};
+pub use dataset::{Dataset, Overview, PartHeader};
+pub use error::{Remedy, Result, StoreError};
 pub use read::part::{BandInfo, Level, Part, PartMeta, TileInfo};
 pub use read::points::Points;
-pub use tiff::codec::Compression;
-pub use write::builder::PartBuilder;
+pub use tiff::codec::{Compression, compression_name, level_codec_name};
+pub use write::builder::{PartBuilder, packed_size};
 pub use write::layout::Layout;
 pub use write::out::TileIo;
 pub use write::part::{
-    PartSummary, WriteOptions, write_part, write_part_built, write_part_chunks, write_part_owned,
+    INTERRUPTED, PartSummary, WriteOptions, write_part, write_part_built, write_part_chunks,
+    write_part_owned,
 };

@@ -49,7 +49,7 @@ pub struct TerminalEnv {
 
 impl TerminalEnv {
     /// This process's environment.
-    pub fn from_process() -> TerminalEnv {
+    pub(crate) fn from_process() -> TerminalEnv {
         let var = |k: &str| std::env::var(k).ok().filter(|v| !v.is_empty());
         TerminalEnv {
             term: var("TERM"),
@@ -89,7 +89,7 @@ impl TerminalEnv {
 /// The protocol a terminal draws best, by its name (XTVERSION's text, `TERM` or
 /// `TERM_PROGRAM`). Named first because several terminals answer the kitty query
 /// `OK` but lack what we use (Unicode placeholders: WezTerm, Konsole).
-pub fn by_name(name: &str) -> Option<Graphics> {
+pub(crate) fn by_name(name: &str) -> Option<Graphics> {
     let n = name.to_ascii_lowercase();
     let has = |s: &str| n.contains(s);
     if has("kitty") || has("ghostty") || n.starts_with("rio") {
@@ -145,8 +145,8 @@ pub struct Choice {
     pub graphics: Graphics,
     /// Why, in a few words.
     pub reason: String,
-    /// Images go through tmux's passthrough (kitty placeholders, or a protocol
-    /// forced by `--protocol` that tmux does not draw).
+    /// Images go through tmux's passthrough (kitty placeholders, or a requested
+    /// protocol that tmux does not draw).
     pub passthrough: bool,
     /// Kitty images drawn by Unicode placeholder cells (inside tmux).
     pub placeholders: bool,
@@ -158,6 +158,8 @@ pub struct Choice {
     /// One line for the status bar when the choice is a fallback: why, and what
     /// would give images.
     pub note: Option<String>,
+    /// The caller asked for this protocol (no detection chose it).
+    pub requested: bool,
 }
 
 /// Decides from what was learnt: the request, the environment, the terminal's
@@ -225,6 +227,7 @@ pub fn choose(
             placeholders: in_tmux && kitty,
             kitty_placeholders,
             note,
+            requested: requested != Protocol::Auto,
         }
     };
     let forced = match requested {
@@ -235,7 +238,7 @@ pub fn choose(
         Protocol::Auto => None,
     };
     if let Some(g) = forced {
-        return choice(g, "--protocol".into(), None);
+        return choice(g, "requested".into(), None);
     }
     if in_tmux {
         let outer = tmux_info
@@ -318,7 +321,7 @@ pub fn choose(
     } else if replies.is_none() {
         "half-blocks: stdin or stdout is not a terminal, so it was not asked".into()
     } else {
-        "half-blocks: the terminal reports no image protocol (--protocol forces one)".into()
+        "half-blocks: the terminal reports no image protocol".into()
     };
     choice(
         Graphics::Halfblocks,
@@ -353,7 +356,7 @@ impl Detection {
     }
 
     /// The tmux pane to allow passthrough in, when images go through it.
-    pub fn passthrough_pane(&self) -> Option<&str> {
+    pub(crate) fn passthrough_pane(&self) -> Option<&str> {
         if !self.choice.passthrough {
             return None;
         }
@@ -376,7 +379,7 @@ impl Detection {
 
 /// The cell size: the kernel's (`TIOCGWINSZ`) when plausible, else tmux's account
 /// of the outer terminal, else the terminal's `CSI 16 t` answer, else 10×20.
-pub fn cell_size(
+pub(crate) fn cell_size(
     graphics: Graphics,
     winsize: Option<&WinSize>,
     tmux: Option<&TmuxInfo>,

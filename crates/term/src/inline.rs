@@ -1,7 +1,7 @@
 //! Printing a frame inline in the terminal (`pcimg preview`): sixel through our
 //! own encoder ([`super::sixel`], at the frame's exact pixel size), kitty graphics
 //! ([`super::kitty`]) and iTerm2 (inline PNG) scaled by the terminal to the cells,
-//! Unicode half-blocks through viuer. Nothing here queries the terminal: the
+//! Unicode half-blocks ([`super::blocks`]). Nothing here queries the terminal: the
 //! protocol comes from [`super::detect()`].
 
 use crate::Rgba;
@@ -57,21 +57,10 @@ pub fn print_frame(
         Graphics::Kitty => kitty_cells(frame, choice, cols, rows),
         Graphics::Iterm2 => wrap(iterm_sequence(frame, cols, rows, false)?),
         Graphics::Halfblocks => {
-            let img = image::RgbaImage::from_raw(frame.width, frame.height, frame.rgba.to_vec())
-                .ok_or_else(|| anyhow::anyhow!("frame buffer has the wrong size"))?;
-            let conf = viuer::Config {
-                width: Some(cols as u32),
-                height: Some(rows as u32),
-                absolute_offset: false,
-                // All off: viuer then draws blocks and asks the terminal nothing.
-                use_kitty: false,
-                use_sixel: false,
-                use_iterm: false,
-                truecolor: true,
-                ..Default::default()
-            };
-            viuer::print(&image::DynamicImage::ImageRgba8(img), &conf)
-                .map_err(|e| anyhow::anyhow!("cannot print the frame: {e}"))?;
+            let blocks = super::blocks::Blocks::of(frame, cols, rows).ansi();
+            let mut out = std::io::stdout().lock();
+            out.write_all(blocks.as_bytes())?;
+            out.flush()?;
             return Ok(());
         }
     };

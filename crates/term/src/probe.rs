@@ -71,7 +71,7 @@ impl WinSize {
 }
 
 /// `cell` when it could be a character cell in pixels.
-pub fn plausible_cell(cell: (u32, u32)) -> Option<(u32, u32)> {
+pub(crate) fn plausible_cell(cell: (u32, u32)) -> Option<(u32, u32)> {
     let (w, h) = cell;
     ((2..=64).contains(&w) && (4..=128).contains(&h)).then_some(cell)
 }

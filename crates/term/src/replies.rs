@@ -10,7 +10,7 @@
 use serde::Serialize;
 
 /// The kitty graphics query's image id: answers carrying another id are not ours.
-pub const KITTY_QUERY_ID: u32 = 31;
+pub(crate) const KITTY_QUERY_ID: u32 = 31;
 
 /// The queries, in the order they are written, DA1 last: every terminal answers
 /// DA1, and answers come in order, so once its answer is in all others have come.
@@ -33,7 +33,7 @@ pub struct Replies {
 
 impl Replies {
     /// Whether the kitty graphics query was answered `OK`.
-    pub fn kitty_ok(&self) -> bool {
+    pub(crate) fn kitty_ok(&self) -> bool {
         self.kitty.as_deref() == Some("OK")
     }
 

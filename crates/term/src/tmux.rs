@@ -33,7 +33,7 @@ pub struct TmuxInfo {
 impl TmuxInfo {
     /// Whether tmux itself draws sixel images for this client (tmux 3.4 and
     /// later, built with sixel, on a terminal that draws sixel).
-    pub fn draws_sixel(&self) -> bool {
+    pub(crate) fn draws_sixel(&self) -> bool {
         self.features.split(',').any(|f| f.trim() == "sixel")
     }
 }

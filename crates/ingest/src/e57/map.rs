@@ -11,7 +11,7 @@ use std::sync::atomic::{AtomicU64, Ordering};
 /// Bytes read past a position before the pages below it are released.
 const KEEP: usize = 1 << 20;
 
-pub struct MapCursor {
+pub(crate) struct MapCursor {
     map: Arc<Mmap>,
     pos: usize,
     released: usize,

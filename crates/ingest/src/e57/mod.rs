@@ -74,7 +74,7 @@ enum State {
 }
 
 /// The reader of one E57 file.
-pub struct E57Input {
+pub(crate) struct E57Input {
     info: SourceInfo,
     scans: Vec<PointCloud>,
     layout: Layout,

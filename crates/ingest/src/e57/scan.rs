@@ -233,7 +233,7 @@ impl Scan {
     }
 
     /// Whether the scan has coordinates at all.
-    pub fn has_coordinates(&self) -> bool {
+    pub(crate) fn has_coordinates(&self) -> bool {
         self.cart.is_some() || self.sph.is_some()
     }
 

@@ -142,7 +142,7 @@ impl Compressed {
     }
 
     /// A copy at the same point, the stream walked.
-    pub fn ready_copy(&mut self) -> Result<Compressed, IngestError> {
+    pub(crate) fn ready_copy(&mut self) -> Result<Compressed, IngestError> {
         self.walk()?;
         Ok(self.clone())
     }

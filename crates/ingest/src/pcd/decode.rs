@@ -7,7 +7,7 @@ use super::header::Ty;
 
 /// Where one element (one value of a field) of every point goes.
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub enum Role {
+pub(crate) enum Role {
     X,
     Y,
     Z,
@@ -20,7 +20,7 @@ pub enum Role {
 
 /// One element of the record: its field, type, role and byte offsets.
 #[derive(Debug, Clone, Copy)]
-pub struct Elem {
+pub(crate) struct Elem {
     pub field: usize,
     /// Offset in a binary record.
     pub off: usize,
@@ -68,7 +68,7 @@ pub fn split<A>(out: Out<'_, A>, m: usize) -> Vec<(usize, Out<'_, A>)> {
 }
 
 /// Points per rayon task for `n` points.
-pub fn task_points(n: usize) -> usize {
+pub(crate) fn task_points(n: usize) -> usize {
     (n / (rayon::current_num_threads().max(1) * 4)).max(16 << 10)
 }
 

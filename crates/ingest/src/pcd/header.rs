@@ -48,7 +48,7 @@ impl Ty {
         }
     }
 
-    pub fn is_float(self) -> bool {
+    pub(crate) fn is_float(self) -> bool {
         matches!(self, Ty::F4 | Ty::F8)
     }
 }
@@ -103,7 +103,7 @@ impl Header {
 }
 
 /// Whether `bytes` start like a PCD file (a `# .PCD` comment or a `VERSION` line).
-pub fn sniff(bytes: &[u8]) -> bool {
+pub(crate) fn sniff(bytes: &[u8]) -> bool {
     bytes.starts_with(b"# .PCD") || bytes.starts_with(b"VERSION")
 }
 

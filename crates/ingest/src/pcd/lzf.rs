@@ -51,12 +51,12 @@ impl Cursor {
     }
 
     /// Offset of the next input byte.
-    pub fn input_offset(&self) -> usize {
+    pub(crate) fn input_offset(&self) -> usize {
         self.ip
     }
 
     /// Whether the stream `src` is used up exactly: no input left, nothing pending.
-    pub fn at_end(&self, src: &[u8]) -> bool {
+    pub(crate) fn at_end(&self, src: &[u8]) -> bool {
         matches!(self.pending, Pending::None) && self.ip == src.len()
     }
 

@@ -67,7 +67,7 @@ impl Scalar {
         }
     }
 
-    pub fn is_float(self) -> bool {
+    pub(crate) fn is_float(self) -> bool {
         matches!(self, Scalar::F32 | Scalar::F64)
     }
 
@@ -154,7 +154,7 @@ pub struct Header {
 const MAX_HEADER: usize = 16 << 20;
 
 /// Parses a PLY header at the start of `data`.
-pub fn parse_header(path: &Path, data: &[u8]) -> Result<Header, IngestError> {
+pub(crate) fn parse_header(path: &Path, data: &[u8]) -> Result<Header, IngestError> {
     let mut pos = 0usize;
     let mut line_no = 0u64;
     let mut encoding = None;

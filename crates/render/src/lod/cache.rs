@@ -6,7 +6,7 @@
 //! can stand in.
 
 use super::select::TileRef;
-use crate::store::Dataset;
+use crate::store::{Dataset, StoreError};
 use std::collections::{HashMap, HashSet};
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::mpsc::{Receiver, Sender, channel};
@@ -72,7 +72,7 @@ impl LoadedTile {
 pub const COLOR_BANDS: [&str; 4] = ["intensity", "red", "green", "blue"];
 
 /// Loads one tile from the store (x, y, z and the [`COLOR_BANDS`] it has).
-pub fn load_tile(ds: &Dataset, key: TileKey) -> Result<LoadedTile, String> {
+pub fn load_tile(ds: &Dataset, key: TileKey) -> Result<LoadedTile, StoreError> {
     load_tile_with(ds, key, &[])
 }
 
@@ -89,7 +89,11 @@ pub enum Extra {
 
 /// [`load_tile`] reading `extra` bands too (for colour modes and filters on
 /// other bands, and for the attributes of a picked point).
-pub fn load_tile_with(ds: &Dataset, key: TileKey, extra: &[String]) -> Result<LoadedTile, String> {
+pub(crate) fn load_tile_with(
+    ds: &Dataset,
+    key: TileKey,
+    extra: &[String],
+) -> Result<LoadedTile, StoreError> {
     load_tile_bands(
         ds,
         key,
@@ -102,11 +106,15 @@ pub fn load_tile_with(ds: &Dataset, key: TileKey, extra: &[String]) -> Result<Lo
 }
 
 /// [`load_tile`] with the bands `extra` names.
-pub fn load_tile_bands(ds: &Dataset, key: TileKey, extra: &Extra) -> Result<LoadedTile, String> {
+pub(crate) fn load_tile_bands(
+    ds: &Dataset,
+    key: TileKey,
+    extra: &Extra,
+) -> Result<LoadedTile, StoreError> {
     let t0 = Instant::now();
     let part = ds
         .part(key.part)
-        .ok_or_else(|| format!("no part {}", key.part))?;
+        .ok_or_else(|| StoreError::new(&ds.path, format!("has no part {}", key.part)))?;
     let mut bands = vec![0usize, 1, 2];
     match extra {
         Extra::All => bands.extend(3..part.bands.len()),
@@ -124,9 +132,7 @@ pub fn load_tile_bands(ds: &Dataset, key: TileKey, extra: &Extra) -> Result<Load
             }
         }
     }
-    let p = part
-        .read_tiles(key.level, &[key.tile], &bands)
-        .map_err(|e| e.to_string())?;
+    let p = part.read_tiles(key.level, &[key.tile], &bands)?;
     let mut cols = p.columns.into_iter();
     let (x, y, z) = (
         cols.next().unwrap_or_default(),
@@ -162,7 +168,7 @@ struct State {
     queued: HashSet<TileKey>,
     bytes: u64,
     clock: u64,
-    errors: Vec<String>,
+    errors: Vec<StoreError>,
     /// Tiles that failed to load (never queued again).
     failed: HashSet<TileKey>,
 }
@@ -403,7 +409,7 @@ impl TileCache {
     /// renders, and the tiles an interface wants before its first frame. They
     /// are kept in the cache (under its budget) like tiles loaded in the
     /// background.
-    pub fn load_all(&self, tiles: &[TileRef]) -> Result<Vec<Arc<LoadedTile>>, String> {
+    pub fn load_all(&self, tiles: &[TileRef]) -> Result<Vec<Arc<LoadedTile>>, StoreError> {
         use rayon::prelude::*;
         let ds: &Dataset = &self.ds;
         let extra: &[String] = &self.extra;
@@ -411,7 +417,7 @@ impl TileCache {
             tiles
                 .par_iter()
                 .map(|t| load_tile_with(ds, TileKey::from(t), extra).map(Arc::new))
-                .collect::<Result<Vec<_>, String>>()
+                .collect::<Result<Vec<_>, StoreError>>()
         };
         // Tiles in object storage wait on the network, not the CPU: loaded by
         // more threads than cores, so a frame's requests overlap.
@@ -446,7 +452,7 @@ impl TileCache {
     }
 
     /// Errors from workers since the last call.
-    pub fn take_errors(&self) -> Vec<String> {
+    pub fn take_errors(&self) -> Vec<StoreError> {
         self.state
             .lock()
             .map(|mut s| std::mem::take(&mut s.errors))

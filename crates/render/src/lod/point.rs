@@ -22,7 +22,7 @@ pub struct PointRecord {
 
 /// Reads point `index` of tile `key` with every band.
 pub fn point_record(ds: &Dataset, key: TileKey, index: usize) -> Result<PointRecord, String> {
-    let t = load_tile_bands(ds, key, &Extra::All)?;
+    let t = load_tile_bands(ds, key, &Extra::All).map_err(|e| e.to_string())?;
     if index >= t.len() {
         return Err(format!(
             "tile {} of level {} has {} points, not {}",

@@ -64,7 +64,7 @@ pub struct Selection {
 /// The default cap on points drawn: 4K at two points a pixel.
 pub const DEFAULT_BUDGET_CAP: u64 = 16_000_000;
 /// Points a pixel the automatic budget allows.
-pub const POINTS_PER_PIXEL: u64 = 2;
+pub(crate) const POINTS_PER_PIXEL: u64 = 2;
 
 /// The point budget for a `width`×`height` frame: two points a pixel, at least
 /// one tile's worth (65,536), at most `cap`.

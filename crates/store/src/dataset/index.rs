@@ -5,7 +5,7 @@
 //! still holds exactly the files it lists.
 
 use crate::dataset::summary::PartHeader;
-use crate::error::{Result, StoreError};
+use crate::error::{Remedy, Result, StoreError};
 use crate::read::part::Part;
 use std::path::Path;
 use std::time::UNIX_EPOCH;
@@ -15,7 +15,7 @@ pub const INDEX_FILE: &str = "pcimg-index.json";
 /// The folder of overview parts inside a dataset directory.
 pub const OVERVIEW_DIR: &str = "overview";
 /// The index format this pcimg writes and reads.
-pub const INDEX_VERSION: u32 = 1;
+pub(crate) const INDEX_VERSION: u32 = 1;
 const FORMAT_NAME: &str = "pcimg-index";
 
 /// A file the index lists: its path relative to the dataset, size, modification
@@ -114,12 +114,11 @@ pub fn head_of(path: &Path) -> Result<u64> {
     Ok(tiff.head_first_len(&map))
 }
 
-/// The command that rebuilds `dir`'s index, quoted for a message.
-pub fn fix_command(dir: &Path) -> String {
-    format!(
-        "`pcimg index {}`",
-        crate::dataset::shell_quoted(&dir.display().to_string())
-    )
+/// The remedy for a dataset whose index is missing, unreadable or stale.
+fn reindex(dir: &Path) -> Remedy {
+    Remedy::Reindex {
+        dataset: dir.to_path_buf(),
+    }
 }
 
 impl IndexFile {
@@ -153,23 +152,27 @@ impl IndexFile {
             StoreError::new(
                 &path,
                 format!(
-                    "not a valid dataset index (line {}, column {}: {e}); rebuild it with {}",
+                    "not a valid dataset index (line {}, column {}: {e})",
                     e.line(),
                     e.column(),
-                    fix_command(dir)
                 ),
             )
+            .with_remedy(reindex(dir))
         })?;
         if idx.format != FORMAT_NAME || idx.version > INDEX_VERSION {
             return Err(StoreError::new(
                 &path,
                 format!(
-                    "index format '{}' version {} is not one this pcimg reads ({FORMAT_NAME} {INDEX_VERSION}); upgrade pcimg or rebuild it with {}",
+                    "index format '{}' version {} is not one this version reads ({FORMAT_NAME} {INDEX_VERSION})",
                     crate::text::sanitize(&idx.format),
                     idx.version,
-                    fix_command(dir)
                 ),
-            ));
+            )
+            .with_remedy(if idx.format == FORMAT_NAME {
+                Remedy::Upgrade
+            } else {
+                reindex(dir)
+            }));
         }
         idx.check_structure(dir)?;
         Ok(idx)
@@ -177,12 +180,7 @@ impl IndexFile {
 
     /// Children that exist and come before their parent; names inside the folder.
     fn check_structure(&self, dir: &Path) -> Result<()> {
-        let bad = |m: String| {
-            StoreError::new(
-                &dir.join(INDEX_FILE),
-                format!("{m}; rebuild it with {}", fix_command(dir)),
-            )
-        };
+        let bad = |m: String| StoreError::new(&dir.join(INDEX_FILE), m).with_remedy(reindex(dir));
         let names = self.parts.iter().chain(self.nodes.iter().map(|n| &n.entry));
         for e in names {
             let p = Path::new(&e.file);
@@ -221,7 +219,7 @@ impl IndexFile {
     /// there and that the folder holds no part the index does not list; the parts
     /// and nodes, unopened. Whether a part changed (size or modification time) is
     /// checked when its file is first read.
-    pub fn open_parts(self, dir: &Path) -> Result<(Vec<Part>, Vec<Part>)> {
+    pub(crate) fn open_parts(self, dir: &Path) -> Result<(Vec<Part>, Vec<Part>)> {
         let present = |d: &Path| -> std::collections::HashSet<String> {
             crate::dataset::list_parts(d)
                 .unwrap_or_default()
@@ -245,23 +243,21 @@ impl IndexFile {
             return Err(StoreError::new(
                 &dir.join(n),
                 format!(
-                    "is not in the dataset's index ({} unlisted part{}); add it with {}",
+                    "is not in the dataset's index ({} unlisted part{})",
                     unlisted.len(),
                     if unlisted.len() == 1 { "" } else { "s" },
-                    fix_command(dir)
                 ),
-            ));
+            )
+            .with_remedy(reindex(dir)));
         }
         let open = |e: FileEntry| -> Result<Part> {
             let path = dir.join(&e.file);
             if !here.contains(&e.file) {
                 return Err(StoreError::new(
                     &path,
-                    format!(
-                        "is listed in the dataset's index but missing; restore it, or re-index with {}",
-                        fix_command(dir)
-                    ),
-                ));
+                    "is listed in the dataset's index but missing (restore the file if it was lost)",
+                )
+                .with_remedy(reindex(dir)));
             }
             Ok(Part::from_header(dir, &path, (e.bytes, e.mtime), e.header))
         };
@@ -281,7 +277,7 @@ impl IndexFile {
     #[cfg(feature = "remote")]
     /// The parts and nodes of a dataset in object storage, unopened: nothing is
     /// fetched until a tile is read.
-    pub fn remote_parts(
+    pub(crate) fn remote_parts(
         self,
         remote: &std::sync::Arc<crate::remote::Remote>,
     ) -> (Vec<Part>, Vec<Part>) {

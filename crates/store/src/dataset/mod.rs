@@ -3,10 +3,12 @@
 
 pub mod index;
 pub mod overview;
-pub mod summary;
+pub(crate) mod summary;
+
+pub use summary::PartHeader;
 
 use crate::dataset::index::{Child, IndexFile};
-use crate::error::{Result, StoreError};
+use crate::error::{Remedy, Result, StoreError};
 use crate::points::Bounds;
 use crate::read::part::Part;
 use std::path::{Path, PathBuf};
@@ -20,8 +22,9 @@ pub struct Dataset {
     pub overview: Option<Overview>,
     /// Bytes of the index the dataset was opened from.
     pub index_bytes: Option<u64>,
-    /// A one-line hint for a directory of several parts without an index.
-    pub hint: Option<String>,
+    /// A directory of several parts opened without an index (one would open it
+    /// faster and add an overview of all its parts).
+    pub unindexed: bool,
 }
 
 /// Overview nodes above the parts: ordinary parts whose coarsest level is an even
@@ -135,19 +138,6 @@ fn starts_like_tiff(path: &Path) -> bool {
         .is_ok_and(|()| matches!(&head, b"II*\0" | b"MM\0*" | b"II+\0" | b"MM\0+"))
 }
 
-/// `s` as one shell word (quoted when it holds anything but plain characters),
-/// sanitized for the terminal.
-pub(crate) fn shell_quoted(s: &str) -> String {
-    let s = crate::text::sanitize(s);
-    if s.chars()
-        .all(|c| c.is_ascii_alphanumeric() || "-_./+,:@".contains(c))
-    {
-        s
-    } else {
-        format!("'{}'", s.replace('\'', "'\\''"))
-    }
-}
-
 /// Each overview node's layer and children, from the index.
 fn tree_of(index: &IndexFile) -> Vec<(u32, Vec<Child>)> {
     index
@@ -200,27 +190,20 @@ impl Dataset {
                     .unwrap_or_else(|| "cloud".into());
                 return Err(StoreError::new(
                     path,
-                    format!(
-                        "a point cloud (.{ext}), not an image dataset: convert it first, e.g. \
-                         `pcimg convert {} -o {}`",
-                        shell_quoted(&path.display().to_string()),
-                        shell_quoted(&format!("{stem}.pcimg"))
-                    ),
-                ));
+                    format!("a point cloud (.{ext}), not an image dataset"),
+                )
+                .with_remedy(Remedy::Convert {
+                    input: path.to_path_buf(),
+                    output: PathBuf::from(format!("{stem}.pcimg")),
+                }));
             }
             vec![Part::open(path)?]
         };
-        let hint = (parts.len() > 1).then(|| {
-            format!(
-                "note: this dataset has no index (made by an older pcimg); {} makes one, for faster opening and an overview of all {} parts",
-                crate::dataset::index::fix_command(path),
-                parts.len()
-            )
-        });
+        let unindexed = parts.len() > 1;
         Ok(Dataset {
             path: path.to_path_buf(),
             parts,
-            hint,
+            unindexed,
             ..Default::default()
         })
     }
@@ -228,7 +211,7 @@ impl Dataset {
     #[cfg(feature = "remote")]
     /// A dataset in object storage: its index in one request (its parts are
     /// fetched from when their tiles are read), or a single `.tif` part.
-    pub fn open_url(url: &str) -> Result<Dataset> {
+    pub(crate) fn open_url(url: &str) -> Result<Dataset> {
         let url = url.trim_end_matches('/');
         let remote =
             std::sync::Arc::new(crate::remote::Remote::open(url).map_err(StoreError::remote)?);
@@ -312,7 +295,7 @@ impl Dataset {
             parts,
             overview,
             index_bytes: Some(index_bytes),
-            hint: None,
+            unindexed: false,
         }
     }
 

@@ -3,7 +3,7 @@
 //! index and maps its file only on its first tile read, checking then that the file
 //! is still the one indexed.
 
-use crate::error::{Result, StoreError};
+use crate::error::{Remedy, Result, StoreError};
 use crate::read::part::{BandInfo, Bytes, Level, Part, PartMeta};
 use std::path::{Path, PathBuf};
 use std::sync::{Arc, OnceLock};
@@ -30,7 +30,7 @@ pub(crate) struct Deferred {
     /// unknown). Its size is checked instead of the modification time, and its
     /// ETag pinned by the first request.
     remote: Option<(Arc<crate::remote::RemoteFile>, u64)>,
-    opened: OnceLock<std::result::Result<Part, String>>,
+    opened: OnceLock<Result<Part>>,
 }
 
 impl Part {
@@ -56,7 +56,7 @@ impl Part {
 
     /// A part of the dataset at `dataset` described by its index entry: nothing is
     /// read until a tile is.
-    pub fn from_header(
+    pub(crate) fn from_header(
         dataset: &Path,
         path: &Path,
         (file_bytes, mtime): (u64, (i64, u32)),
@@ -91,7 +91,7 @@ impl Part {
     #[cfg(feature = "remote")]
     /// A part in object storage described by its index entry: nothing is
     /// fetched until a tile is read, then its head (`head` bytes, one request).
-    pub fn from_header_remote(
+    pub(crate) fn from_header_remote(
         dataset: &Path,
         file: Arc<crate::remote::RemoteFile>,
         (file_bytes, head): (u64, u64),
@@ -132,12 +132,15 @@ impl Part {
         file: &Arc<crate::remote::RemoteFile>,
         head: u64,
         bytes: u64,
-    ) -> std::result::Result<Part, String> {
-        let p = Part::open_remote(file.clone(), head, Some(bytes)).map_err(|e| e.message)?;
+    ) -> Result<Part> {
+        let p = Part::open_remote(file.clone(), head, Some(bytes))?;
         if self.same_shape(&p) {
             Ok(p)
         } else {
-            Err("changed since the dataset was indexed: upload the dataset again".into())
+            Err(
+                StoreError::new(&self.path, "changed since the dataset was indexed")
+                    .with_remedy(Remedy::Rewrite),
+            )
         }
     }
 
@@ -147,7 +150,7 @@ impl Part {
         file: &Arc<crate::remote::RemoteFile>,
         _: u64,
         _: u64,
-    ) -> std::result::Result<Part, String> {
+    ) -> Result<Part> {
         match **file {}
     }
 
@@ -162,29 +165,34 @@ impl Part {
             if let Some((file, head)) = &d.remote {
                 return self.open_listed_remote(file, *head, d.expect.0);
             }
-            let fix = format!("; re-index with {}", crate::dataset::index::fix_command(&d.dataset));
+            let reindex = Remedy::Reindex {
+                dataset: d.dataset.clone(),
+            };
+            let fail = |m: String| StoreError::new(&self.path, m).with_remedy(reindex.clone());
             let meta = std::fs::metadata(&self.path).map_err(|e| {
-                format!("is listed in the dataset's index but cannot be read ({e}){fix}")
+                fail(format!(
+                    "is listed in the dataset's index but cannot be read ({e})"
+                ))
             })?;
             let now = (meta.len(), crate::dataset::index::mtime_of(&meta));
             if now != d.expect {
-                return Err(format!(
-                    "changed since the dataset was indexed ({} bytes now, {} then; modified {}){fix}",
+                return Err(fail(format!(
+                    "changed since the dataset was indexed ({} bytes now, {} then; modified {})",
                     now.0,
                     d.expect.0,
                     if now.1 == d.expect.1 { "then" } else { "since" }
-                ));
+                )));
             }
-            let p = Part::open(&self.path).map_err(|e| format!("{}{fix}", e.message))?;
+            let p = Part::open(&self.path).map_err(|e| e.with_remedy(reindex.clone()))?;
             if self.same_shape(&p) {
                 Ok(p)
             } else {
-                Err(format!("changed since the dataset was indexed{fix}"))
+                Err(fail("changed since the dataset was indexed".into()))
             }
         });
         match r {
             Ok(p) => Ok(Some(p)),
-            Err(m) => Err(StoreError::new(&self.path, m.clone())),
+            Err(e) => Err(e.clone()),
         }
     }
 }

@@ -209,7 +209,7 @@ fn parse_meta(items: &BTreeMap<String, String>) -> std::result::Result<PartMeta,
         .map_err(|_| format!("metadata {} is not a number", key::FORMAT))?;
     if format_version > spec::FORMAT_VERSION {
         return Err(format!(
-            "format version {format_version} is newer than this pcimg reads ({}); upgrade pcimg",
+            "format version {format_version} is newer than this version reads ({})",
             spec::FORMAT_VERSION
         ));
     }
@@ -331,7 +331,18 @@ impl Part {
                 key::FORMAT
             )));
         }
-        let meta = parse_meta(&ds_items).map_err(|m| err(format!("bad metadata: {m}")))?;
+        let meta = parse_meta(&ds_items).map_err(|m| {
+            let newer = ds_items
+                .get(key::FORMAT)
+                .and_then(|v| v.trim().parse::<u32>().ok())
+                .is_some_and(|v| v > spec::FORMAT_VERSION);
+            let e = err(format!("bad metadata: {m}"));
+            if newer {
+                e.with_remedy(crate::error::Remedy::Upgrade)
+            } else {
+                e
+            }
+        })?;
         let names = metadata::band_items(&items, "description");
         let offsets = metadata::band_items(&items, "offset");
         let minima = metadata::band_named(&items, key::STATISTICS_MINIMUM);

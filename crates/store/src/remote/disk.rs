@@ -13,8 +13,6 @@ use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Mutex, OnceLock};
 
-/// The cache's size when `--cache-size` is not given.
-pub const DEFAULT_LIMIT: u64 = 2 << 30;
 /// A file's first bytes: the format and its version.
 const MAGIC: &[u8; 8] = b"PCIMGRC1";
 /// Extension of a cached range; of an object's last ETag seen.
@@ -118,7 +116,7 @@ pub fn disable() {
 }
 
 /// Whether a disk cache is configured.
-pub fn enabled() -> bool {
+pub(crate) fn enabled() -> bool {
     lock().is_some()
 }
 
@@ -275,7 +273,7 @@ fn etag_name(url: &str) -> String {
 
 /// The ETag last seen for `url` (so that a later run knows its ranges may be
 /// cached, and asks the server only whether the object is unchanged).
-pub fn etag_hint(url: &str) -> Option<String> {
+pub(crate) fn etag_hint(url: &str) -> Option<String> {
     let dir = lock().as_ref()?.dir.clone();
     let text = std::fs::read_to_string(dir.join(etag_name(url))).ok()?;
     let (u, etag) = text.split_once('\n')?;
@@ -283,7 +281,7 @@ pub fn etag_hint(url: &str) -> Option<String> {
 }
 
 /// Notes the ETag seen for `url`.
-pub fn set_etag_hint(url: &str, etag: &str) {
+pub(crate) fn set_etag_hint(url: &str, etag: &str) {
     if etag.is_empty() || etag_hint(url).as_deref() == Some(etag) {
         return;
     }

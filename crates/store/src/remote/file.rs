@@ -19,9 +19,9 @@ use std::sync::{Arc, Mutex, OnceLock};
 /// few kilobytes more cost nothing next to it).
 pub const MERGE_GAP: u64 = 64 << 10;
 /// Requests in flight at once for one read.
-pub const CONCURRENCY: usize = 16;
+pub(crate) const CONCURRENCY: usize = 16;
 /// The in-memory cache's size.
-pub const MEMORY_CACHE: u64 = 512 << 20;
+pub(crate) const MEMORY_CACHE: u64 = 512 << 20;
 
 /// An object of a [`Remote`] read by ranges.
 #[derive(Debug)]
@@ -211,12 +211,7 @@ impl RemoteFile {
     /// failed ETag condition is a part replaced behind the index.
     fn changed_or(&self, e: &object_store::Error) -> RemoteError {
         if self.pinned && matches!(e, object_store::Error::Precondition { .. }) {
-            return self.fail(Problem::Changed(
-                "the part changed since the index was written (its ETag is not the one the \
-                 dataset index records): re-run `pcimg convert -o URL`, or upload the dataset \
-                 again together with its index"
-                    .into(),
-            ));
+            return self.fail(Problem::Replaced { etags: None });
         }
         self.fail(Problem::of(e))
     }
@@ -226,13 +221,12 @@ impl RemoteFile {
         let first = self.seen.get_or_init(|| meta.clone());
         // (A store that ignored the condition: the ETag says it.)
         if self.pinned && meta.1.is_some() && meta.1 != first.1 {
-            return Err(self.fail(Problem::Changed(format!(
-                "the part changed since the index was written (ETag {} now, {} in the \
-                 index): re-run `pcimg convert -o URL`, or upload the dataset again together \
-                 with its index",
-                meta.1.as_deref().unwrap_or_default(),
-                first.1.as_deref().unwrap_or_default(),
-            ))));
+            return Err(self.fail(Problem::Replaced {
+                etags: Some((
+                    meta.1.clone().unwrap_or_default(),
+                    first.1.clone().unwrap_or_default(),
+                )),
+            }));
         }
         if first.0 != meta.0 {
             return Err(self.fail(Problem::Changed(format!(
@@ -293,11 +287,11 @@ impl RemoteFile {
 
     /// The bytes of each of `ranges`, in order: cached ones from the cache, the
     /// rest merged (`MERGE_GAP`) and fetched concurrently. Blocks the caller.
-    pub fn read_ranges(&self, ranges: &[Range<u64>]) -> Result<Vec<Bytes>, RemoteError> {
+    pub(crate) fn read_ranges(&self, ranges: &[Range<u64>]) -> Result<Vec<Bytes>, RemoteError> {
         super::block_on(self.read_ranges_async(ranges))
     }
 
-    pub async fn read_ranges_async(
+    pub(crate) async fn read_ranges_async(
         &self,
         ranges: &[Range<u64>],
     ) -> Result<Vec<Bytes>, RemoteError> {

@@ -204,7 +204,7 @@ impl Remote {
     }
 
     /// The URL of `name`, for messages.
-    pub fn url_of(&self, name: &str) -> String {
+    pub(crate) fn url_of(&self, name: &str) -> String {
         if name.is_empty() {
             self.url.clone()
         } else {
@@ -294,7 +294,7 @@ impl Remote {
 
     /// A ranged reader of the object `name` whose size and ETag are known (the
     /// dataset index records them): no request asks for them.
-    pub fn file_pinned(self: &Arc<Self>, name: &str, size: u64, etag: String) -> RemoteFile {
+    pub(crate) fn file_pinned(self: &Arc<Self>, name: &str, size: u64, etag: String) -> RemoteFile {
         RemoteFile::pinned(self.clone(), name, size, etag)
     }
 }
@@ -346,6 +346,9 @@ pub enum Problem {
     /// The object is not the one first seen (or recorded in the index); the
     /// text says what to do (these surface through the readers' text errors).
     Changed(String),
+    /// A part pinned by the dataset index (its ETag) was replaced behind it;
+    /// `etags`: the one found and the one the index records, where known.
+    Replaced { etags: Option<(String, String)> },
     /// A plain http:// request from a client set to HTTPS only (S3 without
     /// `AWS_ALLOW_HTTP`).
     PlainHttp,
@@ -382,6 +385,18 @@ impl std::fmt::Display for Problem {
                 f.write_str(&crate::text::sanitize(m))
             }
             Problem::NotFound => f.write_str("not found (HTTP 404)"),
+            Problem::Replaced { etags: None } => f.write_str(
+                "the part changed since the index was written (its ETag is not the one the \
+                 dataset index records)",
+            ),
+            Problem::Replaced {
+                etags: Some((now, then)),
+            } => write!(
+                f,
+                "the part changed since the index was written (ETag {} now, {} in the index)",
+                crate::text::sanitize(now),
+                crate::text::sanitize(then)
+            ),
             Problem::PlainHttp => {
                 f.write_str("plain http:// refused: the client is set to HTTPS only")
             }
@@ -558,7 +573,7 @@ fn network_condition(e: &object_store::Error) -> Option<Net> {
 }
 
 /// What went wrong and what to do about it, from an object_store error.
-pub fn explain(e: &object_store::Error) -> String {
+pub(crate) fn explain(e: &object_store::Error) -> String {
     use object_store::Error as E;
     let text = e.to_string();
     let lower = text.to_ascii_lowercase();

@@ -20,7 +20,7 @@ use tokio::task::JoinHandle;
 /// least; below this size one request is cheaper than several).
 pub const MULTIPART_ABOVE: u64 = 16 << 20;
 /// Bytes of one part of a multipart upload (the file is read this much at a time).
-pub const PART_SIZE: usize = 8 << 20;
+pub(crate) const PART_SIZE: usize = 8 << 20;
 /// Parts of one multipart upload in flight at once.
 const PARTS_AT_ONCE: usize = 4;
 /// Each uploaded object's size and ETag (where the store gave one), by name.

@@ -33,7 +33,7 @@ impl Compression {
         Compression::LercZstd,
     ];
 
-    pub fn tiff_code(self) -> u16 {
+    pub(crate) fn tiff_code(self) -> u16 {
         match self {
             Compression::None => comp::NONE,
             Compression::Deflate => comp::ADOBE_DEFLATE,
@@ -51,7 +51,7 @@ impl Compression {
 
     /// The LERC codes (`LercParameters`: version, additional compression), for
     /// the LERC codecs.
-    pub fn lerc_parameters(self) -> Option<[u32; 2]> {
+    pub(crate) fn lerc_parameters(self) -> Option<[u32; 2]> {
         let extra = match self {
             Compression::Lerc => spec::lerc::ADD_NONE,
             Compression::LercDeflate => spec::lerc::ADD_DEFLATE,
@@ -62,7 +62,7 @@ impl Compression {
     }
 
     /// The codec a part was written with, from its first level's TIFF codes.
-    pub fn from_codes(compression: u16, lerc_extra: u32) -> Option<Self> {
+    pub(crate) fn from_codes(compression: u16, lerc_extra: u32) -> Option<Self> {
         Some(match (compression, lerc_extra) {
             (comp::NONE, _) => Compression::None,
             (comp::ADOBE_DEFLATE | comp::DEFLATE, _) => Compression::Deflate,
@@ -437,7 +437,7 @@ impl TileCodec {
     /// the sample at Z-index `z` of the square tile (`crate::tiff::lerc_z`). `Ok(false)`
     /// when this is not a LERC tile or its blob is of a kind only `lerc-rs`
     /// decodes (then nothing is written: use [`TileCodec::decode`]).
-    pub fn decode_lerc_z(
+    pub(crate) fn decode_lerc_z(
         &self,
         stored: &[u8],
         out: &mut [std::mem::MaybeUninit<f32>],

@@ -271,7 +271,7 @@ impl Tiff {
     /// The head's length when every directory and value lies before the first
     /// tile (a part written head-first), else 0 (an older part: directories
     /// after the tiles).
-    pub fn head_first_len(&self, data: &[u8]) -> u64 {
+    pub(crate) fn head_first_len(&self, data: &[u8]) -> u64 {
         let head = self.head_len();
         match self.first_tile(data) {
             Ok(Some(first)) if head <= first => head,
@@ -327,7 +327,7 @@ impl Value {
 }
 
 /// One directory to write: its entries (sorted by tag when written).
-pub type Dir = Vec<(u16, Value)>;
+pub(crate) type Dir = Vec<(u16, Value)>;
 
 /// The head of a TIFF or BigTIFF file in native byte order: the header, then
 /// each directory followed by its out-of-line values (each at an 8-byte
@@ -388,7 +388,7 @@ impl Head {
     }
 
     /// The head's bytes.
-    pub fn to_bytes(&self) -> Vec<u8> {
+    pub(crate) fn to_bytes(&self) -> Vec<u8> {
         let (header, _, _, _) = self.sizes();
         let (starts, end) = self.layout();
         let inline = if self.big { 8 } else { 4 };

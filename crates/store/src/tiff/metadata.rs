@@ -29,7 +29,7 @@ impl Item {
     }
 
     /// A band item without a role, as GDAL writes `STATISTICS_*`.
-    pub fn band_stat(name: &str, sample: usize, value: impl Into<String>) -> Item {
+    pub(crate) fn band_stat(name: &str, sample: usize, value: impl Into<String>) -> Item {
         Item {
             name: name.into(),
             value: value.into(),
@@ -133,7 +133,7 @@ fn unescape(s: &str) -> String {
 }
 
 /// Serializes items as GDAL writes them.
-pub fn to_xml(items: &[Item]) -> String {
+pub(crate) fn to_xml(items: &[Item]) -> String {
     let mut s = String::from("<GDALMetadata>\n");
     for it in items {
         s.push_str("  <Item name=\"");
@@ -176,7 +176,7 @@ fn attr(tag: &str, name: &str) -> Option<String> {
 }
 
 /// Parses GDAL_METADATA XML leniently: every `<Item ...>value</Item>`.
-pub fn from_xml(xml: &str) -> Result<Vec<Item>, String> {
+pub(crate) fn from_xml(xml: &str) -> Result<Vec<Item>, String> {
     if !xml.contains("<GDALMetadata") {
         return Err("GDAL_METADATA is not a <GDALMetadata> document".into());
     }
@@ -210,7 +210,7 @@ pub fn from_xml(xml: &str) -> Result<Vec<Item>, String> {
 }
 
 /// Dataset-level items of the default domain, by name.
-pub fn dataset_items(items: &[Item]) -> BTreeMap<String, String> {
+pub(crate) fn dataset_items(items: &[Item]) -> BTreeMap<String, String> {
     items
         .iter()
         .filter(|i| i.sample.is_none() && i.domain.is_none())
@@ -219,7 +219,7 @@ pub fn dataset_items(items: &[Item]) -> BTreeMap<String, String> {
 }
 
 /// Per-band item `name` without a role (as GDAL writes band statistics), by band.
-pub fn band_named(items: &[Item], name: &str) -> BTreeMap<usize, String> {
+pub(crate) fn band_named(items: &[Item], name: &str) -> BTreeMap<usize, String> {
     items
         .iter()
         .filter(|i| i.name == name && i.role.is_none() && i.domain.is_none())
@@ -228,7 +228,7 @@ pub fn band_named(items: &[Item], name: &str) -> BTreeMap<usize, String> {
 }
 
 /// Per-band item `name` with `role`, by band.
-pub fn band_items(items: &[Item], role: &str) -> BTreeMap<usize, String> {
+pub(crate) fn band_items(items: &[Item], role: &str) -> BTreeMap<usize, String> {
     items
         .iter()
         .filter_map(|i| match (i.sample, &i.role) {
@@ -239,14 +239,14 @@ pub fn band_items(items: &[Item], role: &str) -> BTreeMap<usize, String> {
 }
 
 /// `f64` values as text that parses back to the same bits.
-pub fn f64s(v: &[f64]) -> String {
+pub(crate) fn f64s(v: &[f64]) -> String {
     v.iter()
         .map(|x| format!("{x:?}"))
         .collect::<Vec<_>>()
         .join(" ")
 }
 
-pub fn parse_f64s(s: &str, n: usize, what: &str) -> Result<Vec<f64>, String> {
+pub(crate) fn parse_f64s(s: &str, n: usize, what: &str) -> Result<Vec<f64>, String> {
     let v: Result<Vec<f64>, _> = s.split_whitespace().map(str::parse).collect();
     match v {
         Ok(v) if v.len() == n => Ok(v),
@@ -264,7 +264,7 @@ pub fn class_counts(counts: &[(u8, u64)]) -> String {
 }
 
 /// Parses [`key::CLASS_COUNTS`] (see [`class_counts`]).
-pub fn parse_class_counts(s: &str) -> Result<Vec<(u8, u64)>, String> {
+pub(crate) fn parse_class_counts(s: &str) -> Result<Vec<(u8, u64)>, String> {
     let bad = || format!("metadata {} is not a list of CODE:COUNT", key::CLASS_COUNTS);
     let mut out: Vec<(u8, u64)> = s
         .split_whitespace()
@@ -280,7 +280,7 @@ pub fn parse_class_counts(s: &str) -> Result<Vec<(u8, u64)>, String> {
 
 /// Per-tile entry of the tile index.
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub struct TileEntry {
+pub(crate) struct TileEntry {
     /// Raster index of the tile in its level (`row * across + col`).
     pub index: u32,
     pub points: u32,
@@ -291,14 +291,14 @@ pub struct TileEntry {
 
 /// The tile index of one level.
 #[derive(Debug, Clone, PartialEq)]
-pub struct LevelIndex {
+pub(crate) struct LevelIndex {
     pub size: u32,
     pub tile_size: u32,
     pub tiles: Vec<TileEntry>,
 }
 
 /// Encodes the index as base64 of a little-endian binary blob.
-pub fn encode_tile_index(levels: &[LevelIndex]) -> String {
+pub(crate) fn encode_tile_index(levels: &[LevelIndex]) -> String {
     let mut b = Vec::new();
     b.extend_from_slice(TILE_INDEX_MAGIC);
     b.extend_from_slice(&TILE_INDEX_VERSION.to_le_bytes());
@@ -318,7 +318,7 @@ pub fn encode_tile_index(levels: &[LevelIndex]) -> String {
     base64::engine::general_purpose::STANDARD.encode(b)
 }
 
-pub fn decode_tile_index(s: &str) -> Result<Vec<LevelIndex>, String> {
+pub(crate) fn decode_tile_index(s: &str) -> Result<Vec<LevelIndex>, String> {
     let b = base64::engine::general_purpose::STANDARD
         .decode(s.trim())
         .map_err(|e| format!("tile index is not base64: {e}"))?;
@@ -372,7 +372,7 @@ pub fn decode_tile_index(s: &str) -> Result<Vec<LevelIndex>, String> {
 }
 
 /// Name of the dataset item holding the format version.
-pub fn is_pcimg(items: &BTreeMap<String, String>) -> bool {
+pub(crate) fn is_pcimg(items: &BTreeMap<String, String>) -> bool {
     items.contains_key(key::FORMAT)
 }
 

@@ -3,9 +3,9 @@
 //! image geometry of Z-ordered tiles (`zorder`, `tiles`) and the part's
 //! self-description (`metadata`).
 
-pub mod codec;
+pub(crate) mod codec;
 pub mod ifd;
 mod lerc_z;
-pub mod metadata;
-pub mod tiles;
+pub(crate) mod metadata;
+pub(crate) mod tiles;
 pub mod zorder;

@@ -21,7 +21,7 @@ pub fn spread2(v: u32) -> u64 {
 
 /// Gathers the even bits of `v` (inverse of [`spread2`]).
 #[inline]
-pub fn compact2(v: u64) -> u32 {
+pub(crate) fn compact2(v: u64) -> u32 {
     let mut x = v & 0x5555_5555_5555_5555;
     x = (x | (x >> 1)) & 0x3333_3333_3333_3333;
     x = (x | (x >> 2)) & 0x0f0f_0f0f_0f0f_0f0f;
@@ -33,7 +33,7 @@ pub fn compact2(v: u64) -> u32 {
 
 /// Z-index of pixel (x, y): x on the even bits, y on the odd bits.
 #[inline]
-pub fn z_index(x: u32, y: u32) -> u64 {
+pub(crate) fn z_index(x: u32, y: u32) -> u64 {
     spread2(x) | (spread2(y) << 1)
 }
 
@@ -94,7 +94,7 @@ impl Geometry {
     }
 
     /// Tiles holding points at `level`; they are the first tiles in Z-order.
-    pub fn filled_tiles(&self, level: usize) -> u64 {
+    pub(crate) fn filled_tiles(&self, level: usize) -> u64 {
         self.level_points(level).div_ceil(TILE_PIXELS as u64)
     }
 
@@ -107,7 +107,7 @@ impl Geometry {
 
     /// Raster index (`row * across + col`, as TIFF numbers tiles) of the tile of
     /// Z-rank `t` at `level`.
-    pub fn tile_raster_index(&self, level: usize, t: u64) -> u32 {
+    pub(crate) fn tile_raster_index(&self, level: usize, t: u64) -> u32 {
         let (col, row) = z_pixel(t);
         row * self.tiles_across(level) + col
     }

@@ -192,7 +192,7 @@ impl PartBuilder {
     /// chunk's coordinates once converted and only then its attributes: the
     /// attribute rows are allocated after all coordinates are freed, so they reuse
     /// that memory. On an error nothing is appended.
-    pub fn push_all(&mut self, path: &Path, chunks: Vec<PointColumns>) -> Result<()> {
+    pub(crate) fn push_all(&mut self, path: &Path, chunks: Vec<PointColumns>) -> Result<()> {
         let (len, first, bounds) = (self.count, self.attributes.clone(), self.bounds);
         let mut attrs: Vec<(Vec<Attribute>, usize)> = Vec::with_capacity(chunks.len());
         for mut c in chunks {

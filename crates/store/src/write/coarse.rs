@@ -20,7 +20,7 @@ use std::sync::atomic::{AtomicUsize, Ordering};
 
 /// The kept level-1 points of a part being arranged, and which groups of tiles
 /// are complete.
-pub struct Coarse {
+pub(crate) struct Coarse {
     g: Geometry,
     n: usize,
     /// Attributes a point.
@@ -75,7 +75,7 @@ impl Coarse {
     /// Tile `t` is arranged: `o` its points, `rows` their attribute rows (`m`
     /// values a point, slot order). Keeps its level-1 points; makes and sends
     /// every coarse tile whose group this tile completes. Called once a tile.
-    pub fn tile_done(&self, t: usize, o: &[[f32; 3]], rows: &[f32], sink: &TileSink) {
+    pub(crate) fn tile_done(&self, t: usize, o: &[[f32; 3]], rows: &[f32], sink: &TileSink) {
         let (m, rec) = (self.m, 3 + self.m);
         // SAFETY: tile t's share lies inside the allocation (t < tiles) and only
         // this call writes it.

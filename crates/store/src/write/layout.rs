@@ -175,7 +175,7 @@ impl Keep {
 
 /// What [`gather_representatives`] calls with each arranged tile: its number,
 /// its points, their source indices and, when read with them, their rows.
-pub type OnTile<'a> = dyn Fn(usize, &[[f32; 3]], &[u32], Option<TileRows<'_>>) + Sync + 'a;
+pub(crate) type OnTile<'a> = dyn Fn(usize, &[[f32; 3]], &[u32], Option<TileRows<'_>>) + Sync + 'a;
 
 /// Gathers the points `src[perm[..]]` (`perm`: indices of `src` in Hilbert order)
 /// and arranges them so that for every level `k` in `1..levels` the first slots

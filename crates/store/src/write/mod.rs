@@ -3,11 +3,11 @@
 //! written atomically (`part`, with its coarse levels `coarse`, tile writer threads
 //! `sink` and the output file `out`).
 
-pub mod builder;
-pub mod coarse;
-pub mod hilbert;
+pub(crate) mod builder;
+pub(crate) mod coarse;
+pub(crate) mod hilbert;
 pub mod layout;
-pub mod out;
+pub(crate) mod out;
 pub mod paper;
-pub mod part;
-pub mod sink;
+pub(crate) mod part;
+pub(crate) mod sink;

@@ -80,7 +80,7 @@ fn bad_seek() -> io::Error {
 }
 
 /// Writes all of `data` at `offset` of `file` (callable from any thread).
-pub fn write_all_at(file: &File, data: &[u8], offset: u64) -> io::Result<()> {
+pub(crate) fn write_all_at(file: &File, data: &[u8], offset: u64) -> io::Result<()> {
     #[cfg(unix)]
     {
         use std::os::unix::fs::FileExt;
@@ -167,7 +167,7 @@ static FREE_TILES: std::sync::Mutex<Vec<TileBuf>> = std::sync::Mutex::new(Vec::n
 const FREE_TILES_MAX: usize = 64;
 
 /// Returns `t` to the free list (or frees it when the list is full).
-pub fn recycle(t: TileBuf) {
+pub(crate) fn recycle(t: TileBuf) {
     if let Ok(mut f) = FREE_TILES.lock()
         && f.len() < FREE_TILES_MAX
     {
@@ -276,7 +276,7 @@ impl<'f> TileWriter<'f> {
     }
 
     /// Whether tile data goes around the page cache now.
-    pub fn is_direct(&self) -> bool {
+    pub(crate) fn is_direct(&self) -> bool {
         self.going_direct.load(std::sync::atomic::Ordering::Relaxed)
     }
 
@@ -331,7 +331,7 @@ impl<'f> TileWriter<'f> {
     /// multiple of [`DIRECT_ALIGN`]), with one system call where it can: the
     /// disk takes 1.5 GB/s in 256 KiB direct writes and 2.0-2.2 GB/s in 1-4 MiB
     /// ones (`dd oflag=direct` on the VM).
-    pub fn write_run(&self, tiles: &[&[f32]], offset: u64) -> io::Result<()> {
+    pub(crate) fn write_run(&self, tiles: &[&[f32]], offset: u64) -> io::Result<()> {
         use std::sync::atomic::Ordering::Relaxed;
         if tiles.len() < 2 {
             return tiles.first().map_or(Ok(()), |t| self.write(t, offset));

@@ -170,7 +170,7 @@ type Planes = (Vec<Vec<f32>>, usize);
 
 impl Part {
     /// Whether points are placed row-major (the paper's layout).
-    pub fn row_major(&self) -> bool {
+    pub(crate) fn row_major(&self) -> bool {
         self.meta.layout == crate::spec::layout::PAPER
     }
 

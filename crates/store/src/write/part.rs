@@ -112,7 +112,7 @@ impl Phases {
 /// An upper bound of |stored - source| for any coordinate inside `bounds`: half an
 /// f32 ulp at the largest offset from the origin, plus the f64 rounding of the
 /// subtraction and of the reader's re-addition.
-pub fn quantization_bound(bounds: &Bounds, origin: [f64; 3]) -> f64 {
+pub(crate) fn quantization_bound(bounds: &Bounds, origin: [f64; 3]) -> f64 {
     if bounds.is_empty() {
         return 0.0;
     }

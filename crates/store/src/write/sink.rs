@@ -19,7 +19,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::mpsc::SyncSender;
 
 /// Tiles and the file offsets they go to.
-pub type Batch = Vec<(u64, TileBuf)>;
+pub(crate) type Batch = Vec<(u64, TileBuf)>;
 
 /// Where encoders send tiles while [`with_sink`]'s writers run.
 pub struct TileSink<'a> {
