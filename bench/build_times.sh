@@ -11,7 +11,10 @@
 #
 # Prints every run (wall, user, system seconds) and each phase's median wall time
 # and ratio new/old. Needs the registry already downloaded (`cargo fetch`).
-# Set PHASES=build or PHASES=test to run one phase only.
+# Set PHASES=build or PHASES=test to run one phase only; TEST_TARGET_OLD and
+# TEST_TARGET_NEW name target directories to build the tests in (an existing
+# one saves a build; that build is not timed either way). Tests run with CI=true
+# (a missing tool fails rather than skips, so both sides run the same tests).
 set -euo pipefail
 if [ $# -lt 3 ]; then
   sed -n 2,14p "$0"
@@ -44,14 +47,17 @@ if [[ " $PHASES " == *" build "* ]]; then
   done
 fi
 if [[ " $PHASES " == *" test "* ]]; then
+  test_target() { # SIDE
+    if [ "$1" = old ]; then echo "${TEST_TARGET_OLD:-$WORK/target-old-test}"; else echo "${TEST_TARGET_NEW:-$WORK/target-new-test}"; fi
+  }
   for side in old new; do
     dir=$OLD; [ $side = new ] && dir=$NEW
-    (cd "$dir" && CARGO_TARGET_DIR=$WORK/target-$side-test cargo test --locked --no-run -q > /dev/null 2>&1)
+    (cd "$dir" && CARGO_TARGET_DIR=$(test_target $side) cargo test --locked --no-run -q > /dev/null 2>&1)
   done
   for _ in $(seq "$ROUNDS"); do
     for side in old new; do
       dir=$OLD; [ $side = new ] && dir=$NEW
-      timed "test-$side" "$dir" "$WORK/target-$side-test" cargo test --locked
+      CI=true timed "test-$side" "$dir" "$(test_target $side)" cargo test --locked
     done
   done
 fi

@@ -78,33 +78,39 @@ render frame_parts
 render frame_parts_legend --color height --legend
 render frame_parts_pick --pick 100,80 --color intensity
 # The inspector's frames (the same pipeline, driven by keys): in a tmux of a
-# fixed size, each saved with `s` as PNG; tiles settle before each save.
+# fixed size, each saved with `s` as PNG once the view is idle (every tile
+# loaded, no frame pending).
 if command -v tmux >/dev/null; then
   S=pcimg-identity-$$
   SOCK=$W/tmux.sock
   mkdir -p "$W/insp"
+  screen() { tmux -S "$SOCK" capture-pane -p -t "$S" 2>/dev/null; }
+  # wait_for PATTERN: up to 30 s for the screen to show PATTERN.
+  wait_for() {
+    for _ in $(seq 120); do screen | grep -q -- "$1" && return 0; sleep 0.25; done
+    return 1
+  }
   inspect_frames() {
-    local name=$1 data=$2; shift 2
+    local name=$1 data=$2 n=0 keys f
     tmux -S "$SOCK" kill-server 2>/dev/null || true
     rm -f "$W/insp"/*.png
     tmux -S "$SOCK" -f /dev/null new-session -d -s "$S" -x 120 -y 36 \
-      "cd '$W/insp' && NODEVICE_SELECT=1 '$BIN' inspect '$data' --renderer cpu --protocol halfblocks $*; sleep 60"
-    local n=0
+      "cd '$W/insp' && NODEVICE_SELECT=1 '$BIN' inspect '$data' --renderer cpu --protocol halfblocks; sleep 60"
+    wait_for "levels of" || { echo "${name} FAILED (no inspector)"; return; }
     for keys in "" c c l; do
-      [ -n "$keys" ] && tmux -S "$SOCK" send-keys -t "$S" "$keys"
-      # Settled: the screen the same twice, half a second apart.
-      local prev="" now
-      for _ in $(seq 40); do
-        sleep 0.5
-        now=$(tmux -S "$SOCK" capture-pane -p -t "$S")
-        [ "$now" = "$prev" ] && break
-        prev=$now
-      done
+      [ -n "$keys" ] && tmux -S "$SOCK" send-keys -t "$S" "$keys" && sleep 1
+      wait_for " idle" || true
       tmux -S "$SOCK" send-keys -t "$S" s
-      local f
-      f=$(printf '%s/insp/pcimg-frame-%03d.png' "$W" "$n")
-      for _ in $(seq 40); do [ -s "$f" ] && break; sleep 0.25; done
-      sleep 0.3
+      # Saved as pcimg-frame-NNN.png, numbered from 1; complete when its size
+      # holds still.
+      f=$(printf '%s/insp/pcimg-frame-%03d.png' "$W" "$((n + 1))")
+      local size=-1 now
+      for _ in $(seq 120); do
+        now=$(stat -c %s "$f" 2>/dev/null || echo -1)
+        [ "$now" -gt 0 ] && [ "$now" = "$size" ] && break
+        size=$now
+        sleep 0.25
+      done
       if [ -s "$f" ]; then hash_out "${name}_$n${keys:+_$keys}" "$f"; else echo "${name}_$n FAILED"; fi
       n=$((n + 1))
     done
