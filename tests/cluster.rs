@@ -245,15 +245,23 @@ fn dask_driver_retries_a_killed_shard_and_equals_one_convert() {
     write_input(&input, 1_000_000, 5);
     let (p, out) = (t.path().join("plan.json"), t.path().join("out.pcimg"));
     plan(&input, &p, &out, 6);
-    // The first attempt of shard 4 kills its own process (SIGKILL) halfway.
+    // The first attempt of shard 4 is killed (SIGKILL) once it has begun to
+    // write (its staging folder is there), not after a guessed time: a shard
+    // that ended before that marks the kill as missed.
     let marker = t.path().join("killed-once");
+    let missed = t.path().join("kill-missed");
     let wrapper = t.path().join("pcimg-wrapper.sh");
     std::fs::write(
         &wrapper,
         format!(
             "#!/bin/sh\ncase \"$*\" in *'--shard 4/'*) if [ ! -e '{m}' ]; then touch '{m}'; \
-             '{b}' \"$@\" & sleep 0.3; kill -9 $!; kill -9 $$; fi;; esac\nexec '{b}' \"$@\"\n",
+             '{b}' \"$@\" & p=$!; \
+             until ls -a '{o}' 2>/dev/null | grep -q '^\\.shard-00004\\.tmp'; do \
+             kill -0 $p 2>/dev/null || {{ touch '{x}'; break; }}; sleep 0.01; done; \
+             kill -9 $p; kill -9 $$; fi;; esac\nexec '{b}' \"$@\"\n",
             m = marker.display(),
+            x = missed.display(),
+            o = out.display(),
             b = env!("CARGO_BIN_EXE_pcimg")
         ),
     )
@@ -270,6 +278,7 @@ fn dask_driver_retries_a_killed_shard_and_equals_one_convert() {
         .args(["--workers", "2", "--pcimg"])
         .arg(format!("sh {}", wrapper.display())));
     assert!(marker.exists(), "the kill never happened");
+    assert!(!missed.exists(), "shard 4 ended before it could be killed");
     assert!(said.contains("6 shards done"), "{said}");
     assert!(
         said.contains("receipts of 6 shard(s) match the plan"),

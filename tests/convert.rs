@@ -660,9 +660,9 @@ fn bad_inputs_are_clear_errors_and_leave_nothing() {
         (
             "short.ply",
             b"ply\nformat binary_little_endian 1.0\nelement vertex 10\nproperty float x\nproperty float y\nproperty float z\nend_header\n\x00\x00\x80\x3f".to_vec(),
-            "",
+            "byte offset",
         ),
-        ("cut.laz", std::fs::read(fixture("autzen_trim.laz")).unwrap()[..20_000].to_vec(), ""),
+        ("cut.laz", std::fs::read(fixture("autzen_trim.laz")).unwrap()[..20_000].to_vec(), "byte offset"),
     ];
     for (name, bytes, want) in cases {
         let input = d.join(name);

@@ -596,25 +596,78 @@ fn gdal_reads_head_first_and_older_layouts_alike() {
     }
 }
 
-/// A Python with GDAL's bindings (python3-gdal), for its COG validator.
-fn python_with_gdal() -> Option<&'static str> {
+/// A Python that imports `modules` (GDAL's bindings from python3-gdal, laspy),
+/// or `None` outside CI (a failure in CI: .ci/run installs them).
+fn python_with(modules: &str) -> Option<&'static str> {
     let found = ["/usr/bin/python3", "python3"].into_iter().find(|py| {
         Command::new(py)
-            .args([
-                "-c",
-                "import osgeo_utils.samples.validate_cloud_optimized_geotiff",
-            ])
+            .args(["-c", &format!("import {modules}")])
             .output()
             .is_ok_and(|o| o.status.success())
     });
     if found.is_none() {
         assert!(
             std::env::var("CI").ok().as_deref() != Some("true"),
-            "python3-gdal is required in CI (.ci/run installs it)"
+            "a python3 that imports {modules} is required in CI (.ci/run installs it)"
         );
-        eprintln!("note: no python3 with GDAL's bindings, skipping this test outside CI");
+        eprintln!("note: no python3 that imports {modules}, skipping this test outside CI");
     }
     found
+}
+
+/// A Python with GDAL's bindings (python3-gdal), for its COG validator.
+fn python_with_gdal() -> Option<&'static str> {
+    python_with("osgeo_utils.samples.validate_cloud_optimized_geotiff")
+}
+
+/// A conversion in several parts keeps every point's attributes with its own
+/// coordinates, checked by software we did not write: real LAS written by laspy
+/// (`fixtures/autzen_trim.laz` tiled with jitter, `bench/autzen_tiled.py`), every
+/// part read back by GDAL, every attribute of every point compared with laspy's
+/// (`tests/python/parts_match_las.py`).
+#[test]
+fn a_conversion_in_parts_equals_its_source_point_by_point_in_gdal_and_laspy() {
+    let Some(py) = python_with("osgeo, laspy, lazrs, numpy") else {
+        return;
+    };
+    let dir = tempfile::tempdir().unwrap();
+    let root = env!("CARGO_MANIFEST_DIR");
+    let las = dir.path().join("tiled.las");
+    run(
+        py,
+        &[
+            &format!("{root}/bench/autzen_tiled.py"),
+            las.to_str().unwrap(),
+            "600000",
+            &format!("{root}/fixtures/autzen_trim.laz"),
+        ],
+    );
+    let out = dir.path().join("tiled.pcimg");
+    // 64 MiB splits 600,000 points of 11 bands into several parts.
+    run(
+        env!("CARGO_BIN_EXE_pcimg"),
+        &[
+            "convert",
+            las.to_str().unwrap(),
+            "-o",
+            out.to_str().unwrap(),
+            "--memory",
+            "64MiB",
+            "-q",
+        ],
+    );
+    let said = run(
+        py,
+        &[
+            &format!("{root}/tests/python/parts_match_las.py"),
+            las.to_str().unwrap(),
+            out.to_str().unwrap(),
+        ],
+    );
+    assert!(
+        said.contains("600000 points") && said.contains("gps_time") && said.contains("all equal"),
+        "{said}"
+    );
 }
 
 /// GDAL's `validate_cloud_optimized_geotiff.py` accepts a part as a Cloud

@@ -385,8 +385,14 @@ pub fn describe(r: &FrameReport) -> String {
     if s.overview_tiles > 0 {
         levels = format!("{} overview, {levels}", s.overview_tiles);
     }
+    // With a filter: the points loaded, and those it kept (and so drew).
+    let kept = if r.kept < r.points {
+        format!(", {} kept by the filter", crate::text::count(r.kept))
+    } else {
+        String::new()
+    };
     let mut line = format!(
-        "{} points from {} tiles ({levels}), {} culled; select {:.1} ms, load {:.0} ms, colour {:.0} ms, render {:.0} ms on {}",
+        "{} points from {} tiles ({levels}){kept}, {} culled; select {:.1} ms, load {:.0} ms, colour {:.0} ms, render {:.0} ms on {}",
         crate::text::count(s.points),
         s.tiles.len(),
         s.culled,

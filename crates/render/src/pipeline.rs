@@ -70,6 +70,8 @@ pub struct FrameReport {
     pub selection: Selection,
     /// Points of the tiles drawn (loaded; the filter may hide some).
     pub points: u64,
+    /// Of those, the points the filter keeps (all of them without a filter).
+    pub kept: u64,
     /// Finest and coarsest part level drawn (overview tiles not counted).
     pub levels: Option<(usize, usize)>,
     /// Selected tiles still loading ([`Loading::Stream`]).
@@ -117,14 +119,14 @@ pub enum DrawError {
     Render(#[from] RenderError),
 }
 
-/// Colours of loaded tiles for one style, and their heights with hidden points
-/// NaN for one filter.
+/// Colours of loaded tiles for one style, and for one filter their heights with
+/// hidden points NaN (`None`: none hidden) and the count it keeps.
 #[derive(Default)]
 struct ColorCache {
     style: Option<Style>,
     columns: HashMap<TileKey, Vec<u32>>,
     filter: Option<Filter>,
-    hidden: HashMap<TileKey, Option<Vec<f32>>>,
+    hidden: HashMap<TileKey, (Option<Vec<f32>>, u64)>,
 }
 
 /// Draws frames of one dataset; keeps the tile cache, the rasterizer, the colour
@@ -263,7 +265,7 @@ impl Pipeline {
                 origin: t.origin,
                 x: &t.x,
                 y: &t.y,
-                z: self.colors.hidden[&t.key].as_deref().unwrap_or(&t.z),
+                z: self.colors.hidden[&t.key].0.as_deref().unwrap_or(&t.z),
                 color: &self.colors.columns[&t.key],
             })
             .collect();
@@ -300,6 +302,7 @@ impl Pipeline {
         draw_overlays(&mut frame, req.camera, &req.overlays, legend.as_ref());
 
         let points = tiles.iter().map(|t| t.len() as u64).sum();
+        let kept = tiles.iter().map(|t| self.colors.hidden[&t.key].1).sum();
         let levels = tiles
             .iter()
             .filter(|t| !self.ds.is_overview(t.key.part))
@@ -315,6 +318,7 @@ impl Pipeline {
             report: FrameReport {
                 selection: sel,
                 points,
+                kept,
                 levels,
                 pending,
                 unreadable,
@@ -351,7 +355,13 @@ impl Pipeline {
         let hidden: Vec<_> = tiles
             .par_iter()
             .filter(|t| !c.hidden.contains_key(&t.key))
-            .map(|t| (t.key, filter.hidden_z(t)))
+            .map(|t| {
+                let z = filter.hidden_z(t);
+                let kept = z
+                    .as_deref()
+                    .map_or(t.len(), |z| z.iter().filter(|v| !v.is_nan()).count());
+                (t.key, (z, kept as u64))
+            })
             .collect();
         c.hidden.extend(hidden);
     }

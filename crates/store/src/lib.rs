@@ -8,6 +8,17 @@
 //! * [`dataset`]: many parts as one: the index, the overview nodes above them;
 //! * `remote` (feature `remote`): object storage, the byte source of remote reads.
 //!
+//! What a program uses is at the root: opening ([`Dataset::open`]: a part, a
+//! folder, or with `remote` a URL), a part's levels, tiles and bands ([`Part`],
+//! [`Level`], [`TileInfo`], [`BandInfo`], [`PartMeta`]), reading
+//! ([`Part::read_level`], [`Part::read_tiles`], [`Points`]), writing
+//! ([`write_part`], [`PartBuilder`], [`WriteOptions`], [`Layout`],
+//! [`Compression`]), indexing ([`build_index`]) and errors ([`StoreError`] with
+//! the [`Remedy`] that would put it right). The format's own names are public
+//! too: [`spec`] (tags, metadata keys), [`tiff::ifd`] and [`tiff::zorder`] (the
+//! directory parser and pixel geometry a third-party reader needs) and
+//! [`dataset::index`] (the index file). Everything else is `pub(crate)`.
+//!
 //! Write a part, open it as a dataset (a part, a directory of parts, or with
 //! `remote` a URL), walk its levels and tiles, and read columns back:
 //!

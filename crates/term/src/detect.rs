@@ -645,4 +645,111 @@ mod tests {
         let c = in_tmux("kitty(0.21.2)", "xterm-kitty", "RGB,sixel");
         assert_eq!(c.graphics, Graphics::Sixel);
     }
+    #[test]
+    fn the_environment_decides_where_the_terminal_was_not_asked() {
+        let env = |f: fn(&mut TerminalEnv)| {
+            let mut e = TerminalEnv::default();
+            f(&mut e);
+            choose(Protocol::Auto, &e, None, false, None)
+        };
+        let c = env(|e| e.term_program = Some("WezTerm".into()));
+        assert_eq!(c.graphics, Graphics::Iterm2, "{c:?}");
+        assert!(c.reason.contains("TERM_PROGRAM=WezTerm"), "{}", c.reason);
+        let c = env(|e| e.lc_terminal = Some("iTerm2".into()));
+        assert_eq!(c.graphics, Graphics::Iterm2);
+        assert_eq!(c.reason, "LC_TERMINAL=iTerm2");
+        let c = env(|e| e.term = Some("mlterm".into()));
+        assert_eq!(c.graphics, Graphics::Sixel, "{c:?}");
+        let c = env(|e| e.term = Some("xterm-256color".into()));
+        assert_eq!(c.graphics, Graphics::Halfblocks);
+        assert!(!c.requested);
+        let note = c.note.unwrap();
+        assert!(
+            note.contains("not a terminal, so it was not asked"),
+            "{note}"
+        );
+        // Asked, and silent until the cap.
+        let silent = Replies::default();
+        let c = choose(
+            Protocol::Auto,
+            &TerminalEnv::default(),
+            Some(&silent),
+            true,
+            None,
+        );
+        assert_eq!(c.graphics, Graphics::Halfblocks);
+        assert!(c.note.unwrap().contains("did not answer within"));
+        // Answered, but with no image protocol.
+        let r = Replies {
+            da1: Some(vec![62, 22]),
+            ..Default::default()
+        };
+        let c = choose(
+            Protocol::Auto,
+            &TerminalEnv::default(),
+            Some(&r),
+            false,
+            None,
+        );
+        assert_eq!(c.graphics, Graphics::Halfblocks);
+        assert!(c.note.unwrap().contains("reports no image protocol"));
+    }
+
+    #[test]
+    fn a_requested_protocol_wins_and_says_so() {
+        for (p, g) in [
+            (Protocol::Kitty, Graphics::Kitty),
+            (Protocol::Sixel, Graphics::Sixel),
+            (Protocol::Iterm, Graphics::Iterm2),
+            (Protocol::Halfblocks, Graphics::Halfblocks),
+        ] {
+            // Whatever the terminal answered.
+            let r = answered(Some("XTerm(379)"));
+            let c = choose(p, &TerminalEnv::default(), Some(&r), false, None);
+            assert_eq!(c.graphics, g);
+            assert!(c.requested && c.note.is_none(), "{c:?}");
+            assert!(c.reason.starts_with("requested"), "{}", c.reason);
+        }
+        // Inside tmux a requested sixel goes through passthrough (tmux 3.3a
+        // draws none itself).
+        let env = TerminalEnv {
+            tmux: Some("/tmp/tmux-0/default,1,0".into()),
+            ..Default::default()
+        };
+        let info = Ok(TmuxInfo::default());
+        let c = choose(Protocol::Sixel, &env, None, false, Some(&info));
+        assert!(c.requested && c.passthrough, "{c:?}");
+    }
+
+    #[test]
+    fn tmux_that_draws_sixel_gets_it_without_passthrough() {
+        let c = in_tmux("XTerm(379)", "xterm", "256,RGB,sixel,title");
+        assert_eq!(c.graphics, Graphics::Sixel, "{c:?}");
+        assert!(!c.passthrough && c.note.is_none());
+        assert_eq!(c.reason, "tmux draws sixel");
+        // Without the feature: half-blocks, and the note says what would draw.
+        let c = in_tmux("XTerm(379)", "xterm", "256,RGB,title");
+        assert_eq!(c.graphics, Graphics::Halfblocks);
+        let note = c.note.unwrap();
+        assert!(
+            note.contains("tmux 3.3a in XTerm(379)") && note.contains("would"),
+            "{note}"
+        );
+    }
+
+    #[test]
+    fn tmux_that_cannot_be_asked_is_said() {
+        let env = TerminalEnv {
+            tmux: Some("/tmp/tmux-0/default,1,0".into()),
+            ..Default::default()
+        };
+        let failed = Err("tmux: no server running".to_string());
+        let c = choose(Protocol::Auto, &env, None, false, Some(&failed));
+        assert_eq!(c.graphics, Graphics::Halfblocks);
+        assert_eq!(
+            c.reason,
+            "tmux could not be asked (tmux: no server running)"
+        );
+        assert!(c.note.unwrap().contains("tmux could not be asked"));
+    }
 }
