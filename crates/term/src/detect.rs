@@ -668,31 +668,24 @@ mod tests {
             note.contains("not a terminal, so it was not asked"),
             "{note}"
         );
-        // Asked, and silent until the cap.
-        let silent = Replies::default();
-        let c = choose(
-            Protocol::Auto,
-            &TerminalEnv::default(),
-            Some(&silent),
-            true,
-            None,
-        );
-        assert_eq!(c.graphics, Graphics::Halfblocks);
-        assert!(c.note.unwrap().contains("did not answer within"));
-        // Answered, but with no image protocol.
-        let r = Replies {
+        // Asked: silent until the cap, or answering with no image protocol.
+        let asked = |r: Replies, capped: bool| {
+            let c = choose(
+                Protocol::Auto,
+                &TerminalEnv::default(),
+                Some(&r),
+                capped,
+                None,
+            );
+            assert_eq!(c.graphics, Graphics::Halfblocks);
+            c.note.unwrap()
+        };
+        assert!(asked(Replies::default(), true).contains("did not answer within"));
+        let da1 = Replies {
             da1: Some(vec![62, 22]),
             ..Default::default()
         };
-        let c = choose(
-            Protocol::Auto,
-            &TerminalEnv::default(),
-            Some(&r),
-            false,
-            None,
-        );
-        assert_eq!(c.graphics, Graphics::Halfblocks);
-        assert!(c.note.unwrap().contains("reports no image protocol"));
+        assert!(asked(da1, false).contains("reports no image protocol"));
     }
 
     #[test]
