@@ -232,7 +232,7 @@ fn quoted_path(p: &Path) -> String {
 
 /// `s` as one shell word (quoted when it holds anything but plain characters),
 /// sanitized for the terminal.
-pub(super) fn quoted(s: &str) -> String {
+fn quoted(s: &str) -> String {
     let s = crate::text::sanitize(s);
     if s.chars()
         .all(|c| c.is_ascii_alphanumeric() || "-_./+,:@".contains(c))
