@@ -705,10 +705,7 @@ mod tests {
         }
         // Inside tmux a requested sixel goes through passthrough (tmux 3.3a
         // draws none itself).
-        let env = TerminalEnv {
-            tmux: Some("/tmp/tmux-0/default,1,0".into()),
-            ..Default::default()
-        };
+        let env = tmux_env();
         let info = Ok(TmuxInfo::default());
         let c = choose(Protocol::Sixel, &env, None, false, Some(&info));
         assert!(c.requested && c.passthrough, "{c:?}");
@@ -730,12 +727,17 @@ mod tests {
         );
     }
 
-    #[test]
-    fn tmux_that_cannot_be_asked_is_said() {
-        let env = TerminalEnv {
+    /// The environment inside tmux, and nothing else.
+    fn tmux_env() -> TerminalEnv {
+        TerminalEnv {
             tmux: Some("/tmp/tmux-0/default,1,0".into()),
             ..Default::default()
-        };
+        }
+    }
+
+    #[test]
+    fn tmux_that_cannot_be_asked_is_said() {
+        let env = tmux_env();
         let failed = Err("tmux: no server running".to_string());
         let c = choose(Protocol::Auto, &env, None, false, Some(&failed));
         assert_eq!(c.graphics, Graphics::Halfblocks);
