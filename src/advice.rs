@@ -108,7 +108,7 @@ fn of_remote(e: &RemoteError) -> Option<String> {
     };
     let credentials = "AWS_ACCESS_KEY_ID and AWS_SECRET_ACCESS_KEY, \
                        GOOGLE_APPLICATION_CREDENTIALS, AZURE_STORAGE_ACCOUNT_KEY";
-    Some(match &e.problem {
+    let advice: String = match &e.problem {
         // (Their text says it.)
         Problem::BadUrl(_) | Problem::Changed(_) | Problem::Other(_) => return None,
         Problem::Replaced { .. } => "convert again with `-o URL` (that writes the index with \
@@ -177,7 +177,26 @@ fn of_remote(e: &RemoteError) -> Option<String> {
              or use https://"
                 .into()
         }
+    };
+    // Tried until the time limit: how to give it longer.
+    Some(match e.gave_up {
+        Some(g) => format!(
+            "{advice}; to keep trying longer than {}, raise --timeout (e.g. --timeout {}s)",
+            seconds(g.limit),
+            (g.limit.as_secs() * 4).max(60)
+        ),
+        None => advice,
     })
+}
+
+/// A duration in words: `2 s`, `0.5 s`.
+fn seconds(d: std::time::Duration) -> String {
+    let s = d.as_secs_f64();
+    if s >= 10.0 || s.fract() == 0.0 {
+        format!("{s:.0} s")
+    } else {
+        format!("{s:.1} s")
+    }
 }
 
 /// What to do about an input reader's error.

@@ -97,6 +97,9 @@ pub struct Args {
     /// (requests, bytes received, failures; benchmarks).
     #[arg(long)]
     pub net_stats: bool,
+    // `--timeout`: on an upload that still fails the conversion removes what it uploaded.
+    #[command(flatten)]
+    pub timeout: super::remote::TimeoutArg,
 }
 
 /// `--partition`'s values.
@@ -405,6 +408,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
             u,
             a.force,
             opts.cancel.clone(),
+            &a.timeout.remote_options(),
         )?),
         None => None,
     };

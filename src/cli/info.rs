@@ -393,7 +393,7 @@ fn source_lines(o: &mut String, key: &str, value: &str) {
 
 pub fn run(a: Args) -> anyhow::Result<()> {
     a.cache.apply()?;
-    let ds = Dataset::open(&a.path)?;
+    let ds = Dataset::open_with(&a.path, &a.cache.open_options())?;
     if let Some(h) = crate::advice::dataset_note(&ds) {
         note!("{h}");
     }

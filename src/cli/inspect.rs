@@ -54,7 +54,10 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     no_device_select();
     // The dataset first: a wrong path is the error to report, terminal or not.
     a.view.cache.apply()?;
-    let ds = Arc::new(Dataset::open(&a.view.path)?);
+    let ds = Arc::new(Dataset::open_with(
+        &a.view.path,
+        &a.view.cache.open_options(),
+    )?);
     if let Some(h) = crate::advice::dataset_note(&ds) {
         note!("{h}");
     }

@@ -23,7 +23,10 @@ pub struct Args {
 pub fn run(a: Args) -> anyhow::Result<()> {
     // The dataset first: a wrong path is the error to report, terminal or not.
     a.view.cache.apply()?;
-    let ds = Arc::new(Dataset::open(&a.view.path)?);
+    let ds = Arc::new(Dataset::open_with(
+        &a.view.path,
+        &a.view.cache.open_options(),
+    )?);
     if let Some(h) = crate::advice::dataset_note(&ds) {
         note!("{h}");
     }

@@ -1,5 +1,6 @@
 //! Options for datasets in object storage, shared by `info`, `render`, `preview`
-//! and `inspect` (`--cache`, `--cache-size`, `--net-stats`), and the network
+//! and `inspect` (`--cache`, `--cache-size`, `--net-stats`, `--timeout`; `convert`
+//! takes `--timeout` too), and the network
 //! counters printed on exit with `--net-stats` (also `convert`'s).
 
 use std::path::PathBuf;
@@ -20,9 +21,53 @@ pub struct CacheArgs {
     /// (requests, bytes received, failures, the disk cache's hits; benchmarks).
     #[arg(long)]
     pub net_stats: bool,
+    #[command(flatten)]
+    pub timeout: TimeoutArg,
+}
+
+/// `--timeout`, for every command that reads or writes object storage.
+#[derive(Debug, Clone, Copy, clap::Args)]
+pub struct TimeoutArg {
+    /// For a dataset in object storage (read, or `convert -o URL`'s upload):
+    /// how long a failing request is tried again, with exponential backoff and
+    /// jitter (HTTP 5xx, 429, 503 SlowDown; reset or stalled connections;
+    /// bodies cut short), before pcimg gives up with an error; e.g. 30s,
+    /// 500ms, 2m. A connection that sends nothing for a quarter of this (at
+    /// most 10 s) counts as stalled.
+    #[arg(long, value_name = "DURATION", value_parser = crate::text::parse_duration, default_value = "30s")]
+    pub timeout: std::time::Duration,
+}
+
+impl Default for TimeoutArg {
+    fn default() -> Self {
+        TimeoutArg {
+            timeout: crate::store::OpenOptions::default().timeout,
+        }
+    }
+}
+
+impl TimeoutArg {
+    /// How the dataset is opened.
+    pub fn open_options(&self) -> crate::store::OpenOptions {
+        crate::store::OpenOptions {
+            timeout: self.timeout,
+        }
+    }
+
+    /// How requests to object storage are retried.
+    pub fn remote_options(&self) -> crate::remote::Options {
+        crate::remote::Options {
+            timeout: self.timeout,
+        }
+    }
 }
 
 impl CacheArgs {
+    /// How the dataset is opened (`--timeout`).
+    pub fn open_options(&self) -> crate::store::OpenOptions {
+        self.timeout.open_options()
+    }
+
     /// Turns the disk cache on when `--cache` is given.
     pub fn apply(&self) -> anyhow::Result<()> {
         if let Some(dir) = &self.cache {

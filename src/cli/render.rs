@@ -80,7 +80,10 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         std::process::exit(130);
     });
     a.view.cache.apply()?;
-    let ds = Arc::new(Dataset::open(&a.view.path)?);
+    let ds = Arc::new(Dataset::open_with(
+        &a.view.path,
+        &a.view.cache.open_options(),
+    )?);
     if let Some(h) = crate::advice::dataset_note(&ds) {
         note!("{h}");
     }

@@ -40,8 +40,13 @@ impl RemoteOutput {
     /// Checks the target (an index there, or any object under the prefix, is
     /// refused without `force`), and makes the local temporary directory (in
     /// `$TMPDIR`: the parts and the conversion's spill files).
-    pub fn prepare(url: &str, force: bool, cancel: Arc<AtomicBool>) -> Result<RemoteOutput> {
-        let remote = Arc::new(Remote::open(url).map_err(|m| anyhow!(m))?);
+    pub fn prepare(
+        url: &str,
+        force: bool,
+        cancel: Arc<AtomicBool>,
+        net: &crate::remote::Options,
+    ) -> Result<RemoteOutput> {
+        let remote = Arc::new(Remote::open_with(url, net).map_err(|m| anyhow!(m))?);
         Self::prepare_in(remote, force, cancel)
     }
 
@@ -217,8 +222,39 @@ impl RemoteOutput {
     pub fn abort(&self, progress: &dyn Progress) {
         let mut left = self.uploader.remove_all();
         left.extend(self.uploader.delete(&self.old));
-        for e in left {
+        // What was removed: every object an upload was started for (and of
+        // the dataset replaced) but those that could not be deleted.
+        let url = crate::text::sanitize(&self.url);
+        let mut removed: Vec<String> = self.uploader.started();
+        removed.extend(self.old.iter().cloned());
+        removed.dedup();
+        removed.retain(|n| {
+            let u = self.remote.url_of(n);
+            !left.iter().any(|e| e.starts_with(&format!("{u}: ")))
+        });
+        if removed.is_empty() && left.is_empty() {
+            progress.note(&format!("nothing had been uploaded to {url}"));
+        } else if !removed.is_empty() {
+            const SHOWN: usize = 8;
+            let mut names: Vec<String> = removed
+                .iter()
+                .take(SHOWN)
+                .map(|n| crate::text::sanitize(if n.is_empty() { &self.url } else { n }))
+                .collect();
+            if removed.len() > SHOWN {
+                names.push(format!("and {} more", removed.len() - SHOWN));
+            }
+            progress.note(&format!(
+                "removed {} object(s) from {url}: {}",
+                removed.len(),
+                names.join(", ")
+            ));
+        }
+        for e in &left {
             progress.note(&format!("could not delete {e}"));
+        }
+        if left.is_empty() {
+            progress.note(&format!("nothing of this conversion is left at {url}"));
         }
     }
 

@@ -2,7 +2,9 @@
 #![allow(dead_code)]
 
 pub mod fuzz;
+pub mod proxy;
 pub mod pty;
+pub mod servers;
 pub mod tiffwalk;
 pub mod tmux;
 

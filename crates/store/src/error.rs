@@ -58,7 +58,11 @@ impl StoreError {
             .then(|| Box::new(Remedy::Rewrite));
         StoreError {
             path: PathBuf::from(&e.url),
-            message: e.problem.to_string(),
+            message: format!(
+                "{}{}",
+                e.problem,
+                e.gave_up.map(|g| g.to_string()).unwrap_or_default()
+            ),
             remedy,
             remote: Some(Box::new(e)),
         }

@@ -85,7 +85,7 @@ pub mod tiff;
 pub mod write;
 
 pub use dataset::overview::{IndexOptions, IndexReport, build_index};
-pub use dataset::{Dataset, Overview, PartHeader};
+pub use dataset::{Dataset, OpenOptions, Overview, PartHeader};
 pub use error::{Remedy, Result, StoreError};
 pub use read::part::{BandInfo, Level, Part, PartMeta, TileInfo};
 pub use read::points::Points;

@@ -147,16 +147,46 @@ fn tree_of(index: &IndexFile) -> Vec<(u32, Vec<Child>)> {
         .collect()
 }
 
+/// How [`Dataset::open_with`] opens a dataset: for one in object storage, how
+/// its requests are retried (a local dataset makes no requests).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct OpenOptions {
+    /// How long a failing request is tried again (exponential backoff with
+    /// jitter) before it fails; a connection silent for a quarter of this (at
+    /// most 10 s) counts as stalled (`remote::Options`).
+    pub timeout: std::time::Duration,
+}
+
+impl Default for OpenOptions {
+    fn default() -> Self {
+        OpenOptions {
+            timeout: std::time::Duration::from_secs(30),
+        }
+    }
+}
+
 impl Dataset {
     /// Opens a `.tif` part or a directory of them (sorted by name).
     pub fn open(path: &Path) -> Result<Dataset> {
+        Self::open_with(path, &OpenOptions::default())
+    }
+
+    /// As [`Dataset::open`], with `options` for a dataset in object storage.
+    pub fn open_with(path: &Path, options: &OpenOptions) -> Result<Dataset> {
         let text = path.to_string_lossy();
         if let Some(local) = crate::location::file_url_path(&text) {
             return Self::open(&local);
         }
         if crate::location::is_url(&text) {
             #[cfg(feature = "remote")]
-            return Self::open_url(&text);
+            return Self::open_url(
+                &text,
+                &crate::remote::Options {
+                    timeout: options.timeout,
+                },
+            );
+            #[cfg(not(feature = "remote"))]
+            let _ = options;
             #[cfg(not(feature = "remote"))]
             return Err(StoreError::new(
                 path,
@@ -211,10 +241,11 @@ impl Dataset {
     #[cfg(feature = "remote")]
     /// A dataset in object storage: its index in one request (its parts are
     /// fetched from when their tiles are read), or a single `.tif` part.
-    pub(crate) fn open_url(url: &str) -> Result<Dataset> {
+    pub(crate) fn open_url(url: &str, options: &crate::remote::Options) -> Result<Dataset> {
         let url = url.trim_end_matches('/');
-        let remote =
-            std::sync::Arc::new(crate::remote::Remote::open(url).map_err(StoreError::remote)?);
+        let remote = std::sync::Arc::new(
+            crate::remote::Remote::open_with(url, options).map_err(StoreError::remote)?,
+        );
         Self::open_remote(remote)
     }
 

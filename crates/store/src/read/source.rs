@@ -64,7 +64,7 @@ impl Part {
         tiles: &[u32],
         bands: &[usize],
         with_x: bool,
-    ) -> std::result::Result<Chunks<'_>, String> {
+    ) -> crate::Result<Chunks<'_>> {
         let Some(remote) = &self.remote else {
             return Ok(Chunks::Map(&self.map));
         };
@@ -80,7 +80,7 @@ impl Part {
         tiles: &[u32],
         bands: &[usize],
         with_x: bool,
-    ) -> std::result::Result<Chunks<'_>, String> {
+    ) -> crate::Result<Chunks<'_>> {
         let mut want: Vec<usize> = bands.to_vec();
         if with_x && !want.contains(&0) {
             want.push(0);
@@ -97,7 +97,10 @@ impl Part {
             .filter(|&(_, n)| n > 0)
             .map(|(o, n)| o..o + n)
             .collect();
-        let got = remote.read_ranges(&ranges)?;
+        // (A failed request keeps its facts: the command line's advice.)
+        let got = remote
+            .read_ranges(&ranges)
+            .map_err(crate::StoreError::remote)?;
         let mut v: Vec<(u64, bytes::Bytes)> = ranges.iter().map(|r| r.start).zip(got).collect();
         v.sort_by_key(|e| e.0);
         Ok(Chunks::Fetched(v))
@@ -111,7 +114,7 @@ impl Part {
         _: &[u32],
         _: &[usize],
         _: bool,
-    ) -> std::result::Result<Chunks<'_>, String> {
+    ) -> crate::Result<Chunks<'_>> {
         match *remote {}
     }
 }

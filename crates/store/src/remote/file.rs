@@ -159,13 +159,28 @@ impl RemoteFile {
         RemoteError::new(&self.url(), problem)
     }
 
-    /// One request for `r`, conditional on the ETag seen first (or `r` cut
-    /// from the whole object, where the server ignores Range).
+    /// The bytes `r`, by ranged requests conditional on the ETag seen first
+    /// (tried again as [`Remote::retrying`] says: a body cut short is never
+    /// kept), or `r` cut from the whole object where the server ignores Range.
     async fn fetch_one(&self, r: Range<u64>) -> Result<Bytes, RemoteError> {
         use std::sync::atomic::Ordering;
         if self.remote.ignores_range.load(Ordering::Relaxed) {
             return self.cut_from_whole(r).await;
         }
+        match self.remote.retrying(|| self.ranged_once(r.clone())).await? {
+            Some(b) => Ok(b),
+            None => {
+                // A 200 with the whole object (its body not read): from now on
+                // every object of this server is fetched whole.
+                self.remote.ignores_range.store(true, Ordering::Relaxed);
+                self.cut_from_whole(r).await
+            }
+        }
+    }
+
+    /// One ranged request for `r`; `None` where the server answered with the
+    /// whole object instead (it ignores Range).
+    async fn ranged_once(&self, r: Range<u64>) -> Result<Option<Bytes>, RemoteError> {
         let loc = self.remote.location(&self.name);
         let opts = GetOptions {
             range: Some(GetRange::Bounded(r.clone())),
@@ -191,14 +206,11 @@ impl RemoteFile {
                     }));
                 }
                 self.check(meta)?;
-                Ok(b)
+                Ok(Some(b))
             }
             Err(e) if ignored_range(&e) => {
-                // A 200 with the whole object (its body not read): from now on
-                // every object of this server is fetched whole.
                 f.done(0, true);
-                self.remote.ignores_range.store(true, Ordering::Relaxed);
-                self.cut_from_whole(r).await
+                Ok(None)
             }
             Err(e) => {
                 f.done(0, false);
@@ -237,43 +249,14 @@ impl RemoteFile {
         Ok(())
     }
 
-    /// Bytes `r` of the object fetched whole (once; later calls wait for the
-    /// first). Its length must be the size the response (and the index) gives.
+    /// Bytes `r` of the object fetched whole (once, tried again as
+    /// [`Remote::retrying`] says; later calls wait for the first). Its length
+    /// must be the size the response (and the index) gives: a body cut short
+    /// is never kept.
     async fn cut_from_whole(&self, r: Range<u64>) -> Result<Bytes, RemoteError> {
         let whole = self
             .whole
-            .get_or_try_init(|| async {
-                let loc = self.remote.location(&self.name);
-                let opts = GetOptions {
-                    if_match: self.seen.get().and_then(|s| s.1.clone()),
-                    ..Default::default()
-                };
-                let f = InFlight::start(&self.remote);
-                let got = async {
-                    let g = self.remote.store.get_opts(&loc, opts).await?;
-                    let meta = (g.meta.size, g.meta.e_tag.clone());
-                    Ok::<_, object_store::Error>((g.bytes().await?, meta))
-                }
-                .await;
-                match got {
-                    Ok((b, meta)) => {
-                        f.done(b.len() as u64, true);
-                        if b.len() as u64 != meta.0 {
-                            return Err(self.fail(Problem::WrongRange {
-                                asked: 0..meta.0,
-                                got: 0..b.len() as u64,
-                                bytes: b.len() as u64,
-                            }));
-                        }
-                        self.check(meta)?;
-                        Ok::<_, RemoteError>(b)
-                    }
-                    Err(e) => {
-                        f.done(0, false);
-                        Err(self.changed_or(&e))
-                    }
-                }
-            })
+            .get_or_try_init(|| self.remote.retrying(|| self.whole_once()))
             .await?;
         if r.start > r.end || r.end > whole.len() as u64 {
             return Err(self.fail(Problem::WrongRange {
@@ -283,6 +266,40 @@ impl RemoteFile {
             }));
         }
         Ok(whole.slice(r.start as usize..r.end as usize))
+    }
+
+    /// One request for the whole object.
+    async fn whole_once(&self) -> Result<Bytes, RemoteError> {
+        let loc = self.remote.location(&self.name);
+        let opts = GetOptions {
+            if_match: self.seen.get().and_then(|s| s.1.clone()),
+            ..Default::default()
+        };
+        let f = InFlight::start(&self.remote);
+        let got = async {
+            let g = self.remote.store.get_opts(&loc, opts).await?;
+            let meta = (g.meta.size, g.meta.e_tag.clone());
+            Ok::<_, object_store::Error>((g.bytes().await?, meta))
+        }
+        .await;
+        match got {
+            Ok((b, meta)) => {
+                f.done(b.len() as u64, true);
+                if b.len() as u64 != meta.0 {
+                    return Err(self.fail(Problem::WrongRange {
+                        asked: 0..meta.0,
+                        got: 0..b.len() as u64,
+                        bytes: b.len() as u64,
+                    }));
+                }
+                self.check(meta)?;
+                Ok(b)
+            }
+            Err(e) => {
+                f.done(0, false);
+                Err(self.changed_or(&e))
+            }
+        }
     }
 
     /// The bytes of each of `ranges`, in order: cached ones from the cache, the
@@ -334,19 +351,25 @@ impl RemoteFile {
     /// ranged request does).
     async fn head(&self) -> Result<(), RemoteError> {
         use object_store::ObjectStoreExt;
-        let loc = self.remote.location(&self.name);
-        let f = InFlight::start(&self.remote);
-        match self.remote.store.head(&loc).await {
-            Ok(meta) => {
-                f.done(0, true);
-                let _ = self.seen.set((meta.size, meta.e_tag));
-                Ok(())
-            }
-            Err(e) => {
-                f.done(0, false);
-                Err(self.fail(Problem::of(&e)))
-            }
-        }
+        let loc = &self.remote.location(&self.name);
+        let meta = self
+            .remote
+            .retrying(|| async move {
+                let f = InFlight::start(&self.remote);
+                match self.remote.store.head(&loc).await {
+                    Ok(meta) => {
+                        f.done(0, true);
+                        Ok(meta)
+                    }
+                    Err(e) => {
+                        f.done(0, false);
+                        Err(self.fail(Problem::of(&e)))
+                    }
+                }
+            })
+            .await?;
+        let _ = self.seen.set((meta.size, meta.e_tag));
+        Ok(())
     }
 
     async fn fetch_merged(
@@ -510,7 +533,12 @@ mod tests {
         };
         let url = format!("http://127.0.0.1:{port}/d.pcimg");
         let remote = Arc::new(Remote::open(&url).unwrap());
+        let start = std::time::Instant::now();
         let e = remote.file("part.tif").read_ranges(&[0..10]).unwrap_err();
+        // Nothing listens: reported after object_store's few quick retries,
+        // not tried until the time limit (30 s).
+        assert!(start.elapsed() < std::time::Duration::from_secs(10));
+        assert_eq!(e.gave_up, None);
         assert_eq!(e.url, format!("{url}/part.tif"));
         assert!(
             matches!(

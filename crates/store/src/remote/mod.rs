@@ -100,19 +100,134 @@ pub struct Remote {
     /// static file server without Range support): objects are then fetched
     /// whole, once each, and ranges cut from them.
     pub ignores_range: Arc<AtomicBool>,
+    /// Retries and timeouts.
+    pub options: Options,
 }
 
-/// Retries with exponential backoff (object_store's), bounded so that a dead
-/// server is reported within seconds rather than minutes.
-fn retry() -> object_store::RetryConfig {
-    object_store::RetryConfig {
-        backoff: object_store::BackoffConfig {
-            init_backoff: Duration::from_millis(100),
-            max_backoff: Duration::from_secs(2),
-            base: 2.0,
-        },
-        max_retries: 4,
-        retry_timeout: Duration::from_secs(20),
+/// How requests to object storage are retried and when one is given up: the
+/// library's side of a command line's `--timeout`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Options {
+    /// How long a request keeps being tried again (exponential backoff with
+    /// jitter) while the server fails (HTTP 5xx, 429, 503 SlowDown), the
+    /// connection is reset or the body cut short, or it stalls; then it fails
+    /// ([`transient`] says which failures). A connection that sends nothing
+    /// for [`Options::stall`] counts as stalled.
+    pub timeout: Duration,
+}
+
+/// [`Options::timeout`]'s default.
+pub const DEFAULT_TIMEOUT: Duration = Duration::from_secs(30);
+
+impl Default for Options {
+    fn default() -> Self {
+        Options {
+            timeout: DEFAULT_TIMEOUT,
+        }
+    }
+}
+
+impl Options {
+    /// How long a connection may send nothing (or take to connect) before
+    /// the request is taken as stalled and tried again: a quarter of the time
+    /// limit, between 50 ms and 10 s (a stalled server is then reported
+    /// within about the time limit, and retried a few times before).
+    pub fn stall(&self) -> Duration {
+        (self.timeout / 4).clamp(Duration::from_millis(50), Duration::from_secs(10))
+    }
+
+    /// The longest wait between two tries: an eighth of the time limit,
+    /// between 50 ms and 4 s.
+    fn max_backoff(&self) -> Duration {
+        (self.timeout / 8).clamp(Duration::from_millis(50), Duration::from_secs(4))
+    }
+
+    /// object_store's own retries within one request: a few, quick
+    /// (exponential backoff with decorrelated jitter from 50 ms; it retries
+    /// 5xx, 429 and 408, refused and reset connections, timeouts of GET and
+    /// HEAD, and a body cut short where the response has an ETag, from where
+    /// it was cut), within the time limit. [`Remote::retrying`] then tries
+    /// the request again, backing off further, until the time limit; a
+    /// refused connection (nothing listens) is reported after these few.
+    fn retry(&self) -> object_store::RetryConfig {
+        object_store::RetryConfig {
+            backoff: object_store::BackoffConfig {
+                init_backoff: Duration::from_millis(50).min(self.max_backoff()),
+                max_backoff: self.max_backoff(),
+                base: 2.0,
+            },
+            max_retries: 3,
+            retry_timeout: self.timeout,
+        }
+    }
+
+    /// The client's timeouts as object_store configuration keys and values:
+    /// connecting and each read within [`Options::stall`], a whole request
+    /// (a large body on a slow link) within twice the time limit, at least a
+    /// minute.
+    fn client_keys(&self) -> [(object_store::ClientConfigKey, String); 3] {
+        use object_store::ClientConfigKey as K;
+        let ms = |d: Duration| format!("{}ms", d.as_millis().max(1));
+        let stall = self.stall();
+        [
+            (K::ConnectTimeout, ms(stall.min(Duration::from_secs(5)))),
+            (K::ReadTimeout, ms(stall)),
+            (K::Timeout, ms((self.timeout * 2).max(Duration::from_secs(60)))),
+        ]
+    }
+}
+
+/// Waits between tries of one read: exponential, with full jitter (a random
+/// wait between the first and twice the previous, at most the largest).
+struct Backoff {
+    next: Duration,
+    first: Duration,
+    max: Duration,
+}
+
+impl Backoff {
+    fn new(o: &Options) -> Backoff {
+        let max = o.max_backoff();
+        let first = Duration::from_millis(50).min(max);
+        Backoff {
+            next: first,
+            first,
+            max,
+        }
+    }
+
+    fn next(&mut self) -> Duration {
+        let this = self.next;
+        let hi = (this * 2).max(self.first);
+        let span = (hi - self.first).as_nanos() as u64;
+        let pick = if span == 0 { 0 } else { random() % span };
+        self.next = (self.first + Duration::from_nanos(pick)).min(self.max);
+        this
+    }
+}
+
+/// A random number (the backoff's jitter): std's randomly keyed hasher.
+fn random() -> u64 {
+    use std::hash::{BuildHasher, Hasher};
+    static N: AtomicU64 = AtomicU64::new(0);
+    let mut h = std::collections::hash_map::RandomState::new().build_hasher();
+    h.write_u64(N.fetch_add(1, Ordering::Relaxed));
+    h.finish()
+}
+
+/// Whether a failed request is worth trying again: the server's trouble
+/// (HTTP 5xx, 429 Too Many Requests, 408), the network's (a reset, cut or
+/// stalled connection), or a body shorter than asked. Not a refused
+/// connection (nothing listens there: object_store's few quick retries
+/// suffice for a server restarting) nor an unknown host.
+pub fn transient(p: &Problem) -> bool {
+    match p {
+        Problem::Status { status, .. } => *status >= 500 || matches!(*status, 408 | 429),
+        Problem::Network { condition, .. } => {
+            !matches!(condition, Net::Refused | Net::UnknownHost)
+        }
+        Problem::WrongRange { asked, bytes, .. } => *bytes < asked.end - asked.start,
+        _ => false,
     }
 }
 
@@ -121,6 +236,11 @@ impl Remote {
     /// tools are (`AWS_*` with `AWS_ENDPOINT`/`AWS_ENDPOINT_URL` and
     /// `AWS_ALLOW_HTTP` for S3-compatible servers, `GOOGLE_*`, `AZURE_*`).
     pub fn open(url: &str) -> Result<Remote, RemoteError> {
+        Remote::open_with(url, &Options::default())
+    }
+
+    /// As [`Remote::open`], retrying and timing out as `options` say.
+    pub fn open_with(url: &str, options: &Options) -> Result<Remote, RemoteError> {
         // The client is made here: TLS (ring) must be installed first.
         let _ = runtime();
         let trimmed = url.trim_end_matches('/');
@@ -131,25 +251,39 @@ impl Remote {
             bad(format!("not an object-store URL this pcimg reads ({e}); use s3://, gs://, az://, http(s):// or file://"))
         })?;
         use object_store::ObjectStoreScheme as S;
+        let retry = options.retry();
+        let keys = options.client_keys();
         let store: Arc<dyn ObjectStore> = match scheme {
             S::AmazonS3 => Arc::new(
-                object_store::aws::AmazonS3Builder::from_env()
-                    .with_url(trimmed)
-                    .with_retry(retry())
+                keys
+                    .iter()
+                    .fold(
+                        object_store::aws::AmazonS3Builder::from_env().with_url(trimmed),
+                        |b, (k, v)| b.with_config(object_store::aws::AmazonS3ConfigKey::Client(*k), v),
+                    )
+                    .with_retry(retry.clone())
                     .build()
                     .map_err(fail)?,
             ),
             S::GoogleCloudStorage => Arc::new(
-                object_store::gcp::GoogleCloudStorageBuilder::from_env()
-                    .with_url(trimmed)
-                    .with_retry(retry())
+                keys
+                    .iter()
+                    .fold(
+                        object_store::gcp::GoogleCloudStorageBuilder::from_env().with_url(trimmed),
+                        |b, (k, v)| b.with_config(object_store::gcp::GoogleConfigKey::Client(*k), v),
+                    )
+                    .with_retry(retry.clone())
                     .build()
                     .map_err(fail)?,
             ),
             S::MicrosoftAzure => Arc::new(
-                object_store::azure::MicrosoftAzureBuilder::from_env()
-                    .with_url(trimmed)
-                    .with_retry(retry())
+                keys
+                    .iter()
+                    .fold(
+                        object_store::azure::MicrosoftAzureBuilder::from_env().with_url(trimmed),
+                        |b, (k, v)| b.with_config(object_store::azure::AzureConfigKey::Client(*k), v),
+                    )
+                    .with_retry(retry.clone())
                     .build()
                     .map_err(fail)?,
             ),
@@ -160,10 +294,11 @@ impl Remote {
             S::Http => Arc::new(
                 object_store::http::HttpBuilder::new()
                     .with_url(&u[..url::Position::BeforePath])
-                    .with_client_options(
+                    .with_client_options(keys.iter().fold(
                         object_store::ClientOptions::new().with_allow_http(u.scheme() == "http"),
-                    )
-                    .with_retry(retry())
+                        |o, (k, v)| o.with_config(*k, v),
+                    ))
+                    .with_retry(retry)
                     .build()
                     .map_err(fail)?,
             ),
@@ -180,6 +315,7 @@ impl Remote {
             url: trimmed.to_string(),
             requests: Default::default(),
             ignores_range: Default::default(),
+            options: *options,
         })
     }
 
@@ -191,6 +327,7 @@ impl Remote {
             url: url.trim_end_matches('/').to_string(),
             requests: Default::default(),
             ignores_range: Default::default(),
+            options: Options::default(),
         }
     }
 
@@ -204,7 +341,7 @@ impl Remote {
     }
 
     /// The URL of `name`, for messages.
-    pub(crate) fn url_of(&self, name: &str) -> String {
+    pub fn url_of(&self, name: &str) -> String {
         if name.is_empty() {
             self.url.clone()
         } else {
@@ -212,38 +349,53 @@ impl Remote {
         }
     }
 
-    /// The whole object `name`, its size and ETag; `Ok(None)` when it is absent.
+    /// The whole object `name`, its size and ETag; `Ok(None)` when it is
+    /// absent. Retried as [`Remote::retrying`] says (a body cut short too).
     pub fn get(
         &self,
         name: &str,
     ) -> Result<Option<(bytes::Bytes, u64, Option<String>)>, RemoteError> {
-        let store = self.store.clone();
-        let loc = self.location(name);
         let shown = self.url_of(name);
-        let this = self;
-        block_on(async move {
-            let f = InFlight::start(this);
-            let r = async {
-                let got = store.get_opts(&loc, Default::default()).await?;
-                let (size, etag) = (got.meta.size, got.meta.e_tag.clone());
-                Ok::<_, object_store::Error>((got.bytes().await?, size, etag))
+        block_on(self.retrying(|| self.get_once(name, &shown)))
+    }
+
+    async fn get_once(
+        &self,
+        name: &str,
+        shown: &str,
+    ) -> Result<Option<(bytes::Bytes, u64, Option<String>)>, RemoteError> {
+        let loc = self.location(name);
+        let f = InFlight::start(self);
+        let r = async {
+            let got = self.store.get_opts(&loc, Default::default()).await?;
+            let (size, etag) = (got.meta.size, got.meta.e_tag.clone());
+            Ok::<_, object_store::Error>((got.bytes().await?, size, etag))
+        }
+        .await;
+        match r {
+            Ok((b, size, etag)) => {
+                f.done(b.len() as u64, true);
+                if b.len() as u64 != size {
+                    return Err(RemoteError::new(
+                        shown,
+                        Problem::WrongRange {
+                            asked: 0..size,
+                            got: 0..b.len() as u64,
+                            bytes: b.len() as u64,
+                        },
+                    ));
+                }
+                Ok(Some((b, size, etag)))
             }
-            .await;
-            match r {
-                Ok((b, size, etag)) => {
-                    f.done(b.len() as u64, true);
-                    Ok(Some((b, size, etag)))
-                }
-                Err(object_store::Error::NotFound { .. }) => {
-                    f.done(0, true);
-                    Ok(None)
-                }
-                Err(e) => {
-                    f.done(0, false);
-                    Err(RemoteError::new(&shown, Problem::of(&e)))
-                }
+            Err(object_store::Error::NotFound { .. }) => {
+                f.done(0, true);
+                Ok(None)
             }
-        })
+            Err(e) => {
+                f.done(0, false);
+                Err(RemoteError::new(shown, Problem::of(&e)))
+            }
+        }
     }
 
     /// Whether the object `name` exists (one HEAD request).
@@ -287,6 +439,42 @@ impl Remote {
         }
     }
 
+    /// `attempt` until it succeeds, fails for good (not [`transient`]), or
+    /// the time limit ([`Options::timeout`], from the first try) would pass
+    /// before the next try: object_store retries within one request, and
+    /// this what it leaves (a body cut short where the response has no ETag,
+    /// as from a static file server; a range shorter than asked; the rest of
+    /// the time limit after object_store gave up early). The error then says
+    /// how long it was tried ([`GaveUp`]).
+    pub(crate) async fn retrying<T, Fut>(
+        &self,
+        mut attempt: impl FnMut() -> Fut,
+    ) -> Result<T, RemoteError>
+    where
+        Fut: std::future::Future<Output = Result<T, RemoteError>>,
+    {
+        let start = std::time::Instant::now();
+        let mut backoff = Backoff::new(&self.options);
+        loop {
+            match attempt().await {
+                Ok(v) => return Ok(v),
+                Err(mut e) if transient(&e.problem) => {
+                    let wait = backoff.next();
+                    let spent = start.elapsed();
+                    if spent + wait > self.options.timeout {
+                        e.gave_up = Some(GaveUp {
+                            after: spent,
+                            limit: self.options.timeout,
+                        });
+                        return Err(e);
+                    }
+                    tokio::time::sleep(wait).await;
+                }
+                Err(e) => return Err(e),
+            }
+        }
+    }
+
     /// A ranged reader of the object `name`.
     pub fn file(self: &Arc<Self>, name: &str) -> RemoteFile {
         RemoteFile::new(self.clone(), name)
@@ -300,12 +488,35 @@ impl Remote {
 }
 
 /// A request that failed: the URL it was for and what happened. Facts only:
-/// what to do about it is the command line's to say (`cli::remote::advice`).
+/// what to do about it is the command line's to say (`src/advice.rs`).
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
-#[error("{}: {problem}", crate::text::sanitize(.url))]
+#[error("{}: {problem}{}", crate::text::sanitize(.url), .gave_up.map(|g| g.to_string()).unwrap_or_default())]
 pub struct RemoteError {
     pub url: String,
     pub problem: Problem,
+    /// Set where the request was tried again until the time limit
+    /// ([`Options::timeout`]) and still failed.
+    pub gave_up: Option<GaveUp>,
+}
+
+/// How long a failing request was tried before it was given up.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct GaveUp {
+    /// From the first try to the last failure.
+    pub after: Duration,
+    /// The time limit.
+    pub limit: Duration,
+}
+
+impl std::fmt::Display for GaveUp {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "; given up after {:.1} s of tries (the time limit is {:.1} s)",
+            self.after.as_secs_f64(),
+            self.limit.as_secs_f64()
+        )
+    }
 }
 
 impl RemoteError {
@@ -313,6 +524,7 @@ impl RemoteError {
         RemoteError {
             url: url.to_string(),
             problem,
+            gave_up: None,
         }
     }
 }
@@ -531,9 +743,20 @@ fn body_in(text: &str) -> String {
         .map_or(0, |i| i + "status code: ".len());
     let rest = &text[at..];
     // "503 Service Unavailable: body"
-    rest.split_once(": ")
-        .map(|(_, body)| short(body))
-        .unwrap_or_default()
+    let body = rest.split_once(": ").map(|(_, body)| body).unwrap_or_default();
+    // An S3 error document: its code and message ("SlowDown: Please reduce
+    // your request rate.").
+    let tag = |name: &str| {
+        let open = format!("<{name}>");
+        let at = body.find(&open)? + open.len();
+        let len = body[at..].find("</")?;
+        Some(body[at..at + len].trim())
+    };
+    match (tag("Code"), tag("Message")) {
+        (Some(code), Some(message)) => short(&format!("{code}: {message}")),
+        (Some(code), None) => short(code),
+        _ => short(body),
+    }
 }
 
 /// What kept a request from an HTTP answer, from the error's chain of sources.
@@ -563,7 +786,8 @@ fn network_condition(e: &object_store::Error) -> Option<Net> {
         if let Some(h) = err.downcast_ref::<HttpError>() {
             found = found.or(Some(match h.kind() {
                 K::Timeout => Net::TimedOut,
-                K::Interrupted => Net::Cut,
+                // (A connection closed before the whole answer came.)
+                K::Interrupted | K::Request => Net::Cut,
                 _ => Net::Other,
             }));
         }
@@ -616,12 +840,71 @@ mod tests {
     use super::*;
 
     #[test]
+    fn the_backoff_grows_with_jitter_up_to_its_largest_wait() {
+        let o = Options {
+            timeout: Duration::from_secs(8),
+        };
+        assert_eq!(o.max_backoff(), Duration::from_secs(1));
+        assert_eq!(o.stall(), Duration::from_secs(2));
+        let mut b = Backoff::new(&o);
+        let waits: Vec<Duration> = (0..40).map(|_| b.next()).collect();
+        assert_eq!(waits[0], Duration::from_millis(50));
+        assert!(waits.iter().all(|w| *w >= Duration::from_millis(50)));
+        assert!(waits.iter().all(|w| *w <= Duration::from_secs(1)));
+        // Each at most twice the one before (plus the first), and not all
+        // alike (jitter).
+        for p in waits.windows(2) {
+            assert!(p[1] <= p[0] * 2 + Duration::from_millis(50), "{p:?}");
+        }
+        let distinct: std::collections::HashSet<_> = waits.iter().collect();
+        assert!(distinct.len() > 10, "{waits:?}");
+        // The limits of a small and a large time limit.
+        let small = Options {
+            timeout: Duration::from_millis(100),
+        };
+        assert_eq!(small.stall(), Duration::from_millis(50));
+        assert_eq!(
+            Options::default().stall(),
+            Duration::from_millis(7500),
+            "a quarter of 30 s"
+        );
+    }
+
+    #[test]
+    fn what_may_pass_is_tried_again() {
+        let status = |status| Problem::Status {
+            status,
+            detail: String::new(),
+        };
+        let net = |condition| Problem::Network {
+            condition,
+            detail: String::new(),
+        };
+        assert!(transient(&status(500)) && transient(&status(503)) && transient(&status(429)));
+        assert!(!transient(&status(400)) && !transient(&Problem::NotFound));
+        assert!(transient(&net(Net::Cut)) && transient(&net(Net::TimedOut)));
+        assert!(!transient(&net(Net::Refused)) && !transient(&net(Net::UnknownHost)));
+        let range = |bytes| Problem::WrongRange {
+            asked: 0..100,
+            got: 0..100,
+            bytes,
+        };
+        assert!(transient(&range(40)), "a body cut short");
+        assert!(!transient(&range(100)));
+    }
+
+    #[test]
     fn statuses_are_read_from_object_store_words() {
         let text = "Generic HTTP error: Error performing GET http://h/x in 1s - Server returned \
                     non-2xx status code: 503 Service Unavailable: slow down";
         assert_eq!(status_in(text), Some(503));
         assert_eq!(body_in(text), "slow down");
         assert_eq!(status_in("no status here"), None);
+        let s3 = "Generic S3 error: Error performing GET http://h/b/x in 1s - Server returned \
+                  non-2xx status code: 503 Service Unavailable: <?xml version=\"1.0\"?>\n\
+                  <Error><Code>SlowDown</Code><Message>Please reduce your request rate.\
+                  </Message></Error>";
+        assert_eq!(body_in(s3), "SlowDown: Please reduce your request rate.");
         let p = Problem::Status {
             status: 503,
             detail: body_in(text),

@@ -6,7 +6,7 @@
 //! queue directory, not an open file, and opened when its upload starts (a
 //! conversion of thousands of parts would otherwise hit the open-file limit).
 
-use super::{InFlight, Remote, explain};
+use super::{InFlight, Problem, Remote, RemoteError, explain};
 use object_store::{ObjectStoreExt, PutPayload, WriteMultipart};
 use std::collections::HashMap;
 use std::io::Read;
@@ -304,16 +304,30 @@ async fn put_file(
         .map_err(|e| format!("{shown}: cannot read: {e}"))?
         .len();
     let loc = remote.location(name);
-    let fail = |e: object_store::Error| format!("{url}: cannot upload: {}", explain(&e));
+    let fail = |e: object_store::Error| format!("{url}: cannot upload: {}", Problem::of(&e));
     if size <= MULTIPART_ABOVE {
         let mut data = Vec::with_capacity(size as usize);
         file.read_to_end(&mut data)
             .map_err(|e| format!("{shown}: cannot read: {e}"))?;
         let n = data.len() as u64;
-        let f = InFlight::start(remote);
-        let r = remote.store.put(&loc, PutPayload::from(data)).await;
-        f.done(0, r.is_ok());
-        let put = r.map_err(fail)?;
+        let payload = &PutPayload::from(data);
+        let (loc, url) = (&loc, &url);
+        // A whole object put again is the same object: tried again (as
+        // `Remote::retrying` says) where object_store does not (a connection
+        // reset or stalled mid-request: it retries those only for requests it
+        // knows to be idempotent).
+        let put = remote
+            .retrying(|| async move {
+                let f = InFlight::start(remote);
+                let r = remote.store.put(loc, payload.clone()).await;
+                f.done(0, r.is_ok());
+                r.map_err(|e| RemoteError::new(url, Problem::of(&e)))
+            })
+            .await
+            .map_err(|e| {
+                let gave_up = e.gave_up.map(|g| g.to_string()).unwrap_or_default();
+                format!("{}: cannot upload: {}{gave_up}", e.url, e.problem)
+            })?;
         sent.fetch_add(n, Ordering::Relaxed);
         return Ok((n, put.e_tag));
     }

@@ -1,0 +1,214 @@
+//! Test servers started the way users start them, on free ports of
+//! 127.0.0.1, waited for until they answer (never a fixed sleep) and stopped
+//! by a guard even when the test fails: `python3 -m http.server` serving a
+//! folder, and SeaweedFS (`weed mini`) with one SigV4 identity and a bucket.
+//! `None` (outside CI) when the program is missing; with CI=true a failure.
+
+use std::path::Path;
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
+
+/// `n` distinct free TCP ports of 127.0.0.1 (held together while chosen).
+pub fn free_ports(n: usize) -> Vec<u16> {
+    let held: Vec<std::net::TcpListener> = (0..n)
+        .map(|_| std::net::TcpListener::bind("127.0.0.1:0").unwrap())
+        .collect();
+    held.iter()
+        .map(|l| l.local_addr().unwrap().port())
+        .collect()
+}
+
+/// `python3 -m http.server` serving a folder, killed and reaped on drop.
+pub struct HttpServer {
+    child: Child,
+    pub port: u16,
+}
+
+impl Drop for HttpServer {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+impl HttpServer {
+    /// Serves `dir`, and returns once the port accepts connections (at most 30 s).
+    pub fn start(dir: &Path) -> Option<HttpServer> {
+        if !super::tool_available("python3", "--version") {
+            return None;
+        }
+        let port = free_ports(1)[0];
+        let child = Command::new("python3")
+            .args(["-m", "http.server", "--bind", "127.0.0.1"])
+            .arg(port.to_string())
+            .arg("--directory")
+            .arg(dir)
+            .stdin(Stdio::null())
+            .stdout(Stdio::null())
+            .stderr(Stdio::null())
+            .spawn()
+            .expect("cannot start python3 -m http.server");
+        let mut s = HttpServer { child, port };
+        let start = Instant::now();
+        loop {
+            let addr = s.addr();
+            if std::net::TcpStream::connect_timeout(&addr, Duration::from_millis(200)).is_ok() {
+                return Some(s);
+            }
+            if let Some(status) = s.child.try_wait().unwrap() {
+                panic!("python3 -m http.server exited ({status}) before serving");
+            }
+            assert!(
+                start.elapsed() < Duration::from_secs(30),
+                "python3 -m http.server did not accept connections within 30 s"
+            );
+            std::thread::sleep(Duration::from_millis(20));
+        }
+    }
+
+    pub fn addr(&self) -> std::net::SocketAddr {
+        std::net::SocketAddr::from(([127, 0, 0, 1], self.port))
+    }
+}
+
+pub const WEED_KEY: &str = "pcimgtestkey";
+pub const WEED_SECRET: &str = "pcimgtestsecret";
+pub const WEED_BUCKET: &str = "pcimg";
+
+/// A SeaweedFS server (`weed mini`), killed and reaped on drop.
+pub struct Weed {
+    child: Child,
+    pub port: u16,
+    dir: tempfile::TempDir,
+}
+
+impl Drop for Weed {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+impl Weed {
+    /// Starts `weed mini` with one identity and the bucket, and waits (at most
+    /// 60 s) until the bucket lists.
+    pub fn start() -> Option<Weed> {
+        if !super::tool_available("weed", "version") {
+            return None;
+        }
+        let dir = tempfile::tempdir().unwrap();
+        let config = dir.path().join("s3.json");
+        std::fs::write(
+            &config,
+            format!(
+                r#"{{"identities":[{{"name":"pcimg","credentials":[{{"accessKey":"{WEED_KEY}","secretKey":"{WEED_SECRET}"}}],"actions":["Admin","Read","Write","List","Tagging"]}}]}}"#
+            ),
+        )
+        .unwrap();
+        let data = dir.path().join("data");
+        std::fs::create_dir(&data).unwrap();
+        let p = free_ports(10);
+        let log = std::fs::File::create(dir.path().join("weed.log")).unwrap();
+        let child = Command::new("weed")
+            .arg("mini")
+            .arg(format!("-dir={}", data.display()))
+            .args(["-ip=127.0.0.1", "-ip.bind=127.0.0.1"])
+            .arg(format!("-master.port={}", p[0]))
+            .arg(format!("-master.port.grpc={}", p[1]))
+            .arg(format!("-volume.port={}", p[2]))
+            .arg(format!("-volume.port.grpc={}", p[3]))
+            .arg(format!("-filer.port={}", p[4]))
+            .arg(format!("-filer.port.grpc={}", p[5]))
+            .arg(format!("-s3.port={}", p[6]))
+            .arg(format!("-s3.port.grpc={}", p[7]))
+            .arg(format!("-admin.port={}", p[8]))
+            .arg(format!("-admin.port.grpc={}", p[9]))
+            .args(["-admin.ui=false", "-webdav=false"])
+            .args(["-s3.port.iceberg=0", "-s3.port.lance=0"])
+            .arg(format!("-s3.config={}", config.display()))
+            .arg(format!("-bucket={WEED_BUCKET}"))
+            .stdin(Stdio::null())
+            .stdout(log.try_clone().unwrap())
+            .stderr(log)
+            .spawn()
+            .expect("cannot start weed");
+        let w = Weed {
+            child,
+            port: p[6],
+            dir,
+        };
+        let start = Instant::now();
+        loop {
+            if w.list("").is_ok() {
+                return Some(w);
+            }
+            assert!(
+                start.elapsed() < Duration::from_secs(60),
+                "SeaweedFS did not serve the bucket within 60 s; its log:\n{}",
+                std::fs::read_to_string(w.dir.path().join("weed.log")).unwrap_or_default()
+            );
+            std::thread::sleep(Duration::from_millis(100));
+        }
+    }
+
+    pub fn addr(&self) -> std::net::SocketAddr {
+        std::net::SocketAddr::from(([127, 0, 0, 1], self.port))
+    }
+
+    pub fn endpoint(&self) -> String {
+        format!("http://127.0.0.1:{}", self.port)
+    }
+
+    /// The objects under `prefix` and their sizes, listed by the test itself
+    /// (straight from the server, not through any proxy).
+    pub fn list(&self, prefix: &str) -> object_store::Result<Vec<(String, u64)>> {
+        use futures_util::TryStreamExt;
+        use object_store::ObjectStore;
+        // reqwest is built without a TLS provider (as pcimg installs ring).
+        let _ = rustls::crypto::ring::default_provider().install_default();
+        let store = object_store::aws::AmazonS3Builder::new()
+            .with_endpoint(self.endpoint())
+            .with_allow_http(true)
+            .with_bucket_name(WEED_BUCKET)
+            .with_region("us-east-1")
+            .with_access_key_id(WEED_KEY)
+            .with_secret_access_key(WEED_SECRET)
+            .with_retry(object_store::RetryConfig {
+                max_retries: 0,
+                ..Default::default()
+            })
+            .build()?;
+        let rt = tokio::runtime::Builder::new_current_thread()
+            .enable_all()
+            .build()
+            .unwrap();
+        let prefix = (!prefix.is_empty()).then(|| object_store::path::Path::from(prefix));
+        let got: Vec<object_store::ObjectMeta> =
+            rt.block_on(store.list(prefix.as_ref()).try_collect())?;
+        let mut v: Vec<(String, u64)> = got
+            .into_iter()
+            .map(|m| (m.location.to_string(), m.size))
+            .collect();
+        v.sort();
+        Ok(v)
+    }
+
+    /// `pcimg ARGS` with the keys of this server and `endpoint` (this server,
+    /// or a proxy in front of it); no other `AWS_*` setting of the caller's.
+    pub fn pcimg(&self, endpoint: &str, args: &[&str]) -> Command {
+        let mut c = Command::new(env!("CARGO_BIN_EXE_pcimg"));
+        for (k, _) in std::env::vars() {
+            if k.starts_with("AWS_") {
+                c.env_remove(k);
+            }
+        }
+        c.args(args)
+            .env("AWS_ENDPOINT", endpoint)
+            .env("AWS_ALLOW_HTTP", "true")
+            .env("AWS_REGION", "us-east-1")
+            .env("AWS_ACCESS_KEY_ID", WEED_KEY)
+            .env("AWS_SECRET_ACCESS_KEY", WEED_SECRET)
+            .env("NODEVICE_SELECT", "1");
+        c
+    }
+}

@@ -1,0 +1,503 @@
+//! Bad networks (issue 39): a fault-injecting proxy (`common/proxy.rs`) in
+//! front of `python3 -m http.server` or SeaweedFS (`weed mini`) adds latency,
+//! resets connections, answers 500 and 503 SlowDown, cuts bodies short and
+//! stalls, by a schedule each test sets. `info` and `render` through a fault
+//! that passes succeed after retries, fetch again (the proxy counts it) and
+//! give the result a healthy server gives; through a fault that persists they
+//! fail within `--timeout` (plus one stalled try) with an error naming the
+//! URL, the HTTP status or the network condition, and `--timeout`. A body cut
+//! short is never cached: on disk (`--cache`) a later healthy run is right.
+//! `convert -o s3://` through upload faults that pass completes; through one
+//! that persists it fails, removes what it uploaded (the bucket is listed
+//! behind the proxy's back) and says what it removed. With CI=true a missing
+//! python3 or weed is a failure, else a skip. Small `--timeout` values keep
+//! the whole file to seconds.
+
+mod common;
+
+use common::proxy::{Fault, Proxy, Rule};
+use common::servers::{HttpServer, WEED_BUCKET, Weed};
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+use std::time::{Duration, Instant};
+
+fn pcimg() -> Command {
+    let mut c = Command::new(env!("CARGO_BIN_EXE_pcimg"));
+    c.env("NODEVICE_SELECT", "1");
+    c
+}
+
+fn ok(o: &Output, what: &str) -> String {
+    assert!(
+        o.status.success(),
+        "{what} failed:\n{}\n{}",
+        String::from_utf8_lossy(&o.stdout),
+        String::from_utf8_lossy(&o.stderr)
+    );
+    String::from_utf8_lossy(&o.stdout).into_owned()
+}
+
+fn err(o: &Output, what: &str) -> String {
+    assert!(
+        !o.status.success(),
+        "{what} should have failed:\n{}",
+        String::from_utf8_lossy(&o.stdout)
+    );
+    String::from_utf8_lossy(&o.stderr).into_owned()
+}
+
+fn fixture() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("fixtures/autzen_trim.laz")
+}
+
+/// The fixture converted into `dir/autzen.pcimg` (zstd, a 1 MiB budget).
+fn convert(dir: &Path) -> PathBuf {
+    let out = dir.join("autzen.pcimg");
+    let o = pcimg()
+        .args(["convert", "-q", "--memory", "1MiB", "--compression", "zstd"])
+        .arg(fixture())
+        .arg("-o")
+        .arg(&out)
+        .output()
+        .unwrap();
+    ok(&o, "convert");
+    out
+}
+
+fn render_args(src: &str, png: &Path, timeout: &str) -> Vec<String> {
+    let mut v: Vec<String> = [
+        "render",
+        src,
+        "--renderer",
+        "cpu",
+        "--width",
+        "240",
+        "--height",
+        "160",
+        "--timeout",
+        timeout,
+        "-o",
+    ]
+    .iter()
+    .map(|s| s.to_string())
+    .collect();
+    v.push(png.to_str().unwrap().to_string());
+    v
+}
+
+/// `info --json` without the fields that name where the dataset is.
+fn info_json(text: &str) -> serde_json::Value {
+    fn strip(v: &mut serde_json::Value) {
+        match v {
+            serde_json::Value::Object(m) => {
+                m.remove("path");
+                m.values_mut().for_each(strip);
+            }
+            serde_json::Value::Array(a) => a.iter_mut().for_each(strip),
+            _ => {}
+        }
+    }
+    let mut v: serde_json::Value = serde_json::from_str(text).unwrap();
+    strip(&mut v);
+    v
+}
+
+/// The faults, each with words its persistent failure must be told in.
+fn faults() -> Vec<(Fault, &'static [&'static str])> {
+    vec![
+        (Fault::Reset, &["the connection was cut"]),
+        (Fault::Status500, &["HTTP 500 Internal Server Error"]),
+        (
+            Fault::SlowDown,
+            &["HTTP 503 Service Unavailable", "SlowDown"],
+        ),
+        (Fault::Short(100), &["the connection was cut"]),
+        (Fault::Stall, &["no answer in time (timed out)"]),
+    ]
+}
+
+/// Over plain HTTP: every fault that passes after two requests is retried
+/// through, and `render` and `info` give what they give without it.
+#[test]
+fn reads_through_faults_that_pass_are_retried_to_the_same_result() {
+    let dir = tempfile::tempdir().unwrap();
+    convert(dir.path());
+    let Some(server) = HttpServer::start(dir.path()) else {
+        return;
+    };
+    let proxy = Proxy::start(server.addr());
+    let url = format!("{}/autzen.pcimg", proxy.url());
+    let reference = dir.path().join("healthy.png");
+    ok(
+        &pcimg()
+            .args(render_args(&url, &reference, "4s"))
+            .output()
+            .unwrap(),
+        "render through a healthy proxy",
+    );
+    let reference = std::fs::read(&reference).unwrap();
+    let healthy_parts = proxy.count(".tif");
+    assert!(healthy_parts > 0, "{:?}", proxy.log());
+    let info = info_json(&ok(
+        &pcimg()
+            .args(["info", "--json", "--timeout", "4s", &url])
+            .output()
+            .unwrap(),
+        "info through a healthy proxy",
+    ));
+    let healthy_index = proxy.count("pcimg-index.json") - 1;
+
+    let mut all = faults();
+    all.insert(0, (Fault::Delay(Duration::from_millis(300)), &[]));
+    for (fault, _) in all {
+        // The parts' first two requests.
+        proxy.reset_counters();
+        proxy.set(vec![Rule::new(fault).matching(".tif").times(2)]);
+        let png = dir.path().join("faulty.png");
+        let start = Instant::now();
+        let o = pcimg()
+            .args(render_args(&url, &png, "4s"))
+            .output()
+            .unwrap();
+        ok(&o, &format!("render through {fault:?} twice"));
+        let spent = start.elapsed();
+        assert!(
+            std::fs::read(&png).unwrap() == reference,
+            "{fault:?}: the render differs from the healthy one"
+        );
+        assert_eq!(proxy.faults(), 2, "{fault:?}: {:?}", proxy.log());
+        if let Fault::Delay(d) = fault {
+            assert!(spent >= d, "{fault:?}: {spent:?}");
+            assert_eq!(proxy.count(".tif"), healthy_parts, "{:?}", proxy.log());
+        } else {
+            assert!(
+                proxy.count(".tif") > healthy_parts,
+                "{fault:?}: nothing fetched again: {:?}",
+                proxy.log()
+            );
+        }
+        // The index's first two requests.
+        proxy.reset_counters();
+        proxy.set(vec![Rule::new(fault).matching("pcimg-index.json").times(2)]);
+        let o = pcimg()
+            .args(["info", "--json", "--timeout", "4s", &url])
+            .output()
+            .unwrap();
+        assert_eq!(
+            info_json(&ok(&o, &format!("info through {fault:?} twice"))),
+            info,
+            "{fault:?}"
+        );
+        if !matches!(fault, Fault::Delay(_)) {
+            assert_eq!(
+                proxy.count("pcimg-index.json"),
+                healthy_index + 2,
+                "{fault:?}: {:?}",
+                proxy.log()
+            );
+        }
+    }
+}
+
+/// Over plain HTTP: a fault that persists fails `info` (the index) and
+/// `render` (a part) within the time limit, naming the URL, the status or
+/// condition, and `--timeout`.
+#[test]
+fn reads_through_faults_that_persist_fail_within_the_limit_saying_why() {
+    let dir = tempfile::tempdir().unwrap();
+    convert(dir.path());
+    let Some(server) = HttpServer::start(dir.path()) else {
+        return;
+    };
+    let proxy = Proxy::start(server.addr());
+    let url = format!("{}/autzen.pcimg", proxy.url());
+    let limit = Duration::from_secs(1);
+    for (fault, words) in faults() {
+        proxy.reset_counters();
+        proxy.set(vec![Rule::new(fault).matching("pcimg-index.json")]);
+        let start = Instant::now();
+        let o = pcimg()
+            .args(["info", "--timeout", "1s", &url])
+            .output()
+            .unwrap();
+        let spent = start.elapsed();
+        let e = err(&o, &format!("info through {fault:?} for good"));
+        let at = format!("pcimg: {url}/pcimg-index.json: ");
+        assert!(e.starts_with(&at), "{fault:?}: {e}");
+        for w in words {
+            assert!(e.contains(w), "{fault:?}: no {w:?} in {e}");
+        }
+        assert!(
+            e.contains("given up after") && e.contains("raise --timeout"),
+            "{fault:?}: {e}"
+        );
+        assert!(
+            proxy.count("pcimg-index.json") >= 2,
+            "{fault:?}: not tried again: {:?}",
+            proxy.log()
+        );
+        // The limit, one stalled try (a quarter of it) and the process's own
+        // start and exit.
+        assert!(
+            spent >= limit / 2 && spent < limit + limit / 4 + Duration::from_secs(3),
+            "{fault:?}: failed after {spent:?}"
+        );
+    }
+    // A part cut short for good: `render` names the part's URL.
+    proxy.reset_counters();
+    proxy.set(vec![Rule::new(Fault::Short(100)).matching(".tif")]);
+    let png = dir.path().join("never.png");
+    let e = err(
+        &pcimg()
+            .args(render_args(&url, &png, "1s"))
+            .output()
+            .unwrap(),
+        "render through a part cut short for good",
+    );
+    assert!(
+        e.contains(&format!("{url}/")) && e.contains(".tif: the connection was cut"),
+        "{e}"
+    );
+    assert!(e.contains("raise --timeout"), "{e}");
+    assert!(!png.exists(), "a picture was written");
+}
+
+/// From S3 (answers with ETags: object_store resumes a body cut short, and the
+/// disk cache keeps ranges): a body cut short for good is never cached, and a
+/// later healthy run with the same `--cache` draws the healthy picture.
+#[test]
+fn s3_bodies_cut_short_are_resumed_and_never_cached() {
+    let Some(weed) = Weed::start() else { return };
+    let dir = tempfile::tempdir().unwrap();
+    let url = format!("s3://{WEED_BUCKET}/autzen.pcimg");
+    let direct = weed.endpoint();
+    ok(
+        &weed
+            .pcimg(
+                &direct,
+                &[
+                    "convert",
+                    "-q",
+                    "--compression",
+                    "zstd",
+                    fixture().to_str().unwrap(),
+                    "-o",
+                    &url,
+                ],
+            )
+            .output()
+            .unwrap(),
+        "convert -o s3://",
+    );
+    let proxy = Proxy::start(weed.addr());
+    let through = proxy.url();
+    let render = |png: &Path, timeout: &str, cache: Option<&Path>| {
+        let mut args = render_args(&url, png, timeout);
+        if let Some(c) = cache {
+            args.extend(["--cache".to_string(), c.to_str().unwrap().to_string()]);
+        }
+        args.push("--net-stats".into());
+        let args: Vec<&str> = args.iter().map(String::as_str).collect();
+        weed.pcimg(&through, &args).output().unwrap()
+    };
+    let reference = dir.path().join("healthy.png");
+    ok(
+        &render(&reference, "4s", None),
+        "render through a healthy proxy",
+    );
+    let reference = std::fs::read(&reference).unwrap();
+    let healthy_parts = proxy.count(".tif");
+
+    // Cut short twice: resumed, the same picture.
+    proxy.reset_counters();
+    proxy.set(vec![Rule::new(Fault::Short(500)).matching(".tif").times(2)]);
+    let png = dir.path().join("resumed.png");
+    ok(&render(&png, "4s", None), "render through two cut bodies");
+    assert!(
+        std::fs::read(&png).unwrap() == reference,
+        "the render differs"
+    );
+    assert_eq!(proxy.faults(), 2);
+    assert!(proxy.count(".tif") > healthy_parts, "{:?}", proxy.log());
+
+    // Cut short for good, with a disk cache: fails, and nothing is cached.
+    let cache = dir.path().join("cache");
+    proxy.reset_counters();
+    proxy.set(vec![Rule::new(Fault::Short(500)).matching(".tif")]);
+    let png = dir.path().join("never.png");
+    let e = err(
+        &render(&png, "1s", Some(&cache)),
+        "render through bodies cut short for good",
+    );
+    assert!(
+        e.contains(&format!("{url}/")) && e.contains(".tif: the connection was cut"),
+        "{e}"
+    );
+    let ranges = |dir: &Path| {
+        std::fs::read_dir(dir)
+            .map(|d| {
+                d.filter(|e| {
+                    e.as_ref()
+                        .unwrap()
+                        .path()
+                        .extension()
+                        .is_some_and(|x| x == "rng")
+                })
+                .count()
+            })
+            .unwrap_or(0)
+    };
+    assert_eq!(ranges(&cache), 0, "a range cut short was cached");
+
+    // Healthy again, the same cache: the healthy picture, then from the disk.
+    proxy.set(vec![]);
+    let png = dir.path().join("after.png");
+    ok(&render(&png, "4s", Some(&cache)), "render after the faults");
+    assert!(
+        std::fs::read(&png).unwrap() == reference,
+        "the render differs"
+    );
+    assert!(ranges(&cache) > 0, "nothing cached from healthy answers");
+    let o = render(&png, "4s", Some(&cache));
+    let stats = String::from_utf8_lossy(&o.stderr).into_owned();
+    ok(&o, "render from the disk cache");
+    assert!(
+        std::fs::read(&png).unwrap() == reference,
+        "the render differs"
+    );
+    assert!(!stats.contains("disk cache: 0 hits"), "{stats}");
+}
+
+/// Every file under `dir` with its `/`-separated name and size, sorted.
+fn local_files(dir: &Path) -> Vec<(String, u64)> {
+    let mut out = Vec::new();
+    let mut stack = vec![dir.to_path_buf()];
+    while let Some(d) = stack.pop() {
+        for e in std::fs::read_dir(&d).unwrap() {
+            let p = e.unwrap().path();
+            if p.is_dir() {
+                stack.push(p);
+            } else {
+                let rel = p
+                    .strip_prefix(dir)
+                    .unwrap()
+                    .to_string_lossy()
+                    .replace('\\', "/");
+                out.push((rel, std::fs::metadata(&p).unwrap().len()));
+            }
+        }
+    }
+    out.sort();
+    out
+}
+
+/// `convert -o s3://` through upload faults: those that pass are retried to
+/// a complete dataset; one that persists removes what was uploaded, says
+/// what, and leaves nothing under the prefix (nor in `$TMPDIR`).
+#[test]
+fn uploads_through_faults_complete_or_leave_nothing_and_say_so() {
+    let Some(weed) = Weed::start() else { return };
+    let dir = tempfile::tempdir().unwrap();
+    let local = dir.path().join("local.pcimg");
+    let args = ["convert", "-q", "--memory", "1MiB", "--compression", "zstd"];
+    let mut c = pcimg();
+    c.args(args).arg(fixture()).arg("-o").arg(&local);
+    ok(&c.output().unwrap(), "convert locally");
+    let want = local_files(&local);
+    assert!(want.len() > 2, "several objects: {want:?}");
+    let proxy = Proxy::start(weed.addr());
+    let through = proxy.url();
+    let tmp = dir.path().join("tmp");
+    std::fs::create_dir(&tmp).unwrap();
+    let convert = |name: &str, timeout: &str| {
+        let url = format!("s3://{WEED_BUCKET}/{name}");
+        let mut all: Vec<&str> = args.to_vec();
+        all.extend([
+            fixture().to_str().unwrap(),
+            "-o",
+            &url,
+            "--timeout",
+            timeout,
+        ]);
+        // (-q keeps the notes on stderr: the removal is told there.)
+        let all: Vec<String> = all.iter().map(|s| s.to_string()).collect();
+        let all: Vec<&str> = all.iter().map(String::as_str).collect();
+        weed.pcimg(&through, &all)
+            .env("TMPDIR", &tmp)
+            .output()
+            .unwrap()
+    };
+
+    for (i, fault) in [Fault::Status500, Fault::SlowDown, Fault::Reset]
+        .into_iter()
+        .enumerate()
+    {
+        proxy.reset_counters();
+        proxy.set(vec![Rule::new(fault).matching("PUT ").times(2)]);
+        let name = format!("up{i}.pcimg");
+        ok(
+            &convert(&name, "5s"),
+            &format!("convert through {fault:?} twice"),
+        );
+        assert_eq!(proxy.faults(), 2, "{fault:?}: {:?}", proxy.log());
+        // Every object once, and the two refused uploads again.
+        assert_eq!(
+            proxy.count("PUT "),
+            want.len() + 2,
+            "{fault:?}: {:?}",
+            proxy.log()
+        );
+        let got: Vec<(String, u64)> = weed
+            .list(&name)
+            .unwrap()
+            .into_iter()
+            .map(|(n, s)| (n.strip_prefix(&format!("{name}/")).unwrap().to_string(), s))
+            .collect();
+        // The index records the upload's ETags: its size differs.
+        let strip = |v: &[(String, u64)]| -> Vec<(String, u64)> {
+            v.iter()
+                .filter(|(n, _)| n != "pcimg-index.json")
+                .cloned()
+                .collect()
+        };
+        assert_eq!(strip(&got), strip(&want), "{fault:?}");
+        assert!(got.iter().any(|(n, _)| n == "pcimg-index.json"), "{got:?}");
+    }
+
+    // A fault that persists after the first upload.
+    proxy.reset_counters();
+    proxy.set(vec![Rule::new(Fault::Status500).matching("PUT ").after(1)]);
+    let start = Instant::now();
+    let o = convert("cut.pcimg", "1s");
+    let spent = start.elapsed();
+    let e = err(&o, "convert through a persistent fault");
+    let url = format!("s3://{WEED_BUCKET}/cut.pcimg");
+    assert!(
+        e.contains(&format!("{url}/")) && e.contains("HTTP 500 Internal Server Error"),
+        "{e}"
+    );
+    assert!(
+        e.contains("removed ") && e.contains(&format!("object(s) from {url}: ")),
+        "{e}"
+    );
+    assert!(
+        e.contains(&format!("nothing of this conversion is left at {url}")),
+        "{e}"
+    );
+    assert!(spent < Duration::from_secs(30), "{spent:?}");
+    assert!(
+        proxy
+            .log()
+            .iter()
+            .any(|r| r.line.starts_with("PUT ") && r.fault == Fault::Pass),
+        "no upload got through before the fault: {:?}",
+        proxy.log()
+    );
+    assert_eq!(
+        weed.list("cut.pcimg").unwrap(),
+        vec![],
+        "left in the bucket"
+    );
+    let left: Vec<_> = std::fs::read_dir(&tmp).unwrap().collect();
+    assert!(left.is_empty(), "left in TMPDIR: {left:?}");
+}
