@@ -34,6 +34,7 @@ trap cleanup EXIT
 export NODEVICE_SELECT=1
 
 echo "machine: $(nproc) cores; $(date -u +%FT%TZ); build: $PROFILE; $(python3 --version)"
+mkdir -p "$DIR/data"
 "$BIN" convert -q --memory 1MiB --compression zstd "$INPUT" -o "$DIR/data/ds.pcimg"
 echo "dataset: $INPUT -> $(ls "$DIR/data/ds.pcimg" | grep -c '\.tif$') part(s), $(du -sb "$DIR/data/ds.pcimg" | cut -f1) bytes"
 

@@ -172,7 +172,10 @@ impl Options {
         [
             (K::ConnectTimeout, ms(stall.min(Duration::from_secs(5)))),
             (K::ReadTimeout, ms(stall)),
-            (K::Timeout, ms((self.timeout * 2).max(Duration::from_secs(60)))),
+            (
+                K::Timeout,
+                ms((self.timeout * 2).max(Duration::from_secs(60))),
+            ),
         ]
     }
 }
@@ -223,9 +226,7 @@ fn random() -> u64 {
 pub fn transient(p: &Problem) -> bool {
     match p {
         Problem::Status { status, .. } => *status >= 500 || matches!(*status, 408 | 429),
-        Problem::Network { condition, .. } => {
-            !matches!(condition, Net::Refused | Net::UnknownHost)
-        }
+        Problem::Network { condition, .. } => !matches!(condition, Net::Refused | Net::UnknownHost),
         Problem::WrongRange { asked, bytes, .. } => *bytes < asked.end - asked.start,
         _ => false,
     }
@@ -255,33 +256,36 @@ impl Remote {
         let keys = options.client_keys();
         let store: Arc<dyn ObjectStore> = match scheme {
             S::AmazonS3 => Arc::new(
-                keys
-                    .iter()
+                keys.iter()
                     .fold(
                         object_store::aws::AmazonS3Builder::from_env().with_url(trimmed),
-                        |b, (k, v)| b.with_config(object_store::aws::AmazonS3ConfigKey::Client(*k), v),
+                        |b, (k, v)| {
+                            b.with_config(object_store::aws::AmazonS3ConfigKey::Client(*k), v)
+                        },
                     )
                     .with_retry(retry.clone())
                     .build()
                     .map_err(fail)?,
             ),
             S::GoogleCloudStorage => Arc::new(
-                keys
-                    .iter()
+                keys.iter()
                     .fold(
                         object_store::gcp::GoogleCloudStorageBuilder::from_env().with_url(trimmed),
-                        |b, (k, v)| b.with_config(object_store::gcp::GoogleConfigKey::Client(*k), v),
+                        |b, (k, v)| {
+                            b.with_config(object_store::gcp::GoogleConfigKey::Client(*k), v)
+                        },
                     )
                     .with_retry(retry.clone())
                     .build()
                     .map_err(fail)?,
             ),
             S::MicrosoftAzure => Arc::new(
-                keys
-                    .iter()
+                keys.iter()
                     .fold(
                         object_store::azure::MicrosoftAzureBuilder::from_env().with_url(trimmed),
-                        |b, (k, v)| b.with_config(object_store::azure::AzureConfigKey::Client(*k), v),
+                        |b, (k, v)| {
+                            b.with_config(object_store::azure::AzureConfigKey::Client(*k), v)
+                        },
                     )
                     .with_retry(retry.clone())
                     .build()
@@ -743,7 +747,10 @@ fn body_in(text: &str) -> String {
         .map_or(0, |i| i + "status code: ".len());
     let rest = &text[at..];
     // "503 Service Unavailable: body"
-    let body = rest.split_once(": ").map(|(_, body)| body).unwrap_or_default();
+    let body = rest
+        .split_once(": ")
+        .map(|(_, body)| body)
+        .unwrap_or_default();
     // An S3 error document: its code and message ("SlowDown: Please reduce
     // your request rate.").
     let tag = |name: &str| {
