@@ -2,6 +2,7 @@
 #![allow(dead_code)]
 
 pub mod fuzz;
+pub mod http;
 pub mod pty;
 pub mod tiffwalk;
 pub mod tmux;

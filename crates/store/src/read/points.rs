@@ -111,7 +111,7 @@ impl Part {
         // fetched now (x too where counts are unknown: it finds the points).
         let src = self
             .chunks(l, tiles, bands, counts.is_none())
-            .map_err(fail)?;
+            .map_err(|e| self.fetch_failed(level, e))?;
         if let Some(counts) = counts {
             // Every count is known: fill disjoint slices of the output in parallel.
             let total: usize = counts.iter().sum();

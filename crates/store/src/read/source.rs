@@ -2,7 +2,15 @@
 //! the byte ranges of exactly the chunks the read needs, fetched from object
 //! storage before it (`crate::remote`, merged and concurrent).
 
+use crate::error::StoreError;
 use crate::read::part::{Level, Part};
+
+/// Why a read's chunks could not be had: the failed request (a local file's
+/// map is always there, so without object storage there is no such error).
+#[cfg(feature = "remote")]
+pub(crate) type FetchError = crate::remote::RemoteError;
+#[cfg(not(feature = "remote"))]
+pub(crate) type FetchError = std::convert::Infallible;
 
 /// The stored bytes of the chunks of one read.
 pub(crate) enum Chunks<'a> {
@@ -64,7 +72,7 @@ impl Part {
         tiles: &[u32],
         bands: &[usize],
         with_x: bool,
-    ) -> std::result::Result<Chunks<'_>, String> {
+    ) -> std::result::Result<Chunks<'_>, FetchError> {
         let Some(remote) = &self.remote else {
             return Ok(Chunks::Map(&self.map));
         };
@@ -80,7 +88,7 @@ impl Part {
         tiles: &[u32],
         bands: &[usize],
         with_x: bool,
-    ) -> std::result::Result<Chunks<'_>, String> {
+    ) -> std::result::Result<Chunks<'_>, FetchError> {
         let mut want: Vec<usize> = bands.to_vec();
         if with_x && !want.contains(&0) {
             want.push(0);
@@ -111,7 +119,19 @@ impl Part {
         _: &[u32],
         _: &[usize],
         _: bool,
-    ) -> std::result::Result<Chunks<'_>, String> {
+    ) -> std::result::Result<Chunks<'_>, FetchError> {
         match *remote {}
+    }
+
+    /// The error of a read of `level` whose chunks could not be fetched: it
+    /// keeps the failed request (its URL and what happened), so that callers
+    /// can tell a network failure, worth trying again, from bad bytes.
+    pub(crate) fn fetch_failed(&self, level: usize, e: FetchError) -> StoreError {
+        let message = format!("level {level}: {e}");
+        StoreError {
+            #[cfg(feature = "remote")]
+            remote: Some(Box::new(e)),
+            ..StoreError::new(&self.path, message)
+        }
     }
 }
