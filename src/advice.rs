@@ -34,6 +34,27 @@ pub fn store(e: &StoreError) -> String {
     }
 }
 
+/// A failure that is being retried, in a few words for the status line: for a
+/// request, its URL, what happened (without the server's own words) and what
+/// to do; otherwise as [`store`] says it.
+pub fn retrying(e: &StoreError) -> String {
+    let Some(r) = e.remote.as_deref() else {
+        return store(e);
+    };
+    let mut brief = r.problem.clone();
+    if let Problem::Network { detail, .. }
+    | Problem::Status { detail, .. }
+    | Problem::Denied { detail, .. } = &mut brief
+    {
+        detail.clear();
+    }
+    let what = format!("{}: {brief}", crate::text::sanitize(&r.url));
+    match of_remote(r) {
+        Some(a) => format!("{what}; {a}"),
+        None => what,
+    }
+}
+
 /// The advice for the first error in `e`'s chain that has some.
 fn advice_in(e: &anyhow::Error) -> Option<String> {
     e.chain().find_map(|c| {
@@ -301,5 +322,51 @@ mod tests {
         // No remedy, no advice.
         let e = StoreError::new(Path::new("x.tif"), "truncated");
         assert_eq!(store(&e), "x.tif: truncated");
+    }
+
+    #[test]
+    fn a_retried_request_is_told_in_a_few_words() {
+        let url = "http://127.0.0.1:8765/d.pcimg/part-0001.tif";
+        let refused = StoreError::remote(RemoteError::new(
+            url,
+            Problem::Network {
+                condition: Net::Refused,
+                detail: "error sending request for url (http://127.0.0.1:8765/…)".into(),
+            },
+        ));
+        assert!(refused.transient());
+        let m = retrying(&refused);
+        assert_eq!(
+            m,
+            format!(
+                "{url}: connection refused; nothing answers at 127.0.0.1:8765: start the \
+                 server, or correct the host and port"
+            )
+        );
+        // The full message keeps the server's words.
+        assert!(store(&refused).contains("error sending request"));
+        let busy = StoreError::remote(RemoteError::new(
+            url,
+            Problem::Status {
+                status: 503,
+                detail: "<Error><Code>SlowDown</Code></Error>".into(),
+            },
+        ));
+        assert!(busy.transient());
+        let m = retrying(&busy);
+        assert!(
+            m.starts_with(&format!(
+                "{url}: the server answered HTTP 503 Service Unavailable;"
+            )),
+            "{m}"
+        );
+        assert!(!m.contains("SlowDown") && m.contains("throttling"), "{m}");
+        // Not worth retrying: missing, bad bytes.
+        let missing = StoreError::remote(RemoteError::new(url, Problem::NotFound));
+        assert!(!missing.transient());
+        assert!(!StoreError::new(Path::new("x.tif"), "truncated").transient());
+        // Without a request, as `store` says it.
+        let e = StoreError::new(Path::new("x.tif"), "truncated");
+        assert_eq!(retrying(&e), "x.tif: truncated");
     }
 }

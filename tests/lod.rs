@@ -262,6 +262,10 @@ fn unreadable_tiles_are_not_retried_and_coarser_tiles_stand_in() {
     stand.sort();
     want.sort();
     assert_eq!(stand, want);
+    // Bad bytes would be bad again: unlike a request the server did not answer
+    // (tried again after a growing wait: tests/retry.rs), they wait for no retry.
+    assert_eq!(cache.retrying(&fine), 0);
+    assert_eq!(cache.retries().tiles, 0, "{}", cache.retries());
     // Asked for again, none is queued (a queued tile counts as pending at once,
     // before any worker takes it), so no error can come back.
     cache.request(&fine);

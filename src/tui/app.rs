@@ -17,6 +17,7 @@ use crate::render::legend::{ClassEntry, Legend};
 use crate::render::scene::{ColorRanges, Style};
 use crate::store::Dataset;
 use std::sync::Arc;
+use std::time::Duration;
 
 /// How pyramid levels are chosen.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -146,8 +147,11 @@ pub struct FrameStatus {
     pub tiles: usize,
     /// Tiles of the selection still loading (coarser cached tiles stand in).
     pub pending: usize,
-    /// Tiles of the selection that failed to load.
+    /// Tiles of the selection that cannot be read.
     pub unreadable: usize,
+    /// Tiles whose loads failed for a reason that may pass (the server did not
+    /// answer), tried again in the background.
+    pub retry: Option<RetryStatus>,
     /// Tiles in view given up for the point or memory budget.
     pub dropped: usize,
     /// Tiles of overview nodes drawn.
@@ -172,6 +176,44 @@ pub struct FrameStatus {
     pub ranges: ColorRanges,
     /// Ground units a pixel of the frame spans at the orbit target.
     pub units_per_pixel: f64,
+}
+
+/// Tiles the view wants that wait to be tried again, as the status line tells
+/// them.
+#[derive(Debug, Clone, PartialEq)]
+pub struct RetryStatus {
+    /// How many.
+    pub tiles: usize,
+    /// The most failed tries in a row of any of them.
+    pub attempts: u32,
+    /// Since the first failure of the one failing longest.
+    pub failing_for: Duration,
+    /// The latest failure with what to do about it (`advice`).
+    pub error: String,
+}
+
+impl RetryStatus {
+    /// Failed tries in a row after which the status line says what failed.
+    pub const TELL_AFTER_ATTEMPTS: u32 = 3;
+    /// Or failing this long.
+    pub const TELL_AFTER: Duration = Duration::from_secs(5);
+
+    /// Whether the tries have failed long enough to say what failed (at first
+    /// only that requests are retried: a brief hiccup should not alarm).
+    pub fn tell(&self) -> bool {
+        self.attempts >= Self::TELL_AFTER_ATTEMPTS || self.failing_for >= Self::TELL_AFTER
+    }
+
+    /// The status line's words for it.
+    pub fn describe(&self) -> String {
+        let n = self.tiles;
+        let what = if n == 1 { "request" } else { "requests" };
+        if self.tell() {
+            format!("retrying {n} {what}: {}", self.error)
+        } else {
+            format!("retrying {n} {what}")
+        }
+    }
 }
 
 /// The inspector's state.
@@ -541,8 +583,22 @@ impl App {
     }
 
     /// The status line: level mode, levels shown, points drawn against the budget,
-    /// colour, point size, eye-dome lighting, tiles still loading.
+    /// colour, point size, eye-dome lighting, tiles still loading. Tiles waiting
+    /// to be retried come first (the line is cut at the terminal's width, and
+    /// what failed matters most then).
     pub fn status_line(&self) -> String {
+        match &self.frame.retry {
+            Some(r) => format!(
+                "{} | {}",
+                crate::text::sanitize(&r.describe()),
+                self.view_status()
+            ),
+            None => self.view_status(),
+        }
+    }
+
+    /// The status line but for retries.
+    fn view_status(&self) -> String {
         let f = &self.frame;
         let mut levels = match f.levels {
             Some((lo, hi)) if lo == hi => format!("level {lo}"),
@@ -713,6 +769,46 @@ mod tests {
     }
 
     #[test]
+    fn the_status_line_says_retrying_then_what_failed() {
+        let (_d, mut a) = app();
+        let mut r = RetryStatus {
+            tiles: 4,
+            attempts: 1,
+            failing_for: Duration::from_millis(600),
+            error: "http://h:1/d/p.tif: connection refused; nothing answers at h:1".into(),
+        };
+        a.frame = FrameStatus {
+            renderer: "cpu".into(),
+            retry: Some(r.clone()),
+            ..Default::default()
+        };
+        let s = a.status_line();
+        assert!(s.starts_with("retrying 4 requests | "), "{s}");
+        assert!(!s.contains("refused"), "not at the first failure: {s}");
+        // Failing again and again: what failed, and what to do.
+        r.attempts = RetryStatus::TELL_AFTER_ATTEMPTS;
+        a.frame.retry = Some(r.clone());
+        let s = a.status_line();
+        assert!(
+            s.starts_with(
+                "retrying 4 requests: http://h:1/d/p.tif: connection refused; nothing answers at h:1 | "
+            ),
+            "{s}"
+        );
+        // Or failing for long.
+        r.attempts = 1;
+        r.failing_for = RetryStatus::TELL_AFTER;
+        r.tiles = 1;
+        a.frame.retry = Some(r);
+        assert!(
+            a.status_line()
+                .starts_with("retrying 1 request: http://h:1"),
+            "{}",
+            a.status_line()
+        );
+    }
+
+    #[test]
     fn the_status_line_says_why_nothing_is_drawn() {
         let (_d, mut a) = app();
         assert!(a.status_line().contains("no frame yet"));
@@ -733,6 +829,7 @@ mod tests {
             s.contains("loading 1 tiles") && s.contains("2 tiles unreadable"),
             "{s}"
         );
+        assert!(!s.contains("retrying"), "{s}");
         assert!(a.timing_line().contains("idle"));
         a.fps = 12.5;
         assert!(a.timing_line().contains("12.5 fps"));

@@ -2,10 +2,14 @@
 //! size) requests through a channel, keeps only the newest, selects tiles, asks
 //! the tile cache for them (loading happens on the cache's own threads), draws
 //! what is loaded, encodes the frame for the terminal and sends it back. While
-//! tiles are still arriving it redraws as they come. The event loop never waits
-//! on it: it polls [`RenderWorker::try_recv`] between key presses.
+//! tiles are still arriving it redraws as they come. While tiles wait to be
+//! tried again (the server did not answer) it looks every
+//! [`REDRAW_WHILE_LOADING`] for tiles that loaded at last, or for a change in
+//! what the status line says of the tries, and redraws then: the view recovers
+//! by itself when the server returns, without a key press. The event loop never
+//! waits on it: it polls [`RenderWorker::try_recv`] between key presses.
 
-use super::app::{FrameStatus, Settings};
+use super::app::{FrameStatus, RetryStatus, Settings};
 use super::protocol::{self, PaneImage};
 use crate::camera::Camera;
 use crate::lod::point::{PointRecord, point_record};
@@ -155,9 +159,11 @@ fn run(
     let mut w = Worker { opts, pipeline };
     let mut current: Option<(Request, Instant)> = None;
     let mut pending = 0usize;
+    // What the last frame's status line said of tiles waiting to be retried.
+    let mut told: Option<(usize, bool, String)> = None;
     loop {
         let mut dirty = false;
-        let got = if pending > 0 {
+        let got = if pending > 0 || told.is_some() {
             requests.recv_timeout(REDRAW_WHILE_LOADING)
         } else {
             requests.recv().map_err(|_| RecvTimeoutError::Disconnected)
@@ -178,6 +184,10 @@ fn run(
         if w.pipeline.cache().arrivals.try_iter().count() > 0 {
             dirty = true;
         }
+        // Retries going on: redrawn when the status line would say otherwise.
+        if told.is_some() && told != retry_status(w.pipeline.cache()).as_ref().map(shown) {
+            dirty = true;
+        }
         let Some((req, received)) = current.as_mut() else {
             continue;
         };
@@ -190,12 +200,14 @@ fn run(
         match result {
             Ok(f) => {
                 pending = f.status.pending;
+                told = f.status.retry.as_ref().map(shown);
                 if reports.send(Report::Frame(Box::new(f))).is_err() {
                     return;
                 }
             }
             Err(e) => {
                 pending = 0;
+                told = None;
                 if reports
                     .send(Report::Error(crate::advice::message(&e)))
                     .is_err()
@@ -208,6 +220,32 @@ fn run(
             let _ = reports.send(Report::Error(crate::advice::store(&e)));
         }
     }
+}
+
+/// The tiles the view wants that wait to be tried again, for the status line
+/// (`None`: none).
+fn retry_status(cache: &TileCache) -> Option<RetryStatus> {
+    let r = cache.retries();
+    (r.tiles > 0).then(|| RetryStatus {
+        tiles: r.tiles,
+        attempts: r.attempts,
+        failing_for: r.failing_for,
+        error: r
+            .last_error
+            .as_ref()
+            .map(crate::advice::retrying)
+            .unwrap_or_default(),
+    })
+}
+
+/// What of a [`RetryStatus`] the status line shows: a change redraws.
+fn shown(r: &RetryStatus) -> (usize, bool, String) {
+    let tell = r.tell();
+    (
+        r.tiles,
+        tell,
+        if tell { r.error.clone() } else { String::new() },
+    )
 }
 
 /// The tiles colour ranges come from: the overview's top layers, loaded first
@@ -318,6 +356,7 @@ impl Worker {
             tiles: d.tiles.len(),
             pending: r.pending,
             unreadable: r.unreadable,
+            retry: retry_status(cache),
             dropped: r.selection.dropped_tiles,
             overview_tiles: r.selection.overview_tiles,
             budget: match mode {

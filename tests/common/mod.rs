@@ -3,6 +3,7 @@
 
 pub mod fuzz;
 pub mod proxy;
+pub mod http;
 pub mod pty;
 pub mod servers;
 pub mod tiffwalk;

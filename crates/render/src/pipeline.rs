@@ -78,6 +78,9 @@ pub struct FrameReport {
     pub pending: usize,
     /// Selected tiles that could not be read.
     pub unreadable: usize,
+    /// Selected tiles whose load failed for a reason that may pass: tried
+    /// again in the background ([`crate::lod::TileCache::retries`]).
+    pub retrying: usize,
     pub select_ms: f64,
     /// Waiting for tiles (for [`Loading::Stream`], since the frame that first
     /// found tiles missing).
@@ -211,9 +214,10 @@ impl Pipeline {
         let select_ms = ms(t);
 
         let t = Instant::now();
-        let (tiles, pending, unreadable) = match self.loading {
+        let (tiles, pending, unreadable, retrying) = match self.loading {
             Loading::Wait => (
                 self.cache.load_all(&sel.tiles).map_err(DrawError::Load)?,
+                0,
                 0,
                 0,
             ),
@@ -221,14 +225,20 @@ impl Pipeline {
                 self.cache.request(&sel.tiles);
                 let mut tiles = self.cache.ready(&sel.tiles);
                 let unreadable = self.cache.unreadable(&sel.tiles);
-                let pending = sel.tiles.len() - tiles.len() - unreadable;
+                let retrying = self.cache.retrying(&sel.tiles);
+                // (Counted one after the other: a tile that arrived between
+                // the counts is in none of them.)
+                let pending = sel
+                    .tiles
+                    .len()
+                    .saturating_sub(tiles.len() + unreadable + retrying);
                 if tiles.len() < sel.tiles.len() {
                     // Coarser tiles already in memory stand in for those still missing.
                     let have: HashSet<TileKey> = tiles.iter().map(|t| t.key).collect();
                     let extra = self.cache.stand_ins(&sel.tiles);
                     tiles.extend(extra.into_iter().filter(|t| !have.contains(&t.key)));
                 }
-                (tiles, pending, unreadable)
+                (tiles, pending, unreadable, retrying)
             }
         };
         let load_ms = match self.loading {
@@ -322,6 +332,7 @@ impl Pipeline {
                 levels,
                 pending,
                 unreadable,
+                retrying,
                 select_ms,
                 load_ms,
                 color_ms,

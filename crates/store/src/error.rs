@@ -51,6 +51,24 @@ impl StoreError {
         self
     }
 
+    /// Whether the same read may succeed later: a request to object storage
+    /// that got no answer (refused, timed out, cut), a short answer, or a
+    /// server failing or throttling (HTTP 5xx, 429, 408). Not a missing or
+    /// denied object, one replaced behind the index, nor bytes that do not
+    /// decode: reading them again gives the same answer.
+    pub fn transient(&self) -> bool {
+        #[cfg(feature = "remote")]
+        if let Some(r) = &self.remote {
+            use crate::remote::Problem as P;
+            return match &r.problem {
+                P::Network { .. } | P::WrongRange { .. } => true,
+                P::Status { status, .. } => *status >= 500 || matches!(*status, 408 | 429),
+                _ => false,
+            };
+        }
+        false
+    }
+
     /// A failed request: the path is its URL, the message what happened.
     #[cfg(feature = "remote")]
     pub fn remote(e: crate::remote::RemoteError) -> Self {

@@ -1,17 +1,35 @@
 //! The tile cache: tiles of (part, level, tile) loaded through the store by worker
 //! threads, kept under a memory budget (least recently used out). Callers ask for a
 //! selection and never wait: tiles arrive as workers finish, and requests for tiles
-//! no longer wanted are skipped. A tile that fails to load is remembered and not
-//! asked for again; while a tile is missing, a cached coarser tile covering it
-//! can stand in.
+//! no longer wanted are skipped. While a tile is missing, a cached coarser tile
+//! covering it can stand in.
+//!
+//! A tile that fails to load is remembered. Where the failure may pass (the
+//! server did not answer, or failed or throttled: [`StoreError::transient`]) the
+//! tile is tried again in the background, by the same loading threads, when its
+//! wait is over and while the view still wants it: the wait starts at
+//! [`RETRY_FIRST`] and doubles after each failure up to [`RETRY_MAX`], with
+//! jitter (a random 50-100 % of it) so that tiles that failed together are not
+//! all asked for again together. A retried tile that loads means the server is
+//! back: the others waiting are then tried within [`RETRY_FIRST`]/2 rather than
+//! at the end of their waits. [`TileCache::retries`] sums up what is waiting for
+//! a status line. Any other failure (bytes that do not decode, a missing or
+//! denied object) would fail again the same way: that tile is unreadable, and
+//! not asked for again.
 
 use super::select::TileRef;
 use crate::store::{Dataset, StoreError};
 use std::collections::{HashMap, HashSet};
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::mpsc::{Receiver, Sender, channel};
-use std::sync::{Arc, Mutex};
-use std::time::Instant;
+use std::sync::{Arc, Condvar, Mutex, MutexGuard};
+use std::time::{Duration, Instant};
+
+/// The wait before a tile whose load failed (for a reason that may pass) is
+/// tried again the first time; it doubles after each failure.
+pub const RETRY_FIRST: Duration = Duration::from_millis(500);
+/// The longest wait between two tries of a tile.
+pub const RETRY_MAX: Duration = Duration::from_secs(15);
 
 /// Identifies a tile of a dataset.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
@@ -161,6 +179,19 @@ struct Entry {
     last_used: u64,
 }
 
+/// A tile whose loads failed for a reason that may pass.
+struct Failure {
+    /// Failed tries in a row.
+    attempts: u32,
+    /// The first of them.
+    since: Instant,
+    /// The latest, and what it was.
+    at: Instant,
+    error: StoreError,
+    /// When to try again.
+    due: Instant,
+}
+
 #[derive(Default)]
 struct State {
     tiles: HashMap<TileKey, Entry>,
@@ -168,9 +199,119 @@ struct State {
     queued: HashSet<TileKey>,
     bytes: u64,
     clock: u64,
+    /// Failures that will not pass, since the last [`TileCache::take_errors`].
     errors: Vec<StoreError>,
-    /// Tiles that failed to load (never queued again).
-    failed: HashSet<TileKey>,
+    /// Tiles whose bytes cannot be read (never queued again).
+    unreadable: HashSet<TileKey>,
+    /// Tiles waiting to be tried again (queued by the retry thread when due).
+    retry: HashMap<TileKey, Failure>,
+    /// Jitter for the waits.
+    rng: Option<pcimg_core::rng::Rng>,
+    /// The cache is being dropped: the retry thread ends.
+    closed: bool,
+}
+
+impl State {
+    /// A random fraction in [0, 1) for jitter.
+    fn jitter(&mut self) -> f64 {
+        self.rng
+            .get_or_insert_with(|| {
+                let t = std::time::SystemTime::now()
+                    .duration_since(std::time::UNIX_EPOCH)
+                    .map_or(0, |d| d.as_nanos() as u64);
+                pcimg_core::rng::Rng::new(t ^ ((std::process::id() as u64) << 32))
+            })
+            .f64()
+    }
+
+    /// Records a failed load of `key` that may pass, and when to try it again.
+    fn failed_for_now(&mut self, key: TileKey, error: StoreError) {
+        let now = Instant::now();
+        let jitter = 0.5 + 0.5 * self.jitter();
+        match self.retry.get_mut(&key) {
+            Some(f) => {
+                f.attempts += 1;
+                f.at = now;
+                f.error = error;
+                f.due = now + retry_wait(f.attempts).mul_f64(jitter);
+            }
+            None => {
+                let f = Failure {
+                    attempts: 1,
+                    since: now,
+                    at: now,
+                    error,
+                    due: now + retry_wait(1).mul_f64(jitter),
+                };
+                self.retry.insert(key, f);
+            }
+        }
+    }
+
+    /// A tile loaded: if it had failed before, the server answers again, and the
+    /// other tiles waiting are tried soon (spread over half the first wait).
+    fn loaded(&mut self, key: TileKey) {
+        if self.retry.remove(&key).is_none() || self.retry.is_empty() {
+            return;
+        }
+        let now = Instant::now();
+        let keys: Vec<TileKey> = self.retry.keys().copied().collect();
+        for k in keys {
+            let soon = now + (RETRY_FIRST / 2).mul_f64(self.jitter());
+            if let Some(f) = self.retry.get_mut(&k) {
+                f.due = f.due.min(soon);
+            }
+        }
+    }
+}
+
+/// The wait after `attempts` failed tries in a row (before jitter):
+/// [`RETRY_FIRST`] doubled each time, at most [`RETRY_MAX`].
+pub fn retry_wait(attempts: u32) -> Duration {
+    let doublings = attempts.saturating_sub(1).min(16);
+    (RETRY_FIRST * (1u32 << doublings)).min(RETRY_MAX)
+}
+
+/// The state and the signal that wakes the retry thread (a failure recorded, a
+/// new selection, the cache dropped).
+struct Shared {
+    state: Mutex<State>,
+    wake: Condvar,
+}
+
+impl Shared {
+    fn lock(&self) -> Option<MutexGuard<'_, State>> {
+        self.state.lock().ok()
+    }
+}
+
+/// Tiles waiting to be tried again, summed up for a status line.
+#[derive(Debug, Clone, Default)]
+pub struct Retries {
+    /// Tiles the view wants whose last load failed (for a reason that may
+    /// pass): waiting for their next try, or being tried.
+    pub tiles: usize,
+    /// Until the next try of one of them (zero: one is being tried now).
+    pub next_in: Option<Duration>,
+    /// The most failed tries in a row of any of them.
+    pub attempts: u32,
+    /// Since the first failure of the one failing longest.
+    pub failing_for: Duration,
+    /// The latest failure among them.
+    pub last_error: Option<StoreError>,
+}
+
+impl std::fmt::Display for Retries {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "{} tiles waiting to retry", self.tiles)?;
+        if let Some(n) = self.next_in {
+            write!(f, ", next in {:.1} s", n.as_secs_f64())?;
+        }
+        if let Some(e) = &self.last_error {
+            write!(f, ", last error {e}")?;
+        }
+        Ok(())
+    }
 }
 
 /// Counters for the status line.
@@ -190,12 +331,16 @@ pub struct TileCache {
     /// Bands loaded besides the colour bands.
     extra: Arc<Vec<String>>,
     budget: u64,
-    state: Arc<Mutex<State>>,
+    shared: Arc<Shared>,
     jobs: Option<Sender<TileKey>>,
     workers: Vec<std::thread::JoinHandle<()>>,
+    /// Queues the tiles whose wait is over.
+    retrier: Option<std::thread::JoinHandle<()>>,
     loads: Arc<AtomicU64>,
     load_us: Arc<AtomicU64>,
-    /// Signalled whenever a tile arrives (the interface redraws).
+    /// Signalled whenever a tile arrives, or first fails (the interface
+    /// redraws). A retry that fails again is not news: [`TileCache::retries`]
+    /// says how the tries go.
     pub arrivals: Receiver<TileKey>,
 }
 
@@ -215,13 +360,20 @@ impl TileCache {
         let (job_tx, job_rx) = channel::<TileKey>();
         let (arrive_tx, arrive_rx) = channel::<TileKey>();
         let job_rx = Arc::new(Mutex::new(job_rx));
-        let state = Arc::new(Mutex::new(State::default()));
+        let shared = Arc::new(Shared {
+            state: Mutex::new(State::default()),
+            wake: Condvar::new(),
+        });
         let loads = Arc::new(AtomicU64::new(0));
         let load_us = Arc::new(AtomicU64::new(0));
         let workers = (0..threads.max(1))
             .map(|_| {
-                let (rx, state, ds, tx) =
-                    (job_rx.clone(), state.clone(), ds.clone(), arrive_tx.clone());
+                let (rx, shared, ds, tx) = (
+                    job_rx.clone(),
+                    shared.clone(),
+                    ds.clone(),
+                    arrive_tx.clone(),
+                );
                 let extra = extra.clone();
                 let (loads, load_us) = (loads.clone(), load_us.clone());
                 std::thread::spawn(move || {
@@ -233,18 +385,15 @@ impl TileCache {
                             },
                             Err(_) => return,
                         };
-                        let still_wanted = state
-                            .lock()
-                            .map(|s| s.wanted.contains(&key))
-                            .unwrap_or(false);
+                        let still_wanted = shared.lock().is_some_and(|s| s.wanted.contains(&key));
                         if !still_wanted {
-                            if let Ok(mut s) = state.lock() {
+                            if let Some(mut s) = shared.lock() {
                                 s.queued.remove(&key);
                             }
                             continue;
                         }
                         let res = load_tile_with(&ds, key, &extra);
-                        let Ok(mut s) = state.lock() else { return };
+                        let Some(mut s) = shared.lock() else { return };
                         s.queued.remove(&key);
                         match res {
                             Ok(t) => {
@@ -260,12 +409,26 @@ impl TileCache {
                                         last_used: clock,
                                     },
                                 );
+                                s.loaded(key);
                                 evict(&mut s, budget);
                                 drop(s);
+                                shared.wake.notify_all();
                                 let _ = tx.send(key);
                             }
+                            Err(e) if e.transient() => {
+                                let first = !s.retry.contains_key(&key);
+                                s.failed_for_now(key, e);
+                                drop(s);
+                                shared.wake.notify_all();
+                                // A first failure is news: the tile is no longer
+                                // loading but waiting.
+                                if first {
+                                    let _ = tx.send(key);
+                                }
+                            }
                             Err(e) => {
-                                s.failed.insert(key);
+                                s.retry.remove(&key);
+                                s.unreadable.insert(key);
                                 s.errors.push(e);
                                 drop(s);
                                 // Its outcome is news too: the view stops waiting.
@@ -276,13 +439,21 @@ impl TileCache {
                 })
             })
             .collect();
+        let retrier = {
+            let (shared, jobs) = (shared.clone(), job_tx.clone());
+            std::thread::Builder::new()
+                .name("pcimg-retry".into())
+                .spawn(move || retry_loop(&shared, &jobs))
+                .ok()
+        };
         TileCache {
             ds,
             extra,
             budget,
-            state,
+            shared,
             jobs: Some(job_tx),
             workers,
+            retrier,
             loads,
             load_us,
             arrivals: arrive_rx,
@@ -295,27 +466,39 @@ impl TileCache {
 
     /// Asks for the tiles of a selection; returns at once. Tiles already cached are
     /// kept; tiles of earlier requests not in this one are no longer loaded.
+    /// A tile waiting to be tried again is not queued now: the retry thread
+    /// queues it when its wait is over.
     pub fn request(&self, tiles: &[TileRef]) {
-        let Ok(mut s) = self.state.lock() else { return };
+        let Some(mut s) = self.shared.lock() else {
+            return;
+        };
         s.wanted = tiles.iter().map(TileKey::from).collect();
         s.clock += 1;
         let clock = s.clock;
+        let mut waiting = false;
         for t in tiles {
             let k = TileKey::from(t);
             if let Some(e) = s.tiles.get_mut(&k) {
                 e.last_used = clock;
-            } else if !s.queued.contains(&k) && !s.failed.contains(&k) {
+            } else if s.retry.contains_key(&k) {
+                waiting = true;
+            } else if !s.queued.contains(&k) && !s.unreadable.contains(&k) {
                 s.queued.insert(k);
                 if let Some(j) = &self.jobs {
                     let _ = j.send(k);
                 }
             }
         }
+        drop(s);
+        if waiting {
+            // Wanted again, some may be due already.
+            self.shared.wake.notify_all();
+        }
     }
 
     /// The cached tiles among `tiles` (others are still loading).
     pub fn ready(&self, tiles: &[TileRef]) -> Vec<Arc<LoadedTile>> {
-        let Ok(s) = self.state.lock() else {
+        let Some(s) = self.shared.lock() else {
             return Vec::new();
         };
         tiles
@@ -324,17 +507,52 @@ impl TileCache {
             .collect()
     }
 
-    /// How many of `tiles` failed to load (they are not asked for again).
+    /// How many of `tiles` cannot be read (they are not asked for again).
     pub fn unreadable(&self, tiles: &[TileRef]) -> usize {
-        self.state
-            .lock()
-            .map(|s| {
-                tiles
-                    .iter()
-                    .filter(|t| s.failed.contains(&TileKey::from(*t)))
-                    .count()
-            })
-            .unwrap_or(0)
+        self.shared.lock().map_or(0, |s| {
+            tiles
+                .iter()
+                .filter(|t| s.unreadable.contains(&TileKey::from(*t)))
+                .count()
+        })
+    }
+
+    /// How many of `tiles` failed to load for a reason that may pass: they
+    /// wait to be tried again (or are being tried).
+    pub fn retrying(&self, tiles: &[TileRef]) -> usize {
+        self.shared.lock().map_or(0, |s| {
+            tiles
+                .iter()
+                .filter(|t| s.retry.contains_key(&TileKey::from(*t)))
+                .count()
+        })
+    }
+
+    /// The tiles the view wants that wait to be tried again, summed up: how
+    /// many, when the next try is, how long they have failed, the latest error.
+    pub fn retries(&self) -> Retries {
+        let Some(s) = self.shared.lock() else {
+            return Retries::default();
+        };
+        let now = Instant::now();
+        let mut r = Retries::default();
+        let mut latest: Option<&Failure> = None;
+        for (k, f) in s.retry.iter().filter(|(k, _)| s.wanted.contains(k)) {
+            r.tiles += 1;
+            let next = if s.queued.contains(k) {
+                Duration::ZERO
+            } else {
+                f.due.saturating_duration_since(now)
+            };
+            r.next_in = Some(r.next_in.map_or(next, |n| n.min(next)));
+            r.attempts = r.attempts.max(f.attempts);
+            r.failing_for = r.failing_for.max(now.saturating_duration_since(f.since));
+            if latest.is_none_or(|l| f.at > l.at) {
+                latest = Some(f);
+            }
+        }
+        r.last_error = latest.map(|f| f.error.clone());
+        r
     }
 
     /// For tiles of `tiles` not cached (loading, or unreadable), the nearest
@@ -342,7 +560,7 @@ impl TileCache {
     /// covered by tile (col/2, row/2) of the next, whose pixels are a
     /// nearest-neighbour sample of it. Drawn meanwhile, they keep the view whole.
     pub fn stand_ins(&self, tiles: &[TileRef]) -> Vec<Arc<LoadedTile>> {
-        let Ok(mut s) = self.state.lock() else {
+        let Some(mut s) = self.shared.lock() else {
             return Vec::new();
         };
         s.clock += 1;
@@ -430,7 +648,7 @@ impl TileCache {
             self.load_us
                 .fetch_add((t.load_ms * 1e3) as u64, Ordering::Relaxed);
         }
-        if let Ok(mut s) = self.state.lock() {
+        if let Some(mut s) = self.shared.lock() {
             for t in &out {
                 s.clock += 1;
                 let last_used = s.clock;
@@ -445,15 +663,17 @@ impl TileCache {
                         last_used,
                     },
                 );
+                s.loaded(t.key);
             }
             evict(&mut s, self.budget);
         }
         Ok(out)
     }
 
-    /// Errors from workers since the last call.
+    /// Errors from workers since the last call: the tiles that cannot be read
+    /// (failures that may pass are in [`TileCache::retries`]).
     pub fn take_errors(&self) -> Vec<StoreError> {
-        self.state
+        self.shared
             .lock()
             .map(|mut s| std::mem::take(&mut s.errors))
             .unwrap_or_default()
@@ -461,7 +681,7 @@ impl TileCache {
 
     pub fn stats(&self) -> CacheStats {
         let (tiles, bytes, pending) = self
-            .state
+            .shared
             .lock()
             .map(|s| (s.tiles.len(), s.bytes, s.queued.len()))
             .unwrap_or_default();
@@ -477,7 +697,7 @@ impl TileCache {
 
     /// Keys of the tiles cached now (for displays of what is loaded).
     pub fn loaded(&self) -> Vec<TileKey> {
-        self.state
+        self.shared
             .lock()
             .map(|s| s.tiles.keys().copied().collect())
             .unwrap_or_default()
@@ -485,14 +705,52 @@ impl TileCache {
 
     /// Whether every tile of `tiles` is cached.
     pub fn has_all(&self, tiles: &[TileRef]) -> bool {
-        self.state
-            .lock()
-            .map(|s| {
-                tiles
-                    .iter()
-                    .all(|t| s.tiles.contains_key(&TileKey::from(t)))
-            })
-            .unwrap_or(false)
+        self.shared.lock().is_some_and(|s| {
+            tiles
+                .iter()
+                .all(|t| s.tiles.contains_key(&TileKey::from(t)))
+        })
+    }
+}
+
+/// The retry thread: sleeps until the next wanted tile's wait is over (or a
+/// failure, a new selection or the end wakes it), then queues the tiles due
+/// for the loading threads.
+fn retry_loop(shared: &Shared, jobs: &Sender<TileKey>) {
+    let Some(mut s) = shared.lock() else { return };
+    loop {
+        if s.closed {
+            return;
+        }
+        let now = Instant::now();
+        let mut next: Option<Instant> = None;
+        let mut due = Vec::new();
+        for (k, f) in &s.retry {
+            if !s.wanted.contains(k) || s.queued.contains(k) {
+                continue;
+            }
+            if f.due <= now {
+                due.push(*k);
+            } else {
+                next = Some(next.map_or(f.due, |n| n.min(f.due)));
+            }
+        }
+        for k in due {
+            s.queued.insert(k);
+            if jobs.send(k).is_err() {
+                return;
+            }
+        }
+        s = match next {
+            Some(t) => match shared.wake.wait_timeout(s, t - now) {
+                Ok((g, _)) => g,
+                Err(_) => return,
+            },
+            None => match shared.wake.wait(s) {
+                Ok(g) => g,
+                Err(_) => return,
+            },
+        };
     }
 }
 
@@ -514,6 +772,13 @@ fn evict(s: &mut State, budget: u64) {
 
 impl Drop for TileCache {
     fn drop(&mut self) {
+        if let Some(mut s) = self.shared.lock() {
+            s.closed = true;
+        }
+        self.shared.wake.notify_all();
+        if let Some(r) = self.retrier.take() {
+            let _ = r.join(); // its sender goes with it
+        }
         self.jobs = None; // closes the channel: workers finish
         for w in self.workers.drain(..) {
             let _ = w.join();
@@ -538,3 +803,75 @@ fn network_pool() -> Option<&'static rayon::ThreadPool> {
 /// Remote tiles loaded at once by [`TileCache::load_all`] (the remote reader
 /// itself keeps at most 16 requests in flight per read).
 const NETWORK_LOADERS: usize = 16;
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_wait_doubles_from_the_first_to_the_cap() {
+        assert_eq!(retry_wait(0), RETRY_FIRST);
+        assert_eq!(retry_wait(1), RETRY_FIRST);
+        assert_eq!(retry_wait(2), RETRY_FIRST * 2);
+        assert_eq!(retry_wait(3), RETRY_FIRST * 4);
+        assert_eq!(retry_wait(5), Duration::from_secs(8));
+        assert_eq!(retry_wait(6), RETRY_MAX);
+        assert_eq!(retry_wait(u32::MAX), RETRY_MAX);
+    }
+
+    #[test]
+    fn failures_wait_with_jitter_and_a_load_brings_the_others_forward() {
+        let mut s = State::default();
+        let e = StoreError::new(std::path::Path::new("x"), "refused");
+        let keys: Vec<TileKey> = (0..64)
+            .map(|tile| TileKey {
+                part: 0,
+                level: 0,
+                tile,
+            })
+            .collect();
+        let t0 = Instant::now();
+        for _ in 0..3 {
+            for &k in &keys {
+                s.failed_for_now(k, e.clone());
+            }
+        }
+        let t1 = Instant::now();
+        // Third failure: 2 s, of which 50-100 %; not all the same.
+        let waits: Vec<Duration> = keys
+            .iter()
+            .map(|k| {
+                let f = &s.retry[k];
+                assert_eq!(f.attempts, 3);
+                assert!(f.since >= t0 && f.at <= t1);
+                f.due.duration_since(f.at)
+            })
+            .collect();
+        for w in &waits {
+            assert!(
+                *w >= Duration::from_secs(1) && *w <= Duration::from_secs(2),
+                "{w:?}"
+            );
+        }
+        assert!(waits.iter().any(|w| *w != waits[0]), "no jitter");
+        // A tile not retried before loads: the others keep their waits.
+        s.loaded(TileKey {
+            part: 9,
+            level: 0,
+            tile: 0,
+        });
+        assert!(
+            keys.iter()
+                .all(|k| s.retry[k].due >= t0 + Duration::from_secs(1))
+        );
+        // A retried one loads: the server is back, the others come soon.
+        s.loaded(keys[0]);
+        let back = Instant::now();
+        assert!(!s.retry.contains_key(&keys[0]));
+        assert_eq!(s.retry.len(), keys.len() - 1);
+        for f in s.retry.values() {
+            assert!(f.due <= back + RETRY_FIRST / 2, "{:?}", f.due - back);
+            assert_eq!(f.attempts, 3, "the count of tries is kept");
+        }
+    }
+}

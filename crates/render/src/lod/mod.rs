@@ -6,7 +6,7 @@ pub mod cache;
 pub mod point;
 pub mod select;
 
-pub use cache::{Extra, LoadedTile, TileCache, TileKey};
+pub use cache::{Extra, LoadedTile, Retries, TileCache, TileKey};
 pub use select::{
     DEFAULT_BUDGET_CAP, LodMode, Selection, TileRef, budget_for_pixels, distance_level,
     level_count, select, select_clipped, select_region,

@@ -6,7 +6,7 @@
 use crate::error::{Remedy, Result, StoreError};
 use crate::read::part::{BandInfo, Bytes, Level, Part, PartMeta};
 use std::path::{Path, PathBuf};
-use std::sync::{Arc, OnceLock};
+use std::sync::{Arc, Mutex, OnceLock};
 
 /// What the index records of one part's headers: enough to select its tiles
 /// without opening it.
@@ -30,7 +30,15 @@ pub(crate) struct Deferred {
     /// unknown). Its size is checked instead of the modification time, and its
     /// ETag pinned by the first request.
     remote: Option<(Arc<crate::remote::RemoteFile>, u64)>,
+    /// The part, or why it cannot be opened. A failure that may pass (the
+    /// server did not answer: [`StoreError::transient`]) is not kept: the
+    /// next tile read tries again.
     opened: OnceLock<Result<Part>>,
+    /// Held while opening: concurrent first reads wait for one opening. It
+    /// keeps the last failure that may pass and when it came: reads that
+    /// waited for that opening share its outcome rather than each asking the
+    /// server again.
+    opening: Mutex<Option<(std::time::Instant, StoreError)>>,
 }
 
 impl Part {
@@ -83,6 +91,7 @@ impl Part {
                 expect: (file_bytes, mtime),
                 remote: None,
                 opened: OnceLock::new(),
+                opening: Mutex::new(None),
             })),
             remote: None,
         }
@@ -103,6 +112,7 @@ impl Part {
             expect: (file_bytes, (0, 0)),
             remote: Some((file, head)),
             opened: OnceLock::new(),
+            opening: Mutex::new(None),
         }));
         p
     }
@@ -161,7 +171,26 @@ impl Part {
         let Some(d) = &self.lazy else {
             return Ok(None);
         };
-        let r = d.opened.get_or_init(|| {
+        fn kept(r: &Result<Part>) -> Result<Option<&Part>> {
+            match r {
+                Ok(p) => Ok(Some(p)),
+                Err(e) => Err(e.clone()),
+            }
+        }
+        if let Some(r) = d.opened.get() {
+            return kept(r);
+        }
+        let asked = std::time::Instant::now();
+        let mut one = d.opening.lock().unwrap_or_else(|p| p.into_inner());
+        if let Some(r) = d.opened.get() {
+            return kept(r);
+        }
+        if let Some((at, e)) = &*one
+            && *at >= asked
+        {
+            return Err(e.clone());
+        }
+        let r = (|| {
             if let Some((file, head)) = &d.remote {
                 return self.open_listed_remote(file, *head, d.expect.0);
             }
@@ -189,10 +218,13 @@ impl Part {
             } else {
                 Err(fail("changed since the dataset was indexed".into()))
             }
-        });
+        })();
         match r {
-            Ok(p) => Ok(Some(p)),
-            Err(e) => Err(e.clone()),
+            Err(e) if e.transient() => {
+                *one = Some((std::time::Instant::now(), e.clone()));
+                Err(e)
+            }
+            r => kept(d.opened.get_or_init(|| r)),
         }
     }
 }

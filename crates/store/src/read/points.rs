@@ -109,7 +109,9 @@ impl Part {
         let fail = |m: String| StoreError::new(&self.path, format!("level {level}: {m}"));
         // The stored bytes: the map, or for a remote part exactly these chunks,
         // fetched now (x too where counts are unknown: it finds the points).
-        let src = self.chunks(l, tiles, bands, counts.is_none())?;
+        let src = self
+            .chunks(l, tiles, bands, counts.is_none())
+            .map_err(|e| self.fetch_failed(level, e))?;
         if let Some(counts) = counts {
             // Every count is known: fill disjoint slices of the output in parallel.
             let total: usize = counts.iter().sum();

@@ -2,7 +2,15 @@
 //! the byte ranges of exactly the chunks the read needs, fetched from object
 //! storage before it (`crate::remote`, merged and concurrent).
 
+use crate::error::StoreError;
 use crate::read::part::{Level, Part};
+
+/// Why a read's chunks could not be had: the failed request (a local file's
+/// map is always there, so without object storage there is no such error).
+#[cfg(feature = "remote")]
+pub(crate) type FetchError = crate::remote::RemoteError;
+#[cfg(not(feature = "remote"))]
+pub(crate) type FetchError = std::convert::Infallible;
 
 /// The stored bytes of the chunks of one read.
 pub(crate) enum Chunks<'a> {
@@ -64,7 +72,7 @@ impl Part {
         tiles: &[u32],
         bands: &[usize],
         with_x: bool,
-    ) -> crate::Result<Chunks<'_>> {
+    ) -> std::result::Result<Chunks<'_>, FetchError> {
         let Some(remote) = &self.remote else {
             return Ok(Chunks::Map(&self.map));
         };
@@ -80,7 +88,7 @@ impl Part {
         tiles: &[u32],
         bands: &[usize],
         with_x: bool,
-    ) -> crate::Result<Chunks<'_>> {
+    ) -> std::result::Result<Chunks<'_>, FetchError> {
         let mut want: Vec<usize> = bands.to_vec();
         if with_x && !want.contains(&0) {
             want.push(0);
@@ -97,10 +105,7 @@ impl Part {
             .filter(|&(_, n)| n > 0)
             .map(|(o, n)| o..o + n)
             .collect();
-        // (A failed request keeps its facts: the command line's advice.)
-        let got = remote
-            .read_ranges(&ranges)
-            .map_err(crate::StoreError::remote)?;
+        let got = remote.read_ranges(&ranges)?;
         let mut v: Vec<(u64, bytes::Bytes)> = ranges.iter().map(|r| r.start).zip(got).collect();
         v.sort_by_key(|e| e.0);
         Ok(Chunks::Fetched(v))
@@ -114,7 +119,19 @@ impl Part {
         _: &[u32],
         _: &[usize],
         _: bool,
-    ) -> crate::Result<Chunks<'_>> {
+    ) -> std::result::Result<Chunks<'_>, FetchError> {
         match *remote {}
+    }
+
+    /// The error of a read of `level` whose chunks could not be fetched: it
+    /// keeps the failed request (its URL and what happened), so that callers
+    /// can tell a network failure, worth trying again, from bad bytes.
+    pub(crate) fn fetch_failed(&self, level: usize, e: FetchError) -> StoreError {
+        let message = format!("level {level}: {e}");
+        StoreError {
+            #[cfg(feature = "remote")]
+            remote: Some(Box::new(e)),
+            ..StoreError::new(&self.path, message)
+        }
     }
 }

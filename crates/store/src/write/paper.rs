@@ -184,7 +184,9 @@ impl Part {
     ) -> std::result::Result<Planes, String> {
         let l = &self.levels[level];
         let dec: Vec<usize> = std::iter::once(0).chain(bands.iter().copied()).collect();
-        let src = self.chunks(l, &[t], &dec, false).map_err(|e| e.message)?;
+        let src = self
+            .chunks(l, &[t], &dec, false)
+            .map_err(|e| e.to_string())?;
         let planes = self.read_tile(&src, l, t, Some(l.tile_width * l.tile_height), &dec)?;
         let w = l
             .tile_width
