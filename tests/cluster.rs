@@ -235,6 +235,75 @@ fn have_dask() -> bool {
     ok
 }
 
+/// A shard killed with SIGKILL while it writes (its hidden staging folder
+/// `.shard-I.tmp-*` is there, not after a guessed time) leaves that folder; the
+/// next shard run removes it (its lock died with the shard), says so, and the
+/// dataset is finished as if nothing had happened.
+#[test]
+fn a_killed_shard_leaves_nothing_the_next_run_trips_on() {
+    let t = tempfile::tempdir().unwrap();
+    let input = t.path().join("cloud.xyz");
+    write_input(&input, 600_000, 4);
+    let (p, out) = (t.path().join("plan.json"), t.path().join("out.pcimg"));
+    plan(&input, &p, &out, 2);
+    let staging = || {
+        std::fs::read_dir(&out).ok().is_some_and(|d| {
+            d.flatten().any(|e| {
+                e.file_name()
+                    .to_string_lossy()
+                    .starts_with(".shard-00000.tmp-")
+            })
+        })
+    };
+    let mut child = pcimg()
+        .args(["convert", "-q", "--plan"])
+        .arg(&p)
+        .args(["--shard", "0/2"])
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .unwrap();
+    let start = std::time::Instant::now();
+    while !staging() {
+        assert!(
+            child.try_wait().unwrap().is_none(),
+            "shard 0 ended before it could be killed"
+        );
+        assert!(
+            start.elapsed().as_secs() < 60,
+            "shard 0 never began to write"
+        );
+        std::thread::sleep(std::time::Duration::from_millis(1));
+    }
+    child.kill().unwrap();
+    child.wait().unwrap();
+    assert!(staging(), "the killed shard left nothing to clean");
+    // The other shard, run now, removes the dead one's folder.
+    let o = pcimg()
+        .args(["convert", "--plan"])
+        .arg(&p)
+        .args(["--shard", "1/2"])
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "{err}");
+    assert!(err.contains("left by a shard that was stopped"), "{err}");
+    assert!(!staging());
+    run(pcimg()
+        .args(["convert", "-q", "--plan"])
+        .arg(&p)
+        .args(["--shard", "0/2"]));
+    run(pcimg().arg("index").arg(&out));
+    let hidden: Vec<String> = std::fs::read_dir(&out)
+        .unwrap()
+        .flatten()
+        .map(|e| e.file_name().to_string_lossy().into_owned())
+        .filter(|n| n.starts_with('.'))
+        .collect();
+    assert!(hidden.is_empty(), "{hidden:?}");
+    assert_eq!(digest(&out).points, 600_000);
+}
+
 #[test]
 fn dask_driver_retries_a_killed_shard_and_equals_one_convert() {
     if !have_dask() {

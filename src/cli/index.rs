@@ -46,6 +46,13 @@ pub fn run(a: Args) -> anyhow::Result<()> {
             sanitize(&a.dir.display().to_string())
         );
     }
+    // One run at a time (a conversion to the same output included); what
+    // killed shards left goes first.
+    let _lock = match a.dir.canonicalize() {
+        Ok(real) if real.file_name().is_some() => Some(crate::convert::output::lock(&real)?),
+        _ => None,
+    };
+    let mut leftovers = crate::convert::cluster::remove_leftovers(&a.dir);
     // A dataset made by cluster shards (docs/cluster.md): every shard's receipt
     // checked against its plan first.
     let checked = crate::convert::cluster::check_receipts(&a.dir)?;
@@ -71,6 +78,13 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         note!("");
     }
     let r = r?;
+    leftovers.extend(r.leftovers.iter().cloned());
+    for gone in &leftovers {
+        note!(
+            "removed {}, left by a run that was stopped",
+            sanitize(&gone.display().to_string())
+        );
+    }
     if !a.quiet {
         if let Some(c) = checked {
             super::print_out(&format!(

@@ -77,9 +77,13 @@ impl CacheArgs {
     }
 }
 
-/// When `asked` (`--net-stats`), the network's counters on stderr: requests,
-/// bytes received, failures and the disk cache's hits (benchmarks).
+/// When the disk cache's file system filled up, says so; when `asked`
+/// (`--net-stats`), the network's counters on stderr: requests, bytes
+/// received, failures and the disk cache's hits (benchmarks).
 pub fn print_stats_if_asked(asked: bool) {
+    if let Some(full) = crate::remote::disk::full() {
+        note!("pcimg: disk cache: {full}");
+    }
     if asked {
         let s = crate::remote::stats();
         let (hits, misses, bad) = crate::remote::disk::counters();

@@ -253,7 +253,9 @@ pub fn make_plan(
         declared.push(i.declared_points.zip(i.declared_bounds));
     }
     // Nothing is written: the job's output check and staging go to a scratch
-    // path (the dataset directory may already hold this plan).
+    // path (the dataset directory may already hold this plan); a killed
+    // planner's scratch goes first.
+    spill::sweep(&std::env::temp_dir(), ".pcimg-plan-", "pcimg-out-", "");
     let o_plan = ConvertOptions {
         output: std::env::temp_dir().join(format!("pcimg-plan-{}", std::process::id())),
         force: true,
@@ -480,6 +482,12 @@ fn prefix(i: usize) -> String {
     format!("part-s{i:05}-")
 }
 
+/// Removes the staging directories of shards that were killed (any shard's:
+/// [`spill::stale`]) from the output `dir`. Returns what it removed.
+pub fn remove_leftovers(dir: &Path) -> Vec<PathBuf> {
+    spill::sweep(dir, ".shard-", ".tmp-", "")
+}
+
 fn receipt_path(dir: &Path, i: usize) -> PathBuf {
     dir.join(RECEIPTS).join(format!("shard-{i:05}.json"))
 }
@@ -514,6 +522,12 @@ pub fn run_shard(
     }
     std::fs::create_dir_all(dir.join(RECEIPTS))
         .with_context(|| format!("{}: cannot create", dir.display()))?;
+    for gone in remove_leftovers(&dir) {
+        progress.note(&format!(
+            "removed {}, left by a shard that was stopped",
+            crate::text::sanitize(&gone.display().to_string())
+        ));
+    }
     // The plan beside the parts, for `pcimg index`.
     let here = dir.join(PLAN_NAME);
     if ClusterPlan::load(&here).map(|(_, h)| h).ok().as_deref() != Some(hash.as_str()) {
@@ -549,14 +563,11 @@ pub fn run_shard(
         if job.info.crs_wkt != cp.crs {
             bail!("shard {i}: the inputs' CRS differs from the plan's");
         }
-        let stage = spill::TempDir {
-            path: dir.join(unique),
-        };
-        std::fs::create_dir_all(&stage.path)?;
+        // Locked: a shard killed meanwhile, here or on another machine, leaves
+        // it unlocked, and the next shard or `pcimg index` removes it.
+        let stage = spill::TempDir::locked(dir.join(unique))?;
         job.stage_in(stage, &prefix(i));
-        let spill_dir = spill::TempDir {
-            path: job.staging().unwrap_or(&dir).join("spill"),
-        };
+        let spill_dir = spill::TempDir::adopt(job.staging().unwrap_or(&dir).join("spill"));
         std::fs::create_dir_all(&spill_dir.path)?;
         let cells = Cells::of(&cp.plan);
         let all = &cp.plan.regions;

@@ -10,7 +10,7 @@ pub mod budget;
 pub mod cluster;
 mod distribute;
 mod job;
-mod output;
+pub mod output;
 pub mod partition;
 mod plan;
 mod sample;
@@ -323,6 +323,14 @@ pub fn convert_files(
         output: output::resolve(&o.output)?,
         ..o.clone()
     };
+    // One run at a time on an output; what killed runs left goes first.
+    let _lock = output::lock(&o.output)?;
+    for gone in output::remove_leftovers(&o.output) {
+        progress.note(&format!(
+            "removed {}, left by a run that was stopped",
+            crate::text::sanitize(&gone.display().to_string())
+        ));
+    }
     // Extents, then Early where the points must be read whole, then Held where
     // the origin chosen while reading proved too far.
     let mut collect = Collect::Extents;

@@ -46,6 +46,71 @@ pub fn resolve(output: &Path) -> Result<PathBuf> {
     Ok(parent.join(name))
 }
 
+/// The lock of a conversion's output, `.<name>.pcimg-lock` beside it, held
+/// while it runs (also by `pcimg index` on a dataset): a second run on the same
+/// output is refused, naming the holder's process. The kernel lets go of it when
+/// its holder dies, so a killed run never blocks the next.
+pub fn lock(output: &Path) -> Result<crate::disk::Lock> {
+    let shown = output.display();
+    let parent = output
+        .parent()
+        .filter(|p| !p.as_os_str().is_empty())
+        .unwrap_or(Path::new("."));
+    let name = output
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_default();
+    let path = parent.join(format!(".{name}.pcimg-lock"));
+    match crate::disk::Lock::try_take(&path, true) {
+        Ok(Ok(lock)) => Ok(lock),
+        Ok(Err(held)) => bail!(
+            "{shown}: another pcimg run is writing it{} (lock {}); wait for it to finish, \
+             or write another output",
+            held.pid
+                .map(|p| format!(" (process {p})"))
+                .unwrap_or_default(),
+            path.display()
+        ),
+        // (A directory that does not exist is said by the output check.)
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => bail!(
+            "{shown}: the directory {} does not exist (create it first)",
+            parent.display()
+        ),
+        Err(e) => bail!(
+            "{shown}: cannot write in {} (its lock {}): {}",
+            parent.display(),
+            path.display(),
+            crate::disk::with_full_note(e, &path, None)
+        ),
+    }
+}
+
+/// Removes what killed runs left for `output`: beside it, the staging and
+/// spill directories and the single part's temporary file of conversions whose
+/// process is gone; inside it (a dataset), the temporary overview and index of
+/// `pcimg index` and the staging directories of cluster shards. Call it
+/// holding [`lock`]. Returns what it removed.
+pub fn remove_leftovers(output: &Path) -> Vec<PathBuf> {
+    use super::spill::sweep;
+    let parent = output
+        .parent()
+        .filter(|p| !p.as_os_str().is_empty())
+        .unwrap_or(Path::new("."));
+    let Some(name) = output.file_name().map(|n| n.to_string_lossy().into_owned()) else {
+        return Vec::new();
+    };
+    let mine = format!(".{name}.");
+    let mut gone = sweep(parent, &mine, "pcimg-out-", "");
+    gone.extend(sweep(parent, &mine, "pcimg-spill-", ""));
+    // The store's `.<name>.<pid>.tmp`.
+    gone.extend(sweep(parent, ".", &format!("{name}."), ".tmp"));
+    if output.is_dir() {
+        gone.extend(crate::store::dataset::overview::remove_leftovers(output));
+        gone.extend(super::cluster::remove_leftovers(output));
+    }
+    gone
+}
+
 /// Checks that converting `input` may write `output` (a `.tif` file when
 /// `as_file`, else a directory of parts), replacing it only with `force`.
 pub fn check(input: &Path, output: &Path, as_file: bool, force: bool) -> Result<()> {

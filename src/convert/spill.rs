@@ -3,7 +3,8 @@
 //! the f32 attributes: the values the part will store, so 16 bytes a point with
 //! one attribute), read back a block at a time when the region becomes a part.
 //! The directory holding them is removed on drop:
-//! on success, on error, and when Ctrl-C unwinds the conversion.
+//! on success, on error, and when Ctrl-C unwinds the conversion; a killed
+//! conversion's, by the next run ([`sweep`]).
 
 use crate::points::{Attribute, Bounds, PointColumns};
 use rayon::prelude::*;
@@ -15,10 +16,18 @@ use std::path::{Path, PathBuf};
 #[derive(Debug)]
 pub struct TempDir {
     pub path: PathBuf,
+    /// The lock on [`LOCK_FILE`] inside, where the directory has one: while it
+    /// is held the directory is in use (see [`stale`]).
+    lock: Option<crate::disk::Lock>,
 }
 
+/// The lock file inside a temporary directory that other processes may find
+/// (a cluster shard's, an upload's): held while the directory is in use.
+pub const LOCK_FILE: &str = ".pcimg-lock";
+
 impl TempDir {
-    /// Creates `.<stem>.pcimg-tmp-<pid>` beside `near`.
+    /// Creates `.<name>.<tag>-<pid>` beside `near` (the process id tells a
+    /// later run whether the directory is a killed run's: see [`stale`]).
     pub fn beside(near: &Path, tag: &str) -> std::io::Result<TempDir> {
         let parent = near
             .parent()
@@ -29,15 +38,81 @@ impl TempDir {
             .map(|n| n.to_string_lossy().into_owned())
             .unwrap_or_else(|| "out".into());
         let path = parent.join(format!(".{name}.{tag}-{}", std::process::id()));
-        std::fs::create_dir_all(&path)?;
-        Ok(TempDir { path })
+        std::fs::create_dir_all(&path).map_err(|e| named(&path, e))?;
+        Ok(TempDir { path, lock: None })
+    }
+
+    /// Creates the directory `path` with a held lock inside ([`LOCK_FILE`]):
+    /// a run on another machine sharing the disk, which cannot ask whether
+    /// this process lives, sees it in use until this process ends.
+    pub fn locked(path: PathBuf) -> std::io::Result<TempDir> {
+        std::fs::create_dir_all(&path).map_err(|e| named(&path, e))?;
+        let mut dir = TempDir { path, lock: None };
+        let lock = crate::disk::Lock::try_take(&dir.path.join(LOCK_FILE), false)
+            .map_err(|e| named(&dir.path, e))?
+            .map_err(|_| std::io::Error::other(format!("{}: in use", dir.path.display())))?;
+        dir.lock = Some(lock);
+        Ok(dir)
+    }
+
+    /// A directory made elsewhere, removed when dropped.
+    pub fn adopt(path: PathBuf) -> TempDir {
+        TempDir { path, lock: None }
     }
 }
 
 impl Drop for TempDir {
     fn drop(&mut self) {
         let _ = std::fs::remove_dir_all(&self.path);
+        drop(self.lock.take());
     }
+}
+
+/// Whether the temporary directory or file at `path`, named with a process id
+/// after `tag`, was left by a run that ended: its lock file (if it has one) is
+/// held by no one, or else the process its name carries is gone.
+pub fn stale(path: &Path, tag: &str) -> bool {
+    let lock = path.join(LOCK_FILE);
+    if lock.exists() {
+        return !crate::disk::is_locked(&lock);
+    }
+    let name = path
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_default();
+    crate::disk::pid_after(&name, tag).is_some_and(|pid| !crate::disk::pid_alive(pid))
+}
+
+/// Removes the entries of `dir` whose names start with `prefix`, end with
+/// `suffix` and carry a process id after `tag`, where [`stale`]: a killed
+/// run's temporary files and directories. Returns what it removed.
+pub fn sweep(dir: &Path, prefix: &str, tag: &str, suffix: &str) -> Vec<PathBuf> {
+    let mut gone = Vec::new();
+    let Ok(entries) = std::fs::read_dir(dir) else {
+        return gone;
+    };
+    for e in entries.flatten() {
+        let name = e.file_name().to_string_lossy().into_owned();
+        if !name.starts_with(prefix)
+            || !name.ends_with(suffix)
+            || !name[prefix.len()..].contains(tag)
+        {
+            continue;
+        }
+        let path = e.path();
+        if !stale(&path, tag) {
+            continue;
+        }
+        let r = if e.file_type().is_ok_and(|t| t.is_dir()) {
+            std::fs::remove_dir_all(&path)
+        } else {
+            std::fs::remove_file(&path)
+        };
+        if r.is_ok() {
+            gone.push(path);
+        }
+    }
+    gone
 }
 
 /// Bytes of one record with `attributes` attribute columns.
@@ -48,6 +123,7 @@ pub fn record_size(attributes: usize) -> usize {
 /// An I/O error on a temporary file, naming it (the disk that fills up is the
 /// one beside the output, which the user may not expect to need room).
 fn named(path: &Path, e: std::io::Error) -> std::io::Error {
+    let e = crate::disk::with_full_note(e, path, None);
     std::io::Error::new(e.kind(), format!("temporary file {}: {e}", path.display()))
 }
 
@@ -281,6 +357,43 @@ mod tests {
                 }
             }
         }
+    }
+
+    /// What a sweep removes: a killed run's directory (its process gone, or
+    /// its lock free), never one in use (a live process's, or one whose lock
+    /// is held), nor names that do not match.
+    #[test]
+    fn a_sweep_removes_only_what_dead_runs_left() {
+        let dir = tempfile::tempdir().unwrap();
+        let d = dir.path();
+        // A process that has ended: its id is free.
+        let mut child = std::process::Command::new("true").spawn().unwrap();
+        let dead = child.id();
+        child.wait().unwrap();
+        let me = std::process::id();
+        for n in [
+            format!(".a.pcimg-out-{dead}"),
+            format!(".a.pcimg-out-{me}"),
+            format!(".b.pcimg-out-{dead}"),
+            ".a.pcimg-out-x".to_string(),
+        ] {
+            std::fs::create_dir(d.join(n)).unwrap();
+        }
+        // Locked: in use whatever its name says; its lock free: left.
+        let held = TempDir::locked(d.join(format!(".a.pcimg-out-{dead}-held"))).unwrap();
+        let free = d.join(format!(".a.pcimg-out-{me}-free"));
+        std::fs::create_dir(&free).unwrap();
+        std::fs::write(free.join(LOCK_FILE), "1\n").unwrap();
+        let mut gone = sweep(d, ".a.", "pcimg-out-", "");
+        gone.sort();
+        let mut want = vec![d.join(format!(".a.pcimg-out-{dead}")), free.clone()];
+        want.sort();
+        assert_eq!(gone, want);
+        assert!(held.path.exists() && d.join(format!(".a.pcimg-out-{me}")).exists());
+        assert!(d.join(format!(".b.pcimg-out-{dead}")).exists());
+        let held_path = held.path.clone();
+        drop(held);
+        assert!(!held_path.exists());
     }
 
     /// Failures on temporary files name the file.

@@ -89,10 +89,11 @@ impl RemoteOutput {
         let stamp = std::time::SystemTime::now()
             .duration_since(std::time::UNIX_EPOCH)
             .map_or(0, |d| d.as_nanos());
+        // (Those of uploads that were killed go first: their lock is free.)
+        super::spill::sweep(&std::env::temp_dir(), "pcimg-", "upload-", "");
         let dir = std::env::temp_dir().join(format!("pcimg-upload-{}-{stamp}", std::process::id()));
-        std::fs::create_dir_all(&dir)
-            .map_err(|e| anyhow!("{}: cannot create: {e}", dir.display()))?;
-        let scratch = super::spill::TempDir { path: dir };
+        let scratch = super::spill::TempDir::locked(dir)
+            .map_err(|e| anyhow!("cannot create the local copy of the upload: {e}"))?;
         let uploader = Arc::new(Uploader::new(
             remote.clone(),
             Arc::new(AtomicBool::new(false)),

@@ -99,3 +99,110 @@ pub fn convert_options(output: std::path::PathBuf, memory: u64) -> pcimg::conver
         on_part: None,
     }
 }
+
+/// What a command run on a small tmpfs did: its output, and the files on the
+/// tmpfs (paths relative to it, sorted) after the setup and after the command.
+pub struct OnTmpfs {
+    pub output: std::process::Output,
+    pub before: Vec<String>,
+    pub after: Vec<String>,
+}
+
+/// Whether a private mount namespace with a tmpfs can be made here (`unshare
+/// --user --map-root-user --mount`, then `mount -t tmpfs`): as root, or where
+/// user namespaces are allowed. In CI (`CI=true`) a refusal is a failure;
+/// elsewhere the caller skips with a note.
+pub fn tmpfs_available() -> bool {
+    let probe = tempfile::tempdir().unwrap();
+    let ok = Command::new("unshare")
+        .args(["--user", "--map-root-user", "--mount", "sh", "-c"])
+        .arg("mount -t tmpfs -o size=1m tmpfs \"$0\"")
+        .arg(probe.path())
+        .output()
+        .is_ok_and(|o| o.status.success());
+    if !ok {
+        assert!(
+            std::env::var("CI").ok().as_deref() != Some("true"),
+            "CI=true and unshare/mount cannot make a private tmpfs (user namespaces refused?)"
+        );
+        eprintln!("note: unshare or mount refused, skipping this test outside CI");
+    }
+    ok
+}
+
+/// Runs `program args` with a tmpfs of `size` (e.g. `4m`) mounted at `mount`
+/// (an empty directory) in a private mount namespace, so the mount is gone
+/// when the command ends, whatever happens. `setup` (shell, `$T` the mount
+/// point) runs first, e.g. to copy a dataset there or fill the disk; `then`
+/// (shell) runs after the command, its output appended to the command's
+/// stdout. The files on the tmpfs are listed after the setup and after the
+/// command (`then` included).
+pub fn on_tmpfs(
+    mount: &std::path::Path,
+    size: &str,
+    setup: &str,
+    program: &std::path::Path,
+    args: &[&std::ffi::OsStr],
+    envs: &[(&str, &std::ffi::OsStr)],
+    then: &str,
+) -> OnTmpfs {
+    let lists = tempfile::tempdir().unwrap();
+    let (before, after) = (lists.path().join("before"), lists.path().join("after"));
+    let script = format!(
+        "T=\"$1\"; B=\"$2\"; A=\"$3\"; shift 3\n\
+         mount -t tmpfs -o size={size} tmpfs \"$T\" || exit 97\n\
+         {setup}\n\
+         (cd \"$T\" && find . -mindepth 1) > \"$B\"\n\
+         \"$@\"; rc=$?\n\
+         {then}\n\
+         (cd \"$T\" && find . -mindepth 1) > \"$A\"\n\
+         exit $rc\n"
+    );
+    let mut c = Command::new("unshare");
+    c.args([
+        "--user",
+        "--map-root-user",
+        "--mount",
+        "sh",
+        "-c",
+        &script,
+        "sh",
+    ])
+    .arg(mount)
+    .arg(&before)
+    .arg(&after)
+    .arg(program)
+    .args(args);
+    for (k, v) in envs {
+        c.env(k, v);
+    }
+    let output = c.output().expect("unshare runs");
+    assert_ne!(
+        output.status.code(),
+        Some(97),
+        "the tmpfs could not be mounted: {}",
+        String::from_utf8_lossy(&output.stderr)
+    );
+    let list = |p: &std::path::Path| -> Vec<String> {
+        let mut v: Vec<String> = std::fs::read_to_string(p)
+            .unwrap_or_default()
+            .lines()
+            .map(|l| l.trim_start_matches("./").to_string())
+            .collect();
+        v.sort();
+        v
+    };
+    OnTmpfs {
+        before: list(&before),
+        after: list(&after),
+        output,
+    }
+}
+
+/// A file's bytes hashed (FNV-1a), to show an input was left untouched.
+pub fn file_hash(path: &std::path::Path) -> u64 {
+    let data = std::fs::read(path).unwrap();
+    data.iter().fold(0xcbf2_9ce4_8422_2325u64, |h, &b| {
+        (h ^ b as u64).wrapping_mul(0x0100_0000_01b3)
+    })
+}

@@ -1,7 +1,9 @@
 //! pcimg's foundation, below every other crate: the point columns the input readers
 //! hand to the store ([`points`]), terminal-safe text ([`text`]), large buffers
 //! ([`bigvec`]), the process's pool of large blocks ([`alloc`]), wall and CPU
-//! clocks ([`clock`]) and a deterministic generator for synthetic data ([`rng`]).
+//! clocks ([`clock`]), a deterministic generator for synthetic data ([`rng`]), and
+//! local disks' room, mount points and locks ([`disk`]: full-disk messages, runs
+//! that were killed).
 
 // Loops over the three axes index several parallel arrays at once.
 #![allow(clippy::needless_range_loop)]
@@ -20,6 +22,8 @@ pub mod alloc {
 }
 pub mod bigvec;
 pub mod clock;
+#[cfg(unix)]
+pub mod disk;
 pub mod points;
 pub mod rng;
 pub mod text;

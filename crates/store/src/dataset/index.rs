@@ -134,6 +134,11 @@ impl IndexFile {
 
     /// Reads `dir`'s index, if it has one, and its size in bytes.
     pub fn load(dir: &Path) -> Result<Option<(IndexFile, u64)>> {
+        Ok(Self::load_text(dir)?.map(|(i, t)| (i, t.len() as u64)))
+    }
+
+    /// [`IndexFile::load`], with the index's text.
+    pub(crate) fn load_text(dir: &Path) -> Result<Option<(IndexFile, Vec<u8>)>> {
         let path = dir.join(INDEX_FILE);
         let text = match std::fs::read(&path) {
             Ok(t) => t,
@@ -141,7 +146,7 @@ impl IndexFile {
             Err(e) => return Err(StoreError::new(&path, format!("cannot read: {e}"))),
         };
         let idx = Self::parse(&text, dir)?;
-        Ok(Some((idx, text.len() as u64)))
+        Ok(Some((idx, text)))
     }
 
     /// An index's text, checked; `dir` names the dataset in messages (a
@@ -305,6 +310,8 @@ impl IndexFile {
         let r = std::fs::write(&tmp, &text).and_then(|()| std::fs::rename(&tmp, &path));
         if let Err(e) = r {
             let _ = std::fs::remove_file(&tmp);
+            #[cfg(unix)]
+            let e = pcimg_core::disk::with_full_note(e, &path, Some(text.len() as u64));
             return Err(StoreError::new(&path, format!("cannot write: {e}")));
         }
         Ok(text.len() as u64)

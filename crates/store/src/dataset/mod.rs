@@ -195,12 +195,25 @@ impl Dataset {
         }
         let meta = std::fs::metadata(path)
             .map_err(|e| StoreError::new(path, format!("cannot open: {e}")))?;
-        if meta.is_dir()
-            && let Some((index, index_bytes)) = IndexFile::load(path)?
+        // An index rewritten meanwhile (`pcimg index`) may have removed files the
+        // one read listed: the new one is read again, a few times at most.
+        let mut tries = 0;
+        while meta.is_dir()
+            && let Some((index, text)) = IndexFile::load_text(path)?
         {
             let tree = tree_of(&index);
-            let (parts, nodes) = index.open_parts(path)?;
-            return Ok(Self::assemble(path, tree, parts, nodes, index_bytes));
+            match index.open_parts(path) {
+                Ok((parts, nodes)) => {
+                    return Ok(Self::assemble(path, tree, parts, nodes, text.len() as u64));
+                }
+                Err(e) => {
+                    tries += 1;
+                    let now = std::fs::read(path.join(index::INDEX_FILE)).ok();
+                    if tries >= 5 || now.is_none_or(|t| t == text) {
+                        return Err(e);
+                    }
+                }
+            }
         }
         let parts = if meta.is_dir() {
             list_parts(path)?

@@ -14,7 +14,7 @@ use crate::points::{Attribute, PointColumns};
 use crate::read::part::Part;
 use crate::spec::TILE_PIXELS;
 use crate::tiff::codec::Compression;
-use crate::write::part::{WriteOptions, write_part};
+use crate::write::part::{WriteOptions, full_note, write_part};
 use rayon::prelude::*;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
@@ -40,6 +40,9 @@ pub struct IndexReport {
     pub seconds: f64,
     /// Why there is no overview, when there is none.
     pub no_overview: Option<String>,
+    /// What a killed run had left in the directory, removed first
+    /// ([`remove_leftovers`]).
+    pub leftovers: Vec<PathBuf>,
 }
 
 /// One member of a layer: a part or a node, with what grouping needs.
@@ -146,9 +149,30 @@ fn append(a: &mut PointColumns, b: PointColumns) {
     }
 }
 
-/// A node's file name: its layer and its number in the layer.
-fn node_name(layer: u32, k: usize) -> String {
-    format!("node-{layer}-{k:05}.tif")
+/// A node's file name: its layer and its number in the layer; a rebuilt
+/// overview whose predecessor is still in use takes the other generation's
+/// names (`node-g1-…`), so that both lie side by side until the new index
+/// replaces the old.
+fn node_name(generation: u32, layer: u32, k: usize) -> String {
+    match generation {
+        0 => format!("node-{layer}-{k:05}.tif"),
+        g => format!("node-g{g}-{layer}-{k:05}.tif"),
+    }
+}
+
+/// The generation of a node file's name (see [`node_name`]), `None` for a name
+/// that is not a node's.
+fn node_generation(name: &str) -> Option<u32> {
+    let rest = name.strip_prefix("node-")?.strip_suffix(".tif")?;
+    let (g, rest) = match rest.strip_prefix('g') {
+        Some(r) => {
+            let (g, r) = r.split_once('-')?;
+            (g.parse().ok()?, r)
+        }
+        None => (0, rest),
+    };
+    let (layer, k) = rest.split_once('-')?;
+    (layer.parse::<u32>().is_ok() && k.parse::<usize>().is_ok()).then_some(g)
 }
 
 /// Why the parts cannot share an overview, if they cannot.
@@ -180,6 +204,7 @@ pub fn build_index(
     progress: &(dyn Fn(usize) + Sync),
 ) -> Result<IndexReport> {
     let t0 = Instant::now();
+    let leftovers = remove_leftovers(dir);
     let files = list_parts(dir)?;
     let parts: Vec<Part> = files
         .par_iter()
@@ -201,6 +226,7 @@ pub fn build_index(
     let mut report = IndexReport {
         parts: parts.len(),
         points: parts.iter().map(|p| p.meta.point_count).sum(),
+        leftovers,
         ..Default::default()
     };
     report.no_overview = if parts.len() < 2 {
@@ -208,48 +234,111 @@ pub fn build_index(
     } else {
         incompatible(&parts)
     };
-    // Remove an earlier index first: the directory is unfinished until the new one
-    // is written.
-    let index_path = dir.join(INDEX_FILE);
-    if index_path.exists() {
-        std::fs::remove_file(&index_path)
-            .map_err(|e| StoreError::new(&index_path, format!("cannot remove: {e}")))?;
-    }
+    // The earlier index and overview stay in use until the new index replaces
+    // the old in one rename: a reader sees the one or the other. The new nodes
+    // take names the old index does not use, so both sets lie side by side in
+    // the overview folder until then.
     let old = dir.join(OVERVIEW_DIR);
+    check_overview(&old)?;
+    let in_use: Vec<String> = IndexFile::load(dir)
+        .ok()
+        .flatten()
+        .map(|(i, _)| i.nodes.into_iter().map(|n| n.entry.file).collect())
+        .unwrap_or_default();
+    let generation = u32::from(in_use.iter().any(|f| {
+        f.strip_prefix(&format!("{OVERVIEW_DIR}/"))
+            .is_some_and(|n| node_generation(n) == Some(0))
+    }));
     let nodes = if report.no_overview.is_none() {
         let tmp = dir.join(format!(".{OVERVIEW_DIR}-tmp-{}", std::process::id()));
         let _ = std::fs::remove_dir_all(&tmp);
-        std::fs::create_dir(&tmp)
-            .map_err(|e| StoreError::new(&tmp, format!("cannot create: {e}")))?;
-        let built = build_nodes(&parts, &files, &tmp, o, progress);
-        let built = built.and_then(|nodes| {
-            remove_overview(&old)?;
-            std::fs::rename(&tmp, &old)
-                .map_err(|e| StoreError::new(&old, format!("cannot rename into place: {e}")))?;
-            Ok(nodes)
-        });
+        std::fs::create_dir(&tmp).map_err(|e| {
+            StoreError::new(&tmp, format!("cannot create: {}", full_note(e, &tmp, None)))
+        })?;
+        let built = build_nodes(&parts, &files, &tmp, generation, o, progress)
+            .and_then(|nodes| move_nodes(&tmp, &old, &nodes).map(|()| nodes));
+        let _ = std::fs::remove_dir_all(&tmp);
         match built {
             Ok(n) => n,
             Err(e) => {
-                let _ = std::fs::remove_dir_all(&tmp);
+                // (Nodes already moved bear names the old index does not use.)
+                let _ = remove_unlisted(&old, &in_use);
                 return Err(e);
             }
         }
     } else {
-        remove_overview(&old)?;
         Vec::new()
     };
     report.nodes = nodes.len();
     report.layers = nodes.iter().map(|n| n.layer).max().unwrap_or(0);
     report.node_points = nodes.iter().map(|n| n.entry.header.meta.point_count).sum();
     report.node_bytes = nodes.iter().map(|n| n.entry.bytes).sum();
-    report.index_bytes = IndexFile::new(entries, nodes).save(dir)?;
+    let listed: Vec<String> = nodes.iter().map(|n| n.entry.file.clone()).collect();
+    report.index_bytes = match IndexFile::new(entries, nodes).save(dir) {
+        Ok(b) => b,
+        Err(e) => {
+            // The old index stands: the new nodes go.
+            let _ = remove_unlisted(&old, &in_use);
+            return Err(e);
+        }
+    };
+    // The old nodes, now that no index lists them.
+    remove_unlisted(&old, &listed)?;
     report.seconds = t0.elapsed().as_secs_f64();
     Ok(report)
 }
 
-/// Removes an earlier overview folder, which must hold only node files.
-fn remove_overview(old: &Path) -> Result<()> {
+/// Removes what a killed `pcimg index` or `convert` left inside the dataset
+/// `dir`: the temporary overview folders and index files of processes no longer
+/// running (their names carry the process id). Returns what it removed.
+pub fn remove_leftovers(dir: &Path) -> Vec<PathBuf> {
+    let mut gone = Vec::new();
+    let Ok(entries) = std::fs::read_dir(dir) else {
+        return gone;
+    };
+    let tags = [
+        format!(".{OVERVIEW_DIR}-tmp-"),
+        format!(".{INDEX_FILE}.tmp-"),
+    ];
+    for e in entries.flatten() {
+        let name = e.file_name().to_string_lossy().into_owned();
+        let Some(pid) = tags
+            .iter()
+            .find(|t| name.starts_with(t.as_str()))
+            .and_then(|t| name[t.len()..].parse::<u32>().ok())
+        else {
+            continue;
+        };
+        if pid_alive(pid) {
+            continue;
+        }
+        let path = e.path();
+        let r = if e.file_type().is_ok_and(|t| t.is_dir()) {
+            std::fs::remove_dir_all(&path)
+        } else {
+            std::fs::remove_file(&path)
+        };
+        if r.is_ok() {
+            gone.push(path);
+        }
+    }
+    gone
+}
+
+#[cfg(unix)]
+fn pid_alive(pid: u32) -> bool {
+    pcimg_core::disk::pid_alive(pid)
+}
+
+/// (Elsewhere no process is known to be dead: nothing is removed.)
+#[cfg(not(unix))]
+fn pid_alive(_pid: u32) -> bool {
+    true
+}
+
+/// The overview folder, if present, must hold only node files: pcimg replaces
+/// and removes them, never anything else.
+fn check_overview(old: &Path) -> Result<()> {
     if !old.exists() {
         return Ok(());
     }
@@ -258,7 +347,7 @@ fn remove_overview(old: &Path) -> Result<()> {
         .filter_map(|e| e.ok())
         .find(|e| {
             let n = e.file_name().to_string_lossy().into_owned();
-            !(n.starts_with("node-") && n.ends_with(".tif"))
+            node_generation(&n).is_none()
         });
     if let Some(f) = foreign {
         return Err(StoreError::new(
@@ -267,7 +356,45 @@ fn remove_overview(old: &Path) -> Result<()> {
              holds nothing else",
         ));
     }
-    std::fs::remove_dir_all(old).map_err(|e| StoreError::new(old, format!("cannot remove: {e}")))
+    Ok(())
+}
+
+/// Moves the nodes written in `tmp` into the overview folder `old` (made if
+/// absent), beside the nodes in use.
+fn move_nodes(tmp: &Path, old: &Path, nodes: &[NodeEntry]) -> Result<()> {
+    std::fs::create_dir_all(old)
+        .map_err(|e| StoreError::new(old, format!("cannot create: {}", full_note(e, old, None))))?;
+    for n in nodes {
+        let name = n
+            .entry
+            .file
+            .strip_prefix(&format!("{OVERVIEW_DIR}/"))
+            .unwrap_or(&n.entry.file);
+        std::fs::rename(tmp.join(name), old.join(name)).map_err(|e| {
+            StoreError::new(&old.join(name), format!("cannot rename into place: {e}"))
+        })?;
+    }
+    Ok(())
+}
+
+/// Removes the node files in the overview folder `old` that `listed` (paths
+/// relative to the dataset) does not name, and the folder once empty.
+fn remove_unlisted(old: &Path, listed: &[String]) -> Result<()> {
+    let Ok(entries) = std::fs::read_dir(old) else {
+        return Ok(());
+    };
+    for e in entries.flatten() {
+        let n = e.file_name().to_string_lossy().into_owned();
+        let rel = format!("{OVERVIEW_DIR}/{n}");
+        if node_generation(&n).is_some() && !listed.contains(&rel) {
+            std::fs::remove_file(e.path())
+                .map_err(|err| StoreError::new(&e.path(), format!("cannot remove: {err}")))?;
+        }
+    }
+    if listed.is_empty() {
+        let _ = std::fs::remove_dir(old);
+    }
+    Ok(())
 }
 
 /// Writes the nodes layer by layer into `tmp`; their entries name them inside
@@ -276,6 +403,7 @@ fn build_nodes(
     parts: &[Part],
     files: &[PathBuf],
     tmp: &Path,
+    generation: u32,
     o: &IndexOptions,
     progress: &(dyn Fn(usize) + Sync),
 ) -> Result<Vec<NodeEntry>> {
@@ -331,7 +459,7 @@ fn build_nodes(
                         Child::Node(j) => format!("{OVERVIEW_DIR}/{}", names[parts.len() + j]),
                     })
                     .collect();
-                let path = tmp.join(node_name(layer, k));
+                let path = tmp.join(node_name(generation, layer, k));
                 let opts = WriteOptions {
                     compression,
                     source: Some(format!("pcimg overview of {}", child_names.join(" "))),
@@ -341,7 +469,10 @@ fn build_nodes(
                 };
                 write_part(&path, &pts, &opts)?;
                 let part = Part::open(&path)?;
-                let entry = entry_of(&part, &format!("{OVERVIEW_DIR}/{}", node_name(layer, k)))?;
+                let entry = entry_of(
+                    &part,
+                    &format!("{OVERVIEW_DIR}/{}", node_name(generation, layer, k)),
+                )?;
                 progress(done.fetch_add(1, Ordering::Relaxed) + 1);
                 Ok((
                     part,
@@ -357,7 +488,7 @@ fn build_nodes(
         members.clear();
         for (part, entry) in written {
             members.push(Child::Node(opened.len()));
-            names.push(node_name(layer, members.len() - 1));
+            names.push(node_name(generation, layer, members.len() - 1));
             opened.push(part);
             nodes.push(entry);
         }

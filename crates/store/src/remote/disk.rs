@@ -4,6 +4,8 @@
 //! recently used files evicted down to the size limit. A short, corrupt or
 //! foreign file is never served: it is deleted and the range fetched again. An
 //! object without an ETag is not cached on disk (a change could not be told).
+//! When the disk fills up the cache stops growing ([`full`] says so) and reads
+//! go on from the network.
 
 use bytes::Bytes;
 use std::collections::HashMap;
@@ -237,7 +239,10 @@ pub fn put(url: &str, etag: &str, r: &Range<u64>, body: &[u8]) {
     data.extend_from_slice(&(body.len() as u64).to_le_bytes());
     data.extend_from_slice(body);
     data.extend_from_slice(&fnv(&[key.as_bytes(), body]).to_le_bytes());
-    if write_atomic(&dir, &name, &data).is_err() {
+    if let Err(e) = write_atomic(&dir, &name, &data) {
+        if is_full(&e) {
+            stop_growing(&dir, data.len() as u64);
+        }
         return;
     }
     if let Some(d) = lock().as_mut() {
@@ -249,6 +254,50 @@ pub fn put(url: &str, etag: &str, r: &Range<u64>, body: &[u8]) {
         d.bytes += data.len() as u64;
         d.evict();
     }
+}
+
+#[cfg(unix)]
+fn is_full(e: &std::io::Error) -> bool {
+    pcimg_core::disk::is_full(e)
+}
+
+#[cfg(not(unix))]
+fn is_full(e: &std::io::Error) -> bool {
+    e.kind() == std::io::ErrorKind::StorageFull
+}
+
+/// What happened when the cache's disk filled up, once it has ([`full`]).
+static FULL: Mutex<Option<String>> = Mutex::new(None);
+
+/// The disk holding the cache is full: the cache keeps what it has, evicting
+/// as before, but grows no more (a view goes on from the network); noted once
+/// for [`full`]. `wanted`: the bytes of the file that did not fit.
+fn stop_growing(dir: &Path, wanted: u64) {
+    let held = match lock().as_mut() {
+        Some(d) => {
+            d.limit = d.bytes;
+            d.bytes
+        }
+        None => return,
+    };
+    let mut note = FULL.lock().unwrap_or_else(|p| p.into_inner());
+    if note.is_none() {
+        #[cfg(unix)]
+        let why = pcimg_core::disk::full_note(dir, Some(wanted));
+        #[cfg(not(unix))]
+        let why = format!("its disk is full ({wanted} bytes more needed)");
+        *note = Some(format!(
+            "{}: {why}: the cache stopped growing at {}",
+            crate::text::sanitize(&dir.display().to_string()),
+            crate::text::bytes(held)
+        ));
+    }
+}
+
+/// Whether the cache's disk filled up in this process, and what was said of it
+/// (the file system, the room left): the command tells the user once.
+pub fn full() -> Option<String> {
+    FULL.lock().unwrap_or_else(|p| p.into_inner()).clone()
 }
 
 fn write_atomic(dir: &Path, name: &str, data: &[u8]) -> std::io::Result<()> {

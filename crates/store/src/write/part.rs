@@ -672,6 +672,18 @@ fn size_estimate(a: &Arranged, xml: &str) -> u64 {
     data + tags + xml.len() as u64
 }
 
+/// `e`, with what is known of the file system holding `path` when it is full
+/// (see [`pcimg_core::disk::full_note`]).
+#[cfg(unix)]
+pub(crate) fn full_note(e: std::io::Error, path: &Path, needed: Option<u64>) -> std::io::Error {
+    pcimg_core::disk::with_full_note(e, path, needed)
+}
+
+#[cfg(not(unix))]
+pub(crate) fn full_note(e: std::io::Error, _path: &Path, _needed: Option<u64>) -> std::io::Error {
+    e
+}
+
 /// Removes the temporary file unless the write completed.
 struct TempFile {
     path: PathBuf,
@@ -756,11 +768,17 @@ fn write(
         }
     };
     // A write that failed because it was cancelled is reported as interrupted.
-    let write_failed = |e: &dyn std::fmt::Display| {
+    // A full disk names its file system, and the part's size where it is known
+    // (uncompressed: the tiles' bytes).
+    let write_failed = |e: std::io::Error, needed: Option<u64>| {
         if opts.cancelled() {
             StoreError::new(path, INTERRUPTED)
         } else {
-            StoreError::new(path, format!("write failed: {e}"))
+            let needed = needed.filter(|_| opts.compression == Compression::None);
+            StoreError::new(
+                path,
+                format!("write failed: {}", full_note(e, path, needed)),
+            )
         }
     };
     stop()?;
@@ -776,8 +794,16 @@ fn write(
         path: tmp_path.clone(),
         done: false,
     };
-    let file = File::create(&tmp_path)
-        .map_err(|e| StoreError::new(path, format!("cannot create {}: {e}", tmp_path.display())))?;
+    let file = File::create(&tmp_path).map_err(|e| {
+        StoreError::new(
+            path,
+            format!(
+                "cannot create {}: {}",
+                tmp_path.display(),
+                full_note(e, path, None)
+            ),
+        )
+    })?;
     let io = match opts.compression {
         Compression::None => opts.io,
         _ => TileIo::Buffered,
@@ -807,13 +833,16 @@ fn write(
             format!("the coordinates' error bound {e} is not a finite number >= 0"),
         ));
     }
+    let part_bytes = part.count as u64 * names.len() as u64 * 4;
     let mut a = if opts.layout == Layout::Hilbert && opts.compression == Compression::None {
         let cancelled = || opts.cancelled();
         let (a, written) = sink::with_sink(&tiles, &cancelled, |sink| {
             arrange(path, part, opts.layout, &mut ph, Some(sink), tiles_at)
         });
         let a = a?;
-        written.map_err(|e| write_failed(&e))?;
+        // (Level 0 and the coarser levels, a third more: the tiles' bytes.)
+        let rough = tiles_at + part_bytes * 4 / 3;
+        written.map_err(|e| write_failed(e, Some(rough)))?;
         ph.mark("levels written");
         a
     } else {
@@ -834,7 +863,7 @@ fn write(
     ph.mark("tile index");
     let bigtiff = opts.force_bigtiff || size_estimate(&a, &xml) >= u32::MAX as u64 - (64 << 20);
     let (bytes, head) = encode(&file, &tiles, &a, opts, &xml, &index, bigtiff, tiles_at)
-        .map_err(|e| write_failed(&e))?;
+        .map_err(|e| write_failed(e, Some(size_estimate(&a, &xml))))?;
     let direct = tiles.is_direct();
     drop(tiles);
     drop(file);

@@ -1,0 +1,140 @@
+//! A SeaweedFS S3 server (`weed mini`) for tests that need object storage but
+//! are about something else (full disks: `tests/disks.rs`): started on free
+//! ports of 127.0.0.1 with one SigV4 identity and a bucket, waited for until
+//! the bucket lists, killed and reaped on drop. As `tests/s3.rs` starts it.
+
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
+
+pub const KEY: &str = "pcimgtestkey";
+pub const SECRET: &str = "pcimgtestsecret";
+pub const BUCKET: &str = "pcimg";
+
+pub struct Weed {
+    child: Child,
+    pub port: u16,
+    pub dir: tempfile::TempDir,
+}
+
+impl Drop for Weed {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+fn free_ports(n: usize) -> Vec<u16> {
+    let held: Vec<std::net::TcpListener> = (0..n)
+        .map(|_| std::net::TcpListener::bind("127.0.0.1:0").unwrap())
+        .collect();
+    held.iter()
+        .map(|l| l.local_addr().unwrap().port())
+        .collect()
+}
+
+impl Weed {
+    /// `None` (outside CI) when `weed` is missing.
+    pub fn start() -> Option<Weed> {
+        if !crate::common::tool_available("weed", "version") {
+            return None;
+        }
+        let dir = tempfile::tempdir().unwrap();
+        let config = dir.path().join("s3.json");
+        std::fs::write(
+            &config,
+            format!(
+                r#"{{"identities":[{{"name":"pcimg","credentials":[{{"accessKey":"{KEY}","secretKey":"{SECRET}"}}],"actions":["Admin","Read","Write","List","Tagging"]}}]}}"#
+            ),
+        )
+        .unwrap();
+        let data = dir.path().join("data");
+        std::fs::create_dir(&data).unwrap();
+        let p = free_ports(10);
+        let log = std::fs::File::create(dir.path().join("weed.log")).unwrap();
+        let child = Command::new("weed")
+            .arg("mini")
+            .arg(format!("-dir={}", data.display()))
+            .args(["-ip=127.0.0.1", "-ip.bind=127.0.0.1"])
+            .arg(format!("-master.port={}", p[0]))
+            .arg(format!("-master.port.grpc={}", p[1]))
+            .arg(format!("-volume.port={}", p[2]))
+            .arg(format!("-volume.port.grpc={}", p[3]))
+            .arg(format!("-filer.port={}", p[4]))
+            .arg(format!("-filer.port.grpc={}", p[5]))
+            .arg(format!("-s3.port={}", p[6]))
+            .arg(format!("-s3.port.grpc={}", p[7]))
+            .arg(format!("-admin.port={}", p[8]))
+            .arg(format!("-admin.port.grpc={}", p[9]))
+            .args(["-admin.ui=false", "-webdav=false"])
+            .args(["-s3.port.iceberg=0", "-s3.port.lance=0"])
+            .arg(format!("-s3.config={}", config.display()))
+            .arg(format!("-bucket={BUCKET}"))
+            .stdin(Stdio::null())
+            .stdout(log.try_clone().unwrap())
+            .stderr(log)
+            .spawn()
+            .expect("cannot start weed");
+        let w = Weed {
+            child,
+            port: p[6],
+            dir,
+        };
+        let start = Instant::now();
+        loop {
+            if w.list("").is_ok() {
+                return Some(w);
+            }
+            assert!(
+                start.elapsed() < Duration::from_secs(30),
+                "SeaweedFS did not serve the bucket within 30 s; its log:\n{}",
+                std::fs::read_to_string(w.dir.path().join("weed.log")).unwrap_or_default()
+            );
+            std::thread::sleep(Duration::from_millis(100));
+        }
+    }
+
+    pub fn endpoint(&self) -> String {
+        format!("http://127.0.0.1:{}", self.port)
+    }
+
+    /// The objects under `prefix`, listed by the test itself.
+    pub fn list(&self, prefix: &str) -> object_store::Result<Vec<String>> {
+        use futures_util::TryStreamExt;
+        use object_store::ObjectStore;
+        let _ = rustls::crypto::ring::default_provider().install_default();
+        let store = object_store::aws::AmazonS3Builder::new()
+            .with_endpoint(self.endpoint())
+            .with_allow_http(true)
+            .with_bucket_name(BUCKET)
+            .with_region("us-east-1")
+            .with_access_key_id(KEY)
+            .with_secret_access_key(SECRET)
+            .with_retry(object_store::RetryConfig {
+                max_retries: 0,
+                ..Default::default()
+            })
+            .build()?;
+        let rt = tokio::runtime::Builder::new_current_thread()
+            .enable_all()
+            .build()
+            .unwrap();
+        let prefix = (!prefix.is_empty()).then(|| object_store::path::Path::from(prefix));
+        let got: Vec<object_store::ObjectMeta> =
+            rt.block_on(store.list(prefix.as_ref()).try_collect())?;
+        let mut v: Vec<String> = got.into_iter().map(|m| m.location.to_string()).collect();
+        v.sort();
+        Ok(v)
+    }
+
+    /// The environment that points pcimg at this server.
+    pub fn env(&self) -> Vec<(&'static str, String)> {
+        vec![
+            ("AWS_ENDPOINT", self.endpoint()),
+            ("AWS_ALLOW_HTTP", "true".into()),
+            ("AWS_REGION", "us-east-1".into()),
+            ("AWS_ACCESS_KEY_ID", KEY.into()),
+            ("AWS_SECRET_ACCESS_KEY", SECRET.into()),
+            ("NODEVICE_SELECT", "1".into()),
+        ]
+    }
+}
