@@ -50,3 +50,60 @@ fn mutated_inputs_are_refused_cleanly() {
         "{accepted} accepted, {refused} refused"
     );
 }
+
+/// A short run of the fast mode (`tests/common/fuzz_fast.rs`; `bash
+/// bench/fuzz.sh` runs a million cases of each) for every untrusted input:
+/// each reader or parser alone, and the remote reader against a server whose
+/// answers are cut or corrupted. No case may panic (even where the code caught
+/// it), break a reader's contract, leave a file or refuse without naming its
+/// file or URL; the mutations reach both outcomes.
+#[test]
+fn every_input_kind_survives_its_fast_mutations() {
+    use fuzz::fast::{Fuzzer, Kind, Tally};
+    let cases: u64 = std::env::var("PCIMG_FUZZ_CASES")
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(200);
+    let mut failures = Vec::new();
+    for kind in Kind::ALL {
+        let dir = tempfile::tempdir().unwrap();
+        let mut fuzzer = Fuzzer::new(kind, dir.path()).unwrap();
+        let mut rng = Rng::new(23);
+        let mut tally = Tally::default();
+        for it in 0..cases {
+            let case = fuzzer.case(&mut rng);
+            let verdict = fuzzer.run(&case);
+            tally.record(&verdict);
+            if verdict.is_failure() {
+                failures.push(format!("{} case {it}: {verdict:?}", kind.name()));
+            }
+        }
+        // Every kind both accepts and refuses some of its cases.
+        assert!(
+            tally.accepted >= 2 && tally.refused >= cases / 10,
+            "{}: {tally:?}",
+            kind.name()
+        );
+    }
+    assert!(failures.is_empty(), "{failures:#?}");
+}
+
+/// The E57 cases' checksum repair computes what the writer wrote: an
+/// undamaged file comes back unchanged, and a damaged page gets a new sum.
+#[test]
+fn e57_checksums_are_set_as_the_writer_sets_them() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("seed.e57");
+    pcimg::synth_formats::write_e57(&path, 500, 4, false, 1).unwrap();
+    let seed = std::fs::read(&path).unwrap();
+    assert!(seed.len() >= 2 * 1024, "{} bytes", seed.len());
+    let mut same = seed.clone();
+    fuzz::fast::fix_e57_checksums(&mut same);
+    assert!(same == seed, "an undamaged file's checksums were changed");
+    let mut hurt = seed.clone();
+    hurt[100] ^= 0x40;
+    fuzz::fast::fix_e57_checksums(&mut hurt);
+    assert_ne!(hurt[1020..1024], seed[1020..1024]);
+    // The other pages are left as they were.
+    assert_eq!(hurt[1024..], seed[1024..]);
+}

@@ -235,6 +235,42 @@ fn corrupt_laz_chunk_count_or_size_is_an_error() {
     );
 }
 
+/// A LAZ file that declares no points behind a corrupt chunk table: the decoder
+/// reads the table whatever the point count, so it is checked all the same
+/// (`bash bench/fuzz.sh` found one whose table listed 4,059,738,657 chunks: the
+/// `laz` crate asked for 65 GB and aborted the process).
+#[test]
+fn laz_declaring_no_points_with_a_corrupt_chunk_table_is_an_error() {
+    let dir = tempfile::tempdir().unwrap();
+    let src = dir.path().join("s.laz");
+    pcimg::synth::write_las(&src, 200, 2).unwrap();
+    let mut d = std::fs::read(&src).unwrap();
+    assert_eq!(&d[..4], b"LASF");
+    let start = u32::from_le_bytes(d[96..100].try_into().unwrap()) as usize;
+    let table = i64::from_le_bytes(d[start..start + 8].try_into().unwrap()) as usize;
+    // No points: the legacy count (bytes 107..111) and, from LAS 1.4, the
+    // 64-bit count (bytes 247..255).
+    d[107..111].copy_from_slice(&0u32.to_le_bytes());
+    if u16::from_le_bytes([d[94], d[95]]) >= 375 {
+        d[247..255].copy_from_slice(&0u64.to_le_bytes());
+    }
+    let empty = dir.path().join("empty.laz");
+    std::fs::write(&empty, &d).unwrap();
+    // With its table intact, the file reads (as no points).
+    let (_, pts, _) = ingest::read_all(&empty, &ReadOptions::default()).unwrap();
+    assert_eq!(pts.len(), 0);
+    d[table + 4..table + 8].copy_from_slice(&4_059_738_657u32.to_le_bytes());
+    let bad = dir.path().join("bad.laz");
+    std::fs::write(&bad, &d).unwrap();
+    let e = ingest::read_all(&bad, &ReadOptions::default())
+        .err()
+        .expect("a corrupt chunk table is refused");
+    let s = e.to_string();
+    assert!(s.contains("bad.laz"), "{s}");
+    assert!(s.contains(&format!("byte offset {}", table + 4)), "{s}");
+    assert!(s.contains("chunk table") && s.contains("4059738657"), "{s}");
+}
+
 /// Damaged copies of every sample (truncated, bytes overwritten in the header and
 /// in the body) must give `Ok` or `Err`, never a panic or a hang.
 #[test]

@@ -1,7 +1,9 @@
 //! The mutation fuzzer's cases, shared by `benches/fuzz_inputs.rs` (long runs)
 //! and `tests/fuzz.rs` (a short, deterministic run in CI): seed files of every
 //! input format and a dataset part, their mutations, the options each case
-//! converts with, and what became of it.
+//! converts with, and what became of it. The fast mode for runs of a million
+//! cases per input (each input's reader or parser alone, in process) is
+//! [`fast`].
 
 use pcimg::convert::{self, ConvertOptions, Partition, Quiet};
 use pcimg::ingest::ReadOptions;
@@ -10,6 +12,9 @@ use pcimg::synth::Rng;
 use std::path::Path;
 use std::sync::Arc;
 use std::sync::atomic::AtomicBool;
+
+#[path = "fuzz_fast.rs"]
+pub mod fast;
 
 /// Bytes that steer a text or header parser somewhere new.
 const INTERESTING: &[u8] = b"\n\r\t ,;-+.eE0123456789#/\"'nNaiI\x00\xff";

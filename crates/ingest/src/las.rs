@@ -398,10 +398,18 @@ pub(crate) fn open_header(path: &Path) -> Result<Opened, IngestError> {
             let mut b = [0u8; 8];
             file.seek(SeekFrom::Start(start))
                 .map_err(|e| IngestError::io(path, "cannot seek", e))?;
-            if n > 0 {
-                file.read_exact(&mut b).map_err(|_| {
-                    IngestError::binary(path, start, "truncated file: no LAZ point data")
-                })?;
+            // The decoder reads the chunk table whatever the header's point
+            // count, so a file that declares no points is checked too (a
+            // corrupt table behind a count of 0 aborted the process).
+            let read = file.read_exact(&mut b);
+            if read.is_err() && n > 0 {
+                return Err(IngestError::binary(
+                    path,
+                    start,
+                    "truncated file: no LAZ point data",
+                ));
+            }
+            if read.is_ok() {
                 let table = i64::from_le_bytes(b);
                 if table > 0 && table as u64 >= file_len {
                     return Err(IngestError::binary(
