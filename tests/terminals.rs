@@ -405,8 +405,23 @@ fn the_inspector_places_frames_directly_in_kitty_before_0_28() {
 /// side answers tmux's own queries as `outer` (XTVERSION text, DA1), and returns
 /// the client's pty once `done` exists.
 fn in_tmux(tmux: &Tmux, shell: &str, outer: &str, da1: &str, done: &Path) -> Pty {
+    in_tmux_with(tmux, shell, outer, da1, done, None)
+}
+
+/// [`in_tmux`], the client attached with tmux terminal `features` (`-T`).
+fn in_tmux_with(
+    tmux: &Tmux,
+    shell: &str,
+    outer: &str,
+    da1: &str,
+    done: &Path,
+    features: Option<&str>,
+) -> Pty {
     tmux.start(shell);
     let mut attach = tmux.cmd();
+    if let Some(f) = features {
+        attach.args(["-T", f]);
+    }
     attach
         .args(["attach", "-t", "t"])
         .env("TERM", "xterm-256color");
@@ -473,6 +488,45 @@ fn inside_tmux_the_server_is_asked_about_the_outer_terminal() {
             assert!(note.contains("tmux") && note.contains("would"), "{note}");
         }
         eprintln!("tmux with outer {outer}: {expect}, tmux asked in {ms:.1} ms");
+    }
+}
+
+#[test]
+fn text_in_tmux_is_in_256_colours_unless_the_client_has_rgb() {
+    if !common::tool_available("tmux", "-V") {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    for (features, depth) in [(None, "C256"), (Some("RGB"), "True")] {
+        let name = if features.is_some() { "rgb" } else { "no-rgb" };
+        let tmux = Tmux::new(&format!("text-{name}"));
+        let out = dir.path().join(format!("{name}.json"));
+        let done = dir.path().join(format!("{name}.done"));
+        // The pane's TERM as most tmux set-ups have it; no COLORTERM.
+        let shell = format!(
+            "while [ -z \"$(tmux display -p '#{{client_name}}')\" ]; do sleep 0.05; done; sleep 0.3; \
+             env -u COLORTERM TERM=screen-256color {} doctor --json > {} 2>&1; touch {}",
+            bin(),
+            out.display(),
+            done.display()
+        );
+        let _client = in_tmux_with(
+            &tmux,
+            &shell,
+            "XTerm(379)",
+            "\x1b[?63;1;2;4;6;9;15;16;22;28c",
+            &done,
+            features,
+        );
+        let d: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(&out).unwrap()).unwrap();
+        assert_eq!(d["graphics"], "Halfblocks", "{d:#}");
+        assert_eq!(d["text"]["depth"], depth, "{d:#}");
+        assert_eq!(d["text"]["set"], "quadrants", "{d:#}");
+        eprintln!(
+            "tmux, client features {features:?}: {}",
+            d["text"]["reason"]
+        );
     }
 }
 

@@ -18,9 +18,13 @@ pub struct Args {
     /// demo wrote it.
     #[arg(long)]
     pub keep: Option<PathBuf>,
-    /// Image protocol of the inspector: auto, kitty, sixel, iterm or halfblocks.
+    /// Image protocol of the inspector: auto, kitty, sixel, iterm or text.
     #[arg(long, default_value = "auto")]
     pub protocol: crate::term::Protocol,
+    /// Symbols of the text protocol: half, quadrants, sextants, octants or
+    /// braille (default: by terminal).
+    #[arg(long)]
+    pub symbols: Option<crate::term::symbols::SymbolSet>,
 }
 
 pub fn run(a: Args) -> anyhow::Result<()> {
@@ -76,6 +80,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     if interactive {
         let mut args = super::inspect::defaults(&path);
         args.protocol = a.protocol;
+        args.symbols = a.symbols;
         let temporary = tmp.as_ref().map(|t| t.path());
         return super::inspect::open(std::sync::Arc::new(ds), &args, temporary);
     }

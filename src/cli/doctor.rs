@@ -58,6 +58,12 @@ pub fn report(d: &Detection) -> String {
     if let Some(n) = crate::advice::protocol_note(c) {
         let _ = writeln!(s, "  note: {n}");
     }
+    // Where images are drawn, text is the fallback (`--protocol text`).
+    let _ = writeln!(
+        s,
+        "text: {}, {} (--symbols to choose)",
+        c.text.set, c.text.reason
+    );
     let _ = writeln!(
         s,
         "cell size: {}×{} px ({})",

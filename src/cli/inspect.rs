@@ -17,9 +17,15 @@ pub struct Args {
     #[command(flatten)]
     pub view: ViewArgs,
     /// Image protocol: auto (asks the terminal, or inside tmux the tmux server;
-    /// `pcimg doctor` shows what it finds), kitty, sixel, iterm or halfblocks.
+    /// `pcimg doctor` shows what it finds), kitty, sixel, iterm or text
+    /// (symbols in colour, for terminals and links without images).
     #[arg(long, default_value = "auto")]
     pub protocol: Protocol,
+    /// Symbols of the text protocol: half (blocks), quadrants, sextants,
+    /// octants or braille. Default: sextants where the terminal draws them
+    /// itself (kitty, WezTerm, foot, Ghostty), else quadrants (every font).
+    #[arg(long)]
+    pub symbols: Option<crate::term::symbols::SymbolSet>,
     /// Threads loading tiles (1 to 64).
     #[arg(long, default_value_t = 2, value_parser = clap::value_parser!(u16).range(1..=64))]
     pub load_threads: u16,
@@ -110,6 +116,7 @@ pub fn open(ds: Arc<Dataset>, a: &Args, temporary: Option<&Path>) -> anyhow::Res
         ds,
         InspectOptions {
             protocol: a.protocol,
+            symbols: a.symbols,
             renderer,
             camera,
             settings,

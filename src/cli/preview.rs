@@ -3,7 +3,8 @@
 
 use super::view::{self, ViewArgs};
 use crate::store::Dataset;
-use crate::term::{self, Graphics, Protocol};
+use crate::term::symbols::SymbolSet;
+use crate::term::{self, Protocol};
 use std::io::IsTerminal;
 use std::sync::Arc;
 
@@ -11,9 +12,16 @@ use std::sync::Arc;
 pub struct Args {
     #[command(flatten)]
     pub view: ViewArgs,
-    /// Image protocol: auto, kitty, sixel, iterm or halfblocks.
+    /// Image protocol: auto, kitty, sixel, iterm or text (symbols in colour,
+    /// for terminals and links without images).
     #[arg(long, default_value = "auto")]
     pub protocol: Protocol,
+    /// Symbols of the text protocol: half (blocks), quadrants, sextants,
+    /// octants or braille. Default: sextants where the terminal draws them
+    /// itself (kitty, WezTerm, foot, Ghostty), else quadrants (every font);
+    /// `pcimg doctor` says which.
+    #[arg(long)]
+    pub symbols: Option<SymbolSet>,
     /// Width in terminal columns, at least 10 (default, and at most: the
     /// terminal's width).
     #[arg(long, value_parser = clap::value_parser!(u16).range(10..))]
@@ -39,11 +47,13 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     // The same detection as the inspector's: the terminal (or the tmux server)
     // is asked, at most about a second.
     let mut found = term::detect(a.protocol, term::probe::CAP);
+    if let Some(set) = a.symbols {
+        found.use_symbols(set);
+    }
     found.prepare();
     if let Some(n) = crate::advice::protocol_note(&found.choice) {
         note!("{n}");
     }
-    let graphics = found.choice.graphics;
     let cam = view::camera_for(&a.view, &ds)?;
     if a.view.print_camera {
         note!("{}", cam.to_json());
@@ -53,8 +63,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         .winsize
         .filter(|w| w.cols > 0 && w.rows > 0)
         .map_or((80, 24), |w| (w.cols, w.rows));
-    let (cols, rows, w, h) =
-        frame_size((term_cols, term_rows), found.cell_pixels, a.cols, graphics);
+    let (cols, rows, w, h) = frame_size((term_cols, term_rows), found.cell_pixels, a.cols);
     let printed = view::render_once(ds, &a.view, &cam, w, h).and_then(|(frame, report)| {
         Ok((
             term::print_frame(&crate::pixels(&frame), &found.choice, cols, rows)?,
@@ -69,20 +78,15 @@ pub fn run(a: Args) -> anyhow::Result<()> {
 
 /// The picture in cells and pixels: `want` columns (the terminal's width when
 /// not given, never wider, at least 10) by the terminal's rows less three for the
-/// report, at `cell` pixels a cell (half-blocks: one pixel wide, two high).
+/// report, at `cell` pixels a cell (text: a few pixels a symbol's sub-cell).
 fn frame_size(
     (term_cols, term_rows): (u16, u16),
     (cw, ch): (u32, u32),
     want: Option<u16>,
-    graphics: Graphics,
 ) -> (u16, u16, u32, u32) {
     let cols = want.unwrap_or(term_cols).min(term_cols.max(10)).max(10);
     let rows = term_rows.saturating_sub(3).max(5);
-    if graphics == Graphics::Halfblocks {
-        (cols, rows, cols as u32, rows as u32 * 2)
-    } else {
-        (cols, rows, cols as u32 * cw, rows as u32 * ch)
-    }
+    (cols, rows, cols as u32 * cw, rows as u32 * ch)
 }
 
 #[cfg(test)]
@@ -93,23 +97,11 @@ mod tests {
     fn columns_narrow_the_picture_at_the_terminals_cell_size() {
         // 100×40 cells of 10×20 pixels.
         let cell = (10, 20);
-        assert_eq!(
-            frame_size((100, 40), cell, None, Graphics::Sixel),
-            (100, 37, 1000, 740)
-        );
-        assert_eq!(
-            frame_size((100, 40), cell, Some(40), Graphics::Sixel),
-            (40, 37, 400, 740)
-        );
+        assert_eq!(frame_size((100, 40), cell, None), (100, 37, 1000, 740));
+        assert_eq!(frame_size((100, 40), cell, Some(40)), (40, 37, 400, 740));
         // Never wider than the terminal, never narrower than 10 columns.
-        assert_eq!(
-            frame_size((100, 40), cell, Some(300), Graphics::Kitty).0,
-            100
-        );
-        assert_eq!(frame_size((100, 40), cell, Some(3), Graphics::Kitty).0, 10);
-        assert_eq!(
-            frame_size((100, 40), (1, 2), Some(40), Graphics::Halfblocks),
-            (40, 37, 40, 74)
-        );
+        assert_eq!(frame_size((100, 40), cell, Some(300)).0, 100);
+        assert_eq!(frame_size((100, 40), cell, Some(3)).0, 10);
+        assert_eq!(frame_size((100, 40), (1, 2), Some(40)), (40, 37, 40, 74));
     }
 }

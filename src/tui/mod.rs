@@ -37,6 +37,8 @@ use worker::{RenderWorker, Report, Request, WorkerOptions};
 pub struct InspectOptions {
     /// `--protocol`.
     pub protocol: crate::term::Protocol,
+    /// `--symbols`: the text protocol's symbols, when given.
+    pub symbols: Option<crate::term::symbols::SymbolSet>,
     pub renderer: RendererChoice,
     pub camera: Camera,
     pub settings: Settings,
@@ -66,12 +68,16 @@ const POLL: Duration = Duration::from_millis(8);
 pub fn run(ds: Arc<Dataset>, opts: InspectOptions) -> anyhow::Result<Camera> {
     // Ask the terminal (or the tmux server) once, before raw mode and the loop.
     let mut found = crate::term::detect(opts.protocol, crate::term::probe::CAP);
+    if let Some(set) = opts.symbols {
+        found.use_symbols(set);
+    }
     found.prepare();
     let graphics = found.choice.graphics;
     let encoding = protocol::Encoding {
         graphics,
         passthrough: found.choice.passthrough,
         placeholders: found.choice.kitty_placeholders,
+        text: (found.choice.text.set, found.choice.text.depth),
     };
     let cell_pixels = found.cell_pixels;
     // Termination signals end the loop (the first handler of the process wins;

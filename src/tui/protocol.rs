@@ -14,7 +14,7 @@
 //! from our own encoder ([`crate::term::sixel`]).
 
 use crate::render::Frame;
-use crate::term::blocks::Blocks;
+use crate::term::symbols::{Depth, Symbols, TextStyle};
 use crate::term::{kitty, sixel};
 use ratatui::buffer::{Buffer, CellDiffOption};
 use ratatui::layout::Rect;
@@ -32,6 +32,8 @@ pub struct Encoding {
     /// Kitty frames shown by Unicode placeholder cells; else placed directly at
     /// the pane's first cell (kitty before 0.28 has no placeholders).
     pub placeholders: bool,
+    /// Text frames: the symbols and colours.
+    pub text: (crate::term::symbols::SymbolSet, Depth),
 }
 
 impl Encoding {
@@ -40,6 +42,10 @@ impl Encoding {
             graphics,
             passthrough: false,
             placeholders: true,
+            text: {
+                let t = TextStyle::default();
+                (t.set, t.depth)
+            },
         }
     }
 }
@@ -73,8 +79,8 @@ pub enum PaneImage {
     FirstCell { data: String, cells: (u16, u16) },
     /// A kitty image sent with the first cell, shown by placeholder cells.
     Kitty { transmit: String, cells: (u16, u16) },
-    /// Unicode half-blocks.
-    Blocks(Blocks),
+    /// Text: a symbol and two colours a cell.
+    Text(Symbols, Depth),
 }
 
 impl PaneImage {
@@ -82,19 +88,47 @@ impl PaneImage {
     pub fn cells(&self) -> (u16, u16) {
         match self {
             PaneImage::FirstCell { cells, .. } | PaneImage::Kitty { cells, .. } => *cells,
-            PaneImage::Blocks(b) => (b.cols, b.rows),
+            PaneImage::Text(t, _) => (t.cols, t.rows),
         }
     }
 
-    /// Bytes of escape sequences the image costs (half-blocks: cells × ~20).
+    /// Bytes of escape sequences the image costs (text: cells × ~20).
     pub fn bytes(&self) -> usize {
         match self {
             PaneImage::FirstCell { data, .. } => data.len(),
             PaneImage::Kitty { transmit, cells } => {
                 transmit.len() + cells.0 as usize * cells.1 as usize * 4
             }
-            PaneImage::Blocks(b) => b.cells.len() * 20,
+            PaneImage::Text(t, _) => t.cells.len() * 20,
         }
+    }
+}
+
+/// A colour as ratatui writes it at the terminal's depth: 24-bit, an index of
+/// the 256 palette, or one of the 16 named colours (SGR 30–37, 90–97).
+fn colour(c: [u8; 3], depth: Depth) -> Color {
+    use crate::term::symbols::{ansi16, palette256};
+    match depth {
+        Depth::True => Color::Rgb(c[0], c[1], c[2]),
+        Depth::C256 => Color::Indexed(palette256(c)),
+        Depth::C16 => [
+            Color::Black,
+            Color::Red,
+            Color::Green,
+            Color::Yellow,
+            Color::Blue,
+            Color::Magenta,
+            Color::Cyan,
+            Color::Gray,
+            Color::DarkGray,
+            Color::LightRed,
+            Color::LightGreen,
+            Color::LightYellow,
+            Color::LightBlue,
+            Color::LightMagenta,
+            Color::LightCyan,
+            Color::White,
+        ][ansi16(c) as usize],
     }
 }
 
@@ -110,15 +144,13 @@ impl Widget for &PaneImage {
             return;
         }
         match self {
-            PaneImage::Blocks(b) => {
+            PaneImage::Text(t, depth) => {
                 for y in 0..area.height {
-                    for (x, c) in b.row(y).iter().take(area.width as usize).enumerate() {
+                    for (x, c) in t.row(y).iter().take(area.width as usize).enumerate() {
                         if let Some(cell) = buf.cell_mut((area.x + x as u16, area.y + y)) {
-                            let [r, g, bl] = c.upper;
-                            let [r2, g2, b2] = c.lower;
-                            cell.set_char(c.symbol())
-                                .set_fg(Color::Rgb(r, g, bl))
-                                .set_bg(Color::Rgb(r2, g2, b2));
+                            cell.set_char(c.symbol)
+                                .set_fg(colour(c.fg, *depth))
+                                .set_bg(colour(c.bg, *depth));
                         }
                     }
                 }
@@ -247,9 +279,10 @@ pub fn encode(
     full: (u32, u32),
 ) -> anyhow::Result<PaneImage> {
     Ok(match enc.graphics {
-        Graphics::Halfblocks => {
-            PaneImage::Blocks(Blocks::of(&crate::pixels(frame), cells.0, cells.1))
-        }
+        Graphics::Halfblocks => PaneImage::Text(
+            Symbols::of(&crate::pixels(frame), cells.0, cells.1, enc.text.0),
+            enc.text.1,
+        ),
         Graphics::Sixel => PaneImage::FirstCell {
             data: sixel_for_pane(frame, cells, enc.passthrough, full)?,
             cells,

@@ -2,7 +2,8 @@
 //! and `inspect` alike: `--protocol` first; inside tmux, what the tmux server says
 //! of the outer terminal; else the terminal's own answers to the probe (its name
 //! from XTVERSION, then the kitty query, then DA1's sixel attribute); then
-//! environment hints; then half-blocks, with a note saying why.
+//! environment hints; then text (symbols in colour, [`crate::symbols`]), with a
+//! note saying why.
 //!
 //! [`choose`] is a pure function of what was learnt (tested for every terminal we
 //! know); [`detect`] does the asking.
@@ -11,6 +12,7 @@ use super::Protocol;
 use super::probe::{self, Probe, WinSize};
 use super::replies::Replies;
 use super::tmux::{self, TmuxInfo};
+use crate::symbols::{SymbolSet, TextStyle, choose_text};
 use serde::Serialize;
 use std::io::IsTerminal;
 use std::os::fd::AsRawFd;
@@ -31,7 +33,7 @@ impl Graphics {
             Graphics::Kitty => "kitty",
             Graphics::Sixel => "sixel",
             Graphics::Iterm2 => "iTerm2",
-            Graphics::Halfblocks => "half-blocks",
+            Graphics::Halfblocks => "text",
         }
     }
 }
@@ -45,6 +47,8 @@ pub struct TerminalEnv {
     pub tmux: Option<String>,
     pub tmux_pane: Option<String>,
     pub lc_terminal: Option<String>,
+    /// `truecolor` or `24bit` where the terminal takes 24-bit colour.
+    pub colorterm: Option<String>,
 }
 
 impl TerminalEnv {
@@ -58,6 +62,7 @@ impl TerminalEnv {
             tmux: var("TMUX"),
             tmux_pane: var("TMUX_PANE"),
             lc_terminal: var("LC_TERMINAL"),
+            colorterm: var("COLORTERM"),
         }
     }
 
@@ -160,6 +165,9 @@ pub struct Choice {
     pub note: Option<String>,
     /// The caller asked for this protocol (no detection chose it).
     pub requested: bool,
+    /// How frames are drawn in text (the `text` protocol): the symbols and the
+    /// colours the terminal takes.
+    pub text: TextStyle,
 }
 
 /// Decides from what was learnt: the request, the environment, the terminal's
@@ -197,6 +205,13 @@ pub fn choose(
         .collect()
     };
     let placeholders_known = names.iter().find_map(|n| kitty_placeholders(n));
+    let text = choose_text(
+        &names,
+        env.term.as_deref(),
+        env.colorterm.as_deref(),
+        tmux_info.map(|t| t.features.as_str()),
+        in_tmux,
+    );
     let named = names
         .iter()
         .find(|n| kitty_placeholders(n).is_some() || by_name(n).is_some())
@@ -228,6 +243,7 @@ pub fn choose(
             kitty_placeholders,
             note,
             requested: requested != Protocol::Auto,
+            text: text.clone(),
         }
     };
     let forced = match requested {
@@ -275,7 +291,7 @@ pub fn choose(
                 Graphics::Halfblocks,
                 format!("{why}, a kitty without Unicode placeholders (from 0.28)"),
                 Some(format!(
-                    "half-blocks: {why}: this kitty has no Unicode placeholders (kitty has them from 0.28), and tmux cannot carry images placed directly; kitty 0.28+, or pcimg outside tmux, would draw images"
+                    "text: {why}: this kitty has no Unicode placeholders (kitty has them from 0.28), and tmux cannot carry images placed directly; kitty 0.28+, or pcimg outside tmux, would draw images"
                 )),
             );
         }
@@ -283,7 +299,7 @@ pub fn choose(
             Graphics::Halfblocks,
             why.clone(),
             Some(format!(
-                "half-blocks: {why} draws no images here; kitty, Ghostty or Rio outside tmux, or tmux 3.4+ with sixel, would"
+                "text: {why} draws no images here; kitty, Ghostty or Rio outside tmux, or tmux 3.4+ with sixel, would"
             )),
         );
     }
@@ -315,13 +331,13 @@ pub fn choose(
     }
     let note = if capped {
         format!(
-            "half-blocks: the terminal did not answer within {} ms",
+            "text: the terminal did not answer within {} ms",
             probe::CAP.as_millis()
         )
     } else if replies.is_none() {
-        "half-blocks: stdin or stdout is not a terminal, so it was not asked".into()
+        "text: stdin or stdout is not a terminal, so it was not asked".into()
     } else {
-        "half-blocks: the terminal reports no image protocol".into()
+        "text: the terminal reports no image protocol".into()
     };
     choice(
         Graphics::Halfblocks,
@@ -366,6 +382,16 @@ impl Detection {
         }
     }
 
+    /// Draws text frames with `set` (`--symbols`), whatever the terminal's
+    /// name suggested.
+    pub fn use_symbols(&mut self, set: SymbolSet) {
+        self.choice.text.set = set;
+        self.choice.text.reason = format!("{} ({set} requested)", self.choice.text.depth.name());
+        if self.choice.graphics == Graphics::Halfblocks {
+            self.cell_pixels = text_cell(set);
+        }
+    }
+
     /// Turns on `allow-passthrough` for our pane when images need it; on failure
     /// the note says so. Undone by [`tmux::restore_passthrough`].
     pub fn prepare(&mut self) {
@@ -377,6 +403,14 @@ impl Detection {
     }
 }
 
+/// Pixels a text cell is rendered at: the symbol grid, doubled each way so
+/// that each sub-cell is the mean of four rendered pixels (a point between
+/// sub-cells still lands in one).
+fn text_cell(set: SymbolSet) -> (u32, u32) {
+    let (w, h) = set.grid();
+    (2 * w as u32, 2 * h as u32)
+}
+
 /// The cell size: the kernel's (`TIOCGWINSZ`) when plausible, else tmux's account
 /// of the outer terminal, else the terminal's `CSI 16 t` answer, else 10×20.
 pub(crate) fn cell_size(
@@ -386,7 +420,7 @@ pub(crate) fn cell_size(
     replies: Option<&Replies>,
 ) -> ((u32, u32), &'static str) {
     if graphics == Graphics::Halfblocks {
-        return ((1, 2), "half-blocks");
+        return ((1, 2), "text");
     }
     if let Some(c) = winsize.and_then(|w| w.cell_pixels()) {
         return (c, "TIOCGWINSZ");
@@ -461,12 +495,15 @@ pub fn detect(requested: Protocol, cap: Duration) -> Detection {
     let replies = probe_result.as_ref().map(|p| &p.replies);
     let capped = probe_result.as_ref().is_some_and(|p| p.capped);
     let choice = choose(requested, &env, replies, capped, tmux_result.as_ref());
-    let (cell_pixels, cell_source) = cell_size(
+    let (mut cell_pixels, cell_source) = cell_size(
         choice.graphics,
         winsize.as_ref(),
         tmux_result.as_ref().and_then(|t| t.as_ref().ok()),
         replies,
     );
+    if choice.graphics == Graphics::Halfblocks {
+        cell_pixels = text_cell(choice.text.set);
+    }
     Detection {
         choice,
         cell_pixels,
@@ -627,7 +664,7 @@ mod tests {
         let note = c.note.unwrap();
         assert!(
             note.starts_with(
-                "half-blocks: tmux 3.3a in kitty(0.26.5): this kitty has no Unicode placeholders"
+                "text: tmux 3.3a in kitty(0.26.5): this kitty has no Unicode placeholders"
             ),
             "{note}"
         );

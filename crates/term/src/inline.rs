@@ -1,7 +1,7 @@
 //! Printing a frame inline in the terminal (`pcimg preview`): sixel through our
 //! own encoder ([`super::sixel`], at the frame's exact pixel size), kitty graphics
 //! ([`super::kitty`]) and iTerm2 (inline PNG) scaled by the terminal to the cells,
-//! Unicode half-blocks ([`super::blocks`]). Nothing here queries the terminal: the
+//! text: symbols in colour ([`super::symbols`]). Nothing here queries the terminal: the
 //! protocol comes from [`super::detect()`].
 
 use crate::Rgba;
@@ -26,9 +26,9 @@ impl std::str::FromStr for Protocol {
             "kitty" => Ok(Protocol::Kitty),
             "sixel" => Ok(Protocol::Sixel),
             "iterm" | "iterm2" => Ok(Protocol::Iterm),
-            "halfblocks" | "blocks" => Ok(Protocol::Halfblocks),
+            "text" | "halfblocks" | "blocks" => Ok(Protocol::Halfblocks),
             o => Err(format!(
-                "unknown protocol '{o}' (auto, kitty, sixel, iterm, halfblocks)"
+                "unknown protocol '{o}' (auto, kitty, sixel, iterm, text)"
             )),
         }
     }
@@ -37,7 +37,7 @@ impl std::str::FromStr for Protocol {
 /// Prints `frame` at the cursor over `cols` × `rows` cells as `choice` says:
 /// sixel at the frame's own pixel size (render it at the cell size × cells), kitty
 /// and iTerm2 scaled by the terminal to the cells (through tmux: kitty as Unicode
-/// placeholders, passed through), else half-blocks.
+/// placeholders, passed through), else text in the choice's symbols and colours.
 pub fn print_frame(
     frame: &Rgba<'_>,
     choice: &super::detect::Choice,
@@ -57,9 +57,10 @@ pub fn print_frame(
         Graphics::Kitty => kitty_cells(frame, choice, cols, rows),
         Graphics::Iterm2 => wrap(iterm_sequence(frame, cols, rows, false)?),
         Graphics::Halfblocks => {
-            let blocks = super::blocks::Blocks::of(frame, cols, rows).ansi();
+            let t = &choice.text;
+            let text = super::symbols::Symbols::of(frame, cols, rows, t.set).ansi(t.depth);
             let mut out = std::io::stdout().lock();
-            out.write_all(blocks.as_bytes())?;
+            out.write_all(text.as_bytes())?;
             out.flush()?;
             return Ok(());
         }

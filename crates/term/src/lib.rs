@@ -1,6 +1,6 @@
 //! Terminal graphics: finding out what the terminal draws (asking it, or the tmux
-//! server), printing a frame inline (kitty, sixel, iTerm2, or Unicode half-blocks),
-//! and our own sixel, kitty and half-block encoders.
+//! server), printing a frame inline (kitty, sixel, iTerm2, or text: Unicode symbols in
+//! colour), and our own sixel, kitty and text encoders.
 
 // Loops over the three axes index several parallel arrays at once.
 #![allow(clippy::needless_range_loop)]
@@ -8,7 +8,6 @@
 
 use pcimg_core::text;
 
-pub mod blocks;
 pub mod detect;
 pub mod inline;
 pub mod kitty;
@@ -16,6 +15,7 @@ pub mod palette;
 pub mod probe;
 pub(crate) mod replies;
 pub mod sixel;
+pub mod symbols;
 pub mod tmux;
 pub mod typed;
 

@@ -1,0 +1,437 @@
+//! How good a text frame is: our symbol encoder (`pcimg_term::symbols`) next
+//! to chafa's on the same frame, the same cell count and the same symbol set.
+//!
+//! ```text
+//! cargo run --release -p pcimg-term --example text_quality -- FRAME.png COLS ROWS \
+//!     [--cell 8x16] [--colors full|256] [--chafa-work N] [--runs N]
+//! ```
+//! FRAME.png should be COLS·8 × ROWS·16 pixels (the cell size given), so the
+//! reference is the frame itself. Each text frame is drawn back to pixels with
+//! that cell geometry (a block symbol fills its sub-cells, split as foot and
+//! kitty split a cell: sub-cell j of n starts at ⌊j·size/n⌋; a braille dot is a
+//! box half its sub-cell's width and height, centred), and compared with the
+//! frame by SSIM (Wang et al. 2004: luma, 11×11 Gaussian window, σ 1.5, K1
+//! 0.01, K2 0.03, the mean over the picture). Prints one line a set: SSIM and
+//! bytes for ours and chafa's, our median encode time, symbols chafa used that
+//! we cannot draw back (counted as background). `chafa` must be on PATH.
+use pcimg_term::Rgba;
+use pcimg_term::symbols::{Depth, SymbolSet, Symbols, palette256_rgb};
+use std::collections::HashMap;
+use std::process::Command;
+use std::time::Instant;
+
+type Colour = [u8; 3];
+
+fn main() -> Result<(), Box<dyn std::error::Error>> {
+    let args: Vec<String> = std::env::args().skip(1).collect();
+    if args.len() < 3 {
+        eprintln!(
+            "usage: text_quality FRAME.png COLS ROWS [--cell 8x16] [--colors full|256] [--chafa-work N] [--runs N]"
+        );
+        std::process::exit(2);
+    }
+    let (path, cols, rows): (&str, u16, u16) = (&args[0], args[1].parse()?, args[2].parse()?);
+    let opt = |name: &str| {
+        args.iter()
+            .position(|a| a == name)
+            .and_then(|i| args.get(i + 1))
+            .cloned()
+    };
+    let (cw, ch) = match opt("--cell") {
+        Some(c) => {
+            let (w, h) = c.split_once('x').ok_or("--cell WxH")?;
+            (w.parse::<usize>()?, h.parse::<usize>()?)
+        }
+        None => (8, 16),
+    };
+    let colors = opt("--colors").unwrap_or_else(|| "full".into());
+    let depth = if colors == "256" {
+        Depth::C256
+    } else {
+        Depth::True
+    };
+    let work = opt("--chafa-work").unwrap_or_else(|| "9".into());
+    let runs: usize = opt("--runs").map(|r| r.parse()).transpose()?.unwrap_or(15);
+
+    let (w, h, rgba) = read_png(path)?;
+    let frame = Rgba {
+        width: w as u32,
+        height: h as u32,
+        rgba: &rgba,
+    };
+    let (rw, rh) = (cols as usize * cw, rows as usize * ch);
+    let reference = luma_of(&frame_at(&frame, rw, rh));
+    let lookup = glyph_lookup();
+    println!(
+        "{path}: {cols}×{rows} cells of {cw}×{ch} px, colours {colors}; SSIM against the frame"
+    );
+    println!(
+        "set        ours SSIM  chafa SSIM  ours bytes  chafa bytes  encode ms (median, min–max)  chafa symbols not drawn back"
+    );
+    for set in SymbolSet::ALL {
+        let mut times = Vec::new();
+        let mut ours = None;
+        for _ in 0..runs {
+            let t = Instant::now();
+            let s = Symbols::of(&frame, cols, rows, set);
+            let text = s.ansi(depth);
+            times.push(t.elapsed().as_secs_f64() * 1e3);
+            ours = Some(text);
+        }
+        times.sort_by(f64::total_cmp);
+        let ours = ours.unwrap_or_default();
+        let (ours_px, _) = draw_back(&ours, cols, rows, cw, ch, &lookup);
+        let ours_ssim = ssim(&reference, &luma_of(&ours_px), rw, rh);
+        let chafa_set = match set {
+            SymbolSet::Half => Some("vhalf"),
+            SymbolSet::Quadrants => Some("quad"),
+            SymbolSet::Sextants => Some("sextant"),
+            SymbolSet::Braille => Some("braille"),
+            // chafa 1.12 has no octants.
+            SymbolSet::Octants => None,
+        };
+        let chafa = chafa_set.map(|c| chafa(path, cols, rows, c, &colors, &work));
+        let (chafa_ssim, chafa_bytes, unknown) = match chafa {
+            Some(Ok(text)) => {
+                let (px, unknown) = draw_back(&text, cols, rows, cw, ch, &lookup);
+                let mut u: Vec<String> = unknown.into_iter().map(|c| format!("{c}")).collect();
+                u.sort();
+                (
+                    format!("{:.4}", ssim(&reference, &luma_of(&px), rw, rh)),
+                    text.len().to_string(),
+                    u.join(""),
+                )
+            }
+            Some(Err(e)) => (format!("error: {e}"), "-".into(), String::new()),
+            None => ("-".into(), "-".into(), String::new()),
+        };
+        println!(
+            "{:<10} {:.4}     {:<10}  {:<10}  {:<11}  {:.2} ({:.2}–{:.2})  {}",
+            set.name(),
+            ours_ssim,
+            chafa_ssim,
+            ours.len(),
+            chafa_bytes,
+            times[times.len() / 2],
+            times[0],
+            times[times.len() - 1],
+            unknown
+        );
+    }
+    Ok(())
+}
+
+fn chafa(
+    path: &str,
+    cols: u16,
+    rows: u16,
+    set: &str,
+    colors: &str,
+    work: &str,
+) -> Result<String, String> {
+    let out = Command::new("chafa")
+        .args([
+            "--format",
+            "symbols",
+            "--symbols",
+            set,
+            "--colors",
+            colors,
+            "--size",
+            &format!("{cols}x{rows}"),
+            "--stretch",
+            "--work",
+            work,
+            "--animate",
+            "off",
+            path,
+        ])
+        .output()
+        .map_err(|e| format!("chafa: {e}"))?;
+    if !out.status.success() {
+        return Err(String::from_utf8_lossy(&out.stderr).into_owned());
+    }
+    Ok(String::from_utf8_lossy(&out.stdout).into_owned())
+}
+
+fn read_png(path: &str) -> Result<(usize, usize, Vec<u8>), Box<dyn std::error::Error>> {
+    let mut dec = png::Decoder::new(std::io::BufReader::new(std::fs::File::open(path)?));
+    dec.set_transformations(png::Transformations::EXPAND | png::Transformations::STRIP_16);
+    let mut r = dec.read_info()?;
+    let mut buf = vec![0; r.output_buffer_size().ok_or("png too large")?];
+    let info = r.next_frame(&mut buf)?;
+    let (w, h) = (info.width as usize, info.height as usize);
+    let rgba = match info.color_type {
+        png::ColorType::Rgba => buf[..w * h * 4].to_vec(),
+        png::ColorType::Rgb => buf[..w * h * 3]
+            .chunks_exact(3)
+            .flat_map(|p| [p[0], p[1], p[2], 255])
+            .collect(),
+        png::ColorType::Grayscale => buf[..w * h].iter().flat_map(|&g| [g, g, g, 255]).collect(),
+        png::ColorType::GrayscaleAlpha => buf[..w * h * 2]
+            .chunks_exact(2)
+            .flat_map(|p| [p[0], p[0], p[0], 255])
+            .collect(),
+        other => return Err(format!("{path}: PNG colour type {other:?}").into()),
+    };
+    Ok((w, h, rgba))
+}
+
+/// The frame at `w` × `h` (nearest pixel: the frame is expected at that size).
+fn frame_at(f: &Rgba<'_>, w: usize, h: usize) -> Vec<Colour> {
+    let (fw, fh) = (f.width as usize, f.height as usize);
+    (0..w * h)
+        .map(|i| {
+            let (x, y) = (i % w * fw / w, i / w * fh / h);
+            let p = &f.rgba[(y * fw + x) * 4..][..3];
+            [p[0], p[1], p[2]]
+        })
+        .collect()
+}
+
+/// How a symbol covers its cell: a grid of `gw` × `gh` sub-cells, the lit
+/// ones, and whether they are braille dots.
+#[derive(Clone, Copy)]
+struct Glyph {
+    gw: usize,
+    gh: usize,
+    pattern: u32,
+    dots: bool,
+}
+
+/// Every symbol of every set (the first set that has a symbol describes it).
+fn glyph_lookup() -> HashMap<char, Glyph> {
+    let mut m = HashMap::new();
+    // A 1×1 cell: space is all background, `█` all foreground.
+    m.insert(
+        ' ',
+        Glyph {
+            gw: 1,
+            gh: 1,
+            pattern: 0,
+            dots: false,
+        },
+    );
+    m.insert(
+        '█',
+        Glyph {
+            gw: 1,
+            gh: 1,
+            pattern: 1,
+            dots: false,
+        },
+    );
+    // The blank braille pattern, which chafa uses.
+    m.insert(
+        '\u{2800}',
+        Glyph {
+            gw: 1,
+            gh: 1,
+            pattern: 0,
+            dots: false,
+        },
+    );
+    for set in SymbolSet::ALL {
+        let (gw, gh) = set.grid();
+        for p in 0..(1u32 << (gw * gh)) {
+            if let Some(c) = set.symbol(p as usize) {
+                m.entry(c).or_insert(Glyph {
+                    gw,
+                    gh,
+                    pattern: p,
+                    dots: set == SymbolSet::Braille,
+                });
+            }
+        }
+    }
+    // chafa's half blocks also use the left and right halves.
+    m.entry('▌').or_insert(Glyph {
+        gw: 2,
+        gh: 1,
+        pattern: 1,
+        dots: false,
+    });
+    m.entry('▐').or_insert(Glyph {
+        gw: 2,
+        gh: 1,
+        pattern: 2,
+        dots: false,
+    });
+    m
+}
+
+/// An ANSI text frame drawn back to pixels: cells of `cw` × `ch`. Returns the
+/// pixels and the symbols it could not draw (drawn as their background).
+fn draw_back(
+    text: &str,
+    cols: u16,
+    rows: u16,
+    cw: usize,
+    ch: usize,
+    lookup: &HashMap<char, Glyph>,
+) -> (Vec<Colour>, std::collections::BTreeSet<char>) {
+    let (w, h) = (cols as usize * cw, rows as usize * ch);
+    let mut px = vec![[0u8; 3]; w * h];
+    let mut unknown = std::collections::BTreeSet::new();
+    let (mut fg, mut bg): (Colour, Colour) = ([255; 3], [0; 3]);
+    let mut inverse = false;
+    let (mut col, mut row) = (0usize, 0usize);
+    let mut chars = text.chars().peekable();
+    while let Some(c) = chars.next() {
+        if c == '\x1b' {
+            if chars.peek() != Some(&'[') {
+                continue;
+            }
+            chars.next();
+            let mut seq = String::new();
+            for d in chars.by_ref() {
+                if d.is_ascii_alphabetic() {
+                    seq.push(d);
+                    break;
+                }
+                seq.push(d);
+            }
+            if let Some(params) = seq.strip_suffix('m') {
+                let v: Vec<u32> = params.split(';').map(|p| p.parse().unwrap_or(0)).collect();
+                let mut i = 0;
+                while i < v.len() {
+                    match v[i] {
+                        0 => {
+                            (fg, bg, inverse) = ([255; 3], [0; 3], false);
+                        }
+                        7 => inverse = true,
+                        27 => inverse = false,
+                        39 => fg = [255; 3],
+                        49 => bg = [0; 3],
+                        38 | 48 if v.get(i + 1) == Some(&2) && i + 4 < v.len() => {
+                            let c = [v[i + 2] as u8, v[i + 3] as u8, v[i + 4] as u8];
+                            if v[i] == 38 {
+                                fg = c
+                            } else {
+                                bg = c
+                            }
+                            i += 4;
+                        }
+                        38 | 48 if v.get(i + 1) == Some(&5) && i + 2 < v.len() => {
+                            let c = palette256_rgb(v[i + 2] as u8);
+                            if v[i] == 38 {
+                                fg = c
+                            } else {
+                                bg = c
+                            }
+                            i += 2;
+                        }
+                        n @ 30..=37 => fg = palette256_rgb((n - 30) as u8),
+                        n @ 40..=47 => bg = palette256_rgb((n - 40) as u8),
+                        n @ 90..=97 => fg = palette256_rgb((n - 82) as u8),
+                        n @ 100..=107 => bg = palette256_rgb((n - 92) as u8),
+                        _ => {}
+                    }
+                    i += 1;
+                }
+            }
+            continue;
+        }
+        if c == '\n' {
+            (col, row) = (0, row + 1);
+            continue;
+        }
+        if c == '\r' {
+            col = 0;
+            continue;
+        }
+        if col >= cols as usize || row >= rows as usize {
+            col += 1;
+            continue;
+        }
+        let (f, b) = if inverse { (bg, fg) } else { (fg, bg) };
+        let g = lookup.get(&c).copied().unwrap_or_else(|| {
+            unknown.insert(c);
+            Glyph {
+                gw: 1,
+                gh: 1,
+                pattern: 0,
+                dots: false,
+            }
+        });
+        for y in 0..ch {
+            for x in 0..cw {
+                // Sub-cell j spans [⌊j·cw/gw⌋, ⌊(j+1)·cw/gw⌋), as foot and
+                // kitty divide a cell (e.g. thirds of 16 rows: 5, 5, 6).
+                let sub = |v: usize, size: usize, n: usize| {
+                    (0..n).rev().find(|&j| j * size / n <= v).unwrap_or(0)
+                };
+                let (sx, sy) = (sub(x, cw, g.gw), sub(y, ch, g.gh));
+                let mut on = g.pattern >> (sy * g.gw + sx) & 1 == 1;
+                if on && g.dots {
+                    // A dot: the middle half of its sub-cell each way.
+                    let (sw, sh) = (cw as f32 / g.gw as f32, ch as f32 / g.gh as f32);
+                    // (Braille grids are 2×4: 8×16 cells divide evenly.)
+                    let (u, v) = (
+                        (x as f32 + 0.5 - sx as f32 * sw) / sw,
+                        (y as f32 + 0.5 - sy as f32 * sh) / sh,
+                    );
+                    on = (0.25..0.75).contains(&u) && (0.25..0.75).contains(&v);
+                }
+                px[(row * ch + y) * w + col * cw + x] = if on { f } else { b };
+            }
+        }
+        col += 1;
+    }
+    (px, unknown)
+}
+
+fn luma_of(px: &[Colour]) -> Vec<f32> {
+    px.iter()
+        .map(|c| 0.299 * c[0] as f32 + 0.587 * c[1] as f32 + 0.114 * c[2] as f32)
+        .collect()
+}
+
+/// Mean SSIM of two luma pictures (Wang et al. 2004, Gaussian 11×11, σ 1.5).
+fn ssim(a: &[f32], b: &[f32], w: usize, h: usize) -> f64 {
+    let k: Vec<f32> = {
+        let v: Vec<f32> = (-5..=5)
+            .map(|i: i32| (-(i * i) as f32 / (2.0 * 1.5 * 1.5)).exp())
+            .collect();
+        let s: f32 = v.iter().sum();
+        v.into_iter().map(|x| x / s).collect()
+    };
+    let blur = |img: &[f32]| -> Vec<f32> {
+        let mut t = vec![0f32; w * h];
+        for y in 0..h {
+            for x in 0..w {
+                let mut s = 0.0;
+                for (j, kv) in k.iter().enumerate() {
+                    let xx = (x as i32 + j as i32 - 5).clamp(0, w as i32 - 1) as usize;
+                    s += kv * img[y * w + xx];
+                }
+                t[y * w + x] = s;
+            }
+        }
+        let mut o = vec![0f32; w * h];
+        for y in 0..h {
+            for x in 0..w {
+                let mut s = 0.0;
+                for (j, kv) in k.iter().enumerate() {
+                    let yy = (y as i32 + j as i32 - 5).clamp(0, h as i32 - 1) as usize;
+                    s += kv * t[yy * w + x];
+                }
+                o[y * w + x] = s;
+            }
+        }
+        o
+    };
+    let prod = |p: &[f32], q: &[f32]| p.iter().zip(q).map(|(x, y)| x * y).collect::<Vec<f32>>();
+    let (ma, mb) = (blur(a), blur(b));
+    let (saa, sbb, sab) = (blur(&prod(a, a)), blur(&prod(b, b)), blur(&prod(a, b)));
+    let (c1, c2) = ((0.01f32 * 255.0).powi(2), (0.03f32 * 255.0).powi(2));
+    let mut total = 0f64;
+    for i in 0..w * h {
+        let (mx, my) = (ma[i], mb[i]);
+        let (vx, vy, cxy) = (saa[i] - mx * mx, sbb[i] - my * my, sab[i] - mx * my);
+        let s =
+            ((2.0 * mx * my + c1) * (2.0 * cxy + c2)) / ((mx * mx + my * my + c1) * (vx + vy + c2));
+        total += s as f64;
+    }
+    total / (w * h) as f64
+}

@@ -1,0 +1,971 @@
+//! Pictures as text: each terminal cell shows one symbol (a half block, a
+//! quadrant, a sextant, an octant or a braille pattern) in a foreground and a
+//! background colour, chosen to match the cell's pixels as closely as two
+//! colours can, as chafa does.
+//!
+//! The frame is box-filtered to the symbol grid (2 pixels a cell for half
+//! blocks, 2×2 for quadrants, 2×3 for sextants, 2×4 for octants and braille),
+//! so a thin line or a single point in a larger frame survives as blended
+//! colour. For each cell every symbol of the set is a split of its sub-pixels
+//! into two groups; the best split is the one with the least squared error
+//! when each group takes its mean colour. That error is the cell's total
+//! variance less `|S₁|²/n₁ + |S₀|²/n₀` (the groups' sums and counts), so the
+//! search needs only the sums of each pattern's pixels, which one pass over
+//! the 2ⁿ patterns gives ([`Cell::fit`]): the exact best split, not an
+//! approximation, at under a microsecond a cell.
+//!
+//! Our own rather than a crate's: no crate does this choice (chafa is C, and
+//! its output is what [`bench/text.sh`] compares against).
+//!
+//! The escape string sets a colour only when it changes, in 24-bit, 256 or 16
+//! colours ([`Depth`]); a cell whose split is no better than one colour is a
+//! space on its background.
+
+use crate::Rgba;
+use serde::Serialize;
+use std::fmt::Write;
+use std::sync::OnceLock;
+
+/// An RGB colour.
+pub type Colour = [u8; 3];
+
+/// `frame` as `w` × `h` pixels, row by row, each the mean of the frame pixels
+/// it covers (rounded to the nearest); a frame smaller than that is enlarged
+/// by repeating pixels, and an empty frame is black.
+fn box_filter(frame: &Rgba<'_>, w: usize, h: usize) -> Vec<Colour> {
+    let (fw, fh) = (frame.width as usize, frame.height as usize);
+    let mut out = vec![[0u8; 3]; w * h];
+    if w == 0 || h == 0 || fw == 0 || fh == 0 || frame.rgba.len() < fw * fh * 4 {
+        return out;
+    }
+    // The frame columns each pixel column covers: [x0, x1).
+    let span = |i: usize, n: usize, f: usize| {
+        let a = i * f / n;
+        (a, ((i + 1) * f / n).max(a + 1))
+    };
+    let xs: Vec<(usize, usize)> = (0..w).map(|x| span(x, w, fw)).collect();
+    for y in 0..h {
+        let (y0, y1) = span(y, h, fh);
+        for (x, &(x0, x1)) in xs.iter().enumerate() {
+            let mut sum = [0u64; 3];
+            for row in y0..y1 {
+                let line = &frame.rgba[(row * fw + x0) * 4..(row * fw + x1) * 4];
+                for px in line.chunks_exact(4) {
+                    sum[0] += px[0] as u64;
+                    sum[1] += px[1] as u64;
+                    sum[2] += px[2] as u64;
+                }
+            }
+            let n = ((x1 - x0) * (y1 - y0)) as u64;
+            out[y * w + x] = sum.map(|s| ((s + n / 2) / n) as u8);
+        }
+    }
+    out
+}
+
+/// Which symbols cells are drawn with.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum SymbolSet {
+    /// `▀` over its background: 1×2 pixels, every terminal and font.
+    Half,
+    /// The 16 quadrant block elements (`▘▝▀▖▌▞▛▗▚▐▜▄▙▟█`): 2×2, in every
+    /// monospace font since Unicode 1.
+    Quadrants,
+    /// Sextants (Unicode 13, U+1FB00…): 2×3.
+    Sextants,
+    /// Octants (Unicode 16, U+1CD00…, with the quadrants and the quarter
+    /// blocks `▂▆🮂🮅`): 2×4; 250 of the 256 patterns (the four single corners
+    /// and the middle quarters, whose code points lie in a block of Unicode 16
+    /// we have not checked, are left out: the fit draws them with a near one).
+    Octants,
+    /// Braille patterns (U+2800…): 2×4 dots, in most fonts.
+    Braille,
+}
+
+impl SymbolSet {
+    /// Every set, in the order `--symbols` lists them.
+    pub const ALL: [SymbolSet; 5] = [
+        SymbolSet::Half,
+        SymbolSet::Quadrants,
+        SymbolSet::Sextants,
+        SymbolSet::Octants,
+        SymbolSet::Braille,
+    ];
+
+    /// Sub-pixels a cell: columns, rows.
+    pub fn grid(self) -> (usize, usize) {
+        match self {
+            SymbolSet::Half => (1, 2),
+            SymbolSet::Quadrants => (2, 2),
+            SymbolSet::Sextants => (2, 3),
+            SymbolSet::Octants | SymbolSet::Braille => (2, 4),
+        }
+    }
+
+    /// The name `--symbols` takes and messages use.
+    pub fn name(self) -> &'static str {
+        match self {
+            SymbolSet::Half => "half",
+            SymbolSet::Quadrants => "quadrants",
+            SymbolSet::Sextants => "sextants",
+            SymbolSet::Octants => "octants",
+            SymbolSet::Braille => "braille",
+        }
+    }
+
+    /// The set a name (or its first letters: `quad`, `sext`, `oct`) names.
+    pub fn parse(s: &str) -> Option<SymbolSet> {
+        let s = s.trim().to_ascii_lowercase();
+        if s.len() < 3 {
+            return None;
+        }
+        SymbolSet::ALL
+            .into_iter()
+            .find(|set| set.name().starts_with(&s))
+    }
+
+    /// The symbol this set draws `pattern` with (bit `r·w + c` the sub-pixel
+    /// at column `c`, row `r`), if it has one.
+    pub fn symbol(self, pattern: usize) -> Option<char> {
+        self.glyphs().get(pattern).copied().flatten()
+    }
+
+    /// The symbol of each pattern this set draws: bit `r·w + c` is the
+    /// sub-pixel at column `c`, row `r` (`w` the grid's width). Patterns the
+    /// set cannot draw are `None`; pattern 0 is a space.
+    fn glyphs(self) -> &'static [Option<char>] {
+        &self.table().glyphs
+    }
+
+    fn table(self) -> &'static Table {
+        static TABLES: [OnceLock<Table>; 5] = [const { OnceLock::new() }; 5];
+        let i = SymbolSet::ALL.iter().position(|&s| s == self).unwrap_or(0);
+        TABLES[i].get_or_init(|| Table::new(self))
+    }
+}
+
+impl std::str::FromStr for SymbolSet {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        SymbolSet::parse(s).ok_or_else(|| {
+            format!("unknown symbols '{s}' (half, quadrants, sextants, octants, braille)")
+        })
+    }
+}
+
+impl std::fmt::Display for SymbolSet {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+/// The quadrant symbol of each 2×2 pattern (bits: upper left, upper right,
+/// lower left, lower right).
+const QUADRANTS: [char; 16] = [
+    ' ', '▘', '▝', '▀', '▖', '▌', '▞', '▛', '▗', '▚', '▐', '▜', '▄', '▙', '▟', '█',
+];
+
+/// Octant patterns (bits row by row, two a row) whose symbols are not in the
+/// U+1CD00 block: the quadrants, the empty and full cell, the single corners,
+/// and the quarter blocks (upper, lower, middle left and right, three
+/// quarters). The block holds every other pattern in increasing order.
+const OCTANTS_ELSEWHERE: [u8; 26] = [
+    0, 1, 2, 3, 5, 10, 15, 20, 40, 63, 64, 80, 85, 90, 95, 128, 160, 165, 170, 175, 192, 240, 245,
+    250, 252, 255,
+];
+
+fn glyph_table(set: SymbolSet) -> Vec<Option<char>> {
+    let (w, h) = set.grid();
+    let n = 1usize << (w * h);
+    let mut t = vec![None; n];
+    match set {
+        SymbolSet::Half => {
+            t[0] = Some(' ');
+            t[1] = Some('▀');
+            t[2] = Some('▄');
+            t[3] = Some('█');
+        }
+        SymbolSet::Quadrants => {
+            for (p, &c) in QUADRANTS.iter().enumerate() {
+                t[p] = Some(c);
+            }
+        }
+        SymbolSet::Sextants => {
+            // U+1FB00 + p − 1, skipping the patterns that are the left and
+            // right halves (21 and 42: `▌` `▐`); 0 and 63 are space and `█`.
+            for p in 1..63usize {
+                t[p] = match p {
+                    21 => Some('▌'),
+                    42 => Some('▐'),
+                    _ => {
+                        let skip = (p > 21) as u32 + (p > 42) as u32;
+                        char::from_u32(0x1FB00 + p as u32 - 1 - skip)
+                    }
+                };
+            }
+            t[0] = Some(' ');
+            t[63] = Some('█');
+        }
+        SymbolSet::Octants => {
+            let mut next = 0x1CD00u32;
+            for p in 0..256usize {
+                if OCTANTS_ELSEWHERE.contains(&(p as u8)) {
+                    // Rows of two bits: the quadrant whose both rows agree.
+                    let rows = [p & 3, (p >> 2) & 3, (p >> 4) & 3, (p >> 6) & 3];
+                    t[p] = if rows[0] == rows[1] && rows[2] == rows[3] {
+                        Some(QUADRANTS[rows[0] | rows[2] << 2])
+                    } else if p == 3 {
+                        Some('\u{1FB82}') // upper one quarter
+                    } else if p == 63 {
+                        Some('\u{1FB85}') // upper three quarters
+                    } else if p == 192 {
+                        Some('▂')
+                    } else if p == 252 {
+                        Some('▆')
+                    } else {
+                        None
+                    };
+                } else {
+                    t[p] = char::from_u32(next);
+                    next += 1;
+                }
+            }
+        }
+        SymbolSet::Braille => {
+            // Braille numbers its dots down the left column (1 2 3, then 7),
+            // then the right (4 5 6, then 8).
+            const DOT: [u32; 8] = [0x01, 0x08, 0x02, 0x10, 0x04, 0x20, 0x40, 0x80];
+            for (p, slot) in t.iter_mut().enumerate() {
+                let mut bits = 0;
+                for (i, d) in DOT.iter().enumerate() {
+                    if p >> i & 1 == 1 {
+                        bits |= d;
+                    }
+                }
+                *slot = char::from_u32(0x2800 + bits);
+            }
+            t[0] = Some(' ');
+        }
+    }
+    t
+}
+
+/// One cell: its symbol and its two colours.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Cell {
+    pub symbol: char,
+    pub fg: Colour,
+    pub bg: Colour,
+}
+
+impl Cell {
+    /// The best cell for these sub-pixels (`px.len()` = the set's grid) with
+    /// the symbols of `table`.
+    fn fit(px: &[Colour], table: &Table) -> Cell {
+        let n = px.len();
+        let full = (1usize << n) - 1;
+        if px.iter().all(|c| *c == px[0]) {
+            return Cell {
+                symbol: ' ',
+                fg: px[0],
+                bg: px[0],
+            };
+        }
+        // The sum of the pixels of each pattern, channel by channel, each
+        // pattern from the one without its lowest bit.
+        let (mut r, mut g, mut b) = ([0f32; 256], [0f32; 256], [0f32; 256]);
+        for p in 1..=full {
+            let (low, prev) = (p.trailing_zeros() as usize, p & (p - 1));
+            let c = px[low];
+            r[p] = r[prev] + c[0] as f32;
+            g[p] = g[prev] + c[1] as f32;
+            b[p] = b[prev] + c[2] as f32;
+        }
+        let (tr, tg, tb) = (r[full], g[full], b[full]);
+        // |S₁|²/n₁ + |S₀|²/n₀ for every pattern at once (a loop the compiler
+        // vectorises; patterns the set cannot draw weigh 0).
+        let mut score = [0f32; 256];
+        for p in 0..=full {
+            let (r1, g1, b1) = (r[p], g[p], b[p]);
+            let (r0, g0, b0) = (tr - r1, tg - g1, tb - b1);
+            score[p] = (r1 * r1 + g1 * g1 + b1 * b1) * table.w1[p]
+                + (r0 * r0 + g0 * g0 + b0 * b0) * table.w0[p];
+        }
+        // One colour, then the patterns in order of fewer lit sub-pixels: a
+        // pattern and its complement score the same, and the one with fewer
+        // wins (a braille dot is smaller than its sub-cell, so the foreground
+        // should be the fewer dots).
+        let mut best = ((tr * tr + tg * tg + tb * tb) / n as f32, 0usize);
+        for &p in &table.order {
+            let p = p as usize;
+            if score[p] > best.0 {
+                best = (score[p], p);
+            }
+        }
+        let p = best.1;
+        let mean = |s: [f32; 3], k: usize| s.map(|v| (v / k as f32).round() as u8);
+        if p == 0 {
+            let c = mean([tr, tg, tb], n);
+            return Cell {
+                symbol: ' ',
+                fg: c,
+                bg: c,
+            };
+        }
+        let k = p.count_ones() as usize;
+        let fg = mean([r[p], g[p], b[p]], k);
+        let bg = mean([tr - r[p], tg - g[p], tb - b[p]], n - k);
+        if fg == bg {
+            return Cell {
+                symbol: ' ',
+                fg: bg,
+                bg,
+            };
+        }
+        Cell {
+            symbol: table.glyphs[p].unwrap_or(' '),
+            fg,
+            bg,
+        }
+    }
+}
+
+/// A set's symbols and what the fit needs of them.
+struct Table {
+    /// The symbol of each pattern, if the set draws it.
+    glyphs: Vec<Option<char>>,
+    /// 1/n₁ and 1/n₀ (lit and unlit sub-pixels) of each pattern the set
+    /// draws; 0 for the others.
+    w1: [f32; 256],
+    w0: [f32; 256],
+    /// The patterns the set draws, neither empty nor full, fewest lit first.
+    order: Vec<u16>,
+}
+
+impl Table {
+    fn new(set: SymbolSet) -> Table {
+        let glyphs = glyph_table(set);
+        let n = set.grid().0 * set.grid().1;
+        let full = (1usize << n) - 1;
+        let (mut w1, mut w0) = ([0f32; 256], [0f32; 256]);
+        let mut order: Vec<u16> = (1..full)
+            .filter(|&p| glyphs[p].is_some())
+            .map(|p| p as u16)
+            .collect();
+        order.sort_by_key(|p| p.count_ones());
+        for &p in &order {
+            let k = p.count_ones() as f32;
+            w1[p as usize] = 1.0 / k;
+            w0[p as usize] = 1.0 / (n as f32 - k);
+        }
+        Table {
+            glyphs,
+            w1,
+            w0,
+            order,
+        }
+    }
+}
+
+/// How many colours the terminal shows.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+pub enum Depth {
+    /// 24-bit (`COLORTERM=truecolor`, tmux's `RGB`/`Tc`).
+    True,
+    /// The xterm 256-colour palette.
+    C256,
+    /// The 16 ANSI colours.
+    C16,
+}
+
+impl Depth {
+    /// In a few words, for `doctor` and the status line.
+    pub fn name(self) -> &'static str {
+        match self {
+            Depth::True => "24-bit colour",
+            Depth::C256 => "256 colours",
+            Depth::C16 => "16 colours",
+        }
+    }
+}
+
+/// How frames are drawn as text: the symbols and the colours.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize)]
+pub struct TextStyle {
+    pub set: SymbolSet,
+    pub depth: Depth,
+    /// Why this depth and set, in a few words.
+    pub reason: String,
+}
+
+impl Default for TextStyle {
+    fn default() -> TextStyle {
+        TextStyle {
+            set: SymbolSet::Quadrants,
+            depth: Depth::True,
+            reason: String::new(),
+        }
+    }
+}
+
+/// Terminals that draw sextants themselves (not from a font), by name (TERM,
+/// TERM_PROGRAM, XTVERSION or tmux's account of the outer terminal).
+fn draws_sextants(name: &str) -> bool {
+    let n = name.to_ascii_lowercase();
+    ["kitty", "wezterm", "foot", "ghostty", "contour"]
+        .iter()
+        .any(|t| n.contains(t))
+}
+
+/// Terminals whose name says they take 24-bit colour.
+fn names_truecolor(name: &str) -> bool {
+    let n = name.to_ascii_lowercase();
+    n.ends_with("-direct")
+        || [
+            "kitty",
+            "wezterm",
+            "iterm",
+            "ghostty",
+            "foot",
+            "alacritty",
+            "contour",
+            "rio",
+        ]
+        .iter()
+        .any(|t| n.contains(t))
+}
+
+/// The text style for a terminal: 24-bit colour where `COLORTERM` says
+/// `truecolor`/`24bit` (outside tmux), where tmux's features for the client
+/// list `RGB` (tmux passes 24-bit colour on only then), or where the terminal
+/// is known by name; else 256 colours where `TERM` says `256color`; else 16.
+/// Quadrants everywhere (every monospace font has them), sextants where the
+/// terminal draws them itself. `names`: the terminal's names, most precise
+/// first; inside tmux, the outer terminal's.
+pub fn choose_text(
+    names: &[&str],
+    term: Option<&str>,
+    colorterm: Option<&str>,
+    tmux_features: Option<&str>,
+    in_tmux: bool,
+) -> TextStyle {
+    let colorterm = colorterm.unwrap_or("").to_ascii_lowercase();
+    let term = term.unwrap_or("").to_ascii_lowercase();
+    let (depth, why) = if in_tmux {
+        match tmux_features {
+            Some(f) if f.split(',').any(|x| matches!(x.trim(), "RGB" | "Tc")) => {
+                (Depth::True, "tmux lists RGB".to_string())
+            }
+            Some(_) if term.contains("256color") => {
+                (Depth::C256, format!("tmux without RGB, TERM={term}"))
+            }
+            Some(_) => (Depth::C16, format!("tmux without RGB, TERM={term}")),
+            None if term.contains("256color") => {
+                (Depth::C256, format!("tmux could not be asked, TERM={term}"))
+            }
+            None => (Depth::C16, format!("tmux could not be asked, TERM={term}")),
+        }
+    } else if colorterm == "truecolor" || colorterm == "24bit" {
+        (Depth::True, format!("COLORTERM={colorterm}"))
+    } else if let Some(n) = names.iter().find(|n| names_truecolor(n)) {
+        (Depth::True, format!("{n} takes 24-bit colour"))
+    } else if term.contains("256color") {
+        (Depth::C256, format!("TERM={term}"))
+    } else {
+        (Depth::C16, format!("TERM={term}, no COLORTERM"))
+    };
+    let (set, set_why) = match names.iter().find(|n| draws_sextants(n)) {
+        Some(n) => (SymbolSet::Sextants, format!("{n} draws sextants")),
+        None => (SymbolSet::Quadrants, "quadrants, in every font".to_string()),
+    };
+    TextStyle {
+        set,
+        depth,
+        reason: format!("{} ({why}), {set_why}", depth.name()),
+    }
+}
+
+/// A picture as `cols` × `rows` cells of one symbol set, row by row.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Symbols {
+    pub cols: u16,
+    pub rows: u16,
+    pub set: SymbolSet,
+    pub cells: Vec<Cell>,
+}
+
+impl Symbols {
+    /// `frame` over `cols` × `rows` cells of `set`.
+    pub fn of(frame: &Rgba<'_>, cols: u16, rows: u16, set: SymbolSet) -> Symbols {
+        let (gw, gh) = set.grid();
+        let (w, h) = (cols as usize * gw, rows as usize * gh);
+        let px = box_filter(frame, w, h);
+        let table = set.table();
+        let mut cells = Vec::with_capacity(cols as usize * rows as usize);
+        let mut sub = [[0u8; 3]; 8];
+        for r in 0..rows as usize {
+            for c in 0..cols as usize {
+                for y in 0..gh {
+                    for x in 0..gw {
+                        sub[y * gw + x] = px[(r * gh + y) * w + c * gw + x];
+                    }
+                }
+                cells.push(Cell::fit(&sub[..gw * gh], table));
+            }
+        }
+        Symbols {
+            cols,
+            rows,
+            set,
+            cells,
+        }
+    }
+
+    /// The cells of row `r`.
+    pub fn row(&self, r: u16) -> &[Cell] {
+        let w = self.cols as usize;
+        &self.cells[r as usize * w..(r as usize + 1) * w]
+    }
+
+    /// The picture as text with colour escapes of `depth`, a line a row, the
+    /// colours reset before each line break (so a scroll does not paint the
+    /// new line); the cursor ends below the last row.
+    pub fn ansi(&self, depth: Depth) -> String {
+        let mut s = String::with_capacity(self.cells.len() * 8);
+        for r in 0..self.rows {
+            let (mut fg, mut bg): (Option<u32>, Option<u32>) = (None, None);
+            for cell in self.row(r) {
+                let b = colour_code(cell.bg, depth);
+                if bg != Some(b) {
+                    sgr(&mut s, b, depth, false);
+                    bg = Some(b);
+                }
+                if cell.symbol != ' ' {
+                    let f = colour_code(cell.fg, depth);
+                    if fg != Some(f) {
+                        sgr(&mut s, f, depth, true);
+                        fg = Some(f);
+                    }
+                }
+                s.push(cell.symbol);
+            }
+            s.push_str("\x1b[0m\n");
+        }
+        s
+    }
+}
+
+/// The xterm palette's cube levels.
+const CUBE: [u8; 6] = [0, 95, 135, 175, 215, 255];
+
+/// The standard 16 colours as xterm draws them.
+const ANSI16: [Colour; 16] = [
+    [0, 0, 0],
+    [205, 0, 0],
+    [0, 205, 0],
+    [205, 205, 0],
+    [0, 0, 238],
+    [205, 0, 205],
+    [0, 205, 205],
+    [229, 229, 229],
+    [127, 127, 127],
+    [255, 0, 0],
+    [0, 255, 0],
+    [255, 255, 0],
+    [92, 92, 255],
+    [255, 0, 255],
+    [0, 255, 255],
+    [255, 255, 255],
+];
+
+fn dist(a: Colour, b: Colour) -> i32 {
+    let d = |i: usize| a[i] as i32 - b[i] as i32;
+    d(0) * d(0) + d(1) * d(1) + d(2) * d(2)
+}
+
+/// The colour as the terminal is told it: 24-bit RGB packed, or a palette index.
+fn colour_code(c: Colour, depth: Depth) -> u32 {
+    match depth {
+        Depth::True => (c[0] as u32) << 16 | (c[1] as u32) << 8 | c[2] as u32,
+        Depth::C256 => palette256(c) as u32,
+        Depth::C16 => ansi16(c) as u32,
+    }
+}
+
+/// The nearest of the 16 ANSI colours (as xterm draws them).
+pub fn ansi16(c: Colour) -> u8 {
+    (0..16).min_by_key(|&i| dist(c, ANSI16[i])).unwrap_or(0) as u8
+}
+
+/// The nearest colour of the xterm 256 palette's cube and grey ramp.
+pub fn palette256(c: Colour) -> u8 {
+    let level = |v: u8| {
+        (0..6)
+            .min_by_key(|&i| (CUBE[i] as i32 - v as i32).abs())
+            .unwrap_or(0)
+    };
+    let (r, g, b) = (level(c[0]), level(c[1]), level(c[2]));
+    let cube = [CUBE[r], CUBE[g], CUBE[b]];
+    let grey_i = ((c[0] as i32 + c[1] as i32 + c[2] as i32) / 3 - 3).clamp(0, 239) / 10;
+    let grey_v = (8 + 10 * grey_i) as u8;
+    if dist(c, [grey_v; 3]) < dist(c, cube) {
+        232 + grey_i as u8
+    } else {
+        16 + (36 * r + 6 * g + b) as u8
+    }
+}
+
+/// The 24-bit colour of a 256-palette index (16–255; 0–15 as xterm's).
+pub fn palette256_rgb(i: u8) -> Colour {
+    match i {
+        0..=15 => ANSI16[i as usize],
+        16..=231 => {
+            let j = (i - 16) as usize;
+            [CUBE[j / 36], CUBE[j / 6 % 6], CUBE[j % 6]]
+        }
+        _ => [8 + 10 * (i - 232); 3],
+    }
+}
+
+fn sgr(s: &mut String, code: u32, depth: Depth, fg: bool) {
+    let _ = match depth {
+        Depth::True => {
+            let (r, g, b) = (code >> 16, code >> 8 & 255, code & 255);
+            write!(s, "\x1b[{};2;{r};{g};{b}m", if fg { 38 } else { 48 })
+        }
+        Depth::C256 => write!(s, "\x1b[{};5;{code}m", if fg { 38 } else { 48 }),
+        Depth::C16 => {
+            let base = match (fg, code < 8) {
+                (true, true) => 30,
+                (true, false) => 90 - 8,
+                (false, true) => 40,
+                (false, false) => 100 - 8,
+            };
+            write!(s, "\x1b[{}m", base + code)
+        }
+    };
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A cell's sub-pixels from a pattern: `on` where the bit is set.
+    fn cell_of(set: SymbolSet, p: usize, on: Colour, off: Colour) -> Vec<Colour> {
+        let (w, h) = set.grid();
+        (0..w * h)
+            .map(|i| if p >> i & 1 == 1 { on } else { off })
+            .collect()
+    }
+
+    #[test]
+    fn every_pattern_a_set_draws_is_chosen_for_itself() {
+        // Two colours laid out as a pattern come back as that pattern's
+        // symbol (or its complement's, colours swapped), exactly.
+        let (on, off) = ([250, 200, 10], [5, 6, 7]);
+        for set in SymbolSet::ALL {
+            let glyphs = set.glyphs();
+            let full = glyphs.len() - 1;
+            for p in 1..full {
+                let Some(g) = glyphs[p] else { continue };
+                let px = cell_of(set, p, on, off);
+                let c = Cell::fit(&px, set.table());
+                if c.symbol == g {
+                    assert_eq!((c.fg, c.bg), (on, off), "{set} pattern {p}");
+                } else {
+                    assert_eq!(Some(c.symbol), glyphs[full ^ p], "{set} pattern {p}");
+                    assert_eq!((c.fg, c.bg), (off, on), "{set} pattern {p}");
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn an_edge_at_every_sub_cell_position() {
+        // A vertical edge between the columns of a 2-wide cell is the left
+        // half (`▌`) in every set that has it; a horizontal edge after row k
+        // is the upper k rows.
+        let (on, off) = ([255; 3], [0; 3]);
+        for set in [
+            SymbolSet::Quadrants,
+            SymbolSet::Sextants,
+            SymbolSet::Octants,
+        ] {
+            let (w, h) = set.grid();
+            let left: usize = (0..h).map(|r| 1 << (r * w)).sum();
+            let c = Cell::fit(&cell_of(set, left, on, off), set.table());
+            assert_eq!((c.symbol, c.fg, c.bg), ('▌', on, off), "{set}");
+            let g = set.glyphs();
+            let full = g.len() - 1;
+            for k in 1..h {
+                let upper = (1 << (k * w)) - 1;
+                let c = Cell::fit(&cell_of(set, upper, on, off), set.table());
+                // The pattern, or its complement with the colours swapped.
+                let ok = (Some(c.symbol) == g[upper] && (c.fg, c.bg) == (on, off))
+                    || (Some(c.symbol) == g[full ^ upper] && (c.fg, c.bg) == (off, on));
+                assert!(ok, "{set} edge after row {k}: {c:?}");
+            }
+        }
+        assert_eq!(SymbolSet::Quadrants.glyphs()[3], Some('▀'));
+        assert_eq!(SymbolSet::Sextants.glyphs()[3], Some('\u{1FB02}'));
+        assert_eq!(SymbolSet::Octants.glyphs()[0b1111_1100], Some('▆'));
+    }
+
+    #[test]
+    fn a_single_lit_sub_pixel_is_its_own_dot() {
+        let (on, off) = ([255, 255, 0], [0; 3]);
+        // Braille: each sub-pixel is its dot (1, 4, 2, 5, 3, 6, 7, 8).
+        let dots = ['⠁', '⠈', '⠂', '⠐', '⠄', '⠠', '⡀', '⢀'];
+        for (i, &d) in dots.iter().enumerate() {
+            let c = Cell::fit(
+                &cell_of(SymbolSet::Braille, 1 << i, on, off),
+                SymbolSet::Braille.table(),
+            );
+            assert_eq!((c.symbol, c.fg, c.bg), (d, on, off));
+        }
+        // Sextant 1 is U+1FB00, the lower right U+1FB0B… by the formula.
+        let c = Cell::fit(
+            &cell_of(SymbolSet::Sextants, 1, on, off),
+            SymbolSet::Sextants.table(),
+        );
+        assert_eq!(c.symbol, '\u{1FB00}');
+        let c = Cell::fit(
+            &cell_of(SymbolSet::Sextants, 32, on, off),
+            SymbolSet::Sextants.table(),
+        );
+        assert_eq!(c.symbol, '\u{1FB1E}');
+        // The octant set has no single corner: a lone lit corner is drawn
+        // as the nearest split it has, and no colour is lost entirely.
+        let c = Cell::fit(
+            &cell_of(SymbolSet::Octants, 1, on, off),
+            SymbolSet::Octants.table(),
+        );
+        assert_ne!(c.symbol, ' ');
+        // In a uniform cell, nothing beats a space.
+        let c = Cell::fit(&[[9, 9, 9]; 8], SymbolSet::Octants.table());
+        assert_eq!((c.symbol, c.bg), (' ', [9, 9, 9]));
+    }
+
+    #[test]
+    fn three_colours_split_where_the_error_is_least() {
+        // Quadrants: red, red, dark blue, black: the blue and black go
+        // together (their difference is the smallest), red on top.
+        let px = [[200, 0, 0], [200, 0, 0], [0, 0, 40], [0, 0, 0]];
+        let c = Cell::fit(&px, SymbolSet::Quadrants.table());
+        assert_eq!((c.symbol, c.fg, c.bg), ('▀', [200, 0, 0], [0, 0, 20]));
+    }
+
+    #[test]
+    fn the_tables_are_complete_and_distinct() {
+        for set in SymbolSet::ALL {
+            let g = set.glyphs();
+            let drawn: Vec<char> = g.iter().flatten().copied().collect();
+            let mut uniq = drawn.clone();
+            uniq.sort_unstable();
+            uniq.dedup();
+            assert_eq!(uniq.len(), drawn.len(), "{set}: a symbol twice");
+        }
+        let oct = SymbolSet::Octants.glyphs();
+        assert_eq!(oct.iter().flatten().count(), 250);
+        assert_eq!(oct[0b1111_1110], Some('\u{1CDE5}'));
+        assert_eq!(oct[4], Some('\u{1CD00}'));
+        assert_eq!(SymbolSet::Sextants.glyphs().iter().flatten().count(), 64);
+        assert_eq!(SymbolSet::parse("quad"), Some(SymbolSet::Quadrants));
+        assert_eq!(SymbolSet::parse("oc"), None);
+    }
+
+    #[test]
+    fn colours_at_each_depth() {
+        assert_eq!(palette256([0, 0, 0]), 16);
+        assert_eq!(palette256([255, 255, 255]), 231);
+        assert_eq!(palette256([128, 128, 128]), 244);
+        assert_eq!(palette256_rgb(palette256([95, 135, 175])), [95, 135, 175]);
+        let s = Symbols {
+            cols: 2,
+            rows: 1,
+            set: SymbolSet::Half,
+            cells: vec![
+                Cell {
+                    symbol: '▀',
+                    fg: [255, 0, 0],
+                    bg: [0, 0, 0],
+                },
+                Cell {
+                    symbol: ' ',
+                    fg: [0, 0, 0],
+                    bg: [0, 0, 0],
+                },
+            ],
+        };
+        assert_eq!(
+            s.ansi(Depth::True),
+            "\x1b[48;2;0;0;0m\x1b[38;2;255;0;0m▀ \x1b[0m\n"
+        );
+        assert_eq!(
+            s.ansi(Depth::C256),
+            "\x1b[48;5;16m\x1b[38;5;196m▀ \x1b[0m\n"
+        );
+        assert_eq!(s.ansi(Depth::C16), "\x1b[40m\x1b[91m▀ \x1b[0m\n");
+    }
+
+    /// A frame of `w` × `h` from a colour function.
+    fn frame(w: u32, h: u32, f: impl Fn(u32, u32) -> Colour) -> Vec<u8> {
+        let mut v = Vec::new();
+        for y in 0..h {
+            for x in 0..w {
+                let [r, g, b] = f(x, y);
+                v.extend_from_slice(&[r, g, b, 255]);
+            }
+        }
+        v
+    }
+
+    /// A half-block cell's upper and lower pixel.
+    fn halves(c: &Cell) -> (Colour, Colour) {
+        match c.symbol {
+            ' ' => (c.bg, c.bg),
+            '▀' => (c.fg, c.bg),
+            other => panic!("not a half block: {other}"),
+        }
+    }
+
+    fn rgba(w: u32, h: u32, px: &[u8]) -> Rgba<'_> {
+        Rgba {
+            width: w,
+            height: h,
+            rgba: px,
+        }
+    }
+
+    #[test]
+    fn two_pixels_a_cell_are_taken_as_they_are() {
+        let px = frame(3, 4, |x, y| [x as u8 * 50, y as u8 * 60, 7]);
+        let s = Symbols::of(&rgba(3, 4, &px), 3, 2, SymbolSet::Half);
+        assert_eq!(s.cells.len(), 6);
+        assert_eq!(halves(&s.cells[0]), ([0, 0, 7], [0, 60, 7]));
+        assert_eq!(halves(&s.cells[5]), ([100, 120, 7], [100, 180, 7]));
+    }
+
+    #[test]
+    fn a_larger_frame_is_averaged_and_a_thin_line_survives() {
+        // 40×40 black with one white column at x = 13: over 4×2 half-block
+        // cells each pixel covers 10×10 frame pixels, so the line shows as a
+        // tenth of white (sampling one pixel in ten would lose it).
+        let px = frame(40, 40, |x, _| if x == 13 { [255; 3] } else { [0; 3] });
+        let s = Symbols::of(&rgba(40, 40, &px), 4, 2, SymbolSet::Half);
+        assert_eq!(halves(&s.cells[1]), ([26; 3], [26; 3]));
+        assert_eq!(halves(&s.cells[0]), ([0; 3], [0; 3]));
+        // In quadrants, the line's cell is lit on its left half only.
+        let q = Symbols::of(&rgba(40, 40, &px), 4, 2, SymbolSet::Quadrants);
+        assert_eq!(
+            (q.cells[1].symbol, q.cells[1].fg, q.cells[1].bg),
+            ('▌', [51; 3], [0; 3])
+        );
+    }
+
+    #[test]
+    fn a_smaller_frame_is_enlarged_and_odd_sizes_cover_every_pixel() {
+        let px = frame(2, 2, |x, y| [(x * 100 + y * 10) as u8, 0, 0]);
+        let s = Symbols::of(&rgba(2, 2, &px), 4, 2, SymbolSet::Half);
+        assert_eq!(halves(&s.cells[0]).0, [0, 0, 0]);
+        assert_eq!(halves(&s.cells[3]).0, [100, 0, 0]);
+        assert_eq!(halves(&s.cells[7]).1, [110, 0, 0]);
+        // 7×5 into 3×2 cells: no panic, every cell set from the frame.
+        let px = frame(7, 5, |_, _| [9, 9, 9]);
+        for set in SymbolSet::ALL {
+            let s = Symbols::of(&rgba(7, 5, &px), 3, 2, set);
+            assert!(s.cells.iter().all(|c| c.symbol == ' ' && c.bg == [9; 3]));
+        }
+        // Nothing to draw: black cells, no panic.
+        let s = Symbols::of(&rgba(0, 0, &[]), 3, 2, SymbolSet::Octants);
+        assert_eq!(s.cells.len(), 6);
+    }
+
+    #[test]
+    fn colours_are_written_only_when_they_change() {
+        let cell = |symbol, fg, bg| Cell { symbol, fg, bg };
+        let s = Symbols {
+            cols: 3,
+            rows: 1,
+            set: SymbolSet::Half,
+            cells: vec![
+                cell('▀', [1, 2, 3], [4, 5, 6]),
+                cell('▀', [1, 2, 3], [4, 5, 6]),
+                cell(' ', [4, 5, 6], [4, 5, 6]),
+            ],
+        };
+        assert_eq!(
+            s.ansi(Depth::True),
+            "\x1b[48;2;4;5;6m\x1b[38;2;1;2;3m▀▀ \x1b[0m\n"
+        );
+    }
+
+    #[test]
+    fn the_text_style_follows_the_terminal() {
+        let c = |names: &[&str], term, colorterm, features, tmux| {
+            let t = choose_text(names, term, colorterm, features, tmux);
+            (t.set, t.depth)
+        };
+        use Depth::*;
+        use SymbolSet::*;
+        // tmux passes 24-bit colour on only with the RGB feature.
+        assert_eq!(
+            c(&[], Some("screen-256color"), None, Some("256,title"), true),
+            (Quadrants, C256)
+        );
+        assert_eq!(
+            c(
+                &[],
+                Some("screen-256color"),
+                Some("truecolor"),
+                Some("256,RGB,title"),
+                true
+            ),
+            (Quadrants, True)
+        );
+        assert_eq!(
+            c(&[], Some("screen"), None, Some("title"), true),
+            (Quadrants, C16)
+        );
+        assert_eq!(
+            c(
+                &["xterm-kitty"],
+                Some("screen-256color"),
+                None,
+                Some("RGB"),
+                true
+            ),
+            (Sextants, True)
+        );
+        // Outside tmux: COLORTERM, then the name, then TERM.
+        assert_eq!(
+            c(
+                &["xterm-256color"],
+                Some("xterm-256color"),
+                Some("truecolor"),
+                None,
+                false
+            ),
+            (Quadrants, True)
+        );
+        assert_eq!(
+            c(
+                &["xterm-256color"],
+                Some("xterm-256color"),
+                None,
+                None,
+                false
+            ),
+            (Quadrants, C256)
+        );
+        assert_eq!(
+            c(&["kitty(0.26.5)"], Some("xterm-kitty"), None, None, false),
+            (Sextants, True)
+        );
+        assert_eq!(
+            c(&["vt100"], Some("vt100"), None, None, false),
+            (Quadrants, C16)
+        );
+    }
+}
