@@ -262,9 +262,9 @@ fn laz_declaring_no_points_with_a_corrupt_chunk_table_is_an_error() {
     d[table + 4..table + 8].copy_from_slice(&4_059_738_657u32.to_le_bytes());
     let bad = dir.path().join("bad.laz");
     std::fs::write(&bad, &d).unwrap();
-    let e = ingest::read_all(&bad, &ReadOptions::default())
-        .err()
-        .expect("a corrupt chunk table is refused");
+    let Err(e) = ingest::read_all(&bad, &ReadOptions::default()) else {
+        panic!("a corrupt chunk table is refused");
+    };
     let s = e.to_string();
     assert!(s.contains("bad.laz"), "{s}");
     assert!(s.contains(&format!("byte offset {}", table + 4)), "{s}");

@@ -410,7 +410,7 @@ fn the_binary_runs_in_tmux_and_restores_the_terminal() {
     tmux.inspect((150, 45), &path, "");
     tmux.wait_for("the panels", 10, |s| {
         s.contains("levels of part 1")
-            && s.contains("half-blocks")
+            && s.contains("view · text")
             && (s.contains("fps") || s.contains("idle"))
     });
     tmux.run(&["send-keys", "-t", "t", "1"]);

@@ -2,8 +2,8 @@
 #![allow(dead_code)]
 
 pub mod fuzz;
-pub mod proxy;
 pub mod http;
+pub mod proxy;
 pub mod pty;
 pub mod servers;
 pub mod tiffwalk;

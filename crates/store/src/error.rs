@@ -53,18 +53,18 @@ impl StoreError {
 
     /// Whether the same read may succeed later: a request to object storage
     /// that got no answer (refused, timed out, cut), a short answer, or a
-    /// server failing or throttling (HTTP 5xx, 429, 408). Not a missing or
+    /// server failing or throttling (HTTP 5xx, 429, 408): what a viewer
+    /// retries in the background. Not a missing or
     /// denied object, one replaced behind the index, nor bytes that do not
     /// decode: reading them again gives the same answer.
     pub fn transient(&self) -> bool {
         #[cfg(feature = "remote")]
         if let Some(r) = &self.remote {
-            use crate::remote::Problem as P;
-            return match &r.problem {
-                P::Network { .. } | P::WrongRange { .. } => true,
-                P::Status { status, .. } => *status >= 500 || matches!(*status, 408 | 429),
-                _ => false,
-            };
+            // What a request's own retries try again, and also a refused
+            // connection or an unknown host: a server that is down now may be
+            // back later (the request fails at once; this read waits).
+            return crate::remote::transient(&r.problem)
+                || matches!(&r.problem, crate::remote::Problem::Network { .. });
         }
         false
     }

@@ -356,7 +356,7 @@ impl RemoteFile {
             .remote
             .retrying(|| async move {
                 let f = InFlight::start(&self.remote);
-                match self.remote.store.head(&loc).await {
+                match self.remote.store.head(loc).await {
                     Ok(meta) => {
                         f.done(0, true);
                         Ok(meta)
