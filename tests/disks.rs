@@ -11,8 +11,6 @@
 //! while its index is rewritten always see a whole index.
 
 mod common;
-#[path = "common/weed.rs"]
-mod weed;
 
 use std::ffi::OsStr;
 use std::path::{Path, PathBuf};
@@ -198,14 +196,14 @@ fn a_conversion_to_s3_with_a_full_tmpdir_uploads_nothing() {
     if !common::tmpfs_available() {
         return;
     }
-    let Some(w) = weed::Weed::start() else {
+    let Some(w) = common::servers::Weed::start() else {
         return;
     };
     let t = tempfile::tempdir().unwrap();
     let input = synth(t.path(), "scan.las", 1_000_000);
     let hash = common::file_hash(&input);
     let m = mount_dir(t.path());
-    let url = format!("s3://{}/full/scan.pcimg", weed::BUCKET);
+    let url = format!("s3://{}/full/scan.pcimg", common::servers::WEED_BUCKET);
     let env = w.env();
     let mut envs: Vec<(&str, &OsStr)> = env.iter().map(|(k, v)| (*k, OsStr::new(v))).collect();
     envs.push(("TMPDIR", m.as_os_str()));
@@ -228,7 +226,11 @@ fn a_conversion_to_s3_with_a_full_tmpdir_uploads_nothing() {
     let err = stderr(&r.output);
     says_full(&err, &m);
     assert_eq!(r.after, Vec::<String>::new(), "left in $TMPDIR: {err}");
-    assert_eq!(w.list("full").unwrap(), Vec::<String>::new(), "{err}");
+    assert_eq!(
+        w.list("full").unwrap(),
+        Vec::<(String, u64)>::new(),
+        "{err}"
+    );
     assert_eq!(common::file_hash(&input), hash, "the input changed");
 }
 
@@ -237,12 +239,12 @@ fn a_full_cache_disk_stops_the_cache_not_the_view() {
     if !common::tmpfs_available() {
         return;
     }
-    let Some(w) = weed::Weed::start() else {
+    let Some(w) = common::servers::Weed::start() else {
         return;
     };
     let t = tempfile::tempdir().unwrap();
     let input = synth(t.path(), "scan.las", 1_000_000);
-    let url = format!("s3://{}/cached/scan.pcimg", weed::BUCKET);
+    let url = format!("s3://{}/cached/scan.pcimg", common::servers::WEED_BUCKET);
     let o = Command::new(exe())
         .args(["convert", "-q", "--memory", "1MiB", "-o", &url])
         .arg(&input)

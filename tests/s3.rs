@@ -9,137 +9,19 @@
 
 mod common;
 
-use object_store::ObjectStore;
 use std::path::{Path, PathBuf};
-use std::process::{Child, Command, Output, Stdio};
-use std::time::{Duration, Instant};
+use std::process::{Command, Output, Stdio};
 
-const KEY: &str = "pcimgtestkey";
-const SECRET: &str = "pcimgtestsecret";
-const BUCKET: &str = "pcimg";
+use common::servers::{WEED_BUCKET as BUCKET, WEED_KEY as KEY, WEED_SECRET as SECRET, Weed};
 
-/// A SeaweedFS server, killed and reaped on drop.
-struct Weed {
-    child: Child,
-    port: u16,
-    dir: tempfile::TempDir,
+/// What these tests do with the server beyond what `common::servers` gives.
+trait S3Test {
+    fn pcimg_with(&self, secret: &str, args: &[&str]) -> Command;
+    fn run(&self, args: &[&str]) -> Output;
+    fn gdal(&self, program: &str) -> Command;
 }
 
-impl Drop for Weed {
-    fn drop(&mut self) {
-        let _ = self.child.kill();
-        let _ = self.child.wait();
-    }
-}
-
-/// `n` distinct free TCP ports of 127.0.0.1 (held together while chosen).
-fn free_ports(n: usize) -> Vec<u16> {
-    let held: Vec<std::net::TcpListener> = (0..n)
-        .map(|_| std::net::TcpListener::bind("127.0.0.1:0").unwrap())
-        .collect();
-    held.iter()
-        .map(|l| l.local_addr().unwrap().port())
-        .collect()
-}
-
-impl Weed {
-    /// Starts `weed mini` with one identity and the bucket, and waits (at most
-    /// 30 s) until the bucket lists. `None` (outside CI) when `weed` is missing.
-    fn start() -> Option<Weed> {
-        if !common::tool_available("weed", "version") {
-            return None;
-        }
-        let dir = tempfile::tempdir().unwrap();
-        let config = dir.path().join("s3.json");
-        std::fs::write(
-            &config,
-            format!(
-                r#"{{"identities":[{{"name":"pcimg","credentials":[{{"accessKey":"{KEY}","secretKey":"{SECRET}"}}],"actions":["Admin","Read","Write","List","Tagging"]}}]}}"#
-            ),
-        )
-        .unwrap();
-        let data = dir.path().join("data");
-        std::fs::create_dir(&data).unwrap();
-        let p = free_ports(10);
-        let log = std::fs::File::create(dir.path().join("weed.log")).unwrap();
-        let child = Command::new("weed")
-            .arg("mini")
-            .arg(format!("-dir={}", data.display()))
-            .args(["-ip=127.0.0.1", "-ip.bind=127.0.0.1"])
-            .arg(format!("-master.port={}", p[0]))
-            .arg(format!("-master.port.grpc={}", p[1]))
-            .arg(format!("-volume.port={}", p[2]))
-            .arg(format!("-volume.port.grpc={}", p[3]))
-            .arg(format!("-filer.port={}", p[4]))
-            .arg(format!("-filer.port.grpc={}", p[5]))
-            .arg(format!("-s3.port={}", p[6]))
-            .arg(format!("-s3.port.grpc={}", p[7]))
-            .arg(format!("-admin.port={}", p[8]))
-            .arg(format!("-admin.port.grpc={}", p[9]))
-            .args(["-admin.ui=false", "-webdav=false"])
-            .args(["-s3.port.iceberg=0", "-s3.port.lance=0"])
-            .arg(format!("-s3.config={}", config.display()))
-            .arg(format!("-bucket={BUCKET}"))
-            .stdin(Stdio::null())
-            .stdout(log.try_clone().unwrap())
-            .stderr(log)
-            .spawn()
-            .expect("cannot start weed");
-        let w = Weed {
-            child,
-            port: p[6],
-            dir,
-        };
-        let start = Instant::now();
-        loop {
-            if w.list("").is_ok() {
-                return Some(w);
-            }
-            assert!(
-                start.elapsed() < Duration::from_secs(30),
-                "SeaweedFS did not serve the bucket within 30 s; its log:\n{}",
-                std::fs::read_to_string(w.dir.path().join("weed.log")).unwrap_or_default()
-            );
-            std::thread::sleep(Duration::from_millis(100));
-        }
-    }
-
-    fn endpoint(&self) -> String {
-        format!("http://127.0.0.1:{}", self.port)
-    }
-
-    /// The objects under `prefix` and their sizes, listed by the test itself.
-    fn list(&self, prefix: &str) -> object_store::Result<Vec<(String, u64)>> {
-        use futures_util::TryStreamExt;
-        // reqwest is built without a TLS provider (as pcimg installs ring).
-        let _ = rustls::crypto::ring::default_provider().install_default();
-        let store = object_store::aws::AmazonS3Builder::new()
-            .with_endpoint(self.endpoint())
-            .with_allow_http(true)
-            .with_bucket_name(BUCKET)
-            .with_region("us-east-1")
-            .with_access_key_id(KEY)
-            .with_secret_access_key(SECRET)
-            .with_retry(object_store::RetryConfig {
-                max_retries: 0,
-                ..Default::default()
-            })
-            .build()?;
-        let rt = tokio::runtime::Builder::new_current_thread()
-            .enable_all()
-            .build()
-            .unwrap();
-        let prefix = (!prefix.is_empty()).then(|| object_store::path::Path::from(prefix));
-        let got: Vec<object_store::ObjectMeta> =
-            rt.block_on(store.list(prefix.as_ref()).try_collect())?;
-        let mut v: Vec<(String, u64)> = got
-            .into_iter()
-            .map(|m| (m.location.to_string(), m.size))
-            .collect();
-        v.sort();
-        Ok(v)
-    }
-
+impl S3Test for Weed {
     /// `pcimg ARGS` with this server's endpoint and keys (the secret given).
     fn pcimg_with(&self, secret: &str, args: &[&str]) -> Command {
         let mut c = Command::new(env!("CARGO_BIN_EXE_pcimg"));
@@ -158,7 +40,7 @@ impl Weed {
         c
     }
 
-    fn pcimg(&self, args: &[&str]) -> Output {
+    fn run(&self, args: &[&str]) -> Output {
         self.pcimg_with(SECRET, args).output().unwrap()
     }
 
@@ -277,7 +159,7 @@ fn a_dataset_converted_to_s3_reads_back_as_the_local_one() {
         .output()
         .unwrap();
     ok(&o, "local convert");
-    let o = weed.pcimg(&[&conv[..], &[input.to_str().unwrap(), "-o", &url]].concat());
+    let o = weed.run(&[&conv[..], &[input.to_str().unwrap(), "-o", &url]].concat());
     let out = ok(&o, "convert -o s3://");
     assert!(out.contains("uploaded") && out.contains(&url), "{out}");
 
@@ -306,7 +188,7 @@ fn a_dataset_converted_to_s3_reads_back_as_the_local_one() {
         .arg(&local)
         .output()
         .unwrap();
-    let info_there = weed.pcimg(&["info", "--json", &url]);
+    let info_there = weed.run(&["info", "--json", &url]);
     assert_eq!(
         info_json(&ok(&info_here, "info")),
         info_json(&ok(&info_there, "info s3://"))
@@ -367,10 +249,10 @@ fn a_dataset_converted_to_s3_reads_back_as_the_local_one() {
 
     // Converting again is refused without --force, and allowed with it.
     let again = [&conv[..], &[input.to_str().unwrap(), "-o", &url]].concat();
-    let e = err(&weed.pcimg(&again), "convert over a dataset");
+    let e = err(&weed.run(&again), "convert over a dataset");
     assert!(e.contains(&url) && e.contains("--force"), "{e}");
     let forced = [&again[..], &["--force"]].concat();
-    ok(&weed.pcimg(&forced), "convert --force");
+    ok(&weed.run(&forced), "convert --force");
     let after = weed.list("city.pcimg").unwrap();
     assert_eq!(after.len(), here.len());
 
@@ -386,10 +268,7 @@ fn a_dataset_converted_to_s3_reads_back_as_the_local_one() {
     );
     // A dataset that is not there: 404 / not found, naming the index's URL.
     let missing = format!("s3://{BUCKET}/nothing.pcimg");
-    let e = err(
-        &weed.pcimg(&["info", &missing]),
-        "info of a missing dataset",
-    );
+    let e = err(&weed.run(&["info", &missing]), "info of a missing dataset");
     assert!(
         e.contains(&format!("{missing}/pcimg-index.json")) && e.contains("not found"),
         "{e}"

@@ -4,7 +4,6 @@
 //! folder, and SeaweedFS (`weed mini`) with one SigV4 identity and a bucket.
 //! `None` (outside CI) when the program is missing; with CI=true a failure.
 
-use std::path::Path;
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
@@ -18,58 +17,10 @@ pub fn free_ports(n: usize) -> Vec<u16> {
         .collect()
 }
 
-/// `python3 -m http.server` serving a folder, killed and reaped on drop.
-pub struct HttpServer {
-    child: Child,
-    pub port: u16,
-}
-
-impl Drop for HttpServer {
-    fn drop(&mut self) {
-        let _ = self.child.kill();
-        let _ = self.child.wait();
-    }
-}
-
-impl HttpServer {
-    /// Serves `dir`, and returns once the port accepts connections (at most 30 s).
-    pub fn start(dir: &Path) -> Option<HttpServer> {
-        if !super::tool_available("python3", "--version") {
-            return None;
-        }
-        let port = free_ports(1)[0];
-        let child = Command::new("python3")
-            .args(["-m", "http.server", "--bind", "127.0.0.1"])
-            .arg(port.to_string())
-            .arg("--directory")
-            .arg(dir)
-            .stdin(Stdio::null())
-            .stdout(Stdio::null())
-            .stderr(Stdio::null())
-            .spawn()
-            .expect("cannot start python3 -m http.server");
-        let mut s = HttpServer { child, port };
-        let start = Instant::now();
-        loop {
-            let addr = s.addr();
-            if std::net::TcpStream::connect_timeout(&addr, Duration::from_millis(200)).is_ok() {
-                return Some(s);
-            }
-            if let Some(status) = s.child.try_wait().unwrap() {
-                panic!("python3 -m http.server exited ({status}) before serving");
-            }
-            assert!(
-                start.elapsed() < Duration::from_secs(30),
-                "python3 -m http.server did not accept connections within 30 s"
-            );
-            std::thread::sleep(Duration::from_millis(20));
-        }
-    }
-
-    pub fn addr(&self) -> std::net::SocketAddr {
-        std::net::SocketAddr::from(([127, 0, 0, 1], self.port))
-    }
-}
+/// `python3 -m http.server` serving a folder (one that can also be stopped and
+/// started again on its port).
+#[allow(unused_imports)]
+pub use super::http::HttpServer;
 
 pub const WEED_KEY: &str = "pcimgtestkey";
 pub const WEED_SECRET: &str = "pcimgtestsecret";
@@ -191,6 +142,18 @@ impl Weed {
             .collect();
         v.sort();
         Ok(v)
+    }
+
+    /// The environment that points pcimg at this server.
+    pub fn env(&self) -> Vec<(&'static str, String)> {
+        vec![
+            ("AWS_ENDPOINT", self.endpoint()),
+            ("AWS_ALLOW_HTTP", "true".into()),
+            ("AWS_REGION", "us-east-1".into()),
+            ("AWS_ACCESS_KEY_ID", WEED_KEY.into()),
+            ("AWS_SECRET_ACCESS_KEY", WEED_SECRET.into()),
+            ("NODEVICE_SELECT", "1".into()),
+        ]
     }
 
     /// `pcimg ARGS` with the keys of this server and `endpoint` (this server,
