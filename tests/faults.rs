@@ -494,3 +494,144 @@ fn uploads_through_faults_complete_or_leave_nothing_and_say_so() {
     let left: Vec<_> = std::fs::read_dir(&tmp).unwrap().collect();
     assert!(left.is_empty(), "left in TMPDIR: {left:?}");
 }
+
+/// A store of the test's SeaweedFS reached at `endpoint` (a proxy in front
+/// of it), configured by the caller as a program would, not by `AWS_*`.
+fn s3_remote(endpoint: &str, prefix: &str, timeout: Duration) -> pcimg::remote::Remote {
+    use common::servers::{WEED_KEY, WEED_SECRET};
+    pcimg::remote::Remote::open_configured(
+        &format!("s3://{WEED_BUCKET}/{prefix}"),
+        &pcimg::remote::Options { timeout },
+        &[
+            ("aws_endpoint", endpoint),
+            ("aws_allow_http", "true"),
+            ("aws_region", "us-east-1"),
+            ("aws_access_key_id", WEED_KEY),
+            ("aws_secret_access_key", WEED_SECRET),
+        ],
+    )
+    .unwrap()
+}
+
+/// A file above the multipart threshold through faults on its parts and on
+/// the completing request: each part is sent again by itself (the same part
+/// number) until the upload completes, byte for byte; a part that keeps
+/// failing aborts the upload within the time limit, names the part, and
+/// leaves no object.
+#[test]
+fn large_uploads_retry_each_part_and_abort_when_one_keeps_failing() {
+    use pcimg::remote::upload::{MULTIPART_ABOVE, Uploader};
+    use std::sync::Arc;
+    use std::sync::atomic::AtomicBool;
+    let Some(weed) = Weed::start() else { return };
+    let dir = tempfile::tempdir().unwrap();
+    let local = dir.path().join("big.bin");
+    // Three parts (8 + 8 + 4 MiB) of bytes that differ everywhere.
+    let size = MULTIPART_ABOVE as usize + (4 << 20);
+    let mut rng = pcimg::synth::Rng::new(39);
+    let data: Vec<u8> = (0..size).map(|_| rng.next_u64() as u8).collect();
+    std::fs::write(&local, &data).unwrap();
+    let proxy = Proxy::start(weed.addr());
+    let upload = |prefix: &str, timeout: Duration| {
+        let remote = Arc::new(s3_remote(&proxy.url(), prefix, timeout));
+        let up = Uploader::new(remote, Arc::new(AtomicBool::new(false)));
+        up.start(&local, "big.bin")
+            .and_then(|()| up.wait())
+            .map(|()| up.uploaded("big.bin"))
+    };
+
+    proxy.set(vec![
+        Rule::new(Fault::Status500)
+            .matching("partNumber=2")
+            .times(2),
+        Rule::new(Fault::Reset).matching("partNumber=3").times(1),
+        Rule::new(Fault::SlowDown)
+            .matching("POST ")
+            .after(1)
+            .times(1),
+    ]);
+    let got = upload("ok", Duration::from_secs(10)).expect("the upload through passing faults");
+    assert_eq!(got.map(|g| g.0), Some(size as u64));
+    assert_eq!(proxy.faults(), 4, "{:?}", proxy.log());
+    // Parts 2 and 3 sent again, by the same part number.
+    for (n, times) in [(1, 1), (2, 3), (3, 2)] {
+        assert_eq!(
+            proxy.count(&format!("partNumber={n}&")),
+            times,
+            "part {n}: {:?}",
+            proxy.log()
+        );
+    }
+    assert!(
+        weed.get("ok/big.bin").unwrap() == data,
+        "the object differs from the file"
+    );
+
+    proxy.reset_counters();
+    proxy.set(vec![Rule::new(Fault::Status500).matching("partNumber=2")]);
+    let start = Instant::now();
+    let e = upload("cut", Duration::from_secs(2)).expect_err("a part that keeps failing");
+    assert!(
+        start.elapsed() < Duration::from_secs(20),
+        "{:?}",
+        start.elapsed()
+    );
+    assert!(
+        e.contains(&format!("s3://{WEED_BUCKET}/cut/big.bin"))
+            && e.contains("part 2")
+            && e.contains("HTTP 500"),
+        "{e}"
+    );
+    // Aborted: the parts the server held are deleted, no object is made.
+    assert!(
+        proxy
+            .log()
+            .iter()
+            .any(|r| r.line.starts_with("DELETE ") && r.line.contains("uploadId=")),
+        "no abort: {:?}",
+        proxy.log()
+    );
+    assert_eq!(weed.list("cut").unwrap(), vec![], "left in the bucket");
+}
+
+/// A part smaller than the first read (64 KiB) opened by its URL from a
+/// server that honours Range: the first request asks no further than its
+/// end (an answer shorter than asked was taken for a cut body and retried
+/// until the time limit).
+#[test]
+fn a_small_part_opens_by_its_s3_url_without_retries() {
+    let Some(weed) = Weed::start() else { return };
+    let dir = tempfile::tempdir().unwrap();
+    let xyz = dir.path().join("t.xyz");
+    std::fs::write(&xyz, "0 0 0\n1 1 1\n2 0 1\n").unwrap();
+    let part = dir.path().join("t.tif");
+    let o = pcimg()
+        .args(["convert", "-q", "--compression", "zstd"])
+        .arg(&xyz)
+        .arg("-o")
+        .arg(&part)
+        .output()
+        .unwrap();
+    ok(&o, "convert");
+    weed.put("small/t.tif", std::fs::read(&part).unwrap())
+        .unwrap();
+    let url = format!("s3://{WEED_BUCKET}/small/t.tif");
+    let here = pcimg()
+        .args(["info", "--json"])
+        .arg(&part)
+        .output()
+        .unwrap();
+    let there = weed
+        .pcimg(
+            &weed.endpoint(),
+            &["info", "--json", "--net-stats", "--timeout", "20s", &url],
+        )
+        .output()
+        .unwrap();
+    assert_eq!(
+        info_json(&ok(&here, "info")),
+        info_json(&ok(&there, "info of a small part in S3"))
+    );
+    let stats = String::from_utf8_lossy(&there.stderr);
+    assert!(stats.contains(", 0 failed"), "{stats}");
+}

@@ -509,6 +509,7 @@ fn read_points(
 /// Four small parts side by side, indexed, with their overview: `dir` (made).
 pub fn indexed_dataset(dir: &Path) -> anyhow::Result<()> {
     use pcimg::points::{Attribute, PointColumns};
+    use pcimg::store::Compression;
     std::fs::create_dir_all(dir)?;
     let mut r = Rng::new(5);
     for j in 0..2 {
@@ -526,10 +527,22 @@ pub fn indexed_dataset(dir: &Path) -> anyhow::Result<()> {
                     .values
                     .push((r.f64() * 255.0).round() as f32);
             }
+            // A different codec in each part: every tile decoder is fuzzed,
+            // and the bytes served per case stay few (an uncompressed part is
+            // a 256 × 256 tile per band: a megabyte a case to send).
+            let compression = [
+                Compression::Zstd,
+                Compression::Deflate,
+                Compression::LercZstd,
+                Compression::Lerc,
+            ][2 * j + i];
             write_part(
                 &dir.join(format!("tile-{i}-{j}.tif")),
                 &c,
-                &WriteOptions::default(),
+                &WriteOptions {
+                    compression,
+                    ..WriteOptions::default()
+                },
             )?;
         }
     }

@@ -110,11 +110,11 @@ impl Weed {
         format!("http://127.0.0.1:{}", self.port)
     }
 
-    /// The objects under `prefix` and their sizes, listed by the test itself
-    /// (straight from the server, not through any proxy).
-    pub fn list(&self, prefix: &str) -> object_store::Result<Vec<(String, u64)>> {
-        use futures_util::TryStreamExt;
-        use object_store::ObjectStore;
+    /// The server's bucket, reached by the test itself (straight, not through
+    /// any proxy), and a runtime to wait on it.
+    fn store(
+        &self,
+    ) -> object_store::Result<(object_store::aws::AmazonS3, tokio::runtime::Runtime)> {
         // reqwest is built without a TLS provider (as pcimg installs ring).
         let _ = rustls::crypto::ring::default_provider().install_default();
         let store = object_store::aws::AmazonS3Builder::new()
@@ -133,6 +133,15 @@ impl Weed {
             .enable_all()
             .build()
             .unwrap();
+        Ok((store, rt))
+    }
+
+    /// The objects under `prefix` and their sizes, listed by the test itself
+    /// (straight from the server, not through any proxy).
+    pub fn list(&self, prefix: &str) -> object_store::Result<Vec<(String, u64)>> {
+        use futures_util::TryStreamExt;
+        use object_store::ObjectStore;
+        let (store, rt) = self.store()?;
         let prefix = (!prefix.is_empty()).then(|| object_store::path::Path::from(prefix));
         let got: Vec<object_store::ObjectMeta> =
             rt.block_on(store.list(prefix.as_ref()).try_collect())?;
@@ -142,6 +151,23 @@ impl Weed {
             .collect();
         v.sort();
         Ok(v)
+    }
+
+    /// The object `name` of the bucket, read by the test itself.
+    pub fn get(&self, name: &str) -> object_store::Result<Vec<u8>> {
+        use object_store::ObjectStoreExt;
+        let (store, rt) = self.store()?;
+        let loc = object_store::path::Path::from(name);
+        rt.block_on(async { Ok(store.get(&loc).await?.bytes().await?.to_vec()) })
+    }
+
+    /// Stores `data` as the object `name` of the bucket, by the test itself.
+    pub fn put(&self, name: &str, data: Vec<u8>) -> object_store::Result<()> {
+        use object_store::ObjectStoreExt;
+        let (store, rt) = self.store()?;
+        let loc = object_store::path::Path::from(name);
+        rt.block_on(store.put(&loc, data.into()))?;
+        Ok(())
     }
 
     /// The environment that points pcimg at this server.

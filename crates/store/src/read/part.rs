@@ -8,7 +8,7 @@ use crate::points::Bounds;
 use crate::spec::{self, key, tag};
 use crate::tiff::ifd::{Ifd, Tiff};
 use crate::tiff::metadata::{self, LevelIndex};
-use crate::tiff::zorder::tile_z_to_raster;
+use crate::tiff::zorder::shared_tile_z_to_raster;
 use memmap2::Mmap;
 use std::collections::BTreeMap;
 use std::fs::File;
@@ -463,7 +463,6 @@ impl Part {
                     )
             })
             .collect();
-        let mut lut_cache: BTreeMap<u32, Arc<Vec<u32>>> = BTreeMap::new();
         for (k, level) in levels.iter_mut().enumerate() {
             level.index = k;
             let tw = level.tile_width;
@@ -475,12 +474,7 @@ impl Part {
                 && level.tiles_across == level.tiles_down;
             // The paper's layout is row-major: tiles read in raster order.
             if z_ok && meta.layout != spec::layout::PAPER {
-                level.z_lut = Some(
-                    lut_cache
-                        .entry(tw)
-                        .or_insert_with(|| Arc::new(tile_z_to_raster(tw.trailing_zeros())))
-                        .clone(),
-                );
+                level.z_lut = Some(shared_tile_z_to_raster(tw.trailing_zeros()));
             }
             let own = ifds_software(&tiff, data, &ifds, level.width) && pyramid_ok[k];
             Self::attach_index(level, index.as_deref(), k, own, &meta).map_err(err)?;

@@ -135,9 +135,19 @@ impl Part {
                 .unwrap_or(m);
             StoreError::new(path, m)
         };
-        // The first request tells the size (and pins the ETag).
+        // The first request tells the size (and pins the ETag). It must not
+        // ask past the object's end (a server answers such a range with the
+        // bytes there are, as it should, but the answer then differs from
+        // the request): where no index gives the size, a HEAD request does.
         let first = if head > 0 { head } else { FIRST_READ };
-        let first = expect.map_or(first, |e| first.min(e));
+        let known = match expect {
+            Some(e) => e,
+            None => file.size().map_err(StoreError::remote)?,
+        };
+        if known == 0 {
+            return Err(err("file is empty".into()));
+        }
+        let first = first.min(known);
         let got = file
             .read_ranges(&[0..first.max(1)])
             .map_err(StoreError::remote)?;

@@ -347,6 +347,16 @@ impl RemoteFile {
         self.fetch_merged(&url, ranges).await
     }
 
+    /// The object's size: known from a request already made, or asked for by
+    /// a HEAD request (pinning the ETag as the first ranged request does).
+    pub(crate) fn size(&self) -> Result<u64, RemoteError> {
+        if let Some(s) = self.seen.get() {
+            return Ok(s.0);
+        }
+        super::block_on(self.head())?;
+        Ok(self.seen.get().map_or(0, |s| s.0))
+    }
+
     /// The object's size and ETag by a HEAD request (pinning them as the first
     /// ranged request does).
     async fn head(&self) -> Result<(), RemoteError> {

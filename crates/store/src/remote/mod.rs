@@ -88,9 +88,13 @@ impl Drop for InFlight {
 }
 
 /// A dataset's location in object storage: the store and the prefix under it.
-#[derive(Debug, Clone)]
+#[derive(Clone)]
 pub struct Remote {
     pub store: Arc<dyn ObjectStore>,
+    /// The same store's multipart API where it has one (S3, GCS, Azure): large
+    /// uploads then send each part, and retry it, themselves
+    /// (`upload::put_parts`).
+    pub multipart: Option<Arc<dyn object_store::multipart::MultipartStore>>,
     pub prefix: ObjPath,
     /// The URL as given, without a trailing `/` (messages).
     pub url: String,
@@ -102,6 +106,18 @@ pub struct Remote {
     pub ignores_range: Arc<AtomicBool>,
     /// Retries and timeouts.
     pub options: Options,
+}
+
+impl std::fmt::Debug for Remote {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Remote")
+            .field("store", &self.store)
+            .field("multipart", &self.multipart.is_some())
+            .field("prefix", &self.prefix)
+            .field("url", &self.url)
+            .field("options", &self.options)
+            .finish_non_exhaustive()
+    }
 }
 
 /// How requests to object storage are retried and when one is given up: the
@@ -180,6 +196,21 @@ impl Options {
     }
 }
 
+/// `builder` with each of `config`'s keys set, or which key its store does
+/// not know.
+fn configure<B, K: std::str::FromStr>(
+    builder: B,
+    config: &[(&str, &str)],
+    set: impl Fn(B, K, String) -> B,
+) -> Result<B, String> {
+    config.iter().try_fold(builder, |b, (k, v)| {
+        let key = k
+            .parse::<K>()
+            .map_err(|_| format!("{k:?} is not a setting of this store"))?;
+        Ok(set(b, key, v.to_string()))
+    })
+}
+
 /// Waits between tries of one read: exponential, with full jitter (a random
 /// wait between the first and twice the previous, at most the largest).
 struct Backoff {
@@ -242,6 +273,21 @@ impl Remote {
 
     /// As [`Remote::open`], retrying and timing out as `options` say.
     pub fn open_with(url: &str, options: &Options) -> Result<Remote, RemoteError> {
+        Remote::open_configured(url, options, &[])
+    }
+
+    /// As [`Remote::open_with`], with the store's settings given as well as
+    /// read from the environment: `config` holds object_store's keys and
+    /// values (`aws_endpoint`, `aws_access_key_id`, `google_service_account`,
+    /// `azure_storage_account_name`, ...; see its `AmazonS3ConfigKey`,
+    /// `GoogleConfigKey` and `AzureConfigKey`), which win over the
+    /// environment's. For callers that hold credentials themselves (a
+    /// program, a test) rather than in `AWS_*`.
+    pub fn open_configured(
+        url: &str,
+        options: &Options,
+        config: &[(&str, &str)],
+    ) -> Result<Remote, RemoteError> {
         // The client is made here: TLS (ring) must be installed first.
         let _ = runtime();
         let trimmed = url.trim_end_matches('/');
@@ -254,11 +300,24 @@ impl Remote {
         use object_store::ObjectStoreScheme as S;
         let retry = options.retry();
         let keys = options.client_keys();
-        let store: Arc<dyn ObjectStore> = match scheme {
-            S::AmazonS3 => Arc::new(
+        /// A store, with its multipart API.
+        type Both = (
+            Arc<dyn ObjectStore>,
+            Option<Arc<dyn object_store::multipart::MultipartStore>>,
+        );
+        fn both<S: ObjectStore + object_store::multipart::MultipartStore>(s: Arc<S>) -> Both {
+            (s.clone(), Some(s))
+        }
+        let (store, multipart): Both = match scheme {
+            S::AmazonS3 => both(Arc::new(
                 keys.iter()
                     .fold(
-                        object_store::aws::AmazonS3Builder::from_env().with_url(trimmed),
+                        configure(
+                            object_store::aws::AmazonS3Builder::from_env().with_url(trimmed),
+                            config,
+                            object_store::aws::AmazonS3Builder::with_config,
+                        )
+                        .map_err(bad)?,
                         |b, (k, v)| {
                             b.with_config(object_store::aws::AmazonS3ConfigKey::Client(*k), v)
                         },
@@ -266,11 +325,17 @@ impl Remote {
                     .with_retry(retry.clone())
                     .build()
                     .map_err(fail)?,
-            ),
-            S::GoogleCloudStorage => Arc::new(
+            )),
+            S::GoogleCloudStorage => both(Arc::new(
                 keys.iter()
                     .fold(
-                        object_store::gcp::GoogleCloudStorageBuilder::from_env().with_url(trimmed),
+                        configure(
+                            object_store::gcp::GoogleCloudStorageBuilder::from_env()
+                                .with_url(trimmed),
+                            config,
+                            object_store::gcp::GoogleCloudStorageBuilder::with_config,
+                        )
+                        .map_err(bad)?,
                         |b, (k, v)| {
                             b.with_config(object_store::gcp::GoogleConfigKey::Client(*k), v)
                         },
@@ -278,11 +343,17 @@ impl Remote {
                     .with_retry(retry.clone())
                     .build()
                     .map_err(fail)?,
-            ),
-            S::MicrosoftAzure => Arc::new(
+            )),
+            S::MicrosoftAzure => both(Arc::new(
                 keys.iter()
                     .fold(
-                        object_store::azure::MicrosoftAzureBuilder::from_env().with_url(trimmed),
+                        configure(
+                            object_store::azure::MicrosoftAzureBuilder::from_env()
+                                .with_url(trimmed),
+                            config,
+                            object_store::azure::MicrosoftAzureBuilder::with_config,
+                        )
+                        .map_err(bad)?,
                         |b, (k, v)| {
                             b.with_config(object_store::azure::AzureConfigKey::Client(*k), v)
                         },
@@ -290,21 +361,27 @@ impl Remote {
                     .with_retry(retry.clone())
                     .build()
                     .map_err(fail)?,
-            ),
+            )),
             // The client refuses plain http:// unless told (`ClientOptions`
             // defaults to HTTPS only: reqwest's `https_only`, whose every
             // request then fails as a "builder error"). An http:// URL asks for
             // plain HTTP; an https:// one keeps refusing it (e.g. on a redirect).
-            S::Http => Arc::new(
-                object_store::http::HttpBuilder::new()
-                    .with_url(&u[..url::Position::BeforePath])
-                    .with_client_options(keys.iter().fold(
-                        object_store::ClientOptions::new().with_allow_http(u.scheme() == "http"),
-                        |o, (k, v)| o.with_config(*k, v),
-                    ))
-                    .with_retry(retry)
-                    .build()
-                    .map_err(fail)?,
+            S::Http => (
+                Arc::new(
+                    object_store::http::HttpBuilder::new()
+                        .with_url(&u[..url::Position::BeforePath])
+                        .with_client_options(
+                            keys.iter().fold(
+                                object_store::ClientOptions::new()
+                                    .with_allow_http(u.scheme() == "http"),
+                                |o, (k, v)| o.with_config(*k, v),
+                            ),
+                        )
+                        .with_retry(retry)
+                        .build()
+                        .map_err(fail)?,
+                ) as Arc<dyn ObjectStore>,
+                None,
             ),
             other => {
                 return Err(bad(format!(
@@ -315,6 +392,7 @@ impl Remote {
         let prefix = ObjPath::parse(path.as_ref()).map_err(|e| bad(e.to_string()))?;
         Ok(Remote {
             store,
+            multipart,
             prefix,
             url: trimmed.to_string(),
             requests: Default::default(),
@@ -327,6 +405,7 @@ impl Remote {
     pub fn with_store(store: Arc<dyn ObjectStore>, prefix: &str, url: &str) -> Remote {
         Remote {
             store,
+            multipart: None,
             prefix: ObjPath::from(prefix),
             url: url.trim_end_matches('/').to_string(),
             requests: Default::default(),

@@ -1,6 +1,10 @@
 //! Local files uploaded to object storage in the background: `put` for small
 //! files, a multipart upload (aborted on failure or cancel) above
-//! [`MULTIPART_ABOVE`]; every object started is remembered so that a failed or
+//! [`MULTIPART_ABOVE`]. Every request is retried within the time limit as
+//! [`Remote::retrying`] says: the whole `put`, and each part of a multipart
+//! upload on its own ([`put_parts`], through the store's low-level multipart
+//! API: object_store's `WriteMultipart` retries a part only as its own client
+//! does, three times, and a part cannot be sent again through it). Every object started is remembered so that a failed or
 //! interrupted upload can delete what it wrote, and every object uploaded its
 //! ETag (for the dataset index). A queued file is held by a hard link in a
 //! queue directory, not an open file, and opened when its upload starts (a
@@ -331,6 +335,9 @@ async fn put_file(
         sent.fetch_add(n, Ordering::Relaxed);
         return Ok((n, put.e_tag));
     }
+    if let Some(mp) = &remote.multipart {
+        return put_parts(remote, mp.as_ref(), file, &shown, name, cancel, sent).await;
+    }
     let f = InFlight::start(remote);
     let up = remote.store.put_multipart(&loc).await;
     f.done(0, up.is_ok());
@@ -345,23 +352,17 @@ async fn put_file(
             let _ = w.abort().await;
             return Err(fail(e));
         }
-        let mut chunk = vec![0u8; PART_SIZE];
-        let mut got = 0;
-        while got < chunk.len() {
-            match file.read(&mut chunk[got..]) {
-                Ok(0) => break,
-                Ok(n) => got += n,
-                Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
-                Err(e) => {
-                    let _ = w.abort().await;
-                    return Err(format!("{shown}: cannot read: {e}"));
-                }
+        let chunk = match read_part(&mut file) {
+            Ok(c) => c,
+            Err(e) => {
+                let _ = w.abort().await;
+                return Err(format!("{shown}: cannot read: {e}"));
             }
-        }
+        };
+        let got = chunk.len();
         if got == 0 {
             break;
         }
-        chunk.truncate(got);
         w.put(chunk.into());
         done += got as u64;
         sent.fetch_add(got as u64, Ordering::Relaxed);
@@ -386,4 +387,159 @@ async fn put_file(
     f.done(0, r.is_ok());
     let put = r.map_err(fail)?;
     Ok((done, put.e_tag))
+}
+
+/// One request of a multipart upload, retried within the time limit; `what`
+/// names the step in the error.
+async fn step<T, Fut>(
+    remote: &Remote,
+    url: &str,
+    what: &str,
+    mut attempt: impl FnMut() -> Fut,
+) -> Result<T, String>
+where
+    Fut: std::future::Future<Output = object_store::Result<T>>,
+{
+    remote
+        .retrying(|| {
+            let f = InFlight::start(remote);
+            let a = attempt();
+            async move {
+                let r = a.await;
+                f.done(0, r.is_ok());
+                r.map_err(|e| RemoteError::new(url, Problem::of(&e)))
+            }
+        })
+        .await
+        .map_err(|e| {
+            let gave_up = e.gave_up.map(|g| g.to_string()).unwrap_or_default();
+            format!("{}: cannot upload ({what}): {}{gave_up}", e.url, e.problem)
+        })
+}
+
+/// A file above [`MULTIPART_ABOVE`] sent as a multipart upload through the
+/// store's own multipart API: parts of [`PART_SIZE`] read in turn,
+/// [`PARTS_AT_ONCE`] in flight, each retried on its own (the same part number
+/// again, so a part sent twice is stored once). Aborted (the parts the server
+/// holds deleted) on any failure or on `cancel`. The bytes and the ETag.
+async fn put_parts(
+    remote: &Remote,
+    mp: &dyn object_store::multipart::MultipartStore,
+    mut file: std::fs::File,
+    shown: &str,
+    name: &str,
+    cancel: &AtomicBool,
+    sent: &AtomicU64,
+) -> Result<(u64, Option<String>), String> {
+    use futures_util::StreamExt;
+    use futures_util::stream::FuturesUnordered;
+    let url = remote.url_of(name);
+    let loc = remote.location(name);
+    let (url, loc) = (&url, &loc);
+    let id = &step(remote, url, "starting a multipart upload", || {
+        mp.create_multipart(loc)
+    })
+    .await?;
+    let abort = || async {
+        // Best effort: a server that keeps failing keeps the parts until its
+        // own lifecycle rule removes them; the error says the upload failed.
+        let _ = tokio::time::timeout(remote.options.timeout, mp.abort_multipart(loc, id)).await;
+    };
+    let mut parts: Vec<Option<object_store::multipart::PartId>> = Vec::new();
+    let mut flying = FuturesUnordered::new();
+    let mut done = 0u64;
+    let mut eof = false;
+    let result: Result<(), String> = async {
+        loop {
+            if cancel.load(Ordering::Relaxed) {
+                return Err(format!("{url}: upload interrupted"));
+            }
+            if !eof && flying.len() < PARTS_AT_ONCE {
+                let chunk =
+                    read_part(&mut file).map_err(|e| format!("{shown}: cannot read: {e}"))?;
+                if chunk.is_empty() {
+                    eof = true;
+                } else {
+                    let idx = parts.len();
+                    parts.push(None);
+                    let n = chunk.len() as u64;
+                    let payload = PutPayload::from(chunk);
+                    let what = format!("part {}", idx + 1);
+                    flying.push(async move {
+                        let r = step(remote, url, &what, || {
+                            mp.put_part(loc, id, idx, payload.clone())
+                        })
+                        .await;
+                        (idx, n, r)
+                    });
+                    continue;
+                }
+            }
+            // Wait for a part, waking now and then to see `cancel`.
+            match tokio::time::timeout(Duration::from_millis(100), flying.next()).await {
+                Ok(Some((idx, n, r))) => {
+                    parts[idx] = Some(r?);
+                    done += n;
+                    sent.fetch_add(n, Ordering::Relaxed);
+                }
+                Ok(None) => return Ok(()),
+                Err(_) => {}
+            }
+        }
+    }
+    .await;
+    if let Err(e) = result {
+        drop(flying);
+        abort().await;
+        return Err(e);
+    }
+    let parts: Vec<_> = parts
+        .into_iter()
+        .map(|p| p.expect("every part sent"))
+        .collect();
+    let mut tries = 0;
+    let completed = step(remote, url, "completing the multipart upload", || {
+        tries += 1;
+        let first = tries == 1;
+        let parts = parts.clone();
+        async move {
+            match mp.complete_multipart(loc, id, parts).await {
+                // A retry after an answer lost: the first try completed it,
+                // and the upload is gone. The object is there if it did.
+                Err(object_store::Error::NotFound { .. }) if !first => {
+                    let head = remote.store.head(loc).await?;
+                    Ok(object_store::PutResult {
+                        e_tag: head.e_tag,
+                        version: head.version,
+                        extensions: Default::default(),
+                    })
+                }
+                r => r,
+            }
+        }
+    })
+    .await;
+    match completed {
+        Ok(put) => Ok((done, put.e_tag)),
+        Err(e) => {
+            abort().await;
+            Err(e)
+        }
+    }
+}
+
+/// The next [`PART_SIZE`] bytes of `file` (fewer at its end, none after it).
+fn read_part(file: &mut std::fs::File) -> std::io::Result<Vec<u8>> {
+    let mut chunk = vec![0u8; PART_SIZE];
+    let mut got = 0;
+    while got < chunk.len() {
+        match file.read(&mut chunk[got..]) {
+            Ok(0) => break,
+            Ok(n) => got += n,
+            Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
+            Err(e) => return Err(e),
+        }
+    }
+    chunk.truncate(got);
+    Ok(chunk)
 }

@@ -55,6 +55,21 @@ pub fn tile_z_to_raster(log2: u32) -> Vec<u32> {
         .collect()
 }
 
+/// [`tile_z_to_raster`], made once per size for the whole process (every part
+/// opened uses the same few; a 256-pixel tile's is 64 K entries).
+pub fn shared_tile_z_to_raster(log2: u32) -> std::sync::Arc<Vec<u32>> {
+    use std::collections::HashMap;
+    use std::sync::{Arc, Mutex, OnceLock};
+    static MADE: OnceLock<Mutex<HashMap<u32, Arc<Vec<u32>>>>> = OnceLock::new();
+    let mut made = MADE
+        .get_or_init(Default::default)
+        .lock()
+        .unwrap_or_else(|p| p.into_inner());
+    made.entry(log2)
+        .or_insert_with(|| Arc::new(tile_z_to_raster(log2)))
+        .clone()
+}
+
 /// The pyramid of one part: a `2^log2 × 2^log2` image at level 0 holding `points`.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct Geometry {
