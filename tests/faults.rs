@@ -635,3 +635,92 @@ fn a_small_part_opens_by_its_s3_url_without_retries() {
     let stats = String::from_utf8_lossy(&there.stderr);
     assert!(stats.contains(", 0 failed"), "{stats}");
 }
+
+/// Two conversions to the same S3 prefix: the second is refused, naming the
+/// first's process and the lock, while the first completes; a run killed
+/// holding the lock leaves it, and the next run on this host takes it over
+/// and says so (even with `-q`). The lock object sits beside the prefix and
+/// is gone after each run.
+#[test]
+fn a_second_conversion_to_the_same_s3_prefix_is_refused_and_a_killed_ones_lock_taken_over() {
+    let Some(weed) = Weed::start() else { return };
+    let proxy = Proxy::start(weed.addr());
+    let url = format!("s3://{WEED_BUCKET}/two.pcimg");
+    let lock = ".two.pcimg.pcimg-lock";
+    let input = fixture();
+    let args = |extra: &[&'static str]| -> Vec<String> {
+        let mut v: Vec<String> = ["convert", "--memory", "1MiB", "--compression", "zstd"]
+            .iter()
+            .chain(extra)
+            .map(|s| s.to_string())
+            .collect();
+        v.extend([input.display().to_string(), "-o".into(), url.clone()]);
+        v
+    };
+    let has_lock = || weed.list("").unwrap().iter().any(|(n, _)| n == lock);
+    let wait_for_lock = |child: &mut std::process::Child| {
+        let start = Instant::now();
+        while !has_lock() {
+            assert!(child.try_wait().unwrap().is_none(), "the first run ended");
+            assert!(start.elapsed() < Duration::from_secs(60), "no lock in 60 s");
+            std::thread::sleep(Duration::from_millis(20));
+        }
+    };
+    // The first run's part uploads are slowed down by the proxy.
+    proxy.set(vec![
+        Rule::new(Fault::Delay(Duration::from_millis(1500))).matching("/two.pcimg/"),
+    ]);
+    let slow = |extra: &[&'static str]| {
+        let a = args(extra);
+        let a: Vec<&str> = a.iter().map(String::as_str).collect();
+        weed.pcimg(&proxy.url(), &a)
+            .stdout(std::process::Stdio::null())
+            .stderr(std::process::Stdio::piped())
+            .spawn()
+            .unwrap()
+    };
+    let direct = |extra: &[&'static str]| {
+        let a = args(extra);
+        let a: Vec<&str> = a.iter().map(String::as_str).collect();
+        weed.pcimg(&weed.endpoint(), &a).output().unwrap()
+    };
+
+    let mut first = slow(&["--timeout", "60s"]);
+    wait_for_lock(&mut first);
+    let e = err(&direct(&[]), "a second conversion to the same prefix");
+    assert!(
+        e.contains(&format!(
+            "{url}: another pcimg run is writing it (process {}",
+            first.id()
+        )) && e.contains(&format!("s3://{WEED_BUCKET}/{lock}")),
+        "{e}"
+    );
+    let o = first.wait_with_output().unwrap();
+    ok(&o, "the first conversion");
+    assert!(!has_lock(), "the lock outlived its run");
+    assert!(
+        weed.list("two.pcimg/")
+            .unwrap()
+            .iter()
+            .any(|(n, _)| n.ends_with("pcimg-index.json")),
+        "the first run's dataset is incomplete"
+    );
+
+    // Killed holding the lock: the next run (quiet) takes it over.
+    let mut killed = slow(&["--force", "--timeout", "60s"]);
+    wait_for_lock(&mut killed);
+    let pid = killed.id();
+    killed.kill().unwrap();
+    let _ = killed.wait();
+    assert!(has_lock(), "a killed run's lock is left");
+    let o = direct(&["--force", "-q"]);
+    ok(&o, "a conversion after a killed one");
+    let notes = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        notes.contains(&format!(
+            "took over the lock s3://{WEED_BUCKET}/{lock} of process {pid}, a run that was stopped"
+        )),
+        "{notes}"
+    );
+    assert!(!has_lock(), "the lock outlived its run");
+}

@@ -211,6 +211,9 @@ impl Progress for Bars {
         if self.quiet {
             return;
         }
+        self.notice(msg);
+    }
+    fn notice(&self, msg: &str) {
         let bar = self.bar();
         // A hidden bar (before the first phase, or stderr not a terminal) prints
         // nothing: write the line.
@@ -396,7 +399,8 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     if let Some(plan) = &a.plan {
         if let Some(url) = &url {
             anyhow::bail!(
-                "{}: a cluster plan's shards write to a shared directory; convert to object                  storage without --plan, or upload the finished dataset",
+                "{}: a cluster plan's shards write to a shared directory; convert to object \
+                 storage without --plan, or upload the finished dataset",
                 sanitize(url)
             );
         }
@@ -417,6 +421,9 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         opts.on_part = Some(r.hook());
     }
     let bars = Bars::new(a.quiet);
+    if let Some(n) = remote.as_ref().and_then(|r| r.took_over.as_ref()) {
+        bars.notice(n);
+    }
     let mut result = convert::convert_files(&inputs, &opts, &bars);
     if let Some(r) = &remote {
         result = result.and_then(|mut s| {
@@ -425,7 +432,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
             Ok(s)
         });
         if result.is_err() {
-            bars.note(&format!(
+            bars.notice(&format!(
                 "removing what was uploaded to {}",
                 sanitize(&r.url)
             ));

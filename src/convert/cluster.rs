@@ -523,7 +523,7 @@ pub fn run_shard(
     std::fs::create_dir_all(dir.join(RECEIPTS))
         .with_context(|| format!("{}: cannot create", dir.display()))?;
     for gone in remove_leftovers(&dir) {
-        progress.note(&format!(
+        progress.notice(&format!(
             "removed {}, left by a shard that was stopped",
             crate::text::sanitize(&gone.display().to_string())
         ));

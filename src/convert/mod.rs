@@ -99,6 +99,11 @@ pub trait Progress: Sync {
     fn advance(&self, done: u64, points: u64);
     /// A line of information.
     fn note(&self, msg: &str);
+    /// A line that says what was removed or left behind: shown even where
+    /// routine notes are not (`convert -q`).
+    fn notice(&self, msg: &str) {
+        self.note(msg)
+    }
 }
 
 /// A sink that shows nothing.
@@ -326,7 +331,7 @@ pub fn convert_files(
     // One run at a time on an output; what killed runs left goes first.
     let _lock = output::lock(&o.output)?;
     for gone in output::remove_leftovers(&o.output) {
-        progress.note(&format!(
+        progress.notice(&format!(
             "removed {}, left by a run that was stopped",
             crate::text::sanitize(&gone.display().to_string())
         ));

@@ -6,6 +6,7 @@
 
 use super::{PartHook, Progress};
 use crate::remote::Remote;
+use crate::remote::lock::{Lock, Taken};
 use crate::remote::upload::Uploader;
 use crate::store::dataset::index::{INDEX_FILE, IndexFile};
 use anyhow::{Result, anyhow, bail};
@@ -28,7 +29,12 @@ pub struct RemoteOutput {
     /// The objects of the dataset this one replaces (`--force`): removed, the
     /// index first, before anything is uploaded.
     old: Vec<String>,
+    /// Where a lock of a run that was stopped was taken over, a line that
+    /// says so.
+    pub took_over: Option<String>,
     _scratch: super::spill::TempDir,
+    /// One conversion at a time to a prefix (released last).
+    _lock: Lock,
 }
 
 /// Whether `output` names object storage.
@@ -59,6 +65,45 @@ impl RemoteOutput {
         let url = remote.url.clone();
         let url = url.as_str();
         let shown = crate::text::sanitize(url);
+        let lock = match crate::remote::lock::take(&remote).map_err(|m| anyhow!(m))? {
+            Taken::Held(l) => l,
+            Taken::Busy { holder, url: lock } => {
+                let lock = crate::text::sanitize(&lock);
+                let host = holder.host.as_deref().map(crate::text::sanitize);
+                let mut who = Vec::new();
+                if let Some(pid) = holder.pid {
+                    who.push(format!("process {pid}"));
+                }
+                if let Some(h) = &host {
+                    who.push(format!("on {h}"));
+                }
+                if let Some(t) = holder.since {
+                    let now = std::time::SystemTime::now()
+                        .duration_since(std::time::UNIX_EPOCH)
+                        .map_or(t, |d| d.as_secs());
+                    who.push(format!(
+                        "started {} ago",
+                        crate::text::duration(std::time::Duration::from_secs(
+                            now.saturating_sub(t)
+                        ))
+                    ));
+                }
+                bail!(
+                    "{shown}: another pcimg run is writing it ({}; its lock is {lock}); wait for \
+                     it to finish, or write another prefix. If that run is gone (stopped on \
+                     another machine), delete the lock with your store's tool, e.g. `aws s3 rm \
+                     {lock}`",
+                    who.join(", ")
+                );
+            }
+        };
+        let took_over = lock.took_over.as_ref().map(|h| {
+            format!(
+                "took over the lock {} of process {}, a run that was stopped",
+                crate::text::sanitize(&lock.url()),
+                h.pid.unwrap_or(0)
+            )
+        });
         let lower = url.to_ascii_lowercase();
         let as_file = lower.ends_with(".tif") || lower.ends_with(".tiff");
         let mut old = Vec::new();
@@ -106,7 +151,9 @@ impl RemoteOutput {
             cancel,
             as_file,
             old,
+            took_over,
             _scratch: scratch,
+            _lock: lock,
         };
         if !out.old.is_empty() {
             let left = out.uploader.delete(&out.old[..1]);
@@ -234,7 +281,7 @@ impl RemoteOutput {
             !left.iter().any(|e| e.starts_with(&format!("{u}: ")))
         });
         if removed.is_empty() && left.is_empty() {
-            progress.note(&format!("nothing had been uploaded to {url}"));
+            progress.notice(&format!("nothing had been uploaded to {url}"));
         } else if !removed.is_empty() {
             const SHOWN: usize = 8;
             let mut names: Vec<String> = removed
@@ -245,17 +292,17 @@ impl RemoteOutput {
             if removed.len() > SHOWN {
                 names.push(format!("and {} more", removed.len() - SHOWN));
             }
-            progress.note(&format!(
+            progress.notice(&format!(
                 "removed {} object(s) from {url}: {}",
                 removed.len(),
                 names.join(", ")
             ));
         }
         for e in &left {
-            progress.note(&format!("could not delete {e}"));
+            progress.notice(&format!("could not delete {e}"));
         }
         if left.is_empty() {
-            progress.note(&format!("nothing of this conversion is left at {url}"));
+            progress.notice(&format!("nothing of this conversion is left at {url}"));
         }
     }
 

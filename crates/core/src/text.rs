@@ -50,17 +50,33 @@ pub fn count(n: u64) -> String {
     o
 }
 
-/// Parses a duration such as `30s`, `500ms`, `2m`, `1.5s` or `30` (seconds).
-pub fn parse_duration(s: &str) -> Result<std::time::Duration, String> {
+/// `12.5 ms` as its number and its unit (lower case, trimmed); `None` where
+/// it does not start with a number.
+fn number_and_unit(s: &str) -> Option<(f64, String)> {
     let t = s.trim();
     let split = t
         .find(|c: char| !(c.is_ascii_digit() || c == '.'))
         .unwrap_or(t.len());
     let (num, unit) = t.split_at(split);
-    let v: f64 = num
-        .parse()
-        .map_err(|_| format!("'{s}' is not a duration (try 30s, 500ms or 2m)"))?;
-    let secs = match unit.trim().to_ascii_lowercase().as_str() {
+    Some((num.parse().ok()?, unit.trim().to_ascii_lowercase()))
+}
+
+/// A span of time as people say it: `42 s`, `5 min`, `3 h`, `2 days`.
+pub fn duration(d: std::time::Duration) -> String {
+    let s = d.as_secs();
+    match s {
+        0..120 => format!("{s} s"),
+        120..7200 => format!("{} min", s / 60),
+        7200..172_800 => format!("{} h", s / 3600),
+        _ => format!("{} days", s / 86_400),
+    }
+}
+
+/// Parses a duration such as `30s`, `500ms`, `2m`, `1.5s` or `30` (seconds).
+pub fn parse_duration(s: &str) -> Result<std::time::Duration, String> {
+    let (v, unit) = number_and_unit(s)
+        .ok_or_else(|| format!("'{s}' is not a duration (try 30s, 500ms or 2m)"))?;
+    let secs = match unit.as_str() {
         "" | "s" | "sec" | "secs" => v,
         "ms" => v / 1000.0,
         "m" | "min" | "mins" => v * 60.0,
@@ -79,15 +95,9 @@ pub fn parse_duration(s: &str) -> Result<std::time::Duration, String> {
 
 /// Parses a size such as `256MiB`, `2G`, `1.5GiB`, `512M`, `1000000` (bytes).
 pub fn parse_size(s: &str) -> Result<u64, String> {
-    let t = s.trim();
-    let split = t
-        .find(|c: char| !(c.is_ascii_digit() || c == '.'))
-        .unwrap_or(t.len());
-    let (num, unit) = t.split_at(split);
-    let v: f64 = num
-        .parse()
-        .map_err(|_| format!("'{s}' is not a size (try 256MiB or 2G)"))?;
-    let mult: f64 = match unit.trim().to_ascii_lowercase().as_str() {
+    let (v, unit) =
+        number_and_unit(s).ok_or_else(|| format!("'{s}' is not a size (try 256MiB or 2G)"))?;
+    let mult: f64 = match unit.as_str() {
         "" | "b" => 1.0,
         "k" | "kb" | "kib" => 1024.0,
         "m" | "mb" | "mib" => 1024.0 * 1024.0,
@@ -118,6 +128,15 @@ mod tests {
         assert!(parse_size("lots").is_err());
         assert!(parse_size("5 parsecs").is_err());
         assert!(parse_size("0").is_err());
+    }
+
+    #[test]
+    fn durations_read_as_people_say_them() {
+        use std::time::Duration as D;
+        assert_eq!(super::duration(D::from_secs(42)), "42 s");
+        assert_eq!(super::duration(D::from_secs(300)), "5 min");
+        assert_eq!(super::duration(D::from_secs(3 * 3600 + 5)), "3 h");
+        assert_eq!(super::duration(D::from_secs(5 * 86_400)), "5 days");
     }
 
     #[test]

@@ -7,6 +7,7 @@
 
 pub mod disk;
 pub mod file;
+pub mod lock;
 pub mod upload;
 
 pub use file::RemoteFile;
