@@ -62,9 +62,10 @@ pub fn image_in_one_cell(enc: Encoding) -> bool {
     }
 }
 
-/// Whether the image stays above any text drawn over its cells until it is
-/// deleted (kitty placed directly): it must be taken off before text (the help)
-/// is drawn there.
+/// Whether the image shows through text drawn over its cells until it is
+/// deleted (kitty placed directly: drawn below text, but above cells of the
+/// default background, as the help's are): it must be taken off before the
+/// help is drawn there. The view's overlays are text over it by design.
 pub fn image_above_text(enc: Encoding) -> bool {
     enc.graphics == Graphics::Kitty && !enc.placeholders
 }
@@ -296,6 +297,8 @@ pub fn encode(
                     rows: cells.1,
                     placeholders: enc.placeholders,
                     passthrough: enc.passthrough,
+                    // Placed directly: under the overlays' text.
+                    below_text: true,
                 },
             );
             if enc.placeholders {
@@ -415,7 +418,9 @@ mod tests {
         // cursor (that cell) and scaled to the 4×2 cells; no placeholder cells.
         let first = buf[(1, 1)].symbol();
         assert!(
-            first.starts_with("\x1b_Ga=T,q=2,i=7365481,f=24,o=z,s=20,v=20,c=4,r=2,C=1,m=0;"),
+            first.starts_with(
+                "\x1b_Ga=T,q=2,i=7365481,f=24,o=z,s=20,v=20,c=4,r=2,C=1,z=-1073741825,m=0;"
+            ),
             "{first:?}"
         );
         assert!(first.ends_with("\x1b\\"));

@@ -29,12 +29,11 @@ pub struct Request {
     pub seq: u64,
     pub camera: Camera,
     pub settings: Settings,
-    /// The crosshair to draw, as fractions of the view across and down.
+    /// The crosshair, as fractions of the view across and down (where a pick
+    /// looks; the crosshair itself is drawn as cells, `overlay`).
     pub cursor: Option<(f64, f64)>,
     /// Whether to pick the point under the crosshair in this frame.
     pub pick: bool,
-    /// Picked points to mark (two: joined by a line).
-    pub marks: Vec<[f64; 3]>,
     /// The view pane in cells.
     pub cells: (u16, u16),
     /// Pixels per cell for the protocol in use.
@@ -324,12 +323,9 @@ impl Worker {
             eye_dome_lighting: s.edl,
             edl: s.edl_params,
             pick,
-            overlays: Overlays {
-                marks: &req.marks,
-                crosshair: cursor_px,
-                legend: false,
-                scale_bar: true,
-            },
+            // The scale bar, crosshair and picks are drawn as cells over the
+            // picture (`overlay`), the legend in the tool panel.
+            overlays: Overlays::default(),
         })?;
         let ds = self.pipeline.dataset();
         let pick = match d.pick {
@@ -374,6 +370,11 @@ impl Worker {
             scale,
             ranges: d.ranges,
             units_per_pixel: 1.0 / req.camera.pixels_per_unit(req.camera.distance, height),
+            view: Some(super::overlay::FrameView {
+                camera: req.camera,
+                width,
+                height,
+            }),
         };
         Ok(FrameReady {
             seq: req.seq,

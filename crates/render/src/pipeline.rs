@@ -54,7 +54,9 @@ pub struct FrameRequest<'a> {
 }
 
 /// What is drawn over the points, in this order: the picked points and the line
-/// between two, the crosshair, the legend, the scale bar.
+/// between two, the crosshair, the legend, the scale bar. For images without a
+/// terminal (`render`, `preview`, a frame the inspector saves); the inspector's
+/// view draws its overlays as terminal cells instead (`tui::overlay`).
 #[derive(Debug, Clone, Default)]
 pub struct Overlays<'a> {
     pub marks: &'a [[f64; 3]],
@@ -309,7 +311,18 @@ impl Pipeline {
         drop(batches);
 
         let legend = Legend::for_style(&self.ds, req.style, req.filter, &ranges);
-        draw_overlays(&mut frame, req.camera, &req.overlays, legend.as_ref());
+        // The scale bar is labelled in the dataset's unit (its CRS parsed only then).
+        let unit = match req.overlays.scale_bar {
+            true => legend::dataset_unit(&self.ds),
+            false => String::new(),
+        };
+        draw_overlays(
+            &mut frame,
+            req.camera,
+            &req.overlays,
+            legend.as_ref(),
+            &unit,
+        );
 
         let points = tiles.iter().map(|t| t.len() as u64).sum();
         let kept = tiles.iter().map(|t| self.colors.hidden[&t.key].1).sum();
@@ -379,11 +392,12 @@ impl Pipeline {
 }
 
 /// Draws `o` over `frame` (in the order [`Overlays`] gives).
-pub(crate) fn draw_overlays(
+pub fn draw_overlays(
     frame: &mut Frame,
     cam: &Camera,
     o: &Overlays<'_>,
     legend: Option<&Legend>,
+    unit: &str,
 ) {
     if let [a, b] = o.marks[..] {
         marks::segment(frame, cam, a, b, MARK_COLOR);
@@ -400,7 +414,7 @@ pub(crate) fn draw_overlays(
         legend::draw(frame, l);
     }
     if o.scale_bar {
-        legend::draw_scale_bar(frame, cam);
+        legend::draw_scale_bar(frame, cam, unit);
     }
 }
 
