@@ -383,7 +383,15 @@ fn event_loop(
                         Effect::Pick => want_frame = true,
                         Effect::Save => {
                             saved += 1;
-                            save_frame(shown.frame.clone(), saved, msg_tx.clone());
+                            let picks = app.picks.iter().map(|p| p.position).collect();
+                            let marks =
+                                (picks, app.picking.then_some(app.cursor), app.unit.clone());
+                            save_frame(
+                                shown.frame.clone(),
+                                app.frame.view.map(|v| (v, marks)),
+                                saved,
+                                msg_tx.clone(),
+                            );
                             app.message = "saving the frame…".into();
                         }
                         Effect::Suspend => {
@@ -459,6 +467,10 @@ fn event_loop(
                     shown.frame = Some(f.frame);
                     dirty = true;
                 }
+                Ok(Some(Report::Pick(p))) => {
+                    app.add_pick(p);
+                    dirty = true;
+                }
                 Ok(Some(Report::Error(e))) => {
                     app.message = crate::text::sanitize(&e);
                     dirty = true;
@@ -484,13 +496,32 @@ fn fps(arrivals: &VecDeque<Instant>) -> f64 {
     }
 }
 
-/// Saves a frame as `pcimg-frame-NNN.png` in the working directory, on a thread;
-/// the outcome comes back as a message.
-fn save_frame(frame: Option<Arc<Frame>>, n: u32, done: Sender<String>) {
+/// What a saved frame shows over the points: how it was drawn, the picks, the
+/// crosshair and the unit.
+type SavedMarks = (
+    overlay::FrameView,
+    (Vec<[f64; 3]>, Option<(f64, f64)>, String),
+);
+
+/// Saves a frame as `pcimg-frame-NNN.png` in the working directory, with the
+/// view's overlays drawn into its pixels, on a thread; the outcome comes back
+/// as a message.
+fn save_frame(frame: Option<Arc<Frame>>, marks: Option<SavedMarks>, n: u32, done: Sender<String>) {
     std::thread::spawn(move || {
         let msg = match frame {
             None => "no frame to save yet".to_string(),
             Some(f) => {
+                let f = match &marks {
+                    Some((view, (picks, cursor, unit))) => {
+                        let m = overlay::Marks {
+                            cursor: *cursor,
+                            picks,
+                            unit,
+                        };
+                        Arc::new(overlay::onto_pixels(&f, view, &m))
+                    }
+                    None => f,
+                };
                 let mut path = PathBuf::from(format!("pcimg-frame-{n:03}.png"));
                 let mut k = n;
                 while path.exists() {

@@ -16,8 +16,10 @@
 use super::app::App;
 use super::protocol::{Encoding, Graphics, PaneImage, image_in_one_cell};
 use crate::camera::Camera;
+use crate::render::Frame;
 use crate::render::legend::{self, length_label, value_label};
 use crate::render::pick::distance;
+use crate::render::pipeline::{Overlays, draw_overlays};
 use ratatui::buffer::{Buffer, Cell, CellDiffOption};
 use ratatui::layout::Rect;
 use ratatui::style::{Color, Modifier, Style};
@@ -276,6 +278,24 @@ pub fn of_app(app: &App, pane: Rect, image: &PaneImage) -> Vec<Mark> {
     layout(view, &marks, area)
 }
 
+/// `frame` (drawn with `view`) with the overlays drawn into its pixels, as
+/// `render` draws them: for a frame saved to a file, where there are no cells.
+pub fn onto_pixels(frame: &Frame, view: &FrameView, marks: &Marks<'_>) -> Frame {
+    let mut f = frame.clone();
+    let crosshair = marks.cursor.map(|(x, y)| {
+        let at = |v: f64, n: u32| ((v.clamp(0.0, 1.0) * n as f64) as u32).min(n.saturating_sub(1));
+        (at(x, f.width), at(y, f.height))
+    });
+    let overlays = Overlays {
+        marks: marks.picks,
+        crosshair,
+        legend: false,
+        scale_bar: true,
+    };
+    draw_overlays(&mut f, &view.camera, &overlays, None, marks.unit);
+    f
+}
+
 /// Writes `marks` into `buf`: each replaces its cell's symbol and, where its
 /// style says, colours; cells the image skipped are written again.
 pub fn draw(buf: &mut Buffer, marks: &[Mark]) {
@@ -461,6 +481,57 @@ mod tests {
         assert_eq!(at(&corner, 3, 2), None);
         assert_eq!(at(&corner, 4, 2), Some('─'));
         assert_eq!(at(&corner, 3, 3), Some('│'));
+    }
+
+    #[test]
+    fn overlay_cells_over_an_image_sent_from_the_first_cell_are_written_again() {
+        let mut buf = Buffer::empty(Rect::new(0, 0, 44, 14));
+        buf[(2, 1)].set_symbol("IMAGE");
+        let mark = |x, y| Mark {
+            x,
+            y,
+            symbol: '─',
+            style: STROKE,
+        };
+        let before = [mark(5, 5), mark(6, 5)];
+        let now = [mark(6, 5), mark(7, 5)];
+        draw(&mut buf, &now);
+        let sixel = Encoding::new(Graphics::Sixel);
+        let at = |cells: &[(u16, u16, Cell)]| -> Vec<(u16, u16, String)> {
+            cells
+                .iter()
+                .map(|(x, y, c)| (*x, *y, c.symbol().to_string()))
+                .collect()
+        };
+        // A cell went away: the image again, then every overlay cell over it.
+        assert_eq!(
+            at(&rewrite(&buf, sixel, false, &before, &now, (2, 1))),
+            [
+                (2, 1, "IMAGE".into()),
+                (6, 5, "─".into()),
+                (7, 5, "─".into())
+            ]
+        );
+        // A new image (sent by the draw): the overlay cells over it.
+        assert_eq!(
+            at(&rewrite(&buf, sixel, true, &now, &now, (2, 1))),
+            [(6, 5, "─".into()), (7, 5, "─".into())]
+        );
+        // Nothing went away, no new image: nothing to write.
+        assert!(rewrite(&buf, sixel, false, &now, &now, (2, 1)).is_empty());
+        // Kitty placed directly (below text): the cell left is blanked.
+        let direct = Encoding {
+            placeholders: false,
+            ..Encoding::new(Graphics::Kitty)
+        };
+        assert_eq!(
+            at(&rewrite(&buf, direct, false, &before, &now, (2, 1))),
+            [(5, 5, " ".into())]
+        );
+        // Cells (text, kitty placeholders): ratatui's diff does it all.
+        for g in [Graphics::Halfblocks, Graphics::Kitty] {
+            assert!(rewrite(&buf, Encoding::new(g), true, &before, &now, (2, 1)).is_empty());
+        }
     }
 
     #[test]
