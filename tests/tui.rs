@@ -495,15 +495,19 @@ fn the_worker_picks_the_point_under_the_crosshair() {
         let deadline = Instant::now() + Duration::from_secs(30);
         loop {
             assert!(Instant::now() < deadline, "no pick in 30 s");
+            // In a new frame, or over the frame drawn last (no new frame).
             match w.recv_timeout(Duration::from_millis(200)) {
-                Some(Report::Frame(f)) if f.seq == seq && f.pick.is_some() => break f,
+                Some(Report::Frame(f)) if f.seq == seq && f.pick.is_some() => {
+                    break (f.pick.clone().unwrap(), Some(f.status.clone()));
+                }
+                Some(Report::Pick(p)) => break (p, None),
                 Some(Report::Error(e)) => panic!("worker error: {e}"),
                 _ => {}
             }
         }
     };
-    let f = pick_at(&w, 1, (0.5, 0.5));
-    let p = f.pick.unwrap().expect("a point under the crosshair");
+    let (p, status) = pick_at(&w, 1, (0.5, 0.5));
+    let p = p.expect("a point under the crosshair");
     let c = app.dataset.bounds().center();
     // Within a few pixels of the centre: the scene is 400 m across the view.
     assert!(
@@ -514,14 +518,15 @@ fn the_worker_picks_the_point_under_the_crosshair() {
     assert_eq!(names, ["intensity", "classification"]);
     // The panel lists it, with the class's name.
     app.add_pick(Some(p));
-    app.frame = f.status.clone();
+    app.frame = status.expect("the first pick draws the first frame");
     let text = screen(&app, None).join("\n");
     assert!(text.contains("A 637"), "{text}");
     assert!(text.contains("classification"), "{text}");
     assert!(text.contains("ground") || text.contains("building") || text.contains("vegetation"));
     // A second pick: the distances.
-    let g = pick_at(&w, 2, (0.25, 0.5));
-    app.add_pick(g.pick.unwrap());
+    let (g, status) = pick_at(&w, 2, (0.25, 0.5));
+    assert!(status.is_none(), "picked over the frame drawn");
+    app.add_pick(g);
     let text = screen(&app, None).join("\n");
     assert!(text.contains("A→B 3D"), "{text}");
 }
