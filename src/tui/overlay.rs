@@ -394,7 +394,7 @@ mod tests {
         let (len_px, px) = legend::scale_bar(&v.camera, 160, 60.0).unwrap();
         assert_eq!(len, len_px);
         assert_eq!(cells, (px / 2.0).round() as u16 + 1);
-        assert!(cells >= 2 && cells <= 31, "{cells}");
+        assert!((2..=31).contains(&cells), "{cells}");
         // Drawn: caps at both ends, the label on the row above, one row.
         let marks = layout(
             &v,
