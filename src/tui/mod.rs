@@ -323,14 +323,19 @@ fn event_loop(
             let done = session.terminal.draw(|f| ui::draw(f, app, image))?;
             // Overlay cells over an image sent from the pane's first cell are
             // written again where the image went over them (or left them).
+            let patch = |(x, y, n): (u16, u16, u16)| {
+                let (frame, image) = (shown.frame.as_ref()?, image?);
+                let at = (x.checked_sub(view.x)?, y.checked_sub(view.y)?, n);
+                protocol::patch(pane.encoding, frame, image.cells(), pane.cell_pixels, at)
+            };
             let again = match image {
                 Some(_) if !app.show_help => overlay::rewrite(
                     done.buffer,
                     pane.encoding,
                     shown.unsent,
-                    &drawn_marks,
-                    &marks,
+                    (&drawn_marks, &marks),
                     (view.x, view.y),
+                    &patch,
                 ),
                 _ => Vec::new(),
             };

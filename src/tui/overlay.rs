@@ -317,34 +317,67 @@ fn removed(before: &[Mark], now: &[Mark]) -> Vec<(u16, u16)> {
         .collect()
 }
 
+/// The cells of `cells` as runs along rows: (x, y, length), row-major.
+fn runs(cells: &[(u16, u16)]) -> Vec<(u16, u16, u16)> {
+    let mut sorted = cells.to_vec();
+    sorted.sort_unstable_by_key(|&(x, y)| (y, x));
+    sorted.dedup();
+    let mut out: Vec<(u16, u16, u16)> = Vec::new();
+    for (x, y) in sorted {
+        match out.last_mut() {
+            Some((rx, ry, n)) if *ry == y && *rx + *n == x => *n += 1,
+            _ => out.push((x, y, 1)),
+        }
+    }
+    out
+}
+
 /// What to write again after a draw over an image sent from the pane's first
 /// cell `first` (sixel, iTerm2, kitty placed directly), of which ratatui's diff
-/// knows nothing: after a new image (`image_sent`), every overlay cell, since
+/// knows nothing. After a new image (`image_sent`): every overlay cell, since
 /// the image was drawn over them. When overlay cells went away (`before` →
-/// `now`), sixel and iTerm2 send the image again (their pixels under those
-/// cells are gone; the escape string erases the pane first), then every
-/// overlay cell; kitty's image, below text, shows again under blank cells.
-/// The cells come from `buf`, the buffer just drawn, in the order to write them.
+/// `now`): sixel and iTerm2 pixels under them are gone, so the picture there
+/// is drawn again, by `patch` (the escape string that draws a run `(x, y, n)`
+/// of cells of the picture, [`super::protocol::patch`]) or, failing that, by
+/// the whole image again followed by every overlay cell; kitty's image, below
+/// text, shows again under blank cells. The cells come from `buf`, the buffer
+/// just drawn, in the order to write them.
 pub fn rewrite(
     buf: &Buffer,
     enc: Encoding,
     image_sent: bool,
-    before: &[Mark],
-    now: &[Mark],
+    (before, now): (&[Mark], &[Mark]),
     first: (u16, u16),
+    patch: &dyn Fn((u16, u16, u16)) -> Option<String>,
 ) -> Vec<(u16, u16, Cell)> {
     if !image_in_one_cell(enc) {
         return Vec::new();
     }
     let gone = removed(before, now);
-    let kitty = enc.graphics == Graphics::Kitty;
     let mut out = Vec::new();
-    if !gone.is_empty() && kitty {
-        out.extend(gone.iter().map(|&(x, y)| (x, y, Cell::default())));
-    }
-    let image_again = !gone.is_empty() && !kitty && !image_sent;
-    if image_again && let Some(c) = buf.cell(first) {
-        out.push((first.0, first.1, c.clone()));
+    let mut image_again = false;
+    if !gone.is_empty() && !image_sent {
+        if enc.graphics == Graphics::Kitty {
+            out.extend(gone.iter().map(|&(x, y)| (x, y, Cell::default())));
+        } else {
+            let patches: Option<Vec<(u16, u16, String)>> = runs(&gone)
+                .into_iter()
+                .map(|r| patch(r).map(|s| (r.0, r.1, s)))
+                .collect();
+            match patches {
+                Some(p) => out.extend(p.into_iter().map(|(x, y, s)| {
+                    let mut c = Cell::default();
+                    c.set_symbol(&s);
+                    (x, y, c)
+                })),
+                None => {
+                    image_again = true;
+                    if let Some(c) = buf.cell(first) {
+                        out.push((first.0, first.1, c.clone()));
+                    }
+                }
+            }
+        }
     }
     if image_sent || image_again {
         out.extend(
@@ -503,9 +536,33 @@ mod tests {
                 .map(|(x, y, c)| (*x, *y, c.symbol().to_string()))
                 .collect()
         };
-        // A cell went away: the image again, then every overlay cell over it.
+        let none = |_: (u16, u16, u16)| None;
+        let patch = |(x, y, n): (u16, u16, u16)| Some(format!("P{x},{y},{n}"));
+        // A cell went away: the picture under it drawn again, nothing else.
         assert_eq!(
-            at(&rewrite(&buf, sixel, false, &before, &now, (2, 1))),
+            at(&rewrite(
+                &buf,
+                sixel,
+                false,
+                (&before, &now),
+                (2, 1),
+                &patch
+            )),
+            [(5, 5, "P5,5,1".into())]
+        );
+        // Runs along rows: one patch each.
+        let arms = [mark(5, 5), mark(6, 5), mark(7, 5), mark(6, 4), mark(9, 5)];
+        assert_eq!(
+            at(&rewrite(&buf, sixel, false, (&arms, &[]), (2, 1), &patch)),
+            [
+                (6, 4, "P6,4,1".into()),
+                (5, 5, "P5,5,3".into()),
+                (9, 5, "P9,5,1".into())
+            ]
+        );
+        // Without patches: the image again, then every overlay cell over it.
+        assert_eq!(
+            at(&rewrite(&buf, sixel, false, (&before, &now), (2, 1), &none)),
             [
                 (2, 1, "IMAGE".into()),
                 (6, 5, "─".into()),
@@ -514,23 +571,31 @@ mod tests {
         );
         // A new image (sent by the draw): the overlay cells over it.
         assert_eq!(
-            at(&rewrite(&buf, sixel, true, &now, &now, (2, 1))),
+            at(&rewrite(&buf, sixel, true, (&before, &now), (2, 1), &patch)),
             [(6, 5, "─".into()), (7, 5, "─".into())]
         );
         // Nothing went away, no new image: nothing to write.
-        assert!(rewrite(&buf, sixel, false, &now, &now, (2, 1)).is_empty());
+        assert!(rewrite(&buf, sixel, false, (&now, &now), (2, 1), &patch).is_empty());
         // Kitty placed directly (below text): the cell left is blanked.
         let direct = Encoding {
             placeholders: false,
             ..Encoding::new(Graphics::Kitty)
         };
         assert_eq!(
-            at(&rewrite(&buf, direct, false, &before, &now, (2, 1))),
+            at(&rewrite(
+                &buf,
+                direct,
+                false,
+                (&before, &now),
+                (2, 1),
+                &patch
+            )),
             [(5, 5, " ".into())]
         );
         // Cells (text, kitty placeholders): ratatui's diff does it all.
         for g in [Graphics::Halfblocks, Graphics::Kitty] {
-            assert!(rewrite(&buf, Encoding::new(g), true, &before, &now, (2, 1)).is_empty());
+            let enc = Encoding::new(g);
+            assert!(rewrite(&buf, enc, true, (&before, &now), (2, 1), &patch).is_empty());
         }
     }
 

@@ -271,6 +271,59 @@ fn iterm_for_pane(frame: &Frame, cells: (u16, u16), passthrough: bool) -> anyhow
     })
 }
 
+/// The escape string that draws the picture under cells `x..x + n` of row `y`
+/// (from the pane's top-left) again, as a small image at the run's first cell:
+/// for sixel and iTerm2, whose pixels under overlay cells that went away are
+/// gone, at a few hundred bytes rather than the whole frame's. `frame` is the
+/// frame shown over a pane of `cells` cells of `cell_pixels` pixels (a reduced
+/// frame is enlarged as the whole one was). `None` for the other protocols, a
+/// run outside the pane, or an empty frame.
+pub fn patch(
+    enc: Encoding,
+    frame: &Frame,
+    cells: (u16, u16),
+    cell_pixels: (u32, u32),
+    (x, y, n): (u16, u16, u16),
+) -> Option<String> {
+    let (cw, ch) = (cell_pixels.0.max(1), cell_pixels.1.max(1));
+    let fits = n > 0 && x as u32 + n as u32 <= cells.0 as u32 && y < cells.1;
+    if !fits || frame.width == 0 || frame.height == 0 {
+        return None;
+    }
+    let (w, h) = (n as u32 * cw, ch);
+    // Pixels of the pane as the whole image showed them, sampled from the frame.
+    let (pane_w, pane_h) = (cells.0 as u64 * cw as u64, cells.1 as u64 * ch as u64);
+    let mut rgba = Vec::with_capacity(w as usize * h as usize * 4);
+    for py in 0..h {
+        let sy = ((y as u64 * ch as u64 + py as u64) * frame.height as u64 / pane_h) as usize;
+        for px in 0..w {
+            let sx = ((x as u64 * cw as u64 + px as u64) * frame.width as u64 / pane_w) as usize;
+            let i = (sy * frame.width as usize + sx) * 4;
+            rgba.extend_from_slice(frame.rgba.get(i..i + 4)?);
+        }
+    }
+    let image = match enc.graphics {
+        Graphics::Sixel => sixel::encode(&rgba, w, h).ok()?,
+        Graphics::Iterm2 => crate::term::inline::iterm_sequence(
+            &crate::term::Rgba {
+                width: w,
+                height: h,
+                rgba: &rgba,
+            },
+            n,
+            1,
+            true,
+        )
+        .ok()?,
+        Graphics::Kitty | Graphics::Halfblocks => return None,
+    };
+    Some(if enc.passthrough {
+        crate::term::tmux::passthrough(&image)
+    } else {
+        image
+    })
+}
+
 /// Encodes `frame` for a pane of `cells` that is `full` pixels. Kitty and iTerm2
 /// frames may be smaller (the terminal scales them); sixel ones are enlarged here.
 pub fn encode(
@@ -379,6 +432,52 @@ mod tests {
             .filter(|c| data.contains(&format!("#{c};2;")))
             .count();
         assert!(defined > sixel::MOVING_COLORS, "{defined} colours");
+    }
+
+    #[test]
+    fn patches_draw_the_picture_under_a_run_of_cells_again() {
+        // A 40×20 frame (reduced) over 8×4 cells of 10×20 px: red left, blue right.
+        let mut frame = Frame::background(40, 20, [0, 0, 255]);
+        for px in frame.rgba.chunks_mut(4 * 20).step_by(2) {
+            for p in px.chunks_mut(4) {
+                p[..3].copy_from_slice(&[255, 0, 0]);
+            }
+        }
+        let sixel = Encoding::new(Graphics::Sixel);
+        let left = patch(sixel, &frame, (8, 4), (10, 20), (1, 2, 2)).unwrap();
+        assert!(left.starts_with("\x1bP0;1;0q\"1;1;20;20#"), "{left:?}");
+        assert!(left.contains(";2;100;0;0") && !left.contains(";2;0;0;100"));
+        let right = patch(sixel, &frame, (8, 4), (10, 20), (6, 3, 2)).unwrap();
+        assert!(right.contains(";2;0;0;100") && !right.contains(";2;100;0;0"));
+        // Through tmux, wrapped; iTerm2 as a PNG a cell high.
+        let through = Encoding {
+            passthrough: true,
+            ..sixel
+        };
+        let wrapped = patch(through, &frame, (8, 4), (10, 20), (0, 0, 1)).unwrap();
+        assert!(wrapped.starts_with("\x1bPtmux;\x1b\x1bP"));
+        let iterm = patch(
+            Encoding::new(Graphics::Iterm2),
+            &frame,
+            (8, 4),
+            (10, 20),
+            (0, 0, 3),
+        );
+        assert!(iterm.unwrap().contains("width=3;height=1"));
+        // Not for cells (text, kitty), nor outside the pane.
+        assert_eq!(
+            patch(
+                Encoding::new(Graphics::Kitty),
+                &frame,
+                (8, 4),
+                (10, 20),
+                (0, 0, 1)
+            ),
+            None
+        );
+        assert_eq!(patch(sixel, &frame, (8, 4), (10, 20), (7, 0, 2)), None);
+        assert_eq!(patch(sixel, &frame, (8, 4), (10, 20), (0, 4, 1)), None);
+        assert_eq!(patch(sixel, &frame, (0, 0), (10, 20), (0, 0, 0)), None);
     }
 
     #[test]
