@@ -277,7 +277,10 @@ fn iterm_for_pane(frame: &Frame, cells: (u16, u16), passthrough: bool) -> anyhow
 /// gone, at a few hundred bytes rather than the whole frame's. `frame` is the
 /// frame shown over a pane of `cells` cells of `cell_pixels` pixels (a reduced
 /// frame is enlarged as the whole one was). `None` for the other protocols, a
-/// run outside the pane, or an empty frame.
+/// run outside the pane, an empty frame, and through tmux: tmux passes an
+/// escape string through at the outer terminal's cursor, which it moves only
+/// when it writes cells, so a patch would land wherever that was (the whole
+/// image is sent again instead, from the pane's first cell as every frame).
 pub fn patch(
     enc: Encoding,
     frame: &Frame,
@@ -287,7 +290,7 @@ pub fn patch(
 ) -> Option<String> {
     let (cw, ch) = (cell_pixels.0.max(1), cell_pixels.1.max(1));
     let fits = n > 0 && x as u32 + n as u32 <= cells.0 as u32 && y < cells.1;
-    if !fits || frame.width == 0 || frame.height == 0 {
+    if !fits || frame.width == 0 || frame.height == 0 || enc.passthrough {
         return None;
     }
     let (w, h) = (n as u32 * cw, ch);
@@ -317,11 +320,7 @@ pub fn patch(
         .ok()?,
         Graphics::Kitty | Graphics::Halfblocks => return None,
     };
-    Some(if enc.passthrough {
-        crate::term::tmux::passthrough(&image)
-    } else {
-        image
-    })
+    Some(image)
 }
 
 /// Encodes `frame` for a pane of `cells` that is `full` pixels. Kitty and iTerm2
@@ -359,10 +358,12 @@ pub fn encode(
             } else {
                 // Placed at the cursor, which the draw puts on the pane's first
                 // cell, and left there (`C=1`); it replaces the previous frame.
-                PaneImage::FirstCell {
-                    data: transmit,
-                    cells,
-                }
+                // Below text: the pane is erased first, as for sixel, so no
+                // text left there (the first frame's note, overlays) shows.
+                let mut data = String::with_capacity(transmit.len() + 16 * cells.1 as usize);
+                erase_pane(&mut data, cells);
+                data.push_str(&transmit);
+                PaneImage::FirstCell { data, cells }
             }
         }
         Graphics::Iterm2 => PaneImage::FirstCell {
@@ -449,13 +450,13 @@ mod tests {
         assert!(left.contains(";2;100;0;0") && !left.contains(";2;0;0;100"));
         let right = patch(sixel, &frame, (8, 4), (10, 20), (6, 3, 2)).unwrap();
         assert!(right.contains(";2;0;0;100") && !right.contains(";2;100;0;0"));
-        // Through tmux, wrapped; iTerm2 as a PNG a cell high.
+        // Not through tmux (the whole image is sent again); iTerm2 as a PNG a
+        // cell high.
         let through = Encoding {
             passthrough: true,
             ..sixel
         };
-        let wrapped = patch(through, &frame, (8, 4), (10, 20), (0, 0, 1)).unwrap();
-        assert!(wrapped.starts_with("\x1bPtmux;\x1b\x1bP"));
+        assert_eq!(patch(through, &frame, (8, 4), (10, 20), (0, 0, 1)), None);
         let iterm = patch(
             Encoding::new(Graphics::Iterm2),
             &frame,
@@ -514,11 +515,12 @@ mod tests {
         let mut buf = Buffer::empty(Rect::new(0, 0, 6, 3));
         (&img).render(Rect::new(1, 1, 5, 2), &mut buf);
         // The first cell holds the whole image, placed where the draw puts the
-        // cursor (that cell) and scaled to the 4×2 cells; no placeholder cells.
+        // cursor (that cell) and scaled to the 4×2 cells, below text; the pane
+        // erased first (text there would show over it); no placeholder cells.
         let first = buf[(1, 1)].symbol();
         assert!(
             first.starts_with(
-                "\x1b_Ga=T,q=2,i=7365481,f=24,o=z,s=20,v=20,c=4,r=2,C=1,z=-1073741825,m=0;"
+                "\x1b[4X\x1b[1B\x1b[4X\x1b[1B\x1b[2A\x1b_Ga=T,q=2,i=7365481,f=24,o=z,s=20,v=20,c=4,r=2,C=1,z=-1073741825,m=0;"
             ),
             "{first:?}"
         );
@@ -541,6 +543,6 @@ mod tests {
         let PaneImage::FirstCell { data, .. } = again else {
             panic!("placed directly from the first cell");
         };
-        assert!(data.starts_with("\x1b_Ga=T,q=2,i=7365481,"));
+        assert!(data.contains("\x1b_Ga=T,q=2,i=7365481,"));
     }
 }
