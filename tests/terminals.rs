@@ -3,9 +3,10 @@
 //! terminal's answers (from their documentation and source), a terminal that
 //! answers nothing and one that answers late; real tmux 3.3a asked through
 //! `tmux display` with a scripted outer terminal; real xterm `-ti vt340` under
-//! Xvfb; and screenshots of real kitty and xterm under Xvfb showing the
-//! inspector (its picture, and the scale bar's label one text row high in text
-//! mode). Each checks the protocol chosen, the time taken, that a key typed during
+//! Xvfb; screenshots of real kitty and xterm under Xvfb showing the inspector
+//! (its picture, and the scale bar's label one text row high in text mode); and
+//! the sixel the inspector sends while the crosshair moves (patches, never the
+//! frame again). Each checks the protocol chosen, the time taken, that a key typed during
 //! the probe is not lost, and that the terminal is left as it was found.
 
 mod common;
@@ -1057,4 +1058,82 @@ fn real_xterm_in_text_mode_draws_the_scale_bar_label_in_one_text_row() {
         "xterm {cols}×{rows} cells of {cw}×{ch} px: label {} px high",
         bottom - top + 1
     );
+}
+
+/// The sizes of the sixel images in `out`, in the order sent (`"1;1;W;H`).
+fn sixel_sizes(out: &[u8]) -> Vec<(u32, u32)> {
+    let text = String::from_utf8_lossy(out);
+    text.split("\x1bP0;1;0q\"1;1;")
+        .skip(1)
+        .filter_map(|s| {
+            let end = s.find(|c: char| !c.is_ascii_digit() && c != ';')?;
+            let (w, h) = s[..end].split_once(';')?;
+            Some((w.parse().ok()?, h.parse().ok()?))
+        })
+        .collect()
+}
+
+#[test]
+fn the_crosshair_and_picks_send_no_new_sixel_frame() {
+    let dir = tempfile::tempdir().unwrap();
+    let ds = dataset(dir.path());
+    // The coarsest level, loaded before the first frame: one frame, no redraws.
+    let coarsest = pcimg::store::Dataset::open(&ds).unwrap().parts[0]
+        .levels
+        .len()
+        - 1;
+    let lod = coarsest.to_string();
+    let args = [
+        "inspect",
+        ds.to_str().unwrap(),
+        "--renderer",
+        "cpu",
+        "--protocol",
+        "sixel",
+        "--lod",
+        &lod,
+    ];
+    let mut term = Pty::spawn(&mut clean(&args), (160, 48), (1600, 960));
+    // Frames are the view's inside (ui::areas: 160 − 64 − 2 cells across,
+    // 48 − 4 down) of 10×20 px cells; patches are a cell high.
+    let frame = (94 * 10, 44 * 20);
+    let frames = |o: &[u8]| sixel_sizes(o).iter().filter(|s| **s == frame).count();
+    let patches = |o: &[u8]| {
+        sixel_sizes(o)
+            .into_iter()
+            .filter(|&(w, h)| h == 20 && w <= 5 * 10)
+            .count()
+    };
+    // The frame, then the scale bar's cells written over it.
+    assert!(term.read_until(Duration::from_secs(30), |o| {
+        let text = String::from_utf8_lossy(o);
+        frames(o) == 1 && text.rfind('┤') > text.rfind("\x1bP0;1;0q")
+    }));
+    // Pick mode: the crosshair over the frame (its arms white on the default
+    // background).
+    term.write(b"x");
+    assert!(term.read_until(Duration::from_secs(10), |o| pty::contains(
+        o,
+        "15;49m│".as_bytes()
+    )));
+    // Moved: the picture under the cells it left comes back as patches.
+    term.write(b"l");
+    assert!(
+        term.read_until(Duration::from_secs(10), |o| patches(o) >= 1),
+        "no patch: {:?}",
+        sixel_sizes(&term.output)
+    );
+    // A pick: the point, no frame.
+    term.write(b"\r");
+    assert!(term.read_until(Duration::from_secs(10), |o| pty::contains(
+        o,
+        "picked ".as_bytes()
+    ) || pty::contains(
+        o,
+        b"no point under"
+    )));
+    assert_eq!(frames(&term.output), 1, "{:?}", sixel_sizes(&term.output));
+    term.write(b"q");
+    term.write(b"q");
+    assert!(term.wait(Duration::from_secs(10)).is_some());
 }
