@@ -10,8 +10,11 @@
 //! drawn with ([`FrameView`]), mapped to cells by the pane's pixels per cell,
 //! so the overlays stay on the picture the pane shows while newer frames are
 //! on their way. [`layout`] only computes cells (tested on its own); [`draw`]
-//! writes them into ratatui's buffer. The pane's first cell is never used: it
-//! carries the image itself for kitty, sixel and iTerm2.
+//! writes them into ratatui's buffer; [`rewrite`] says what the event loop
+//! writes again over an image sent from the pane's first cell, which ratatui's
+//! diff knows nothing of; [`onto_pixels`] draws them into a saved frame's
+//! pixels instead. The pane's first cell is never used: it carries the image
+//! itself for kitty, sixel and iTerm2.
 
 use super::app::App;
 use super::protocol::{Encoding, Graphics, PaneImage, image_in_one_cell};
@@ -54,12 +57,12 @@ pub struct Mark {
     pub style: Style,
 }
 
-/// Labels: light on dark, readable over any picture.
+/// The scale bar and labels: light on dark, readable over any picture.
 const LABEL: Style = Style::new()
     .fg(Color::White)
     .bg(Color::Black)
     .add_modifier(Modifier::BOLD);
-/// The scale bar and the crosshair: white strokes over the picture.
+/// The crosshair: white strokes over the picture.
 const STROKE: Style = Style::new().fg(Color::White).add_modifier(Modifier::BOLD);
 /// Picks, their segment and distance: yellow, as the tool panel's.
 const PICK: Style = Style::new().fg(Color::Yellow).add_modifier(Modifier::BOLD);
