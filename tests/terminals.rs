@@ -364,6 +364,16 @@ fn the_inspector_places_frames_directly_in_kitty_before_0_28() {
     let at = out.find("\x1b_Ga=T").unwrap();
     let head = &out[at..];
     assert!(head.contains(",C=1,"), "{}", &head[..90]);
+    // Below text, so the overlays (scale bar, crosshair, picks) show over it;
+    // the pane erased first, so no text left there does.
+    assert!(head.contains(",z=-1073741825,"), "{}", &head[..90]);
+    let before = &out[..at];
+    let last = before.rfind("\x1b[").unwrap();
+    assert!(
+        before[last..].ends_with('A') && before[..last].ends_with("X\x1b[1B"),
+        "{:?}",
+        &before[before.len().saturating_sub(40)..]
+    );
     assert!(!out.contains("U=1") && !out.contains('\u{10EEEE}'));
     // A key that orbits brings a new frame under the same id (it replaces the
     // last); the help takes the image off (kitty draws it above text).
