@@ -577,23 +577,34 @@ fn a_pick_over_the_shown_frame_draws_no_new_frame() {
     }
     // The same picture with a pick: answered with the point, no frame drawn.
     w.request(request(2, true, app.camera));
-    match next(&w) {
-        Report::Pick(Some(p)) => {
-            let c = app.dataset.bounds().center();
-            assert!(
-                (p.position[0] - c[0]).abs() < 10.0 && (p.position[1] - c[1]).abs() < 10.0,
-                "{p:?}"
-            );
-        }
+    let picked = match next(&w) {
+        Report::Pick(Some(p)) => p,
         Report::Pick(None) => panic!("no point under the crosshair at the centre"),
         _ => panic!("a frame was drawn for a pick over the shown one"),
+    };
+    let c = app.dataset.bounds().center();
+    assert!(
+        (picked.position[0] - c[0]).abs() < 10.0 && (picked.position[1] - c[1]).abs() < 10.0,
+        "{picked:?}"
+    );
+    // The same point as a pick drawn with a frame (the rasterizer's id buffer):
+    // a setting that changes nothing drawn makes it draw one.
+    let mut again = request(3, true, app.camera);
+    again.settings.memory += 1;
+    w.request(again);
+    match next(&w) {
+        Report::Frame(f) => {
+            let p = f.pick.flatten().expect("the same point");
+            assert_eq!(p.position, picked.position);
+        }
+        _ => panic!("a new request draws a frame"),
     }
     // A camera that moved: a frame (with the pick in it) is the next report.
     let mut moved = app.camera;
     moved.zoom(0.8);
-    w.request(request(3, true, moved));
+    w.request(request(4, true, moved));
     match next(&w) {
-        Report::Frame(f) => assert!(f.seq == 3 && f.pick.is_some()),
+        Report::Frame(f) => assert!(f.seq == 4 && f.pick.is_some()),
         _ => panic!("a new camera draws a frame"),
     }
 }

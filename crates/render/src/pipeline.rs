@@ -277,9 +277,10 @@ impl Pipeline {
 
         let legend = Legend::for_style(&self.ds, req.style, req.filter, &ranges);
         // The scale bar is labelled in the dataset's unit (its CRS parsed only then).
-        let unit = match req.overlays.scale_bar {
-            true => legend::dataset_unit(&self.ds),
-            false => String::new(),
+        let unit = if req.overlays.scale_bar {
+            legend::dataset_unit(&self.ds)
+        } else {
+            String::new()
         };
         draw_overlays(
             &mut frame,
