@@ -120,7 +120,6 @@ fn one(server: &mut Server, url: &str, outage: Duration) -> anyhow::Result<Run> 
         settings: settings.clone(),
         cursor: None,
         pick: false,
-        marks: Vec::new(),
         cells: (120, 40),
         cell_pixels: (1, 2),
         scale: 1,

@@ -131,7 +131,6 @@ fn main() -> anyhow::Result<()> {
             settings: app.settings.clone(),
             cursor: None,
             pick: false,
-            marks: Vec::new(),
             cells,
             cell_pixels,
             scale,

@@ -196,7 +196,6 @@ fn the_render_worker_redraws_by_itself_when_the_server_returns() {
         settings: settings.clone(),
         cursor: None,
         pick: false,
-        marks: Vec::new(),
         cells: (80, 30),
         cell_pixels: (1, 2),
         scale: 1,

@@ -2,8 +2,11 @@
 //! `inspect`, `preview`) on a pseudo-terminal whose other side plays each known
 //! terminal's answers (from their documentation and source), a terminal that
 //! answers nothing and one that answers late; real tmux 3.3a asked through
-//! `tmux display` with a scripted outer terminal; and real xterm `-ti vt340` under
-//! Xvfb. Each checks the protocol chosen, the time taken, that a key typed during
+//! `tmux display` with a scripted outer terminal; real xterm `-ti vt340` under
+//! Xvfb; screenshots of real kitty and xterm under Xvfb showing the inspector
+//! (its picture, and the scale bar's label one text row high in text mode); and
+//! the sixel the inspector sends while the crosshair moves (patches, never the
+//! frame again). Each checks the protocol chosen, the time taken, that a key typed during
 //! the probe is not lost, and that the terminal is left as it was found.
 
 mod common;
@@ -361,6 +364,16 @@ fn the_inspector_places_frames_directly_in_kitty_before_0_28() {
     let at = out.find("\x1b_Ga=T").unwrap();
     let head = &out[at..];
     assert!(head.contains(",C=1,"), "{}", &head[..90]);
+    // Below text, so the overlays (scale bar, crosshair, picks) show over it;
+    // the pane erased first, so no text left there does.
+    assert!(head.contains(",z=-1073741825,"), "{}", &head[..90]);
+    let before = &out[..at];
+    let last = before.rfind("\x1b[").unwrap();
+    assert!(
+        before[last..].ends_with('A') && before[..last].ends_with("X\x1b[1B"),
+        "{:?}",
+        &before[before.len().saturating_sub(40)..]
+    );
     assert!(!out.contains("U=1") && !out.contains('\u{10EEEE}'));
     // A key that orbits brings a new frame under the same id (it replaces the
     // last); the help takes the image off (kitty draws it above text).
@@ -568,18 +581,7 @@ fn preview_in_tmux_sends_kitty_placeholders_through_to_the_outer_terminal() {
 
 #[test]
 fn real_xterm_in_vt340_mode_gets_sixel_without_a_flag() {
-    let have = ["xterm", "Xvfb"].iter().all(|p| {
-        Command::new("which")
-            .arg(p)
-            .output()
-            .is_ok_and(|o| o.status.success())
-    });
-    if !have {
-        assert!(
-            std::env::var("CI").ok().as_deref() != Some("true"),
-            "xterm and Xvfb are required in CI (.ci/run installs xterm, xvfb)"
-        );
-        eprintln!("note: xterm or Xvfb not found, skipping this test outside CI");
+    if !installed(&["xterm", "Xvfb"], "xterm, xvfb") {
         return;
     }
     let dir = tempfile::tempdir().unwrap();
@@ -745,18 +747,7 @@ fn wait_for_view(
 
 #[test]
 fn real_kitty_shows_the_inspectors_view_placed_directly_before_0_28() {
-    let have = ["kitty", "Xvfb", "import"].iter().all(|p| {
-        Command::new("which")
-            .arg(p)
-            .output()
-            .is_ok_and(|o| o.status.success())
-    });
-    if !have {
-        assert!(
-            std::env::var("CI").ok().as_deref() != Some("true"),
-            "kitty, Xvfb and ImageMagick's import are required in CI (.ci/run installs kitty, xvfb, imagemagick)"
-        );
-        eprintln!("note: kitty, Xvfb or import not found, skipping this test outside CI");
+    if !installed(&["kitty", "Xvfb", "import"], "kitty, xvfb, imagemagick") {
         return;
     }
     let started = Instant::now();
@@ -926,4 +917,233 @@ fn real_kitty_shows_the_inspectors_view_placed_directly_before_0_28() {
         to_frame.as_secs_f64(),
         started.elapsed().as_secs_f64()
     );
+}
+
+/// Whether every program of `tools` is installed (`which`). In CI (`CI=true`)
+/// a missing one is a failure (`.ci/run` installs `packages`); elsewhere the
+/// caller skips with a note.
+fn installed(tools: &[&str], packages: &str) -> bool {
+    let have = tools.iter().all(|p| {
+        Command::new("which")
+            .arg(p)
+            .output()
+            .is_ok_and(|o| o.status.success())
+    });
+    if !have {
+        assert!(
+            std::env::var("CI").ok().as_deref() != Some("true"),
+            "{} are required in CI (.ci/run installs {packages})",
+            tools.join(", ")
+        );
+        eprintln!(
+            "note: one of {} not found, skipping this test outside CI",
+            tools.join(", ")
+        );
+    }
+    have
+}
+
+/// Whether a pixel is the overlays' white (bold bright white, SGR 1;97).
+fn white(p: &image::Rgb<u8>) -> bool {
+    let [r, g, b] = p.0;
+    r.min(g).min(b) >= 200 && r.max(g).max(b) - r.min(g).min(b) <= 40
+}
+
+#[test]
+fn real_xterm_in_text_mode_draws_the_scale_bar_label_in_one_text_row() {
+    if !installed(&["xterm", "Xvfb", "import"], "xterm, xvfb, imagemagick") {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let ds = dataset(dir.path());
+    let (_xvfb, display) = start_xvfb("1280x1024x24");
+    let doctor = dir.path().join("doctor.json");
+    // Colours without white (viridis), in a window of kitty's test colours:
+    // the only white on screen is the overlays'.
+    let script = format!(
+        "{bin} doctor --json > {doctor}; exec {bin} inspect {ds} --renderer cpu \
+         --protocol text --color height --ramp viridis",
+        bin = bin(),
+        doctor = doctor.display(),
+        ds = ds.display()
+    );
+    let bg = format!("#{:02x}{:02x}{:02x}", KITTY_BG[0], KITTY_BG[1], KITTY_BG[2]);
+    let mut xterm = Reaped(
+        Command::new("xterm")
+            .args(["-display", &display, "-geometry", "120x40", "-bg", &bg])
+            .args(["-fg", "gray", "-e", "sh", "-c", &script])
+            .env_remove("TMUX")
+            .env_remove("KITTY_WINDOW_ID")
+            .env_remove("TERM_PROGRAM")
+            .env("NODEVICE_SELECT", "1")
+            .stdout(std::process::Stdio::null())
+            .stderr(std::process::Stdio::null())
+            .spawn()
+            .expect("xterm starts"),
+    );
+    // doctor ends before the inspector starts: complete once it parses.
+    let end = Instant::now() + Duration::from_secs(60);
+    let d: serde_json::Value = loop {
+        if let Ok(v) = serde_json::from_str(&std::fs::read_to_string(&doctor).unwrap_or_default()) {
+            break v;
+        }
+        assert!(Instant::now() < end, "xterm did not run pcimg within 60 s");
+        assert!(xterm.0.try_wait().unwrap().is_none(), "xterm ended early");
+        std::thread::sleep(Duration::from_millis(50));
+    };
+    // Cells in pixels: xterm reports its text area, inside a border.
+    let w = &d["winsize"];
+    let (cols, rows) = (
+        w["cols"].as_u64().unwrap() as u32,
+        w["rows"].as_u64().unwrap() as u32,
+    );
+    let (wpx, hpx) = (
+        w["width_px"].as_u64().unwrap() as u32,
+        w["height_px"].as_u64().unwrap() as u32,
+    );
+    let (cw, ch) = (wpx / cols, hpx / rows);
+    assert!(cw >= 4 && ch >= 8, "{w}");
+    let (ox, oy) = ((wpx - cols * cw) / 2, (hpx - rows * ch) / 2);
+    // ui::areas: the view's inside starts a column right of the left panels'
+    // 2/5 (at most 72), and ends a row above the view's border, the status and
+    // the hint rows. The bar is on its last row, a cell in; the label above.
+    let left = (cols * 2 / 5).clamp(20, 72);
+    let bar_row = rows - 4;
+    let x0 = ox + (left + 2) * cw;
+    let x1 = x0 + 24 * cw;
+    let row_px = |r: u32| oy + r * ch;
+    let whites = |shot: &image::RgbImage, y0: u32, y1: u32| -> Vec<(u32, u32)> {
+        let mut v = Vec::new();
+        for y in y0..y1.min(shot.height()) {
+            for x in x0..x1.min(shot.width()) {
+                if white(shot.get_pixel(x, y)) {
+                    v.push((x, y));
+                }
+            }
+        }
+        v
+    };
+    // Waits until the bar shows: a horizontal stroke two cells long or more.
+    let end = Instant::now() + Duration::from_secs(60);
+    let shot = loop {
+        let shot = screenshot(&display);
+        let bar = whites(&shot, row_px(bar_row), row_px(bar_row + 1));
+        let longest = (row_px(bar_row)..row_px(bar_row + 1))
+            .map(|y| bar.iter().filter(|p| p.1 == y).count() as u32)
+            .max()
+            .unwrap_or(0);
+        if longest >= 2 * cw {
+            break shot;
+        }
+        if Instant::now() > end {
+            let path = std::env::temp_dir().join(format!("pcimg-xterm-{}.png", std::process::id()));
+            let _ = shot.save(&path);
+            panic!(
+                "no scale bar within 60 s (screen saved as {})",
+                path.display()
+            );
+        }
+        std::thread::sleep(Duration::from_millis(150));
+    };
+    // The label's white: in the cell row above the bar, and nowhere above it.
+    let label = whites(&shot, row_px(bar_row - 4), row_px(bar_row));
+    let top = label
+        .iter()
+        .map(|p| p.1)
+        .min()
+        .expect("a label over the bar");
+    let bottom = label.iter().map(|p| p.1).max().unwrap();
+    let path = std::env::temp_dir().join(format!("pcimg-xterm-{}.png", std::process::id()));
+    if bottom - top + 1 > ch || top < row_px(bar_row - 1) {
+        let _ = shot.save(&path);
+    }
+    assert!(
+        bottom - top < ch && top >= row_px(bar_row - 1),
+        "the label spans pixel rows {top}..={bottom}, a text row is {ch} px from {} \
+         (screen saved as {})",
+        row_px(bar_row - 1),
+        path.display()
+    );
+    eprintln!(
+        "xterm {cols}×{rows} cells of {cw}×{ch} px: label {} px high",
+        bottom - top + 1
+    );
+}
+
+/// The sizes of the sixel images in `out`, in the order sent (`"1;1;W;H`).
+fn sixel_sizes(out: &[u8]) -> Vec<(u32, u32)> {
+    let text = String::from_utf8_lossy(out);
+    text.split("\x1bP0;1;0q\"1;1;")
+        .skip(1)
+        .filter_map(|s| {
+            let end = s.find(|c: char| !c.is_ascii_digit() && c != ';')?;
+            let (w, h) = s[..end].split_once(';')?;
+            Some((w.parse().ok()?, h.parse().ok()?))
+        })
+        .collect()
+}
+
+#[test]
+fn the_crosshair_and_picks_send_no_new_sixel_frame() {
+    let dir = tempfile::tempdir().unwrap();
+    let ds = dataset(dir.path());
+    // The coarsest level, loaded before the first frame: one frame, no redraws.
+    let coarsest = pcimg::store::Dataset::open(&ds).unwrap().parts[0]
+        .levels
+        .len()
+        - 1;
+    let lod = coarsest.to_string();
+    let args = [
+        "inspect",
+        ds.to_str().unwrap(),
+        "--renderer",
+        "cpu",
+        "--protocol",
+        "sixel",
+        "--lod",
+        &lod,
+    ];
+    let mut term = Pty::spawn(&mut clean(&args), (160, 48), (1600, 960));
+    // Frames are the view's inside (ui::areas: 160 − 64 − 2 cells across,
+    // 48 − 4 down) of 10×20 px cells; patches are a cell high.
+    let frame = (94 * 10, 44 * 20);
+    let frames = |o: &[u8]| sixel_sizes(o).iter().filter(|s| **s == frame).count();
+    let patches = |o: &[u8]| {
+        sixel_sizes(o)
+            .into_iter()
+            .filter(|&(w, h)| h == 20 && w <= 5 * 10)
+            .count()
+    };
+    // The frame, then the scale bar's cells written over it.
+    assert!(term.read_until(Duration::from_secs(30), |o| {
+        let text = String::from_utf8_lossy(o);
+        frames(o) == 1 && text.rfind('┤') > text.rfind("\x1bP0;1;0q")
+    }));
+    // Pick mode: the crosshair over the frame (its arms white on the default
+    // background).
+    term.write(b"x");
+    assert!(term.read_until(Duration::from_secs(10), |o| pty::contains(
+        o,
+        "15;49m│".as_bytes()
+    )));
+    // Moved: the picture under the cells it left comes back as patches.
+    term.write(b"l");
+    assert!(
+        term.read_until(Duration::from_secs(10), |o| patches(o) >= 1),
+        "no patch: {:?}",
+        sixel_sizes(&term.output)
+    );
+    // A pick: the point, no frame.
+    term.write(b"\r");
+    assert!(term.read_until(Duration::from_secs(10), |o| pty::contains(
+        o,
+        "picked ".as_bytes()
+    ) || pty::contains(
+        o,
+        b"no point under"
+    )));
+    assert_eq!(frames(&term.output), 1, "{:?}", sixel_sizes(&term.output));
+    term.write(b"q");
+    term.write(b"q");
+    assert!(term.wait(Duration::from_secs(10)).is_some());
 }

@@ -236,7 +236,6 @@ fn the_worker_renders_and_encodes_half_block_frames() {
         settings: app.settings.clone(),
         cursor: None,
         pick: false,
-        marks: Vec::new(),
         cells: (area.width, area.height),
         cell_pixels: (1, 2),
         scale: 1,
@@ -489,7 +488,6 @@ fn the_worker_picks_the_point_under_the_crosshair() {
             settings: settings.clone(),
             cursor: Some(cursor),
             pick: true,
-            marks: Vec::new(),
             cells: (area.width, area.height),
             cell_pixels: (4, 8),
             scale: 1,
@@ -497,15 +495,19 @@ fn the_worker_picks_the_point_under_the_crosshair() {
         let deadline = Instant::now() + Duration::from_secs(30);
         loop {
             assert!(Instant::now() < deadline, "no pick in 30 s");
+            // In a new frame, or over the frame drawn last (no new frame).
             match w.recv_timeout(Duration::from_millis(200)) {
-                Some(Report::Frame(f)) if f.seq == seq && f.pick.is_some() => break f,
+                Some(Report::Frame(f)) if f.seq == seq && f.pick.is_some() => {
+                    break (f.pick.clone().unwrap(), Some(f.status.clone()));
+                }
+                Some(Report::Pick(p)) => break (p, None),
                 Some(Report::Error(e)) => panic!("worker error: {e}"),
                 _ => {}
             }
         }
     };
-    let f = pick_at(&w, 1, (0.5, 0.5));
-    let p = f.pick.unwrap().expect("a point under the crosshair");
+    let (p, status) = pick_at(&w, 1, (0.5, 0.5));
+    let p = p.expect("a point under the crosshair");
     let c = app.dataset.bounds().center();
     // Within a few pixels of the centre: the scene is 400 m across the view.
     assert!(
@@ -516,16 +518,150 @@ fn the_worker_picks_the_point_under_the_crosshair() {
     assert_eq!(names, ["intensity", "classification"]);
     // The panel lists it, with the class's name.
     app.add_pick(Some(p));
-    app.frame = f.status.clone();
+    app.frame = status.expect("the first pick draws the first frame");
     let text = screen(&app, None).join("\n");
     assert!(text.contains("A 637"), "{text}");
     assert!(text.contains("classification"), "{text}");
     assert!(text.contains("ground") || text.contains("building") || text.contains("vegetation"));
     // A second pick: the distances.
-    let g = pick_at(&w, 2, (0.25, 0.5));
-    app.add_pick(g.pick.unwrap());
+    let (g, status) = pick_at(&w, 2, (0.25, 0.5));
+    assert!(status.is_none(), "picked over the frame drawn");
+    app.add_pick(g);
     let text = screen(&app, None).join("\n");
     assert!(text.contains("A→B 3D"), "{text}");
+}
+
+#[test]
+fn a_pick_over_the_shown_frame_draws_no_new_frame() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = scan_part(dir.path(), 60_000, 7);
+    let mut app = app_for(&path);
+    let w = RenderWorker::spawn(
+        app.dataset.clone(),
+        WorkerOptions {
+            encoding: Encoding::new(Graphics::Halfblocks),
+            extra_bands: Vec::new(),
+            renderer: RendererChoice::Cpu,
+            memory: 1 << 30,
+            load_threads: 2,
+        },
+    );
+    app.camera.pitch = -89.0f64.to_radians();
+    let request = |seq: u64, pick: bool, camera: Camera| Request {
+        seq,
+        camera,
+        settings: app.settings.clone(),
+        cursor: Some((0.5, 0.5)),
+        pick,
+        cells: (100, 40),
+        cell_pixels: (2, 4),
+        scale: 1,
+    };
+    let next = |w: &RenderWorker| match w.recv_timeout(Duration::from_secs(30)) {
+        Some(Report::Error(e)) => panic!("worker error: {e}"),
+        Some(r) => r,
+        None => panic!("nothing from the worker in 30 s"),
+    };
+    w.request(request(1, false, app.camera));
+    let deadline = Instant::now() + Duration::from_secs(30);
+    loop {
+        assert!(Instant::now() < deadline, "no complete frame in 30 s");
+        if let Report::Frame(f) = next(&w)
+            && f.status.pending == 0
+        {
+            let view = f.status.view.expect("the frame says how it was drawn");
+            assert_eq!((view.width, view.height), (200, 160));
+            assert_eq!(view.camera, app.camera);
+            break;
+        }
+    }
+    // The same picture with a pick: answered with the point, no frame drawn.
+    w.request(request(2, true, app.camera));
+    let picked = match next(&w) {
+        Report::Pick(Some(p)) => p,
+        Report::Pick(None) => panic!("no point under the crosshair at the centre"),
+        _ => panic!("a frame was drawn for a pick over the shown one"),
+    };
+    let c = app.dataset.bounds().center();
+    assert!(
+        (picked.position[0] - c[0]).abs() < 10.0 && (picked.position[1] - c[1]).abs() < 10.0,
+        "{picked:?}"
+    );
+    // The same point as a pick drawn with a frame (the rasterizer's id buffer):
+    // a setting that changes nothing drawn makes it draw one.
+    let mut again = request(3, true, app.camera);
+    again.settings.memory += 1;
+    w.request(again);
+    match next(&w) {
+        Report::Frame(f) => {
+            let p = f.pick.flatten().expect("the same point");
+            assert_eq!(p.position, picked.position);
+        }
+        _ => panic!("a new request draws a frame"),
+    }
+    // A camera that moved: a frame (with the pick in it) is the next report.
+    let mut moved = app.camera;
+    moved.zoom(0.8);
+    w.request(request(4, true, moved));
+    match next(&w) {
+        Report::Frame(f) => assert!(f.seq == 4 && f.pick.is_some()),
+        _ => panic!("a new camera draws a frame"),
+    }
+}
+
+#[test]
+fn the_scale_bar_is_one_row_of_text_in_the_datasets_unit_in_tmux() {
+    if !common::tool_available("tmux", "-V") {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("utm.tif");
+    let utm = r#"PROJCS["WGS 84 / UTM zone 10N",GEOGCS["WGS 84",UNIT["degree",0.0174532925199433]],UNIT["metre",1,AUTHORITY["EPSG","9001"]]]"#;
+    let opts = WriteOptions {
+        crs: Some(utm.into()),
+        ..Default::default()
+    };
+    store::write_part(&path, &pcimg::synth::scene(40_000, 8), &opts).unwrap();
+    let tmux = Tmux::new("scalebar");
+    tmux.inspect((140, 42), &path, "--protocol text");
+    // The bar (`├──┤`) on the view's last row, its label on the row above.
+    let s = tmux.wait_for("the scale bar", 15, |s| {
+        s.lines().any(|l| l.contains('├') && l.contains('┤')) && s.contains("view · text")
+    });
+    let rows: Vec<Vec<char>> = s.lines().map(|l| l.chars().collect()).collect();
+    let bar_row = rows
+        .iter()
+        .position(|r| r.contains(&'├') && r.contains(&'┤'))
+        .unwrap();
+    let x = rows[bar_row].iter().position(|&c| c == '├').unwrap();
+    let end = rows[bar_row].iter().position(|&c| c == '┤').unwrap();
+    assert!(rows[bar_row][x + 1..end].iter().all(|&c| c == '─'), "{s}");
+    let above: String = rows[bar_row - 1][x..].iter().collect();
+    let number: String = above
+        .chars()
+        .take_while(|c| c.is_ascii_digit() || *c == '.')
+        .collect();
+    let unit: String = above[number.len()..]
+        .strip_prefix(' ')
+        .unwrap_or("")
+        .chars()
+        .take_while(|c| c.is_alphabetic())
+        .collect();
+    assert!(number.parse::<f64>().is_ok(), "{s}");
+    assert_eq!(unit, "m", "metres as m, not M:\n{s}");
+    // One row: the label appears once in the view, and nothing of it above.
+    let label = format!("{number} m");
+    let in_view = rows
+        .iter()
+        .filter(|r| r.len() > x && r[x..].iter().collect::<String>().contains(&label))
+        .count();
+    assert_eq!(in_view, 1, "{s}");
+    let two_up: String = rows[bar_row - 2][x..].iter().take(label.len()).collect();
+    assert!(!two_up.contains(&number), "{s}");
+    // The panel states the scale in the same unit.
+    assert!(s.contains(" m at the centre"), "{s}");
+    tmux.run(&["send-keys", "-t", "t", "q"]);
+    tmux.wait_for("the prompt", 5, |s| !s.contains("view · text"));
 }
 
 #[test]

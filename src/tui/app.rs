@@ -6,6 +6,7 @@
 
 pub use super::clipbox::ClipBox;
 use super::keys::Command;
+pub use super::overlay::FrameView;
 pub use super::section::Section;
 use crate::camera::Camera;
 use crate::lod::LodMode;
@@ -124,6 +125,8 @@ pub enum Effect {
     Redraw,
     /// The frame is out of date: ask the worker for a new one.
     Render,
+    /// Pick the point under the crosshair (the frame itself is up to date).
+    Pick,
     /// Save the current frame.
     Save,
     /// Stop until the shell continues the process (Ctrl-Z).
@@ -176,6 +179,9 @@ pub struct FrameStatus {
     pub ranges: ColorRanges,
     /// Ground units a pixel of the frame spans at the orbit target.
     pub units_per_pixel: f64,
+    /// The camera and pixel size the frame was drawn with (the overlays
+    /// project with them); `None` before the first frame.
+    pub view: Option<FrameView>,
 }
 
 /// Tiles the view wants that wait to be tried again, as the status line tells
@@ -246,6 +252,9 @@ pub struct App {
     pub pick_pending: bool,
     /// The last two picked points, oldest first.
     pub picks: Vec<PointRecord>,
+    /// The symbol of the dataset's unit of length (`m`, `ft`; `units` when its
+    /// CRS does not say), for the scale bar and distances.
+    pub unit: String,
     /// The legend row selected for `space` (classification colour).
     pub legend_row: usize,
     /// The section (a slab seen from the side), while one is shown.
@@ -264,6 +273,7 @@ impl App {
             .clip
             .map(|c| ClipBox::start(&dataset.bounds(), Some(c)));
         App {
+            unit: crate::render::legend::dataset_unit(&dataset),
             dataset,
             part: 0,
             home: camera,
@@ -366,7 +376,7 @@ impl App {
             }
             Quit if self.picking => {
                 self.picking = false;
-                return Effect::Render;
+                return Effect::Redraw;
             }
             Quit => return Effect::Quit,
             ToggleHelp => {
@@ -411,12 +421,14 @@ impl App {
                     _ => LodChoice::Distance,
                 }
             }
+            // The crosshair is drawn over the frame: no new frame.
             Orbit(dx, dy) if self.picking => {
                 let (x, y) = self.cursor;
                 self.cursor = (
                     (x + dx as f64 * CURSOR_STEP).clamp(0.0, 1.0),
                     (y - dy as f64 * CURSOR_STEP).clamp(0.0, 1.0),
                 );
+                return Effect::Redraw;
             }
             Orbit(dy, dp) => self
                 .camera
@@ -445,18 +457,23 @@ impl App {
             }
             TogglePick => {
                 self.picking = !self.picking;
-                return Effect::Render;
+                return Effect::Redraw;
             }
             Pick => {
                 self.picking = true;
                 self.pick_pending = true;
+                return Effect::Pick;
             }
             PickAt(x, y) => {
                 self.picking = true;
                 self.cursor = ((x as f64).clamp(0.0, 1.0), (y as f64).clamp(0.0, 1.0));
                 self.pick_pending = true;
+                return Effect::Pick;
             }
-            ClearPicks => self.picks.clear(),
+            ClearPicks => {
+                self.picks.clear();
+                return Effect::Redraw;
+            }
             LegendRow(d) => {
                 let n = self.class_rows().len();
                 if n == 0 {
@@ -949,13 +966,16 @@ mod tests {
         );
         // Pick mode: the arrows move the crosshair, not the camera.
         let yaw = a.camera.yaw;
-        a.apply(Command::TogglePick);
-        a.apply(Command::Orbit(1, 1));
+        // The crosshair and the picks are drawn over the frame: none of their
+        // keys asks for a new one.
+        assert_eq!(a.apply(Command::TogglePick), Effect::Redraw);
+        assert_eq!(a.apply(Command::Orbit(1, 1)), Effect::Redraw);
         assert_eq!(a.camera.yaw, yaw);
         assert!(a.cursor.0 > 0.5 && a.cursor.1 < 0.5);
-        a.apply(Command::Pick);
+        assert_eq!(a.apply(Command::Pick), Effect::Pick);
         assert!(a.pick_pending);
-        assert_eq!(a.apply(Command::Quit), Effect::Render, "q leaves pick mode");
+        assert_eq!(a.apply(Command::ClearPicks), Effect::Redraw);
+        assert_eq!(a.apply(Command::Quit), Effect::Redraw, "q leaves pick mode");
         assert!(!a.picking);
         // A section draws a slab and looks at it level; z again restores.
         let before = a.camera;

@@ -2,7 +2,8 @@
 //! live view of it, driven by the keyboard, over SSH and without a GPU.
 //!
 //! One concern per file: [`app`] (state machine, key commands → state changes),
-//! [`keys`] (the key map and help), [`ui`] (layout), [`worker`] (select → load →
+//! [`keys`] (the key map and help), [`ui`] (layout), [`overlay`] (the scale bar,
+//! crosshair and picks as cells over the picture), [`worker`] (select → load →
 //! render → encode on a worker thread), [`protocol`] (which terminal image
 //! protocol, and encoding for it), `terminal` (entering and restoring the
 //! terminal). This file holds the event loop, which never waits on loading or
@@ -11,6 +12,7 @@
 pub mod app;
 pub mod clipbox;
 pub mod keys;
+pub mod overlay;
 pub mod panels;
 pub mod protocol;
 pub mod section;
@@ -241,14 +243,16 @@ fn event_loop(
     let mut moving = false;
     let mut full_owed = false;
     let mut link = Link::default();
+    // The overlay cells drawn last (`overlay`).
+    let mut drawn_marks: Vec<overlay::Mark> = Vec::new();
     let scalable = pane.graphics != protocol::Graphics::Halfblocks;
     loop {
         if STOP.load(Ordering::SeqCst) {
             return Ok(());
         }
         let size = session.terminal.size()?;
-        let cells = ui::areas(Rect::new(0, 0, size.width, size.height), app).view_inner;
-        let cells = (cells.width, cells.height);
+        let view = ui::areas(Rect::new(0, 0, size.width, size.height), app).view_inner;
+        let cells = (view.width, view.height);
         if cells != requested_cells {
             want_frame = true;
         }
@@ -266,7 +270,6 @@ fn event_loop(
                 settings: app.settings.clone(),
                 cursor: app.picking.then_some(app.cursor),
                 pick: std::mem::take(&mut app.pick_pending),
-                marks: app.picks.iter().map(|p| p.position).collect(),
                 cells,
                 cell_pixels: pane.cell_pixels,
                 scale,
@@ -316,7 +319,33 @@ fn event_loop(
             } else {
                 0
             };
-            session.terminal.draw(|f| ui::draw(f, app, image))?;
+            let marks = image.map_or_else(Vec::new, |i| overlay::of_app(app, view, i));
+            let done = session.terminal.draw(|f| ui::draw(f, app, image))?;
+            // Overlay cells over an image sent from the pane's first cell are
+            // written again where the image went over them (or left them).
+            let patch = |(x, y, n): (u16, u16, u16)| {
+                let (frame, image) = (shown.frame.as_ref()?, image?);
+                let at = (x.checked_sub(view.x)?, y.checked_sub(view.y)?, n);
+                protocol::patch(pane.encoding, frame, image.cells(), pane.cell_pixels, at)
+            };
+            let again = match image {
+                Some(_) if !app.show_help => overlay::rewrite(
+                    done.buffer,
+                    pane.encoding,
+                    shown.unsent,
+                    (&drawn_marks, &marks),
+                    (view.x, view.y),
+                    &patch,
+                ),
+                _ => Vec::new(),
+            };
+            if !again.is_empty() {
+                use ratatui::backend::Backend as _;
+                let out = session.terminal.backend_mut();
+                out.draw(again.iter().map(|(x, y, c)| (*x, *y, c)))?;
+                ratatui::backend::Backend::flush(out)?;
+            }
+            drawn_marks = marks;
             shown.unsent &= covered;
             link.record(image_bytes, t.elapsed());
             app.link_rate = link.rate;
@@ -355,9 +384,19 @@ fn event_loop(
                             moving = true;
                             last_move = Some(Instant::now());
                         }
+                        // The frame stays as it is; its request carries the pick.
+                        Effect::Pick => want_frame = true,
                         Effect::Save => {
                             saved += 1;
-                            save_frame(shown.frame.clone(), saved, msg_tx.clone());
+                            let picks = app.picks.iter().map(|p| p.position).collect();
+                            let marks =
+                                (picks, app.picking.then_some(app.cursor), app.unit.clone());
+                            save_frame(
+                                shown.frame.clone(),
+                                app.frame.view.map(|v| (v, marks)),
+                                saved,
+                                msg_tx.clone(),
+                            );
                             app.message = "saving the frame…".into();
                         }
                         Effect::Suspend => {
@@ -398,7 +437,7 @@ fn event_loop(
                         let fx = (m.column - v.x) as f32 + 0.5;
                         let fy = (m.row - v.y) as f32 + 0.5;
                         let cmd = keys::Command::PickAt(fx / v.width as f32, fy / v.height as f32);
-                        if app.apply(cmd) == Effect::Render {
+                        if app.apply(cmd) == Effect::Pick {
                             want_frame = true;
                         }
                         dirty = true;
@@ -415,9 +454,8 @@ fn event_loop(
                 Ok(Some(Report::Frame(f))) => {
                     // A pick is kept whatever the frame: it answers the click.
                     if let Some(p) = f.pick {
+                        // Its mark is drawn over the frame (`overlay`).
                         app.add_pick(p);
-                        // The new pick's mark is drawn in the next frame.
-                        want_frame = true;
                     }
                     // A frame for a request already superseded is stale: sending
                     // it would only delay the newer one on a slow terminal.
@@ -432,6 +470,10 @@ fn event_loop(
                     shown.image = Some(f.image);
                     shown.unsent = true;
                     shown.frame = Some(f.frame);
+                    dirty = true;
+                }
+                Ok(Some(Report::Pick(p))) => {
+                    app.add_pick(p);
                     dirty = true;
                 }
                 Ok(Some(Report::Error(e))) => {
@@ -459,13 +501,32 @@ fn fps(arrivals: &VecDeque<Instant>) -> f64 {
     }
 }
 
-/// Saves a frame as `pcimg-frame-NNN.png` in the working directory, on a thread;
-/// the outcome comes back as a message.
-fn save_frame(frame: Option<Arc<Frame>>, n: u32, done: Sender<String>) {
+/// What a saved frame shows over the points: how it was drawn, the picks, the
+/// crosshair and the unit.
+type SavedMarks = (
+    overlay::FrameView,
+    (Vec<[f64; 3]>, Option<(f64, f64)>, String),
+);
+
+/// Saves a frame as `pcimg-frame-NNN.png` in the working directory, with the
+/// view's overlays drawn into its pixels, on a thread; the outcome comes back
+/// as a message.
+fn save_frame(frame: Option<Arc<Frame>>, marks: Option<SavedMarks>, n: u32, done: Sender<String>) {
     std::thread::spawn(move || {
         let msg = match frame {
             None => "no frame to save yet".to_string(),
             Some(f) => {
+                let f = match &marks {
+                    Some((view, (picks, cursor, unit))) => {
+                        let m = overlay::Marks {
+                            cursor: *cursor,
+                            picks,
+                            unit,
+                        };
+                        Arc::new(overlay::onto_pixels(&f, view, &m))
+                    }
+                    None => f,
+                };
                 let mut path = PathBuf::from(format!("pcimg-frame-{n:03}.png"));
                 let mut k = n;
                 while path.exists() {

@@ -79,8 +79,9 @@ pub fn lines(app: &App) -> Vec<Line<'static>> {
     if app.frame.units_per_pixel.is_finite() && app.frame.units_per_pixel > 0.0 {
         out.push(
             Line::from(format!(
-                "1 px ≈ {} m at the centre",
-                value_label(app.frame.units_per_pixel)
+                "1 px ≈ {} {} at the centre",
+                value_label(app.frame.units_per_pixel),
+                app.unit
             ))
             .dark_gray(),
         );
@@ -114,10 +115,11 @@ pub fn lines(app: &App) -> Vec<Line<'static>> {
         let d = distance(a.position, b.position);
         out.push(
             Line::from(format!(
-                "A→B 3D {} · horizontal {} · vertical {:+.3}",
+                "A→B 3D {} · horizontal {} · vertical {:+.3} {}",
                 value_label(d.d3),
                 value_label(d.horizontal),
-                d.vertical
+                d.vertical,
+                app.unit
             ))
             .yellow(),
         );

@@ -62,9 +62,10 @@ pub fn image_in_one_cell(enc: Encoding) -> bool {
     }
 }
 
-/// Whether the image stays above any text drawn over its cells until it is
-/// deleted (kitty placed directly): it must be taken off before text (the help)
-/// is drawn there.
+/// Whether the image shows through text drawn over its cells until it is
+/// deleted (kitty placed directly: drawn below text, but above cells of the
+/// default background, as the help's are): it must be taken off before the
+/// help is drawn there. The view's overlays are text over it by design.
 pub fn image_above_text(enc: Encoding) -> bool {
     enc.graphics == Graphics::Kitty && !enc.placeholders
 }
@@ -270,6 +271,58 @@ fn iterm_for_pane(frame: &Frame, cells: (u16, u16), passthrough: bool) -> anyhow
     })
 }
 
+/// The escape string that draws the picture under cells `x..x + n` of row `y`
+/// (from the pane's top-left) again, as a small image at the run's first cell:
+/// for sixel and iTerm2, whose pixels under overlay cells that went away are
+/// gone, at a few hundred bytes rather than the whole frame's. `frame` is the
+/// frame shown over a pane of `cells` cells of `cell_pixels` pixels (a reduced
+/// frame is enlarged as the whole one was). `None` for the other protocols, a
+/// run outside the pane, an empty frame, and through tmux: tmux passes an
+/// escape string through at the outer terminal's cursor, which it moves only
+/// when it writes cells, so a patch would land wherever that was (the whole
+/// image is sent again instead, from the pane's first cell as every frame).
+pub fn patch(
+    enc: Encoding,
+    frame: &Frame,
+    cells: (u16, u16),
+    cell_pixels: (u32, u32),
+    (x, y, n): (u16, u16, u16),
+) -> Option<String> {
+    let (cw, ch) = (cell_pixels.0.max(1), cell_pixels.1.max(1));
+    let fits = n > 0 && x as u32 + n as u32 <= cells.0 as u32 && y < cells.1;
+    if !fits || frame.width == 0 || frame.height == 0 || enc.passthrough {
+        return None;
+    }
+    let (w, h) = (n as u32 * cw, ch);
+    // Pixels of the pane as the whole image showed them, sampled from the frame.
+    let (pane_w, pane_h) = (cells.0 as u64 * cw as u64, cells.1 as u64 * ch as u64);
+    let mut rgba = Vec::with_capacity(w as usize * h as usize * 4);
+    for py in 0..h {
+        let sy = ((y as u64 * ch as u64 + py as u64) * frame.height as u64 / pane_h) as usize;
+        for px in 0..w {
+            let sx = ((x as u64 * cw as u64 + px as u64) * frame.width as u64 / pane_w) as usize;
+            let i = (sy * frame.width as usize + sx) * 4;
+            rgba.extend_from_slice(frame.rgba.get(i..i + 4)?);
+        }
+    }
+    let image = match enc.graphics {
+        Graphics::Sixel => sixel::encode(&rgba, w, h).ok()?,
+        Graphics::Iterm2 => crate::term::inline::iterm_sequence(
+            &crate::term::Rgba {
+                width: w,
+                height: h,
+                rgba: &rgba,
+            },
+            n,
+            1,
+            true,
+        )
+        .ok()?,
+        Graphics::Kitty | Graphics::Halfblocks => return None,
+    };
+    Some(image)
+}
+
 /// Encodes `frame` for a pane of `cells` that is `full` pixels. Kitty and iTerm2
 /// frames may be smaller (the terminal scales them); sixel ones are enlarged here.
 pub fn encode(
@@ -296,6 +349,8 @@ pub fn encode(
                     rows: cells.1,
                     placeholders: enc.placeholders,
                     passthrough: enc.passthrough,
+                    // Placed directly: under the overlays' text.
+                    below_text: true,
                 },
             );
             if enc.placeholders {
@@ -303,10 +358,12 @@ pub fn encode(
             } else {
                 // Placed at the cursor, which the draw puts on the pane's first
                 // cell, and left there (`C=1`); it replaces the previous frame.
-                PaneImage::FirstCell {
-                    data: transmit,
-                    cells,
-                }
+                // Below text: the pane is erased first, as for sixel, so no
+                // text left there (the first frame's note, overlays) shows.
+                let mut data = String::with_capacity(transmit.len() + 16 * cells.1 as usize);
+                erase_pane(&mut data, cells);
+                data.push_str(&transmit);
+                PaneImage::FirstCell { data, cells }
             }
         }
         Graphics::Iterm2 => PaneImage::FirstCell {
@@ -379,6 +436,52 @@ mod tests {
     }
 
     #[test]
+    fn patches_draw_the_picture_under_a_run_of_cells_again() {
+        // A 40×20 frame (reduced) over 8×4 cells of 10×20 px: red left, blue right.
+        let mut frame = Frame::background(40, 20, [0, 0, 255]);
+        for px in frame.rgba.chunks_mut(4 * 20).step_by(2) {
+            for p in px.chunks_mut(4) {
+                p[..3].copy_from_slice(&[255, 0, 0]);
+            }
+        }
+        let sixel = Encoding::new(Graphics::Sixel);
+        let left = patch(sixel, &frame, (8, 4), (10, 20), (1, 2, 2)).unwrap();
+        assert!(left.starts_with("\x1bP0;1;0q\"1;1;20;20#"), "{left:?}");
+        assert!(left.contains(";2;100;0;0") && !left.contains(";2;0;0;100"));
+        let right = patch(sixel, &frame, (8, 4), (10, 20), (6, 3, 2)).unwrap();
+        assert!(right.contains(";2;0;0;100") && !right.contains(";2;100;0;0"));
+        // Not through tmux (the whole image is sent again); iTerm2 as a PNG a
+        // cell high.
+        let through = Encoding {
+            passthrough: true,
+            ..sixel
+        };
+        assert_eq!(patch(through, &frame, (8, 4), (10, 20), (0, 0, 1)), None);
+        let iterm = patch(
+            Encoding::new(Graphics::Iterm2),
+            &frame,
+            (8, 4),
+            (10, 20),
+            (0, 0, 3),
+        );
+        assert!(iterm.unwrap().contains("width=3;height=1"));
+        // Not for cells (text, kitty), nor outside the pane.
+        assert_eq!(
+            patch(
+                Encoding::new(Graphics::Kitty),
+                &frame,
+                (8, 4),
+                (10, 20),
+                (0, 0, 1)
+            ),
+            None
+        );
+        assert_eq!(patch(sixel, &frame, (8, 4), (10, 20), (7, 0, 2)), None);
+        assert_eq!(patch(sixel, &frame, (8, 4), (10, 20), (0, 4, 1)), None);
+        assert_eq!(patch(sixel, &frame, (0, 0), (10, 20), (0, 0, 0)), None);
+    }
+
+    #[test]
     fn kitty_frames_fill_the_pane_with_placeholders() {
         let frame = Frame::background(20, 20, [0, 0, 0]);
         let img = encode(Encoding::new(Graphics::Kitty), &frame, (4, 2), (40, 40)).unwrap();
@@ -412,10 +515,13 @@ mod tests {
         let mut buf = Buffer::empty(Rect::new(0, 0, 6, 3));
         (&img).render(Rect::new(1, 1, 5, 2), &mut buf);
         // The first cell holds the whole image, placed where the draw puts the
-        // cursor (that cell) and scaled to the 4×2 cells; no placeholder cells.
+        // cursor (that cell) and scaled to the 4×2 cells, below text; the pane
+        // erased first (text there would show over it); no placeholder cells.
         let first = buf[(1, 1)].symbol();
         assert!(
-            first.starts_with("\x1b_Ga=T,q=2,i=7365481,f=24,o=z,s=20,v=20,c=4,r=2,C=1,m=0;"),
+            first.starts_with(
+                "\x1b[4X\x1b[1B\x1b[4X\x1b[1B\x1b[2A\x1b_Ga=T,q=2,i=7365481,f=24,o=z,s=20,v=20,c=4,r=2,C=1,z=-1073741825,m=0;"
+            ),
             "{first:?}"
         );
         assert!(first.ends_with("\x1b\\"));
@@ -437,6 +543,6 @@ mod tests {
         let PaneImage::FirstCell { data, .. } = again else {
             panic!("placed directly from the first cell");
         };
-        assert!(data.starts_with("\x1b_Ga=T,q=2,i=7365481,"));
+        assert!(data.contains("\x1b_Ga=T,q=2,i=7365481,"));
     }
 }

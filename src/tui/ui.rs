@@ -1,6 +1,7 @@
 //! The inspector's layout, drawn with ratatui from the [`App`] state: the parts
 //! table, the selected part's bands and pyramid levels, memory gauges, the view
-//! pane with the latest frame, the status line, and the `?` help overlay. Drawing
+//! pane with the latest frame and its overlays (`overlay`: scale bar,
+//! crosshair, picks), the status line, and the `?` help overlay. Drawing
 //! only copies: frames arrive already encoded from the render worker. Every text
 //! that came from a file passes through [`sanitize`] first.
 
@@ -93,7 +94,12 @@ pub fn draw(f: &mut Frame, app: &App, image: Option<&PaneImage>) {
     }
     f.render_widget(view_block, a.view);
     match image {
-        Some(img) => f.render_widget(img, a.view_inner),
+        Some(img) => {
+            f.render_widget(img, a.view_inner);
+            // The scale bar, crosshair and picks as cells over the picture.
+            let marks = super::overlay::of_app(app, a.view_inner, img);
+            super::overlay::draw(f.buffer_mut(), &marks);
+        }
         // Not drawn under the help (a kitty image placed directly would cover it).
         None if app.show_help => {}
         None => f.render_widget(

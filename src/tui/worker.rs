@@ -29,12 +29,11 @@ pub struct Request {
     pub seq: u64,
     pub camera: Camera,
     pub settings: Settings,
-    /// The crosshair to draw, as fractions of the view across and down.
+    /// The crosshair, as fractions of the view across and down (where a pick
+    /// looks; the crosshair itself is drawn as cells, `overlay`).
     pub cursor: Option<(f64, f64)>,
     /// Whether to pick the point under the crosshair in this frame.
     pub pick: bool,
-    /// Picked points to mark (two: joined by a line).
-    pub marks: Vec<[f64; 3]>,
     /// The view pane in cells.
     pub cells: (u16, u16),
     /// Pixels per cell for the protocol in use.
@@ -59,9 +58,25 @@ pub struct FrameReady {
     pub pick: Option<Option<PointRecord>>,
 }
 
+impl Request {
+    /// Whether `self` asks for the same picture as `other` (the crosshair, the
+    /// pick and the sequence number aside).
+    pub fn same_frame(&self, other: &Request) -> bool {
+        self.camera == other.camera
+            && self.settings == other.settings
+            && self.cells == other.cells
+            && self.cell_pixels == other.cell_pixels
+            && self.scale == other.scale
+    }
+}
+
 /// What the worker sends back.
 pub enum Report {
     Frame(Box<FrameReady>),
+    /// The answer to a pick over the frame last sent (a request for the same
+    /// picture with a pick): the point under the crosshair, if any. No frame
+    /// is drawn for it.
+    Pick(Option<PointRecord>),
     Error(String),
 }
 
@@ -140,6 +155,8 @@ impl Drop for RenderWorker {
 struct Worker {
     opts: WorkerOptions,
     pipeline: Pipeline,
+    /// The last frame drawn: its request and tiles (picks over it need no new one).
+    last: Option<(Request, Vec<Arc<LoadedTile>>)>,
 }
 
 fn run(
@@ -156,30 +173,50 @@ fn run(
     );
     let first = first_tiles(&ds, &cache);
     let pipeline = Pipeline::new(ds, cache, opts.renderer, Loading::Stream).with_reference(first);
-    let mut w = Worker { opts, pipeline };
+    let mut w = Worker {
+        opts,
+        pipeline,
+        last: None,
+    };
     let mut current: Option<(Request, Instant)> = None;
     let mut pending = 0usize;
     // What the last frame's status line said of tiles waiting to be retried.
     let mut told: Option<(usize, bool, String)> = None;
     loop {
         let mut dirty = false;
+        let mut incoming = None;
         let got = if pending > 0 || told.is_some() {
             requests.recv_timeout(REDRAW_WHILE_LOADING)
         } else {
             requests.recv().map_err(|_| RecvTimeoutError::Disconnected)
         };
         match got {
-            Ok(r) => {
-                current = Some((r, Instant::now()));
-                dirty = true;
-            }
+            Ok(r) => incoming = Some(r),
             Err(RecvTimeoutError::Timeout) => {}
             Err(RecvTimeoutError::Disconnected) => return,
         }
         // Only the newest request matters.
         while let Ok(r) = requests.try_recv() {
-            current = Some((r, Instant::now()));
-            dirty = true;
+            incoming = Some(r);
+        }
+        if let Some(r) = incoming {
+            if r.pick && w.last.as_ref().is_some_and(|(l, _)| l.same_frame(&r)) {
+                // A pick over the frame already sent: answered without a new one.
+                // Redraws as tiles arrive answer it too (the loop drops older ones).
+                if let Some((c, _)) = current.as_mut() {
+                    c.seq = r.seq;
+                }
+                let report = match w.pick_only(&r) {
+                    Ok(p) => Report::Pick(p),
+                    Err(e) => Report::Error(crate::advice::message(&e)),
+                };
+                if reports.send(report).is_err() {
+                    return;
+                }
+            } else {
+                current = Some((r, Instant::now()));
+                dirty = true;
+            }
         }
         if w.pipeline.cache().arrivals.try_iter().count() > 0 {
             dirty = true;
@@ -287,50 +324,43 @@ fn first_tiles(ds: &Dataset, cache: &TileCache) -> Vec<Arc<LoadedTile>> {
 }
 
 impl Worker {
+    /// The point under the crosshair of `req` in the last frame drawn (which
+    /// `req` asks for again), found without drawing one.
+    fn pick_only(&mut self, req: &Request) -> anyhow::Result<Option<PointRecord>> {
+        let Some((_, tiles)) = &self.last else {
+            return Ok(None);
+        };
+        let s = Sizes::of(req);
+        let hit = match s.pick(req) {
+            Some(at) => self.pipeline.pick_in(tiles, &s.frame_request(req), at)?,
+            None => None,
+        };
+        let ds = self.pipeline.dataset();
+        let record = match hit {
+            Some(h) => {
+                Some(point_record(ds, tiles[h.batch].key, h.index).map_err(anyhow::Error::msg)?)
+            }
+            None => None,
+        };
+        Ok(record)
+    }
+
     fn frame(&mut self, req: &Request, received: Instant) -> anyhow::Result<FrameReady> {
-        let (cols, rows) = (req.cells.0.max(1), req.cells.1.max(1));
-        let scale = req.scale.max(1);
-        let full = (
-            (cols as u32 * req.cell_pixels.0).clamp(1, render::MAX_FRAME_SIDE),
-            (rows as u32 * req.cell_pixels.1).clamp(1, render::MAX_FRAME_SIDE),
-        );
-        let (width, height) = ((full.0 / scale).max(1), (full.1 / scale).max(1));
-        let s = &req.settings;
-        let mode = match s.lod_mode() {
-            LodMode::View { budget } => LodMode::View {
-                budget: lod::budget_for_pixels(width, height, budget),
-            },
-            m => m,
-        };
-        let cursor_px = req.cursor.map(|(x, y)| {
-            (
-                ((x * width as f64) as u32).min(width - 1),
-                ((y * height as f64) as u32).min(height - 1),
-            )
-        });
-        let pick = match (req.pick, cursor_px) {
-            (true, Some((x, y))) => Some((x, y, req_pick_radius(width))),
-            _ => None,
-        };
-        let d = self.pipeline.draw(&FrameRequest {
-            camera: &req.camera,
+        let sizes = Sizes::of(req);
+        let Sizes {
+            cols,
+            rows,
+            full,
             width,
             height,
-            style: &s.style,
-            filter: &s.filter,
-            mode,
-            memory: s.memory,
-            point_size: s.point_size,
-            eye_dome_lighting: s.edl,
-            edl: s.edl_params,
-            pick,
-            overlays: Overlays {
-                marks: &req.marks,
-                crosshair: cursor_px,
-                legend: false,
-                scale_bar: true,
-            },
+            scale,
+        } = sizes;
+        let mode = sizes.frame_request(req).mode;
+        let d = self.pipeline.draw(&FrameRequest {
+            pick: sizes.pick(req),
+            ..sizes.frame_request(req)
         })?;
+        self.last = Some((req.clone(), d.tiles.clone()));
         let ds = self.pipeline.dataset();
         let pick = match d.pick {
             Some(Some(h)) => Some(Some(
@@ -374,6 +404,11 @@ impl Worker {
             scale,
             ranges: d.ranges,
             units_per_pixel: 1.0 / req.camera.pixels_per_unit(req.camera.distance, height),
+            view: Some(super::overlay::FrameView {
+                camera: req.camera,
+                width,
+                height,
+            }),
         };
         Ok(FrameReady {
             seq: req.seq,
@@ -384,6 +419,75 @@ impl Worker {
             requested: received,
             pick,
         })
+    }
+}
+
+/// A request's sizes: the pane in cells, its full size in pixels, and the
+/// frame's (1/`scale` of it each way).
+#[derive(Debug, Clone, Copy)]
+struct Sizes {
+    cols: u16,
+    rows: u16,
+    full: (u32, u32),
+    width: u32,
+    height: u32,
+    scale: u32,
+}
+
+impl Sizes {
+    fn of(req: &Request) -> Sizes {
+        let (cols, rows) = (req.cells.0.max(1), req.cells.1.max(1));
+        let scale = req.scale.max(1);
+        let full = (
+            (cols as u32 * req.cell_pixels.0).clamp(1, render::MAX_FRAME_SIDE),
+            (rows as u32 * req.cell_pixels.1).clamp(1, render::MAX_FRAME_SIDE),
+        );
+        let (width, height) = ((full.0 / scale).max(1), (full.1 / scale).max(1));
+        Sizes {
+            cols,
+            rows,
+            full,
+            width,
+            height,
+            scale,
+        }
+    }
+
+    /// The pipeline's request for `req`'s frame, without a pick.
+    fn frame_request<'a>(&self, req: &'a Request) -> FrameRequest<'a> {
+        let s = &req.settings;
+        let mode = match s.lod_mode() {
+            LodMode::View { budget } => LodMode::View {
+                budget: lod::budget_for_pixels(self.width, self.height, budget),
+            },
+            m => m,
+        };
+        FrameRequest {
+            camera: &req.camera,
+            width: self.width,
+            height: self.height,
+            style: &s.style,
+            filter: &s.filter,
+            mode,
+            memory: s.memory,
+            point_size: s.point_size,
+            eye_dome_lighting: s.edl,
+            edl: s.edl_params,
+            pick: None,
+            // The scale bar, crosshair and picks are drawn as cells over the
+            // picture (`overlay`), the legend in the tool panel.
+            overlays: Overlays::default(),
+        }
+    }
+
+    /// The pixel under the crosshair and the radius searched, when `req` picks.
+    fn pick(&self, req: &Request) -> Option<(u32, u32, u32)> {
+        let (x, y) = req.cursor.filter(|_| req.pick)?;
+        Some((
+            ((x * self.width as f64) as u32).min(self.width - 1),
+            ((y * self.height as f64) as u32).min(self.height - 1),
+            req_pick_radius(self.width),
+        ))
     }
 }
 

@@ -134,18 +134,22 @@ pub fn scale_bar(camera: &Camera, height: u32, max_px: f64) -> Option<(f64, f64)
     Some((len, len * ppu))
 }
 
-/// A scale bar's label: metres (or the CRS's unit) with a sensible precision.
-pub(crate) fn length_label(len: f64) -> String {
-    if len >= 1.0 {
-        format!(
-            "{} m",
-            value_label(len)
-                .trim_end_matches(".00")
-                .trim_end_matches(".0")
-        )
+/// A scale bar's label: `len` with a sensible precision and `unit` (the
+/// dataset's, [`dataset_unit`]): `20 m`, `0.500 ft`.
+pub fn length_label(len: f64, unit: &str) -> String {
+    let v = value_label(len);
+    let v = if len >= 1.0 {
+        v.trim_end_matches(".00").trim_end_matches(".0").to_string()
     } else {
-        format!("{} m", value_label(len))
-    }
+        v
+    };
+    format!("{v} {unit}")
+}
+
+/// The symbol lengths in `ds` are labelled in: its first part's CRS's unit
+/// (`m`, `ft`; `units` when no CRS says, see [`crate::store::crs::unit_symbol`]).
+pub fn dataset_unit(ds: &Dataset) -> String {
+    crate::store::crs::unit_symbol(ds.parts.first().and_then(|p| p.meta.crs.as_deref()))
 }
 
 fn fill(f: &mut Frame, x: i64, y: i64, w: i64, h: i64, c: [u8; 3]) {
@@ -249,15 +253,15 @@ pub fn draw(f: &mut Frame, legend: &Legend) {
     }
 }
 
-/// Draws a scale bar for `camera` in the bottom-left corner.
-pub(crate) fn draw_scale_bar(f: &mut Frame, camera: &Camera) {
+/// Draws a scale bar for `camera` in the bottom-left corner, labelled in `unit`.
+pub(crate) fn draw_scale_bar(f: &mut Frame, camera: &Camera, unit: &str) {
     let s = text_scale(f);
     let pad = 8 * s as i64;
     let Some((len, px)) = scale_bar(camera, f.height, f.width as f64 / 4.0) else {
         return;
     };
     let px = px.round() as i64;
-    let label = length_label(len);
+    let label = length_label(len, unit);
     let th = font::H as i64 * s as i64;
     let y = f.height as i64 - pad - 3 * s as i64;
     shade(
@@ -313,7 +317,9 @@ mod tests {
             [1.0, 2.0, 5.0].iter().any(|x| (x - m).abs() < 1e-9),
             "{len}"
         );
-        assert_eq!(length_label(20.0), "20 m");
-        assert_eq!(length_label(0.5), "0.500 m");
+        assert_eq!(length_label(20.0, "m"), "20 m");
+        assert_eq!(length_label(0.5, "m"), "0.500 m");
+        assert_eq!(length_label(200.0, "ft"), "200 ft");
+        assert_eq!(length_label(2.5, "units"), "2.50 units");
     }
 }

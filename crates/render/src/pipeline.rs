@@ -54,7 +54,9 @@ pub struct FrameRequest<'a> {
 }
 
 /// What is drawn over the points, in this order: the picked points and the line
-/// between two, the crosshair, the legend, the scale bar.
+/// between two, the crosshair, the legend, the scale bar. For images without a
+/// terminal (`render`, `preview`, a frame the inspector saves); the inspector's
+/// view draws its overlays as terminal cells instead (`tui::overlay`).
 #[derive(Debug, Clone, Default)]
 pub struct Overlays<'a> {
     pub marks: &'a [[f64; 3]],
@@ -249,46 +251,11 @@ impl Pipeline {
         };
 
         let t = Instant::now();
-        let bounds = self.ds.bounds();
-        // Without reference tiles the first frame's serve, and are not kept: a
-        // turntable's later frames reuse the ranges, not the points.
-        let reference: &[Arc<LoadedTile>] = self.reference.as_deref().unwrap_or(&tiles);
-        let ranges = self
-            .ranges
-            .get_or_insert_with(|| ColorRanges::from_tiles(reference, &bounds));
-        if self.colors.style.as_ref() != Some(req.style) {
-            self.colors.columns.clear();
-            if let crate::ColorMode::Band(b) = &req.style.mode {
-                ranges.band = band_range(reference, b).unwrap_or((0.0, 1.0));
-            }
-            self.colors.style = Some(req.style.clone());
-        }
-        let ranges = *ranges;
-        if self.colors.filter.as_ref() != Some(req.filter) {
-            self.colors.hidden.clear();
-            self.colors.filter = Some(req.filter.clone());
-        }
-        self.color_tiles(&tiles, req.style, req.filter, &ranges);
-        let batches: Vec<PointBatch<'_>> = tiles
-            .iter()
-            .map(|t| PointBatch {
-                origin: t.origin,
-                x: &t.x,
-                y: &t.y,
-                z: self.colors.hidden[&t.key].0.as_deref().unwrap_or(&t.z),
-                color: &self.colors.columns[&t.key],
-            })
-            .collect();
+        let ranges = self.colour(&tiles, req.style, req.filter);
+        let batches = batches(&self.colors, &tiles);
         let color_ms = ms(t);
 
-        let opts = RenderOptions {
-            width,
-            height,
-            point_size: req.point_size,
-            eye_dome_lighting: req.eye_dome_lighting,
-            edl: req.edl,
-            background: [0, 0, 0],
-        };
+        let opts = options(req);
         let t = Instant::now();
         let renderer = self.renderer.as_mut().expect("created at the top");
         renderer.keep_ids(req.pick.is_some());
@@ -309,7 +276,19 @@ impl Pipeline {
         drop(batches);
 
         let legend = Legend::for_style(&self.ds, req.style, req.filter, &ranges);
-        draw_overlays(&mut frame, req.camera, &req.overlays, legend.as_ref());
+        // The scale bar is labelled in the dataset's unit (its CRS parsed only then).
+        let unit = if req.overlays.scale_bar {
+            legend::dataset_unit(&self.ds)
+        } else {
+            String::new()
+        };
+        draw_overlays(
+            &mut frame,
+            req.camera,
+            &req.overlays,
+            legend.as_ref(),
+            &unit,
+        );
 
         let points = tiles.iter().map(|t| t.len() as u64).sum();
         let kept = tiles.iter().map(|t| self.colors.hidden[&t.key].1).sum();
@@ -341,6 +320,55 @@ impl Pipeline {
             },
             pick,
         })
+    }
+
+    /// The point nearest pixel `(x, y)` (within `radius`) of a frame of `req`
+    /// drawn from `tiles` (an earlier [`Drawn::tiles`]), found by projecting
+    /// them again ([`pick::pick`]) with their cached colours, without drawing a
+    /// frame: the inspector picks over the frame it shows. `Hit::batch` indexes
+    /// `tiles`.
+    pub fn pick_in(
+        &mut self,
+        tiles: &[Arc<LoadedTile>],
+        req: &FrameRequest<'_>,
+        (x, y, radius): (u32, u32, u32),
+    ) -> Result<Option<Hit>, DrawError> {
+        self.colour(tiles, req.style, req.filter);
+        let batches = batches(&self.colors, tiles);
+        Ok(pick::pick(
+            req.camera,
+            &batches,
+            &options(req),
+            x,
+            y,
+            radius,
+        )?)
+    }
+
+    /// Colours and filters `tiles` for `style` and `filter` (those not already
+    /// done for them), fixing the colour ranges on first use; returns the ranges.
+    fn colour(&mut self, tiles: &[Arc<LoadedTile>], style: &Style, filter: &Filter) -> ColorRanges {
+        let bounds = self.ds.bounds();
+        // Without reference tiles the first frame's serve, and are not kept: a
+        // turntable's later frames reuse the ranges, not the points.
+        let reference: &[Arc<LoadedTile>] = self.reference.as_deref().unwrap_or(tiles);
+        let ranges = self
+            .ranges
+            .get_or_insert_with(|| ColorRanges::from_tiles(reference, &bounds));
+        if self.colors.style.as_ref() != Some(style) {
+            self.colors.columns.clear();
+            if let crate::ColorMode::Band(b) = &style.mode {
+                ranges.band = band_range(reference, b).unwrap_or((0.0, 1.0));
+            }
+            self.colors.style = Some(style.clone());
+        }
+        let ranges = *ranges;
+        if self.colors.filter.as_ref() != Some(filter) {
+            self.colors.hidden.clear();
+            self.colors.filter = Some(filter.clone());
+        }
+        self.color_tiles(tiles, style, filter, &ranges);
+        ranges
     }
 
     /// Colours (and filters) the tiles not yet coloured for this style and
@@ -378,12 +406,40 @@ impl Pipeline {
     }
 }
 
+/// The rasterizer's batches of `tiles` (coloured by [`Pipeline::colour`] into
+/// `colors`): hidden points' heights NaN.
+fn batches<'a>(colors: &'a ColorCache, tiles: &'a [Arc<LoadedTile>]) -> Vec<PointBatch<'a>> {
+    tiles
+        .iter()
+        .map(|t| PointBatch {
+            origin: t.origin,
+            x: &t.x,
+            y: &t.y,
+            z: colors.hidden[&t.key].0.as_deref().unwrap_or(&t.z),
+            color: &colors.columns[&t.key],
+        })
+        .collect()
+}
+
+/// The rasterizer's options for `req`.
+fn options(req: &FrameRequest<'_>) -> RenderOptions {
+    RenderOptions {
+        width: req.width,
+        height: req.height,
+        point_size: req.point_size,
+        eye_dome_lighting: req.eye_dome_lighting,
+        edl: req.edl,
+        background: [0, 0, 0],
+    }
+}
+
 /// Draws `o` over `frame` (in the order [`Overlays`] gives).
-pub(crate) fn draw_overlays(
+pub fn draw_overlays(
     frame: &mut Frame,
     cam: &Camera,
     o: &Overlays<'_>,
     legend: Option<&Legend>,
+    unit: &str,
 ) {
     if let [a, b] = o.marks[..] {
         marks::segment(frame, cam, a, b, MARK_COLOR);
@@ -400,7 +456,7 @@ pub(crate) fn draw_overlays(
         legend::draw(frame, l);
     }
     if o.scale_bar {
-        legend::draw_scale_bar(frame, cam);
+        legend::draw_scale_bar(frame, cam, unit);
     }
 }
 

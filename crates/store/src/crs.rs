@@ -163,6 +163,33 @@ pub fn distance(e: f64, crs: Option<&str>) -> String {
     }
 }
 
+/// The short symbol labels (a scale bar, a distance) give lengths of data in
+/// `crs` in: `m` for metres, `ft` for international and US survey feet, `km`,
+/// else the unit's name as the CRS spells it (sanitized); `°` for a geographic
+/// CRS; `units` when there is no CRS or it does not say (an EPSG code alone):
+/// never assumed metres.
+pub fn unit_symbol(crs: Option<&str>) -> String {
+    match crs.and_then(linear_unit) {
+        Some(Ok(u)) => {
+            let name = u.name.to_ascii_lowercase();
+            let near = |m: f64| (u.metres / m - 1.0).abs() < 1e-5;
+            if near(1.0) && ["metre", "meter", "m", "metres", "meters"].contains(&name.as_str()) {
+                "m".into()
+            } else if near(0.3048)
+                && (name.contains("foot") || name.contains("feet") || name.starts_with("ft"))
+            {
+                "ft".into()
+            } else if near(1000.0) && name.starts_with("kilomet") {
+                "km".into()
+            } else {
+                crate::text::sanitize(&u.name)
+            }
+        }
+        Some(Err(_)) => "°".into(),
+        None => "units".into(),
+    }
+}
+
 /// Four significant digits.
 fn significant(v: f64) -> String {
     if v == 0.0 || !v.is_finite() {
@@ -224,5 +251,30 @@ mod tests {
             let _ = distance(1.0, Some(bad));
         }
         assert_eq!(linear_unit("PROJCS[\"a\",UNIT[\"x\",-1]]"), None);
+    }
+
+    #[test]
+    fn unit_symbols_for_labels() {
+        let utm = r#"PROJCS["WGS 84 / UTM zone 10N",GEOGCS["WGS 84",UNIT["degree",0.01745]],
+            UNIT["metre",1,AUTHORITY["EPSG","9001"]]]"#;
+        assert_eq!(unit_symbol(Some(utm)), "m");
+        let ft = r#"PROJCS["a",UNIT["foot",0.3048]]"#;
+        assert_eq!(unit_symbol(Some(ft)), "ft");
+        let us = r#"PROJCRS["NAD83 / Vermont (ftUS)",CS[Cartesian,2],
+            AXIS["easting (X)",east,LENGTHUNIT["US survey foot",0.304800609601219]]]"#;
+        assert_eq!(unit_symbol(Some(us)), "ft");
+        let km = r#"PROJCS["a",UNIT["kilometre",1000]]"#;
+        assert_eq!(unit_symbol(Some(km)), "km");
+        let link = r#"PROJCS["a",UNIT["Clarke's link",0.201166195164]]"#;
+        assert_eq!(unit_symbol(Some(link)), "Clarke's link");
+        // A "metre" that is not one is named, not called m.
+        let odd = r#"PROJCS["a",UNIT["metre",0.5]]"#;
+        assert_eq!(unit_symbol(Some(odd)), "metre");
+        let geo = r#"GEOGCS["WGS 84",UNIT["degree",0.0174532925199433]]"#;
+        assert_eq!(unit_symbol(Some(geo)), "°");
+        assert_eq!(unit_symbol(Some("EPSG:2992")), "units");
+        assert_eq!(unit_symbol(None), "units");
+        let evil = "PROJCS[\"a\",UNIT[\"x\x1b[2J\",2]]";
+        assert!(!unit_symbol(Some(evil)).contains('\x1b'));
     }
 }

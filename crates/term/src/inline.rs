@@ -87,6 +87,7 @@ fn kitty_cells(frame: &Rgba<'_>, choice: &super::detect::Choice, cols: u16, rows
         rows,
         placeholders: choice.placeholders,
         passthrough: choice.passthrough,
+        below_text: false,
     };
     let mut s = "\n".repeat(rows as usize);
     s.push_str(&format!("\x1b[{rows}A\r"));

@@ -24,7 +24,16 @@ pub struct Placement {
     pub placeholders: bool,
     /// Each chunk wrapped in tmux passthrough.
     pub passthrough: bool,
+    /// A placement at the cursor drawn below text and below cells with a
+    /// background colour ([`BELOW_TEXT`]), so text written over it shows (the
+    /// inspector's overlays); else above text, kitty's default.
+    pub below_text: bool,
 }
+
+/// The z-index that puts an image under text and under cells with a
+/// non-default background (kitty draws those above images whose z-index is
+/// below −1,073,741,824).
+pub const BELOW_TEXT: i64 = -1_073_741_825;
 
 /// The escape sequences that send `frame` (alpha dropped: `f=24`, deflated: `o=z`)
 /// and show it over `cols` × `rows` cells, whatever its pixel size.
@@ -54,7 +63,11 @@ pub fn transmit(frame: &Rgba<'_>, p: Placement) -> String {
         let more = u8::from(i + 1 < n);
         let mut one = String::with_capacity(chunk.len() + 96);
         if i == 0 {
-            let virtual_ = if p.placeholders { ",U=1" } else { ",C=1" };
+            let virtual_ = match (p.placeholders, p.below_text) {
+                (true, _) => ",U=1".to_string(),
+                (false, false) => ",C=1".to_string(),
+                (false, true) => format!(",C=1,z={BELOW_TEXT}"),
+            };
             one.push_str(&format!(
                 "\x1b_Ga=T,q=2,i={},f=24,o=z,s={},v={},c={},r={}{virtual_},m={more};{chunk}\x1b\\",
                 p.id, frame.width, frame.height, p.cols, p.rows
@@ -441,6 +454,7 @@ mod tests {
             rows: 10,
             placeholders: true,
             passthrough: false,
+            below_text: false,
         };
         let (head, rgb) = decode(&transmit(&f, p));
         assert_eq!(
@@ -474,6 +488,7 @@ mod tests {
             rows: 12,
             placeholders: false,
             passthrough: false,
+            below_text: false,
         };
         let seq = transmit(&f, p);
         let (head, rgb) = decode(&seq);
@@ -492,6 +507,21 @@ mod tests {
             assert!(c.starts_with(keys), "chunk {i}: {}", &c[..12]);
         }
         assert!(!seq.contains("\x1bPtmux;"));
+        // Below text (the inspector writes its overlays over it).
+        let below = transmit(
+            &f,
+            Placement {
+                below_text: true,
+                ..p
+            },
+        );
+        assert!(
+            below.starts_with(
+                "\x1b_Ga=T,q=2,i=7365481,f=24,o=z,s=200,v=100,c=30,r=12,C=1,z=-1073741825,m=1;"
+            ),
+            "{}",
+            &below[..80]
+        );
     }
 
     #[test]
@@ -503,6 +533,7 @@ mod tests {
             rows: 2,
             placeholders: true,
             passthrough: true,
+            below_text: false,
         };
         let seq = transmit(&f, p);
         let wrapped = seq.matches("\x1bPtmux;").count();
