@@ -93,7 +93,7 @@ fn read_back(c: &mut Criterion) {
     let path = dir.path().join("region.bin");
     let origin = cloud.bounds().center();
     let (records, _, _) = records_by_region(&cloud, &vec![0u32; n as usize], &[origin]);
-    let mut w = SpillWriter::create(path.clone(), 1 << 20).unwrap();
+    let mut w = SpillWriter::create(path.clone(), 1 << 20, 0).unwrap();
     w.push_records(&records, n).unwrap();
     w.finish().unwrap();
     let like = cloud.empty_like();

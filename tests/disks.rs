@@ -121,6 +121,18 @@ fn the_spill_files_of_a_multi_part_conversion_on_a_full_disk() {
     assert!(err.contains("temporary file"), "{err}");
     assert!(err.contains("pcimg-spill"), "{err}");
     says_full(&err, &m);
+    // The room the spill files need: a million records of at least x, y, z
+    // as 32-bit floats.
+    let needed = err
+        .split("; about ")
+        .nth(1)
+        .and_then(|r| r.split(" needed)").next())
+        .unwrap_or_else(|| panic!("no space needed in: {err}"));
+    let mib: f64 = needed
+        .strip_suffix(" MiB")
+        .and_then(|v| v.parse().ok())
+        .unwrap_or_else(|| panic!("{needed}: not MiB"));
+    assert!((11.0..200.0).contains(&mib), "{needed}");
     assert_eq!(r.after, Vec::<String>::new(), "left on the disk: {err}");
     assert_eq!(common::file_hash(&input), hash, "the input changed");
 }
@@ -539,7 +551,16 @@ fn readers_see_the_old_or_the_new_index_never_a_torn_one() {
     });
     let r = reads.load(Ordering::Relaxed);
     assert!(r >= 20, "only {r} reads during the rewrites");
-    // Old nodes were removed as each new index took over.
+    // The nodes of the index before the last stay (for readers holding
+    // it); older ones were removed as each new index took over.
     let overview = names(&ds.join("overview"));
-    assert_eq!(overview.len(), nodes, "{overview:?}");
+    assert_eq!(overview.len(), 2 * nodes, "{overview:?}");
+
+    // A reader that opened the dataset before a rebuild reads every node
+    // of its own index after it (its nodes are not opened before).
+    let held = pcimg::store::Dataset::open(&ds).unwrap();
+    build_index(&ds, &IndexOptions::default(), &|_| {}).unwrap();
+    common::fuzz::fast::read_dataset(&held)
+        .unwrap_or_else(|e| panic!("a reader holding the old index: {e}"));
+    assert_eq!(names(&ds.join("overview")).len(), 2 * nodes);
 }

@@ -138,8 +138,9 @@ pub(super) fn spill_all(
 ) -> Result<Vec<Spilled>> {
     // A share of the budget for write buffers, shared by the regions.
     let buffer = super::budget::Budget::new(o.memory).spill_buffer(regions.len());
+    let all: u64 = regions.iter().map(|r| r.points).sum();
     let mut writers: Vec<spill::SpillWriter> = (0..regions.len())
-        .map(|r| spill::SpillWriter::create(dir.join(format!("{tag}-{r:05}.bin")), buffer))
+        .map(|r| spill::SpillWriter::create(dir.join(format!("{tag}-{r:05}.bin")), buffer, all))
         .collect::<std::io::Result<_>>()?;
     let mut bounds = vec![Bounds::EMPTY; regions.len()];
     let (send, recv) = std::sync::mpsc::sync_channel::<(Vec<u8>, Vec<usize>, usize)>(1);

@@ -123,7 +123,12 @@ pub fn record_size(attributes: usize) -> usize {
 /// An I/O error on a temporary file, naming it (the disk that fills up is the
 /// one beside the output, which the user may not expect to need room).
 fn named(path: &Path, e: std::io::Error) -> std::io::Error {
-    let e = crate::disk::with_full_note(e, path, None);
+    named_needing(path, e, None)
+}
+
+/// As [`named`], where the room the temporary files need is known.
+fn named_needing(path: &Path, e: std::io::Error, needed: Option<u64>) -> std::io::Error {
+    let e = crate::disk::with_full_note(e, path, needed);
     std::io::Error::new(e.kind(), format!("temporary file {}: {e}", path.display()))
 }
 
@@ -132,28 +137,42 @@ pub struct SpillWriter {
     pub path: PathBuf,
     out: BufWriter<File>,
     pub points: u64,
+    /// Points the conversion spills in all (every region's file): with the
+    /// record size, the room its temporary files need, said when the disk
+    /// fills up.
+    all_points: u64,
+    /// That room, once a record's size is known.
+    needed: Option<u64>,
 }
 
 impl SpillWriter {
-    pub fn create(path: PathBuf, buffer: usize) -> std::io::Result<SpillWriter> {
+    /// A region's file; `all_points`: the points of every region's file.
+    pub fn create(path: PathBuf, buffer: usize, all_points: u64) -> std::io::Result<SpillWriter> {
         let f = File::create(&path).map_err(|e| named(&path, e))?;
         Ok(SpillWriter {
             path,
             out: BufWriter::with_capacity(buffer.max(4096), f),
             points: 0,
+            all_points,
+            needed: None,
         })
     }
 
     /// Appends `count` records already encoded (see [`records_by_region`]).
     pub fn push_records(&mut self, records: &[u8], count: u64) -> std::io::Result<()> {
         self.points += count;
+        if count > 0 {
+            self.needed = Some(records.len() as u64 / count * self.all_points);
+        }
         self.out
             .write_all(records)
-            .map_err(|e| named(&self.path, e))
+            .map_err(|e| named_needing(&self.path, e, self.needed))
     }
 
     pub fn finish(mut self) -> std::io::Result<(PathBuf, u64)> {
-        self.out.flush().map_err(|e| named(&self.path, e))?;
+        self.out
+            .flush()
+            .map_err(|e| named_needing(&self.path, e, self.needed))?;
         Ok((self.path, self.points))
     }
 }
@@ -323,7 +342,7 @@ mod tests {
         assert_eq!((starts[0], starts[regions]), (0, c.len()));
         let dir = tempfile::tempdir().unwrap();
         for r in 0..regions {
-            let mut w = SpillWriter::create(dir.path().join(format!("{r}")), 4096).unwrap();
+            let mut w = SpillWriter::create(dir.path().join(format!("{r}")), 4096, 0).unwrap();
             let (a, b) = (starts[r], starts[r + 1]);
             w.push_records(&recs[a * rs..b * rs], (b - a) as u64)
                 .unwrap();
@@ -401,7 +420,7 @@ mod tests {
     fn errors_name_the_temporary_file() {
         let dir = tempfile::tempdir().unwrap();
         let missing = dir.path().join("no-such-dir").join("region-00001.bin");
-        let e = SpillWriter::create(missing.clone(), 4096).err().unwrap();
+        let e = SpillWriter::create(missing.clone(), 4096, 0).err().unwrap();
         assert!(e.to_string().contains("temporary file"), "{e}");
         assert!(e.to_string().contains("region-00001.bin"), "{e}");
         let e = SpillReader::open(&missing, 1).err().unwrap();

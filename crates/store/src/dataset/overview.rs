@@ -235,7 +235,8 @@ pub fn build_index(
         incompatible(&parts)
     };
     // The earlier index and overview stay in use until the new index replaces
-    // the old in one rename: a reader sees the one or the other. The new nodes
+    // the old in one rename: a reader sees the one or the other, and one that
+    // opened the old index reads its nodes until the rebuild after this one. The new nodes
     // take names the old index does not use, so both sets lie side by side in
     // the overview folder until then.
     let old = dir.join(OVERVIEW_DIR);
@@ -249,6 +250,11 @@ pub fn build_index(
         f.strip_prefix(&format!("{OVERVIEW_DIR}/"))
             .is_some_and(|n| node_generation(n) == Some(0))
     }));
+    // The nodes of the index before the one in use (kept by the last
+    // rebuild for readers that had opened it) go now: the new nodes take
+    // their names, and a reader still holding that index must find them gone
+    // rather than find other nodes under their names.
+    remove_unlisted(&old, &in_use)?;
     let nodes = if report.no_overview.is_none() {
         let tmp = dir.join(format!(".{OVERVIEW_DIR}-tmp-{}", std::process::id()));
         let _ = std::fs::remove_dir_all(&tmp);
@@ -282,8 +288,12 @@ pub fn build_index(
             return Err(e);
         }
     };
-    // The old nodes, now that no index lists them.
-    remove_unlisted(&old, &listed)?;
+    // The nodes of the index just replaced stay until the next rebuild: a
+    // reader that opened it before the swap still reads them (its index
+    // names them). The overview thus takes up to twice its size on disk.
+    if listed.is_empty() && in_use.is_empty() {
+        remove_unlisted(&old, &listed)?;
+    }
     report.seconds = t0.elapsed().as_secs_f64();
     Ok(report)
 }
