@@ -161,8 +161,8 @@ impl SpillWriter {
     /// Appends `count` records already encoded (see [`records_by_region`]).
     pub fn push_records(&mut self, records: &[u8], count: u64) -> std::io::Result<()> {
         self.points += count;
-        if count > 0 {
-            self.needed = Some(records.len() as u64 / count * self.all_points);
+        if let Some(record) = (records.len() as u64).checked_div(count) {
+            self.needed = Some(record * self.all_points);
         }
         self.out
             .write_all(records)
