@@ -15,36 +15,12 @@
 
 mod common;
 
+use common::cli::{err, info_json, local_files, ok, pcimg};
+
 use common::proxy::{Fault, Proxy, Rule};
 use common::servers::{HttpServer, WEED_BUCKET, Weed};
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
 use std::time::{Duration, Instant};
-
-fn pcimg() -> Command {
-    let mut c = Command::new(env!("CARGO_BIN_EXE_pcimg"));
-    c.env("NODEVICE_SELECT", "1");
-    c
-}
-
-fn ok(o: &Output, what: &str) -> String {
-    assert!(
-        o.status.success(),
-        "{what} failed:\n{}\n{}",
-        String::from_utf8_lossy(&o.stdout),
-        String::from_utf8_lossy(&o.stderr)
-    );
-    String::from_utf8_lossy(&o.stdout).into_owned()
-}
-
-fn err(o: &Output, what: &str) -> String {
-    assert!(
-        !o.status.success(),
-        "{what} should have failed:\n{}",
-        String::from_utf8_lossy(&o.stdout)
-    );
-    String::from_utf8_lossy(&o.stderr).into_owned()
-}
 
 fn fixture() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("fixtures/autzen_trim.laz")
@@ -82,23 +58,6 @@ fn render_args(src: &str, png: &Path, timeout: &str) -> Vec<String> {
     .map(|s| s.to_string())
     .collect();
     v.push(png.to_str().unwrap().to_string());
-    v
-}
-
-/// `info --json` without the fields that name where the dataset is.
-fn info_json(text: &str) -> serde_json::Value {
-    fn strip(v: &mut serde_json::Value) {
-        match v {
-            serde_json::Value::Object(m) => {
-                m.remove("path");
-                m.values_mut().for_each(strip);
-            }
-            serde_json::Value::Array(a) => a.iter_mut().for_each(strip),
-            _ => {}
-        }
-    }
-    let mut v: serde_json::Value = serde_json::from_str(text).unwrap();
-    strip(&mut v);
     v
 }
 
@@ -366,29 +325,6 @@ fn s3_bodies_cut_short_are_resumed_and_never_cached() {
         "the render differs"
     );
     assert!(!stats.contains("disk cache: 0 hits"), "{stats}");
-}
-
-/// Every file under `dir` with its `/`-separated name and size, sorted.
-fn local_files(dir: &Path) -> Vec<(String, u64)> {
-    let mut out = Vec::new();
-    let mut stack = vec![dir.to_path_buf()];
-    while let Some(d) = stack.pop() {
-        for e in std::fs::read_dir(&d).unwrap() {
-            let p = e.unwrap().path();
-            if p.is_dir() {
-                stack.push(p);
-            } else {
-                let rel = p
-                    .strip_prefix(dir)
-                    .unwrap()
-                    .to_string_lossy()
-                    .replace('\\', "/");
-                out.push((rel, std::fs::metadata(&p).unwrap().len()));
-            }
-        }
-    }
-    out.sort();
-    out
 }
 
 /// `convert -o s3://` through upload faults: those that pass are retried to

@@ -10,48 +10,11 @@
 
 mod common;
 
+use common::cli::{err, info_json, ok, pcimg};
+
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
 
 use common::http::{HttpServer as Server, free_port};
-
-fn pcimg() -> Command {
-    let mut c = Command::new(env!("CARGO_BIN_EXE_pcimg"));
-    c.env("NODEVICE_SELECT", "1");
-    c
-}
-
-fn ok(o: &Output, what: &str) -> String {
-    assert!(
-        o.status.success(),
-        "{what} failed:\n{}\n{}",
-        String::from_utf8_lossy(&o.stdout),
-        String::from_utf8_lossy(&o.stderr)
-    );
-    String::from_utf8_lossy(&o.stdout).into_owned()
-}
-
-fn err(o: &Output, what: &str) -> String {
-    assert!(!o.status.success(), "{what} should have failed");
-    String::from_utf8_lossy(&o.stderr).into_owned()
-}
-
-/// `info --json` without the fields that name where the dataset is.
-fn info_json(text: &str) -> serde_json::Value {
-    fn strip(v: &mut serde_json::Value) {
-        match v {
-            serde_json::Value::Object(m) => {
-                m.remove("path");
-                m.values_mut().for_each(strip);
-            }
-            serde_json::Value::Array(a) => a.iter_mut().for_each(strip),
-            _ => {}
-        }
-    }
-    let mut v: serde_json::Value = serde_json::from_str(text).unwrap();
-    strip(&mut v);
-    v
-}
 
 /// `input` converted into `dir/NAME` (in several parts where it is large
 /// enough for the 1 MiB budget).

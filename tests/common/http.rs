@@ -98,12 +98,7 @@ impl HttpServer {
     }
 }
 
-/// `pcimg` with the device selection off (tests need no GPU).
-pub fn pcimg() -> Command {
-    let mut c = Command::new(env!("CARGO_BIN_EXE_pcimg"));
-    c.env("NODEVICE_SELECT", "1");
-    c
-}
+pub use super::cli::pcimg;
 
 /// A synthetic scan of `points` points converted into `dir/NAME` under a
 /// 1 MiB budget: several parts, an overview above them, an index.
