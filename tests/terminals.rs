@@ -745,6 +745,147 @@ fn wait_for_view(
     }
 }
 
+/// What `pcimg doctor --json` wrote to `doctor`, run first in a terminal
+/// (`term`, named in failures) that then starts the inspector: waited for
+/// until complete (doctor ends before the inspector starts), at most 60 s.
+fn doctor_in(doctor: &Path, term: &mut Reaped, name: &str) -> serde_json::Value {
+    let end = Instant::now() + Duration::from_secs(60);
+    loop {
+        let text = std::fs::read_to_string(doctor).unwrap_or_default();
+        if let Ok(v) = serde_json::from_str(&text) {
+            return v;
+        }
+        assert!(
+            Instant::now() < end,
+            "{name} did not run pcimg doctor within 60 s"
+        );
+        assert!(term.0.try_wait().unwrap().is_none(), "{name} ended early");
+        std::thread::sleep(Duration::from_millis(50));
+    }
+}
+
+/// The inspector's view in pixels of the terminal's window at the screen's
+/// top-left: its cells less a margin of two (ui::areas: the left panels take
+/// 2/5 of the columns, at most 72; status and hint rows below), from the
+/// window size `doctor` reported.
+fn view_rect(d: &serde_json::Value) -> (u32, u32, u32, u32) {
+    let w = &d["winsize"];
+    let (cols, rows) = (
+        w["cols"].as_u64().unwrap() as u32,
+        w["rows"].as_u64().unwrap() as u32,
+    );
+    let (cw, ch) = (
+        w["width_px"].as_u64().unwrap() as u32 / cols,
+        w["height_px"].as_u64().unwrap() as u32 / rows,
+    );
+    let left = (cols * 2 / 5).clamp(20, 72);
+    let rect = ((left + 3) * cw, 3 * ch, (cols - 3) * cw, (rows - 5) * ch);
+    assert!(
+        rect.0 + 10 * cw < rect.2 && rect.1 + 5 * ch < rect.3,
+        "{cols}×{rows} cells"
+    );
+    rect
+}
+
+/// Debian's mlterm (3.9) draws sixel: the inspector chooses it by itself and
+/// its view holds the picture, replaced by the next when the camera turns
+/// (keys typed by xdotool), and `q` ends it.
+#[test]
+fn real_mlterm_shows_the_inspectors_view_in_sixel() {
+    if !installed(
+        &["mlterm", "Xvfb", "import", "xdotool"],
+        "mlterm, xvfb, imagemagick, xdotool",
+    ) {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let ds = dataset(dir.path());
+    let (_xvfb, display) = start_xvfb("1024x768x24");
+    let doctor = dir.path().join("doctor.json");
+    let script = format!(
+        "{bin} doctor --json > {doctor}; exec {bin} inspect {ds} --renderer cpu",
+        bin = bin(),
+        doctor = doctor.display(),
+        ds = ds.display()
+    );
+    let bg = format!("#{:02x}{:02x}{:02x}", KITTY_BG[0], KITTY_BG[1], KITTY_BG[2]);
+    let mut term = Reaped(
+        Command::new("mlterm")
+            .args([
+                "-display",
+                &display,
+                "-g",
+                "96x32+0+0",
+                "-bg",
+                &bg,
+                "-fg",
+                "white",
+            ])
+            .args(["-e", "sh", "-c", &script])
+            .env_remove("TMUX")
+            .env_remove("TMUX_PANE")
+            .env_remove("KITTY_WINDOW_ID")
+            .env_remove("TERM_PROGRAM")
+            .env_remove("COLORTERM")
+            .env("NODEVICE_SELECT", "1")
+            .stdout(std::process::Stdio::null())
+            .stderr(std::process::Stdio::null())
+            .spawn()
+            .expect("mlterm starts"),
+    );
+    let d = doctor_in(&doctor, &mut term, "mlterm");
+    assert_eq!(d["graphics"], "Sixel", "{d:#}");
+    let rect = view_rect(&d);
+    // (Sixel's palette holds fewer colours than kitty's frames: the view is
+    // covered, and lit in more colours than text would be.)
+    let picture = |v: &ViewPixels, _: &image::RgbImage| {
+        v.background < 0.02 && v.lit > 0.005 && v.colours >= 8
+    };
+    let (first, shot) = wait_for_view(
+        &display,
+        rect,
+        Duration::from_secs(60),
+        "mlterm: the first frame",
+        picture,
+    );
+    let send = |keys: &str| {
+        let ok = Command::new("xdotool")
+            .args([
+                "search",
+                "--sync",
+                "--class",
+                "mlterm",
+                "windowfocus",
+                "--sync",
+                "type",
+            ])
+            .args(["--delay", "30", keys])
+            .env("DISPLAY", &display)
+            .output()
+            .is_ok_and(|o| o.status.success());
+        assert!(ok, "xdotool could not type {keys}");
+    };
+    send("llll");
+    let (turned, _) = wait_for_view(
+        &display,
+        rect,
+        Duration::from_secs(30),
+        "mlterm: the orbited frame",
+        |v, now| picture(v, now) && changed(&shot, now, rect) > 0.01,
+    );
+    send("q");
+    let end = Instant::now() + Duration::from_secs(20);
+    let status = loop {
+        if let Some(s) = term.0.try_wait().unwrap() {
+            break s;
+        }
+        assert!(Instant::now() < end, "the inspector did not quit on q");
+        std::thread::sleep(Duration::from_millis(50));
+    };
+    assert!(status.success(), "mlterm ended with {status}");
+    eprintln!("mlterm: sixel; view {first:?}, orbited {turned:?}");
+}
+
 #[test]
 fn real_kitty_shows_the_inspectors_view_placed_directly_before_0_28() {
     if !installed(&["kitty", "Xvfb", "import"], "kitty, xvfb, imagemagick") {
@@ -801,21 +942,7 @@ fn real_kitty_shows_the_inspectors_view_placed_directly_before_0_28() {
             .spawn()
             .expect("kitty starts"),
     );
-    let end = Instant::now() + Duration::from_secs(60);
-    while !doctor.exists() || std::fs::metadata(&doctor).unwrap().len() == 0 {
-        assert!(Instant::now() < end, "kitty did not run pcimg within 60 s");
-        assert!(kitty.0.try_wait().unwrap().is_none(), "kitty ended early");
-        std::thread::sleep(Duration::from_millis(50));
-    }
-    // doctor ends before the inspector starts: its output is complete by now.
-    let mut d: serde_json::Value = serde_json::Value::Null;
-    while Instant::now() < end {
-        if let Ok(v) = serde_json::from_str(&std::fs::read_to_string(&doctor).unwrap()) {
-            d = v;
-            break;
-        }
-        std::thread::sleep(Duration::from_millis(50));
-    }
+    let d = doctor_in(&doctor, &mut kitty, "kitty");
     assert_eq!(d["graphics"], "Kitty", "{d:#}");
     let version = d["probe"]["replies"]["xtversion"]
         .as_str()
@@ -825,23 +952,7 @@ fn real_kitty_shows_the_inspectors_view_placed_directly_before_0_28() {
         .unwrap_or_else(|| panic!("kitty said no version: {d:#}"));
     let placeholders = v >= pcimg::term::detect::KITTY_PLACEHOLDERS_SINCE;
     assert_eq!(d["kitty_placeholders"], placeholders, "{d:#}");
-    // The view's cells, less a margin of two, in pixels (ui::areas: the left
-    // panels take 2/5 of the columns, at most 72; status and hint rows below).
-    let w = &d["winsize"];
-    let (cols, rows) = (
-        w["cols"].as_u64().unwrap() as u32,
-        w["rows"].as_u64().unwrap() as u32,
-    );
-    let (cw, ch) = (
-        w["width_px"].as_u64().unwrap() as u32 / cols,
-        w["height_px"].as_u64().unwrap() as u32 / rows,
-    );
-    let left = (cols * 2 / 5).clamp(20, 72);
-    let rect = ((left + 3) * cw, 3 * ch, (cols - 3) * cw, (rows - 5) * ch);
-    assert!(
-        rect.0 + 10 * cw < rect.2 && rect.1 + 5 * ch < rect.3,
-        "{cols}×{rows} cells"
-    );
+    let rect = view_rect(&d);
     let send = |text: &str| {
         let ok = Command::new("kitty")
             .args(["@", "--to"])
