@@ -239,6 +239,25 @@ fn corrupt_laz_chunk_count_or_size_is_an_error() {
 /// reads the table whatever the point count, so it is checked all the same
 /// (`bash bench/fuzz.sh` found one whose table listed 4,059,738,657 chunks: the
 /// `laz` crate asked for 65 GB and aborted the process).
+/// A case the fuzzer found (`fixtures/README.md`): fixed-size chunks that
+/// hold fewer points than the header declares made the `laz` crate's
+/// parallel decoder panic; it is an error naming the file.
+#[test]
+fn laz_whose_chunks_hold_fewer_points_than_declared_is_an_error() {
+    let f =
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("fixtures/fuzz/laz-chunks-short-of-points.laz");
+    let r = std::panic::catch_unwind(|| ingest::read_all(&f, &ReadOptions::default()));
+    let Ok(Err(e)) = r else {
+        panic!("not an error: {:?}", r.map(|r| r.map(|(_, p, _)| p.len())));
+    };
+    let s = e.to_string();
+    assert!(s.contains("laz-chunks-short-of-points.laz"), "{s}");
+    assert!(
+        s.contains("chunk table lists 1 chunk(s) of 1 points, fewer than the 200 points"),
+        "{s}"
+    );
+}
+
 #[test]
 fn laz_declaring_no_points_with_a_corrupt_chunk_table_is_an_error() {
     let dir = tempfile::tempdir().unwrap();

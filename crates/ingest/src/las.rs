@@ -202,7 +202,12 @@ const MAX_SPARE_CHUNK_POINTS: u64 = 1 << 22;
 /// last chunk (a corrupt chunk size aborted the process). A chunk size larger
 /// than both the file's points and [`MAX_SPARE_CHUNK_POINTS`] is refused; a VLR
 /// that cannot be read is left to the decoder, which reports it.
-fn check_laz_vlr(path: &Path, header: &las::Header, points: u64) -> Result<(), IngestError> {
+fn check_laz_vlr(
+    path: &Path,
+    header: &las::Header,
+    points: u64,
+    chunks: Option<u64>,
+) -> Result<(), IngestError> {
     let Some(Ok(vlr)) = contain(|| header.laz_vlr()) else {
         return Ok(());
     };
@@ -233,6 +238,20 @@ fn check_laz_vlr(path: &Path, header: &las::Header, points: u64) -> Result<(), I
             ),
         ));
     }
+    // Fixed-size chunks must hold the points the header declares: the
+    // parallel decoder sizes its last chunk's buffer from the difference
+    // (fewer made it wrap around and panic).
+    if let Some(chunks) = chunks
+        && chunks.saturating_mul(size) < points
+    {
+        return Err(IngestError::format(
+            path,
+            format!(
+                "corrupt LAZ file: its chunk table lists {chunks} chunk(s) of {size} points, \
+                 fewer than the {points} points the header declares"
+            ),
+        ));
+    }
     Ok(())
 }
 
@@ -241,7 +260,8 @@ fn check_laz_vlr(path: &Path, header: &las::Header, points: u64) -> Result<(), I
 /// a corrupt count would abort the process). `table` is the offset written at the
 /// start of the point data (`start`); as in `laz`, one that does not lie past it
 /// means the table's offset is in the file's last 8 bytes. A table that cannot be
-/// found is left to the decoder, which reads sequentially without one.
+/// found is left to the decoder, which reads sequentially without one. The
+/// number of chunks it lists, where found.
 fn check_chunk_table(
     path: &Path,
     file: &mut File,
@@ -249,7 +269,7 @@ fn check_chunk_table(
     table: i64,
     points: u64,
     file_len: u64,
-) -> Result<(), IngestError> {
+) -> Result<Option<u64>, IngestError> {
     let mut read_at = |at: u64| -> Option<[u8; 8]> {
         let mut b = [0u8; 8];
         file.seek(SeekFrom::Start(at)).ok()?;
@@ -260,11 +280,11 @@ fn check_chunk_table(
     if at <= start as i64 {
         match file_len.checked_sub(8).and_then(&mut read_at) {
             Some(b) => at = i64::from_le_bytes(b),
-            None => return Ok(()),
+            None => return Ok(None),
         }
     }
     if at <= start as i64 || at as u64 >= file_len {
-        return Ok(());
+        return Ok(None);
     }
     let at = at as u64;
     let Some(b) = read_at(at) else {
@@ -289,7 +309,7 @@ fn check_chunk_table(
             ),
         ));
     }
-    Ok(())
+    Ok(Some(chunks))
 }
 
 /// A LAS/LAZ file whose header has been read and checked.
@@ -421,8 +441,8 @@ pub(crate) fn open_header(path: &Path) -> Result<Opened, IngestError> {
                         ),
                     ));
                 }
-                check_chunk_table(path, &mut file, start, table, n, file_len)?;
-                check_laz_vlr(path, &header, n)?;
+                let chunks = check_chunk_table(path, &mut file, start, table, n, file_len)?;
+                check_laz_vlr(path, &header, n, chunks)?;
             }
         } else {
             let rec = u64::from(format.len());
