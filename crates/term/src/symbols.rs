@@ -272,26 +272,8 @@ impl Cell {
                 bg: px[0],
             };
         }
-        // The sum of the pixels of each pattern, channel by channel, each
-        // pattern from the one without its lowest bit.
-        let (mut r, mut g, mut b) = ([0f32; 256], [0f32; 256], [0f32; 256]);
-        for p in 1..=full {
-            let (low, prev) = (p.trailing_zeros() as usize, p & (p - 1));
-            let c = px[low];
-            r[p] = r[prev] + c[0] as f32;
-            g[p] = g[prev] + c[1] as f32;
-            b[p] = b[prev] + c[2] as f32;
-        }
+        let Sums { r, g, b, score } = Sums::of(px, table);
         let (tr, tg, tb) = (r[full], g[full], b[full]);
-        // |S₁|²/n₁ + |S₀|²/n₀ for every pattern at once (a loop the compiler
-        // vectorises; patterns the set cannot draw weigh 0).
-        let mut score = [0f32; 256];
-        for p in 0..=full {
-            let (r1, g1, b1) = (r[p], g[p], b[p]);
-            let (r0, g0, b0) = (tr - r1, tg - g1, tb - b1);
-            score[p] = (r1 * r1 + g1 * g1 + b1 * b1) * table.w1[p]
-                + (r0 * r0 + g0 * g0 + b0 * b0) * table.w0[p];
-        }
         // One colour, then the patterns in order of fewer lit sub-pixels: a
         // pattern and its complement score the same, and the one with fewer
         // wins (a braille dot is smaller than its sub-cell, so the foreground
@@ -328,6 +310,197 @@ impl Cell {
             fg,
             bg,
         }
+    }
+}
+
+/// How many of the best splits (by the exact fit) [`fit_quantized`] weighs
+/// again with palette colours.
+const REWEIGHED: usize = 4;
+
+/// The best cell for these sub-pixels with colours of `depth`'s palette: the
+/// one colour and the [`REWEIGHED`] best splits of the exact fit, each group
+/// taking the palette colour nearest its mean (for a given split that is the
+/// least squared error), weighed by their squared error with those colours;
+/// the least wins. Returns the pattern (0: one colour) and the colours.
+fn fit_quantized(px: &[Colour], table: &Table, depth: Depth) -> (usize, Colour, Colour) {
+    let n = px.len();
+    let full = (1usize << n) - 1;
+    if px.iter().all(|c| *c == px[0]) {
+        let q = quantize(px[0], depth);
+        return (0, q, q);
+    }
+    let Sums { r, g, b, score } = Sums::of(px, table);
+    let t = [r[full], g[full], b[full]];
+    // The best splits, best first (ties: fewer lit sub-pixels, as in the fit).
+    let mut top = [(f32::NEG_INFINITY, 0usize); REWEIGHED];
+    for &p in &table.order {
+        let p = p as usize;
+        if score[p] > top[REWEIGHED - 1].0 {
+            let mut i = REWEIGHED - 1;
+            while i > 0 && score[p] > top[i - 1].0 {
+                top[i] = top[i - 1];
+                i -= 1;
+            }
+            top[i] = (score[p], p);
+        }
+    }
+    // A group's squared error with colour q, less the constant Σ|pixel|²:
+    // k·|q|² − 2·S·q.
+    let cost = |s: [f32; 3], k: usize, q: Colour| {
+        let q = q.map(|v| v as f32);
+        k as f32 * (q[0] * q[0] + q[1] * q[1] + q[2] * q[2])
+            - 2.0 * (s[0] * q[0] + s[1] * q[1] + s[2] * q[2])
+    };
+    let mean = |s: [f32; 3], k: usize| s.map(|v| (v / k as f32).round() as u8);
+    let q = quantize(mean(t, n), depth);
+    let mut best = (cost(t, n, q), 0usize, q, q);
+    for &(sc, p) in top.iter() {
+        if sc == f32::NEG_INFINITY {
+            break;
+        }
+        let k = p.count_ones() as usize;
+        let s1 = [r[p], g[p], b[p]];
+        let s0 = [t[0] - s1[0], t[1] - s1[1], t[2] - s1[2]];
+        let (q1, q0) = (
+            quantize(mean(s1, k), depth),
+            quantize(mean(s0, n - k), depth),
+        );
+        if q1 == q0 {
+            continue;
+        }
+        let c = cost(s1, k, q1) + cost(s0, n - k, q0);
+        if c < best.0 {
+            best = (c, p, q1, q0);
+        }
+    }
+    (best.1, best.2, best.3)
+}
+
+/// The colour the terminal shows for `c` at `depth`: `c` itself in 24-bit, else
+/// the palette colour [`colour_code`] picks.
+fn quantize(c: Colour, depth: Depth) -> Colour {
+    match depth {
+        Depth::True => c,
+        Depth::C256 => palette256_rgb(palette256(c)),
+        Depth::C16 => ANSI16[ansi16(c) as usize],
+    }
+}
+
+/// The share of a cell's error passed on to the cells after it. All of it
+/// (Floyd and Steinberg's) drew the bench frames worse, seen from afar as well
+/// as by SSIM: a palette as coarse as 16 colours leaves errors so large that
+/// passing them all on overshoots and scatters isolated cells of other colours.
+/// Half is the best of 0.35, 0.5, 0.65 and 1 (bench/RESULTS.md, "Text mode").
+const DIFFUSED: f32 = 0.5;
+
+/// The cells of `px` (`cols` × `rows` cells of `set`'s grid, row by row) in
+/// `depth`'s palette, with the error diffused: the cells are fitted row by row,
+/// every other row right to left; each cell's sub-pixels first take on the
+/// error passed to the cell (clamped to 0–255), and the mean difference
+/// between them and the cell as drawn, times [`DIFFUSED`], goes to the next
+/// cell in the row (7/16) and to the three cells below (3/16, 5/16, 1/16:
+/// Floyd and Steinberg's weights, a cell for a pixel). A cell's mean, not
+/// each sub-pixel's own error: that kept the symbols' edges sharper (SSIM) at
+/// the same colour error from afar, and cost less.
+fn dithered(px: &[Colour], cols: usize, rows: usize, set: SymbolSet, depth: Depth) -> Vec<Cell> {
+    let (gw, gh) = set.grid();
+    let n = gw * gh;
+    let w = cols * gw;
+    let table = set.table();
+    let mut cells = Vec::with_capacity(cols * rows);
+    cells.resize(
+        cols * rows,
+        Cell {
+            symbol: ' ',
+            fg: [0; 3],
+            bg: [0; 3],
+        },
+    );
+    // The error passed to each cell of this row and of the next, a cell of
+    // margin either side.
+    let mut here = vec![[0f32; 3]; cols + 2];
+    let mut below = here.clone();
+    let mut sub = [[0u8; 3]; 8];
+    for r in 0..rows {
+        let forward = r % 2 == 0;
+        for i in 0..cols {
+            let c = if forward { i } else { cols - 1 - i };
+            let e = here[c + 1];
+            // The sum of the cell's pixels as fitted (with the error).
+            let mut total = [0f32; 3];
+            for y in 0..gh {
+                for x in 0..gw {
+                    let p = px[(r * gh + y) * w + c * gw + x];
+                    let j = y * gw + x;
+                    for k in 0..3 {
+                        let v = (p[k] as f32 + e[k]).clamp(0.0, 255.0).round();
+                        total[k] += v;
+                        sub[j][k] = v as u8;
+                    }
+                }
+            }
+            let (pattern, fg, bg) = fit_quantized(&sub[..n], table, depth);
+            cells[r * cols + c] = Cell {
+                symbol: table.glyphs[pattern].unwrap_or(' '),
+                fg,
+                bg,
+            };
+            // The mean error: the pixels' sum less the drawn colours' sum.
+            let k1 = pattern.count_ones() as f32;
+            let d = [0, 1, 2].map(|k| {
+                let drawn = fg[k] as f32 * k1 + bg[k] as f32 * (n as f32 - k1);
+                (total[k] - drawn) / n as f32 * DIFFUSED
+            });
+            if d == [0.0; 3] {
+                continue;
+            }
+            let (next, back) = if forward { (c + 2, c) } else { (c, c + 2) };
+            for k in 0..3 {
+                here[next][k] += d[k] * (7.0 / 16.0);
+                below[back][k] += d[k] * (3.0 / 16.0);
+                below[c + 1][k] += d[k] * (5.0 / 16.0);
+                below[next][k] += d[k] * (1.0 / 16.0);
+            }
+        }
+        std::mem::swap(&mut here, &mut below);
+        below.fill([0.0; 3]);
+    }
+    cells
+}
+
+/// The sum of the pixels of each pattern, channel by channel, and each
+/// pattern's score `|S₁|²/n₁ + |S₀|²/n₀` (0 for the patterns the set cannot
+/// draw): the fit's least squared error is the cell's variance less it.
+struct Sums {
+    r: [f32; 256],
+    g: [f32; 256],
+    b: [f32; 256],
+    score: [f32; 256],
+}
+
+impl Sums {
+    fn of(px: &[Colour], table: &Table) -> Sums {
+        let full = (1usize << px.len()) - 1;
+        // Each pattern from the one without its lowest bit.
+        let (mut r, mut g, mut b) = ([0f32; 256], [0f32; 256], [0f32; 256]);
+        for p in 1..=full {
+            let (low, prev) = (p.trailing_zeros() as usize, p & (p - 1));
+            let c = px[low];
+            r[p] = r[prev] + c[0] as f32;
+            g[p] = g[prev] + c[1] as f32;
+            b[p] = b[prev] + c[2] as f32;
+        }
+        let (tr, tg, tb) = (r[full], g[full], b[full]);
+        // Every pattern at once (a loop the compiler vectorises; patterns the
+        // set cannot draw weigh 0).
+        let mut score = [0f32; 256];
+        for p in 0..=full {
+            let (r1, g1, b1) = (r[p], g[p], b[p]);
+            let (r0, g0, b0) = (tr - r1, tg - g1, tb - b1);
+            score[p] = (r1 * r1 + g1 * g1 + b1 * b1) * table.w1[p]
+                + (r0 * r0 + g0 * g0 + b0 * b0) * table.w0[p];
+        }
+        Sums { r, g, b, score }
     }
 }
 
@@ -519,6 +692,33 @@ impl Symbols {
             rows,
             set,
             cells,
+        }
+    }
+
+    /// `frame` over `cols` × `rows` cells of `set`, in the colours `depth`
+    /// shows: in 24-bit the same cells as [`Symbols::of`]; in 256 or 16
+    /// colours each cell fitted with palette colours and the error diffused
+    /// ([`dithered`]), so a gradient that falls between palette colours is drawn
+    /// as a mix of them rather than in bands. Its [`Symbols::ansi`] at `depth`
+    /// writes the colours as they are.
+    pub fn of_depth(
+        frame: &Rgba<'_>,
+        cols: u16,
+        rows: u16,
+        set: SymbolSet,
+        depth: Depth,
+    ) -> Symbols {
+        if depth == Depth::True {
+            return Symbols::of(frame, cols, rows, set);
+        }
+        let (gw, gh) = set.grid();
+        let (c, r) = (cols as usize, rows as usize);
+        let px = box_filter(frame, c * gw, r * gh);
+        Symbols {
+            cols,
+            rows,
+            set,
+            cells: dithered(&px, c, r, set, depth),
         }
     }
 
