@@ -1168,4 +1168,205 @@ mod tests {
             (Quadrants, C16)
         );
     }
+
+    #[test]
+    fn truecolor_output_is_pinned() {
+        // The 24-bit text of a synthetic frame in every set, hashed (FNV-1a)
+        // as the encoder wrote it before dithering came in: dithering must
+        // not touch 24-bit output, byte for byte.
+        let px = frame(97, 61, |x, y| {
+            let ring = ((x as i32 - 40).pow(2) + (y as i32 - 30).pow(2)) % 97;
+            [(x * 255 / 96) as u8, (y * 4) as u8, (ring * 2) as u8]
+        });
+        let mut h = 0xcbf2_9ce4_8422_2325u64;
+        for set in SymbolSet::ALL {
+            let s = Symbols::of(&rgba(97, 61, &px), 23, 9, set);
+            for b in s.ansi(Depth::True).bytes() {
+                h = (h ^ b as u64).wrapping_mul(0x100_0000_01b3);
+            }
+        }
+        eprintln!("truecolor hash {h:#x}");
+        assert_eq!(h, 0x6ed9_ec5d_d922_91e3);
+    }
+
+    /// The sub-pixels of `s` as drawn: each cell's pattern in its colours
+    /// (`cols·w` × `rows·h`, row by row).
+    fn drawn_back(s: &Symbols) -> Vec<Colour> {
+        let (gw, gh) = s.set.grid();
+        let w = s.cols as usize * gw;
+        let mut out = vec![[0u8; 3]; w * s.rows as usize * gh];
+        let glyphs = s.set.glyphs();
+        for (i, cell) in s.cells.iter().enumerate() {
+            let p = glyphs
+                .iter()
+                .position(|g| *g == Some(cell.symbol))
+                .unwrap_or_else(|| panic!("{} draws no {:?}", s.set, cell.symbol));
+            let (c, r) = (i % s.cols as usize, i / s.cols as usize);
+            for j in 0..gw * gh {
+                let colour = if p >> j & 1 == 1 { cell.fg } else { cell.bg };
+                out[(r * gh + j / gw) * w + c * gw + j % gw] = colour;
+            }
+        }
+        out
+    }
+
+    /// The mean colour error over blocks of `bw` × `bh` sub-pixels: how far
+    /// the picture seen from a little way off is from the frame's.
+    fn block_error(a: &[Colour], b: &[Colour], w: usize, bw: usize, bh: usize) -> f64 {
+        let h = a.len() / w;
+        let (mut total, mut blocks) = (0f64, 0usize);
+        for by in (0..h - bh + 1).step_by(bh) {
+            for bx in (0..w - bw + 1).step_by(bw) {
+                let mut d = [0f64; 3];
+                for y in by..by + bh {
+                    for x in bx..bx + bw {
+                        for (k, dk) in d.iter_mut().enumerate() {
+                            *dk += a[y * w + x][k] as f64 - b[y * w + x][k] as f64;
+                        }
+                    }
+                }
+                let n = (bw * bh) as f64;
+                total += d.iter().map(|v| (v / n).powi(2)).sum::<f64>().sqrt();
+                blocks += 1;
+            }
+        }
+        total / blocks as f64
+    }
+
+    /// Gradients across the frame: grey, and red to blue.
+    fn gradients() -> Vec<(&'static str, Vec<u8>)> {
+        vec![
+            ("grey", frame(240, 96, |x, _| [(x * 255 / 239) as u8; 3])),
+            (
+                "red to blue",
+                frame(240, 96, |x, y| {
+                    [
+                        (255 - x * 255 / 239) as u8,
+                        (y * 2) as u8,
+                        (x * 255 / 239) as u8,
+                    ]
+                }),
+            ),
+        ]
+    }
+
+    #[test]
+    fn dithering_draws_a_gradient_closer_than_the_nearest_colours() {
+        for (name, px) in gradients() {
+            let f = rgba(240, 96, &px);
+            for set in SymbolSet::ALL {
+                let (gw, gh) = set.grid();
+                let (cols, rows) = (60, 24);
+                let want = box_filter(&f, cols * gw, rows * gh);
+                let w = cols * gw;
+                for depth in [Depth::C16, Depth::C256] {
+                    // Before: the 24-bit cells, each colour to the nearest.
+                    let mut nearest = Symbols::of(&f, cols as u16, rows as u16, set);
+                    for c in &mut nearest.cells {
+                        c.fg = quantize(c.fg, depth);
+                        c.bg = quantize(c.bg, depth);
+                    }
+                    let dithered = Symbols::of_depth(&f, cols as u16, rows as u16, set, depth);
+                    // Seen over 4 × 2 cells.
+                    let (bw, bh) = (4 * gw, 2 * gh);
+                    let before = block_error(&drawn_back(&nearest), &want, w, bw, bh);
+                    let after = block_error(&drawn_back(&dithered), &want, w, bw, bh);
+                    eprintln!("{name} {set} {depth:?}: {before:.2} → {after:.2}");
+                    // 16 colours leave wide bands (a quarter off at least);
+                    // the 256 palette's are narrow.
+                    let gain = if depth == Depth::C16 { 0.75 } else { 1.0 };
+                    assert!(
+                        after < before * gain,
+                        "{name} {set} {depth:?}: {before} → {after}"
+                    );
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn dithered_output_is_one_symbol_a_cell_in_palette_colours() {
+        for (name, px) in gradients() {
+            let f = rgba(240, 96, &px);
+            for set in SymbolSet::ALL {
+                for depth in [Depth::C16, Depth::C256] {
+                    let s = Symbols::of_depth(&f, 37, 11, set, depth);
+                    let text = s.ansi(depth);
+                    let lines: Vec<&str> = text.lines().collect();
+                    assert_eq!(lines.len(), 11, "{name} {set} {depth:?}");
+                    for line in lines {
+                        let line = line.strip_suffix("\x1b[0m").expect("reset at the end");
+                        let mut cells = 0;
+                        let mut chars = line.chars();
+                        while let Some(c) = chars.next() {
+                            if c != '\x1b' {
+                                assert!(set.glyphs().contains(&Some(c)), "{set}: {c:?}");
+                                cells += 1;
+                                continue;
+                            }
+                            assert_eq!(chars.next(), Some('['));
+                            let seq: String = chars.by_ref().take_while(|&d| d != 'm').collect();
+                            let v: Vec<u32> = seq.split(';').map(|p| p.parse().unwrap()).collect();
+                            match depth {
+                                Depth::C256 => {
+                                    assert!(matches!(v[..], [38 | 48, 5, 16..=255]), "{seq}")
+                                }
+                                _ => assert!(
+                                    matches!(v[..], [30..=37 | 40..=47 | 90..=97 | 100..=107]),
+                                    "{seq}"
+                                ),
+                            }
+                        }
+                        assert_eq!(cells, 37, "{name} {set} {depth:?}");
+                    }
+                    // Every colour is a palette colour, written as it is.
+                    for c in &s.cells {
+                        assert_eq!(quantize(c.fg, depth), c.fg);
+                        assert_eq!(quantize(c.bg, depth), c.bg);
+                    }
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn flat_palette_colours_stay_flat() {
+        // All black, and a palette colour of each depth: no dither noise.
+        for (colour, depth) in [
+            ([0, 0, 0], Depth::C16),
+            ([0, 0, 0], Depth::C256),
+            ([205, 0, 0], Depth::C16),
+            ([95, 135, 175], Depth::C256),
+            ([118, 118, 118], Depth::C256),
+        ] {
+            let px = frame(50, 30, |_, _| colour);
+            for set in SymbolSet::ALL {
+                let s = Symbols::of_depth(&rgba(50, 30, &px), 13, 7, set, depth);
+                assert!(
+                    s.cells.iter().all(|c| c.symbol == ' ' && c.bg == colour),
+                    "{colour:?} {set} {depth:?}"
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn dithering_is_deterministic_and_24_bit_is_not_dithered() {
+        let (_, px) = gradients().remove(1);
+        let f = rgba(240, 96, &px);
+        for set in SymbolSet::ALL {
+            for depth in [Depth::C16, Depth::C256] {
+                let a = Symbols::of_depth(&f, 41, 13, set, depth);
+                assert_eq!(a, Symbols::of_depth(&f, 41, 13, set, depth));
+                assert_eq!(
+                    a.ansi(depth),
+                    Symbols::of_depth(&f, 41, 13, set, depth).ansi(depth)
+                );
+            }
+            assert_eq!(
+                Symbols::of_depth(&f, 41, 13, set, Depth::True),
+                Symbols::of(&f, 41, 13, set)
+            );
+        }
+    }
 }
