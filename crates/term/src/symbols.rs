@@ -20,6 +20,23 @@
 //! The escape string sets a colour only when it changes, in 24-bit, 256 or 16
 //! colours ([`Depth`]); a cell whose split is no better than one colour is a
 //! space on its background.
+//!
+//! In 256 and 16 colours ([`Symbols::of_depth`]) mapping the two colours to
+//! the nearest palette entries bands a smooth gradient (a scan coloured by
+//! height) into flat stripes. There the fit is done in the palette: for the
+//! one colour and the four best splits, each group takes the palette colour
+//! nearest its mean (the least error for that split), and the least error
+//! wins, which often draws a cell whose two means fall on one palette colour
+//! as a space. And the error is diffused, Floyd–Steinberg between cells
+//! (serpentine): a cell's pixels take on the error passed to it, and half of
+//! the mean difference between them and the cell as drawn goes on to the next
+//! cells. Diffusing each sub-pixel's own error, or all of it, drew the bench
+//! frames worse (see [`DIFFUSED`]). Seen from afar (frame and text averaged
+//! over two cells) the colour error falls by 6–23 % in 16 colours and 6–19 %
+//! in 256 on the airborne frames, at an SSIM within 0.0016 of the nearest
+//! colours', with 6–21 % fewer bytes in 16 colours (within 2 % in 256); it is
+//! deterministic, and a palette colour's flat area stays flat (no error to
+//! pass on). 24-bit output is not touched.
 
 use crate::Rgba;
 use serde::Serialize;
