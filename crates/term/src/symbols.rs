@@ -34,7 +34,7 @@
 //! frames worse (see [`DIFFUSED`]). Seen from afar (frame and text averaged
 //! over two cells) the colour error falls by 6–23 % in 16 colours and 6–19 %
 //! in 256 on the airborne frames, at an SSIM within 0.0016 of the nearest
-//! colours', with 6–21 % fewer bytes in 16 colours (within 2 % in 256); it is
+//! colours', with 9–21 % fewer bytes in 16 colours (−8 to +1 % in 256); it is
 //! deterministic, and a palette colour's flat area stays flat (no error to
 //! pass on). 24-bit output is not touched.
 
