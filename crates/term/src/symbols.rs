@@ -371,8 +371,11 @@ fn fit_quantized(px: &[Colour], table: &Table, depth: Depth) -> (usize, Colour, 
     let mean = |s: [f32; 3], k: usize| s.map(|v| (v / k as f32).round() as u8);
     let q = quantize(mean(t, n), depth);
     let mut best = (cost(t, n, q), 0usize, q, q);
-    for &(sc, p) in top.iter() {
-        if sc == f32::NEG_INFINITY {
+    for &(sc, p) in &top {
+        // A split's error in palette colours is at least its exact error,
+        // −score here (less Σ|pixel|², as `cost`): once that is no better than
+        // the best so far, neither is any split after it.
+        if sc == f32::NEG_INFINITY || -sc >= best.0 {
             break;
         }
         let k = p.count_ones() as usize;
@@ -810,18 +813,43 @@ fn colour_code(c: Colour, depth: Depth) -> u32 {
     }
 }
 
-/// The nearest of the 16 ANSI colours (as xterm draws them).
+/// The nearest of the 16 ANSI colours (as xterm draws them; the first of
+/// equals).
 pub fn ansi16(c: Colour) -> u8 {
-    (0..16).min_by_key(|&i| dist(c, ANSI16[i])).unwrap_or(0) as u8
+    let mut best = (i32::MAX, 0);
+    for (i, &p) in ANSI16.iter().enumerate() {
+        let d = dist(c, p);
+        if d < best.0 {
+            best = (d, i);
+        }
+    }
+    best.1 as u8
 }
+
+/// The nearest cube level of each channel value (the lower of two equally
+/// near), as a table: the dithered fit asks for palette colours a few times a
+/// cell.
+const CUBE_LEVEL: [u8; 256] = {
+    let mut t = [0u8; 256];
+    let mut v = 0;
+    while v < 256 {
+        let mut best = 0;
+        let mut i = 1;
+        while i < 6 {
+            if (CUBE[i] as i32 - v as i32).abs() < (CUBE[best] as i32 - v as i32).abs() {
+                best = i;
+            }
+            i += 1;
+        }
+        t[v] = best as u8;
+        v += 1;
+    }
+    t
+};
 
 /// The nearest colour of the xterm 256 palette's cube and grey ramp.
 pub fn palette256(c: Colour) -> u8 {
-    let level = |v: u8| {
-        (0..6)
-            .min_by_key(|&i| (CUBE[i] as i32 - v as i32).abs())
-            .unwrap_or(0)
-    };
+    let level = |v: u8| CUBE_LEVEL[v as usize] as usize;
     let (r, g, b) = (level(c[0]), level(c[1]), level(c[2]));
     let cube = [CUBE[r], CUBE[g], CUBE[b]];
     let grey_i = ((c[0] as i32 + c[1] as i32 + c[2] as i32) / 3 - 3).clamp(0, 239) / 10;
@@ -990,6 +1018,26 @@ mod tests {
         assert_eq!(SymbolSet::Sextants.glyphs().iter().flatten().count(), 64);
         assert_eq!(SymbolSet::parse("quad"), Some(SymbolSet::Quadrants));
         assert_eq!(SymbolSet::parse("oc"), None);
+    }
+
+    #[test]
+    fn the_palette_searches_find_the_nearest() {
+        for v in 0..=255u8 {
+            let near = (0..6)
+                .min_by_key(|&i| (CUBE[i] as i32 - v as i32).abs())
+                .unwrap();
+            assert_eq!(CUBE_LEVEL[v as usize] as usize, near, "{v}");
+        }
+        for c in [
+            [0, 0, 0],
+            [100, 100, 100],
+            [205, 0, 0],
+            [128, 64, 200],
+            [255; 3],
+        ] {
+            let near = (0..16).min_by_key(|&i| dist(c, ANSI16[i])).unwrap();
+            assert_eq!(ansi16(c) as usize, near, "{c:?}");
+        }
     }
 
     #[test]
