@@ -12,9 +12,12 @@
 //! kitty split a cell: sub-cell j of n starts at ⌊j·size/n⌋; a braille dot is a
 //! box half its sub-cell's width and height, centred), and compared with the
 //! frame by SSIM (Wang et al. 2004: luma, 11×11 Gaussian window, σ 1.5, K1
-//! 0.01, K2 0.03, the mean over the picture). Prints one line a set: SSIM and
-//! bytes for ours and chafa's, our median encode time, symbols chafa used that
-//! we cannot draw back (counted as background). `chafa` must be on PATH.
+//! 0.01, K2 0.03, the mean over the picture), and by the colour error from
+//! afar ("far": both averaged over squares of a cell's height, the mean RGB
+//! distance; banding shows there, dither noise does not). Prints one line a
+//! set: SSIM, far and bytes for ours and chafa's, our median encode time,
+//! symbols chafa used that we cannot draw back (counted as background).
+//! `chafa` must be on PATH.
 //!
 //! In 256 and 16 colours ours is `Symbols::of_depth` (fitted in the palette,
 //! the error diffused); `--no-dither` takes the 24-bit cells and maps each

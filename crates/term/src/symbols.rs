@@ -407,10 +407,11 @@ fn quantize(c: Colour, depth: Depth) -> Colour {
 }
 
 /// The share of a cell's error passed on to the cells after it. All of it
-/// (Floyd and Steinberg's) drew the bench frames worse, seen from afar as well
-/// as by SSIM: a palette as coarse as 16 colours leaves errors so large that
-/// passing them all on overshoots and scatters isolated cells of other colours.
-/// Half is the best of 0.35, 0.5, 0.65 and 1 (bench/RESULTS.md, "Text mode").
+/// (Floyd and Steinberg's) drew the airborne bench frames worse than half,
+/// from afar as well as by SSIM, and from above in 16 colours worse than none
+/// (the errors a 16-colour palette leaves are large: passed on whole, they
+/// overshoot, we suppose). Of 0.35, 0.5, 0.65 and 1, half balances the colour
+/// error from afar and SSIM best (bench/RESULTS.md, "Text mode").
 const DIFFUSED: f32 = 0.5;
 
 /// The cells of `px` (`cols` × `rows` cells of `set`'s grid, row by row) in
