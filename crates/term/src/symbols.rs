@@ -30,13 +30,14 @@
 //! as a space. And the error is diffused, Floyd–Steinberg between cells
 //! (serpentine): a cell's pixels take on the error passed to it, and half of
 //! the mean difference between them and the cell as drawn goes on to the next
-//! cells. Diffusing each sub-pixel's own error, or all of it, drew the bench
-//! frames worse (see [`DIFFUSED`]). Seen from afar (frame and text averaged
-//! over two cells) the colour error falls by 6–23 % in 16 colours and 6–19 %
-//! in 256 on the airborne frames, at an SSIM within 0.0016 of the nearest
-//! colours', with 9–21 % fewer bytes in 16 colours (−8 to +1 % in 256); it is
-//! deterministic, and a palette colour's flat area stays flat (no error to
-//! pass on). 24-bit output is not touched.
+//! cells. Passing each sub-pixel's own error on instead was slower for a
+//! slightly lower SSIM; passing all of it on drew the bench frames worse (see
+//! [`DIFFUSED`]). Seen from afar (frame and text averaged over two cells) the
+//! colour error falls by 6–23 % in 16 colours and 6–19 % in 256 on the
+//! airborne frames, at an SSIM within 0.0016 of the nearest colours', with
+//! 9–21 % fewer bytes in 16 colours (−8 to +1 % in 256); it is deterministic,
+//! and a palette colour's flat area stays flat (no error to pass on). 24-bit
+//! output is not touched.
 
 use crate::Rgba;
 use serde::Serialize;
