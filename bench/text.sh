@@ -8,8 +8,11 @@
 # 960×640 PNGs, i.e. 120×40 cells of 8×16 pixels, then runs
 # crates/term/examples/text_quality.rs on each: SSIM against the frame and bytes
 # for half blocks, quadrants, sextants, octants and braille, ours and chafa's
-# (chafa 1.12: `apt-get install chafa`; --work 9, its best), in 24-bit and 256
-# colours, and our encode time per frame.
+# (chafa 1.12: `apt-get install chafa`; --work 9, its best), in 24-bit, 256 and
+# 16 colours, and our encode time per frame. In 256 and 16 colours, also ours
+# undithered (--no-dither: the nearest palette colours) and chafa with its
+# diffusion dither (its default is none). Each line also gives the colour error
+# from afar ("far": both pictures averaged over two cells, mean RGB distance).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 bin=${1:-target/release/pcimg}
@@ -31,8 +34,14 @@ frame autzen-oblique fixtures/autzen_trim.laz --view 30,-35
 frame lamppost fixtures/lamppost.pcd
 frame building fixtures/cgal_b9_training.ply --view 30,-30
 for f in autzen-top autzen-oblique lamppost building; do
-  for c in full 256; do
+  for c in full 256 16; do
     echo
     "$q" "$dir/$f.png" 120 40 --colors "$c" --runs 15
+    if [ "$c" != full ]; then
+      echo
+      "$q" "$dir/$f.png" 120 40 --colors "$c" --runs 3 --no-dither
+      echo
+      "$q" "$dir/$f.png" 120 40 --colors "$c" --runs 3 --dither diffusion
+    fi
   done
 done

@@ -333,7 +333,13 @@ pub fn encode(
 ) -> anyhow::Result<PaneImage> {
     Ok(match enc.graphics {
         Graphics::Halfblocks => PaneImage::Text(
-            Symbols::of(&crate::pixels(frame), cells.0, cells.1, enc.text.0),
+            Symbols::of_depth(
+                &crate::pixels(frame),
+                cells.0,
+                cells.1,
+                enc.text.0,
+                enc.text.1,
+            ),
             enc.text.1,
         ),
         Graphics::Sixel => PaneImage::FirstCell {

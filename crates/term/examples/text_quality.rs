@@ -3,7 +3,8 @@
 //!
 //! ```text
 //! cargo run --release -p pcimg-term --example text_quality -- FRAME.png COLS ROWS \
-//!     [--cell 8x16] [--colors full|256] [--chafa-work N] [--runs N]
+//!     [--cell 8x16] [--colors full|256|16] [--dither none|ordered|diffusion]
+//!     [--no-dither] [--chafa-work N] [--runs N]
 //! ```
 //! FRAME.png should be COLS·8 × ROWS·16 pixels (the cell size given), so the
 //! reference is the frame itself. Each text frame is drawn back to pixels with
@@ -11,9 +12,17 @@
 //! kitty split a cell: sub-cell j of n starts at ⌊j·size/n⌋; a braille dot is a
 //! box half its sub-cell's width and height, centred), and compared with the
 //! frame by SSIM (Wang et al. 2004: luma, 11×11 Gaussian window, σ 1.5, K1
-//! 0.01, K2 0.03, the mean over the picture). Prints one line a set: SSIM and
-//! bytes for ours and chafa's, our median encode time, symbols chafa used that
-//! we cannot draw back (counted as background). `chafa` must be on PATH.
+//! 0.01, K2 0.03, the mean over the picture), and by the colour error from
+//! afar ("far": both averaged over squares of a cell's height, the mean RGB
+//! distance; banding shows there, dither noise does not). Prints one line a
+//! set: SSIM, far and bytes for ours and chafa's, our median encode time,
+//! symbols chafa used that we cannot draw back (counted as background).
+//! `chafa` must be on PATH.
+//!
+//! In 256 and 16 colours ours is `Symbols::of_depth` (fitted in the palette,
+//! the error diffused); `--no-dither` takes the 24-bit cells and maps each
+//! colour to the nearest palette colour instead (the encoder before #43).
+//! `--dither` is passed to chafa (its default is `none`).
 use pcimg_term::Rgba;
 use pcimg_term::symbols::{Depth, SymbolSet, Symbols, palette256_rgb};
 use std::collections::HashMap;
@@ -26,7 +35,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let args: Vec<String> = std::env::args().skip(1).collect();
     if args.len() < 3 {
         eprintln!(
-            "usage: text_quality FRAME.png COLS ROWS [--cell 8x16] [--colors full|256] [--chafa-work N] [--runs N]"
+            "usage: text_quality FRAME.png COLS ROWS [--cell 8x16] [--colors full|256|16] [--dither none|ordered|diffusion] [--no-dither] [--chafa-work N] [--runs N]"
         );
         std::process::exit(2);
     }
@@ -45,11 +54,13 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         None => (8, 16),
     };
     let colors = opt("--colors").unwrap_or_else(|| "full".into());
-    let depth = if colors == "256" {
-        Depth::C256
-    } else {
-        Depth::True
+    let depth = match colors.as_str() {
+        "256" => Depth::C256,
+        "16" => Depth::C16,
+        _ => Depth::True,
     };
+    let nearest = args.iter().any(|a| a == "--no-dither");
+    let dither = opt("--dither").unwrap_or_else(|| "none".into());
     let work = opt("--chafa-work").unwrap_or_else(|| "9".into());
     let runs: usize = opt("--runs").map(|r| r.parse()).transpose()?.unwrap_or(15);
 
@@ -60,20 +71,30 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         rgba: &rgba,
     };
     let (rw, rh) = (cols as usize * cw, rows as usize * ch);
-    let reference = luma_of(&frame_at(&frame, rw, rh));
+    let reference_px = frame_at(&frame, rw, rh);
+    let reference = luma_of(&reference_px);
     let lookup = glyph_lookup();
     println!(
-        "{path}: {cols}×{rows} cells of {cw}×{ch} px, colours {colors}; SSIM against the frame"
+        "{path}: {cols}×{rows} cells of {cw}×{ch} px, colours {colors}, ours {}, chafa --dither {dither}; SSIM against the frame",
+        if nearest {
+            "nearest colours"
+        } else {
+            "dithered"
+        }
     );
     println!(
-        "set        ours SSIM  chafa SSIM  ours bytes  chafa bytes  encode ms (median, min–max)  chafa symbols not drawn back"
+        "set        ours SSIM far   chafa SSIM far   ours bytes  chafa bytes  encode ms (median, min–max)  chafa symbols not drawn back"
     );
     for set in SymbolSet::ALL {
         let mut times = Vec::new();
         let mut ours = None;
         for _ in 0..runs {
             let t = Instant::now();
-            let s = Symbols::of(&frame, cols, rows, set);
+            let s = if nearest {
+                Symbols::of(&frame, cols, rows, set)
+            } else {
+                Symbols::of_depth(&frame, cols, rows, set, depth)
+            };
             let text = s.ansi(depth);
             times.push(t.elapsed().as_secs_f64() * 1e3);
             ours = Some(text);
@@ -82,6 +103,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         let ours = ours.unwrap_or_default();
         let (ours_px, _) = draw_back(&ours, cols, rows, cw, ch, &lookup);
         let ours_ssim = ssim(&reference, &luma_of(&ours_px), rw, rh);
+        let ours_far = far_error(&reference_px, &ours_px, rw, rh, ch);
         let chafa_set = match set {
             SymbolSet::Half => Some("vhalf"),
             SymbolSet::Quadrants => Some("quad"),
@@ -90,14 +112,18 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             // chafa 1.12 has no octants.
             SymbolSet::Octants => None,
         };
-        let chafa = chafa_set.map(|c| chafa(path, cols, rows, c, &colors, &work));
+        let chafa = chafa_set.map(|c| chafa(path, cols, rows, c, &colors, &dither, &work));
         let (chafa_ssim, chafa_bytes, unknown) = match chafa {
             Some(Ok(text)) => {
                 let (px, unknown) = draw_back(&text, cols, rows, cw, ch, &lookup);
                 let mut u: Vec<String> = unknown.into_iter().map(|c| format!("{c}")).collect();
                 u.sort();
                 (
-                    format!("{:.4}", ssim(&reference, &luma_of(&px), rw, rh)),
+                    format!(
+                        "{:.4} {:>5.2}",
+                        ssim(&reference, &luma_of(&px), rw, rh),
+                        far_error(&reference_px, &px, rw, rh, ch)
+                    ),
                     text.len().to_string(),
                     u.join(""),
                 )
@@ -106,9 +132,10 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             None => ("-".into(), "-".into(), String::new()),
         };
         println!(
-            "{:<10} {:.4}     {:<10}  {:<10}  {:<11}  {:.2} ({:.2}–{:.2})  {}",
+            "{:<10} {:.4} {:>5.2}  {:<15}  {:<10}  {:<11}  {:.2} ({:.2}–{:.2})  {}",
             set.name(),
             ours_ssim,
+            ours_far,
             chafa_ssim,
             ours.len(),
             chafa_bytes,
@@ -127,6 +154,7 @@ fn chafa(
     rows: u16,
     set: &str,
     colors: &str,
+    dither: &str,
     work: &str,
 ) -> Result<String, String> {
     let out = Command::new("chafa")
@@ -137,6 +165,8 @@ fn chafa(
             set,
             "--colors",
             colors,
+            "--dither",
+            dither,
             "--size",
             &format!("{cols}x{rows}"),
             "--stretch",
@@ -379,6 +409,31 @@ fn draw_back(
         col += 1;
     }
     (px, unknown)
+}
+
+/// The colour error seen from a little way off: both pictures averaged over
+/// squares of `side` pixels (a cell's height: two cells of 8×16 side by side),
+/// then the mean distance between the squares' RGB colours (0–441). Banding
+/// and a palette's colour shifts show here; dither noise finer than a square
+/// does not.
+fn far_error(a: &[Colour], b: &[Colour], w: usize, h: usize, side: usize) -> f64 {
+    let (mut total, mut n) = (0f64, 0usize);
+    for y0 in (0..h - side + 1).step_by(side) {
+        for x0 in (0..w - side + 1).step_by(side) {
+            let mut d = [0f64; 3];
+            for y in y0..y0 + side {
+                for x in x0..x0 + side {
+                    for (k, dk) in d.iter_mut().enumerate() {
+                        *dk += a[y * w + x][k] as f64 - b[y * w + x][k] as f64;
+                    }
+                }
+            }
+            let m = (side * side) as f64;
+            total += d.iter().map(|v| (v / m).powi(2)).sum::<f64>().sqrt();
+            n += 1;
+        }
+    }
+    total / n.max(1) as f64
 }
 
 fn luma_of(px: &[Colour]) -> Vec<f32> {

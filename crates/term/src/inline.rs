@@ -58,7 +58,8 @@ pub fn print_frame(
         Graphics::Iterm2 => wrap(iterm_sequence(frame, cols, rows, false)?),
         Graphics::Halfblocks => {
             let t = &choice.text;
-            let text = super::symbols::Symbols::of(frame, cols, rows, t.set).ansi(t.depth);
+            let text =
+                super::symbols::Symbols::of_depth(frame, cols, rows, t.set, t.depth).ansi(t.depth);
             let mut out = std::io::stdout().lock();
             out.write_all(text.as_bytes())?;
             out.flush()?;
