@@ -220,7 +220,7 @@ impl Link {
     /// (a local terminal, 100 Mbit/s) the allowance is above any frame's
     /// bytes, so nothing changes there.
     fn full_allowance(&self) -> Option<usize> {
-        self.rate.map(|r| (r * FULL_TRANSFER) as usize)
+        self.rate.map(|r| (r * FULL_TRANSFER).round() as usize)
     }
 
     /// A moving frame of `bytes` at 1/`scale` arrived: the next ones are
