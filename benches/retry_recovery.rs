@@ -123,6 +123,7 @@ fn one(server: &mut Server, url: &str, outage: Duration) -> anyhow::Result<Run> 
         cells: (120, 40),
         cell_pixels: (1, 2),
         scale: 1,
+        allowance: None,
     };
     w.request(request(1, &settings));
     frame(&w, "the overview", |f| f.status.pending == 0)?;

@@ -9,7 +9,17 @@
 //! ```
 //!
 //! Reports per protocol and link speed: the probe's time, bytes per frame while
-//! moving and at rest, first key → first frame, and last key → the full frame.
+//! moving and at rest, first key → first frame, and last key → the full frame:
+//! the first full-resolution frame after the last key (over a slow link it may
+//! be in fewer colours), then the last one (the exact frame, which follows a
+//! reduced one once the link is idle, and redraws as tiles arrive).
+//!
+//! Moving frames are told from full ones by their pixels: kitty ones are
+//! smaller than the pane; sixel ones are enlarged, so every run of a colour
+//! starts at a multiple of the reduction (2, 3 or 4 pixels).
+//!
+//! `TERM_LINK_BIN=path` measures another `pcimg` binary (an older build) with
+//! the same harness.
 
 #[path = "../tests/common/pty.rs"]
 mod pty;
@@ -40,7 +50,52 @@ fn arrival(log: &[(Instant, usize)], offset: usize) -> Instant {
         .unwrap_or_else(Instant::now)
 }
 
-/// Sixel frames: `ESC P 0;1;0 q` to `ESC \`; moving ones have 16 colours or fewer.
+/// Whether a sixel image is a reduced frame enlarged by repeating pixels: every
+/// change of sixel character within a colour's row of a band is at a multiple
+/// of the same n > 1.
+fn blocky(seg: &[u8]) -> bool {
+    fn gcd(a: usize, b: usize) -> usize {
+        if b == 0 { a } else { gcd(b, a % b) }
+    }
+    let Some(q) = seg.iter().position(|&b| b == b'q') else {
+        return false;
+    };
+    let (mut x, mut prev, mut g) = (0usize, None::<u8>, 0usize);
+    let mut i = q + 1;
+    while i < seg.len() {
+        let b = seg[i];
+        i += 1;
+        let (ch, n) = match b {
+            b'$' | b'-' => {
+                (x, prev) = (0, None);
+                continue;
+            }
+            b'!' => {
+                let mut n = 0usize;
+                while i < seg.len() && seg[i].is_ascii_digit() {
+                    n = n * 10 + (seg[i] - b'0') as usize;
+                    i += 1;
+                }
+                let Some(&c) = seg.get(i) else { break };
+                i += 1;
+                (c, n)
+            }
+            63..=126 => (b, 1),
+            _ => continue,
+        };
+        if prev != Some(ch) && x > 0 {
+            g = gcd(g, x);
+            if g == 1 {
+                return false;
+            }
+        }
+        prev = Some(ch);
+        x += n;
+    }
+    g > 1
+}
+
+/// Sixel frames: `ESC P 0;1;0 q` to `ESC \`; moving ones are enlarged ([`blocky`]).
 /// Kitty frames: the first chunk (`a=T`) to the chunk with `m=0`; moving ones are
 /// smaller than the pane in pixels.
 fn frames(out: &[u8], log: &[(Instant, usize)], kitty: bool) -> Vec<Seen> {
@@ -87,7 +142,7 @@ fn frames(out: &[u8], log: &[(Instant, usize)], kitty: bool) -> Vec<Seen> {
             };
             num("s=") < num("c=") * 10
         } else {
-            find(seg, b"#16;", 0).is_none()
+            blocky(seg)
         };
         v.push(Seen {
             bytes: end - s,
@@ -114,16 +169,19 @@ fn main() -> anyhow::Result<()> {
         let v: Vec<f64> = args.filter_map(|s| s.parse().ok()).collect();
         if v.is_empty() { vec![0.0, 10.0] } else { v }
     };
-    let bin = std::env::current_exe()?
-        .parent()
-        .and_then(|p| p.parent())
-        .map(|p| p.join("pcimg"))
-        .ok_or_else(|| anyhow::anyhow!("where is the pcimg binary?"))?;
+    let bin = match std::env::var_os("TERM_LINK_BIN") {
+        Some(b) => std::path::PathBuf::from(b),
+        None => std::env::current_exe()?
+            .parent()
+            .and_then(|p| p.parent())
+            .map(|p| p.join("pcimg"))
+            .ok_or_else(|| anyhow::anyhow!("where is the pcimg binary?"))?,
+    };
     let dir = tempfile::tempdir()?;
     let path = dir.path().join("scene.tif");
     pcimg::store::write_part(&path, &pcimg::synth::scene(points, 1), &Default::default())?;
     println!(
-        "| terminal | link | probe ms | moving frame bytes (median, n) | full frame bytes | first key → frame ms | last key → full frame ms (first; with every tile) |"
+        "| terminal | link | probe ms | moving frame bytes (median, n) | full frame bytes (first after the keys; last) | first key → frame ms | last key → full frame ms (first full-resolution; last, exact) |"
     );
     println!("|---|---|---|---|---|---|---|");
     let terminals = [
@@ -165,7 +223,13 @@ fn main() -> anyhow::Result<()> {
                 t.write(b"l");
                 t.read_for(Duration::from_millis(50));
             }
-            t.read_for(Duration::from_secs(3));
+            // Long enough for a reduced full frame and the exact one after it
+            // at 1 Mbit/s.
+            t.read_for(Duration::from_secs(if mbit > 0.0 && mbit < 5.0 {
+                8
+            } else {
+                3
+            }));
             t.write(b"q");
             t.wait(Duration::from_secs(10));
             if std::env::var_os("TERM_LINK_DUMP").is_some() {
@@ -209,7 +273,15 @@ fn main() -> anyhow::Result<()> {
                 },
                 median(moving.clone()) / 1024.0,
                 moving.len(),
-                full.map_or("-".into(), |f| format!("{:.0} K", f.bytes as f64 / 1024.0)),
+                match (first_full, full) {
+                    (Some(a), Some(b)) => format!(
+                        "{:.0} K; {:.0} K",
+                        a.bytes as f64 / 1024.0,
+                        b.bytes as f64 / 1024.0
+                    ),
+                    (None, Some(b)) => format!("{:.0} K", b.bytes as f64 / 1024.0),
+                    _ => "-".into(),
+                },
                 first.map_or("-".into(), |f| format!("{:.0}", ms(first_key, f.end))),
                 match (first_full, full.filter(|f| f.end > last_key)) {
                     (Some(a), Some(b)) =>

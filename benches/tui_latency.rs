@@ -134,6 +134,7 @@ fn main() -> anyhow::Result<()> {
             cells,
             cell_pixels,
             scale,
+            allowance: None,
         };
         // Warm up: load the tiles of the first view.
         w.request(request(&app, 0));

@@ -239,6 +239,7 @@ fn the_worker_renders_and_encodes_half_block_frames() {
         cells: (area.width, area.height),
         cell_pixels: (1, 2),
         scale: 1,
+        allowance: None,
     });
     let deadline = Instant::now() + Duration::from_secs(30);
     let frame = loop {
@@ -491,6 +492,7 @@ fn the_worker_picks_the_point_under_the_crosshair() {
             cells: (area.width, area.height),
             cell_pixels: (4, 8),
             scale: 1,
+            allowance: None,
         });
         let deadline = Instant::now() + Duration::from_secs(30);
         loop {
@@ -556,6 +558,7 @@ fn a_pick_over_the_shown_frame_draws_no_new_frame() {
         cells: (100, 40),
         cell_pixels: (2, 4),
         scale: 1,
+        allowance: None,
     };
     let next = |w: &RenderWorker| match w.recv_timeout(Duration::from_secs(30)) {
         Some(Report::Error(e)) => panic!("worker error: {e}"),

@@ -175,6 +175,9 @@ pub struct FrameStatus {
     pub bytes: usize,
     /// 1: full resolution; n: 1/n of the pane's pixels each way (while moving).
     pub scale: u32,
+    /// The colours a full frame was reduced to for a slow link (the exact
+    /// frame follows once the link is idle); `None`: as the protocol sends it.
+    pub colors: Option<usize>,
     /// The colour ranges the frame was coloured with (the legend's values).
     pub ranges: ColorRanges,
     /// Ground units a pixel of the frame spans at the orbit target.
@@ -704,6 +707,9 @@ impl App {
         if f.scale > 1 {
             frame.push_str(&format!(" at 1/{}", f.scale));
         }
+        if let Some(c) = f.colors {
+            frame.push_str(&format!(" in {c} colours: slow link"));
+        }
         if let Some(r) = self.link_rate {
             frame.push_str(&format!(" · link {}/s", crate::text::bytes(r as u64)));
         }
@@ -759,6 +765,14 @@ mod tests {
         a.link_rate = Some(1.25e6);
         let t = a.timing_line();
         assert!(t.contains("| 120.0 KiB at 1/2 · link 1.2 MiB/s |"), "{t}");
+        // A full frame reduced for a slow link says so.
+        a.frame.scale = 1;
+        a.frame.colors = Some(16);
+        let t = a.timing_line();
+        assert!(
+            t.contains("| 120.0 KiB in 16 colours: slow link · link 1.2 MiB/s |"),
+            "{t}"
+        );
     }
 
     #[test]

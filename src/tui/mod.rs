@@ -173,6 +173,17 @@ const MOVING_BYTES: usize = 150_000;
 /// (a held key repeats every 25-40 ms; frames should keep up with a few).
 const MOVING_TRANSFER: f64 = 0.06;
 
+/// Most time the full frame after the camera stops may take to reach the
+/// terminal at the measured rate: with the settle time, rendering and a moving
+/// frame still on its way, the picture is whole within ~0.3 s of the last key.
+/// A full frame that would take longer is sent in fewer colours first
+/// ([`protocol::encode_within`]), the exact one after [`REFINE_AFTER`].
+const FULL_TRANSFER: f64 = 0.12;
+
+/// How long after a full frame reduced for a slow link, with no key since,
+/// the exact frame is asked for.
+const REFINE_AFTER: Duration = Duration::from_millis(250);
+
 /// What the event loop knows of how fast the terminal takes our output, and the
 /// reduction moving frames get.
 #[derive(Debug)]
@@ -201,6 +212,15 @@ impl Link {
         }
         let r = bytes as f64 / took.as_secs_f64();
         self.rate = Some(self.rate.map_or(r, |old| 0.5 * old + 0.5 * r));
+    }
+
+    /// The most bytes a full frame should cost on this link: what it carries
+    /// in [`FULL_TRANSFER`]. `None` while the rate is unknown (nothing large
+    /// has been drawn yet): full frames are sent exact then. On a fast link
+    /// (a local terminal, 100 Mbit/s) the allowance is above any frame's
+    /// bytes, so nothing changes there.
+    fn full_allowance(&self) -> Option<usize> {
+        self.rate.map(|r| (r * FULL_TRANSFER).round() as usize)
     }
 
     /// A moving frame of `bytes` at 1/`scale` arrived: the next ones are
@@ -242,6 +262,11 @@ fn event_loop(
     let mut last_move: Option<Instant> = None;
     let mut moving = false;
     let mut full_owed = false;
+    // A full frame went out reduced for a slow link: the exact one is owed,
+    // asked for once no key has come for [`REFINE_AFTER`] since it was drawn.
+    let mut refine_owed = false;
+    let mut exact_next = false;
+    let mut last_image_draw = Instant::now();
     let mut link = Link::default();
     // The overlay cells drawn last (`overlay`).
     let mut drawn_marks: Vec<overlay::Mark> = Vec::new();
@@ -260,10 +285,26 @@ fn event_loop(
             moving = false;
             want_frame = true;
         }
+        if refine_owed
+            && !want_frame
+            && !full_owed
+            && !shown.unsent
+            && last_image_draw.elapsed() >= REFINE_AFTER
+            && last_move.is_none_or(|t| t.elapsed() >= REFINE_AFTER)
+        {
+            refine_owed = false;
+            exact_next = true;
+            want_frame = true;
+        }
         if want_frame && cells.0 > 0 && cells.1 > 0 {
             seq += 1;
             let scale = if moving && scalable { link.scale } else { 1 };
             full_owed = scale > 1;
+            let allowance = if scale == 1 && !std::mem::take(&mut exact_next) {
+                link.full_allowance()
+            } else {
+                None
+            };
             worker.request(Request {
                 seq,
                 camera: app.camera,
@@ -273,6 +314,7 @@ fn event_loop(
                 cells,
                 cell_pixels: pane.cell_pixels,
                 scale,
+                allowance,
             });
             requested_cells = cells;
             want_frame = false;
@@ -348,6 +390,9 @@ fn event_loop(
             drawn_marks = marks;
             shown.unsent &= covered;
             link.record(image_bytes, t.elapsed());
+            if image_bytes > 0 {
+                last_image_draw = Instant::now();
+            }
             app.link_rate = link.rate;
             dirty = false;
         }
@@ -382,6 +427,7 @@ fn event_loop(
                         Effect::Render => {
                             want_frame = true;
                             moving = true;
+                            refine_owed = false;
                             last_move = Some(Instant::now());
                         }
                         // The frame stays as it is; its request carries the pick.
@@ -466,6 +512,7 @@ fn event_loop(
                     if f.status.scale > 1 {
                         link.moving_frame(f.status.bytes, f.status.scale);
                     }
+                    refine_owed = f.status.colors.is_some();
                     app.frame = f.status;
                     shown.image = Some(f.image);
                     shown.unsent = true;
@@ -565,10 +612,16 @@ mod tests {
             link.moving_frame(900_000, link.scale);
         }
         assert_eq!(link.scale, MAX_SCALE);
+        // 10 Mbit/s: a full frame may cost 150 KB (0.12 s of it).
+        assert_eq!(link.full_allowance(), Some(150_000));
         // Short writes say nothing about the link.
         let mut fresh = Link::default();
         fresh.record(10_000, Duration::from_millis(50));
         fresh.record(100_000, Duration::from_millis(1));
         assert_eq!(fresh.rate, None);
+        assert_eq!(fresh.full_allowance(), None, "unknown: exact frames");
+        // 100 Mbit/s: 1.5 MB, more than any full frame (~320 K sixel, ~520 K kitty).
+        fresh.record(1_250_000, Duration::from_millis(100));
+        assert_eq!(fresh.full_allowance(), Some(1_500_000));
     }
 }

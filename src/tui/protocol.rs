@@ -222,9 +222,10 @@ fn sixel_for_pane(
     cells: (u16, u16),
     passthrough: bool,
     full: (u32, u32),
+    colors: usize,
 ) -> anyhow::Result<String> {
     let image = if (frame.width, frame.height) == full || frame.width == 0 || frame.height == 0 {
-        sixel::encode(&frame.rgba, frame.width, frame.height)?
+        sixel::encode_colors(&frame.rgba, frame.width, frame.height, colors)?
     } else {
         let big = enlarge(frame, full);
         sixel::encode_colors(&big, full.0, full.1, sixel::MOVING_COLORS)?
@@ -343,40 +344,117 @@ pub fn encode(
             enc.text.1,
         ),
         Graphics::Sixel => PaneImage::FirstCell {
-            data: sixel_for_pane(frame, cells, enc.passthrough, full)?,
+            data: sixel_for_pane(frame, cells, enc.passthrough, full, sixel::COLORS)?,
             cells,
         },
-        Graphics::Kitty => {
-            let transmit = kitty::transmit(
-                &crate::pixels(frame),
-                kitty::Placement {
-                    id: KITTY_IMAGE_ID,
-                    cols: cells.0,
-                    rows: cells.1,
-                    placeholders: enc.placeholders,
-                    passthrough: enc.passthrough,
-                    // Placed directly: under the overlays' text.
-                    below_text: true,
-                },
-            );
-            if enc.placeholders {
-                PaneImage::Kitty { transmit, cells }
-            } else {
-                // Placed at the cursor, which the draw puts on the pane's first
-                // cell, and left there (`C=1`); it replaces the previous frame.
-                // Below text: the pane is erased first, as for sixel, so no
-                // text left there (the first frame's note, overlays) shows.
-                let mut data = String::with_capacity(transmit.len() + 16 * cells.1 as usize);
-                erase_pane(&mut data, cells);
-                data.push_str(&transmit);
-                PaneImage::FirstCell { data, cells }
-            }
-        }
+        Graphics::Kitty => kitty_for_pane(enc, frame, cells, None),
         Graphics::Iterm2 => PaneImage::FirstCell {
             data: iterm_for_pane(frame, cells, enc.passthrough)?,
             cells,
         },
     })
+}
+
+/// Colours a full frame may be reduced to for a slow link, tried in this
+/// order until it fits: sixel frames are sent in [`sixel::COLORS`] (32)
+/// otherwise, kitty frames exact (deflated RGB). Fewer than 8 turns a
+/// coloured scan into a few flat patches.
+pub const SLOW_COLORS: [usize; 3] = [32, 16, 8];
+
+/// [`encode`], but a full-resolution sixel or kitty frame that would cost
+/// more than `allowance` bytes (the link is slow: `allowance` is what the
+/// link carries within the time allowed) is sent in fewer colours
+/// ([`SLOW_COLORS`], the first that fits, else the fewest): sixel in fewer
+/// palette colours, kitty as an indexed PNG. Returns the image and, when
+/// reduced, its colours. Without an allowance (a fast or unmeasured link),
+/// for reduced (moving) frames, text and iTerm2, exactly [`encode`].
+///
+/// `start`: the caller knows the exact frame did not fit last time; the exact
+/// encoding is skipped and colours are tried from `start` down (each try is a
+/// whole encoding: on a slow link every millisecond before sending counts).
+pub fn encode_within(
+    enc: Encoding,
+    frame: &Frame,
+    cells: (u16, u16),
+    full: (u32, u32),
+    allowance: Option<usize>,
+    start: Option<usize>,
+) -> anyhow::Result<(PaneImage, Option<usize>)> {
+    let full_size = (frame.width, frame.height) == full && frame.width > 0 && frame.height > 0;
+    let reducible = matches!(enc.graphics, Graphics::Sixel | Graphics::Kitty);
+    let Some(allowance) = allowance.filter(|_| full_size && reducible) else {
+        return Ok((encode(enc, frame, cells, full)?, None));
+    };
+    let exact = match start {
+        Some(_) => None,
+        None => {
+            let exact = encode(enc, frame, cells, full)?;
+            if exact.bytes() <= allowance {
+                return Ok((exact, None));
+            }
+            Some(exact)
+        }
+    };
+    let top = start.unwrap_or(usize::MAX);
+    let mut cheaper = None;
+    for colors in SLOW_COLORS {
+        // Sixel frames are already in 32 colours.
+        if colors > top || (enc.graphics == Graphics::Sixel && colors >= sixel::COLORS) {
+            continue;
+        }
+        let image = match enc.graphics {
+            Graphics::Sixel => PaneImage::FirstCell {
+                data: sixel_for_pane(frame, cells, enc.passthrough, full, colors)?,
+                cells,
+            },
+            _ => kitty_for_pane(enc, frame, cells, Some(colors)),
+        };
+        let fits = image.bytes() <= allowance;
+        cheaper = Some((image, Some(colors)));
+        if fits {
+            break;
+        }
+    }
+    match (cheaper, exact) {
+        (Some(c), _) => Ok(c),
+        (None, Some(exact)) => Ok((exact, None)),
+        (None, None) => Ok((encode(enc, frame, cells, full)?, None)),
+    }
+}
+
+/// A kitty frame for a pane of `cells`: exact (deflated RGB), or in at most
+/// `colors` colours as an indexed PNG.
+fn kitty_for_pane(
+    enc: Encoding,
+    frame: &Frame,
+    cells: (u16, u16),
+    colors: Option<usize>,
+) -> PaneImage {
+    let placement = kitty::Placement {
+        id: KITTY_IMAGE_ID,
+        cols: cells.0,
+        rows: cells.1,
+        placeholders: enc.placeholders,
+        passthrough: enc.passthrough,
+        // Placed directly: under the overlays' text.
+        below_text: true,
+    };
+    let transmit = match colors {
+        None => kitty::transmit(&crate::pixels(frame), placement),
+        Some(c) => kitty::transmit_indexed(&crate::pixels(frame), c, placement),
+    };
+    if enc.placeholders {
+        PaneImage::Kitty { transmit, cells }
+    } else {
+        // Placed at the cursor, which the draw puts on the pane's first
+        // cell, and left there (`C=1`); it replaces the previous frame.
+        // Below text: the pane is erased first, as for sixel, so no
+        // text left there (the first frame's note, overlays) shows.
+        let mut data = String::with_capacity(transmit.len() + 16 * cells.1 as usize);
+        erase_pane(&mut data, cells);
+        data.push_str(&transmit);
+        PaneImage::FirstCell { data, cells }
+    }
 }
 
 #[cfg(test)]
@@ -439,6 +517,137 @@ mod tests {
             .filter(|c| data.contains(&format!("#{c};2;")))
             .count();
         assert!(defined > sixel::MOVING_COLORS, "{defined} colours");
+    }
+
+    /// A 1200×800 frame of many colours in bands and noise (bytes like a scan's).
+    fn busy_frame(w: u32, h: u32) -> Frame {
+        let mut frame = Frame::background(w, h, [0, 0, 0]);
+        let mut seed = 0x2545_f491_4f6c_dd1du64;
+        for (i, px) in frame.rgba.chunks_mut(4).enumerate() {
+            seed ^= seed << 13;
+            seed ^= seed >> 7;
+            seed ^= seed << 17;
+            let (x, y) = ((i as u32 % w) as u64, (i as u32 / w) as u64);
+            let n = (seed % 24) as u8;
+            px[..3].copy_from_slice(&[
+                ((x * 255 / w as u64) as u8).saturating_add(n),
+                ((y * 255 / h as u64) as u8).saturating_add(n),
+                (((x + y) % 97) as u8).saturating_add(n),
+            ]);
+        }
+        frame
+    }
+
+    fn colours_defined(data: &str) -> usize {
+        (0..256)
+            .filter(|c| data.contains(&format!("#{c};2;")))
+            .count()
+    }
+
+    #[test]
+    fn a_fast_or_unmeasured_link_gets_the_exact_frame() {
+        let frame = busy_frame(120, 80);
+        for g in [Graphics::Sixel, Graphics::Kitty, Graphics::Halfblocks] {
+            let enc = Encoding::new(g);
+            let cells = if g == Graphics::Halfblocks {
+                (120, 40)
+            } else {
+                (12, 4)
+            };
+            let exact = encode(enc, &frame, cells, (120, 80)).unwrap();
+            for allowance in [None, Some(exact.bytes()), Some(usize::MAX)] {
+                let (image, colors) =
+                    encode_within(enc, &frame, cells, (120, 80), allowance, None).unwrap();
+                assert_eq!(colors, None, "{} {allowance:?}", g.name());
+                assert_eq!(image.bytes(), exact.bytes(), "{}", g.name());
+            }
+        }
+        // Moving (reduced) frames are left as they are, however slow the link.
+        let small = busy_frame(60, 40);
+        let (_, colors) = encode_within(
+            Encoding::new(Graphics::Sixel),
+            &small,
+            (12, 4),
+            (120, 80),
+            Some(10),
+            None,
+        )
+        .unwrap();
+        assert_eq!(colors, None);
+    }
+
+    #[test]
+    fn a_slow_link_gets_the_full_frame_in_fewer_colours_that_fit() {
+        let frame = busy_frame(240, 160);
+        let sixel = Encoding::new(Graphics::Sixel);
+        let exact = encode(sixel, &frame, (24, 8), (240, 160)).unwrap();
+        let PaneImage::FirstCell { data, .. } = &exact else {
+            panic!("sixel is drawn from the first cell");
+        };
+        assert_eq!(colours_defined(data), sixel::COLORS);
+        // A little under the exact frame's bytes: 16 colours fit.
+        let (image, colors) = encode_within(
+            sixel,
+            &frame,
+            (24, 8),
+            (240, 160),
+            Some(exact.bytes() - 1),
+            None,
+        )
+        .unwrap();
+        assert_eq!(colors, Some(16));
+        let PaneImage::FirstCell { data, .. } = &image else {
+            panic!("sixel is drawn from the first cell");
+        };
+        assert_eq!(colours_defined(data), 16);
+        assert!(data.contains("\"1;1;240;160#"), "full resolution");
+        assert!(image.bytes() < exact.bytes());
+        // Nothing fits: the fewest colours.
+        let (image, colors) =
+            encode_within(sixel, &frame, (24, 8), (240, 160), Some(100), None).unwrap();
+        assert_eq!(colors, Some(8));
+        let PaneImage::FirstCell { data, .. } = &image else {
+            panic!("sixel is drawn from the first cell");
+        };
+        assert_eq!(colours_defined(data), 8);
+
+        // Kitty: an indexed PNG of the frame's size, in 32 colours when that fits.
+        let kitty = Encoding::new(Graphics::Kitty);
+        let exact = encode(kitty, &frame, (24, 8), (240, 160)).unwrap();
+        let (image, colors) = encode_within(
+            kitty,
+            &frame,
+            (24, 8),
+            (240, 160),
+            Some(exact.bytes() / 2),
+            None,
+        )
+        .unwrap();
+        assert_eq!(colors, Some(32));
+        assert!(image.bytes() <= exact.bytes() / 2, "{}", image.bytes());
+        let PaneImage::Kitty { transmit, .. } = &image else {
+            panic!("kitty frames are shown by placeholders");
+        };
+        assert!(transmit.starts_with("\x1b_Ga=T,q=2,i=7365481,f=100,s=240,v=160,c=24,r=8,U=1"));
+        let (_, colors) =
+            encode_within(kitty, &frame, (24, 8), (240, 160), Some(100), None).unwrap();
+        assert_eq!(colors, Some(8));
+        // Told where to start (the exact frame did not fit last time): from
+        // there down, without the exact encoding.
+        let (image, colors) = encode_within(
+            kitty,
+            &frame,
+            (24, 8),
+            (240, 160),
+            Some(usize::MAX),
+            Some(16),
+        )
+        .unwrap();
+        assert_eq!(colors, Some(16), "fits at once");
+        let PaneImage::Kitty { transmit, .. } = &image else {
+            panic!("kitty frames are shown by placeholders");
+        };
+        assert!(transmit.contains(",f=100,"));
     }
 
     #[test]

@@ -41,6 +41,10 @@ pub struct Request {
     /// 1 for a full frame; n renders 1/n of the pixels each way (while the camera
     /// moves, over a slow link), scaled up by the terminal or by us.
     pub scale: u32,
+    /// The most bytes a full frame should cost (the link is slow): sent in
+    /// fewer colours to fit ([`protocol::encode_within`]); `None` sends it
+    /// exact (a fast or unmeasured link, or the exact frame after a reduced one).
+    pub allowance: Option<usize>,
 }
 
 /// A drawn and encoded frame.
@@ -157,6 +161,9 @@ struct Worker {
     pipeline: Pipeline,
     /// The last frame drawn: its request and tiles (picks over it need no new one).
     last: Option<(Request, Vec<Arc<LoadedTile>>)>,
+    /// Bytes of the last exact full frame, and the colours the last full frame
+    /// reduced for a slow link was sent in ([`protocol::encode_within`]).
+    slow: (Option<usize>, Option<usize>),
 }
 
 fn run(
@@ -177,6 +184,7 @@ fn run(
         opts,
         pipeline,
         last: None,
+        slow: (None, None),
     };
     let mut current: Option<(Request, Instant)> = None;
     let mut pending = 0usize;
@@ -371,7 +379,33 @@ impl Worker {
         };
 
         let t = Instant::now();
-        let image = protocol::encode(self.opts.encoding, &d.frame, (cols, rows), full)?;
+        // On a link known to be too slow for the exact frame (the last one was
+        // bigger than this allowance), start where the last reduced one fit.
+        let start = match (req.allowance, self.slow) {
+            (Some(a), (Some(exact), colors)) if exact > a => {
+                Some(colors.unwrap_or(protocol::SLOW_COLORS[0]))
+            }
+            _ => None,
+        };
+        let (image, colors) = protocol::encode_within(
+            self.opts.encoding,
+            &d.frame,
+            (cols, rows),
+            full,
+            req.allowance,
+            start,
+        )?;
+        if scale == 1 {
+            match colors {
+                Some(c) => self.slow.1 = Some(c),
+                None => self.slow.0 = Some(image.bytes()),
+            }
+        }
+        // A reduced frame that did not need the exact one's size measured:
+        // the exact bytes seen when that was tried.
+        if scale == 1 && colors.is_some() && start.is_none() {
+            self.slow.0 = self.slow.0.max(req.allowance.map(|a| a + 1));
+        }
         let encode_ms = ms(t);
 
         let cache = self.pipeline.cache();
@@ -402,6 +436,7 @@ impl Worker {
             loaded: loaded.into_iter().collect(),
             bytes: image.bytes(),
             scale,
+            colors,
             ranges: d.ranges,
             units_per_pixel: 1.0 / req.camera.pixels_per_unit(req.camera.distance, height),
             view: Some(super::overlay::FrameView {

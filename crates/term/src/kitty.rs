@@ -38,7 +38,6 @@ pub const BELOW_TEXT: i64 = -1_073_741_825;
 /// The escape sequences that send `frame` (alpha dropped: `f=24`, deflated: `o=z`)
 /// and show it over `cols` × `rows` cells, whatever its pixel size.
 pub fn transmit(frame: &Rgba<'_>, p: Placement) -> String {
-    use base64::Engine as _;
     let rgb: Vec<u8> = frame
         .rgba
         .chunks_exact(4)
@@ -51,7 +50,44 @@ pub fn transmit(frame: &Rgba<'_>, p: Placement) -> String {
     // Writing into a Vec cannot fail.
     let _ = z.write_all(&rgb);
     let packed = z.finish().unwrap_or_default();
-    let data = base64::engine::general_purpose::STANDARD.encode(&packed);
+    chunked("f=24,o=z", &packed, frame, p)
+}
+
+/// [`transmit`] with the frame reduced to at most `colors` colours
+/// ([`super::palette`], as sixel frames are) and sent as an indexed PNG
+/// (`f=100`): one byte a pixel before deflate instead of three, in runs of one
+/// index that deflate well, for a link too slow for the exact frame.
+pub fn transmit_indexed(frame: &Rgba<'_>, colors: usize, p: Placement) -> String {
+    let image = super::palette::reduce(frame.rgba, colors);
+    let png = indexed_png(&image, frame.width, frame.height).unwrap_or_default();
+    chunked("f=100", &png, frame, p)
+}
+
+/// An indexed image as PNG (8-bit indices, no filter: indices are not
+/// gradients, and runs of one index are what deflate finds).
+fn indexed_png(image: &super::palette::Indexed, width: u32, height: u32) -> Option<Vec<u8>> {
+    let mut out = Vec::new();
+    let mut enc = png::Encoder::new(&mut out, width, height);
+    enc.set_color(png::ColorType::Indexed);
+    enc.set_depth(png::BitDepth::Eight);
+    let mut palette: Vec<u8> = image.palette.iter().flatten().copied().collect();
+    if palette.is_empty() {
+        palette.extend_from_slice(&[0, 0, 0]);
+    }
+    enc.set_palette(palette);
+    enc.set_compression(png::Compression::Fast);
+    enc.set_filter(png::Filter::NoFilter);
+    let mut w = enc.write_header().ok()?;
+    w.write_image_data(&image.indices).ok()?;
+    w.finish().ok()?;
+    Some(out)
+}
+
+/// `payload` in base64 chunks of [`CHUNK`], the first with the keys that send
+/// it as image `p.id` in `format` (`f=…` and how it is packed) and place it.
+fn chunked(format: &str, payload: &[u8], frame: &Rgba<'_>, p: Placement) -> String {
+    use base64::Engine as _;
+    let data = base64::engine::general_purpose::STANDARD.encode(payload);
     let chunks: Vec<&[u8]> = data.as_bytes().chunks(CHUNK).collect();
     let mut seq = String::with_capacity(data.len() + chunks.len() * 32 + 96);
     let n = chunks.len().max(1);
@@ -69,7 +105,7 @@ pub fn transmit(frame: &Rgba<'_>, p: Placement) -> String {
                 (false, true) => format!(",C=1,z={BELOW_TEXT}"),
             };
             one.push_str(&format!(
-                "\x1b_Ga=T,q=2,i={},f=24,o=z,s={},v={},c={},r={}{virtual_},m={more};{chunk}\x1b\\",
+                "\x1b_Ga=T,q=2,i={},{format},s={},v={},c={},r={}{virtual_},m={more};{chunk}\x1b\\",
                 p.id, frame.width, frame.height, p.cols, p.rows
             ));
         } else {
@@ -463,6 +499,51 @@ mod tests {
         );
         let want: Vec<u8> = f.rgba.chunks(4).flat_map(|c| [c[0], c[1], c[2]]).collect();
         assert_eq!(rgb, want);
+    }
+
+    #[test]
+    fn indexed_frames_are_palette_pngs_of_the_frames_size() {
+        // 40 greys in a 64×48 frame, asked for in 8 colours.
+        let rgba: Vec<u8> = (0..64 * 48)
+            .flat_map(|i| {
+                let v = (i % 40 * 6) as u8;
+                [v, v, v, 255]
+            })
+            .collect();
+        let f = Rgba {
+            width: 64,
+            height: 48,
+            rgba: &rgba,
+        };
+        let p = Placement {
+            id: 7,
+            cols: 20,
+            rows: 10,
+            placeholders: true,
+            passthrough: false,
+            below_text: false,
+        };
+        let seq = transmit_indexed(&f, 8, p);
+        let parts: Vec<&str> = seq.split("\x1b\\").filter(|p| !p.is_empty()).collect();
+        assert_eq!(
+            parts[0].split_once(';').unwrap().0,
+            "\x1b_Ga=T,q=2,i=7,f=100,s=64,v=48,c=20,r=10,U=1,m=0"
+        );
+        let data: String = parts.iter().map(|p| p.split_once(';').unwrap().1).collect();
+        let png = base64::engine::general_purpose::STANDARD
+            .decode(data)
+            .unwrap();
+        let mut dec = png::Decoder::new(std::io::Cursor::new(png))
+            .read_info()
+            .unwrap();
+        let info = dec.info();
+        assert_eq!((info.width, info.height), (64, 48));
+        assert_eq!(info.color_type, png::ColorType::Indexed);
+        let colours = info.palette.as_ref().unwrap().len() / 3;
+        assert!((2..=8).contains(&colours), "{colours} colours");
+        let mut buf = vec![0; dec.output_buffer_size().unwrap()];
+        dec.next_frame(&mut buf).unwrap();
+        assert!(buf.len() >= 64 * 48, "every pixel decodes");
     }
 
     #[test]
