@@ -538,17 +538,7 @@ fn large_uploads_retry_each_part_and_abort_when_one_keeps_failing() {
 fn a_small_part_opens_by_its_s3_url_without_retries() {
     let Some(weed) = Weed::start() else { return };
     let dir = tempfile::tempdir().unwrap();
-    let xyz = dir.path().join("t.xyz");
-    std::fs::write(&xyz, "0 0 0\n1 1 1\n2 0 1\n").unwrap();
-    let part = dir.path().join("t.tif");
-    let o = pcimg()
-        .args(["convert", "-q", "--compression", "zstd"])
-        .arg(&xyz)
-        .arg("-o")
-        .arg(&part)
-        .output()
-        .unwrap();
-    ok(&o, "convert");
+    let part = common::cli::tiny_part(dir.path());
     weed.put("small/t.tif", std::fs::read(&part).unwrap())
         .unwrap();
     let url = format!("s3://{WEED_BUCKET}/small/t.tif");

@@ -83,3 +83,25 @@ pub fn local_files(dir: &Path) -> Vec<(String, u64)> {
     out.sort();
     out
 }
+
+/// A part of three points converted into `dir/t.tif` (zstd): a file far
+/// smaller than a remote part's first read (64 KiB).
+pub fn tiny_part(dir: &Path) -> std::path::PathBuf {
+    let xyz = dir.join("t.xyz");
+    std::fs::write(&xyz, "0 0 0\n1 1 1\n2 0 1\n").unwrap();
+    let part = dir.join("t.tif");
+    let o = pcimg()
+        .args(["convert", "-q", "--compression", "zstd"])
+        .arg(&xyz)
+        .arg("-o")
+        .arg(&part)
+        .output()
+        .unwrap();
+    ok(&o, "convert");
+    let size = std::fs::metadata(&part).unwrap().len();
+    assert!(
+        size < 64 << 10,
+        "{size} bytes: not smaller than the first read"
+    );
+    part
+}
