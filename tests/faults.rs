@@ -362,8 +362,10 @@ fn uploads_through_faults_complete_or_leave_nothing_and_say_so() {
         .enumerate()
     {
         proxy.reset_counters();
-        proxy.set(vec![Rule::new(fault).matching("PUT ").times(2)]);
         let name = format!("up{i}.pcimg");
+        // The dataset's objects (not the lock beside them).
+        let puts = format!("PUT /{WEED_BUCKET}/{name}/");
+        proxy.set(vec![Rule::new(fault).matching(&puts).times(2)]);
         ok(
             &convert(&name, "5s"),
             &format!("convert through {fault:?} twice"),
@@ -371,7 +373,7 @@ fn uploads_through_faults_complete_or_leave_nothing_and_say_so() {
         assert_eq!(proxy.faults(), 2, "{fault:?}: {:?}", proxy.log());
         // Every object once, and the two refused uploads again.
         assert_eq!(
-            proxy.count("PUT "),
+            proxy.count(&puts),
             want.len() + 2,
             "{fault:?}: {:?}",
             proxy.log()
@@ -395,7 +397,8 @@ fn uploads_through_faults_complete_or_leave_nothing_and_say_so() {
 
     // A fault that persists after the first upload.
     proxy.reset_counters();
-    proxy.set(vec![Rule::new(Fault::Status500).matching("PUT ").after(1)]);
+    let puts = format!("PUT /{WEED_BUCKET}/cut.pcimg/");
+    proxy.set(vec![Rule::new(Fault::Status500).matching(&puts).after(1)]);
     let start = Instant::now();
     let o = convert("cut.pcimg", "1s");
     let spent = start.elapsed();
@@ -418,7 +421,7 @@ fn uploads_through_faults_complete_or_leave_nothing_and_say_so() {
         proxy
             .log()
             .iter()
-            .any(|r| r.line.starts_with("PUT ") && r.fault == Fault::Pass),
+            .any(|r| r.line.starts_with(&puts) && r.fault == Fault::Pass),
         "no upload got through before the fault: {:?}",
         proxy.log()
     );
