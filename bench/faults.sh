@@ -24,13 +24,9 @@ if [ "$PROFILE" = release ]; then FLAG=--release; else FLAG=; fi
 [ "${BUILD:-1}" = 0 ] || { cargo build $FLAG -q && cargo build $FLAG -q --example fault_proxy; }
 BIN=$PWD/target/$PROFILE/pcimg
 PROXY=$PWD/target/$PROFILE/examples/fault_proxy
-DIR=$(mktemp -d /tmp/pcimg-faults.XXXXXX)
-PIDS=()
-cleanup() {
-  for p in "${PIDS[@]}"; do kill "$p" 2>/dev/null || true; wait "$p" 2>/dev/null || true; done
-  rm -rf "$DIR"
-}
-trap cleanup EXIT
+# shellcheck source=bench/lib.sh
+. bench/lib.sh
+scratch_dir pcimg-faults
 export NODEVICE_SELECT=1
 
 echo "machine: $(nproc) cores; $(date -u +%FT%TZ); build: $PROFILE; $(python3 --version)"
@@ -78,11 +74,6 @@ run_once() { # FAULT TIMEOUT PNG [proxy flags...]
     bytes=$(sed -n 's/.*bytes=\([0-9]*\).*/\1/p' "$DIR/stats")
   fi
   echo "$(awk "BEGIN {printf \"%.3f\", $t1 - $t0}") $rc $req $bytes"
-}
-
-stats() { # numbers on stdin: "median (min-max)"
-  sort -g | awk '{v[NR]=$1} END {m = (NR % 2) ? v[(NR+1)/2] : (v[NR/2] + v[NR/2+1]) / 2;
-    printf "%.2f (%.2f-%.2f)", m, v[1], v[NR]}'
 }
 
 run_once pass "$TIMEOUT_OK" "$DIR/healthy.png" >"$DIR/healthy"

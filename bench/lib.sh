@@ -1,4 +1,5 @@
-# Shared by the interleaved benchmarks (ab.sh, multi.sh); sourced, not run.
+# Shared by the benchmark scripts (ab.sh, multi.sh, faults.sh, upload_faults.sh);
+# sourced, not run.
 
 # run_convert LABEL LOG OUTDIR BIN INPUT [options...]: one conversion into OUTDIR/out
 # (removed first), timed by GNU time; prints "LABEL wall .. user .. sys .. peak .."
@@ -18,4 +19,19 @@ run_convert() {
 median_wall() {
   awk -v l="$1" '$1 == l { print $3 }' "$2" | sort -g |
     awk '{ v[NR] = $1 } END { print (NR % 2) ? v[(NR + 1) / 2] : (v[NR / 2] + v[NR / 2 + 1]) / 2 }'
+}
+
+# stats: numbers on stdin as "median (min-max)".
+stats() {
+  sort -g | awk '{v[NR]=$1} END {m = (NR % 2) ? v[(NR+1)/2] : (v[NR/2] + v[NR/2+1]) / 2;
+    printf "%.2f (%.2f-%.2f)", m, v[1], v[NR]}'
+}
+
+# scratch_dir PREFIX: sets DIR to a new temporary directory and PIDS to an
+# empty list; on exit every process in PIDS (servers the script started) is
+# killed and reaped, and DIR removed.
+scratch_dir() {
+  DIR=$(mktemp -d "/tmp/$1.XXXXXX")
+  PIDS=()
+  trap 'for p in "${PIDS[@]}"; do kill "$p" 2>/dev/null || true; wait "$p" 2>/dev/null || true; done; rm -rf "$DIR"' EXIT
 }

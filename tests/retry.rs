@@ -15,11 +15,9 @@ use common::http::{HttpServer, scan_dataset};
 use pcimg::camera::Camera;
 use pcimg::lod::cache::retry_wait;
 use pcimg::lod::{self, LodMode, TileCache, TileRef};
-use pcimg::render::RendererChoice;
 use pcimg::store::Dataset;
 use pcimg::tui::app::{LodChoice, Settings};
-use pcimg::tui::protocol::{Encoding, Graphics};
-use pcimg::tui::worker::{FrameReady, RenderWorker, Report, Request, WorkerOptions};
+use pcimg::tui::worker::{FrameReady, RenderWorker, Report, Request};
 use std::path::Path;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
@@ -176,16 +174,7 @@ fn the_render_worker_redraws_by_itself_when_the_server_returns() {
     };
     let url = server.url("scan.pcimg");
     let ds = Arc::new(Dataset::open(Path::new(&url)).unwrap());
-    let w = RenderWorker::spawn(
-        ds.clone(),
-        WorkerOptions {
-            encoding: Encoding::new(Graphics::Halfblocks),
-            extra_bands: Vec::new(),
-            renderer: RendererChoice::Cpu,
-            memory: 1 << 30,
-            load_threads: 2,
-        },
-    );
+    let w = common::halfblock_worker(ds.clone());
     let mut settings = Settings {
         budget: 1_000,
         ..Default::default()

@@ -218,16 +218,7 @@ fn the_worker_renders_and_encodes_half_block_frames() {
     let dir = tempfile::tempdir().unwrap();
     let path = two_parts(dir.path(), None);
     let mut app = app_for(&path);
-    let w = RenderWorker::spawn(
-        app.dataset.clone(),
-        WorkerOptions {
-            encoding: Encoding::new(Graphics::Halfblocks),
-            extra_bands: Vec::new(),
-            renderer: RendererChoice::Cpu,
-            memory: 1 << 30,
-            load_threads: 2,
-        },
-    );
+    let w = common::halfblock_worker(app.dataset.clone());
     app.settings.lod = LodChoice::Pinned(1);
     let area = ui::areas(ratatui::layout::Rect::new(0, 0, 160, 48), &app).view_inner;
     w.request(Request {
@@ -538,16 +529,7 @@ fn a_pick_over_the_shown_frame_draws_no_new_frame() {
     let dir = tempfile::tempdir().unwrap();
     let path = scan_part(dir.path(), 60_000, 7);
     let mut app = app_for(&path);
-    let w = RenderWorker::spawn(
-        app.dataset.clone(),
-        WorkerOptions {
-            encoding: Encoding::new(Graphics::Halfblocks),
-            extra_bands: Vec::new(),
-            renderer: RendererChoice::Cpu,
-            memory: 1 << 30,
-            load_threads: 2,
-        },
-    );
+    let w = common::halfblock_worker(app.dataset.clone());
     app.camera.pitch = -89.0f64.to_radians();
     let request = |seq: u64, pick: bool, camera: Camera| Request {
         seq,

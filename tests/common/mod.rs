@@ -207,3 +207,21 @@ pub fn file_hash(path: &std::path::Path) -> u64 {
         (h ^ b as u64).wrapping_mul(0x0100_0000_01b3)
     })
 }
+
+/// The inspector's render worker on `ds`, as the tests run it: half-block
+/// frames, the CPU renderer, a 1 GiB budget, 2 loading threads.
+pub fn halfblock_worker(
+    ds: std::sync::Arc<pcimg::store::Dataset>,
+) -> pcimg::tui::worker::RenderWorker {
+    use pcimg::tui::protocol::{Encoding, Graphics};
+    pcimg::tui::worker::RenderWorker::spawn(
+        ds,
+        pcimg::tui::worker::WorkerOptions {
+            encoding: Encoding::new(Graphics::Halfblocks),
+            extra_bands: Vec::new(),
+            renderer: pcimg::render::RendererChoice::Cpu,
+            memory: 1 << 30,
+            load_threads: 2,
+        },
+    )
+}
