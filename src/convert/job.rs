@@ -101,6 +101,7 @@ impl<'a> Job<'a> {
         let write_opts = WriteOptions {
             compression: o.compression,
             coord_max_error: coord_max_error(o.max_error, info.coordinate_step),
+            lattice: info.coordinate_lattice,
             layout: o.layout,
             source: source_name(inputs),
             crs: info.crs_wkt.clone(),

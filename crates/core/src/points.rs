@@ -20,6 +20,15 @@ pub fn class_code(v: f32) -> Option<u8> {
     ((0.0..=255.0).contains(&v) && v.fract() == 0.0).then_some(v as u8)
 }
 
+/// A coordinate lattice: every coordinate on axis `a` is `origin[a] + step[a] · k`
+/// for a whole number `k` (a LAS file's scale factors and offsets), so a store can
+/// keep `k` instead of the coordinate.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct Lattice {
+    pub step: [f64; 3],
+    pub origin: [f64; 3],
+}
+
 /// One scalar attribute column (intensity, red, classification, gps_time...).
 ///
 /// The true value of point `i` is `offset + values[i] as f64`. Readers use the offset

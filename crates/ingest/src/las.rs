@@ -482,6 +482,10 @@ pub(crate) fn open_header(path: &Path) -> Result<Opened, IngestError> {
             notes: Vec::new(),
             metadata: Vec::new(),
             coordinate_step: Some(scales.map(f64::abs)),
+            coordinate_lattice: Some(crate::points::Lattice {
+                step: scales,
+                origin: offsets,
+            }),
         };
         Ok(Opened {
             file,

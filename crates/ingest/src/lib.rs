@@ -78,6 +78,10 @@ pub struct SourceInfo {
     /// stores coordinates as whole multiples of one (LAS scale factors): a
     /// lossy codec within half of it gives them back on the lattice.
     pub coordinate_step: Option<[f64; 3]>,
+    /// The lattice itself (step and origin: LAS scale factors and offsets), where
+    /// every coordinate of the input lies on one: the store keeps the whole
+    /// numbers, and gives the source's coordinates back exactly.
+    pub coordinate_lattice: Option<crate::points::Lattice>,
 }
 
 /// How to read an input.

@@ -227,6 +227,10 @@ fn merge(infos: &[SourceInfo]) -> Result<SourceInfo, IngestError> {
         } else {
             Vec::new()
         },
+        // Every file on the same lattice: that one.
+        coordinate_lattice: first
+            .coordinate_lattice
+            .filter(|l| infos.iter().all(|i| i.coordinate_lattice == Some(*l))),
         // Every file on a lattice: the finest step on each axis.
         coordinate_step: infos
             .iter()
@@ -414,6 +418,7 @@ mod tests {
             notes: Vec::new(),
             metadata: Vec::new(),
             coordinate_step: None,
+            coordinate_lattice: None,
         }
     }
 

@@ -347,6 +347,7 @@ impl TextReader {
             notes: Vec::new(),
             metadata: Vec::new(),
             coordinate_step: None,
+            coordinate_lattice: None,
         };
         Ok(LineReader::new(info, map, engine))
     }

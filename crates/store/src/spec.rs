@@ -3,7 +3,14 @@
 //! both take every format decision from here.
 
 /// Format version written in `PCIMG_FORMAT`; a reader refuses newer major versions.
-pub const FORMAT_VERSION: u32 = 1;
+/// Version 2 parts ([`COMPACT_VERSION`]) may hold tiles in row order
+/// ([`key::TILE_ORDER`]) and coordinates on a lattice (band `SCALE` other than 1);
+/// a part that uses neither is written as version 1, which older readers open.
+pub const FORMAT_VERSION: u32 = 2;
+/// The version of a part with row-ordered tiles or lattice coordinates.
+pub const COMPACT_VERSION: u32 = 2;
+/// The first version: Z-ordered tiles, coordinates relative to the origin.
+pub const FIRST_VERSION: u32 = 1;
 
 /// Tile edge in pixels (a power of two, so a tile holds one aligned Z-order block).
 pub const TILE_LOG2: u32 = 8;
@@ -11,6 +18,10 @@ pub const TILE_SIZE: u32 = 1 << TILE_LOG2;
 pub const TILE_PIXELS: usize = (TILE_SIZE * TILE_SIZE) as usize;
 /// Bytes of one band's tile, uncompressed (`f32` samples).
 pub const TILE_BYTES: u64 = (TILE_PIXELS * 4) as u64;
+
+/// The band of GPS time (LAS `gps_time`): row-ordered tiles keep their points
+/// in its order where a part has it.
+pub const GPS_TIME_BAND: &str = "gps_time";
 
 /// Bands every part starts with, in this order.
 pub const COORDINATE_BANDS: [&str; 3] = ["x", "y", "z"];
@@ -108,6 +119,38 @@ pub mod key {
     /// Per-level, per-tile bounds and counts (base64), in domain [`TILE_INDEX_DOMAIN`].
     pub const TILE_INDEX: &str = "TILE_INDEX";
     pub const TILE_INDEX_DOMAIN: &str = "pcimg";
+    /// How a tile's points lie in its pixels: absent, along the tile's Z-order
+    /// curve (point `i` at Morton pixel `i`); [`tile_order::ROWS`]: row-major,
+    /// in an order the writer chose to make neighbours alike (version 2).
+    pub const TILE_ORDER: &str = "TILE_ORDER";
+    /// Row-ordered parts: the stored bytes of each level (the sum of its
+    /// `TileByteCounts`), finest first, so overviews that another tool
+    /// recomputed in place (`gdaladdo`) are recognised without decoding tiles.
+    pub const LEVEL_BYTES: &str = "LEVEL_BYTES";
+    /// Lattice coordinates: per coordinate band, the lattice of the source
+    /// (`STEP ORIGIN`, the LAS scale and offset) from which GDAL's band scale and
+    /// offset were rebased, so an exporter gives back the source's integers.
+    pub const LATTICE: &str = "LATTICE";
+    /// Row-ordered parts: the bands (numbered from 1) that hold whole numbers
+    /// stored plus [`super::WHOLE_BIAS`]: coordinates on a lattice (GDAL's band
+    /// scale the step, its offset the lattice point of stored 0) and attributes
+    /// of whole values (scale 1). GDAL's scale and offset give every band's
+    /// true value; pcimg reads coordinates relative to `ORIGIN` and an
+    /// attribute relative to its band offset plus 2^23.
+    pub const WHOLE_BANDS: &str = "WHOLE_BANDS";
+}
+
+/// What row-ordered parts add to a whole number before storing it as an `f32`
+/// ([`key::WHOLE_BANDS`]): 2^23, so that every stored value of such a band
+/// has the same sign and exponent and the TIFF floating-point predictor's
+/// byte planes hold the number's own bytes (sizes: bench/RESULTS.md,
+/// "Compact storage"). Whole numbers in `[-2^23, 2^23)` are kept exactly.
+pub const WHOLE_BIAS: f64 = 8_388_608.0;
+
+/// Values of [`key::TILE_ORDER`].
+pub mod tile_order {
+    /// Row-major: the tile's `n` points are its first `n` pixels.
+    pub const ROWS: &str = "rows";
 }
 
 /// Values of the `LAYOUT` item: how points are placed in the image. A part without

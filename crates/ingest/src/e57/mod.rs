@@ -134,6 +134,7 @@ pub fn open(path: &Path, opts: &ReadOptions) -> Result<Box<dyn PointReader>, Ing
         notes,
         metadata: vec![(crate::points::key::SCANS.to_string(), scans_json(&scans))],
         coordinate_step: None,
+        coordinate_lattice: None,
     };
     Ok(Box::new(E57Input {
         info,

@@ -240,6 +240,7 @@ pub fn open(path: &Path, opts: &ReadOptions) -> Result<Box<dyn PointReader>, Ing
         notes: plan.notes.clone(),
         metadata,
         coordinate_step: None,
+        coordinate_lattice: None,
     };
     // Offsets only matter for values f32 cannot hold near 65536 and beyond.
     let wide = plan.elems.iter().any(|e| {

@@ -339,6 +339,7 @@ pub fn open(path: &Path, opts: &ReadOptions) -> Result<Box<dyn PointReader>, Ing
         notes: Vec::new(),
         metadata: Vec::new(),
         coordinate_step: None,
+        coordinate_lattice: None,
     };
     if header.encoding == Encoding::Ascii {
         return ascii::open(path, opts, map, &header, plan, info);

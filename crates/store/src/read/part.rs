@@ -54,6 +54,21 @@ pub struct BandInfo {
     /// Smallest and largest value in source units (stored value + offset), when
     /// the part records them (GDAL's `STATISTICS_MINIMUM` / `_MAXIMUM`).
     pub range: Option<(f64, f64)>,
+    /// A band of whole numbers (format version 2: coordinates on a lattice,
+    /// whole attributes): `(step, zero)`, GDAL's band scale and offset, the true
+    /// value of stored `s` being `zero + step · s`; the reader gives
+    /// `zero - offset + step · s`, relative to [`BandInfo::offset`] like every
+    /// other band (the part's origin for coordinates).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub lattice: Option<(f64, f64)>,
+}
+
+impl BandInfo {
+    /// The map from a stored value to the value read (`step`, `shift`:
+    /// `stored · step + shift`), for a band on a lattice.
+    pub(crate) fn stored_map(&self) -> Option<(f64, f64)> {
+        self.lattice.map(|(step, base)| (step, base - self.offset))
+    }
 }
 
 /// One tile of a level that holds data. The dataset index stores it as a row
@@ -345,6 +360,20 @@ impl Part {
         })?;
         let names = metadata::band_items(&items, "description");
         let offsets = metadata::band_items(&items, "offset");
+        let scales = metadata::band_items(&items, "scale");
+        let whole: Vec<usize> = match meta.items.get(key::WHOLE_BANDS) {
+            Some(list) if meta.format_version >= spec::COMPACT_VERSION => list
+                .split_whitespace()
+                .map(|v| v.parse::<usize>())
+                .collect::<std::result::Result<_, _>>()
+                .map_err(|_| {
+                    err(format!(
+                        "metadata {} is not a list of band numbers",
+                        key::WHOLE_BANDS
+                    ))
+                })?,
+            _ => Vec::new(),
+        };
         let minima = metadata::band_named(&items, key::STATISTICS_MINIMUM);
         let maxima = metadata::band_named(&items, key::STATISTICS_MAXIMUM);
         let samples = tiff
@@ -377,24 +406,60 @@ impl Part {
                 .cloned()
                 .or_else(|| listed.get(b).map(|s| s.to_string()))
                 .unwrap_or_else(|| format!("band{}", b + 1));
-            let offset = match offsets.get(&b) {
+            let mut offset: f64 = match offsets.get(&b) {
                 Some(s) => s
                     .trim()
                     .parse()
                     .map_err(|_| err(format!("band {} offset '{s}' is not a number", b + 1)))?,
                 None => 0.0,
             };
+            let scale: f64 = match scales.get(&b) {
+                Some(s) => s
+                    .trim()
+                    .parse()
+                    .map_err(|_| err(format!("band {} scale '{s}' is not a number", b + 1)))?,
+                None => 1.0,
+            };
+            // Version 2 keeps whole numbers plus 2^23 (coordinates on a lattice,
+            // whole attributes): GDAL's scale and offset give the true value;
+            // coordinates are read relative to the origin, attributes relative
+            // to the value of 2^23.
+            let lattice = if whole.contains(&(b + 1)) {
+                if !(scale.is_finite() && scale != 0.0 && offset.is_finite()) {
+                    return Err(err(format!(
+                        "band {} has scale {scale} and offset {offset}; whole-number bands \
+                         need finite numbers and a scale other than 0",
+                        b + 1
+                    )));
+                }
+                let zero = offset;
+                offset = if b < 3 {
+                    meta.origin[b]
+                } else {
+                    zero + scale * spec::WHOLE_BIAS
+                };
+                Some((scale, zero))
+            } else {
+                None
+            };
             // A statistic that does not parse is only not shown: it is a hint.
             let stat =
                 |m: &BTreeMap<usize, String>| m.get(&b).and_then(|s| s.trim().parse::<f64>().ok());
             let range = match (stat(&minima), stat(&maxima)) {
-                (Some(lo), Some(hi)) if lo <= hi => Some((lo + offset, hi + offset)),
+                (Some(lo), Some(hi)) if lo <= hi => Some(match lattice {
+                    Some((step, base)) => {
+                        let (a, z) = (base + step * lo, base + step * hi);
+                        (a.min(z), a.max(z))
+                    }
+                    None => (lo + offset, hi + offset),
+                }),
                 _ => None,
             };
             bands.push(BandInfo {
                 name,
                 offset,
                 range,
+                lattice,
             });
         }
         for (b, want) in spec::COORDINATE_BANDS.iter().enumerate() {
@@ -450,8 +515,28 @@ impl Part {
         }
         // Overviews recomputed in place (`gdaladdo -r average` on a pcimg file keeps
         // its IFDs and their Software tag) are caught by their pixels.
+        let rows = meta.items.get(key::TILE_ORDER).map(String::as_str);
+        if let Some(o) = rows.filter(|o| *o != spec::tile_order::ROWS) {
+            return Err(err(format!(
+                "metadata {} is '{}', which this version does not read",
+                key::TILE_ORDER,
+                crate::text::sanitize(o)
+            ))
+            .with_remedy(crate::error::Remedy::Upgrade));
+        }
+        let rows = rows.is_some();
+        // Row-ordered parts record each level's stored bytes: a level of other
+        // bytes was rewritten by another tool.
+        let level_bytes: Vec<u64> = meta
+            .items
+            .get(key::LEVEL_BYTES)
+            .map(|s| s.split_whitespace().filter_map(|v| v.parse().ok()).collect())
+            .unwrap_or_default();
         let pyramid_ok: Vec<bool> = (0..levels.len())
             .map(|k| {
+                if rows {
+                    return level_bytes.get(k) == Some(&levels[k].bytes);
+                }
                 meta.layout == spec::layout::PAPER
                     || overview_samples_level0(
                         data,
@@ -473,7 +558,9 @@ impl Part {
                 && level.tiles_across.is_power_of_two()
                 && level.tiles_across == level.tiles_down;
             // The paper's layout is row-major: tiles read in raster order.
-            if z_ok && meta.layout != spec::layout::PAPER {
+            if z_ok && rows {
+                level.z_lut = Some(crate::tiff::zorder::shared_rows(tw.trailing_zeros()));
+            } else if z_ok && meta.layout != spec::layout::PAPER {
                 level.z_lut = Some(shared_tile_z_to_raster(tw.trailing_zeros()));
             }
             let own = ifds_software(&tiff, data, &ifds, level.width) && pyramid_ok[k];

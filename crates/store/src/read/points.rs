@@ -244,13 +244,11 @@ impl Part {
             let raw = (l.compression == spec::compression::NONE && native && len >= pixels * 4)
                 .then(|| bytemuck::try_cast_slice::<u8, f32>(&stored[..pixels * 4]).ok())
                 .flatten();
+            let map = self.bands[b].stored_map();
             match raw {
-                Some(plane) => {
-                    for (v, &p) in o.iter_mut().zip(&lut[..n]) {
-                        v.write(plane[p as usize]);
-                    }
-                }
-                None if l.tile_width == l.tile_height
+                Some(plane) => place(o, plane, &lut[..n], map),
+                None if map.is_none()
+                    && l.tile_width == l.tile_height
                     && l.codec(self.little_endian, 1)
                         .decode_lerc_z(stored, o)
                         .map_err(|m| format!("tile {t} band {}: {m}", b + 1))? => {}
@@ -259,9 +257,7 @@ impl Part {
                         .codec(self.little_endian, 1)
                         .decode(stored, pixels)
                         .map_err(|m| format!("tile {t} band {}: {m}", b + 1))?;
-                    for (v, &p) in o.iter_mut().zip(&lut[..n]) {
-                        v.write(plane[p as usize]);
-                    }
+                    place(o, &plane, &lut[..n], map);
                 }
             }
         }
@@ -375,6 +371,12 @@ impl Part {
         };
         Ok((0..bands.len())
             .map(|k| {
+                if let Some((step, shift)) = self.bands[bands[k]].stored_map() {
+                    return selected
+                        .iter()
+                        .map(|&p| (sample(k, p as usize) as f64 * step + shift) as f32)
+                        .collect();
+                }
                 if planes[k].is_empty() {
                     let bytes = raw[k];
                     selected
@@ -389,5 +391,23 @@ impl Part {
                 }
             })
             .collect())
+    }
+}
+
+/// Writes `plane[lut[i]]` to `out[i]`: a tile's samples in reading order, mapped
+/// from whole numbers on a lattice (`map`: step and shift) where the band has one.
+#[inline]
+fn place(out: &mut [MaybeUninit<f32>], plane: &[f32], lut: &[u32], map: Option<(f64, f64)>) {
+    match map {
+        None => {
+            for (v, &p) in out.iter_mut().zip(lut) {
+                v.write(plane[p as usize]);
+            }
+        }
+        Some((step, shift)) => {
+            for (v, &p) in out.iter_mut().zip(lut) {
+                v.write((plane[p as usize] as f64 * step + shift) as f32);
+            }
+        }
     }
 }

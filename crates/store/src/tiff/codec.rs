@@ -78,12 +78,8 @@ impl Compression {
     /// fastest from the page cache; for output to object storage, where bytes
     /// are time, the smallest that reads fast enough (bench/RESULTS.md, issue
     /// 30).
-    pub fn default_for(remote: bool) -> Self {
-        if remote {
-            Compression::LercZstd
-        } else {
-            Compression::None
-        }
+    pub fn default_for(_remote: bool) -> Self {
+        Compression::Zstd
     }
 
     pub fn name(self) -> &'static str {
@@ -95,6 +91,13 @@ impl Compression {
             Compression::LercDeflate => "lerc_deflate",
             Compression::LercZstd => "lerc_zstd",
         }
+    }
+
+    /// Whether parts are written with row-ordered tiles and lattice coordinates
+    /// (format version 2): the lossless codecs whose TIFF predictor differences
+    /// each row, so the order of a row's points decides the size.
+    pub fn row_ordered(self) -> bool {
+        matches!(self, Compression::Zstd | Compression::Deflate)
     }
 
     pub fn is_lerc(self) -> bool {

@@ -70,6 +70,21 @@ pub fn shared_tile_z_to_raster(log2: u32) -> std::sync::Arc<Vec<u32>> {
         .clone()
 }
 
+/// The identity table of a `2^log2 × 2^log2` tile (row-ordered tiles: point `i`
+/// at pixel `i`), shared like [`shared_tile_z_to_raster`]'s.
+pub fn shared_rows(log2: u32) -> std::sync::Arc<Vec<u32>> {
+    use std::collections::HashMap;
+    use std::sync::{Arc, Mutex, OnceLock};
+    static MADE: OnceLock<Mutex<HashMap<u32, Arc<Vec<u32>>>>> = OnceLock::new();
+    let mut made = MADE
+        .get_or_init(Default::default)
+        .lock()
+        .unwrap_or_else(|p| p.into_inner());
+    made.entry(log2)
+        .or_insert_with(|| Arc::new((0..1u32 << (2 * log2)).collect()))
+        .clone()
+}
+
 /// The pyramid of one part: a `2^log2 × 2^log2` image at level 0 holding `points`.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct Geometry {

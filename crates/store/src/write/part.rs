@@ -52,6 +52,12 @@ pub struct WriteOptions {
     /// arranged (`alloc::release_pool`): for the last part of a conversion, whose
     /// tiles need no large buffers and after which nothing would reuse them.
     pub release_pool: bool,
+    /// The input's coordinate lattice (LAS scale factors and offsets). With a
+    /// lossless predictor codec (`zstd`, `deflate`) the part stores each
+    /// coordinate's whole number on it, GDAL's band scale and offset giving the
+    /// coordinate back ([`StoredLattice`]); a part some point of which is not on
+    /// it is stored as without one.
+    pub lattice: Option<crate::points::Lattice>,
 }
 
 impl WriteOptions {
@@ -193,6 +199,71 @@ struct Arranged {
     origin: [f64; 3],
     bounds: Bounds,
     max_error: f64,
+    /// Tiles in row order, each tile's points in the order [`tile_order`] chose
+    /// (version 2: lossless predictor codecs of the Hilbert layout).
+    rows_order: bool,
+    /// Coordinates stored as whole numbers on the input's lattice.
+    lattice: Option<StoredLattice>,
+    /// Row-ordered parts: the attributes (bands 3 and up) whose values are all
+    /// whole numbers, stored plus `spec::WHOLE_BIAS`.
+    whole: Vec<bool>,
+}
+
+/// Coordinates kept as whole numbers: a stored `k` on axis `a` stands for
+/// `base[a] + step[a] · k`, stored as `k + 2^23` (`spec::WHOLE_BIAS`; GDAL's
+/// band scale is the step, its offset `base - step · 2^23`). `base` is the
+/// source lattice's point nearest the part's origin, so `|k|` stays below
+/// 2^23 for parts up to 2^24 steps wide (168 km at 1 cm).
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct StoredLattice {
+    pub step: [f64; 3],
+    pub base: [f64; 3],
+    pub source: crate::points::Lattice,
+}
+
+impl StoredLattice {
+    /// The lattice of `source` rebased near `origin`.
+    fn new(source: crate::points::Lattice, origin: [f64; 3]) -> Option<Self> {
+        let mut base = [0.0; 3];
+        for a in 0..3 {
+            let s = source.step[a];
+            if !(s.is_finite() && s != 0.0 && source.origin[a].is_finite()) {
+                return None;
+            }
+            base[a] = source.origin[a] + s * ((origin[a] - source.origin[a]) / s).round();
+        }
+        Some(StoredLattice {
+            step: source.step,
+            base,
+            source,
+        })
+    }
+
+    /// The value stored for coordinate `v` (relative to `origin`) on axis `a`:
+    /// its whole number on the lattice plus 2^23, if `v` is (to `f32`'s
+    /// rounding) a point of the lattice within 2^23 steps of `base`.
+    #[inline]
+    fn whole(&self, a: usize, v: f32, origin: f64) -> Option<f32> {
+        let k = ((v as f64 + origin - self.base[a]) / self.step[a]).round();
+        if !(-spec::WHOLE_BIAS..spec::WHOLE_BIAS).contains(&k) {
+            return None;
+        }
+        let back = ((self.base[a] + self.step[a] * k) - origin) as f32;
+        (back == v || back.next_up() == v || back.next_down() == v)
+            .then_some((k + spec::WHOLE_BIAS) as f32)
+    }
+
+    /// The lattice of `source` for a part's positions (relative to `origin`),
+    /// if every one lies on it.
+    fn fit(source: crate::points::Lattice, origin: [f64; 3], pos: &[[f32; 3]]) -> Option<Self> {
+        let l = Self::new(source, origin)?;
+        let on = pos.par_chunks(1 << 16).all(|c| {
+            c.iter().all(|p| {
+                (0..3).all(|a| p[a].is_nan() || l.whole(a, p[a], origin[a]).is_some())
+            })
+        });
+        on.then_some(l)
+    }
 }
 
 impl Arranged {
@@ -456,6 +527,9 @@ fn arrange(
         origin,
         bounds,
         max_error,
+        rows_order: false,
+        lattice: None,
+        whole: Vec::new(),
     })
 }
 
@@ -511,22 +585,95 @@ fn tile_index(a: &Arranged) -> Vec<LevelIndex> {
 /// Minimum and maximum of each band's stored values (NaN ignored; `lo > hi` for a
 /// band with no finite value): x y z from the bounds, the rest as the builder
 /// found them.
+/// Whether each band holds whole numbers stored plus `spec::WHOLE_BIAS`.
+fn whole_bands(a: &Arranged) -> Vec<bool> {
+    (0..a.names.len())
+        .map(|b| {
+            if b < 3 {
+                a.lattice.is_some()
+            } else {
+                a.whole.get(b - 3).copied().unwrap_or(false)
+            }
+        })
+        .collect()
+}
+
 fn stored_ranges(a: &Arranged) -> Vec<(f64, f64)> {
     let mut r: Vec<(f64, f64)> = (0..3)
         .map(|k| {
-            (
-                (a.bounds.min[k] - a.origin[k]) as f32 as f64,
-                (a.bounds.max[k] - a.origin[k]) as f32 as f64,
-            )
+            let (lo, hi) = (a.bounds.min[k], a.bounds.max[k]);
+            match &a.lattice {
+                // (Whole numbers: the bounds are points of the lattice.)
+                Some(l) => (
+                    ((lo - l.base[k]) / l.step[k]).round() + spec::WHOLE_BIAS,
+                    ((hi - l.base[k]) / l.step[k]).round() + spec::WHOLE_BIAS,
+                ),
+                None => (
+                    (lo - a.origin[k]) as f32 as f64,
+                    (hi - a.origin[k]) as f32 as f64,
+                ),
+            }
         })
+        .map(|(lo, hi)| if lo <= hi { (lo, hi) } else { (hi, lo) })
         .collect();
-    r.extend(a.ranges.iter().map(|&(lo, hi)| (lo as f64, hi as f64)));
+    let whole = whole_bands(a);
+    r.extend(a.ranges.iter().enumerate().map(|(k, &(lo, hi))| {
+        let bias = if whole[3 + k] { spec::WHOLE_BIAS } else { 0.0 };
+        (lo as f64 + bias, hi as f64 + bias)
+    }));
     r
 }
 
 /// Points per classification code when the part has a `classification` band
 /// (values that are not whole codes 0..=255 are not counted). Held rows are
 /// counted in place; rows the reader gives again are asked for in blocks.
+/// For each attribute, whether every value is a whole number in
+/// `[-2^23, 2^23)` (NaN aside), which a row-ordered part stores plus 2^23.
+fn whole_attributes(a: &Arranged) -> Vec<bool> {
+    let (m, n) = (a.m, a.geometry.points as usize);
+    let b = spec::WHOLE_BIAS as f32;
+    let in_range = |k: usize| {
+        let (lo, hi) = a.ranges[k];
+        lo > hi || (lo >= -b && hi < b)
+    };
+    let mut whole: Vec<bool> = (0..m).map(in_range).collect();
+    if m == 0 || !whole.iter().any(|&w| w) {
+        return whole;
+    }
+    let check = |rows: &[f32]| -> Vec<bool> {
+        let mut w = vec![true; m];
+        for row in rows.chunks_exact(m) {
+            for (k, v) in row.iter().enumerate() {
+                w[k] &= v.is_nan() || v.fract() == 0.0;
+            }
+        }
+        w
+    };
+    let merge = |x: Vec<bool>, y: Vec<bool>| x.iter().zip(&y).map(|(p, q)| *p && *q).collect();
+    const BLOCK: usize = 1 << 16;
+    let seen: Vec<bool> = match &a.rows {
+        Rows::Held(rows) => rows
+            .par_chunks(m * BLOCK)
+            .map(check)
+            .reduce(|| vec![true; m], merge),
+        Rows::Source(src) => (0..n.div_ceil(BLOCK))
+            .into_par_iter()
+            .map(|blk| {
+                let idx: Vec<u32> = (blk * BLOCK..((blk + 1) * BLOCK).min(n))
+                    .map(|i| i as u32)
+                    .collect();
+                let mut out = Vec::with_capacity(idx.len() * m);
+                src.gather(&idx, &mut out);
+                check(&out)
+            })
+            .reduce(|| vec![true; m], merge),
+    };
+    for (w, s) in whole.iter_mut().zip(seen) {
+        *w &= s;
+    }
+    whole
+}
+
 fn class_counts(a: &Arranged) -> Option<Vec<(u8, u64)>> {
     use rayon::prelude::*;
     let band = a.names.iter().position(|n| n == "classification")?;
@@ -576,8 +723,13 @@ fn class_counts(a: &Arranged) -> Option<Vec<(u8, u64)>> {
 
 fn metadata_xml(a: &Arranged, opts: &WriteOptions, index: &[LevelIndex]) -> String {
     let g = a.geometry;
+    let version = if a.rows_order || a.lattice.is_some() {
+        spec::COMPACT_VERSION
+    } else {
+        spec::FIRST_VERSION
+    };
     let mut items = vec![
-        Item::dataset(key::FORMAT, spec::FORMAT_VERSION.to_string()),
+        Item::dataset(key::FORMAT, version.to_string()),
         Item::dataset(key::POINT_COUNT, g.points.to_string()),
         Item::dataset(key::ORIGIN, metadata::f64s(&a.origin)),
         Item::dataset(key::BOUNDS_MIN, metadata::f64s(&a.bounds.min)),
@@ -594,6 +746,27 @@ fn metadata_xml(a: &Arranged, opts: &WriteOptions, index: &[LevelIndex]) -> Stri
         Item::dataset(key::BANDS, a.names.join(" ")),
         Item::dataset(key::MAX_QUANTIZATION_ERROR, format!("{:e}", a.max_error)),
     ];
+    if a.rows_order {
+        items.push(Item::dataset(key::TILE_ORDER, spec::tile_order::ROWS));
+        // (Filled in once the tiles are encoded: `level_bytes_item`.)
+        items.push(Item::dataset(
+            key::LEVEL_BYTES,
+            level_bytes_item(&vec![0; g.levels()]),
+        ));
+    }
+    if let Some(l) = &a.lattice {
+        let mut v = l.source.step.to_vec();
+        v.extend_from_slice(&l.source.origin);
+        items.push(Item::dataset(key::LATTICE, metadata::f64s(&v)));
+    }
+    let whole = whole_bands(a);
+    if whole.iter().any(|&w| w) {
+        let list: Vec<String> = (0..whole.len())
+            .filter(|&b| whole[b])
+            .map(|b| (b + 1).to_string())
+            .collect();
+        items.push(Item::dataset(key::WHOLE_BANDS, list.join(" ")));
+    }
     if opts.compression.is_lerc() {
         items.push(Item::dataset(
             key::CODEC_MAX_ERROR,
@@ -631,7 +804,15 @@ fn metadata_xml(a: &Arranged, opts: &WriteOptions, index: &[LevelIndex]) -> Stri
     }
     for (b, name) in a.names.iter().enumerate() {
         items.push(Item::band("DESCRIPTION", b, "description", name.clone()));
-        if a.offsets[b] != 0.0 {
+        if let Some(l) = a.lattice.as_ref().filter(|_| b < 3) {
+            let zero = l.base[b] - l.step[b] * spec::WHOLE_BIAS;
+            items.push(Item::band("OFFSET", b, "offset", format!("{zero:?}")));
+            items.push(Item::band("SCALE", b, "scale", format!("{:?}", l.step[b])));
+        } else if whole[b] {
+            let zero = a.offsets[b] - spec::WHOLE_BIAS;
+            items.push(Item::band("OFFSET", b, "offset", format!("{zero:?}")));
+            items.push(Item::band("SCALE", b, "scale", "1"));
+        } else if a.offsets[b] != 0.0 {
             items.push(Item::band(
                 "OFFSET",
                 b,
@@ -646,6 +827,16 @@ fn metadata_xml(a: &Arranged, opts: &WriteOptions, index: &[LevelIndex]) -> Stri
         ..Item::dataset(key::TILE_INDEX, metadata::encode_tile_index(index))
     });
     metadata::to_xml(&items)
+}
+
+/// The [`key::LEVEL_BYTES`] item's value: fixed-width numbers, so the head's
+/// length is known before the tiles are encoded and the item is filled in after.
+fn level_bytes_item(bytes: &[u64]) -> String {
+    bytes
+        .iter()
+        .map(|b| format!("{b:020}"))
+        .collect::<Vec<_>>()
+        .join(" ")
 }
 
 /// Points per level, from the tile index.
@@ -848,6 +1039,16 @@ fn write(
     } else {
         arrange(path, part, opts.layout, &mut ph, None, tiles_at)?
     };
+    // Lossless predictor codecs store tiles in row order, and coordinates on
+    // the input's lattice where every point lies on it (format version 2).
+    if a.layout == Layout::Hilbert && opts.compression.row_ordered() {
+        a.rows_order = true;
+        a.lattice = opts
+            .lattice
+            .and_then(|l| StoredLattice::fit(l, a.origin, &a.pos));
+        a.whole = whole_attributes(&a);
+        ph.mark("lattice");
+    }
     // A lossy codec adds its bound, and the f32 rounding of what it gives back,
     // to f32's.
     let lossy = codec_bound(opts).into_iter().fold(0.0, f64::max);
@@ -966,6 +1167,111 @@ fn encode_job(
         .into_iter()
         .map(|(b, buf)| (b, done(b, buf)))
         .collect()
+}
+
+/// Encodes tile `t` (Z-rank) of `level` in row order (format version 2): its
+/// points in the order [`tile_order`] chooses, row-major from the first pixel,
+/// coordinates as whole numbers where the part has a lattice; every band.
+fn rows_tile(
+    a: &Arranged,
+    level: usize,
+    t: usize,
+    compression: Compression,
+) -> Vec<(usize, Encoded)> {
+    let g = a.geometry;
+    let count = g.tile_points(level, t as u64) as usize;
+    let stride = 1usize << (2 * level);
+    let first = t * TILE_PIXELS;
+    let m = a.m;
+    let slots: Vec<usize> = (0..count).map(|i| a.slot((first + i) * stride)).collect();
+    let idx: Vec<u32> = slots.iter().map(|&s| a.perm[s]).collect();
+    let mut rows = Vec::new();
+    if m > 0 {
+        rows.reserve(count * m);
+        a.rows.gather(&idx, m, &mut rows);
+    }
+    let gps = a.names[3..].iter().position(|n| n == spec::GPS_TIME_BAND);
+    let order = tile_order(&slots, &idx, &a.pos, gps.map(|g| (&rows[..], m, g)));
+    let new_buf = || {
+        if count == TILE_PIXELS {
+            TileBuf::reused()
+        } else {
+            TileBuf::filled(f32::NAN)
+        }
+    };
+    (0..3 + m)
+        .into_par_iter()
+        .map(|b| {
+            let mut buf = new_buf();
+            if b < 3 {
+                let o = a.origin[b];
+                for (j, &i) in order.iter().enumerate() {
+                    let v = a.pos[slots[i as usize]][b];
+                    buf[j] = match &a.lattice {
+                        // (`fit` checked every point.)
+                        Some(l) => l.whole(b, v, o).unwrap_or(f32::NAN),
+                        None => v,
+                    };
+                }
+            } else {
+                let k = b - 3;
+                let bias = if a.whole[k] { spec::WHOLE_BIAS as f32 } else { 0.0 };
+                for (j, &i) in order.iter().enumerate() {
+                    buf[j] = rows[i as usize * m + k] + bias;
+                }
+            }
+            let e = match codec::encode(&buf, TILE_SIZE as usize, compression, 0.0) {
+                Ok(v) => Encoded::Bytes(v),
+                Err(msg) => Encoded::Failed(format!("level {level} tile {t} band {}: {msg}", b + 1)),
+            };
+            (b, e)
+        })
+        .collect()
+}
+
+/// The order in which a row-ordered tile keeps its points (indices into the
+/// tile's points, which come in level order: `slots` into the part's positions
+/// `pos`, `idx` their input indices). Each row is differenced by the TIFF
+/// predictor, so the order should make neighbours alike: by GPS time where the
+/// points have one (`gps`: the tile's attribute rows, their width and the
+/// column; points a scanner recorded one after another lie close, and their
+/// times, colours and intensities change little), else whichever of level
+/// order and input order takes the shorter steps between consecutive points.
+/// Measured in bench/RESULTS.md ("Compact storage").
+fn tile_order(
+    slots: &[usize],
+    idx: &[u32],
+    pos: &[[f32; 3]],
+    gps: Option<(&[f32], usize, usize)>,
+) -> Vec<u32> {
+    let n = slots.len() as u32;
+    if let Some((rows, m, g)) = gps {
+        let mut o: Vec<u32> = (0..n).collect();
+        o.sort_unstable_by(|&i, &j| {
+            let (a, b) = (rows[i as usize * m + g], rows[j as usize * m + g]);
+            a.total_cmp(&b).then(i.cmp(&j))
+        });
+        return o;
+    }
+    let steps = |o: &mut dyn Iterator<Item = u32>| -> f64 {
+        let mut last: Option<[f32; 3]> = None;
+        let mut sum = 0.0f64;
+        for i in o {
+            let p = pos[slots[i as usize]];
+            if let Some(q) = last {
+                sum += ((p[0] - q[0]).abs() + (p[1] - q[1]).abs() + (p[2] - q[2]).abs()) as f64;
+            }
+            last = Some(p);
+        }
+        sum
+    };
+    let mut input: Vec<u32> = (0..n).collect();
+    input.sort_unstable_by_key(|&i| idx[i as usize]);
+    if steps(&mut input.iter().copied()) < steps(&mut (0..n)) {
+        input
+    } else {
+        (0..n).collect()
+    }
 }
 
 /// The directory of `level`, its tile offsets and byte counts given.
@@ -1117,14 +1423,14 @@ fn encode(
         .map(|l| vec![0u64; per_band(l) * nb])
         .collect();
     let mut counts = offsets.clone();
-    let head_of = |offsets: &[Vec<u64>], counts: &[Vec<u64>]| Head {
+    let head_of = |xml: &str, offsets: &[Vec<u64>], counts: &[Vec<u64>]| Head {
         big,
         dirs: (0..g.levels())
             .map(|l| directory(a, opts, xml, &software, l, &offsets[l], &counts[l], big))
             .collect(),
     };
     // The head's length depends only on the counts of its values.
-    let head_len = head_of(&offsets, &counts).len();
+    let head_len = head_of(xml, &offsets, &counts).len();
     let level_tiles = |k: usize| index[k].tiles.len() as u64;
     let end = if opts.compression == Compression::None {
         // Every tile is TILE_PIXELS samples: every level's tile data lies in one
@@ -1214,7 +1520,19 @@ fn encode(
             "the file outgrew classic TIFF's 4 GiB (BigTIFF was not chosen)",
         ));
     }
-    let head = head_of(&offsets, &counts).to_bytes();
+    // Row-ordered parts record each level's stored bytes, now known (the
+    // item's width is fixed: the head keeps its length).
+    let xml = if a.rows_order {
+        let was = format!(">{}<", level_bytes_item(&vec![0; g.levels()]));
+        let now = format!(
+            ">{}<",
+            level_bytes_item(&counts.iter().map(|c| c.iter().sum()).collect::<Vec<u64>>())
+        );
+        xml.replacen(&was, &now, 1)
+    } else {
+        xml.to_string()
+    };
+    let head = head_of(&xml, &offsets, &counts).to_bytes();
     debug_assert_eq!(head.len() as u64, head_len);
     out::write_all_at(file, &head, 0)?;
     file.set_len(end)?;
@@ -1241,6 +1559,18 @@ fn encode_batches(
     let filled = tiles.len();
     let encode = |start: usize| -> Vec<(usize, usize, Encoded)> {
         let end = (start + BATCH_TILES).min(filled);
+        if a.rows_order {
+            let encoded: Vec<Vec<(usize, usize, Encoded)>> = (start..end)
+                .into_par_iter()
+                .map(|t| {
+                    rows_tile(a, level, t, compression)
+                        .into_iter()
+                        .map(|(b, e)| (t, b, e))
+                        .collect()
+                })
+                .collect();
+            return encoded.into_iter().flatten().collect();
+        }
         let per_tile = groups(a.m);
         let jobs: Vec<(usize, usize)> = (start..end)
             .flat_map(|t| (0..per_tile).map(move |g| (t, g)))
