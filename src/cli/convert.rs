@@ -34,11 +34,11 @@ pub struct Args {
     /// How points are grouped into parts.
     #[arg(long, value_enum, default_value_t = PartitionArg::Spatial)]
     pub partition: PartitionArg,
-    /// Tile compression: none (fastest to load), deflate, zstd (lossless, with the
-    /// floating-point predictor), or lerc, lerc_zstd, lerc_deflate (LERC, as GDAL
-    /// writes it: coordinates within --max-error, attributes lossless; the
-    /// smallest files). Default: none for a local output, lerc_zstd for one in
-    /// object storage (`Compression::default_for`).
+    /// Tile compression. zstd (the default) or deflate: lossless and compact, each
+    /// tile's points in GPS-time order, LAS coordinates kept as whole numbers on
+    /// the LAS lattice (about 2x the LAZ, pyramid included). none: uncompressed,
+    /// about 8x larger. lerc, lerc_zstd, lerc_deflate: LERC as GDAL writes it,
+    /// coordinates within --max-error, attributes lossless.
     #[arg(long, value_parser = Compression::parse)]
     pub compression: Option<Compression>,
     /// LERC codecs: the largest error allowed in a coordinate, in the input's
@@ -533,6 +533,23 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         "  stored coordinates within {} of the source",
         crate::store::crs::distance(s.max_quantization_error, s.crs.as_deref())
     )?;
+    if let Some(l) = s.parts.iter().find_map(|p| p.lattice) {
+        let on = s.parts.iter().filter(|p| p.lattice.is_some()).count();
+        let unit = crate::store::crs::unit_symbol(s.crs.as_deref());
+        let step = |a: usize| format!("{} {unit}", l.step[a].abs()).trim_end().to_string();
+        writeln!(
+            out,
+            "  {} kept exactly on the input's lattice (steps {}, {}, {})",
+            if on == s.parts.len() {
+                "every part's coordinates".to_string()
+            } else {
+                format!("{on} of {} parts' coordinates", s.parts.len())
+            },
+            step(0),
+            step(1),
+            step(2)
+        )?;
+    }
     if let Some(r) = &s.index {
         writeln!(out, "  {}", super::index::describe(r))?;
     }

@@ -1,9 +1,12 @@
 #!/usr/bin/env python3
 """A pcimg dataset against its source LAS, through software pcimg does not use:
 the source read by laspy, each part's full-resolution image read by GDAL's
-Python bindings. Every source point must be in exactly one part, its x y z on
-the LAS grid, and every attribute the parts store equal to the source's
-(integers exactly; gps_time to the float32 precision of the part's band).
+Python bindings, each band's value GDAL's `stored * scale + offset` (as
+`gdal_translate -unscale` gives it). Every source point must be in exactly one
+part, its x y z on the LAS grid (a format-2 part keeps the grid's whole numbers:
+its x y z then lie within a millionth of a LAS unit of the source's), and every
+attribute the parts store equal to the source's (integers exactly; gps_time to
+the float32 precision of the part's band).
 
     /usr/bin/python3 tests/python/parts_match_las.py SOURCE.las DATASET_DIR
 
@@ -32,6 +35,7 @@ def main():
     if len(parts) < 2:
         fail(f"{dataset}: {len(parts)} part(s); the check wants a conversion in several")
     values, ulps = {}, {}
+    lattice = [0]
     for path in parts:
         image = gdal.Open(path)
         bands = {}
@@ -40,13 +44,14 @@ def main():
             raw = band.ReadAsArray().ravel()
             if raw.dtype != np.float32:
                 fail(f"{path}: band {i} is {raw.dtype}, not float32")
-            bands[band.GetDescription()] = (raw, band.GetOffset() or 0.0)
+            bands[band.GetDescription()] = (raw, band.GetOffset() or 0.0, band.GetScale() or 1.0)
         # Pixels past the last point are nodata (NaN).
         keep = ~np.isnan(bands["x"][0])
-        for name, (raw, offset) in bands.items():
+        for name, (raw, offset, scale) in bands.items():
             r = raw[keep]
-            values.setdefault(name, []).append(r.astype(np.float64) + offset)
-            ulps.setdefault(name, []).append(np.spacing(np.abs(r)).astype(np.float64))
+            values.setdefault(name, []).append(r.astype(np.float64) * scale + offset)
+            ulps.setdefault(name, []).append(np.spacing(np.abs(r)).astype(np.float64) * abs(scale))
+        lattice[0] += int(image.GetMetadataItem("PCIMG_FORMAT") == "2" and "LATTICE" in (image.GetMetadata() or {}))
     values = {k: np.concatenate(v) for k, v in values.items()}
     ulps = {k: np.concatenate(v) for k, v in ulps.items()}
     n = len(values["x"])
@@ -62,6 +67,8 @@ def main():
         worst = np.max(np.abs(units - grid))
         if worst > 0.1:
             fail(f"{axis} lies {worst:.3f} LAS units off the source's grid")
+        if lattice[0] == len(parts) and worst > 1e-6:
+            fail(f"{axis} lies {worst:.3g} LAS units off the source's grid in a part on the lattice")
         ours.append(grid.astype(np.int64))
     o = np.lexsort((ours[2], ours[1], ours[0]))
     t = np.lexsort((theirs[2], theirs[1], theirs[0]))
@@ -89,7 +96,7 @@ def main():
         if len(bad):
             k = bad[0]
             fail(f"{name}: {len(bad)} points differ, the first {mine[k]!r} vs {source_values[k]!r}")
-    print(f"{len(parts)} parts, {n} points, x y z and {len(names)} attributes ({' '.join(names)}): all equal")
+    print(f"{len(parts)} parts ({lattice[0]} on the LAS lattice), {n} points, x y z and {len(names)} attributes ({' '.join(names)}): all equal")
 
 
 if __name__ == "__main__":

@@ -160,6 +160,48 @@ impl Layout {
     }
 }
 
+impl Layout {
+    /// The decimals the first point lines of `data` (up to
+    /// [`super::OFFSET_SAMPLE`] of them) write each coordinate with: the most
+    /// on each axis, `None` when a coordinate uses an exponent or more than 9
+    /// decimals (no lattice to keep). A file whose later lines carry more
+    /// decimals is caught by the store, which keeps a lattice only when every
+    /// point lies on it.
+    pub(crate) fn coordinate_decimals(&self, data: &[u8]) -> Option<[u32; 3]> {
+        let mut most = [0u32; 3];
+        let mut seen = 0usize;
+        for line in data.split(|&c| c == b'\n').take(super::OFFSET_SAMPLE) {
+            let fields: Vec<&[u8]> = line
+                .split(|&c| is_sep(c))
+                .filter(|f| !f.is_empty())
+                .collect();
+            if fields.len() != self.ncols() || parse_number(fields[0]).is_none() {
+                continue;
+            }
+            for (f, role) in fields.iter().zip(&self.roles) {
+                let axis = match role {
+                    Role::X => 0,
+                    Role::Y => 1,
+                    Role::Z => 2,
+                    _ => continue,
+                };
+                if f.iter().any(|&c| c == b'e' || c == b'E') {
+                    return None;
+                }
+                let d = f.iter().position(|&c| c == b'.').map_or(0, |p| {
+                    f[p + 1..].iter().take_while(|c| c.is_ascii_digit()).count()
+                });
+                if d > 9 {
+                    return None;
+                }
+                most[axis] = most[axis].max(d as u32);
+            }
+            seen += 1;
+        }
+        (seen > 0).then_some(most)
+    }
+}
+
 #[inline(always)]
 pub(crate) fn is_sep(c: u8) -> bool {
     matches!(c, b' ' | b'\t' | b',' | b';' | b'\r')

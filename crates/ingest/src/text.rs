@@ -317,6 +317,13 @@ impl TextReader {
             .and_then(|e| e.to_str())
             .is_some_and(|e| e.eq_ignore_ascii_case("pts"));
         layout.decide_offsets(&data[pre.data_start..], u64::MAX);
+        // The lattice the coordinates are written on: 10^-decimals, from 0.
+        let lattice = layout
+            .coordinate_decimals(&data[pre.data_start..])
+            .map(|d| crate::points::Lattice {
+                step: d.map(|d| 10f64.powi(-(d as i32))),
+                origin: [0.0; 3],
+            });
         let engine = LineEngine {
             path: path.to_path_buf(),
             layout: layout.clone(),
@@ -347,7 +354,7 @@ impl TextReader {
             notes: Vec::new(),
             metadata: Vec::new(),
             coordinate_step: None,
-            coordinate_lattice: None,
+            coordinate_lattice: lattice,
         };
         Ok(LineReader::new(info, map, engine))
     }

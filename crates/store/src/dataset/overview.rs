@@ -475,6 +475,12 @@ fn build_nodes(
                     source: Some(format!("pcimg overview of {}", child_names.join(" "))),
                     crs: kids[0].part.meta.crs.clone(),
                     cancel: o.cancel.clone(),
+                    // Children on one lattice: the node keeps their whole numbers.
+                    lattice: kids[0]
+                        .part
+                        .meta
+                        .lattice
+                        .filter(|l| kids.iter().all(|k| k.part.meta.lattice == Some(*l))),
                     ..Default::default()
                 };
                 write_part(&path, &pts, &opts)?;

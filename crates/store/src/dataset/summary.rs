@@ -56,6 +56,7 @@ impl Part {
                     offsets: Vec::new(),
                     counts: Vec::new(),
                     z_lut: None,
+                    row_order: false,
                     ..l.clone()
                 })
                 .collect(),

@@ -42,6 +42,10 @@ pub struct PartMeta {
     /// Every default-domain item, as stored (unsanitized: sanitize before display).
     /// Not kept in the dataset index (the fields above are): empty for a part
     /// opened from it.
+    /// The source's coordinate lattice (`LATTICE`), for parts that keep their
+    /// coordinates on it.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub lattice: Option<crate::points::Lattice>,
     #[serde(skip)]
     pub items: BTreeMap<String, String>,
 }
@@ -138,6 +142,9 @@ pub struct Level {
     /// For square power-of-two tiles: raster offset of each Z-rank in a tile.
     #[serde(skip)]
     pub(crate) z_lut: Option<Arc<Vec<u32>>>,
+    /// Row-ordered tiles (format version 2): `z_lut` is the identity.
+    #[serde(skip)]
+    pub(crate) row_order: bool,
 }
 
 fn is_zero(v: &u32) -> bool {
@@ -287,6 +294,14 @@ fn parse_meta(items: &BTreeMap<String, String>) -> std::result::Result<PartMeta,
             .iter()
             .filter_map(|k| items.get(*k).map(|v| (k.to_string(), v.clone())))
             .collect(),
+        lattice: items
+            .get(key::LATTICE)
+            .map(|s| metadata::parse_f64s(s, 6, key::LATTICE))
+            .transpose()?
+            .map(|v| crate::points::Lattice {
+                step: [v[0], v[1], v[2]],
+                origin: [v[3], v[4], v[5]],
+            }),
         items: items.clone(),
     })
 }
@@ -530,7 +545,11 @@ impl Part {
         let level_bytes: Vec<u64> = meta
             .items
             .get(key::LEVEL_BYTES)
-            .map(|s| s.split_whitespace().filter_map(|v| v.parse().ok()).collect())
+            .map(|s| {
+                s.split_whitespace()
+                    .filter_map(|v| v.parse().ok())
+                    .collect()
+            })
             .unwrap_or_default();
         let pyramid_ok: Vec<bool> = (0..levels.len())
             .map(|k| {
@@ -560,6 +579,7 @@ impl Part {
             // The paper's layout is row-major: tiles read in raster order.
             if z_ok && rows {
                 level.z_lut = Some(crate::tiff::zorder::shared_rows(tw.trailing_zeros()));
+                level.row_order = true;
             } else if z_ok && meta.layout != spec::layout::PAPER {
                 level.z_lut = Some(shared_tile_z_to_raster(tw.trailing_zeros()));
             }
@@ -690,6 +710,7 @@ impl Part {
             offsets,
             counts,
             z_lut: None,
+            row_order: false,
         };
         level.codec(tiff.little_endian, 1).check()?;
         Ok(level)

@@ -247,6 +247,10 @@ impl Part {
             let map = self.bands[b].stored_map();
             match raw {
                 Some(plane) => place(o, plane, &lut[..n], map),
+                None if l.row_order
+                    && l.codec(self.little_endian, 1)
+                        .decode_rows_into(stored, pixels, o, map)
+                        .map_err(|m| format!("tile {t} band {}: {m}", b + 1))? => {}
                 None if map.is_none()
                     && l.tile_width == l.tile_height
                     && l.codec(self.little_endian, 1)

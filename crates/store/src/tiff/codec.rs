@@ -552,6 +552,81 @@ fn unpredict_float(raw: &mut [u8], row_samples: usize, stride: usize) -> Vec<f32
     out
 }
 
+thread_local! {
+    /// Each thread's buffer for a tile decompressed before its predictor is undone.
+    static RAW: std::cell::RefCell<Vec<u8>> = const { std::cell::RefCell::new(Vec::new()) };
+}
+
+impl TileCodec {
+    /// A Deflate or Zstd tile with the floating-point predictor, one sample a
+    /// pixel, straight into its first `out.len()` samples in row order (a
+    /// row-ordered part's points), each mapped by `map` (`step`, `shift`:
+    /// `stored · step + shift`) where given: no tile-sized allocation, and only
+    /// the rows that hold points undone. `Ok(false)` for any other tile
+    /// (nothing written: use [`TileCodec::decode`]).
+    pub(crate) fn decode_rows_into(
+        &self,
+        stored: &[u8],
+        pixels: usize,
+        out: &mut [std::mem::MaybeUninit<f32>],
+        map: Option<(f64, f64)>,
+    ) -> Result<bool, String> {
+        let n = out.len();
+        let w = self.width;
+        if self.samples != 1
+            || self.predictor != pred::FLOATING_POINT
+            || w == 0
+            || n > pixels
+            || !matches!(
+                self.compression,
+                comp::ZSTD | comp::ADOBE_DEFLATE | comp::DEFLATE
+            )
+        {
+            return Ok(false);
+        }
+        let nbytes = pixels * 4;
+        RAW.with(|raw| -> Result<bool, String> {
+            let mut raw = raw.borrow_mut();
+            if self.compression == comp::ZSTD {
+                zstd_decompress_into(stored, nbytes, &mut raw)
+                    .map_err(|e| format!("zstd stream is corrupt: {e}"))?;
+            } else {
+                raw.clear();
+                flate2::read::ZlibDecoder::new(stored)
+                    .take(nbytes as u64)
+                    .read_to_end(&mut raw)
+                    .map_err(|e| format!("deflate stream is corrupt: {e}"))?;
+            }
+            if raw.len() < nbytes {
+                return Err(format!("tile holds {} bytes, {nbytes} expected", raw.len()));
+            }
+            for (row, dst) in raw[..n.div_ceil(w) * w * 4]
+                .chunks_exact_mut(w * 4)
+                .zip(out.chunks_mut(w))
+            {
+                running_sum(row);
+                let (b0, rest) = row.split_at(w);
+                let (b1, rest) = rest.split_at(w);
+                let (b2, b3) = rest.split_at(w);
+                let value = |j: usize| f32::from_be_bytes([b0[j], b1[j], b2[j], b3[j]]);
+                match map {
+                    None => {
+                        for (j, d) in dst.iter_mut().enumerate() {
+                            d.write(value(j));
+                        }
+                    }
+                    Some((step, shift)) => {
+                        for (j, d) in dst.iter_mut().enumerate() {
+                            d.write((value(j) as f64 * step + shift) as f32);
+                        }
+                    }
+                }
+            }
+            Ok(true)
+        })
+    }
+}
+
 /// Running (wrapping) sum of `bytes` in place: the horizontal differencing of
 /// one byte a sample undone. On x86-64, 16 bytes at a time (SSE2: log-step
 /// sums within a vector, then the previous vector's last byte added).

@@ -94,6 +94,9 @@ pub struct PartSummary {
     pub rows_from_input: bool,
     /// Wall and CPU time of each phase of the write, in order.
     pub phases: Vec<(&'static str, Span)>,
+    /// The input's lattice, where the part keeps its coordinates as whole
+    /// numbers on it (format version 2).
+    pub lattice: Option<crate::points::Lattice>,
 }
 
 /// Records the wall and CPU time of consecutive phases.
@@ -258,9 +261,8 @@ impl StoredLattice {
     fn fit(source: crate::points::Lattice, origin: [f64; 3], pos: &[[f32; 3]]) -> Option<Self> {
         let l = Self::new(source, origin)?;
         let on = pos.par_chunks(1 << 16).all(|c| {
-            c.iter().all(|p| {
-                (0..3).all(|a| p[a].is_nan() || l.whole(a, p[a], origin[a]).is_some())
-            })
+            c.iter()
+                .all(|p| (0..3).all(|a| p[a].is_nan() || l.whole(a, p[a], origin[a]).is_some()))
         });
         on.then_some(l)
     }
@@ -1091,6 +1093,7 @@ fn write(
         bigtiff,
         direct,
         rows_from_input: matches!(a.rows, Rows::Source(_)),
+        lattice: a.lattice.map(|l| l.source),
         phases: ph.list,
     })
 }
@@ -1215,14 +1218,20 @@ fn rows_tile(
                 }
             } else {
                 let k = b - 3;
-                let bias = if a.whole[k] { spec::WHOLE_BIAS as f32 } else { 0.0 };
+                let bias = if a.whole[k] {
+                    spec::WHOLE_BIAS as f32
+                } else {
+                    0.0
+                };
                 for (j, &i) in order.iter().enumerate() {
                     buf[j] = rows[i as usize * m + k] + bias;
                 }
             }
             let e = match codec::encode(&buf, TILE_SIZE as usize, compression, 0.0) {
                 Ok(v) => Encoded::Bytes(v),
-                Err(msg) => Encoded::Failed(format!("level {level} tile {t} band {}: {msg}", b + 1)),
+                Err(msg) => {
+                    Encoded::Failed(format!("level {level} tile {t} band {}: {msg}", b + 1))
+                }
             };
             (b, e)
         })
