@@ -86,7 +86,9 @@ fn gdalinfo_sees_bands_overviews_and_metadata() {
         assert!((x_offset - part.meta.origin[0]).abs() < 1e-6);
         let md = &info["metadata"][""];
         assert_eq!(md["POINT_COUNT"], "300000");
-        assert_eq!(md["PCIMG_FORMAT"], "1");
+        // Zstd and Deflate parts are version 2 (row-ordered tiles).
+        let version = if c == Compression::None { "1" } else { "2" };
+        assert_eq!(md["PCIMG_FORMAT"], version);
         assert_eq!(md["LEVEL_POINTS"], "300000 75000 18750");
         assert_eq!(md["SOURCE"], "cloud.las");
         assert_eq!(md["CRS"], "EPSG:32633");
@@ -111,12 +113,39 @@ fn gdalinfo_sees_bands_overviews_and_metadata() {
     }
 }
 
+/// The pixel of the point of rank `r` (in reading order) at a level of `part`:
+/// along the tile's Z-order curve (format version 1), or row-major in its tile
+/// (version 2's row-ordered tiles); tiles along the image's Z-order curve.
+fn pixel_of(part: &Part, r: u64) -> (u32, u32) {
+    if !part
+        .meta
+        .items
+        .contains_key(pcimg::store::spec::key::TILE_ORDER)
+    {
+        return z_pixel(r);
+    }
+    let (tc, tr) = z_pixel(r >> 16);
+    let i = (r & 0xffff) as u32;
+    (tc * 256 + i % 256, tr * 256 + i / 256)
+}
+
+/// A value GDAL reads from band `b` (stored, before scale and offset) as
+/// pcimg's reader gives it: relative to the band's offset, whole-number bands
+/// (version 2: stored plus 2^23, or on a lattice) through GDAL's scale and
+/// offset.
+fn as_ours(part: &Part, b: usize, v: f32) -> f32 {
+    match part.bands[b].lattice {
+        Some((step, zero)) => ((zero + step * v as f64) - part.bands[b].offset) as f32,
+        None => v,
+    }
+}
+
 /// `gdallocationinfo` returns our value at pixel of rank `r` of `level`.
 fn check_pixels(path: &Path, level: usize, ranks: &[usize]) {
     let part = Part::open(path).unwrap();
     let p = part.read_level(level, &[0, 1, 2, 3]).unwrap();
     for &r in ranks {
-        let (px, py) = z_pixel(r as u64);
+        let (px, py) = pixel_of(&part, r as u64);
         // gdallocationinfo takes base-level pixel coordinates even with -overview.
         let (px, py) = (px << level, py << level);
         for band in 1..=4usize {
@@ -133,10 +162,11 @@ fn check_pixels(path: &Path, level: usize, ranks: &[usize]) {
                 "gdallocationinfo",
                 &args.iter().map(String::as_str).collect::<Vec<_>>(),
             );
-            let v: f64 = out
+            let v: f32 = out
                 .trim()
                 .parse()
                 .unwrap_or_else(|_| panic!("value '{out}'"));
+            let v = as_ours(&part, band - 1, v) as f64;
             let ours = p.columns[band - 1][r] as f64;
             assert!(
                 (v - ours).abs() <= ours.abs() * 1e-6 + 1e-6,
@@ -207,13 +237,17 @@ fn gdal_decodes_every_pixel_of_every_level() {
                 .unwrap();
             let value = |band: usize, px: u32, py: u32| {
                 let at = 4 * (band * side * side + py as usize * side + px as usize);
-                f32::from_ne_bytes(bytes[at..at + 4].try_into().unwrap())
+                as_ours(
+                    &part,
+                    band,
+                    f32::from_ne_bytes(bytes[at..at + 4].try_into().unwrap()),
+                )
             };
             let points = g.level_points(level) as usize;
             assert_eq!(ours.len(), points);
             let mut filled = vec![false; side * side];
             for r in 0..points {
-                let (px, py) = z_pixel(r as u64);
+                let (px, py) = pixel_of(&part, r as u64);
                 filled[py as usize * side + px as usize] = true;
                 for band in 0..nb {
                     let v = value(band, px, py);
@@ -693,4 +727,102 @@ fn gdal_validates_parts_as_cloud_optimized() {
             String::from_utf8_lossy(&out.stderr)
         );
     }
+}
+
+/// The default conversion (format version 2) as GDAL sees it: every band
+/// Float32 with its overview; x y z with the LAS scale as GDAL's band scale;
+/// whole-number attributes with offset -2^23; and `gdal_translate -unscale
+/// -ot Float64` gives every point of the source (read by pcimg's LAS reader):
+/// coordinates within 1e-6 LAS units of the source's lattice points (GDAL's
+/// double arithmetic), the same whole numbers exactly, attributes exactly
+/// (gps_time, stored as before, to its f32 precision).
+#[test]
+fn gdal_unscales_the_compact_default_to_the_source() {
+    if !gdal() {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let root = env!("CARGO_MANIFEST_DIR");
+    let las = std::path::PathBuf::from(format!("{root}/fixtures/autzen_trim.laz"));
+    let part = dir.path().join("a.tif");
+    run(
+        env!("CARGO_BIN_EXE_pcimg"),
+        &[
+            "convert",
+            las.to_str().unwrap(),
+            "-o",
+            part.to_str().unwrap(),
+            "-q",
+        ],
+    );
+    let info: serde_json::Value =
+        serde_json::from_str(&run("gdalinfo", &["-json", part.to_str().unwrap()])).unwrap();
+    let meta = &info["metadata"][""];
+    assert_eq!(meta["PCIMG_FORMAT"], "2", "{meta}");
+    assert_eq!(meta["TILE_ORDER"], "rows");
+    assert_eq!(meta["LATTICE"], "0.01 0.01 0.01 0.0 0.0 0.0");
+    // Every band but gps_time (8) holds whole numbers.
+    assert_eq!(meta["WHOLE_BANDS"], "1 2 3 4 5 6 7 9 10 11");
+    let bands = info["bands"].as_array().unwrap();
+    assert_eq!(bands.len(), 11);
+    for (i, b) in bands.iter().enumerate() {
+        assert_eq!(b["type"], "Float32");
+        assert_eq!(
+            b["overviews"].as_array().unwrap().len(),
+            1,
+            "band {}",
+            i + 1
+        );
+        let scale = b["scale"].as_f64().unwrap_or(1.0);
+        let offset = b["offset"].as_f64().unwrap_or(0.0);
+        match i {
+            0..=2 => assert_eq!(scale, 0.01),
+            7 => assert_eq!(scale, 1.0),
+            _ => assert_eq!((scale, offset), (1.0, -8_388_608.0), "band {}", i + 1),
+        }
+    }
+    // Every band unscaled by GDAL, as raw doubles.
+    let raw = dir.path().join("u.bin");
+    translate(&part, &raw, &["-unscale", "-ot", "Float64", "-of", "ENVI"]);
+    let bytes = std::fs::read(&raw).unwrap();
+    let values: Vec<f64> = bytes
+        .chunks_exact(8)
+        .map(|c| f64::from_le_bytes(c.try_into().unwrap()))
+        .collect();
+    let plane = values.len() / 11;
+    let band = |b: usize| &values[b * plane..(b + 1) * plane];
+    let (_, src, _) = pcimg::ingest::read_all(&las, &Default::default()).unwrap();
+    let n = src.x.len();
+    // Rows of whole numbers: x y z on the lattice, then the attributes (gps_time
+    // to a microsecond).
+    let key = |c: [f64; 3], attrs: &mut dyn Iterator<Item = f64>| -> Vec<i64> {
+        let mut k: Vec<i64> = c.iter().map(|v| (v / 0.01).round() as i64).collect();
+        k.extend(attrs.map(|v| (v * 1e6).round() as i64));
+        k
+    };
+    let mut ours = Vec::with_capacity(n);
+    let mut worst = 0f64;
+    for p in (0..plane).filter(|&p| !band(0)[p].is_nan()) {
+        let c = [band(0)[p], band(1)[p], band(2)[p]];
+        for v in c {
+            worst = worst.max((v / 0.01 - (v / 0.01).round()).abs());
+        }
+        ours.push(key(c, &mut (3..11).map(|b| band(b)[p])));
+    }
+    assert!(
+        worst < 1e-6,
+        "GDAL's coordinates lie {worst} LAS units off the lattice"
+    );
+    let mut theirs: Vec<Vec<i64>> = (0..n)
+        .map(|i| {
+            key(
+                [src.x[i], src.y[i], src.z[i]],
+                &mut src.attributes.iter().map(|a| a.offset + a.values[i] as f64),
+            )
+        })
+        .collect();
+    ours.sort();
+    theirs.sort();
+    assert_eq!(ours.len(), n);
+    assert!(ours == theirs, "GDAL's points differ from the source's");
 }
