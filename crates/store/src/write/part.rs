@@ -210,6 +210,8 @@ struct Arranged {
     /// Row-ordered parts: the attributes (bands 3 and up) whose values are all
     /// whole numbers, stored plus `spec::WHOLE_BIAS`.
     whole: Vec<bool>,
+    /// Points per classification code ([`attribute_pass`]).
+    class_counts: Option<Vec<(u8, u64)>>,
 }
 
 /// Coordinates kept as whole numbers: a stored `k` on axis `a` stands for
@@ -247,13 +249,21 @@ impl StoredLattice {
     /// rounding) a point of the lattice within 2^23 steps of `base`.
     #[inline]
     fn whole(&self, a: usize, v: f32, origin: f64) -> Option<f32> {
-        let k = ((v as f64 + origin - self.base[a]) / self.step[a]).round();
+        let (inv, shift) = self.stored_map(a, origin);
+        let s = round_half(v as f64 * inv + shift);
+        let k = s - spec::WHOLE_BIAS;
         if !(-spec::WHOLE_BIAS..spec::WHOLE_BIAS).contains(&k) {
             return None;
         }
         let back = ((self.base[a] + self.step[a] * k) - origin) as f32;
-        (back == v || back.next_up() == v || back.next_down() == v)
-            .then_some((k + spec::WHOLE_BIAS) as f32)
+        (back == v || back.next_up() == v || back.next_down() == v).then_some(s as f32)
+    }
+
+    /// For a point on the lattice, its stored value is the nearest whole
+    /// number to `v · inv + shift` (`v` relative to `origin`): `(inv, shift)`.
+    fn stored_map(&self, a: usize, origin: f64) -> (f64, f64) {
+        let inv = 1.0 / self.step[a];
+        (inv, (origin - self.base[a]) * inv + spec::WHOLE_BIAS)
     }
 
     /// The lattice of `source` for a part's positions (relative to `origin`),
@@ -532,6 +542,7 @@ fn arrange(
         rows_order: false,
         lattice: None,
         whole: Vec::new(),
+        class_counts: None,
     })
 }
 
@@ -629,35 +640,61 @@ fn stored_ranges(a: &Arranged) -> Vec<(f64, f64)> {
 /// Points per classification code when the part has a `classification` band
 /// (values that are not whole codes 0..=255 are not counted). Held rows are
 /// counted in place; rows the reader gives again are asked for in blocks.
-/// For each attribute, whether every value is a whole number in
-/// `[-2^23, 2^23)` (NaN aside), which a row-ordered part stores plus 2^23.
-fn whole_attributes(a: &Arranged) -> Vec<bool> {
+/// One pass over the attribute rows: the points per classification code when
+/// the part has a `classification` band (values that are not whole codes
+/// 0..=255 are not counted), and when `whole` is asked (row-ordered parts),
+/// whether each attribute's values are all whole numbers in `[-2^23, 2^23)`
+/// (NaN aside), which such a part stores plus 2^23. Held rows are read in
+/// place; rows the reader gives again are asked for in blocks.
+fn attribute_pass(a: &Arranged, whole: bool) -> (Option<Vec<(u8, u64)>>, Vec<bool>) {
     let (m, n) = (a.m, a.geometry.points as usize);
-    let b = spec::WHOLE_BIAS as f32;
-    let in_range = |k: usize| {
-        let (lo, hi) = a.ranges[k];
-        lo > hi || (lo >= -b && hi < b)
-    };
-    let mut whole: Vec<bool> = (0..m).map(in_range).collect();
-    if m == 0 || !whole.iter().any(|&w| w) {
-        return whole;
+    let class = a
+        .names
+        .iter()
+        .position(|n| n == "classification")
+        .and_then(|b| b.checked_sub(3));
+    let bias = spec::WHOLE_BIAS as f32;
+    let mut candidates: Vec<bool> = (0..m)
+        .map(|k| {
+            let (lo, hi) = a.ranges[k];
+            whole && (lo > hi || (lo >= -bias && hi < bias))
+        })
+        .collect();
+    if m == 0 || (class.is_none() && !candidates.iter().any(|&w| w)) {
+        return (None, candidates);
     }
-    let check = |rows: &[f32]| -> Vec<bool> {
-        let mut w = vec![true; m];
+    // Per block: the class histogram and each attribute's wholeness.
+    type Seen = (Vec<u64>, Vec<bool>);
+    let look = |rows: &[f32]| -> Seen {
+        let mut hist = vec![0u64; if class.is_some() { 256 } else { 0 }];
+        let mut w = candidates.clone();
         for row in rows.chunks_exact(m) {
+            if let Some(c) = class.and_then(|j| crate::points::class_code(row[j])) {
+                hist[c as usize] += 1;
+            }
             for (k, v) in row.iter().enumerate() {
-                w[k] &= v.is_nan() || v.fract() == 0.0;
+                // (A whole number below 2^23 is its own nearest, which the
+                // magic-number rounding finds without a call.)
+                w[k] &= v.is_nan() || (*v as f64) == round_half(*v as f64);
             }
         }
-        w
+        (hist, w)
     };
-    let merge = |x: Vec<bool>, y: Vec<bool>| x.iter().zip(&y).map(|(p, q)| *p && *q).collect();
+    let merge = |x: Seen, y: Seen| -> Seen {
+        (
+            x.0.iter().zip(&y.0).map(|(p, q)| p + q).collect(),
+            x.1.iter().zip(&y.1).map(|(p, q)| *p && *q).collect(),
+        )
+    };
+    let empty = || -> Seen {
+        (
+            vec![0u64; if class.is_some() { 256 } else { 0 }],
+            candidates.clone(),
+        )
+    };
     const BLOCK: usize = 1 << 16;
-    let seen: Vec<bool> = match &a.rows {
-        Rows::Held(rows) => rows
-            .par_chunks(m * BLOCK)
-            .map(check)
-            .reduce(|| vec![true; m], merge),
+    let (hist, seen) = match &a.rows {
+        Rows::Held(rows) => rows.par_chunks(m * BLOCK).map(look).reduce(empty, merge),
         Rows::Source(src) => (0..n.div_ceil(BLOCK))
             .into_par_iter()
             .map(|blk| {
@@ -666,61 +703,21 @@ fn whole_attributes(a: &Arranged) -> Vec<bool> {
                     .collect();
                 let mut out = Vec::with_capacity(idx.len() * m);
                 src.gather(&idx, &mut out);
-                check(&out)
+                look(&out)
             })
-            .reduce(|| vec![true; m], merge),
+            .reduce(empty, merge),
     };
-    for (w, s) in whole.iter_mut().zip(seen) {
+    for (w, s) in candidates.iter_mut().zip(seen) {
         *w &= s;
     }
-    whole
-}
-
-fn class_counts(a: &Arranged) -> Option<Vec<(u8, u64)>> {
-    use rayon::prelude::*;
-    let band = a.names.iter().position(|n| n == "classification")?;
-    let j = band.checked_sub(3)?;
-    let (m, n) = (a.m, a.geometry.points as usize);
-    let add = |mut h: Vec<u64>, v: f32| {
-        if let Some(c) = crate::points::class_code(v) {
-            h[c as usize] += 1;
-        }
-        h
-    };
-    let merge = |a: Vec<u64>, b: Vec<u64>| a.iter().zip(&b).map(|(x, y)| x + y).collect();
-    const BLOCK: usize = 1 << 16;
-    let hist: Vec<u64> = match &a.rows {
-        Rows::Held(rows) => rows
-            .par_chunks(m * BLOCK)
-            .map(|c| {
-                c.iter()
-                    .skip(j)
-                    .step_by(m)
-                    .fold(vec![0u64; 256], |h, &v| add(h, v))
-            })
-            .reduce(|| vec![0u64; 256], merge),
-        Rows::Source(src) => (0..n.div_ceil(BLOCK))
-            .into_par_iter()
-            .map(|b| {
-                let idx: Vec<u32> = (b * BLOCK..((b + 1) * BLOCK).min(n))
-                    .map(|i| i as u32)
-                    .collect();
-                let mut out = Vec::with_capacity(idx.len() * m);
-                src.gather(&idx, &mut out);
-                out.iter()
-                    .skip(j)
-                    .step_by(m)
-                    .fold(vec![0u64; 256], |h, &v| add(h, v))
-            })
-            .reduce(|| vec![0u64; 256], merge),
-    };
-    Some(
+    let counts = class.map(|_| {
         hist.iter()
             .enumerate()
             .filter(|p| *p.1 > 0)
             .map(|(c, &k)| (c as u8, k))
-            .collect(),
-    )
+            .collect()
+    });
+    (counts, candidates)
 }
 
 fn metadata_xml(a: &Arranged, opts: &WriteOptions, index: &[LevelIndex]) -> String {
@@ -781,10 +778,10 @@ fn metadata_xml(a: &Arranged, opts: &WriteOptions, index: &[LevelIndex]) -> Stri
     if let Some(c) = &opts.crs {
         items.push(Item::dataset(key::CRS, c.clone()));
     }
-    if let Some(counts) = class_counts(a) {
+    if let Some(counts) = &a.class_counts {
         items.push(Item::dataset(
             key::CLASS_COUNTS,
-            metadata::class_counts(&counts),
+            metadata::class_counts(counts),
         ));
     }
     for (k, v) in &opts.from_source {
@@ -1048,7 +1045,6 @@ fn write(
         a.lattice = opts
             .lattice
             .and_then(|l| StoredLattice::fit(l, a.origin, &a.pos));
-        a.whole = whole_attributes(&a);
         ph.mark("lattice");
     }
     // A lossy codec adds its bound, and the f32 rounding of what it gives back,
@@ -1061,6 +1057,8 @@ fn write(
     if opts.release_pool {
         crate::alloc::release_pool();
     }
+    (a.class_counts, a.whole) = attribute_pass(&a, a.rows_order);
+    ph.mark("attributes");
     let index = tile_index(&a);
     let xml = metadata_xml(&a, opts, &index);
     ph.mark("tile index");
@@ -1207,14 +1205,21 @@ fn rows_tile(
         .map(|b| {
             let mut buf = new_buf();
             if b < 3 {
-                let o = a.origin[b];
-                for (j, &i) in order.iter().enumerate() {
-                    let v = a.pos[slots[i as usize]][b];
-                    buf[j] = match &a.lattice {
-                        // (`fit` checked every point.)
-                        Some(l) => l.whole(b, v, o).unwrap_or(f32::NAN),
-                        None => v,
-                    };
+                match &a.lattice {
+                    // (`fit` checked that every point lies on the lattice, so
+                    // its nearest lattice point is its own.)
+                    Some(l) => {
+                        let (inv, shift) = l.stored_map(b, a.origin[b]);
+                        for (j, &i) in order.iter().enumerate() {
+                            let v = a.pos[slots[i as usize]][b] as f64;
+                            buf[j] = round_half(v * inv + shift) as f32;
+                        }
+                    }
+                    None => {
+                        for (j, &i) in order.iter().enumerate() {
+                            buf[j] = a.pos[slots[i as usize]][b];
+                        }
+                    }
                 }
             } else {
                 let k = b - 3;
@@ -1236,6 +1241,15 @@ fn rows_tile(
             (b, e)
         })
         .collect()
+}
+
+/// The whole number nearest `v` (`|v|` below 2^51), ties to even, by adding
+/// and taking away 1.5 · 2^52 (no call to `round`, which x86-64's baseline
+/// has no instruction for).
+#[inline(always)]
+fn round_half(v: f64) -> f64 {
+    const MAGIC: f64 = 6_755_399_441_055_744.0;
+    (v + MAGIC) - MAGIC
 }
 
 /// The order in which a row-ordered tile keeps its points (indices into the
