@@ -1186,52 +1186,56 @@ fn rows_tile(
     let m = a.m;
     let slots: Vec<usize> = (0..count).map(|i| a.slot((first + i) * stride)).collect();
     let idx: Vec<u32> = slots.iter().map(|&s| a.perm[s]).collect();
+    let order = tile_order(&slots, &idx, &a.pos);
+    // The attribute rows gathered in the tile's order: in input order, that
+    // reads the reader's rows (a LAS file's records) nearly in sequence.
     let mut rows = Vec::new();
     if m > 0 {
         rows.reserve(count * m);
-        a.rows.gather(&idx, m, &mut rows);
+        let at: Vec<u32> = order.iter().map(|&i| idx[i as usize]).collect();
+        a.rows.gather(&at, m, &mut rows);
     }
-    let gps = a.names[3..].iter().position(|n| n == spec::GPS_TIME_BAND);
-    let order = tile_order(&slots, &idx, &a.pos, gps.map(|g| (&rows[..], m, g)));
-    let new_buf = || {
-        if count == TILE_PIXELS {
-            TileBuf::reused()
-        } else {
-            TileBuf::filled(f32::NAN)
-        }
-    };
-    (0..3 + m)
-        .into_par_iter()
-        .map(|b| {
-            let mut buf = new_buf();
-            if b < 3 {
-                match &a.lattice {
+    let mut bufs: Vec<TileBuf> = (0..3 + m)
+        .map(|_| {
+            if count == TILE_PIXELS {
+                TileBuf::reused()
+            } else {
+                TileBuf::filled(f32::NAN)
+            }
+        })
+        .collect();
+    // Every band in one pass over the points (each point's position and row
+    // read once).
+    {
+        let (xyz, attrs) = bufs.split_at_mut(3);
+        let maps = a
+            .lattice
+            .map(|l| [0, 1, 2].map(|b| l.stored_map(b, a.origin[b])));
+        for (j, &i) in order.iter().enumerate() {
+            let p = a.pos[slots[i as usize]];
+            for b in 0..3 {
+                xyz[b][j] = match &maps {
                     // (`fit` checked that every point lies on the lattice, so
                     // its nearest lattice point is its own.)
-                    Some(l) => {
-                        let (inv, shift) = l.stored_map(b, a.origin[b]);
-                        for (j, &i) in order.iter().enumerate() {
-                            let v = a.pos[slots[i as usize]][b] as f64;
-                            buf[j] = round_half(v * inv + shift) as f32;
-                        }
-                    }
-                    None => {
-                        for (j, &i) in order.iter().enumerate() {
-                            buf[j] = a.pos[slots[i as usize]][b];
-                        }
-                    }
-                }
-            } else {
-                let k = b - 3;
-                let bias = if a.whole[k] {
-                    spec::WHOLE_BIAS as f32
-                } else {
-                    0.0
+                    Some(mp) => round_half(p[b] as f64 * mp[b].0 + mp[b].1) as f32,
+                    None => p[b],
                 };
-                for (j, &i) in order.iter().enumerate() {
-                    buf[j] = rows[i as usize * m + k] + bias;
-                }
             }
+        }
+        for (k, buf) in attrs.iter_mut().enumerate() {
+            let bias = if a.whole[k] {
+                spec::WHOLE_BIAS as f32
+            } else {
+                0.0
+            };
+            for (j, row) in rows.chunks_exact(m).enumerate() {
+                buf[j] = row[k] + bias;
+            }
+        }
+    }
+    bufs.into_par_iter()
+        .enumerate()
+        .map(|(b, buf)| {
             let e = match codec::encode(&buf, TILE_SIZE as usize, compression, 0.0) {
                 Ok(v) => Encoded::Bytes(v),
                 Err(msg) => {
@@ -1255,25 +1259,13 @@ fn round_half(v: f64) -> f64 {
 /// The order in which a row-ordered tile keeps its points (indices into the
 /// tile's points, which come in level order: `slots` into the part's positions
 /// `pos`, `idx` their input indices). Each row is differenced by the TIFF
-/// predictor, so the order should make neighbours alike: by GPS time where the
-/// points have one (`gps`: the tile's attribute rows, their width and the
-/// column; points a scanner recorded one after another lie close, and their
-/// times, colours and intensities change little), else whichever of level
-/// order and input order takes the shorter steps between consecutive points.
-/// Measured in bench/RESULTS.md ("Compact storage").
-fn tile_order(
-    slots: &[usize],
-    idx: &[u32],
-    pos: &[[f32; 3]],
-    gps: Option<(&[f32], usize, usize)>,
-) -> Vec<u32> {
+/// predictor, so the order should make neighbours alike: the input's order
+/// (a scanner's: points recorded one after another lie close, and their times,
+/// colours and intensities change little) where it takes shorter steps between
+/// consecutive points than the level order, else the level order (an input in
+/// no useful order). Measured in bench/RESULTS.md ("Compact storage").
+fn tile_order(slots: &[usize], idx: &[u32], pos: &[[f32; 3]]) -> Vec<u32> {
     let n = slots.len() as u32;
-    if let Some((rows, m, g)) = gps {
-        let keys: Vec<u32> = (0..n as usize)
-            .map(|i| ordered_bits(rows[i * m + g]))
-            .collect();
-        return radix_order(&keys);
-    }
     let steps = |o: &mut dyn Iterator<Item = u32>| -> f64 {
         let mut last: Option<[f32; 3]> = None;
         let mut sum = 0.0f64;
@@ -1322,13 +1314,6 @@ fn radix_order(keys: &[u32]) -> Vec<u32> {
         std::mem::swap(&mut order, &mut next);
     }
     order
-}
-
-/// An `f32`'s bits as a `u32` in the order of the values (`total_cmp`'s).
-#[inline]
-fn ordered_bits(v: f32) -> u32 {
-    let b = v.to_bits();
-    if b >> 31 == 1 { !b } else { b | 0x8000_0000 }
 }
 
 /// The directory of `level`, its tile offsets and byte counts given.
@@ -1699,8 +1684,7 @@ fn encode_batches(
 mod tests {
     use super::*;
 
-    /// The radix order is the stable sort's, for keys alike in some digits,
-    /// and times (f32, negative ones too) order as their values.
+    /// The radix order is the stable sort's, for keys alike in some digits.
     #[test]
     fn radix_order_is_the_stable_sort() {
         let mut rng = crate::rng::Rng::new(7);
@@ -1714,11 +1698,6 @@ mod tests {
                 assert_eq!(radix_order(&keys), want, "{n} keys below {spread}");
             }
         }
-        let times = [3.5f32, -2.0, 0.0, -0.0, 1e9, -1e-9, 7.25];
-        let keys: Vec<u32> = times.iter().map(|&t| ordered_bits(t)).collect();
-        let mut want: Vec<u32> = (0..times.len() as u32).collect();
-        want.sort_by(|&i, &j| times[i as usize].total_cmp(&times[j as usize]));
-        assert_eq!(radix_order(&keys), want);
     }
 
     /// Rows kept in a `Vec`, given again on demand.
