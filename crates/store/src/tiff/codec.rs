@@ -707,7 +707,7 @@ fn running_sum(bytes: &mut [u8]) {
         // The running total so far in every byte: kept in a register (its
         // last byte broadcast by shuffles), so the only chain from block to
         // block is an add and three shuffles, not a trip through a scalar.
-        // SAFETY (every block below): SSE2 is part of every x86-64 CPU.
+        // SAFETY: SSE2 is part of every x86-64 CPU.
         let mut total = unsafe { _mm_setzero_si128() };
         for c in &mut chunks {
             // SAFETY: the unaligned load and store cover exactly the 16 bytes
@@ -725,7 +725,7 @@ fn running_sum(bytes: &mut [u8]) {
                 total = _mm_shuffle_epi32::<0xFF>(_mm_shufflehi_epi16::<0xFF>(t));
             }
         }
-        // SAFETY: as above.
+        // SAFETY: SSE2 is part of every x86-64 CPU.
         carry = unsafe { (_mm_cvtsi128_si32(total) & 0xFF) as u8 };
         chunks.into_remainder()
     };

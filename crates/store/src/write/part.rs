@@ -1300,7 +1300,7 @@ fn radix_order(keys: &[u32]) -> Vec<u32> {
             count[digit(i) + 1] += 1;
         }
         // A pass whose digit is the same for every key moves nothing.
-        if count.iter().any(|&c| c == n) {
+        if count.contains(&n) {
             continue;
         }
         for d in 0..256 {
