@@ -1257,3 +1257,100 @@ fn las_rows_read_from_the_input_match_a_held_copy() {
         assert!(a == b, "{layout:?}: LAS and LAZ conversions differ");
     }
 }
+
+/// A text file's coordinates lie on the lattice of its decimals: the default
+/// codec keeps them as whole numbers on it (`LATTICE`, GDAL's band scale) and
+/// says so; `--precision` rounds them to a coarser step, within half of it,
+/// and is refused with a codec that keeps floats.
+#[test]
+fn text_decimals_are_a_lattice_and_precision_rounds_to_another() {
+    let dir = tempfile::tempdir().unwrap();
+    let input = dir.path().join("pts.xyz");
+    let mut text = String::from("x y z intensity\n");
+    let mut seed = 3u64;
+    let mut next = move || {
+        seed = seed
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
+        (seed >> 11) as f64 / (1u64 << 53) as f64
+    };
+    for _ in 0..20_000 {
+        let (x, y, z) = (
+            1000.0 + next() * 50.0,
+            2000.0 + next() * 50.0,
+            10.0 + next() * 5.0,
+        );
+        text.push_str(&format!(
+            "{x:.3} {y:.3} {z:.2} {}\n",
+            (next() * 255.0) as u32
+        ));
+    }
+    std::fs::write(&input, text).unwrap();
+    let convert = |name: &str, extra: &[&str]| {
+        let out = dir.path().join(name);
+        let mut args = vec![
+            "convert",
+            input.to_str().unwrap(),
+            "-o",
+            out.to_str().unwrap(),
+        ];
+        args.extend_from_slice(extra);
+        let o = common::cli::pcimg().args(&args).output().unwrap();
+        (out, o)
+    };
+    let (exact, o) = convert("exact.tif", &[]);
+    let said = common::cli::ok(&o, "convert");
+    assert!(
+        said.contains("kept exactly on the input's lattice (steps 0.001"),
+        "{said}"
+    );
+    let part = pcimg::store::Part::open(&exact).unwrap();
+    assert_eq!(part.meta.format_version, 2);
+    let l = part.meta.lattice.expect("a lattice");
+    assert_eq!(l.step, [0.001, 0.001, 0.01]);
+    // Every point read back is the source's to f32 precision.
+    assert_eq!(dataset_points(&exact), file_points(&input));
+    let (rounded, o) = convert("rounded.tif", &["--precision", "0.05"]);
+    let said = common::cli::ok(&o, "convert --precision");
+    assert!(
+        said.contains("rounded to whole multiples of --precision"),
+        "{said}"
+    );
+    let part = pcimg::store::Part::open(&rounded).unwrap();
+    assert_eq!(part.meta.lattice.unwrap().step, [0.05; 3]);
+    let got = part.read_level(0, &[0, 1, 2]).unwrap();
+    let src = file_points(&input);
+    assert_eq!(got.len(), src.len());
+    for i in 0..got.len() {
+        for a in 0..3 {
+            let v = got.offsets[a] + got.columns[a][i] as f64;
+            let k = v / 0.05;
+            assert!(
+                (k - k.round()).abs() < 1e-3,
+                "{v} is not a multiple of 0.05"
+            );
+        }
+    }
+    // Rounding moves each coordinate by at most half a step (in 0.1 mm units;
+    // rounding keeps the order of each axis's values, so sorted axes pair up).
+    let (a, b) = (dataset_points(&rounded), &src);
+    for axis in 0..3 {
+        let sorted = |v: &[[i64; 3]]| {
+            let mut s: Vec<i64> = v.iter().map(|p| p[axis]).collect();
+            s.sort();
+            s
+        };
+        let (x, y) = (sorted(&a), sorted(b));
+        let worst = x.iter().zip(&y).map(|(p, q)| (p - q).abs()).max().unwrap();
+        assert!(worst <= 251, "axis {axis}: moved {worst} tenths of a mm");
+    }
+    let (_, o) = convert(
+        "none.tif",
+        &["--precision", "0.05", "--compression", "none"],
+    );
+    let e = common::cli::err(&o, "convert --precision --compression none");
+    assert!(
+        e.contains("--precision 0.05 keeps coordinates as whole numbers"),
+        "{e}"
+    );
+}

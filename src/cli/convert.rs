@@ -46,6 +46,12 @@ pub struct Args {
     /// exactly on their lattice), lossless for other inputs.
     #[arg(long, value_name = "UNITS", value_parser = parse_max_error)]
     pub max_error: Option<f64>,
+    /// zstd and deflate: keep coordinates as whole multiples of STEP (in the
+    /// input's units), each rounded to the nearest, within STEP/2 of the source.
+    /// Default: the lattice the input has, kept exactly (a LAS file's scale
+    /// factors, the decimals a text file writes); none for float coordinates.
+    #[arg(long, value_name = "STEP", value_parser = parse_precision)]
+    pub precision: Option<f64>,
     /// Point layout within a part.
     #[arg(long, value_enum, default_value_t = LayoutArg::Hilbert)]
     pub layout: LayoutArg,
@@ -297,6 +303,13 @@ fn parse_max_error(s: &str) -> Result<f64, String> {
     }
 }
 
+fn parse_precision(s: &str) -> Result<f64, String> {
+    match s.trim().parse::<f64>() {
+        Ok(e) if e.is_finite() && e > 0.0 => Ok(e),
+        _ => Err(format!("'{s}' is not a step > 0 (e.g. 0.001)")),
+    }
+}
+
 fn options(a: &Args, output: PathBuf) -> ConvertOptions {
     let remote = crate::remote::is_url(&output.to_string_lossy());
     let cancel = Arc::new(AtomicBool::new(false));
@@ -314,6 +327,7 @@ fn options(a: &Args, output: PathBuf) -> ConvertOptions {
             .compression
             .unwrap_or_else(|| Compression::default_for(remote)),
         max_error: a.max_error,
+        precision: a.precision,
         layout: a.layout.into(),
         read: ReadOptions {
             columns: a.columns.clone(),
@@ -385,6 +399,16 @@ fn run_cluster(a: &Args, plan: &std::path::Path, opts: ConvertOptions) -> anyhow
 }
 
 pub fn run(a: Args) -> anyhow::Result<()> {
+    if let (Some(step), Some(c)) = (a.precision, a.compression)
+        && !c.row_ordered()
+    {
+        anyhow::bail!(
+            "--precision {step} keeps coordinates as whole numbers, which only the zstd and \
+             deflate codecs store (--compression {} keeps them as floats): leave out \
+             --compression, or use --max-error with a LERC codec",
+            c.name()
+        );
+    }
     if a.plan.is_some() && a.inputs.is_empty() {
         let plan = a.plan.clone().unwrap_or_default();
         return run_cluster(&a, &plan, options(&a, PathBuf::new()));
@@ -539,11 +563,16 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         let step = |a: usize| format!("{} {unit}", l.step[a].abs()).trim_end().to_string();
         writeln!(
             out,
-            "  {} kept exactly on the input's lattice (steps {}, {}, {})",
+            "  {} {} (steps {}, {}, {})",
             if on == s.parts.len() {
                 "every part's coordinates".to_string()
             } else {
                 format!("{on} of {} parts' coordinates", s.parts.len())
+            },
+            if a.precision.is_some() {
+                "rounded to whole multiples of --precision, each within half a step of the source"
+            } else {
+                "kept exactly on the input's lattice"
             },
             step(0),
             step(1),

@@ -343,6 +343,7 @@ pub fn make_plan(
                     points_per_part: job.per_part,
                     compression: o.compression,
                     max_error: o.max_error,
+                    precision: o.precision,
                     layout: o.layout,
                 };
                 let cells = Cells::of(&plan);
@@ -555,6 +556,7 @@ pub fn run_shard(
             memory: cp.memory,
             compression: cp.plan.compression,
             max_error: cp.plan.max_error,
+            precision: cp.plan.precision,
             layout: cp.plan.layout,
             read: cp.plan.read.clone(),
             ..o.clone()

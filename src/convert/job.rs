@@ -101,7 +101,14 @@ impl<'a> Job<'a> {
         let write_opts = WriteOptions {
             compression: o.compression,
             coord_max_error: coord_max_error(o.max_error, info.coordinate_step),
-            lattice: info.coordinate_lattice,
+            lattice: match o.precision {
+                Some(p) => Some(pcimg_core::points::Lattice {
+                    step: [p; 3],
+                    origin: [0.0; 3],
+                }),
+                None => info.coordinate_lattice,
+            },
+            lattice_round: o.precision.is_some(),
             layout: o.layout,
             source: source_name(inputs),
             crs: info.crs_wkt.clone(),

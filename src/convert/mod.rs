@@ -60,6 +60,10 @@ pub struct ConvertOptions {
     /// scale factors: the coordinates come back on their lattice), else
     /// lossless.
     pub max_error: Option<f64>,
+    /// `--precision`: keep coordinates as whole multiples of this step, each
+    /// rounded to the nearest (the lossless predictor codecs), instead of the
+    /// lattice the input has (a LAS file's scale, a text file's decimals).
+    pub precision: Option<f64>,
     pub layout: Layout,
     pub read: ReadOptions,
     /// Accept parts where f32 cannot keep 1 mm.

@@ -44,6 +44,9 @@ pub struct Plan {
     /// given; else each shard takes the input's lattice (plans before it: none).
     #[serde(default)]
     pub max_error: Option<f64>,
+    /// `--precision`, when given (plans before it: none).
+    #[serde(default)]
+    pub precision: Option<f64>,
     pub layout: Layout,
 }
 
@@ -121,6 +124,7 @@ impl Plan {
             points_per_part: job.per_part,
             compression: job.o.compression,
             max_error: job.o.max_error,
+            precision: job.o.precision,
             layout: job.o.layout,
         };
         (plan, cells)
@@ -191,6 +195,7 @@ mod tests {
             points_per_part: 10_000,
             compression: Compression::Zstd,
             max_error: Some(0.005),
+            precision: None,
             layout: Layout::Hilbert,
         };
         let again = Cells::of(&plan);

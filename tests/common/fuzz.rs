@@ -206,6 +206,7 @@ pub fn options(rng: &mut Rng, ext: &str, output: &Path) -> ConvertOptions {
         // The LERC codecs' coordinate bound (ignored by the others): lossless,
         // or a few millimetres.
         max_error: [None, Some(0.004)][below(rng, 2) as usize],
+        precision: None,
         layout: if below(rng, 4) == 0 {
             Layout::Paper
         } else {

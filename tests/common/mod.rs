@@ -91,6 +91,7 @@ pub fn convert_options(output: std::path::PathBuf, memory: u64) -> pcimg::conver
         partition: pcimg::convert::Partition::Spatial,
         compression: pcimg::store::Compression::None,
         max_error: None,
+        precision: None,
         layout: pcimg::store::Layout::Hilbert,
         read: pcimg::ingest::ReadOptions::default(),
         allow_lossy: false,

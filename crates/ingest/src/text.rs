@@ -372,6 +372,25 @@ mod tests {
         p
     }
 
+    /// The coordinates' lattice is the decimals they are written with (the most
+    /// on each axis, columns in any order); an exponent or more than nine
+    /// decimals leaves none.
+    #[test]
+    fn coordinate_decimals_make_the_lattice() {
+        let d = tempfile::tempdir().unwrap();
+        let lattice = |name: &str, body: &str| {
+            let p = write(&d, name, body);
+            super::super::open(&p, &ReadOptions::default())
+                .unwrap()
+                .info()
+                .coordinate_lattice
+        };
+        let l = lattice("a.xyz", "z,x,y,i\n1.5,2.25,3,7\n1.25,2.125,3,8\n").unwrap();
+        assert_eq!((l.step, l.origin), ([0.001, 1.0, 0.01], [0.0; 3]));
+        assert_eq!(lattice("b.xyz", "1 2 3\n1e3 2 3\n"), None);
+        assert_eq!(lattice("c.xyz", "1.0123456789 2 3\n"), None);
+    }
+
     /// Large attribute values (GPS times near 3e8) are stored relative to an
     /// offset, so f32 keeps their microseconds' millisecond; small ones are not.
     #[test]

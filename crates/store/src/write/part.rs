@@ -58,6 +58,10 @@ pub struct WriteOptions {
     /// coordinate back ([`StoredLattice`]); a part some point of which is not on
     /// it is stored as without one.
     pub lattice: Option<crate::points::Lattice>,
+    /// Round every coordinate to [`WriteOptions::lattice`] (`--precision`)
+    /// instead of keeping the lattice only where every point lies on it; the
+    /// part's `MAX_QUANTIZATION_ERROR` grows by half the step.
+    pub lattice_round: bool,
 }
 
 impl WriteOptions {
@@ -268,11 +272,28 @@ impl StoredLattice {
 
     /// The lattice of `source` for a part's positions (relative to `origin`),
     /// if every one lies on it.
-    fn fit(source: crate::points::Lattice, origin: [f64; 3], pos: &[[f32; 3]]) -> Option<Self> {
+    /// With `round`, every point is taken to its nearest lattice point: only
+    /// the numbers must fit (within 2^23 steps of `base`).
+    fn fit(
+        source: crate::points::Lattice,
+        origin: [f64; 3],
+        pos: &[[f32; 3]],
+        round: bool,
+    ) -> Option<Self> {
         let l = Self::new(source, origin)?;
         let on = pos.par_chunks(1 << 16).all(|c| {
-            c.iter()
-                .all(|p| (0..3).all(|a| p[a].is_nan() || l.whole(a, p[a], origin[a]).is_some()))
+            c.iter().all(|p| {
+                (0..3).all(|a| {
+                    p[a].is_nan()
+                        || if round {
+                            let (inv, shift) = l.stored_map(a, origin[a]);
+                            let k = round_half(p[a] as f64 * inv + shift) - spec::WHOLE_BIAS;
+                            (-spec::WHOLE_BIAS..spec::WHOLE_BIAS).contains(&k)
+                        } else {
+                            l.whole(a, p[a], origin[a]).is_some()
+                        }
+                })
+            })
         });
         on.then_some(l)
     }
@@ -1044,7 +1065,11 @@ fn write(
         a.rows_order = true;
         a.lattice = opts
             .lattice
-            .and_then(|l| StoredLattice::fit(l, a.origin, &a.pos));
+            .and_then(|l| StoredLattice::fit(l, a.origin, &a.pos, opts.lattice_round));
+        if let Some(l) = a.lattice.filter(|_| opts.lattice_round) {
+            let half = l.step.iter().map(|s| s.abs() / 2.0).fold(0.0, f64::max);
+            a.max_error += half;
+        }
         ph.mark("lattice");
     }
     // A lossy codec adds its bound, and the f32 rounding of what it gives back,
