@@ -6,7 +6,7 @@
 //! by the writer (`writer.rs`) and the coarse levels (`coarse.rs`).
 
 use crate::bigvec;
-use crate::spec::{TILE_PIXELS, TILE_SIZE};
+use crate::spec::TILE_SIZE;
 use crate::write::out::TileBuf;
 
 /// Appends rows `idx` of `rows` (`m` values each, interleaved) to `out`.
@@ -36,11 +36,7 @@ pub(crate) fn gather_held(rows: &[f32], idx: &[u32], m: usize, out: &mut Vec<f32
 #[inline]
 pub(crate) fn scatter_tile(lut: &[u32], count: usize, value: impl Fn(usize) -> f32) -> TileBuf {
     // A full tile writes every pixel (the table is a permutation): no NaN fill.
-    let mut buf = if count == TILE_PIXELS {
-        TileBuf::reused()
-    } else {
-        TileBuf::filled(f32::NAN)
-    };
+    let mut buf = TileBuf::for_points(count);
     for (i, &to) in lut[..count].iter().enumerate() {
         buf[to as usize] = value(i);
     }
@@ -56,11 +52,7 @@ pub(crate) fn scatter_tile(lut: &[u32], count: usize, value: impl Fn(usize) -> f
 #[inline]
 fn scatter_z_tile(lut: &[u32], count: usize, value: impl Fn(usize) -> f32) -> TileBuf {
     const W: usize = TILE_SIZE as usize;
-    let mut buf = if count == TILE_PIXELS {
-        TileBuf::reused()
-    } else {
-        TileBuf::filled(f32::NAN)
-    };
+    let mut buf = TileBuf::for_points(count);
     let blocks = count / 256;
     for b in 0..blocks {
         let i = 256 * b;
@@ -174,7 +166,7 @@ mod tests {
     #[test]
     fn z_tiles_are_placed_as_pixel_by_pixel() {
         let lut = tile_z_to_raster(spec::TILE_LOG2);
-        for count in [TILE_PIXELS, TILE_PIXELS - 3, 1000, 33, 16, 5, 0] {
+        for count in [spec::TILE_PIXELS, spec::TILE_PIXELS - 3, 1000, 33, 16, 5, 0] {
             let value = |i: usize| i as f32 * 0.5 - 7.0;
             let a = scatter_tile(&lut, count, value);
             let b = scatter_z_tile(&lut, count, value);

@@ -55,34 +55,38 @@ pub fn tile_z_to_raster(log2: u32) -> Vec<u32> {
         .collect()
 }
 
-/// [`tile_z_to_raster`], made once per size for the whole process (every part
-/// opened uses the same few; a 256-pixel tile's is 64 K entries).
-pub fn shared_tile_z_to_raster(log2: u32) -> std::sync::Arc<Vec<u32>> {
+/// A table of a `2^log2 × 2^log2` tile made once per size and kind for the
+/// whole process (every part opened uses the same few; a 256-pixel tile's is
+/// 64 K entries): `rows` the identity, else [`tile_z_to_raster`].
+fn shared_table(log2: u32, rows: bool) -> std::sync::Arc<Vec<u32>> {
     use std::collections::HashMap;
     use std::sync::{Arc, Mutex, OnceLock};
-    static MADE: OnceLock<Mutex<HashMap<u32, Arc<Vec<u32>>>>> = OnceLock::new();
+    type Tables = Mutex<HashMap<(u32, bool), Arc<Vec<u32>>>>;
+    static MADE: OnceLock<Tables> = OnceLock::new();
     let mut made = MADE
         .get_or_init(Default::default)
         .lock()
         .unwrap_or_else(|p| p.into_inner());
-    made.entry(log2)
-        .or_insert_with(|| Arc::new(tile_z_to_raster(log2)))
+    made.entry((log2, rows))
+        .or_insert_with(|| {
+            Arc::new(if rows {
+                (0..1u32 << (2 * log2)).collect()
+            } else {
+                tile_z_to_raster(log2)
+            })
+        })
         .clone()
 }
 
+/// [`tile_z_to_raster`], shared ([`shared_table`]).
+pub fn shared_tile_z_to_raster(log2: u32) -> std::sync::Arc<Vec<u32>> {
+    shared_table(log2, false)
+}
+
 /// The identity table of a `2^log2 × 2^log2` tile (row-ordered tiles: point `i`
-/// at pixel `i`), shared like [`shared_tile_z_to_raster`]'s.
+/// at pixel `i`), shared ([`shared_table`]).
 pub fn shared_rows(log2: u32) -> std::sync::Arc<Vec<u32>> {
-    use std::collections::HashMap;
-    use std::sync::{Arc, Mutex, OnceLock};
-    static MADE: OnceLock<Mutex<HashMap<u32, Arc<Vec<u32>>>>> = OnceLock::new();
-    let mut made = MADE
-        .get_or_init(Default::default)
-        .lock()
-        .unwrap_or_else(|p| p.into_inner());
-    made.entry(log2)
-        .or_insert_with(|| Arc::new((0..1u32 << (2 * log2)).collect()))
-        .clone()
+    shared_table(log2, true)
 }
 
 /// The pyramid of one part: a `2^log2 × 2^log2` image at level 0 holding `points`.

@@ -139,6 +139,16 @@ impl TileBuf {
             .expect("a tile's layout is valid")
     }
 
+    /// A buffer for a tile of `count` points: reused as it is where they fill
+    /// every pixel, else NaN everywhere (pixels without a point).
+    pub fn for_points(count: usize) -> TileBuf {
+        if count == crate::spec::TILE_PIXELS {
+            TileBuf::reused()
+        } else {
+            TileBuf::filled(f32::NAN)
+        }
+    }
+
     /// A tile of `v` everywhere: a recycled buffer when one is free.
     pub fn filled(v: f32) -> TileBuf {
         if let Some(mut t) = FREE_TILES.lock().ok().and_then(|mut f| f.pop()) {

@@ -1220,15 +1220,7 @@ fn rows_tile(
         let at: Vec<u32> = order.iter().map(|&i| idx[i as usize]).collect();
         a.rows.gather(&at, m, &mut rows);
     }
-    let mut bufs: Vec<TileBuf> = (0..3 + m)
-        .map(|_| {
-            if count == TILE_PIXELS {
-                TileBuf::reused()
-            } else {
-                TileBuf::filled(f32::NAN)
-            }
-        })
-        .collect();
+    let mut bufs: Vec<TileBuf> = (0..3 + m).map(|_| TileBuf::for_points(count)).collect();
     // Every band in one pass over the points (each point's position and row
     // read once).
     {
