@@ -39,13 +39,13 @@ pub struct PartMeta {
     /// viewpoint, E57 scans), name and value.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub from_source: Vec<(String, String)>,
-    /// Every default-domain item, as stored (unsanitized: sanitize before display).
-    /// Not kept in the dataset index (the fields above are): empty for a part
-    /// opened from it.
     /// The source's coordinate lattice (`LATTICE`), for parts that keep their
     /// coordinates on it.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub lattice: Option<crate::points::Lattice>,
+    /// Every default-domain item, as stored (unsanitized: sanitize before display).
+    /// Not kept in the dataset index (the fields above are): empty for a part
+    /// opened from it.
     #[serde(skip)]
     pub items: BTreeMap<String, String>,
 }
