@@ -481,17 +481,22 @@ mod tests {
         (head, rgb)
     }
 
-    #[test]
-    fn frames_are_deflated_rgb_scaled_to_their_cells() {
-        let f = frame(64, 48);
-        let p = Placement {
+    /// Image 7 on 20 × 10 cells through placeholders, drawn over text.
+    fn placed() -> Placement {
+        Placement {
             id: 7,
             cols: 20,
             rows: 10,
             placeholders: true,
             passthrough: false,
             below_text: false,
-        };
+        }
+    }
+
+    #[test]
+    fn frames_are_deflated_rgb_scaled_to_their_cells() {
+        let f = frame(64, 48);
+        let p = placed();
         let (head, rgb) = decode(&transmit(&f, p));
         assert_eq!(
             head,
@@ -515,14 +520,7 @@ mod tests {
             height: 48,
             rgba: &rgba,
         };
-        let p = Placement {
-            id: 7,
-            cols: 20,
-            rows: 10,
-            placeholders: true,
-            passthrough: false,
-            below_text: false,
-        };
+        let p = placed();
         let seq = transmit_indexed(&f, 8, p);
         let parts: Vec<&str> = seq.split("\x1b\\").filter(|p| !p.is_empty()).collect();
         assert_eq!(

@@ -361,18 +361,11 @@ impl TileCodec {
         }
         let mut owned = match self.compression {
             comp::NONE => None,
-            comp::ADOBE_DEFLATE | comp::DEFLATE => {
-                let mut v = Vec::with_capacity(nbytes);
-                flate2::read::ZlibDecoder::new(stored)
-                    .take(nbytes as u64)
-                    .read_to_end(&mut v)
-                    .map_err(|e| format!("deflate stream is corrupt: {e}"))?;
+            comp::ADOBE_DEFLATE | comp::DEFLATE | comp::ZSTD => {
+                let mut v = Vec::new();
+                self.inflate_into(stored, nbytes, &mut v)?;
                 Some(v)
             }
-            comp::ZSTD => Some(
-                zstd_decompress(stored, nbytes)
-                    .map_err(|e| format!("zstd stream is corrupt: {e}"))?,
-            ),
             c => {
                 return Err(format!(
                     "compression {} is not supported",
@@ -564,6 +557,22 @@ thread_local! {
 }
 
 impl TileCodec {
+    /// A Deflate or Zstd tile's bytes (at most `nbytes`) into `out` (cleared
+    /// first, its allocation reused).
+    fn inflate_into(&self, stored: &[u8], nbytes: usize, out: &mut Vec<u8>) -> Result<(), String> {
+        if self.compression == comp::ZSTD {
+            return zstd_decompress_into(stored, nbytes, out)
+                .map_err(|e| format!("zstd stream is corrupt: {e}"));
+        }
+        out.clear();
+        out.reserve(nbytes);
+        flate2::read::ZlibDecoder::new(stored)
+            .take(nbytes as u64)
+            .read_to_end(out)
+            .map(|_| ())
+            .map_err(|e| format!("deflate stream is corrupt: {e}"))
+    }
+
     /// A Deflate or Zstd tile with the floating-point predictor, one sample a
     /// pixel, straight into its first `out.len()` samples in row order (a
     /// row-ordered part's points), each mapped by `map` (`step`, `shift`:
@@ -593,16 +602,7 @@ impl TileCodec {
         let nbytes = pixels * 4;
         RAW.with(|raw| -> Result<bool, String> {
             let mut raw = raw.borrow_mut();
-            if self.compression == comp::ZSTD {
-                zstd_decompress_into(stored, nbytes, &mut raw)
-                    .map_err(|e| format!("zstd stream is corrupt: {e}"))?;
-            } else {
-                raw.clear();
-                flate2::read::ZlibDecoder::new(stored)
-                    .take(nbytes as u64)
-                    .read_to_end(&mut raw)
-                    .map_err(|e| format!("deflate stream is corrupt: {e}"))?;
-            }
+            self.inflate_into(stored, nbytes, &mut raw)?;
             if raw.len() < nbytes {
                 return Err(format!("tile holds {} bytes, {nbytes} expected", raw.len()));
             }

@@ -253,14 +253,19 @@ impl StoredLattice {
     /// rounding) a point of the lattice within 2^23 steps of `base`.
     #[inline]
     fn whole(&self, a: usize, v: f32, origin: f64) -> Option<f32> {
-        let (inv, shift) = self.stored_map(a, origin);
-        let s = round_half(v as f64 * inv + shift);
+        let s = self.nearest(a, v, origin)?;
         let k = s - spec::WHOLE_BIAS;
-        if !(-spec::WHOLE_BIAS..spec::WHOLE_BIAS).contains(&k) {
-            return None;
-        }
         let back = ((self.base[a] + self.step[a] * k) - origin) as f32;
         (back == v || back.next_up() == v || back.next_down() == v).then_some(s as f32)
+    }
+
+    /// The stored value of the lattice point nearest `v` (relative to
+    /// `origin`) on axis `a`, if it lies within 2^23 steps of `base`.
+    #[inline]
+    fn nearest(&self, a: usize, v: f32, origin: f64) -> Option<f64> {
+        let (inv, shift) = self.stored_map(a, origin);
+        let s = round_half(v as f64 * inv + shift);
+        (0.0..2.0 * spec::WHOLE_BIAS).contains(&s).then_some(s)
     }
 
     /// For a point on the lattice, its stored value is the nearest whole
@@ -286,9 +291,7 @@ impl StoredLattice {
                 (0..3).all(|a| {
                     p[a].is_nan()
                         || if round {
-                            let (inv, shift) = l.stored_map(a, origin[a]);
-                            let k = round_half(p[a] as f64 * inv + shift) - spec::WHOLE_BIAS;
-                            (-spec::WHOLE_BIAS..spec::WHOLE_BIAS).contains(&k)
+                            l.nearest(a, p[a], origin[a]).is_some()
                         } else {
                             l.whole(a, p[a], origin[a]).is_some()
                         }
