@@ -124,6 +124,7 @@ fn one(server: &mut Server, url: &str, outage: Duration) -> anyhow::Result<Run> 
         cell_pixels: (1, 2),
         scale: 1,
         allowance: None,
+        pixel_marks: None,
     };
     w.request(request(1, &settings));
     frame(&w, "the overview", |f| f.status.pending == 0)?;

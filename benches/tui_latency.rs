@@ -135,6 +135,7 @@ fn main() -> anyhow::Result<()> {
             cell_pixels,
             scale,
             allowance: None,
+            pixel_marks: None,
         };
         // Warm up: load the tiles of the first view.
         w.request(request(&app, 0));

@@ -189,6 +189,7 @@ fn the_render_worker_redraws_by_itself_when_the_server_returns() {
         cell_pixels: (1, 2),
         scale: 1,
         allowance: None,
+        pixel_marks: None,
     };
     // A first frame of the overview, whole.
     w.request(request(1, &settings));

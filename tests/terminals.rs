@@ -799,15 +799,74 @@ fn real_mlterm_shows_the_inspectors_view_in_sixel() {
         return;
     }
     let dir = tempfile::tempdir().unwrap();
-    let ds = dataset(dir.path());
+    inspector_in_mlterm(dir.path(), "mlterm", |script| script);
+}
+
+/// tmux built with sixel (3.4 and later, `./configure --enable-sixel`) passes
+/// the inspector's sixel through to the terminal outside it (mlterm): the
+/// inspector chooses sixel by itself inside tmux and the view holds the
+/// picture. Debian's tmux (3.3a) is built without sixel, as most
+/// distributions' are, and no package CI can install has it, so this runs
+/// where `PCIMG_TMUX_SIXEL` names such a tmux:
+/// `PCIMG_TMUX_SIXEL=/opt/tmux-sixel/bin/tmux cargo test --test terminals -- --ignored tmux_built`
+/// (docs/guide.md, "Terminals").
+#[test]
+#[ignore = "needs a tmux built with --enable-sixel, named by PCIMG_TMUX_SIXEL"]
+fn tmux_built_with_sixel_passes_the_inspectors_sixel_through_to_mlterm() {
+    let tmux = std::env::var("PCIMG_TMUX_SIXEL")
+        .expect("PCIMG_TMUX_SIXEL names a tmux built with --enable-sixel");
+    let version = Command::new(&tmux).arg("-V").output().expect("tmux -V");
+    let version = String::from_utf8_lossy(&version.stdout).trim().to_string();
+    assert!(installed(
+        &["mlterm", "Xvfb", "import", "xdotool"],
+        "mlterm, xvfb, imagemagick, xdotool",
+    ));
+    let dir = tempfile::tempdir().unwrap();
+    // Its own server and an empty configuration with no status line, so the
+    // pane is the whole window.
+    let conf = dir.path().join("tmux.conf");
+    std::fs::write(&conf, "set -g status off\n").unwrap();
+    let socket = format!("pcimg-sixel-{}", std::process::id());
+    struct Server(String, String);
+    impl Drop for Server {
+        fn drop(&mut self) {
+            let _ = Command::new(&self.0)
+                .args(["-L", &self.1, "kill-server"])
+                .output();
+        }
+    }
+    let _server = Server(tmux.clone(), socket.clone());
+    let d = inspector_in_mlterm(dir.path(), &version, |script| {
+        format!(
+            "exec {tmux} -L {socket} -f {conf} new-session {script:?}",
+            conf = conf.display()
+        )
+    });
+    // Chosen because tmux itself draws sixel, not passed through.
+    assert_eq!(d["reason"], "tmux draws sixel", "{d:#}");
+    assert_eq!(d["passthrough"], false, "{d:#}");
+    let features = d["tmux"]["Ok"]["features"].as_str().unwrap_or_default();
+    assert!(features.split(',').any(|f| f == "sixel"), "{d:#}");
+}
+
+/// The inspector in mlterm under Xvfb, started by `wrap`'s shell command
+/// around the one that runs `doctor` then `inspect`: doctor chooses sixel,
+/// the view holds the picture, keys typed by xdotool turn the camera and the
+/// picture changes, and `q` ends it. Returns what doctor said.
+fn inspector_in_mlterm(
+    dir: &Path,
+    name: &str,
+    wrap: impl Fn(String) -> String,
+) -> serde_json::Value {
+    let ds = dataset(dir);
     let (_xvfb, display) = start_xvfb("1024x768x24");
-    let doctor = dir.path().join("doctor.json");
-    let script = format!(
+    let doctor = dir.join("doctor.json");
+    let script = wrap(format!(
         "{bin} doctor --json > {doctor}; exec {bin} inspect {ds} --renderer cpu",
         bin = bin(),
         doctor = doctor.display(),
         ds = ds.display()
-    );
+    ));
     let bg = format!("#{:02x}{:02x}{:02x}", KITTY_BG[0], KITTY_BG[1], KITTY_BG[2]);
     let mut term = Reaped(
         Command::new("mlterm")
@@ -833,8 +892,8 @@ fn real_mlterm_shows_the_inspectors_view_in_sixel() {
             .spawn()
             .expect("mlterm starts"),
     );
-    let d = doctor_in(&doctor, &mut term, "mlterm");
-    assert_eq!(d["graphics"], "Sixel", "{d:#}");
+    let d = doctor_in(&doctor, &mut term, name);
+    assert_eq!(d["graphics"], "Sixel", "{name}: {d:#}");
     let rect = view_rect(&d);
     // (Sixel's palette holds fewer colours than kitty's frames: the view is
     // covered, and lit in more colours than text would be.)
@@ -845,7 +904,7 @@ fn real_mlterm_shows_the_inspectors_view_in_sixel() {
         &display,
         rect,
         Duration::from_secs(60),
-        "mlterm: the first frame",
+        &format!("{name}: the first frame"),
         picture,
     );
     let send = |keys: &str| {
@@ -870,7 +929,7 @@ fn real_mlterm_shows_the_inspectors_view_in_sixel() {
         &display,
         rect,
         Duration::from_secs(30),
-        "mlterm: the orbited frame",
+        &format!("{name}: the orbited frame"),
         |v, now| picture(v, now) && changed(&shot, now, rect) > 0.01,
     );
     send("q");
@@ -882,8 +941,9 @@ fn real_mlterm_shows_the_inspectors_view_in_sixel() {
         assert!(Instant::now() < end, "the inspector did not quit on q");
         std::thread::sleep(Duration::from_millis(50));
     };
-    assert!(status.success(), "mlterm ended with {status}");
-    eprintln!("mlterm: sixel; view {first:?}, orbited {turned:?}");
+    assert!(status.success(), "{name}: mlterm ended with {status}");
+    eprintln!("{name}: sixel; view {first:?}, orbited {turned:?}");
+    d
 }
 
 #[test]

@@ -231,6 +231,7 @@ fn the_worker_renders_and_encodes_half_block_frames() {
         cell_pixels: (1, 2),
         scale: 1,
         allowance: None,
+        pixel_marks: None,
     });
     let deadline = Instant::now() + Duration::from_secs(30);
     let frame = loop {
@@ -276,6 +277,66 @@ fn the_worker_renders_and_encodes_half_block_frames() {
         text.contains("loaded"),
         "levels panel shows what is cached:\n{text}"
     );
+}
+
+/// Where a cell written over the image would take it away (tmux drawing sixel
+/// itself), the worker draws the scale bar, the crosshair and the picks into
+/// the frame's pixels and the view has no overlay cells; elsewhere the frame
+/// carries none of them and the cells do.
+#[test]
+fn overlays_go_into_the_pixels_where_cells_would_erase_the_image() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = two_parts(dir.path(), None);
+    let mut app = app_for(&path);
+    let w = common::halfblock_worker(app.dataset.clone());
+    let area = ui::areas(ratatui::layout::Rect::new(0, 0, 160, 48), &app).view_inner;
+    let centre = app.dataset.bounds().center();
+    let request = |seq: u64, pixel_marks| Request {
+        seq,
+        camera: app.camera,
+        settings: app.settings.clone(),
+        cursor: Some((0.25, 0.5)),
+        pick: false,
+        cells: (area.width, area.height),
+        cell_pixels: (1, 2),
+        scale: 1,
+        allowance: None,
+        pixel_marks,
+    };
+    let frame = |seq| {
+        let deadline = Instant::now() + Duration::from_secs(30);
+        loop {
+            assert!(Instant::now() < deadline, "no complete frame in 30 s");
+            match w.recv_timeout(Duration::from_millis(200)) {
+                Some(Report::Frame(f)) if f.status.pending == 0 && f.seq == seq => break f,
+                Some(Report::Error(e)) => panic!("worker error: {e}"),
+                _ => {}
+            }
+        }
+    };
+    w.request(request(1, None));
+    let plain = frame(1);
+    w.request(request(2, Some((vec![centre], "m".to_string()))));
+    let marked = frame(2);
+    assert!(!request(1, None).same_frame(&request(2, Some((vec![], "m".into())))));
+    // The same points, with the overlays' pixels over them.
+    let (a, b) = (&plain.frame, &marked.frame);
+    assert_eq!((a.width, a.height), (b.width, b.height));
+    let differ = a
+        .rgba
+        .chunks_exact(4)
+        .zip(b.rgba.chunks_exact(4))
+        .filter(|(p, q)| p != q)
+        .count();
+    assert!(differ > 20, "{differ} pixels differ");
+    // No overlay cells where they are in the pixels; some where they are not.
+    app.picking = true;
+    app.frame = marked.status.clone();
+    app.overlays_in_pixels = true;
+    let none = pcimg::tui::overlay::of_app(&app, area, &marked.image);
+    assert!(none.is_empty(), "{none:?}");
+    app.overlays_in_pixels = false;
+    assert!(!pcimg::tui::overlay::of_app(&app, area, &marked.image).is_empty());
 }
 
 /// Bytes written by ratatui's crossterm backend, kept for the test to read.
@@ -484,6 +545,7 @@ fn the_worker_picks_the_point_under_the_crosshair() {
             cell_pixels: (4, 8),
             scale: 1,
             allowance: None,
+            pixel_marks: None,
         });
         let deadline = Instant::now() + Duration::from_secs(30);
         loop {
@@ -541,6 +603,7 @@ fn a_pick_over_the_shown_frame_draws_no_new_frame() {
         cell_pixels: (2, 4),
         scale: 1,
         allowance: None,
+        pixel_marks: None,
     };
     let next = |w: &RenderWorker| match w.recv_timeout(Duration::from_secs(30)) {
         Some(Report::Error(e)) => panic!("worker error: {e}"),

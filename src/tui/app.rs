@@ -242,6 +242,9 @@ pub struct App {
     pub fps: f64,
     /// Name of the image protocol in use.
     pub protocol: String,
+    /// The overlays are drawn into the frame's pixels by the worker, not as
+    /// cells (`protocol::Encoding::overlays_in_pixels`).
+    pub overlays_in_pixels: bool,
     /// Why the terminal gets no images, or that it did not answer (from
     /// detection), kept in the status line.
     pub terminal_note: String,
@@ -287,6 +290,7 @@ impl App {
             frame: FrameStatus::default(),
             fps: 0.0,
             protocol: String::new(),
+            overlays_in_pixels: false,
             terminal_note: String::new(),
             link_rate: None,
             picking: false,

@@ -80,6 +80,7 @@ pub fn run(ds: Arc<Dataset>, opts: InspectOptions) -> anyhow::Result<Camera> {
         passthrough: found.choice.passthrough,
         placeholders: found.choice.kitty_placeholders,
         text: (found.choice.text.set, found.choice.text.depth),
+        overlays_in_pixels: found.choice.text_erases_images,
     };
     let cell_pixels = found.cell_pixels;
     // Termination signals end the loop (the first handler of the process wins;
@@ -102,6 +103,7 @@ pub fn run(ds: Arc<Dataset>, opts: InspectOptions) -> anyhow::Result<Camera> {
     );
     let mut app = App::new(ds, opts.camera, opts.settings);
     app.protocol = graphics.name().into();
+    app.overlays_in_pixels = encoding.overlays_in_pixels;
     app.terminal_note = crate::advice::protocol_note(&found.choice).unwrap_or_default();
     let typed = crate::term::typed::key_events(found.typed());
     let mut session = terminal::Session::enter(encoding)?;
@@ -271,6 +273,15 @@ fn event_loop(
     // The overlay cells drawn last (`overlay`).
     let mut drawn_marks: Vec<overlay::Mark> = Vec::new();
     let scalable = pane.graphics != protocol::Graphics::Halfblocks;
+    // Overlays in pixels: the marks the last frame asked for was drawn with
+    // (a change to them needs a new frame).
+    let pixel_marks = |app: &App| {
+        app.overlays_in_pixels.then(|| {
+            let picks: Vec<[f64; 3]> = app.picks.iter().map(|p| p.position).collect();
+            (picks, app.unit.clone())
+        })
+    };
+    let mut requested_marks = None;
     loop {
         if STOP.load(Ordering::SeqCst) {
             return Ok(());
@@ -279,6 +290,11 @@ fn event_loop(
         let view = ui::areas(Rect::new(0, 0, size.width, size.height), app).view_inner;
         let cells = (view.width, view.height);
         if cells != requested_cells {
+            want_frame = true;
+        }
+        if app.overlays_in_pixels
+            && requested_marks != Some((pixel_marks(app), app.picking.then_some(app.cursor)))
+        {
             want_frame = true;
         }
         if full_owed && !want_frame && last_move.is_some_and(|t| t.elapsed() >= SETTLE) {
@@ -315,7 +331,9 @@ fn event_loop(
                 cell_pixels: pane.cell_pixels,
                 scale,
                 allowance,
+                pixel_marks: pixel_marks(app),
             });
+            requested_marks = Some((pixel_marks(app), app.picking.then_some(app.cursor)));
             requested_cells = cells;
             want_frame = false;
         }

@@ -265,9 +265,10 @@ pub fn layout(view: &FrameView, marks: &Marks<'_>, pane: Rect) -> Vec<Mark> {
 }
 
 /// The overlay cells of `app`'s view over the cells `image` covers from the
-/// top-left of `pane` (the view pane's inside); none before the first frame.
+/// top-left of `pane` (the view pane's inside); none before the first frame,
+/// nor where the worker draws them into the frame's pixels.
 pub fn of_app(app: &App, pane: Rect, image: &PaneImage) -> Vec<Mark> {
-    let Some(view) = &app.frame.view else {
+    let Some(view) = &app.frame.view.filter(|_| !app.overlays_in_pixels) else {
         return Vec::new();
     };
     let (w, h) = image.cells();

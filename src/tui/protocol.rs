@@ -34,6 +34,10 @@ pub struct Encoding {
     pub placeholders: bool,
     /// Text frames: the symbols and colours.
     pub text: (crate::term::symbols::SymbolSet, Depth),
+    /// The overlays (scale bar, crosshair, picks) are drawn into the frame's
+    /// pixels, not as cells over it: a cell written over the image would take
+    /// it away (tmux drawing sixel itself, `Choice::text_erases_images`).
+    pub overlays_in_pixels: bool,
 }
 
 impl Encoding {
@@ -42,6 +46,7 @@ impl Encoding {
             graphics,
             passthrough: false,
             placeholders: true,
+            overlays_in_pixels: false,
             text: {
                 let t = TextStyle::default();
                 (t.set, t.depth)

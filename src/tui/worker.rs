@@ -45,6 +45,10 @@ pub struct Request {
     /// fewer colours to fit ([`protocol::encode_within`]); `None` sends it
     /// exact (a fast or unmeasured link, or the exact frame after a reduced one).
     pub allowance: Option<usize>,
+    /// Where the terminal takes an image away when a cell over it is written
+    /// (`Encoding::overlays_in_pixels`): the picks and the unit, drawn with
+    /// the scale bar and the crosshair (`cursor`) into the frame's pixels.
+    pub pixel_marks: Option<(Vec<[f64; 3]>, String)>,
 }
 
 /// A drawn and encoded frame.
@@ -71,6 +75,9 @@ impl Request {
             && self.cells == other.cells
             && self.cell_pixels == other.cell_pixels
             && self.scale == other.scale
+            && self.pixel_marks == other.pixel_marks
+            // Overlays in pixels: the crosshair is part of the picture.
+            && (self.pixel_marks.is_none() || self.cursor == other.cursor)
     }
 }
 
@@ -379,6 +386,23 @@ impl Worker {
         };
 
         let t = Instant::now();
+        let view = super::overlay::FrameView {
+            camera: req.camera,
+            width,
+            height,
+        };
+        // Overlays drawn into the pixels where cells would take the image away.
+        let frame = match &req.pixel_marks {
+            Some((picks, unit)) => {
+                let marks = super::overlay::Marks {
+                    cursor: req.cursor,
+                    picks,
+                    unit,
+                };
+                super::overlay::onto_pixels(&d.frame, &view, &marks)
+            }
+            None => d.frame,
+        };
         // On a link known to be too slow for the exact frame (the last one was
         // bigger than this allowance), start where the last reduced one fit.
         let start = match (req.allowance, self.slow) {
@@ -389,7 +413,7 @@ impl Worker {
         };
         let (image, colors) = protocol::encode_within(
             self.opts.encoding,
-            &d.frame,
+            &frame,
             (cols, rows),
             full,
             req.allowance,
@@ -439,16 +463,12 @@ impl Worker {
             colors,
             ranges: d.ranges,
             units_per_pixel: 1.0 / req.camera.pixels_per_unit(req.camera.distance, height),
-            view: Some(super::overlay::FrameView {
-                camera: req.camera,
-                width,
-                height,
-            }),
+            view: Some(view),
         };
         Ok(FrameReady {
             seq: req.seq,
             image,
-            frame: Arc::new(d.frame),
+            frame: Arc::new(frame),
             cells: (cols, rows),
             status,
             requested: received,

@@ -165,6 +165,11 @@ pub struct Choice {
     pub note: Option<String>,
     /// The caller asked for this protocol (no detection chose it).
     pub requested: bool,
+    /// Writing a cell over an image takes the whole image away: tmux drawing
+    /// sixel itself frees an image when any cell under it is written (its
+    /// `image_check_area`), so text over the picture (a scale bar, a
+    /// crosshair) must be drawn into its pixels instead.
+    pub text_erases_images: bool,
     /// How frames are drawn in text (the `text` protocol): the symbols and the
     /// colours the terminal takes.
     pub text: TextStyle,
@@ -233,12 +238,12 @@ pub fn choose(
         } else {
             reason
         };
+        let tmux_draws = in_tmux && graphics == Graphics::Sixel && tmux_sixel;
         Choice {
             graphics,
             reason,
-            passthrough: in_tmux
-                && graphics != Graphics::Halfblocks
-                && !(graphics == Graphics::Sixel && tmux_sixel),
+            passthrough: in_tmux && graphics != Graphics::Halfblocks && !tmux_draws,
+            text_erases_images: tmux_draws,
             placeholders: in_tmux && kitty,
             kitty_placeholders,
             note,
@@ -754,6 +759,8 @@ mod tests {
         assert_eq!(c.graphics, Graphics::Sixel, "{c:?}");
         assert!(!c.passthrough && c.note.is_none());
         assert_eq!(c.reason, "tmux draws sixel");
+        // And frees the image when a cell over it is written.
+        assert!(c.text_erases_images);
         // Without the feature: half-blocks, and the note says what would draw.
         let c = in_tmux("XTerm(379)", "xterm", "256,RGB,title");
         assert_eq!(c.graphics, Graphics::Halfblocks);
