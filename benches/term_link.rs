@@ -28,6 +28,37 @@ use pty::Pty;
 use std::process::Command;
 use std::time::{Duration, Instant};
 
+/// What the played terminal draws.
+#[derive(Clone, Copy, PartialEq)]
+enum Kind {
+    Sixel,
+    Kitty,
+    Text,
+}
+
+/// Text frames: each draw of the inspector ends by hiding the cursor
+/// (`ESC [ 0 m ESC [ ? 25 l`); a draw of at least 2 KB holds a frame's cells
+/// (smaller ones are the status line alone). There are no reduced frames in
+/// text: those that arrive before the last key count as moving.
+fn text_frames(out: &[u8], log: &[(Instant, usize)], last_key: Instant) -> Vec<Seen> {
+    let mark = b"\x1b[0m\x1b[?25l";
+    let mut v = Vec::new();
+    let (mut start, mut at) = (0, 0);
+    while let Some(m) = find(out, mark, at) {
+        let end = m + mark.len();
+        if end - start >= 2048 {
+            let t = arrival(log, end - 1);
+            v.push(Seen {
+                bytes: end - start,
+                end: t,
+                moving: t <= last_key,
+            });
+        }
+        (start, at) = (end, end);
+    }
+    v
+}
+
 /// A frame found in the output: its bytes and when its last byte arrived.
 struct Seen {
     bytes: usize,
@@ -188,15 +219,21 @@ fn main() -> anyhow::Result<()> {
         (
             "xterm -ti vt340 (sixel)",
             "\x1bP>|XTerm(379)\x1b\\\x1b[?63;1;2;4;6;9;15;16;22;28c",
-            false,
+            Kind::Sixel,
         ),
         (
             "kitty",
             "\x1bP>|kitty(0.35.2)\x1b\\\x1b_Gi=31;OK\x1b\\\x1b[?62;c",
-            true,
+            Kind::Kitty,
+        ),
+        (
+            "xterm, no images (text, 24-bit)",
+            "\x1bP>|XTerm(379)\x1b\\\x1b[?63;1;2;6;9;15;16;22;28c",
+            Kind::Text,
         ),
     ];
-    for (name, answers, kitty) in terminals {
+    for (name, answers, kind) in terminals {
+        let kitty = kind == Kind::Kitty;
         for &mbit in &links {
             let mut cmd = Command::new(&bin);
             cmd.args(["inspect", path.to_str().unwrap_or(""), "--renderer", "cpu"])
@@ -204,6 +241,11 @@ fn main() -> anyhow::Result<()> {
                 .env_remove("KITTY_WINDOW_ID")
                 .env("TERM", "xterm-256color")
                 .env("NODEVICE_SELECT", "1");
+            if kind == Kind::Text {
+                cmd.env("COLORTERM", "truecolor");
+            } else {
+                cmd.env_remove("COLORTERM");
+            }
             // 194 × 44 cells: the view pane is 120 × 40, cells of 10 × 20 px.
             let mut t = Pty::spawn(&mut cmd, (194, 44), (1940, 880));
             if mbit > 0.0 {
@@ -233,12 +275,17 @@ fn main() -> anyhow::Result<()> {
             t.write(b"q");
             t.wait(Duration::from_secs(10));
             if std::env::var_os("TERM_LINK_DUMP").is_some() {
-                std::fs::write(format!("/tmp/term_link_{kitty}_{mbit}.out"), &t.output)?;
+                let k = ["sixel", "kitty", "text"][kind as usize];
+                std::fs::write(format!("/tmp/term_link_{k}_{mbit}.out"), &t.output)?;
             }
-            let seen: Vec<Seen> = frames(&t.output, &t.log, kitty)
-                .into_iter()
-                .filter(|f| arrival(&t.log, settled) <= f.end)
-                .collect();
+            let seen: Vec<Seen> = if kind == Kind::Text {
+                text_frames(&t.output, &t.log, *keys.last().unwrap_or(&keys[0]))
+            } else {
+                frames(&t.output, &t.log, kitty)
+            }
+            .into_iter()
+            .filter(|f| arrival(&t.log, settled) <= f.end)
+            .collect();
             let first_key = keys[0];
             if std::env::var_os("TERM_LINK_VERBOSE").is_some() {
                 for f in &seen {
