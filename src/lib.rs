@@ -27,6 +27,7 @@ pub use pcimg_term as term;
 pub mod advice;
 pub mod cli;
 pub mod convert;
+pub mod export;
 pub mod synth;
 pub mod synth_formats;
 pub mod tui;

@@ -12,6 +12,7 @@ macro_rules! note {
 pub mod convert;
 pub mod demo;
 pub mod doctor;
+pub mod export;
 pub mod index;
 pub mod info;
 pub mod inspect;
@@ -47,6 +48,9 @@ pub enum Command {
     Info(info::Args),
     /// Convert a point cloud (text, PLY, LAS/LAZ, PCD, E57) into an image dataset, out of core.
     Convert(convert::Args),
+    /// Write a dataset's points (all, a level's even sample, a box, some classes)
+    /// as LAS, LAZ, PLY, CSV or XYZ.
+    Export(export::Args),
     /// Rebuild a dataset directory's index and overview (for parts made separately).
     Index(index::Args),
     /// Browse a dataset in the terminal: parts, bands, levels and a live view.
@@ -149,6 +153,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Inspect(a) => inspect::run(a),
         Command::Info(a) => info::run(a),
         Command::Convert(a) => convert::run(a),
+        Command::Export(a) => export::run(a),
         Command::Index(a) => index::run(a),
         Command::Demo(a) => demo::run(a),
         Command::Render(a) => render::run(a),
@@ -167,6 +172,7 @@ impl Command {
         match self {
             Command::Info(a) => a.cache.net_stats,
             Command::Convert(a) => a.net_stats,
+            Command::Export(a) => a.cache.net_stats,
             Command::Inspect(a) => a.view.cache.net_stats,
             Command::Render(a) => a.view.cache.net_stats,
             Command::Preview(a) => a.view.cache.net_stats,
@@ -233,8 +239,8 @@ mod tests {
         }
         // ... and, by name, the ones there are today and clap's `help`.
         for name in [
-            "info", "convert", "index", "inspect", "demo", "render", "preview", "synth", "doctor",
-            "help",
+            "info", "convert", "export", "index", "inspect", "demo", "render", "preview", "synth",
+            "doctor", "help",
         ] {
             assert!(
                 known.iter().any(|k| k == name),

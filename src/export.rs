@@ -1,0 +1,858 @@
+//! Points back out of a dataset: a level (every point, or an even sample), the
+//! points in a box, of some classes or within band ranges, written as LAS or LAZ
+//! (through the `las` crate, LAZ compressed in parallel chunks), binary PLY, or
+//! CSV / XYZ text.
+//!
+//! Only the tiles the selection can reach are read (a tile whose bounds miss the
+//! box is not touched, locally, nor fetched, remotely), a batch of tiles at a
+//! time, so the export streams in bounded memory whatever the dataset's size.
+//! The output is written under a temporary name beside it and renamed into place
+//! when complete; a failure or an interruption removes it.
+//!
+//! Coordinates come back on the source's lattice where the parts keep one (LAS
+//! scale and offset, a text file's decimals: `LATTICE`): each point's whole
+//! number is recovered exactly and written with the same scale and offset, so a
+//! LAS file converted and exported gives the same integers. Whole-number bands
+//! (intensity, returns, classification, colour) come back exactly; `gps_time`
+//! within what the part stores (its offset plus a Float32).
+
+use crate::points::{Bounds, Lattice};
+use crate::render::filter::Filter;
+use crate::render::lod::{LoadedTile, TileKey};
+use crate::store::{Dataset, Part};
+use std::io::{BufWriter, Write};
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, Ordering};
+
+/// What the output is written as, from its extension.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum OutFormat {
+    Las,
+    Laz,
+    /// Binary little-endian PLY.
+    Ply,
+    /// Comma-separated, a header line of column names.
+    Csv,
+    /// Space-separated, no header: x y z, then the other columns.
+    Xyz,
+}
+
+impl OutFormat {
+    /// The format an output path's extension names.
+    pub fn of(path: &Path) -> Option<OutFormat> {
+        let ext = path.extension()?.to_str()?.to_ascii_lowercase();
+        Some(match ext.as_str() {
+            "las" => OutFormat::Las,
+            "laz" => OutFormat::Laz,
+            "ply" => OutFormat::Ply,
+            "csv" => OutFormat::Csv,
+            "xyz" | "txt" => OutFormat::Xyz,
+            _ => return None,
+        })
+    }
+}
+
+/// Why an export stopped. The binary words the advice.
+#[derive(Debug, thiserror::Error)]
+pub enum ExportError {
+    #[error("{path}: {message}")]
+    Dataset { path: String, message: String },
+    #[error("{}: cannot write: {source}", path.display())]
+    Write {
+        path: PathBuf,
+        source: std::io::Error,
+    },
+    #[error("{}: LAS: {message}", path.display())]
+    Las { path: PathBuf, message: String },
+    #[error("interrupted: nothing was left at {}", path.display())]
+    Interrupted { path: PathBuf },
+}
+
+/// The tiles an export reads and what it writes.
+#[derive(Debug, Clone)]
+pub struct Plan {
+    /// Part, level and tile of every tile the selection can reach, part by part.
+    pub tiles: Vec<(usize, usize, u32)>,
+    /// Points in those tiles (the most the export writes).
+    pub points: u64,
+    /// Tiles of the chosen levels the selection cannot reach (not read).
+    pub skipped: usize,
+    /// Bands besides x, y, z, in the order of the first part that has each.
+    pub bands: Vec<String>,
+    /// The lattice every part's coordinates lie on, when they all share one.
+    pub lattice: Option<Lattice>,
+    /// The bounds of the tiles read.
+    pub bounds: Bounds,
+    /// The CRS the parts give (the first part's).
+    pub crs: Option<String>,
+}
+
+/// The tiles of level `level` (each part's coarsest where it has fewer) that
+/// `filter` may keep points of, in the parts only (overview nodes hold copies).
+pub fn plan(ds: &Dataset, level: usize, filter: &Filter) -> Plan {
+    let mut tiles = Vec::new();
+    let (mut points, mut skipped) = (0u64, 0usize);
+    let mut bands: Vec<String> = Vec::new();
+    let mut bounds = Bounds::EMPTY;
+    let mut lattices = Vec::new();
+    for (i, part) in ds.parts.iter().enumerate() {
+        let Some(l) = part
+            .levels
+            .get(level.min(part.levels.len().saturating_sub(1)))
+        else {
+            continue;
+        };
+        for b in part.bands.iter().skip(3) {
+            if !bands.contains(&b.name) {
+                bands.push(b.name.clone());
+            }
+        }
+        lattices.push(part.meta.lattice);
+        for t in &l.tiles {
+            if filter.may_show(&t.bounds) {
+                tiles.push((i, l.index, t.index));
+                points += t.points.unwrap_or(0) as u64;
+                bounds = bounds.union(&t.bounds);
+            } else {
+                skipped += 1;
+            }
+        }
+    }
+    let lattice = match lattices.first() {
+        Some(Some(first)) if lattices.iter().all(|l| l.as_ref() == Some(first)) => Some(*first),
+        _ => None,
+    };
+    Plan {
+        tiles,
+        points,
+        skipped,
+        bands,
+        lattice,
+        bounds,
+        crs: ds.parts.iter().find_map(|p| p.meta.crs.clone()),
+    }
+}
+
+/// What an export wrote.
+#[derive(Debug, Clone)]
+pub struct Summary {
+    pub points: u64,
+    pub bytes: u64,
+    pub tiles_read: usize,
+    /// LAS: the point format, the version, the scale and offset.
+    pub las: Option<LasLayout>,
+    /// Bands the format has no place for (LAS: not in its point format).
+    pub left_out: Vec<String>,
+    /// Where the coordinates come from: the parts' lattice, or a chosen step.
+    pub exact_lattice: bool,
+}
+
+/// Points read at most at once (a batch of tiles): about 100 MB of columns.
+const BATCH_POINTS: u64 = 4 << 20;
+
+/// Writes the points `plan` selects (and `filter` keeps) to `out` as `format`,
+/// under a temporary name renamed into place at the end. `progress` is told
+/// the points read so far and written so far after each batch; `stop` ends
+/// the export early (an interruption), leaving nothing behind.
+pub fn export(
+    ds: &Dataset,
+    plan: &Plan,
+    filter: &Filter,
+    out: &Path,
+    format: OutFormat,
+    stop: &AtomicBool,
+    progress: &dyn Fn(u64, u64),
+) -> Result<Summary, ExportError> {
+    let tmp = temporary_name(out);
+    let guard = Remove(Some(tmp.clone()));
+    let file = std::fs::File::create(&tmp).map_err(|source| ExportError::Write {
+        path: out.to_path_buf(),
+        source,
+    })?;
+    let mut sink = open_sink(file, &tmp, out, format, plan)?;
+    let (mut read, mut written, mut tiles_read) = (0u64, 0u64, 0usize);
+    let mut i = 0;
+    while i < plan.tiles.len() {
+        if stop.load(Ordering::SeqCst) {
+            return Err(ExportError::Interrupted {
+                path: out.to_path_buf(),
+            });
+        }
+        // The next tiles of one part and level, up to a batch's points.
+        let (p, l, _) = plan.tiles[i];
+        let part = ds.part(p).ok_or_else(|| ExportError::Dataset {
+            path: ds.path.display().to_string(),
+            message: format!("has no part {p}"),
+        })?;
+        let level = &part.levels[l];
+        let count = |t: u32| {
+            level
+                .tiles
+                .iter()
+                .find(|x| x.index == t)
+                .and_then(|x| x.points)
+                .unwrap_or(0) as u64
+        };
+        let mut batch = Vec::new();
+        let mut n = 0;
+        while i < plan.tiles.len() && plan.tiles[i].0 == p && plan.tiles[i].1 == l {
+            let t = plan.tiles[i].2;
+            if !batch.is_empty() && n + count(t) > BATCH_POINTS {
+                break;
+            }
+            n += count(t);
+            batch.push(t);
+            i += 1;
+        }
+        tiles_read += batch.len();
+        let columns = read_batch(part, p, l, &batch, &plan.bands)?;
+        read += columns.len() as u64;
+        let keep = filter.shown(&columns);
+        let points = Batch::of(&columns, keep.as_deref(), &plan.bands, plan.lattice);
+        written += points.len() as u64;
+        sink.write(&points)?;
+        progress(read, written);
+    }
+    let (las, left_out) = sink.finish()?;
+    let bytes = std::fs::metadata(&tmp).map(|m| m.len()).unwrap_or(0);
+    std::fs::rename(&tmp, out).map_err(|source| ExportError::Write {
+        path: out.to_path_buf(),
+        source,
+    })?;
+    guard.keep();
+    Ok(Summary {
+        points: written,
+        bytes,
+        tiles_read,
+        las,
+        left_out,
+        exact_lattice: plan.lattice.is_some(),
+    })
+}
+
+/// `.NAME.pcimg-export-PID` beside `out`.
+fn temporary_name(out: &Path) -> PathBuf {
+    let name = out
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_default();
+    out.with_file_name(format!(".{name}.pcimg-export-{}", std::process::id()))
+}
+
+/// Removes the temporary file unless the export completed.
+struct Remove(Option<PathBuf>);
+
+impl Remove {
+    fn keep(mut self) {
+        self.0 = None;
+    }
+}
+
+impl Drop for Remove {
+    fn drop(&mut self) {
+        if let Some(p) = self.0.take() {
+            let _ = std::fs::remove_file(p);
+        }
+    }
+}
+
+/// The tiles `tiles` of part `p`'s level `l`: x y z and the plan's bands the
+/// part has, as the filter reads them.
+fn read_batch(
+    part: &Part,
+    p: usize,
+    l: usize,
+    tiles: &[u32],
+    bands: &[String],
+) -> Result<LoadedTile, ExportError> {
+    let mut idx = vec![0usize, 1, 2];
+    idx.extend(bands.iter().filter_map(|b| part.band_index(b)));
+    let pts = part
+        .read_tiles(l, tiles, &idx)
+        .map_err(|e| ExportError::Dataset {
+            path: part.path.display().to_string(),
+            message: e.to_string(),
+        })?;
+    let mut cols = pts.columns.into_iter();
+    let (x, y, z) = (
+        cols.next().unwrap_or_default(),
+        cols.next().unwrap_or_default(),
+        cols.next().unwrap_or_default(),
+    );
+    let attributes = pts.bands[3..]
+        .iter()
+        .zip(&pts.offsets[3..])
+        .zip(cols)
+        .map(|((n, &o), c)| (n.clone(), o, c))
+        .collect();
+    Ok(LoadedTile {
+        key: TileKey {
+            part: p,
+            level: l,
+            tile: tiles.first().copied().unwrap_or(0),
+        },
+        origin: [pts.offsets[0], pts.offsets[1], pts.offsets[2]],
+        x,
+        y,
+        z,
+        attributes,
+        load_ms: 0.0,
+    })
+}
+
+/// Points ready to write: coordinates in source units (on the lattice where
+/// there is one), and each plan band's values (NaN where a part lacks it).
+#[derive(Debug, Default)]
+pub struct Batch {
+    pub x: Vec<f64>,
+    pub y: Vec<f64>,
+    pub z: Vec<f64>,
+    /// One column per plan band, in the plan's order.
+    pub bands: Vec<Vec<f64>>,
+}
+
+impl Batch {
+    fn len(&self) -> usize {
+        self.x.len()
+    }
+
+    fn of(
+        t: &LoadedTile,
+        keep: Option<&[bool]>,
+        bands: &[String],
+        lattice: Option<Lattice>,
+    ) -> Batch {
+        let kept: Vec<usize> = match keep {
+            Some(k) => (0..t.len()).filter(|&i| k[i]).collect(),
+            None => (0..t.len()).collect(),
+        };
+        let axis = |a: usize, col: &[f32]| -> Vec<f64> {
+            let o = t.origin[a];
+            kept.iter()
+                .map(|&i| {
+                    let v = o + col[i] as f64;
+                    match lattice {
+                        // The whole number the point was stored as, exactly
+                        // (a part keeps its lattice offsets below 2^23, where
+                        // a Float32 is exact to well under half a step).
+                        Some(l) => {
+                            let k = ((v - l.origin[a]) / l.step[a]).round();
+                            l.origin[a] + k * l.step[a]
+                        }
+                        None => v,
+                    }
+                })
+                .collect()
+        };
+        let mut b = Batch {
+            x: axis(0, &t.x),
+            y: axis(1, &t.y),
+            z: axis(2, &t.z),
+            bands: Vec::with_capacity(bands.len()),
+        };
+        for name in bands {
+            let col = match t.attributes.iter().find(|a| &a.0 == name) {
+                Some((_, off, c)) => kept.iter().map(|&i| off + c[i] as f64).collect(),
+                None => vec![f64::NAN; kept.len()],
+            };
+            b.bands.push(col);
+        }
+        b
+    }
+}
+
+/// Where points go.
+trait Sink {
+    fn write(&mut self, b: &Batch) -> Result<(), ExportError>;
+    /// Completes the file: LAS's layout, and the bands left out.
+    fn finish(self: Box<Self>) -> Result<(Option<LasLayout>, Vec<String>), ExportError>;
+}
+
+fn open_sink(
+    file: std::fs::File,
+    tmp: &Path,
+    out: &Path,
+    format: OutFormat,
+    plan: &Plan,
+) -> Result<Box<dyn Sink>, ExportError> {
+    let werr = |source| ExportError::Write {
+        path: out.to_path_buf(),
+        source,
+    };
+    Ok(match format {
+        OutFormat::Las | OutFormat::Laz => {
+            Box::new(LasSink::new(file, out, plan, format == OutFormat::Laz)?)
+        }
+        OutFormat::Ply => Box::new(PlySink::new(file, tmp, out, plan).map_err(werr)?),
+        OutFormat::Csv | OutFormat::Xyz => {
+            Box::new(TextSink::new(file, out, plan, format == OutFormat::Csv).map_err(werr)?)
+        }
+    })
+}
+
+/// The LAS file's layout.
+#[derive(Debug, Clone)]
+pub struct LasLayout {
+    pub point_format: u8,
+    pub version: (u8, u8),
+    pub scale: [f64; 3],
+    pub offset: [f64; 3],
+    /// The CRS went in as a WKT record.
+    pub wkt: bool,
+}
+
+/// LAS point fields pcimg bands fill, by band name.
+const LAS_BANDS: [&str; 9] = [
+    "intensity",
+    "return_number",
+    "number_of_returns",
+    "classification",
+    "gps_time",
+    "red",
+    "green",
+    "blue",
+    "nir",
+];
+
+/// Whether a CRS string is WKT (which a LAS 1.4 WKT record holds), not an
+/// authority code.
+fn is_wkt(crs: &str) -> bool {
+    let head = crs.trim_start().to_ascii_uppercase();
+    [
+        "PROJCS",
+        "GEOGCS",
+        "GEOCCS",
+        "COMPD_CS",
+        "VERT_CS",
+        "PROJCRS",
+        "GEOGCRS",
+        "GEODCRS",
+        "COMPOUNDCRS",
+        "VERTCRS",
+        "BOUNDCRS",
+    ]
+    .iter()
+    .any(|k| head.starts_with(k))
+}
+
+/// Scale and offset for coordinates not on a lattice: a millimetre, coarser
+/// where the extent would not fit LAS's 32-bit integers.
+fn chosen_transform(bounds: &Bounds) -> ([f64; 3], [f64; 3]) {
+    let mut scale = [0.001; 3];
+    let mut offset = [0.0; 3];
+    for a in 0..3 {
+        let (lo, hi) = if bounds.is_empty() {
+            (0.0, 0.0)
+        } else {
+            (bounds.min[a], bounds.max[a])
+        };
+        offset[a] = lo.floor();
+        while (hi - offset[a]) / scale[a] > i32::MAX as f64 * 0.99 {
+            scale[a] *= 10.0;
+        }
+    }
+    (scale, offset)
+}
+
+struct LasSink {
+    writer: las::Writer<BufWriter<std::fs::File>>,
+    out: PathBuf,
+    /// The column of each LAS field in a batch's bands.
+    cols: [Option<usize>; 9],
+    layout: LasLayout,
+    left_out: Vec<String>,
+}
+
+impl LasSink {
+    fn new(
+        file: std::fs::File,
+        out: &Path,
+        plan: &Plan,
+        compressed: bool,
+    ) -> Result<LasSink, ExportError> {
+        let lerr = |e: las::Error| ExportError::Las {
+            path: out.to_path_buf(),
+            message: e.to_string(),
+        };
+        let col = |n: &str| plan.bands.iter().position(|b| b == n);
+        let cols = LAS_BANDS.map(col);
+        let has = |n: &str| col(n).is_some();
+        let colour = has("red") || has("green") || has("blue");
+        // Formats 6 to 8 where the points need them: near-infrared, or more than
+        // 2^32 points (classes above 31 are checked per point and clamped out of
+        // the legacy formats' 5 bits, so they are asked for up front too).
+        let big_classes = plan.points > u32::MAX as u64 || has("nir");
+        let format_number: u8 = match (big_classes, has("gps_time"), colour) {
+            (true, _, _) if has("nir") => 8,
+            (true, _, true) => 7,
+            (true, _, false) => 6,
+            (false, false, false) => 0,
+            (false, true, false) => 1,
+            (false, false, true) => 2,
+            (false, true, true) => 3,
+        };
+        let mut format = las::point::Format::new(format_number).map_err(lerr)?;
+        format.is_compressed = compressed;
+        let (scale, offset) = match plan.lattice {
+            Some(l) => (l.step, l.origin),
+            None => chosen_transform(&plan.bounds),
+        };
+        let mut builder = las::Builder::from((1, 4));
+        builder.point_format = format;
+        builder.generating_software = format!("pcimg {}", env!("CARGO_PKG_VERSION"));
+        builder.transforms = las::Vector {
+            x: las::Transform {
+                scale: scale[0],
+                offset: offset[0],
+            },
+            y: las::Transform {
+                scale: scale[1],
+                offset: offset[1],
+            },
+            z: las::Transform {
+                scale: scale[2],
+                offset: offset[2],
+            },
+        };
+        let wkt = plan.crs.as_deref().filter(|c| is_wkt(c));
+        if let Some(w) = wkt {
+            let mut data = w.as_bytes().to_vec();
+            data.push(0);
+            builder.vlrs.push(las::Vlr {
+                user_id: "LASF_Projection".into(),
+                record_id: 2112,
+                description: "OGC WKT".into(),
+                data,
+            });
+            builder.has_wkt_crs = true;
+        }
+        let header = builder.into_header().map_err(lerr)?;
+        let writer =
+            las::Writer::new(BufWriter::with_capacity(1 << 20, file), header).map_err(lerr)?;
+        let left_out = plan
+            .bands
+            .iter()
+            .filter(|b| !LAS_BANDS.contains(&b.as_str()))
+            .cloned()
+            .collect();
+        Ok(LasSink {
+            writer,
+            out: out.to_path_buf(),
+            cols,
+            layout: LasLayout {
+                point_format: format_number,
+                version: (1, 4),
+                scale,
+                offset,
+                wkt: wkt.is_some(),
+            },
+            left_out,
+        })
+    }
+}
+
+impl Sink for LasSink {
+    fn write(&mut self, b: &Batch) -> Result<(), ExportError> {
+        let get = |k: usize, i: usize| {
+            self.cols[k]
+                .map(|c| b.bands[c][i])
+                .filter(|v| v.is_finite())
+        };
+        let whole = |v: Option<f64>, max: f64| v.map_or(0.0, |v| v.round().clamp(0.0, max));
+        let extended = self.layout.point_format >= 6;
+        let time = matches!(self.layout.point_format, 1 | 3 | 6..=8);
+        for i in 0..b.len() {
+            let class = whole(get(3, i), if extended { 255.0 } else { 31.0 }) as u8;
+            // Class 12 (overlap) is a flag to the las crate.
+            let (classification, is_overlap) = match las::point::Classification::new(class) {
+                Ok(c) => (c, false),
+                Err(_) => (las::point::Classification::CreatedNeverClassified, true),
+            };
+            let p = las::Point {
+                x: b.x[i],
+                y: b.y[i],
+                z: b.z[i],
+                intensity: whole(get(0, i), 65535.0) as u16,
+                return_number: whole(get(1, i), if extended { 15.0 } else { 7.0 }) as u8,
+                number_of_returns: whole(get(2, i), if extended { 15.0 } else { 7.0 }) as u8,
+                classification,
+                is_overlap,
+                gps_time: time.then(|| get(4, i).unwrap_or(0.0)),
+                color: (self.layout.point_format == 2
+                    || self.layout.point_format == 3
+                    || self.layout.point_format >= 7)
+                    .then(|| las::Color {
+                        red: whole(get(5, i), 65535.0) as u16,
+                        green: whole(get(6, i), 65535.0) as u16,
+                        blue: whole(get(7, i), 65535.0) as u16,
+                    }),
+                nir: (self.layout.point_format == 8).then(|| whole(get(8, i), 65535.0) as u16),
+                ..Default::default()
+            };
+            self.writer.write_point(p).map_err(|e| ExportError::Las {
+                path: self.out.clone(),
+                message: e.to_string(),
+            })?;
+        }
+        Ok(())
+    }
+
+    fn finish(mut self: Box<Self>) -> Result<(Option<LasLayout>, Vec<String>), ExportError> {
+        self.writer.close().map_err(|e| ExportError::Las {
+            path: self.out.clone(),
+            message: e.to_string(),
+        })?;
+        Ok((
+            Some(self.layout.clone()),
+            std::mem::take(&mut self.left_out),
+        ))
+    }
+}
+
+/// How a band is written in PLY and text: its PLY type, and whether its
+/// values are whole numbers.
+fn band_kind(name: &str) -> (&'static str, bool) {
+    match name {
+        "classification" | "return_number" | "number_of_returns" => ("uchar", true),
+        "intensity" | "red" | "green" | "blue" | "nir" => ("ushort", true),
+        "gps_time" => ("double", false),
+        _ => ("double", false),
+    }
+}
+
+/// Binary little-endian PLY: `double` coordinates, bands in their kinds. The
+/// vertex count, unknown until the end, is written in a fixed-width field
+/// (leading zeros) and filled in last.
+struct PlySink {
+    w: BufWriter<std::fs::File>,
+    tmp: PathBuf,
+    out: PathBuf,
+    kinds: Vec<&'static str>,
+    count: u64,
+    /// Where the count's digits start.
+    count_at: u64,
+}
+
+const COUNT_DIGITS: usize = 20;
+
+impl PlySink {
+    fn new(file: std::fs::File, tmp: &Path, out: &Path, plan: &Plan) -> std::io::Result<PlySink> {
+        let mut w = BufWriter::with_capacity(1 << 20, file);
+        let mut head =
+            String::from("ply\nformat binary_little_endian 1.0\ncomment written by pcimg export\n");
+        if let Some(crs) = &plan.crs {
+            // A comment is one line.
+            head.push_str(&format!("comment crs {}\n", crs.replace(['\n', '\r'], " ")));
+        }
+        head.push_str("element vertex ");
+        let count_at = head.len() as u64;
+        head.push_str(&format!("{:0w$}\n", 0, w = COUNT_DIGITS));
+        head.push_str("property double x\nproperty double y\nproperty double z\n");
+        let kinds: Vec<&'static str> = plan.bands.iter().map(|b| band_kind(b).0).collect();
+        for (b, k) in plan.bands.iter().zip(&kinds) {
+            head.push_str(&format!("property {k} {}\n", ply_name(b)));
+        }
+        head.push_str("end_header\n");
+        w.write_all(head.as_bytes())?;
+        Ok(PlySink {
+            w,
+            tmp: tmp.to_path_buf(),
+            out: out.to_path_buf(),
+            kinds,
+            count: 0,
+            count_at,
+        })
+    }
+}
+
+/// A band name as a PLY property name (no spaces).
+fn ply_name(b: &str) -> String {
+    b.chars()
+        .map(|c| {
+            if c.is_ascii_alphanumeric() || c == '_' {
+                c
+            } else {
+                '_'
+            }
+        })
+        .collect()
+}
+
+impl Sink for PlySink {
+    fn write(&mut self, b: &Batch) -> Result<(), ExportError> {
+        let mut buf = Vec::with_capacity(b.len() * (24 + 8 * b.bands.len()));
+        for i in 0..b.len() {
+            for v in [b.x[i], b.y[i], b.z[i]] {
+                buf.extend_from_slice(&v.to_le_bytes());
+            }
+            for (c, k) in b.bands.iter().zip(&self.kinds) {
+                let v = c[i];
+                match *k {
+                    "uchar" => buf.push(if v.is_finite() {
+                        v.round().clamp(0.0, 255.0) as u8
+                    } else {
+                        0
+                    }),
+                    "ushort" => buf.extend_from_slice(
+                        &(if v.is_finite() {
+                            v.round().clamp(0.0, 65535.0) as u16
+                        } else {
+                            0
+                        })
+                        .to_le_bytes(),
+                    ),
+                    _ => buf.extend_from_slice(&v.to_le_bytes()),
+                }
+            }
+        }
+        self.count += b.len() as u64;
+        self.w.write_all(&buf).map_err(|source| ExportError::Write {
+            path: self.out.clone(),
+            source,
+        })
+    }
+
+    fn finish(self: Box<Self>) -> Result<(Option<LasLayout>, Vec<String>), ExportError> {
+        use std::io::{Seek, SeekFrom};
+        let werr = |source| ExportError::Write {
+            path: self.out.clone(),
+            source,
+        };
+        let mut f = self.w.into_inner().map_err(|e| werr(e.into_error()))?;
+        f.seek(SeekFrom::Start(self.count_at)).map_err(werr)?;
+        f.write_all(format!("{:0w$}", self.count, w = COUNT_DIGITS).as_bytes())
+            .map_err(werr)?;
+        f.sync_all().map_err(werr)?;
+        let _ = &self.tmp;
+        Ok((None, Vec::new()))
+    }
+}
+
+/// CSV (a header of column names, commas) or XYZ (spaces, no header).
+/// Coordinates on a lattice are printed with its decimals; whole-number bands
+/// as integers; the rest as the shortest text that reads back the same.
+struct TextSink {
+    w: BufWriter<std::fs::File>,
+    out: PathBuf,
+    sep: char,
+    decimals: Option<[usize; 3]>,
+    whole: Vec<bool>,
+}
+
+impl TextSink {
+    fn new(file: std::fs::File, out: &Path, plan: &Plan, csv: bool) -> std::io::Result<TextSink> {
+        let mut w = BufWriter::with_capacity(1 << 20, file);
+        let sep = if csv { ',' } else { ' ' };
+        if csv {
+            let mut head = vec!["x".to_string(), "y".into(), "z".into()];
+            head.extend(plan.bands.iter().cloned());
+            writeln!(w, "{}", head.join(","))?;
+        }
+        // The decimals a step needs (0.01: 2); none where the step is not a
+        // power of ten (its multiples need more).
+        let decimals = plan.lattice.and_then(|l| {
+            let d = l.step.map(|s| {
+                let k = (-s.log10()).round();
+                ((10f64.powf(-k) - s).abs() <= s * 1e-9 && k >= 0.0).then_some(k as usize)
+            });
+            Some([d[0]?, d[1]?, d[2]?])
+        });
+        Ok(TextSink {
+            w,
+            out: out.to_path_buf(),
+            sep,
+            decimals,
+            whole: plan.bands.iter().map(|b| band_kind(b).1).collect(),
+        })
+    }
+}
+
+impl Sink for TextSink {
+    fn write(&mut self, b: &Batch) -> Result<(), ExportError> {
+        use std::fmt::Write as _;
+        let mut s = String::with_capacity(b.len() * 48);
+        for i in 0..b.len() {
+            for (a, v) in [b.x[i], b.y[i], b.z[i]].into_iter().enumerate() {
+                if a > 0 {
+                    s.push(self.sep);
+                }
+                let _ = match self.decimals {
+                    Some(d) => write!(s, "{v:.*}", d[a]),
+                    None => write!(s, "{v}"),
+                };
+            }
+            for (c, &whole) in b.bands.iter().zip(&self.whole) {
+                s.push(self.sep);
+                let v = c[i];
+                let _ = if !v.is_finite() {
+                    write!(s, "nan")
+                } else if whole || v.fract() == 0.0 {
+                    write!(s, "{}", v as i64)
+                } else {
+                    write!(s, "{v}")
+                };
+            }
+            s.push('\n');
+        }
+        self.w
+            .write_all(s.as_bytes())
+            .map_err(|source| ExportError::Write {
+                path: self.out.clone(),
+                source,
+            })
+    }
+
+    fn finish(self: Box<Self>) -> Result<(Option<LasLayout>, Vec<String>), ExportError> {
+        let out = self.out.clone();
+        let f = self.w.into_inner().map_err(|e| ExportError::Write {
+            path: out.clone(),
+            source: e.into_error(),
+        })?;
+        f.sync_all()
+            .map_err(|source| ExportError::Write { path: out, source })?;
+        Ok((None, Vec::new()))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn formats_come_from_the_extension() {
+        assert_eq!(OutFormat::of(Path::new("a/b.LAZ")), Some(OutFormat::Laz));
+        assert_eq!(OutFormat::of(Path::new("b.las")), Some(OutFormat::Las));
+        assert_eq!(OutFormat::of(Path::new("b.ply")), Some(OutFormat::Ply));
+        assert_eq!(OutFormat::of(Path::new("b.csv")), Some(OutFormat::Csv));
+        assert_eq!(OutFormat::of(Path::new("b.xyz")), Some(OutFormat::Xyz));
+        assert_eq!(OutFormat::of(Path::new("b.tif")), None);
+        assert_eq!(OutFormat::of(Path::new("b")), None);
+    }
+
+    #[test]
+    fn a_chosen_transform_keeps_millimetres_where_they_fit() {
+        let b = Bounds {
+            min: [637_000.4, 6_010_000.0, -5.0],
+            max: [638_000.0, 6_011_000.0, 100.0],
+        };
+        let (s, o) = chosen_transform(&b);
+        assert_eq!(s, [0.001; 3]);
+        assert_eq!(o, [637_000.0, 6_010_000.0, -5.0]);
+        // 10,000 km across does not fit in 2^31 mm: centimetres... or coarser.
+        let wide = Bounds {
+            min: [0.0; 3],
+            max: [1e7, 1.0, 1.0],
+        };
+        let (s, _) = chosen_transform(&wide);
+        assert!(s[0] >= 0.01 && 1e7 / s[0] < i32::MAX as f64, "{s:?}");
+    }
+
+    #[test]
+    fn wkt_is_told_from_authority_codes() {
+        assert!(is_wkt(
+            "PROJCS[\"NAD83 / Oregon GIC Lambert (ft)\",GEOGCS[...]]"
+        ));
+        assert!(is_wkt("  COMPOUNDCRS[\"x\"]"));
+        assert!(!is_wkt("EPSG:2992"));
+    }
+}

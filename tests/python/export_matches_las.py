@@ -1,0 +1,87 @@
+#!/usr/bin/env python3
+"""A LAS/LAZ that `pcimg export` wrote against its source, through laspy (with
+lazrs), which pcimg does not use: the same points as a multiset, every
+attribute pcimg keeps compared point for point after sorting both by X, Y, Z
+and time: X Y Z as the same integers under the same scale and offset,
+intensity, returns, classification and colour exactly, gps_time to the
+float32 precision pcimg stores it with (relative to the part's offset).
+
+    /usr/bin/python3 tests/python/export_matches_las.py SOURCE EXPORTED \
+        [--clip MINX,MINY,MINZ,MAXX,MAXY,MAXZ] [--classes 2,6]
+
+With --clip or --classes the source is filtered the same way first. Prints one
+line of counts and the largest gps_time difference; on the first difference
+prints it and exits 1.
+"""
+import sys
+
+import laspy
+import numpy as np
+
+
+def fail(msg):
+    print(f"MISMATCH: {msg}", file=sys.stderr)
+    sys.exit(1)
+
+
+def main():
+    args = sys.argv[1:]
+    source, exported = args[0], args[1]
+    clip = classes = None
+    if "--clip" in args:
+        clip = [float(v) for v in args[args.index("--clip") + 1].split(",")]
+    if "--classes" in args:
+        classes = [int(v) for v in args[args.index("--classes") + 1].split(",")]
+    src = laspy.read(source)
+    out = laspy.read(exported)
+    keep = np.ones(len(src.points), dtype=bool)
+    if clip is not None:
+        for k, axis in enumerate("xyz"):
+            v = np.asarray(getattr(src, axis))
+            keep &= (v >= clip[k]) & (v <= clip[k + 3])
+    if classes is not None:
+        keep &= np.isin(np.asarray(src.classification), classes)
+    if not np.array_equal(src.header.scales, out.header.scales):
+        fail(f"scales {src.header.scales} against {out.header.scales}")
+    if not np.array_equal(src.header.offsets, out.header.offsets):
+        fail(f"offsets {src.header.offsets} against {out.header.offsets}")
+    n = int(keep.sum())
+    if len(out.points) != n:
+        fail(f"{len(out.points)} points exported, {n} in the source")
+    has_time = "gps_time" in src.point_format.dimension_names
+
+    def order(p, mask=None):
+        cols = [p.X, p.Y, p.Z]
+        if has_time:
+            cols.append(p.gps_time)
+        cols = [np.asarray(c) if mask is None else np.asarray(c)[mask] for c in cols]
+        return np.lexsort(tuple(reversed(cols)))
+
+    so, oo = order(src, keep), order(out)
+    fields = ["X", "Y", "Z", "intensity", "return_number", "number_of_returns", "classification"]
+    names = src.point_format.dimension_names
+    fields += [f for f in ("red", "green", "blue", "nir") if f in names]
+    for f in fields:
+        a = np.asarray(getattr(src, f))[keep][so]
+        b = np.asarray(getattr(out, f))[oo]
+        if not np.array_equal(a, b):
+            i = int(np.argmax(a != b))
+            fail(f"{f}: point {i} of the sorted points is {a[i]} in the source, {b[i]} exported")
+    worst = 0.0
+    if has_time:
+        a = np.asarray(src.gps_time)[keep][so]
+        b = np.asarray(out.gps_time)[oo]
+        worst = float(np.abs(a - b).max()) if n else 0.0
+        # float32 relative to an offset within the source's times (each part
+        # has its own): at most half an ulp of the whole span, taken as one.
+        t = np.asarray(src.gps_time)
+        span = float(t.max() - t.min()) if len(t) else 0.0
+        bound = max(span, 1.0) * 2.0**-23
+        if worst > bound:
+            fail(f"gps_time differs by {worst} s, more than float32's {bound} s")
+    wkt = any(v.record_id == 2112 for v in out.header.vlrs)
+    print(f"{n} points equal ({', '.join(fields)}); gps_time within {worst:.3g} s; WKT record {wkt}")
+
+
+if __name__ == "__main__":
+    main()
