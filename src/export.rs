@@ -24,6 +24,14 @@ use std::io::{BufWriter, Write};
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
 
+/// `v` rounded to the nearest whole number (halves away from zero) without a
+/// libm call (`f64::round` is one on x86-64's baseline, and took a tenth of an
+/// export's time); exact for |v| < 2^52.
+#[inline(always)]
+fn round(v: f64) -> f64 {
+    (if v >= 0.0 { v + 0.5 } else { v - 0.5 }) as i64 as f64
+}
+
 /// What the output is written as, from its extension.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum OutFormat {
@@ -327,8 +335,9 @@ impl Batch {
             None => (0..t.len()).collect(),
         };
         let axis = |a: usize, col: &[f32]| -> Vec<f64> {
+            use rayon::prelude::*;
             let o = t.origin[a];
-            kept.iter()
+            kept.par_iter()
                 .map(|&i| {
                     let v = o + col[i] as f64;
                     match lattice {
@@ -336,7 +345,7 @@ impl Batch {
                         // (a part keeps its lattice offsets below 2^23, where
                         // a Float32 is exact to well under half a step).
                         Some(l) => {
-                            let k = ((v - l.origin[a]) / l.step[a]).round();
+                            let k = round((v - l.origin[a]) / l.step[a]);
                             l.origin[a] + k * l.step[a]
                         }
                         None => v,
@@ -454,8 +463,15 @@ fn chosen_transform(bounds: &Bounds) -> ([f64; 3], [f64; 3]) {
     (scale, offset)
 }
 
+/// LAS and LAZ: records laid out here, a batch at a time, and handed to the
+/// `las` writer on a thread of its own (header statistics, LAZ compression and
+/// the file's writes overlap the next batch's reading).
 struct LasSink {
-    writer: las::Writer<BufWriter<std::fs::File>>,
+    /// Batches to the writer thread (at most one waiting).
+    tx: Option<std::sync::mpsc::SyncSender<las::PointData>>,
+    thread: Option<std::thread::JoinHandle<Result<(), las::Error>>>,
+    /// The format and transforms records are laid out for.
+    header: las::Header,
     out: PathBuf,
     /// The column of each LAS field in a batch's bands.
     cols: [Option<usize>; 9],
@@ -535,8 +551,25 @@ impl LasSink {
             .filter(|b| !LAS_BANDS.contains(&b.as_str()))
             .cloned()
             .collect();
+        let header = writer.header().clone();
+        let (tx, rx) = std::sync::mpsc::sync_channel::<las::PointData>(1);
+        let thread = std::thread::Builder::new()
+            .name("pcimg-export-write".into())
+            .spawn(move || {
+                let mut writer = writer;
+                for data in rx {
+                    writer.write_points(&data)?;
+                }
+                writer.close()
+            })
+            .map_err(|source| ExportError::Write {
+                path: out.to_path_buf(),
+                source,
+            })?;
         Ok(LasSink {
-            writer,
+            tx: Some(tx),
+            thread: Some(thread),
+            header,
             out: out.to_path_buf(),
             cols,
             layout: LasLayout {
@@ -551,57 +584,121 @@ impl LasSink {
     }
 }
 
+impl LasSink {
+    /// The writer thread's error once it has stopped.
+    fn stop(&mut self) -> ExportError {
+        self.tx = None;
+        let message = match self.thread.take().map(|t| t.join()) {
+            Some(Ok(Err(e))) => e.to_string(),
+            _ => "the writer thread stopped".into(),
+        };
+        ExportError::Las {
+            path: self.out.clone(),
+            message,
+        }
+    }
+}
+
+impl Drop for LasSink {
+    /// An export that failed part-way: the writer thread ends with the channel.
+    fn drop(&mut self) {
+        self.tx = None;
+        if let Some(t) = self.thread.take() {
+            let _ = t.join();
+        }
+    }
+}
+
 impl Sink for LasSink {
     fn write(&mut self, b: &Batch) -> Result<(), ExportError> {
-        let get = |k: usize, i: usize| {
-            self.cols[k]
-                .map(|c| b.bands[c][i])
-                .filter(|v| v.is_finite())
+        use rayon::prelude::*;
+        let header = &self.header;
+        let fmt = self.layout.point_format;
+        let rec = header.point_format().len() as usize;
+        let t = header.transforms();
+        let (tx, ty, tz) = (t.x, t.y, t.z);
+        let cols = self.cols;
+        let get = |k: usize, i: usize| -> Option<f64> {
+            cols[k].map(|c| b.bands[c][i]).filter(|v| v.is_finite())
         };
-        let whole = |v: Option<f64>, max: f64| v.map_or(0.0, |v| v.round().clamp(0.0, max));
-        let extended = self.layout.point_format >= 6;
-        let time = matches!(self.layout.point_format, 1 | 3 | 6..=8);
-        for i in 0..b.len() {
-            let class = whole(get(3, i), if extended { 255.0 } else { 31.0 }) as u8;
-            // Class 12 (overlap) is a flag to the las crate.
-            let (classification, is_overlap) = match las::point::Classification::new(class) {
-                Ok(c) => (c, false),
-                Err(_) => (las::point::Classification::CreatedNeverClassified, true),
+        let whole =
+            |k: usize, i: usize, max: f64| get(k, i).map_or(0.0, |v| round(v).clamp(0.0, max));
+        let int = |v: f64, t: las::Transform| round((v - t.offset) / t.scale) as i32;
+        let mut bytes = vec![0u8; b.len() * rec];
+        // Records laid out by hand (LAS 1.4 R15, tables 7 to 16), in parallel:
+        // the crate's per-point path (`Point` → raw → bytes, and the header's
+        // per-point statistics) took two thirds of an export's time.
+        bytes.par_chunks_mut(rec).enumerate().for_each(|(i, r)| {
+            r[0..4].copy_from_slice(&int(b.x[i], tx).to_le_bytes());
+            r[4..8].copy_from_slice(&int(b.y[i], ty).to_le_bytes());
+            r[8..12].copy_from_slice(&int(b.z[i], tz).to_le_bytes());
+            r[12..14].copy_from_slice(&(whole(0, i, 65535.0) as u16).to_le_bytes());
+            let colour = |r: &mut [u8], at: usize| {
+                for (k, band) in [5, 6, 7].into_iter().enumerate() {
+                    let v = whole(band, i, 65535.0) as u16;
+                    r[at + 2 * k..at + 2 * k + 2].copy_from_slice(&v.to_le_bytes());
+                }
             };
-            let p = las::Point {
-                x: b.x[i],
-                y: b.y[i],
-                z: b.z[i],
-                intensity: whole(get(0, i), 65535.0) as u16,
-                return_number: whole(get(1, i), if extended { 15.0 } else { 7.0 }) as u8,
-                number_of_returns: whole(get(2, i), if extended { 15.0 } else { 7.0 }) as u8,
-                classification,
-                is_overlap,
-                gps_time: time.then(|| get(4, i).unwrap_or(0.0)),
-                color: (self.layout.point_format == 2
-                    || self.layout.point_format == 3
-                    || self.layout.point_format >= 7)
-                    .then(|| las::Color {
-                        red: whole(get(5, i), 65535.0) as u16,
-                        green: whole(get(6, i), 65535.0) as u16,
-                        blue: whole(get(7, i), 65535.0) as u16,
-                    }),
-                nir: (self.layout.point_format == 8).then(|| whole(get(8, i), 65535.0) as u16),
-                ..Default::default()
-            };
-            self.writer.write_point(p).map_err(|e| ExportError::Las {
-                path: self.out.clone(),
-                message: e.to_string(),
-            })?;
+            let time = get(4, i).unwrap_or(0.0).to_le_bytes();
+            if fmt < 6 {
+                let (ret, n) = (whole(1, i, 7.0) as u8, whole(2, i, 7.0) as u8);
+                r[14] = ret | n << 3;
+                r[15] = whole(3, i, 31.0) as u8;
+                if matches!(fmt, 1 | 3) {
+                    r[20..28].copy_from_slice(&time);
+                }
+                match fmt {
+                    2 => colour(r, 20),
+                    3 => colour(r, 28),
+                    _ => {}
+                }
+            } else {
+                let (ret, n) = (whole(1, i, 15.0) as u8, whole(2, i, 15.0) as u8);
+                r[14] = ret | n << 4;
+                r[16] = whole(3, i, 255.0) as u8;
+                r[22..30].copy_from_slice(&time);
+                if fmt >= 7 {
+                    colour(r, 30);
+                }
+                if fmt == 8 {
+                    r[36..38].copy_from_slice(&(whole(8, i, 65535.0) as u16).to_le_bytes());
+                }
+            }
+        });
+        let lerr = |e: las::Error| ExportError::Las {
+            path: self.out.clone(),
+            message: e.to_string(),
+        };
+        let data = las::PointDataBuilder::new()
+            .for_header(header)
+            .build_from_bytes(bytes)
+            .map_err(lerr)?;
+        let sent = self.tx.as_ref().is_some_and(|tx| tx.send(data).is_ok());
+        if !sent {
+            // The writer stopped: its error says why.
+            return Err(self.stop());
         }
         Ok(())
     }
 
     fn finish(mut self: Box<Self>) -> Result<(Option<LasLayout>, Vec<String>), ExportError> {
-        self.writer.close().map_err(|e| ExportError::Las {
-            path: self.out.clone(),
-            message: e.to_string(),
-        })?;
+        self.tx = None;
+        let r = self.thread.take().map(|t| t.join());
+        match r {
+            Some(Ok(Ok(()))) => {}
+            Some(Ok(Err(e))) => {
+                return Err(ExportError::Las {
+                    path: self.out.clone(),
+                    message: e.to_string(),
+                });
+            }
+            _ => {
+                return Err(ExportError::Las {
+                    path: self.out.clone(),
+                    message: "the writer thread stopped".into(),
+                });
+            }
+        }
         Ok((
             Some(self.layout.clone()),
             std::mem::take(&mut self.left_out),
