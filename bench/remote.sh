@@ -28,24 +28,10 @@ mkdir -p "$DIR"
 echo "machine: $(nproc) cores, $(free -g | awk '/Mem:/ {print $2}') GiB; $(date -u +%FT%TZ); $(weed version 2>&1 | head -1)"
 df -h "$DIR" | tail -1
 
+. bench/lib.sh
 free_port() { python3 -c 'import socket; s=socket.socket(); s.bind(("127.0.0.1",0)); print(s.getsockname()[1])'; }
-PORTS=()
-for _ in $(seq 10); do PORTS+=("$(free_port)"); done
-S3=${PORTS[6]}
 PROXY=$(free_port)
-cat > "$DIR/s3.json" <<EOF
-{"identities":[{"name":"bench","credentials":[{"accessKey":"benchkey","secretKey":"benchsecret"}],"actions":["Admin","Read","Write","List","Tagging"]}]}
-EOF
-mkdir -p "$DIR/weed"
-weed mini -dir="$DIR/weed" -ip=127.0.0.1 -ip.bind=127.0.0.1 \
-  -master.port="${PORTS[0]}" -master.port.grpc="${PORTS[1]}" \
-  -volume.port="${PORTS[2]}" -volume.port.grpc="${PORTS[3]}" \
-  -filer.port="${PORTS[4]}" -filer.port.grpc="${PORTS[5]}" \
-  -s3.port="$S3" -s3.port.grpc="${PORTS[7]}" \
-  -admin.port="${PORTS[8]}" -admin.port.grpc="${PORTS[9]}" -admin.ui=false -webdav=false \
-  -s3.port.iceberg=0 -s3.port.lance=0 -s3.config="$DIR/s3.json" -bucket=bench \
-  > "$DIR/weed.log" 2>&1 &
-WEED=$!
+start_weed "$DIR" bench benchkey benchsecret
 # The delaying proxy: every chunk a client sends (an HTTP request: its headers
 # arrive in one read) waits DELAY_MS before it is forwarded.
 cat > "$DIR/proxy.py" <<'EOF'
@@ -82,11 +68,6 @@ cleanup() {
   rm -rf "$DIR"
 }
 trap cleanup EXIT
-for _ in $(seq 300); do
-  curl -s -o /dev/null "http://127.0.0.1:$S3/" && break
-  sleep 0.1
-done
-sleep 1
 
 export AWS_ACCESS_KEY_ID=benchkey AWS_SECRET_ACCESS_KEY=benchsecret AWS_REGION=us-east-1 AWS_ALLOW_HTTP=true
 export NODEVICE_SELECT=1

@@ -178,49 +178,21 @@ pub fn export(
         source,
     })?;
     let mut sink = open_sink(file, &tmp, out, format, plan)?;
-    let (mut read, mut written, mut tiles_read) = (0u64, 0u64, 0usize);
-    let mut i = 0;
-    while i < plan.tiles.len() {
+    let (mut read, mut written) = (0u64, 0u64);
+    let tiles_read = read_batches(ds, &plan.tiles, &plan.bands, |columns| {
         if stop.load(Ordering::SeqCst) {
             return Err(ExportError::Interrupted {
                 path: out.to_path_buf(),
             });
         }
-        // The next tiles of one part and level, up to a batch's points.
-        let (p, l, _) = plan.tiles[i];
-        let part = ds.part(p).ok_or_else(|| ExportError::Dataset {
-            path: ds.path.display().to_string(),
-            message: format!("has no part {p}"),
-        })?;
-        let level = &part.levels[l];
-        let count = |t: u32| {
-            level
-                .tiles
-                .iter()
-                .find(|x| x.index == t)
-                .and_then(|x| x.points)
-                .unwrap_or(0) as u64
-        };
-        let mut batch = Vec::new();
-        let mut n = 0;
-        while i < plan.tiles.len() && plan.tiles[i].0 == p && plan.tiles[i].1 == l {
-            let t = plan.tiles[i].2;
-            if !batch.is_empty() && n + count(t) > BATCH_POINTS {
-                break;
-            }
-            n += count(t);
-            batch.push(t);
-            i += 1;
-        }
-        tiles_read += batch.len();
-        let columns = read_batch(part, p, l, &batch, &plan.bands)?;
         read += columns.len() as u64;
         let keep = filter.shown(&columns);
         let points = Batch::of(&columns, keep.as_deref(), &plan.bands, plan.lattice);
         written += points.len() as u64;
         sink.write(&points)?;
         progress(read, written);
-    }
+        Ok(())
+    })?;
     let (las, left_out) = sink.finish()?;
     let bytes = std::fs::metadata(&tmp).map(|m| m.len()).unwrap_or(0);
     std::fs::rename(&tmp, out).map_err(|source| ExportError::Write {
@@ -236,6 +208,49 @@ pub fn export(
         left_out,
         exact_lattice: plan.lattice.is_some(),
     })
+}
+
+/// Reads `tiles` (part, level, tile; each part's run of tiles together) with
+/// x y z and `bands` (those each part has), a batch of at most
+/// [`BATCH_POINTS`] points of one part and level at a time, and hands each
+/// batch to `f`; stops at `f`'s first error. Returns the tiles read.
+pub(crate) fn read_batches(
+    ds: &Dataset,
+    tiles: &[(usize, usize, u32)],
+    bands: &[String],
+    mut f: impl FnMut(LoadedTile) -> Result<(), ExportError>,
+) -> Result<usize, ExportError> {
+    let mut i = 0;
+    while i < tiles.len() {
+        // The next tiles of one part and level, up to a batch's points.
+        let (p, l, _) = tiles[i];
+        let part = ds.part(p).ok_or_else(|| ExportError::Dataset {
+            path: ds.path.display().to_string(),
+            message: format!("has no part {p}"),
+        })?;
+        let level = &part.levels[l];
+        let count = |t: u32| {
+            level
+                .tiles
+                .iter()
+                .find(|x| x.index == t)
+                .and_then(|x| x.points)
+                .unwrap_or(0) as u64
+        };
+        let mut batch = Vec::new();
+        let mut n = 0;
+        while i < tiles.len() && tiles[i].0 == p && tiles[i].1 == l {
+            let t = tiles[i].2;
+            if !batch.is_empty() && n + count(t) > BATCH_POINTS {
+                break;
+            }
+            n += count(t);
+            batch.push(t);
+            i += 1;
+        }
+        f(read_batch(part, p, l, &batch, bands)?)?;
+    }
+    Ok(tiles.len())
 }
 
 /// `.NAME.pcimg-export-PID` beside `out`.

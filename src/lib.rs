@@ -28,6 +28,7 @@ pub mod advice;
 pub mod cli;
 pub mod convert;
 pub mod export;
+pub mod stats;
 pub mod synth;
 pub mod synth_formats;
 pub mod tui;

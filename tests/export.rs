@@ -1,12 +1,14 @@
-//! `pcimg export` (issue 41): points back out as LAS, LAZ, PLY, CSV and XYZ.
+//! `pcimg export` and `pcimg stats` (issue 41): points back out as LAS, LAZ,
+//! PLY, CSV and XYZ, and statistics of their bands.
 //! A LAS/LAZ converted and exported is checked against its source by laspy
 //! (`tests/python/export_matches_las.py`): the same points, every attribute
 //! pcimg keeps, coordinates on the same integers; a clipped or class-filtered
 //! export equals the source filtered the same way; PLY and CSV read back
 //! through `pcimg convert` give the same points; an existing output is
 //! refused without `--force`, and a failed export leaves nothing behind; from
-//! the S3 test server a clip fetches less than the dataset. With CI=true a
-//! missing python3 with laspy or weed is a failure, else a skip.
+//! the S3 test server a clip fetches less than the dataset; `stats --exact`
+//! equals numpy over laspy's points. With CI=true a missing python3 with
+//! laspy or weed is a failure, else a skip.
 
 mod common;
 
@@ -378,4 +380,86 @@ fn a_clipped_export_from_s3_fetches_less_than_the_dataset() {
         "fetched {fetched} of {total} bytes: {said}"
     );
     eprintln!("a sixteenth of the area: {fetched} of {total} bytes fetched");
+}
+
+/// `pcimg stats --exact` against numpy over laspy's points
+/// (`tests/python/stats_match_las.py`): every band's count, range, mean,
+/// deviation, percentiles and histogram total, and the class counts.
+#[test]
+fn exact_stats_equal_numpys_over_the_source_points() {
+    let Some(py) = laspy() else {
+        return;
+    };
+    let dir = tempfile::tempdir().unwrap();
+    let ds = dir.path().join("autzen.pcimg");
+    convert(&fixture(), &ds, &[]);
+    let o = pcimg()
+        .args(["stats", "--exact", "--json"])
+        .arg(&ds)
+        .output()
+        .unwrap();
+    let json = dir.path().join("stats.json");
+    std::fs::write(&json, ok(&o, "stats --exact --json")).unwrap();
+    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/python/stats_match_las.py");
+    let o = Command::new(py)
+        .arg(script)
+        .arg(fixture())
+        .arg(&json)
+        .output()
+        .unwrap();
+    let said = ok(&o, "stats_match_las.py");
+    assert!(said.starts_with("11 bands and 2 classes equal"), "{said}");
+}
+
+/// A level is an even sample: `stats --level 1` reads that level's points and
+/// says so; the density map is a PNG 512 cells across; an unknown band is
+/// refused naming the ones there are.
+#[test]
+fn stats_of_a_level_say_the_sample_and_draw_the_density() {
+    let dir = tempfile::tempdir().unwrap();
+    let ds = dir.path().join("autzen.pcimg");
+    convert(&fixture(), &ds, &[]);
+    let info = info_json(&ok(
+        &pcimg().args(["info", "--json"]).arg(&ds).output().unwrap(),
+        "info",
+    ));
+    let level1 = info["parts"][0]["levels"][1]["points"].as_u64().unwrap();
+    let png = dir.path().join("density.png");
+    let o = pcimg()
+        .args(["stats", "--level", "1", "--band", "z", "-o"])
+        .arg(&png)
+        .arg(&ds)
+        .output()
+        .unwrap();
+    let text = ok(&o, "stats --level 1");
+    assert!(
+        text.contains(&format!(
+            "from level 1, an even sample of {}",
+            grouped(level1)
+        )),
+        "{text}"
+    );
+    assert!(text.contains("\nz ") && text.contains("density:"), "{text}");
+    let img = image::open(&png).unwrap();
+    assert_eq!(img.width(), 512);
+    let o = pcimg()
+        .args(["stats", "--band", "nosuch"])
+        .arg(&ds)
+        .output()
+        .unwrap();
+    let e = err(&o, "stats --band nosuch");
+    assert!(e.contains("nosuch") && e.contains("intensity"), "{e}");
+}
+
+/// `n` with thousands separators, as pcimg prints counts.
+fn grouped(n: u64) -> String {
+    let d = n.to_string();
+    let mut out = String::new();
+    for (i, c) in d.chars().enumerate() {
+        if i > 0 && (d.len() - i).is_multiple_of(3) {
+            out.push(',');
+        }
+        out.push(c);
+    }
+    out
 }

@@ -19,6 +19,7 @@ pub mod inspect;
 pub mod preview;
 pub mod remote;
 pub mod render;
+pub mod stats;
 pub mod synth;
 pub mod turntable;
 pub mod view;
@@ -51,6 +52,9 @@ pub enum Command {
     /// Write a dataset's points (all, a level's even sample, a box, some classes)
     /// as LAS, LAZ, PLY, CSV or XYZ.
     Export(export::Args),
+    /// Statistics of a dataset's bands (range, mean, percentiles, histogram), its
+    /// classes and its point density (from an even sample, or --exact).
+    Stats(stats::Args),
     /// Rebuild a dataset directory's index and overview (for parts made separately).
     Index(index::Args),
     /// Browse a dataset in the terminal: parts, bands, levels and a live view.
@@ -154,6 +158,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Info(a) => info::run(a),
         Command::Convert(a) => convert::run(a),
         Command::Export(a) => export::run(a),
+        Command::Stats(a) => stats::run(a),
         Command::Index(a) => index::run(a),
         Command::Demo(a) => demo::run(a),
         Command::Render(a) => render::run(a),
@@ -173,6 +178,7 @@ impl Command {
             Command::Info(a) => a.cache.net_stats,
             Command::Convert(a) => a.net_stats,
             Command::Export(a) => a.cache.net_stats,
+            Command::Stats(a) => a.cache.net_stats,
             Command::Inspect(a) => a.view.cache.net_stats,
             Command::Render(a) => a.view.cache.net_stats,
             Command::Preview(a) => a.view.cache.net_stats,
@@ -239,8 +245,8 @@ mod tests {
         }
         // ... and, by name, the ones there are today and clap's `help`.
         for name in [
-            "info", "convert", "export", "index", "inspect", "demo", "render", "preview", "synth",
-            "doctor", "help",
+            "info", "convert", "export", "stats", "index", "inspect", "demo", "render", "preview",
+            "synth", "doctor", "help",
         ] {
             assert!(
                 known.iter().any(|k| k == name),
