@@ -161,28 +161,32 @@ pub fn compute(
     let mut class_sample = [0u64; 256];
     // A band's values in source units; coordinates on the part's lattice,
     // where it keeps one, exactly (as `export` gives them).
-    let column = |t: &crate::lod::LoadedTile, name: &str| -> Option<Vec<f64>> {
+    let column = |t: &crate::lod::LoadedTile, name: &str, f: &mut dyn FnMut(f64)| -> bool {
         let lattice = ds.part(t.key.part).and_then(|p| p.meta.lattice);
         let (col, off, axis): (&[f32], f64, Option<usize>) = match name {
             "x" => (&t.x, t.origin[0], Some(0)),
             "y" => (&t.y, t.origin[1], Some(1)),
             "z" => (&t.z, t.origin[2], Some(2)),
-            b => t
+            b => match t
                 .attributes
                 .iter()
                 .find(|a| a.0 == b)
-                .map(|a| (a.2.as_slice(), a.1, None))?,
+                .map(|a| (a.2.as_slice(), a.1, None))
+            {
+                Some(c) => c,
+                None => return false,
+            },
         };
-        Some(match (axis, lattice) {
-            (Some(a), Some(l)) => col
-                .iter()
-                .map(|&v| {
+        match (axis, lattice) {
+            (Some(a), Some(l)) => {
+                for &v in col {
                     let k = ((off + v as f64 - l.origin[a]) / l.step[a]).round();
-                    l.origin[a] + k * l.step[a]
-                })
-                .collect(),
-            _ => col.iter().map(|&v| off + v as f64).collect(),
-        })
+                    f(l.origin[a] + k * l.step[a]);
+                }
+            }
+            _ => col.iter().for_each(|&v| f(off + v as f64)),
+        }
+        true
     };
     read_batches(ds, &tiles, &attrs, |t| {
         sampled += t.len() as u64;
@@ -200,12 +204,9 @@ pub fn compute(
             }
         }
         for (k, name) in names.iter().enumerate() {
-            let Some(col) = column(&t, name) else {
-                continue;
-            };
-            for v in col {
+            column(&t, name, &mut |v| {
                 if !v.is_finite() {
-                    continue;
+                    return;
                 }
                 if shift[k].is_nan() {
                     shift[k] = v;
@@ -217,7 +218,7 @@ pub fn compute(
                 lo[k] = lo[k].min(v);
                 hi[k] = hi[k].max(v);
                 whole[k] &= v.fract() == 0.0;
-            }
+            });
         }
         Ok(())
     })?;
@@ -236,14 +237,12 @@ pub fn compute(
     };
     read_batches(ds, &tiles, &attrs, |t| {
         for (k, name) in names.iter().enumerate() {
-            let Some(col) = column(&t, name) else {
-                continue;
-            };
-            for v in col {
+            let fine = &mut fine[k];
+            column(&t, name, &mut |v| {
                 if v.is_finite() {
-                    fine[k][bin(k, v, FINE_BINS)] += 1;
+                    fine[bin(k, v, FINE_BINS)] += 1;
                 }
-            }
+            });
         }
         Ok(())
     })?;
