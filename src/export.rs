@@ -149,8 +149,9 @@ pub struct Summary {
     pub tiles_read: usize,
     /// LAS: the point format, the version, the scale and offset.
     pub las: Option<LasLayout>,
-    /// Bands the format has no place for (LAS: not in its point format).
-    pub left_out: Vec<String>,
+    /// LAS: the bands written as extra bytes (a double each), not being
+    /// fields of the point format.
+    pub extra_bytes: Vec<String>,
     /// Where the coordinates come from: the parts' lattice, or a chosen step.
     pub exact_lattice: bool,
 }
@@ -193,7 +194,7 @@ pub fn export(
         progress(read, written);
         Ok(())
     })?;
-    let (las, left_out) = sink.finish()?;
+    let (las, extra_bytes) = sink.finish()?;
     let bytes = std::fs::metadata(&tmp).map(|m| m.len()).unwrap_or(0);
     std::fs::rename(&tmp, out).map_err(|source| ExportError::Write {
         path: out.to_path_buf(),
@@ -205,7 +206,7 @@ pub fn export(
         bytes,
         tiles_read,
         las,
-        left_out,
+        extra_bytes,
         exact_lattice: plan.lattice.is_some(),
     })
 }
@@ -388,7 +389,7 @@ impl Batch {
 /// Where points go.
 trait Sink {
     fn write(&mut self, b: &Batch) -> Result<(), ExportError>;
-    /// Completes the file: LAS's layout, and the bands left out.
+    /// Completes the file: LAS's layout, and the bands in its extra bytes.
     fn finish(self: Box<Self>) -> Result<(Option<LasLayout>, Vec<String>), ExportError>;
 }
 
@@ -490,8 +491,11 @@ struct LasSink {
     out: PathBuf,
     /// The column of each LAS field in a batch's bands.
     cols: [Option<usize>; 9],
+    /// The columns written as extra bytes (a double each), in order, and
+    /// their names.
+    extra: Vec<usize>,
+    extra_names: Vec<String>,
     layout: LasLayout,
-    left_out: Vec<String>,
 }
 
 impl LasSink {
@@ -524,6 +528,12 @@ impl LasSink {
         };
         let mut format = las::point::Format::new(format_number).map_err(lerr)?;
         format.is_compressed = compressed;
+        // Bands LAS has no field for go in as extra bytes, a double each
+        // (`offset + Float32`, as stored), described by the Extra Bytes record.
+        let extra: Vec<usize> = (0..plan.bands.len())
+            .filter(|&c| !LAS_BANDS.contains(&plan.bands[c].as_str()))
+            .collect();
+        format.extra_bytes = (8 * extra.len()) as u16;
         let (scale, offset) = match plan.lattice {
             Some(l) => (l.step, l.origin),
             None => chosen_transform(&plan.bounds),
@@ -557,15 +567,20 @@ impl LasSink {
             });
             builder.has_wkt_crs = true;
         }
+        if !extra.is_empty() {
+            builder.vlrs.push(las::Vlr {
+                user_id: "LASF_Spec".into(),
+                record_id: 4,
+                description: "Extra Bytes".into(),
+                data: extra
+                    .iter()
+                    .flat_map(|&c| extra_bytes_descriptor(&plan.bands[c]))
+                    .collect(),
+            });
+        }
         let header = builder.into_header().map_err(lerr)?;
         let writer =
             las::Writer::new(BufWriter::with_capacity(1 << 20, file), header).map_err(lerr)?;
-        let left_out = plan
-            .bands
-            .iter()
-            .filter(|b| !LAS_BANDS.contains(&b.as_str()))
-            .cloned()
-            .collect();
         let header = writer.header().clone();
         let (tx, rx) = std::sync::mpsc::sync_channel::<las::PointData>(1);
         let thread = std::thread::Builder::new()
@@ -587,6 +602,8 @@ impl LasSink {
             header,
             out: out.to_path_buf(),
             cols,
+            extra_names: extra.iter().map(|&c| plan.bands[c].clone()).collect(),
+            extra,
             layout: LasLayout {
                 point_format: format_number,
                 version: (1, 4),
@@ -594,9 +611,21 @@ impl LasSink {
                 offset,
                 wkt: wkt.is_some(),
             },
-            left_out,
         })
     }
+}
+
+/// An Extra Bytes record's descriptor (LAS 1.4 R15, table 24) of a double
+/// named `name` (at most 31 bytes of it) with no scale, offset or no-data.
+fn extra_bytes_descriptor(name: &str) -> [u8; 192] {
+    let mut d = [0u8; 192];
+    d[2] = 10; // data type: double
+    let n = name.as_bytes();
+    let len = n.len().min(31);
+    d[4..4 + len].copy_from_slice(&n[..len]);
+    let what = b"a pcimg band";
+    d[160..160 + what.len()].copy_from_slice(what);
+    d
 }
 
 impl LasSink {
@@ -633,6 +662,7 @@ impl Sink for LasSink {
         let t = header.transforms();
         let (tx, ty, tz) = (t.x, t.y, t.z);
         let cols = self.cols;
+        let extra = &self.extra;
         let get = |k: usize, i: usize| -> Option<f64> {
             cols[k].map(|c| b.bands[c][i]).filter(|v| v.is_finite())
         };
@@ -679,6 +709,10 @@ impl Sink for LasSink {
                     r[36..38].copy_from_slice(&(whole(8, i, 65535.0) as u16).to_le_bytes());
                 }
             }
+            let at = rec - 8 * extra.len();
+            for (k, &c) in extra.iter().enumerate() {
+                r[at + 8 * k..at + 8 * k + 8].copy_from_slice(&b.bands[c][i].to_le_bytes());
+            }
         });
         let lerr = |e: las::Error| ExportError::Las {
             path: self.out.clone(),
@@ -716,7 +750,7 @@ impl Sink for LasSink {
         }
         Ok((
             Some(self.layout.clone()),
-            std::mem::take(&mut self.left_out),
+            std::mem::take(&mut self.extra_names),
         ))
     }
 }

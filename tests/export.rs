@@ -463,3 +463,54 @@ fn grouped(n: u64) -> String {
     }
     out
 }
+
+/// Bands LAS has no field for go in as extra bytes: the CGAL PLY's `label`
+/// (an int property) read back by laspy by name, point for point with the
+/// PLY's own values (read with numpy from its binary body).
+#[test]
+fn bands_las_has_no_field_for_are_extra_bytes_laspy_reads_by_name() {
+    let Some(py) = laspy() else {
+        return;
+    };
+    let dir = tempfile::tempdir().unwrap();
+    let ply = Path::new(env!("CARGO_MANIFEST_DIR")).join("fixtures/cgal_b9_training.ply");
+    let ds = dir.path().join("b9.pcimg");
+    convert(&ply, &ds, &[]);
+    let out = dir.path().join("b9.las");
+    let said = export(&ds, &out, &[]);
+    assert!(said.contains("extra bytes (doubles): label"), "{said}");
+    let check = r#"
+import sys, laspy, numpy as np
+ply, las = sys.argv[1], sys.argv[2]
+raw = open(ply, "rb").read()
+body = raw[raw.index(b"end_header\n") + len(b"end_header\n"):]
+t = np.dtype([("x", "<f8"), ("y", "<f8"), ("z", "<f8"), ("r", "u1"), ("g", "u1"), ("b", "u1"), ("label", "<i4")])
+p = np.frombuffer(body, dtype=t)
+e = laspy.read(las)
+assert "label" in e.point_format.extra_dimension_names, e.point_format.extra_dimension_names
+assert len(p) == len(e.points), (len(p), len(e.points))
+# The PLY's doubles are kept as Float32 offsets (no lattice), so each
+# coordinate is on the export's millimetre grid within one step.
+grid = [np.round((p[k] - o) / s).astype(np.int64) for k, o, s in zip("xyz", e.header.offsets, e.header.scales)]
+ints = [np.asarray(e.X), np.asarray(e.Y), np.asarray(e.Z)]
+for k in range(3):
+    assert np.abs(np.sort(grid[k]) - np.sort(ints[k])).max() <= 1, "xyz"[k]
+# The labels: the same multiset, and each label on the same points (their
+# count and mean position).
+label = np.asarray(e["label"])
+assert np.array_equal(np.sort(p["label"]).astype(np.float64), np.sort(label)), "labels differ"
+for v in np.unique(p["label"]):
+    a, b = p["label"] == v, label == v
+    for k in range(3):
+        assert abs(grid[k][a].mean() - ints[k][b].mean()) <= 1, (v, "xyz"[k])
+print(f"{len(p)} labels equal")
+"#;
+    let o = Command::new(py)
+        .args(["-c", check])
+        .arg(&ply)
+        .arg(&out)
+        .output()
+        .unwrap();
+    let said = ok(&o, "laspy reads the extra bytes");
+    assert!(said.starts_with("22300 labels equal"), "{said}");
+}

@@ -22,8 +22,9 @@ pub struct Args {
     /// https://, http://).
     pub path: PathBuf,
     /// Where to write: the format comes from the extension, .las, .laz
-    /// (compressed, in parallel), .ply (binary), .csv (a header line) or .xyz
-    /// (space-separated, no header).
+    /// (compressed, in parallel; bands LAS has no field for as extra bytes),
+    /// .ply (binary), .csv (a header line) or .xyz (space-separated, no
+    /// header).
     #[arg(short, long, value_name = "FILE")]
     pub output: PathBuf,
     /// Replace the output if it exists.
@@ -145,10 +146,10 @@ pub fn run(a: Args) -> anyhow::Result<()> {
                 );
             }
         }
-        if !s.left_out.is_empty() {
+        if !s.extra_bytes.is_empty() {
             note!(
-                "note: LAS has no field for {}: left out (.ply and .csv keep every band)",
-                s.left_out.join(", ")
+                "bands LAS has no field for, as extra bytes (doubles): {}",
+                s.extra_bytes.join(", ")
             );
         }
     }
