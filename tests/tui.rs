@@ -279,6 +279,87 @@ fn the_worker_renders_and_encodes_half_block_frames() {
     );
 }
 
+/// Colouring through a ramp, the legend shows the drawn points' values under
+/// the ramp's colours: a histogram of the frame's tiles over the legend's
+/// range, a bar a ramp cell, as the panel's line below the colours.
+#[test]
+fn the_legend_draws_a_histogram_of_the_coloured_band_under_its_ramp() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = two_parts(dir.path(), None);
+    let mut app = app_for(&path);
+    app.settings.style.mode = pcimg::render::ColorMode::Height;
+    let w = common::halfblock_worker(app.dataset.clone());
+    let area = ui::areas(ratatui::layout::Rect::new(0, 0, 160, 48), &app).view_inner;
+    w.request(Request {
+        seq: 1,
+        camera: app.camera,
+        settings: app.settings.clone(),
+        cursor: None,
+        pick: false,
+        cells: (area.width, area.height),
+        cell_pixels: (1, 2),
+        scale: 1,
+        allowance: None,
+        pixel_marks: None,
+    });
+    let deadline = Instant::now() + Duration::from_secs(30);
+    let frame = loop {
+        assert!(Instant::now() < deadline, "no complete frame in 30 s");
+        match w.recv_timeout(Duration::from_millis(200)) {
+            Some(Report::Frame(f)) if f.status.pending == 0 => break f,
+            Some(Report::Error(e)) => panic!("worker error: {e}"),
+            _ => {}
+        }
+    };
+    let h = &frame.status.histogram;
+    assert_eq!(h.len(), 24, "{h:?}");
+    let counted: u64 = h.iter().map(|&c| c as u64).sum();
+    // Heights span the legend's range (2nd to 98th percentile of the drawn
+    // points, or the bounds): most points fall in it, none twice.
+    assert!(
+        counted > 0 && counted <= frame.status.points,
+        "{counted} of {}",
+        frame.status.points
+    );
+    app.frame = frame.status.clone();
+    let lines = pcimg::tui::panels::lines(&app);
+    let text: Vec<String> = lines.iter().map(|l| l.to_string()).collect();
+    let bar = text
+        .iter()
+        .position(|l| l.chars().count() == 24 && l.chars().all(|c| c == '█'));
+    let bar = bar.unwrap_or_else(|| panic!("no ramp bar in {text:#?}"));
+    let spark = &text[bar + 1];
+    assert!(
+        spark.chars().any(|c| "▁▂▃▄▅▆▇".contains(c)) && spark.chars().count() == 24,
+        "{text:#?}"
+    );
+    // Not colouring through a ramp: no histogram.
+    app.settings.style.mode = pcimg::render::ColorMode::Rgb;
+    w.request(Request {
+        seq: 2,
+        camera: app.camera,
+        settings: app.settings.clone(),
+        cursor: None,
+        pick: false,
+        cells: (area.width, area.height),
+        cell_pixels: (1, 2),
+        scale: 1,
+        allowance: None,
+        pixel_marks: None,
+    });
+    let deadline = Instant::now() + Duration::from_secs(30);
+    loop {
+        assert!(Instant::now() < deadline, "no second frame in 30 s");
+        if let Some(Report::Frame(f)) = w.recv_timeout(Duration::from_millis(200))
+            && f.seq == 2
+            && f.status.pending == 0
+        {
+            assert!(f.status.histogram.is_empty());
+            break;
+        }
+    }
+}
+
 /// Where a cell written over the image would take it away (tmux drawing sixel
 /// itself), the worker draws the scale bar, the crosshair and the picks into
 /// the frame's pixels and the view has no overlay cells; elsewhere the frame

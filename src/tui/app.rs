@@ -182,6 +182,9 @@ pub struct FrameStatus {
     pub ranges: ColorRanges,
     /// Ground units a pixel of the frame spans at the orbit target.
     pub units_per_pixel: f64,
+    /// Points of the drawn tiles per cell of the legend's ramp (its values
+    /// from low to high), when colouring through one.
+    pub histogram: Vec<u32>,
     /// The camera and pixel size the frame was drawn with (the overlays
     /// project with them); `None` before the first frame.
     pub view: Option<FrameView>,

@@ -17,7 +17,25 @@ use ratatui::text::{Line, Span};
 use ratatui::widgets::{Block, Paragraph};
 
 /// Cells of the ramp bar.
-const RAMP_CELLS: usize = 24;
+pub(crate) const RAMP_CELLS: usize = 24;
+
+/// Eighth blocks as high as each count against the largest, each in its
+/// ramp cell's colour (an empty cell a space).
+fn sparkline(h: &[u32], lut: &[u32; 256]) -> Vec<Span<'static>> {
+    const BARS: [&str; 8] = ["▁", "▂", "▃", "▄", "▅", "▆", "▇", "█"];
+    let top = h.iter().copied().max().unwrap_or(0).max(1) as f64;
+    h.iter()
+        .enumerate()
+        .map(|(i, &c)| {
+            if c == 0 {
+                return Span::from(" ");
+            }
+            let k = ((c as f64 / top * 8.0).ceil() as usize).clamp(1, 8) - 1;
+            let [r, g, b] = unpack_rgb(lut[i * 255 / (h.len() - 1).max(1)]);
+            Span::from(BARS[k]).fg(Color::Rgb(r, g, b))
+        })
+        .collect()
+}
 
 /// The panel's lines.
 pub fn lines(app: &App) -> Vec<Line<'static>> {
@@ -66,6 +84,11 @@ pub fn lines(app: &App) -> Vec<Line<'static>> {
                 .collect();
             out.push(Line::from(format!("{} ({})", sanitize(&band), ramp.name())));
             out.push(Line::from(bar));
+            // The drawn points' values under the colours they get.
+            let h = &app.frame.histogram;
+            if h.len() == RAMP_CELLS && h.iter().any(|&c| c > 0) {
+                out.push(Line::from(sparkline(h, lut)));
+            }
             let t = ticks(lo, hi, 3);
             out.push(Line::from(format!(
                 "{:<10}{:^6}{:>10}",

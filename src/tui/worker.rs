@@ -14,6 +14,7 @@ use super::protocol::{self, PaneImage};
 use crate::camera::Camera;
 use crate::lod::point::{PointRecord, point_record};
 use crate::lod::{self, LoadedTile, LodMode, TileCache, TileRef};
+use crate::render::legend::{self, Legend};
 use crate::render::pipeline::{FrameRequest, Loading, Overlays, Pipeline};
 use crate::render::{self, Frame, RendererChoice};
 use crate::store::Dataset;
@@ -431,6 +432,15 @@ impl Worker {
             self.slow.0 = self.slow.0.max(req.allowance.map(|a| a + 1));
         }
         let encode_ms = ms(t);
+        // The legend's ramp with the drawn points' values under it.
+        let s = &req.settings;
+        let histogram =
+            match Legend::for_style(self.pipeline.dataset(), &s.style, &s.filter, &d.ranges) {
+                Some(Legend::Ramp { title, lo, hi, .. }) => {
+                    legend::histogram(&d.tiles, &title, lo, hi, super::panels::RAMP_CELLS)
+                }
+                _ => Vec::new(),
+            };
 
         let cache = self.pipeline.cache();
         let mut loaded: BTreeMap<(usize, usize), usize> = BTreeMap::new();
@@ -463,6 +473,7 @@ impl Worker {
             colors,
             ranges: d.ranges,
             units_per_pixel: 1.0 / req.camera.pixels_per_unit(req.camera.distance, height),
+            histogram,
             view: Some(view),
         };
         Ok(FrameReady {

@@ -83,6 +83,42 @@ impl Legend {
     }
 }
 
+/// Points of `tiles` per bin of `bins` equal bins over `[lo, hi]` of `band`
+/// (`x`, `y`, `z` or an attribute, in source units): the values a ramp's
+/// legend spans, drawn under its colours. Values outside the range, NaN, and
+/// tiles without the band are not counted.
+pub fn histogram(
+    tiles: &[std::sync::Arc<crate::lod::LoadedTile>],
+    band: &str,
+    lo: f64,
+    hi: f64,
+    bins: usize,
+) -> Vec<u32> {
+    let mut h = vec![0u32; bins];
+    if bins == 0 || hi.partial_cmp(&lo) != Some(std::cmp::Ordering::Greater) {
+        return h;
+    }
+    let k = bins as f64 / (hi - lo);
+    for t in tiles {
+        let (col, off): (&[f32], f64) = match band {
+            "x" => (&t.x, t.origin[0]),
+            "y" => (&t.y, t.origin[1]),
+            "z" => (&t.z, t.origin[2]),
+            b => match t.attributes.iter().find(|a| a.0 == b) {
+                Some(a) => (&a.2, a.1),
+                None => continue,
+            },
+        };
+        for &v in col {
+            let x = off + v as f64;
+            if x >= lo && x <= hi {
+                h[(((x - lo) * k) as usize).min(bins - 1)] += 1;
+            }
+        }
+    }
+    h
+}
+
 /// `v` with about four significant digits, without float noise.
 pub fn value_label(v: f64) -> String {
     let a = v.abs();
