@@ -178,7 +178,7 @@ pub fn export(
         path: out.to_path_buf(),
         source,
     })?;
-    let mut sink = open_sink(file, &tmp, out, format, plan)?;
+    let mut sink = open_sink(file, out, format, plan)?;
     let (mut read, mut written) = (0u64, 0u64);
     let tiles_read = read_batches(ds, &plan.tiles, &plan.bands, |columns| {
         if stop.load(Ordering::SeqCst) {
@@ -395,7 +395,6 @@ trait Sink {
 
 fn open_sink(
     file: std::fs::File,
-    tmp: &Path,
     out: &Path,
     format: OutFormat,
     plan: &Plan,
@@ -408,7 +407,7 @@ fn open_sink(
         OutFormat::Las | OutFormat::Laz => {
             Box::new(LasSink::new(file, out, plan, format == OutFormat::Laz)?)
         }
-        OutFormat::Ply => Box::new(PlySink::new(file, tmp, out, plan).map_err(werr)?),
+        OutFormat::Ply => Box::new(PlySink::new(file, out, plan).map_err(werr)?),
         OutFormat::Csv | OutFormat::Xyz => {
             Box::new(TextSink::new(file, out, plan, format == OutFormat::Csv).map_err(werr)?)
         }
@@ -761,7 +760,6 @@ fn band_kind(name: &str) -> (&'static str, bool) {
     match name {
         "classification" | "return_number" | "number_of_returns" => ("uchar", true),
         "intensity" | "red" | "green" | "blue" | "nir" => ("ushort", true),
-        "gps_time" => ("double", false),
         _ => ("double", false),
     }
 }
@@ -771,7 +769,6 @@ fn band_kind(name: &str) -> (&'static str, bool) {
 /// (leading zeros) and filled in last.
 struct PlySink {
     w: BufWriter<std::fs::File>,
-    tmp: PathBuf,
     out: PathBuf,
     kinds: Vec<&'static str>,
     count: u64,
@@ -782,7 +779,7 @@ struct PlySink {
 const COUNT_DIGITS: usize = 20;
 
 impl PlySink {
-    fn new(file: std::fs::File, tmp: &Path, out: &Path, plan: &Plan) -> std::io::Result<PlySink> {
+    fn new(file: std::fs::File, out: &Path, plan: &Plan) -> std::io::Result<PlySink> {
         let mut w = BufWriter::with_capacity(1 << 20, file);
         let mut head =
             String::from("ply\nformat binary_little_endian 1.0\ncomment written by pcimg export\n");
@@ -802,7 +799,6 @@ impl PlySink {
         w.write_all(head.as_bytes())?;
         Ok(PlySink {
             w,
-            tmp: tmp.to_path_buf(),
             out: out.to_path_buf(),
             kinds,
             count: 0,
@@ -869,7 +865,6 @@ impl Sink for PlySink {
         f.write_all(format!("{:0w$}", self.count, w = COUNT_DIGITS).as_bytes())
             .map_err(werr)?;
         f.sync_all().map_err(werr)?;
-        let _ = &self.tmp;
         Ok((None, Vec::new()))
     }
 }
