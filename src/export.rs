@@ -16,6 +16,8 @@
 //! (intensity, returns, classification, colour) come back exactly; `gps_time`
 //! within what the part stores (its offset plus a Float32).
 
+// The LAS point fields pcimg bands fill, by band name (the reader's names).
+use crate::ingest::las::LAS_BANDS;
 use crate::points::{Bounds, Lattice};
 use crate::render::filter::Filter;
 use crate::render::lod::{LoadedTile, TileKey};
@@ -222,6 +224,9 @@ pub(crate) fn read_batches(
     mut f: impl FnMut(LoadedTile) -> Result<(), ExportError>,
 ) -> Result<usize, ExportError> {
     let mut i = 0;
+    // The points of each tile of the part and level read now (one map a run
+    // of tiles, not a search of the level's tiles for each).
+    let mut counts: Option<((usize, usize), std::collections::HashMap<u32, u64>)> = None;
     while i < tiles.len() {
         // The next tiles of one part and level, up to a batch's points.
         let (p, l, _) = tiles[i];
@@ -229,15 +234,17 @@ pub(crate) fn read_batches(
             path: ds.path.display().to_string(),
             message: format!("has no part {p}"),
         })?;
-        let level = &part.levels[l];
-        let count = |t: u32| {
-            level
+        if counts.as_ref().is_none_or(|c| c.0 != (p, l)) {
+            let level = &part.levels[l];
+            let map = level
                 .tiles
                 .iter()
-                .find(|x| x.index == t)
-                .and_then(|x| x.points)
-                .unwrap_or(0) as u64
-        };
+                .map(|t| (t.index, t.points.unwrap_or(0) as u64))
+                .collect();
+            counts = Some(((p, l), map));
+        }
+        let known = counts.as_ref().map(|c| &c.1);
+        let count = |t: u32| known.and_then(|m| m.get(&t)).copied().unwrap_or(0);
         let mut batch = Vec::new();
         let mut n = 0;
         while i < tiles.len() && tiles[i].0 == p && tiles[i].1 == l {
@@ -297,31 +304,12 @@ fn read_batch(
             path: part.path.display().to_string(),
             message: e.to_string(),
         })?;
-    let mut cols = pts.columns.into_iter();
-    let (x, y, z) = (
-        cols.next().unwrap_or_default(),
-        cols.next().unwrap_or_default(),
-        cols.next().unwrap_or_default(),
-    );
-    let attributes = pts.bands[3..]
-        .iter()
-        .zip(&pts.offsets[3..])
-        .zip(cols)
-        .map(|((n, &o), c)| (n.clone(), o, c))
-        .collect();
-    Ok(LoadedTile {
-        key: TileKey {
-            part: p,
-            level: l,
-            tile: tiles.first().copied().unwrap_or(0),
-        },
-        origin: [pts.offsets[0], pts.offsets[1], pts.offsets[2]],
-        x,
-        y,
-        z,
-        attributes,
-        load_ms: 0.0,
-    })
+    let key = TileKey {
+        part: p,
+        level: l,
+        tile: tiles.first().copied().unwrap_or(0),
+    };
+    Ok(LoadedTile::of_points(key, pts, 0.0))
 }
 
 /// Points ready to write: coordinates in source units (on the lattice where
@@ -424,19 +412,6 @@ pub struct LasLayout {
     /// The CRS went in as a WKT record.
     pub wkt: bool,
 }
-
-/// LAS point fields pcimg bands fill, by band name.
-const LAS_BANDS: [&str; 9] = [
-    "intensity",
-    "return_number",
-    "number_of_returns",
-    "classification",
-    "gps_time",
-    "red",
-    "green",
-    "blue",
-    "nir",
-];
 
 /// Whether a CRS string is WKT (which a LAS 1.4 WKT record holds), not an
 /// authority code.

@@ -23,20 +23,15 @@ fn fixture() -> PathBuf {
 /// A python3 that imports laspy and lazrs (the system one, where CI installs
 /// them), or `None` outside CI.
 fn laspy() -> Option<&'static str> {
-    let found = ["/usr/bin/python3", "python3"].into_iter().find(|py| {
-        Command::new(py)
-            .args(["-c", "import laspy, lazrs, numpy"])
-            .output()
-            .is_ok_and(|o| o.status.success())
-    });
-    if found.is_none() {
-        assert!(
-            std::env::var("CI").ok().as_deref() != Some("true"),
-            "a python3 with laspy and lazrs is required in CI (.ci/run installs it)"
-        );
-        eprintln!("note: no python3 with laspy and lazrs, skipping this test outside CI");
-    }
-    found
+    common::python_with("laspy, lazrs, numpy")
+}
+
+/// `pcimg info --json` of a dataset, without where it is.
+fn info(ds: &Path) -> serde_json::Value {
+    info_json(&ok(
+        &pcimg().args(["info", "--json"]).arg(ds).output().unwrap(),
+        "info",
+    ))
 }
 
 fn convert(input: &Path, out: &Path, extra: &[&str]) {
@@ -116,10 +111,7 @@ fn a_clipped_or_class_filtered_export_is_the_source_filtered_the_same_way() {
     ok(&o, "bench/autzen_tiled.py");
     let ds = dir.path().join("tiled.pcimg");
     convert(&las, &ds, &["--memory", "64MiB"]);
-    let info = info_json(&ok(
-        &pcimg().args(["info", "--json"]).arg(&ds).output().unwrap(),
-        "info",
-    ));
+    let info = info(&ds);
     let b = &info["bounds"];
     let v = |k: &str, a: usize| b[k][a].as_f64().unwrap();
     // The box: the middle third across x and y, every height.
@@ -165,10 +157,7 @@ fn a_level_is_an_even_sample_of_the_levels_points() {
     let dir = tempfile::tempdir().unwrap();
     let ds = dir.path().join("autzen.pcimg");
     convert(&fixture(), &ds, &[]);
-    let info = info_json(&ok(
-        &pcimg().args(["info", "--json"]).arg(&ds).output().unwrap(),
-        "info",
-    ));
+    let info = info(&ds);
     let level1 = info["parts"][0]["levels"][1]["points"].as_u64().unwrap();
     let out = dir.path().join("light.csv");
     export(&ds, &out, &["--level", "1"]);
@@ -201,10 +190,7 @@ fn ply_csv_and_xyz_exports_convert_back_to_the_same_points() {
     let ds = dir.path().join("autzen.pcimg");
     convert(&fixture(), &ds, &[]);
     let facts = |p: &Path| {
-        let i = info_json(&ok(
-            &pcimg().args(["info", "--json"]).arg(p).output().unwrap(),
-            "info",
-        ));
+        let i = info(p);
         let bands: Vec<String> = i["parts"][0]["bands"]
             .as_array()
             .unwrap()
@@ -330,10 +316,7 @@ fn a_clipped_export_from_s3_fetches_less_than_the_dataset() {
             .unwrap(),
         "convert -o s3://",
     );
-    let info = info_json(&ok(
-        &pcimg().args(["info", "--json"]).arg(&ds).output().unwrap(),
-        "info",
-    ));
+    let info = info(&ds);
     let b = &info["bounds"];
     let v = |k: &str, a: usize| b[k][a].as_f64().unwrap();
     let bounds = format!(
@@ -419,10 +402,7 @@ fn stats_of_a_level_say_the_sample_and_draw_the_density() {
     let dir = tempfile::tempdir().unwrap();
     let ds = dir.path().join("autzen.pcimg");
     convert(&fixture(), &ds, &[]);
-    let info = info_json(&ok(
-        &pcimg().args(["info", "--json"]).arg(&ds).output().unwrap(),
-        "info",
-    ));
+    let info = info(&ds);
     let level1 = info["parts"][0]["levels"][1]["points"].as_u64().unwrap();
     let png = dir.path().join("density.png");
     let o = pcimg()

@@ -630,28 +630,9 @@ fn gdal_reads_head_first_and_older_layouts_alike() {
     }
 }
 
-/// A Python that imports `modules` (GDAL's bindings from python3-gdal, laspy),
-/// or `None` outside CI (a failure in CI: .ci/run installs them).
-fn python_with(modules: &str) -> Option<&'static str> {
-    let found = ["/usr/bin/python3", "python3"].into_iter().find(|py| {
-        Command::new(py)
-            .args(["-c", &format!("import {modules}")])
-            .output()
-            .is_ok_and(|o| o.status.success())
-    });
-    if found.is_none() {
-        assert!(
-            std::env::var("CI").ok().as_deref() != Some("true"),
-            "a python3 that imports {modules} is required in CI (.ci/run installs it)"
-        );
-        eprintln!("note: no python3 that imports {modules}, skipping this test outside CI");
-    }
-    found
-}
-
 /// A Python with GDAL's bindings (python3-gdal), for its COG validator.
 fn python_with_gdal() -> Option<&'static str> {
-    python_with("osgeo_utils.samples.validate_cloud_optimized_geotiff")
+    common::python_with("osgeo_utils.samples.validate_cloud_optimized_geotiff")
 }
 
 /// A conversion in several parts keeps every point's attributes with its own
@@ -661,7 +642,7 @@ fn python_with_gdal() -> Option<&'static str> {
 /// (`tests/python/parts_match_las.py`).
 #[test]
 fn a_conversion_in_parts_equals_its_source_point_by_point_in_gdal_and_laspy() {
-    let Some(py) = python_with("osgeo, laspy, lazrs, numpy") else {
+    let Some(py) = common::python_with("osgeo, laspy, lazrs, numpy") else {
         return;
     };
     let dir = tempfile::tempdir().unwrap();

@@ -221,27 +221,8 @@ fn the_worker_renders_and_encodes_half_block_frames() {
     let w = common::halfblock_worker(app.dataset.clone());
     app.settings.lod = LodChoice::Pinned(1);
     let area = ui::areas(ratatui::layout::Rect::new(0, 0, 160, 48), &app).view_inner;
-    w.request(Request {
-        seq: 1,
-        camera: app.camera,
-        settings: app.settings.clone(),
-        cursor: None,
-        pick: false,
-        cells: (area.width, area.height),
-        cell_pixels: (1, 2),
-        scale: 1,
-        allowance: None,
-        pixel_marks: None,
-    });
-    let deadline = Instant::now() + Duration::from_secs(30);
-    let frame = loop {
-        assert!(Instant::now() < deadline, "no complete frame in 30 s");
-        match w.recv_timeout(Duration::from_millis(200)) {
-            Some(Report::Frame(f)) if f.status.pending == 0 => break f,
-            Some(Report::Error(e)) => panic!("worker error: {e}"),
-            _ => {}
-        }
-    };
+    w.request(frame_request(&app, area, 1));
+    let frame = complete_frame(&w, 1);
     assert_eq!(frame.seq, 1);
     assert_eq!(frame.cells, (area.width, area.height));
     assert_eq!(frame.status.levels, Some((1, 1)));
@@ -279,6 +260,36 @@ fn the_worker_renders_and_encodes_half_block_frames() {
     );
 }
 
+/// A request for a full frame of `app`'s view in `area` (half-block cells).
+fn frame_request(app: &App, area: ratatui::layout::Rect, seq: u64) -> Request {
+    Request {
+        seq,
+        camera: app.camera,
+        settings: app.settings.clone(),
+        cursor: None,
+        pick: false,
+        cells: (area.width, area.height),
+        cell_pixels: (1, 2),
+        scale: 1,
+        allowance: None,
+        pixel_marks: None,
+    }
+}
+
+/// The worker's first complete frame (no tile pending) answering request
+/// `seq`; fails the test on a worker error or after 30 s.
+fn complete_frame(w: &RenderWorker, seq: u64) -> Box<pcimg::tui::worker::FrameReady> {
+    let deadline = Instant::now() + Duration::from_secs(30);
+    loop {
+        assert!(Instant::now() < deadline, "no complete frame in 30 s");
+        match w.recv_timeout(Duration::from_millis(200)) {
+            Some(Report::Frame(f)) if f.status.pending == 0 && f.seq == seq => break f,
+            Some(Report::Error(e)) => panic!("worker error: {e}"),
+            _ => {}
+        }
+    }
+}
+
 /// Colouring through a ramp, the legend shows the drawn points' values under
 /// the ramp's colours: a histogram of the frame's tiles over the legend's
 /// range, a bar a ramp cell, as the panel's line below the colours.
@@ -290,27 +301,8 @@ fn the_legend_draws_a_histogram_of_the_coloured_band_under_its_ramp() {
     app.settings.style.mode = pcimg::render::ColorMode::Height;
     let w = common::halfblock_worker(app.dataset.clone());
     let area = ui::areas(ratatui::layout::Rect::new(0, 0, 160, 48), &app).view_inner;
-    w.request(Request {
-        seq: 1,
-        camera: app.camera,
-        settings: app.settings.clone(),
-        cursor: None,
-        pick: false,
-        cells: (area.width, area.height),
-        cell_pixels: (1, 2),
-        scale: 1,
-        allowance: None,
-        pixel_marks: None,
-    });
-    let deadline = Instant::now() + Duration::from_secs(30);
-    let frame = loop {
-        assert!(Instant::now() < deadline, "no complete frame in 30 s");
-        match w.recv_timeout(Duration::from_millis(200)) {
-            Some(Report::Frame(f)) if f.status.pending == 0 => break f,
-            Some(Report::Error(e)) => panic!("worker error: {e}"),
-            _ => {}
-        }
-    };
+    w.request(frame_request(&app, area, 1));
+    let frame = complete_frame(&w, 1);
     let h = &frame.status.histogram;
     assert_eq!(h.len(), 24, "{h:?}");
     let counted: u64 = h.iter().map(|&c| c as u64).sum();
@@ -335,29 +327,8 @@ fn the_legend_draws_a_histogram_of_the_coloured_band_under_its_ramp() {
     );
     // Not colouring through a ramp: no histogram.
     app.settings.style.mode = pcimg::render::ColorMode::Rgb;
-    w.request(Request {
-        seq: 2,
-        camera: app.camera,
-        settings: app.settings.clone(),
-        cursor: None,
-        pick: false,
-        cells: (area.width, area.height),
-        cell_pixels: (1, 2),
-        scale: 1,
-        allowance: None,
-        pixel_marks: None,
-    });
-    let deadline = Instant::now() + Duration::from_secs(30);
-    loop {
-        assert!(Instant::now() < deadline, "no second frame in 30 s");
-        if let Some(Report::Frame(f)) = w.recv_timeout(Duration::from_millis(200))
-            && f.seq == 2
-            && f.status.pending == 0
-        {
-            assert!(f.status.histogram.is_empty());
-            break;
-        }
-    }
+    w.request(frame_request(&app, area, 2));
+    assert!(complete_frame(&w, 2).status.histogram.is_empty());
 }
 
 /// Where a cell written over the image would take it away (tmux drawing sixel
@@ -373,28 +344,11 @@ fn overlays_go_into_the_pixels_where_cells_would_erase_the_image() {
     let area = ui::areas(ratatui::layout::Rect::new(0, 0, 160, 48), &app).view_inner;
     let centre = app.dataset.bounds().center();
     let request = |seq: u64, pixel_marks| Request {
-        seq,
-        camera: app.camera,
-        settings: app.settings.clone(),
         cursor: Some((0.25, 0.5)),
-        pick: false,
-        cells: (area.width, area.height),
-        cell_pixels: (1, 2),
-        scale: 1,
-        allowance: None,
         pixel_marks,
+        ..frame_request(&app, area, seq)
     };
-    let frame = |seq| {
-        let deadline = Instant::now() + Duration::from_secs(30);
-        loop {
-            assert!(Instant::now() < deadline, "no complete frame in 30 s");
-            match w.recv_timeout(Duration::from_millis(200)) {
-                Some(Report::Frame(f)) if f.status.pending == 0 && f.seq == seq => break f,
-                Some(Report::Error(e)) => panic!("worker error: {e}"),
-                _ => {}
-            }
-        }
-    };
+    let frame = |seq| complete_frame(&w, seq);
     w.request(request(1, None));
     let plain = frame(1);
     w.request(request(2, Some((vec![centre], "m".to_string()))));

@@ -2,8 +2,7 @@
 //! classes, band ranges) written as LAS, LAZ, binary PLY, CSV or XYZ.
 
 use crate::export::{self, OutFormat};
-use crate::render::classes::{self, ClassMask};
-use crate::render::filter::{self, Filter, Where};
+use crate::render::filter::Filter;
 use crate::store::Dataset;
 use crate::text::{bytes, count};
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
@@ -156,43 +155,19 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// The filter from `--classes`, `--exclude-classes`, `--where`, `--clip` and
-/// `--bounds`, checked against `ds`.
+/// The filter from `--classes`, `--exclude-classes`, `--where` and `--clip`
+/// (as the view commands make it), and `--bounds`, checked against `ds`.
 fn filter_of(a: &Args, ds: &Dataset) -> anyhow::Result<Filter> {
-    let include = a
-        .classes
-        .as_deref()
-        .map(|s| classes::parse_list(s, "--classes"))
-        .transpose()
-        .map_err(anyhow::Error::msg)?;
-    let exclude = a
-        .exclude_classes
-        .as_deref()
-        .map(|s| classes::parse_list(s, "--exclude-classes"))
-        .transpose()
-        .map_err(anyhow::Error::msg)?
-        .unwrap_or_default();
-    let has = |n: &str| ds.parts.iter().any(|p| p.band_index(n).is_some());
-    if (include.is_some() || !exclude.is_empty()) && !has("classification") {
-        anyhow::bail!("--classes: the dataset has no classification band");
-    }
-    let wheres: Vec<Where> = a
-        .wheres
-        .iter()
-        .map(|w| Where::parse(w))
-        .collect::<Result<_, _>>()
-        .map_err(|e| anyhow::anyhow!("--where {e}"))?;
-    for w in &wheres {
-        if !["x", "y", "z"].contains(&w.band.as_str()) && !has(&w.band) {
-            anyhow::bail!("--where: the dataset has no band '{}'", w.band);
-        }
-    }
-    let mut clip = a
-        .clip
-        .as_deref()
-        .map(filter::parse_clip)
-        .transpose()
-        .map_err(|e| anyhow::anyhow!("--clip {e}"))?;
+    let mut f = super::view::filter_from(
+        &super::view::FilterFlags {
+            classes: a.classes.as_deref(),
+            exclude_classes: a.exclude_classes.as_deref(),
+            wheres: &a.wheres,
+            clip: a.clip.as_deref(),
+            slab: None,
+        },
+        ds,
+    )?;
     if let Some(b) = &a.bounds {
         let v: Vec<f64> = b
             .split(',')
@@ -206,7 +181,7 @@ fn filter_of(a: &Args, ds: &Dataset) -> anyhow::Result<Filter> {
             min: [v[0], v[1], f64::NEG_INFINITY],
             max: [v[2], v[3], f64::INFINITY],
         };
-        clip = Some(match clip {
+        f.clip = Some(match f.clip {
             Some(c) => crate::points::Bounds {
                 min: [0, 1, 2].map(|k| c.min[k].max(flat.min[k])),
                 max: [0, 1, 2].map(|k| c.max[k].min(flat.max[k])),
@@ -214,10 +189,5 @@ fn filter_of(a: &Args, ds: &Dataset) -> anyhow::Result<Filter> {
             None => flat,
         });
     }
-    Ok(Filter {
-        classes: ClassMask::new(include.as_deref(), &exclude),
-        wheres,
-        clip,
-        slab: None,
-    })
+    Ok(f)
 }

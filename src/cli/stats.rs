@@ -43,21 +43,8 @@ pub struct Args {
 pub fn run(a: Args) -> anyhow::Result<()> {
     a.cache.apply()?;
     let ds = Dataset::open_with(&a.path, &a.cache.open_options())?;
-    for b in &a.bands {
-        let known = ["x", "y", "z"].contains(&b.as_str())
-            || ds.parts.iter().any(|p| p.band_index(b).is_some());
-        if !known {
-            let names: Vec<String> = ds
-                .parts
-                .first()
-                .map(|p| p.bands.iter().map(|b| b.name.clone()).collect())
-                .unwrap_or_default();
-            anyhow::bail!(
-                "--band {}: the dataset has no such band (it has {})",
-                sanitize(b),
-                names.join(", ")
-            );
-        }
+    if let Some(b) = a.bands.iter().find(|b| !super::view::has_band(&ds, b)) {
+        return Err(super::view::no_band(&ds, b, "--band"));
     }
     let max = ds.own_levels() - 1;
     let level = match (a.exact, a.level) {

@@ -161,7 +161,7 @@ pub fn has_band(ds: &Dataset, name: &str) -> bool {
 }
 
 /// The error for a band no part has, listing those there are.
-fn no_band(ds: &Dataset, name: &str, what: &str) -> anyhow::Error {
+pub fn no_band(ds: &Dataset, name: &str, what: &str) -> anyhow::Error {
     let mut names: Vec<String> = ds
         .parts
         .iter()
@@ -207,18 +207,39 @@ pub fn style_for(a: &ViewArgs, ds: &Dataset) -> anyhow::Result<Style> {
     Ok(Style { mode, ramp, range })
 }
 
-/// The filter from `--classes`, `--exclude-classes`, `--where`, `--clip` and `--slab`,
-/// checked against `ds`.
+/// The flags a filter is made from: `--classes`, `--exclude-classes`,
+/// `--where`, `--clip` and `--slab` (the view commands' and `export`'s).
+pub struct FilterFlags<'a> {
+    pub classes: Option<&'a str>,
+    pub exclude_classes: Option<&'a str>,
+    pub wheres: &'a [String],
+    pub clip: Option<&'a str>,
+    pub slab: Option<&'a str>,
+}
+
+/// The filter from the view options' flags, checked against `ds`.
 pub fn filter_for(a: &ViewArgs, ds: &Dataset) -> anyhow::Result<Filter> {
+    filter_from(
+        &FilterFlags {
+            classes: a.classes.as_deref(),
+            exclude_classes: a.exclude_classes.as_deref(),
+            wheres: &a.wheres,
+            clip: a.clip.as_deref(),
+            slab: a.slab.as_deref(),
+        },
+        ds,
+    )
+}
+
+/// The filter from `a`'s flags, checked against `ds`.
+pub fn filter_from(a: &FilterFlags<'_>, ds: &Dataset) -> anyhow::Result<Filter> {
     let include = a
         .classes
-        .as_deref()
         .map(|s| classes::parse_list(s, "--classes"))
         .transpose()
         .map_err(anyhow::Error::msg)?;
     let exclude = a
         .exclude_classes
-        .as_deref()
         .map(|s| classes::parse_list(s, "--exclude-classes"))
         .transpose()
         .map_err(anyhow::Error::msg)?
@@ -239,13 +260,11 @@ pub fn filter_for(a: &ViewArgs, ds: &Dataset) -> anyhow::Result<Filter> {
     }
     let clip = a
         .clip
-        .as_deref()
         .map(filter::parse_clip)
         .transpose()
         .map_err(|e| anyhow::anyhow!("--clip {e}"))?;
     let slab = a
         .slab
-        .as_deref()
         .map(filter::parse_slab)
         .transpose()
         .map_err(|e| anyhow::anyhow!("--slab {e}"))?;

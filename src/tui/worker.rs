@@ -13,7 +13,7 @@ use super::app::{FrameStatus, RetryStatus, Settings};
 use super::protocol::{self, PaneImage};
 use crate::camera::Camera;
 use crate::lod::point::{PointRecord, point_record};
-use crate::lod::{self, LoadedTile, LodMode, TileCache, TileRef};
+use crate::lod::{self, LoadedTile, LodMode, TileCache, TileKey, TileRef};
 use crate::render::legend::{self, Legend};
 use crate::render::pipeline::{FrameRequest, Loading, Overlays, Pipeline};
 use crate::render::{self, Frame, RendererChoice};
@@ -172,7 +172,14 @@ struct Worker {
     /// Bytes of the last exact full frame, and the colours the last full frame
     /// reduced for a slow link was sent in ([`protocol::encode_within`]).
     slow: (Option<usize>, Option<usize>),
+    /// The legend's histogram and what it was counted over (the tiles, the
+    /// band and its range): a frame over the same tiles reuses it instead of
+    /// counting every point again.
+    histogram: Option<Counted>,
 }
+
+/// A legend histogram and what it counted: the tiles, the band, its range.
+type Counted = (Vec<TileKey>, String, f64, f64, Vec<u32>);
 
 fn run(
     ds: Arc<Dataset>,
@@ -193,6 +200,7 @@ fn run(
         pipeline,
         last: None,
         slow: (None, None),
+        histogram: None,
     };
     let mut current: Option<(Request, Instant)> = None;
     let mut pending = 0usize;
@@ -434,13 +442,29 @@ impl Worker {
         let encode_ms = ms(t);
         // The legend's ramp with the drawn points' values under it.
         let s = &req.settings;
-        let histogram =
-            match Legend::for_style(self.pipeline.dataset(), &s.style, &s.filter, &d.ranges) {
-                Some(Legend::Ramp { title, lo, hi, .. }) => {
-                    legend::histogram(&d.tiles, &title, lo, hi, super::panels::RAMP_CELLS)
+        let ramp =
+            s.style.mode.uses_ramp().then(|| {
+                Legend::for_style(self.pipeline.dataset(), &s.style, &s.filter, &d.ranges)
+            });
+        let histogram = match ramp.flatten() {
+            Some(Legend::Ramp { title, lo, hi, .. }) => {
+                let keys: Vec<TileKey> = d.tiles.iter().map(|t| t.key).collect();
+                match &self.histogram {
+                    Some((k, b, l, h, counts))
+                        if *k == keys && *b == title && *l == lo && *h == hi =>
+                    {
+                        counts.clone()
+                    }
+                    _ => {
+                        let counts =
+                            legend::histogram(&d.tiles, &title, lo, hi, super::panels::RAMP_CELLS);
+                        self.histogram = Some((keys, title, lo, hi, counts.clone()));
+                        counts
+                    }
                 }
-                _ => Vec::new(),
-            };
+            }
+            _ => Vec::new(),
+        };
 
         let cache = self.pipeline.cache();
         let mut loaded: BTreeMap<(usize, usize), usize> = BTreeMap::new();

@@ -226,3 +226,22 @@ pub fn halfblock_worker(
         },
     )
 }
+
+/// A Python that imports `modules` (GDAL's bindings from python3-gdal, laspy),
+/// or `None` outside CI (a failure in CI: .ci/run installs them).
+pub fn python_with(modules: &str) -> Option<&'static str> {
+    let found = ["/usr/bin/python3", "python3"].into_iter().find(|py| {
+        Command::new(py)
+            .args(["-c", &format!("import {modules}")])
+            .output()
+            .is_ok_and(|o| o.status.success())
+    });
+    if found.is_none() {
+        assert!(
+            std::env::var("CI").ok().as_deref() != Some("true"),
+            "a python3 that imports {modules} is required in CI (.ci/run installs it)"
+        );
+        eprintln!("note: no python3 that imports {modules}, skipping this test outside CI");
+    }
+    found
+}

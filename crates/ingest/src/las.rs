@@ -92,26 +92,34 @@ pub(crate) struct LasReader {
     clamped: Arc<AtomicU64>,
 }
 
+/// The band each LAS point field the reader keeps becomes, in the order it
+/// gives them (a format without time, colour or near-infrared leaves those
+/// out); `pcimg export` writes them back to the same fields.
+pub const LAS_BANDS: [&str; 9] = [
+    "intensity",
+    "return_number",
+    "number_of_returns",
+    "classification",
+    "gps_time",
+    "red",
+    "green",
+    "blue",
+    "nir",
+];
+
 /// The attribute names for a point format.
 fn attribute_names(f: &las::point::Format) -> Vec<String> {
-    let mut v: Vec<String> = [
-        "intensity",
-        "return_number",
-        "number_of_returns",
-        "classification",
-    ]
-    .map(String::from)
-    .to_vec();
+    let mut v: Vec<&str> = LAS_BANDS[..4].to_vec();
     if f.has_gps_time {
-        v.push("gps_time".into());
+        v.push(LAS_BANDS[4]);
     }
     if f.has_color {
-        v.extend(["red", "green", "blue"].map(String::from));
+        v.extend(&LAS_BANDS[5..8]);
     }
     if f.has_nir {
-        v.push("nir".into());
+        v.push(LAS_BANDS[8]);
     }
-    v
+    v.into_iter().map(String::from).collect()
 }
 
 /// The header's bounds, when they are finite and not inverted.

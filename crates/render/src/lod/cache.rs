@@ -64,6 +64,31 @@ pub struct LoadedTile {
 }
 
 impl LoadedTile {
+    /// The columns a part read (x y z first, then attributes) as a tile.
+    pub fn of_points(key: TileKey, p: crate::store::Points, load_ms: f64) -> LoadedTile {
+        let mut cols = p.columns.into_iter();
+        let (x, y, z) = (
+            cols.next().unwrap_or_default(),
+            cols.next().unwrap_or_default(),
+            cols.next().unwrap_or_default(),
+        );
+        let attributes = p.bands[3..]
+            .iter()
+            .zip(&p.offsets[3..])
+            .zip(cols)
+            .map(|((n, &o), c)| (n.clone(), o, c))
+            .collect();
+        LoadedTile {
+            key,
+            origin: [p.offsets[0], p.offsets[1], p.offsets[2]],
+            x,
+            y,
+            z,
+            attributes,
+            load_ms,
+        }
+    }
+
     pub fn len(&self) -> usize {
         self.x.len()
     }
@@ -151,27 +176,11 @@ pub(crate) fn load_tile_bands(
         }
     }
     let p = part.read_tiles(key.level, &[key.tile], &bands)?;
-    let mut cols = p.columns.into_iter();
-    let (x, y, z) = (
-        cols.next().unwrap_or_default(),
-        cols.next().unwrap_or_default(),
-        cols.next().unwrap_or_default(),
-    );
-    let attributes = p.bands[3..]
-        .iter()
-        .zip(&p.offsets[3..])
-        .zip(cols)
-        .map(|((n, &o), c)| (n.clone(), o, c))
-        .collect();
-    Ok(LoadedTile {
+    Ok(LoadedTile::of_points(
         key,
-        origin: [p.offsets[0], p.offsets[1], p.offsets[2]],
-        x,
-        y,
-        z,
-        attributes,
-        load_ms: t0.elapsed().as_secs_f64() * 1e3,
-    })
+        p,
+        t0.elapsed().as_secs_f64() * 1e3,
+    ))
 }
 
 struct Entry {
