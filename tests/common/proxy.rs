@@ -416,7 +416,6 @@ fn serve(mut client: TcpStream, st: &State) {
     if fault != Fault::Pass {
         st.faults.fetch_add(1, Ordering::Relaxed);
     }
-    let mut sent = 0u64;
     let path = head.first.split(' ').nth(1).unwrap_or("/").to_string();
     match fault {
         Fault::Reset => {
@@ -443,6 +442,7 @@ fn serve(mut client: TcpStream, st: &State) {
             return;
         }
         Fault::Status500 => {
+            log(st, &head.first, fault, 0);
             answer(
                 &mut client,
                 "500 Internal Server Error",
@@ -450,11 +450,11 @@ fn serve(mut client: TcpStream, st: &State) {
                     "<?xml version=\"1.0\" encoding=\"UTF-8\"?>\n<Error><Code>InternalError</Code><Message>We encountered an internal error. Please try again.</Message><Resource>{path}</Resource><RequestId>fault-proxy</RequestId></Error>"
                 ),
             );
-            log(st, &head.first, fault, 0);
             let _ = client.shutdown(Shutdown::Both);
             return;
         }
         Fault::SlowDown => {
+            log(st, &head.first, fault, 0);
             answer(
                 &mut client,
                 "503 Slow Down",
@@ -462,7 +462,6 @@ fn serve(mut client: TcpStream, st: &State) {
                     "<?xml version=\"1.0\" encoding=\"UTF-8\"?>\n<Error><Code>SlowDown</Code><Message>Please reduce your request rate.</Message><Resource>{path}</Resource><RequestId>fault-proxy</RequestId></Error>"
                 ),
             );
-            log(st, &head.first, fault, 0);
             let _ = client.shutdown(Shutdown::Both);
             return;
         }
@@ -520,11 +519,12 @@ fn serve(mut client: TcpStream, st: &State) {
     };
     let mut msg = answer_head.closing();
     msg.extend_from_slice(shown);
-    if client.write_all(&msg).and_then(|()| client.flush()).is_ok() {
-        sent = shown.len() as u64;
-    }
+    // Counted before it is sent: the client may finish, and the test count,
+    // before this thread runs again after the write.
+    let sent = shown.len() as u64;
     st.bytes.fetch_add(sent, Ordering::Relaxed);
     log(st, &head.first, fault, sent);
+    let _ = client.write_all(&msg).and_then(|()| client.flush());
     let _ = client.shutdown(Shutdown::Both);
 }
 
