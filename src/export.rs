@@ -18,21 +18,14 @@
 
 // The LAS point fields pcimg bands fill, by band name (the reader's names).
 use crate::ingest::las::LAS_BANDS;
-use crate::points::{Bounds, Lattice};
+use crate::points::{Bounds, round_whole as round};
 use crate::render::filter::Filter;
-use crate::render::lod::{LoadedTile, TileKey};
-use crate::store::{Dataset, Part};
+use crate::render::lod::LoadedTile;
+use crate::store::Dataset;
+use crate::store::query::{self, Batch, Plan, read_batches};
 use std::io::{BufWriter, Write};
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
-
-/// `v` rounded to the nearest whole number (halves away from zero) without a
-/// libm call (`f64::round` is one on x86-64's baseline, and took a tenth of an
-/// export's time); exact for |v| < 2^52.
-#[inline(always)]
-fn round(v: f64) -> f64 {
-    (if v >= 0.0 { v + 0.5 } else { v - 0.5 }) as i64 as f64
-}
 
 /// What the output is written as, from its extension.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -65,8 +58,8 @@ impl OutFormat {
 /// Why an export stopped. The binary words the advice.
 #[derive(Debug, thiserror::Error)]
 pub enum ExportError {
-    #[error("{path}: {message}")]
-    Dataset { path: String, message: String },
+    #[error(transparent)]
+    Store(#[from] crate::store::StoreError),
     #[error("{}: cannot write: {source}", path.display())]
     Write {
         path: PathBuf,
@@ -78,69 +71,10 @@ pub enum ExportError {
     Interrupted { path: PathBuf },
 }
 
-/// The tiles an export reads and what it writes.
-#[derive(Debug, Clone)]
-pub struct Plan {
-    /// Part, level and tile of every tile the selection can reach, part by part.
-    pub tiles: Vec<(usize, usize, u32)>,
-    /// Points in those tiles (the most the export writes).
-    pub points: u64,
-    /// Tiles of the chosen levels the selection cannot reach (not read).
-    pub skipped: usize,
-    /// Bands besides x, y, z, in the order of the first part that has each.
-    pub bands: Vec<String>,
-    /// The lattice every part's coordinates lie on, when they all share one.
-    pub lattice: Option<Lattice>,
-    /// The bounds of the tiles read.
-    pub bounds: Bounds,
-    /// The CRS the parts give (the first part's).
-    pub crs: Option<String>,
-}
-
 /// The tiles of level `level` (each part's coarsest where it has fewer) that
 /// `filter` may keep points of, in the parts only (overview nodes hold copies).
 pub fn plan(ds: &Dataset, level: usize, filter: &Filter) -> Plan {
-    let mut tiles = Vec::new();
-    let (mut points, mut skipped) = (0u64, 0usize);
-    let mut bands: Vec<String> = Vec::new();
-    let mut bounds = Bounds::EMPTY;
-    let mut lattices = Vec::new();
-    for (i, part) in ds.parts.iter().enumerate() {
-        let Some(l) = part
-            .levels
-            .get(level.min(part.levels.len().saturating_sub(1)))
-        else {
-            continue;
-        };
-        for b in part.bands.iter().skip(3) {
-            if !bands.contains(&b.name) {
-                bands.push(b.name.clone());
-            }
-        }
-        lattices.push(part.meta.lattice);
-        for t in &l.tiles {
-            if filter.may_show(&t.bounds) {
-                tiles.push((i, l.index, t.index));
-                points += t.points.unwrap_or(0) as u64;
-                bounds = bounds.union(&t.bounds);
-            } else {
-                skipped += 1;
-            }
-        }
-    }
-    let lattice = match lattices.first() {
-        Some(Some(first)) if lattices.iter().all(|l| l.as_ref() == Some(first)) => Some(*first),
-        _ => None,
-    };
-    Plan {
-        tiles,
-        points,
-        skipped,
-        bands,
-        lattice,
-        bounds,
-        crs: ds.parts.iter().find_map(|p| p.meta.crs.clone()),
-    }
+    query::plan(ds, level, |b| filter.may_show(b))
 }
 
 /// What an export wrote.
@@ -157,9 +91,6 @@ pub struct Summary {
     /// Where the coordinates come from: the parts' lattice, or a chosen step.
     pub exact_lattice: bool,
 }
-
-/// Points read at most at once (a batch of tiles): about 100 MB of columns.
-const BATCH_POINTS: u64 = 4 << 20;
 
 /// Writes the points `plan` selects (and `filter` keeps) to `out` as `format`,
 /// under a temporary name renamed into place at the end. `progress` is told
@@ -182,15 +113,16 @@ pub fn export(
     })?;
     let mut sink = open_sink(file, out, format, plan)?;
     let (mut read, mut written) = (0u64, 0u64);
-    let tiles_read = read_batches(ds, &plan.tiles, &plan.bands, |columns| {
+    let tiles_read = read_batches(ds, &plan.tiles, &plan.bands, |r| {
         if stop.load(Ordering::SeqCst) {
             return Err(ExportError::Interrupted {
                 path: out.to_path_buf(),
             });
         }
-        read += columns.len() as u64;
-        let keep = filter.shown(&columns);
-        let points = Batch::of(&columns, keep.as_deref(), &plan.bands, plan.lattice);
+        let t = LoadedTile::of_read(r);
+        read += t.len() as u64;
+        let keep = filter.shown(&t);
+        let points = t.batch(keep.as_deref(), &plan.bands, plan.lattice);
         written += points.len() as u64;
         sink.write(&points)?;
         progress(read, written);
@@ -211,54 +143,6 @@ pub fn export(
         extra_bytes,
         exact_lattice: plan.lattice.is_some(),
     })
-}
-
-/// Reads `tiles` (part, level, tile; each part's run of tiles together) with
-/// x y z and `bands` (those each part has), a batch of at most
-/// [`BATCH_POINTS`] points of one part and level at a time, and hands each
-/// batch to `f`; stops at `f`'s first error. Returns the tiles read.
-pub(crate) fn read_batches(
-    ds: &Dataset,
-    tiles: &[(usize, usize, u32)],
-    bands: &[String],
-    mut f: impl FnMut(LoadedTile) -> Result<(), ExportError>,
-) -> Result<usize, ExportError> {
-    let mut i = 0;
-    // The points of each tile of the part and level read now (one map a run
-    // of tiles, not a search of the level's tiles for each).
-    let mut counts: Option<((usize, usize), std::collections::HashMap<u32, u64>)> = None;
-    while i < tiles.len() {
-        // The next tiles of one part and level, up to a batch's points.
-        let (p, l, _) = tiles[i];
-        let part = ds.part(p).ok_or_else(|| ExportError::Dataset {
-            path: ds.path.display().to_string(),
-            message: format!("has no part {p}"),
-        })?;
-        if counts.as_ref().is_none_or(|c| c.0 != (p, l)) {
-            let level = &part.levels[l];
-            let map = level
-                .tiles
-                .iter()
-                .map(|t| (t.index, t.points.unwrap_or(0) as u64))
-                .collect();
-            counts = Some(((p, l), map));
-        }
-        let known = counts.as_ref().map(|c| &c.1);
-        let count = |t: u32| known.and_then(|m| m.get(&t)).copied().unwrap_or(0);
-        let mut batch = Vec::new();
-        let mut n = 0;
-        while i < tiles.len() && tiles[i].0 == p && tiles[i].1 == l {
-            let t = tiles[i].2;
-            if !batch.is_empty() && n + count(t) > BATCH_POINTS {
-                break;
-            }
-            n += count(t);
-            batch.push(t);
-            i += 1;
-        }
-        f(read_batch(part, p, l, &batch, bands)?)?;
-    }
-    Ok(tiles.len())
 }
 
 /// `.NAME.pcimg-export-PID` beside `out`.
@@ -284,93 +168,6 @@ impl Drop for Remove {
         if let Some(p) = self.0.take() {
             let _ = std::fs::remove_file(p);
         }
-    }
-}
-
-/// The tiles `tiles` of part `p`'s level `l`: x y z and the plan's bands the
-/// part has, as the filter reads them.
-fn read_batch(
-    part: &Part,
-    p: usize,
-    l: usize,
-    tiles: &[u32],
-    bands: &[String],
-) -> Result<LoadedTile, ExportError> {
-    let mut idx = vec![0usize, 1, 2];
-    idx.extend(bands.iter().filter_map(|b| part.band_index(b)));
-    let pts = part
-        .read_tiles(l, tiles, &idx)
-        .map_err(|e| ExportError::Dataset {
-            path: part.path.display().to_string(),
-            message: e.to_string(),
-        })?;
-    let key = TileKey {
-        part: p,
-        level: l,
-        tile: tiles.first().copied().unwrap_or(0),
-    };
-    Ok(LoadedTile::of_points(key, pts, 0.0))
-}
-
-/// Points ready to write: coordinates in source units (on the lattice where
-/// there is one), and each plan band's values (NaN where a part lacks it).
-#[derive(Debug, Default)]
-pub struct Batch {
-    pub x: Vec<f64>,
-    pub y: Vec<f64>,
-    pub z: Vec<f64>,
-    /// One column per plan band, in the plan's order.
-    pub bands: Vec<Vec<f64>>,
-}
-
-impl Batch {
-    fn len(&self) -> usize {
-        self.x.len()
-    }
-
-    fn of(
-        t: &LoadedTile,
-        keep: Option<&[bool]>,
-        bands: &[String],
-        lattice: Option<Lattice>,
-    ) -> Batch {
-        let kept: Vec<usize> = match keep {
-            Some(k) => (0..t.len()).filter(|&i| k[i]).collect(),
-            None => (0..t.len()).collect(),
-        };
-        let axis = |a: usize, col: &[f32]| -> Vec<f64> {
-            use rayon::prelude::*;
-            let o = t.origin[a];
-            kept.par_iter()
-                .map(|&i| {
-                    let v = o + col[i] as f64;
-                    match lattice {
-                        // The whole number the point was stored as, exactly
-                        // (a part keeps its lattice offsets below 2^23, where
-                        // a Float32 is exact to well under half a step).
-                        Some(l) => {
-                            let k = round((v - l.origin[a]) / l.step[a]);
-                            l.origin[a] + k * l.step[a]
-                        }
-                        None => v,
-                    }
-                })
-                .collect()
-        };
-        let mut b = Batch {
-            x: axis(0, &t.x),
-            y: axis(1, &t.y),
-            z: axis(2, &t.z),
-            bands: Vec::with_capacity(bands.len()),
-        };
-        for name in bands {
-            let col = match t.attributes.iter().find(|a| &a.0 == name) {
-                Some((_, off, c)) => kept.iter().map(|&i| off + c[i] as f64).collect(),
-                None => vec![f64::NAN; kept.len()],
-            };
-            b.bands.push(col);
-        }
-        b
     }
 }
 

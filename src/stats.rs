@@ -12,9 +12,11 @@
 //! come from what the parts recorded when written (exact) where every part
 //! has them, else from the sample.
 
-use crate::export::{ExportError, read_batches};
+use crate::export::ExportError;
 use crate::points::Bounds;
+use crate::render::lod::LoadedTile;
 use crate::store::Dataset;
+use crate::store::query::read_batches;
 use serde::Serialize;
 
 /// The most points the default sample holds.
@@ -188,7 +190,8 @@ pub fn compute(
         }
         true
     };
-    read_batches(ds, &tiles, &attrs, |t| {
+    read_batches::<ExportError>(ds, &tiles, &attrs, |r| {
+        let t = LoadedTile::of_read(r);
         sampled += t.len() as u64;
         for i in 0..t.len() {
             let (x, y) = (t.origin[0] + t.x[i] as f64, t.origin[1] + t.y[i] as f64);
@@ -235,7 +238,8 @@ pub fn compute(
         }
         (((v - lo[k]) / span * bins as f64) as usize).min(bins - 1)
     };
-    read_batches(ds, &tiles, &attrs, |t| {
+    read_batches::<ExportError>(ds, &tiles, &attrs, |r| {
+        let t = LoadedTile::of_read(r);
         for (k, name) in names.iter().enumerate() {
             let fine = &mut fine[k];
             column(&t, name, &mut |v| {

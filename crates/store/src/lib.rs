@@ -69,6 +69,7 @@ pub mod crs;
 pub mod dataset;
 mod error;
 pub mod location;
+pub mod query;
 mod read;
 #[cfg(feature = "remote")]
 pub mod remote;

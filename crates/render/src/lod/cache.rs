@@ -89,6 +89,35 @@ impl LoadedTile {
         }
     }
 
+    /// A batch the store's query read, as a tile (keyed by its first tile).
+    pub fn of_read(r: crate::store::query::Read) -> LoadedTile {
+        let key = TileKey {
+            part: r.part,
+            level: r.level,
+            tile: r.tiles.first().copied().unwrap_or(0),
+        };
+        LoadedTile::of_points(key, r.points, 0.0)
+    }
+
+    /// The points `keep` keeps (all with `None`) as float64 columns in source
+    /// units, with `bands` (NaN where the tile lacks one).
+    pub fn batch(
+        &self,
+        keep: Option<&[bool]>,
+        bands: &[String],
+        lattice: Option<crate::points::Lattice>,
+    ) -> crate::store::query::Batch {
+        let c = crate::store::query::Columns {
+            origin: self.origin,
+            xyz: [&self.x, &self.y, &self.z],
+        };
+        let band = |n: &str| {
+            let a = self.attributes.iter().find(|a| a.0 == n)?;
+            Some((a.1, a.2.as_slice()))
+        };
+        crate::store::query::Batch::of(c, band, keep, bands, lattice)
+    }
+
     pub fn len(&self) -> usize {
         self.x.len()
     }
