@@ -284,8 +284,10 @@ impl Selection {
     }
 
     /// Per point of `p` (x y z first), whether it is selected; `None` when all
-    /// are. A part without classes has none of the listed classes.
-    pub fn keep(&self, p: &Points) -> Option<Vec<bool>> {
+    /// are. A part without classes has none of the listed classes. With a
+    /// `lattice`, the box tests each coordinate on it (as [`Batch`] gives it),
+    /// so a point on the box's face is inside whatever its Float32 rounding.
+    pub fn keep(&self, p: &Points, lattice: Option<Lattice>) -> Option<Vec<bool>> {
         if self.clip.is_none() && self.classes.is_none() {
             return None;
         }
@@ -307,7 +309,10 @@ impl Selection {
             for a in 0..3 {
                 let (o, col) = (p.offsets[a], &p.columns[a]);
                 for (k, &v) in keep.iter_mut().zip(col) {
-                    let w = o + v as f64;
+                    let mut w = o + v as f64;
+                    if let Some(l) = lattice {
+                        w = l.origin[a] + round_whole((w - l.origin[a]) / l.step[a]) * l.step[a];
+                    }
                     *k &= w >= c.min[a] && w <= c.max[a];
                 }
             }
@@ -369,7 +374,7 @@ mod tests {
         bands.extend(p.bands.iter().cloned());
         bands.dedup();
         let read = read_batches::<StoreError>(&ds, &p.tiles, &bands, |r| {
-            let keep = sel.keep(&r.points);
+            let keep = sel.keep(&r.points, None);
             let b = Batch::of_points(&r.points, keep.as_deref(), &bands, None);
             for i in 0..b.len() {
                 got.push((b.x[i], b.y[i], b.bands[0][i]));

@@ -395,16 +395,20 @@ impl RemoteFile {
         let key = |r: &Range<u64>| (url.to_string(), etag.clone(), r.start, r.end);
         let mut out: Vec<Option<Bytes>> = Vec::with_capacity(ranges.len());
         let mut missing = Vec::new();
-        {
+        // Before a response has told this object's size and ETag, nothing
+        // comes from the cache: the first request is what pins them (a server
+        // without ETags, as Python's http.server, would otherwise leave a
+        // second opening of the same URL without its size).
+        if self.seen.get().is_none() {
+            missing.extend(ranges.iter().filter(|r| r.end > r.start).cloned());
+            out.extend(ranges.iter().map(|r| (r.end <= r.start).then(Bytes::new)));
+        } else {
             let mut c = cache().lock().unwrap_or_else(|p| p.into_inner());
             for r in ranges {
                 let hit = if r.end <= r.start {
                     Some(Bytes::new())
                 } else {
-                    c.get(&key(r)).or_else(|| {
-                        // Inside a merged range fetched before.
-                        None
-                    })
+                    c.get(&key(r))
                 };
                 if hit.is_none() {
                     missing.push(r.clone());
@@ -412,8 +416,8 @@ impl RemoteFile {
                 out.push(hit);
             }
         }
-        // Then the disk cache.
-        if !missing.is_empty() && super::disk::enabled() {
+        // Then the disk cache (also only once pinned).
+        if !missing.is_empty() && super::disk::enabled() && self.seen.get().is_some() {
             let mut found = Vec::new();
             for (slot, r) in out.iter_mut().zip(ranges) {
                 if slot.is_none()

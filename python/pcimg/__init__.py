@@ -1,0 +1,121 @@
+"""Read pcimg point-cloud datasets into numpy arrays.
+
+A dataset is a ``.tif`` part, a directory of parts, or the URL of one
+(``s3://bucket/prefix``, ``https://host/path``), as ``pcimg convert`` wrote it::
+
+    import pcimg
+
+    ds = pcimg.open("autzen.pcimg")
+    print(ds.info()["points"], ds.info()["fields"])
+    pts = ds.read(bounds=(637000, 851000, 637500, 851500), classes=[2])
+    print(pts["X"].mean(), pts["Classification"][:10])
+
+    for chunk in ds.chunks(level=2):   # larger than memory: a batch at a time
+        ...
+
+Points come back as a numpy structured array whose fields are named as PDAL
+and laspy name them (``X``, ``Y``, ``Z`` as float64, ``Intensity``,
+``ReturnNumber``, ``NumberOfReturns``, ``Classification``, ``GpsTime``,
+``Red``, ``Green``, ``Blue``, ``Infrared``; other bands under their own names
+as float64). Reading releases the GIL and runs on all cores; only the tiles the
+selection reaches are read, locally or fetched.
+"""
+
+import numpy as np
+
+from . import _pcimg
+
+__all__ = ["open", "Dataset", "network_stats"]
+
+
+def open(location, timeout=30.0):
+    """Opens a dataset: a path (str or os.PathLike) or a URL.
+
+    Remote requests are retried for up to ``timeout`` seconds before they
+    fail. Raises ``OSError`` naming the file or URL when it cannot be opened.
+    """
+    return Dataset(_pcimg.open(str(location), float(timeout)))
+
+
+def network_stats():
+    """Requests made to object storage and bytes received so far, by every
+    dataset this process opened: ``(requests, bytes)``."""
+    return _pcimg.network_stats()
+
+
+def _structured(fields, columns):
+    """One structured array from a dict of equally long columns."""
+    dtype = np.dtype([(name, np.dtype(kind)) for name, _band, kind in fields])
+    n = len(columns[fields[0][0]]) if fields else 0
+    out = np.empty(n, dtype=dtype)
+    for name, _band, _kind in fields:
+        out[name] = columns[name]
+    return out
+
+
+class Dataset:
+    """An opened dataset (``pcimg.open``)."""
+
+    def __init__(self, native):
+        self._native = native
+
+    def __repr__(self):
+        return repr(self._native)
+
+    def info(self):
+        """The dataset's facts as plain Python values: ``location``,
+        ``parts``, ``points``, ``levels`` (points in each level, finest
+        first), ``fields`` (name -> (band, numpy type)), ``bounds``
+        ``(minx, miny, minz, maxx, maxy, maxz)``, ``crs`` (WKT or
+        ``EPSG:n``, or None) and ``classes`` (class code -> points, every
+        point's; None when the parts do not record them)."""
+        return self._native.info()
+
+    def _plan(self, level, bounds, clip, classes, columns):
+        if columns is not None and isinstance(columns, str):
+            columns = [columns]
+        return self._native.plan(
+            int(level),
+            None if bounds is None else [float(v) for v in bounds],
+            None if clip is None else [float(v) for v in clip],
+            None if classes is None else [int(c) for c in classes],
+            None if columns is None else [str(c) for c in columns],
+        )
+
+    def read(self, level=0, bounds=None, clip=None, classes=None, columns=None):
+        """The points of ``level`` (0: every point; each coarser level is an
+        even sample of about a quarter as many), in ``bounds``
+        ``(minx, miny, maxx, maxy)`` and ``clip``
+        ``(minx, miny, minz, maxx, maxy, maxz)`` (both inclusive), of
+        ``classes`` (codes), with ``columns`` (field or band names; every
+        field when None), as a numpy structured array."""
+        plan = self._plan(level, bounds, clip, classes, columns)
+        return _structured(plan.fields(), plan.read())
+
+    def chunks(self, level=0, bounds=None, clip=None, classes=None, columns=None):
+        """As ``read``, a batch of tiles at a time (at most 4 M points each):
+        an iterator of structured arrays, for data larger than memory."""
+        plan = self._plan(level, bounds, clip, classes, columns)
+        fields = plan.fields()
+        for i in range(plan.batches()):
+            yield _structured(fields, plan.read_batch(i))
+
+    def arrow(self, level=0, bounds=None, clip=None, classes=None, columns=None):
+        """As ``chunks``, as a ``pyarrow.RecordBatchReader`` (needs pyarrow)."""
+        import pyarrow as pa
+
+        plan = self._plan(level, bounds, clip, classes, columns)
+        fields = plan.fields()
+        schema = pa.schema([(name, pa.from_numpy_dtype(np.dtype(kind))) for name, _b, kind in fields])
+
+        def batches():
+            for i in range(plan.batches()):
+                cols = plan.read_batch(i)
+                yield pa.record_batch([cols[name] for name, _b, _k in fields], schema=schema)
+
+        return pa.RecordBatchReader.from_batches(schema, batches())
+
+    def __arrow_c_stream__(self, requested_schema=None):
+        """The Arrow PyCapsule stream of every point (pandas, polars, DuckDB
+        take it); needs pyarrow."""
+        return self.arrow().__arrow_c_stream__(requested_schema)

@@ -1,0 +1,518 @@
+//! The native half of the `pcimg` Python package (`pcimg._pcimg`): a dataset
+//! opened through the store crate alone (no renderer, no terminal), its facts as
+//! plain Python values, and its points read into numpy arrays, one per field,
+//! which `pcimg/__init__.py` lays out as a structured array.
+//!
+//! Reading goes through the store's query path (`pcimg_store::query`), the one
+//! `pcimg export` uses: only the tiles a selection reaches are read (locally not
+//! touched, remotely not fetched), batches of at most 4 M points of one part,
+//! read in parallel on rayon's threads with the GIL released. Remote datasets
+//! (`s3://`, `http(s)://`) come through the same byte source as the binary's.
+//!
+//! Fields are named as PDAL and laspy's point records name them (`X`, `Y`, `Z`,
+//! `Intensity`, `ReturnNumber`, `Classification`, `GpsTime`, `Red`, ...):
+//! coordinates as float64 (on the source's lattice where the parts keep one),
+//! LAS's whole-number fields in LAS's own integer types where every part's
+//! recorded range fits them, anything else as float64.
+
+use numpy::IntoPyArray;
+use pcimg_core::points::Bounds;
+use pcimg_store::query::{self, Batch, Plan, Selection};
+use pcimg_store::{Dataset, OpenOptions, StoreError};
+use pyo3::exceptions::{PyOSError, PyValueError};
+use pyo3::prelude::*;
+use pyo3::types::PyDict;
+use rayon::prelude::*;
+use std::path::Path;
+use std::sync::Arc;
+use std::time::Duration;
+
+/// A store error as Python's `OSError`, its message naming the file or URL.
+fn store_err(e: StoreError) -> PyErr {
+    PyOSError::new_err(e.to_string())
+}
+
+/// A field's numpy type.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Kind {
+    U8,
+    U16,
+    F64,
+}
+
+impl Kind {
+    fn name(self) -> &'static str {
+        match self {
+            Kind::U8 => "uint8",
+            Kind::U16 => "uint16",
+            Kind::F64 => "float64",
+        }
+    }
+
+    fn max(self) -> f64 {
+        match self {
+            Kind::U8 => u8::MAX as f64,
+            Kind::U16 => u16::MAX as f64,
+            Kind::F64 => f64::INFINITY,
+        }
+    }
+}
+
+/// PDAL's (and laspy's point record's) name of band `band`, and the LAS type
+/// of its values; other bands keep their names, as float64.
+fn las_field(band: &str) -> (&str, Kind) {
+    match band {
+        "x" => ("X", Kind::F64),
+        "y" => ("Y", Kind::F64),
+        "z" => ("Z", Kind::F64),
+        "intensity" => ("Intensity", Kind::U16),
+        "return_number" => ("ReturnNumber", Kind::U8),
+        "number_of_returns" => ("NumberOfReturns", Kind::U8),
+        "classification" => ("Classification", Kind::U8),
+        "gps_time" => ("GpsTime", Kind::F64),
+        "red" => ("Red", Kind::U16),
+        "green" => ("Green", Kind::U16),
+        "blue" => ("Blue", Kind::U16),
+        "nir" => ("Infrared", Kind::U16),
+        other => (other, Kind::F64),
+    }
+}
+
+/// One field of what a read returns.
+#[derive(Debug, Clone)]
+struct Field {
+    /// The name in the array.
+    name: String,
+    /// The dataset's band (`x`, `y`, `z` for the coordinates).
+    band: String,
+    kind: Kind,
+}
+
+/// The field for `band` in `ds`: LAS's integer type only where every part that
+/// has the band records a range of whole numbers inside it.
+fn field(ds: &Dataset, band: &str) -> Field {
+    let (name, mut kind) = las_field(band);
+    if kind != Kind::F64 {
+        let fits = ds
+            .parts
+            .iter()
+            .filter_map(|p| p.bands.iter().find(|b| b.name == band))
+            .all(|b| {
+                b.range.is_some_and(|(lo, hi)| {
+                    lo >= 0.0 && hi <= kind.max() && lo.fract() == 0.0 && hi.fract() == 0.0
+                })
+            });
+        if !fits {
+            kind = Kind::F64;
+        }
+    }
+    Field {
+        name: name.to_string(),
+        band: band.to_string(),
+        kind,
+    }
+}
+
+/// A column read, in its field's type.
+enum Column {
+    U8(Vec<u8>),
+    U16(Vec<u16>),
+    F64(Vec<f64>),
+}
+
+impl Column {
+    /// `v` in `kind`: whole-number fields rounded and held to their range
+    /// (a part without the band gives NaN: 0).
+    fn of(v: Vec<f64>, kind: Kind) -> Column {
+        let whole = |v: &[f64]| -> Vec<f64> {
+            v.par_iter()
+                .map(|&x| {
+                    if x.is_nan() {
+                        0.0
+                    } else {
+                        pcimg_core::points::round_whole(x.clamp(0.0, kind.max()))
+                    }
+                })
+                .collect()
+        };
+        match kind {
+            Kind::F64 => Column::F64(v),
+            Kind::U8 => Column::U8(whole(&v).into_iter().map(|x| x as u8).collect()),
+            Kind::U16 => Column::U16(whole(&v).into_iter().map(|x| x as u16).collect()),
+        }
+    }
+
+    fn extend(&mut self, other: Column) {
+        match (self, other) {
+            (Column::U8(a), Column::U8(b)) => a.extend(b),
+            (Column::U16(a), Column::U16(b)) => a.extend(b),
+            (Column::F64(a), Column::F64(b)) => a.extend(b),
+            _ => unreachable!("a field's type is the same in every batch"),
+        }
+    }
+
+    fn into_py(self, py: Python<'_>) -> Bound<'_, PyAny> {
+        match self {
+            Column::U8(v) => v.into_pyarray(py).into_any(),
+            Column::U16(v) => v.into_pyarray(py).into_any(),
+            Column::F64(v) => v.into_pyarray(py).into_any(),
+        }
+    }
+}
+
+/// An opened dataset (`pcimg.open`).
+#[pyclass(frozen, module = "pcimg._pcimg", name = "Dataset")]
+struct NativeDataset {
+    ds: Arc<Dataset>,
+    location: String,
+}
+
+/// Opens a dataset: a `.tif` part, a directory of parts, or the URL of one
+/// (`s3://bucket/prefix`, `http(s)://...`); remote requests are retried for
+/// up to `timeout` seconds before they fail.
+#[pyfunction]
+#[pyo3(signature = (location, timeout = 30.0))]
+fn open(py: Python<'_>, location: &str, timeout: f64) -> PyResult<NativeDataset> {
+    if !(timeout.is_finite() && timeout > 0.0) {
+        return Err(PyValueError::new_err(format!(
+            "timeout must be a positive number of seconds, not {timeout}"
+        )));
+    }
+    let options = OpenOptions {
+        timeout: Duration::from_secs_f64(timeout),
+    };
+    let loc = location.to_string();
+    let ds = py
+        .detach(move || Dataset::open_with(Path::new(&loc), &options))
+        .map_err(store_err)?;
+    Ok(NativeDataset {
+        ds: Arc::new(ds),
+        location: location.to_string(),
+    })
+}
+
+/// The requests made to object storage and the bytes received so far, by
+/// every dataset this process opened: `(requests, bytes)`.
+#[pyfunction]
+fn network_stats() -> (u64, u64) {
+    let s = pcimg_store::remote::stats();
+    (s.requests, s.bytes)
+}
+
+/// Parses a Python box: `(minx, miny, maxx, maxy)` in 2D (any height) or
+/// `(minx, miny, minz, maxx, maxy, maxz)`.
+fn parse_box(what: &str, v: &[f64], dims: usize) -> PyResult<Bounds> {
+    let bad = || {
+        PyValueError::new_err(format!(
+            "{what} must be {} finite numbers (the minimum corner, then the maximum), got {v:?}",
+            dims * 2
+        ))
+    };
+    if v.len() != dims * 2 || v.iter().any(|x| !x.is_finite()) {
+        return Err(bad());
+    }
+    let mut b = Bounds {
+        min: [f64::NEG_INFINITY; 3],
+        max: [f64::INFINITY; 3],
+    };
+    for a in 0..dims {
+        b.min[a] = v[a];
+        b.max[a] = v[a + dims];
+        if b.min[a] > b.max[a] {
+            return Err(PyValueError::new_err(format!(
+                "{what}: the minimum {} lies above the maximum {} on axis {a}",
+                b.min[a], b.max[a]
+            )));
+        }
+    }
+    Ok(b)
+}
+
+/// The intersection of two boxes (`None` when either is absent).
+fn both(a: Option<Bounds>, b: Option<Bounds>) -> Option<Bounds> {
+    match (a, b) {
+        (Some(a), Some(b)) => Some(Bounds {
+            min: [0, 1, 2].map(|i| a.min[i].max(b.min[i])),
+            max: [0, 1, 2].map(|i| a.max[i].min(b.max[i])),
+        }),
+        (a, b) => a.or(b),
+    }
+}
+
+#[pymethods]
+impl NativeDataset {
+    /// The dataset's facts as plain Python values.
+    fn info<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+        let ds = &self.ds;
+        let d = PyDict::new(py);
+        d.set_item("location", &self.location)?;
+        d.set_item("parts", ds.parts.len())?;
+        d.set_item("points", ds.points())?;
+        let levels = ds.parts.iter().map(|p| p.levels.len()).max().unwrap_or(0);
+        // Each level's points over the parts (a part with fewer levels gives
+        // its coarsest to the deeper ones, as a read of that level does).
+        let level_points: Vec<u64> = (0..levels)
+            .map(|l| {
+                ds.parts
+                    .iter()
+                    .filter_map(|p| {
+                        let n = p.meta.level_points.len();
+                        (n > 0).then(|| p.meta.level_points[l.min(n - 1)])
+                    })
+                    .sum()
+            })
+            .collect();
+        d.set_item("levels", level_points)?;
+        let mut bands = vec!["x".to_string(), "y".into(), "z".into()];
+        bands.extend(plan_all(ds).bands);
+        let fields = PyDict::new(py);
+        for b in &bands {
+            let f = field(ds, b);
+            fields.set_item(&f.name, (f.band.as_str(), f.kind.name()))?;
+        }
+        d.set_item("fields", fields)?;
+        let b = ds.bounds();
+        d.set_item(
+            "bounds",
+            (b.min[0], b.min[1], b.min[2], b.max[0], b.max[1], b.max[2]),
+        )?;
+        d.set_item("crs", ds.parts.iter().find_map(|p| p.meta.crs.clone()))?;
+        // Class counts, every point's, where every classified part records them.
+        let classified: Vec<_> = ds
+            .parts
+            .iter()
+            .filter(|p| p.band_index("classification").is_some())
+            .collect();
+        if !classified.is_empty() && classified.iter().all(|p| !p.meta.class_counts.is_empty()) {
+            let mut counts = std::collections::BTreeMap::<u8, u64>::new();
+            for p in classified {
+                for &(c, n) in &p.meta.class_counts {
+                    *counts.entry(c).or_default() += n;
+                }
+            }
+            d.set_item("classes", counts)?;
+        } else {
+            d.set_item("classes", py.None())?;
+        }
+        Ok(d)
+    }
+
+    /// What a read of `level` (each part's coarsest where it has fewer) in
+    /// `bounds` (2D) and `clip` (3D), of `classes`, with `columns` (field or
+    /// band names; every field when `None`) reads.
+    #[pyo3(signature = (level = 0, bounds = None, clip = None, classes = None, columns = None))]
+    fn plan(
+        &self,
+        level: usize,
+        bounds: Option<Vec<f64>>,
+        clip: Option<Vec<f64>>,
+        classes: Option<Vec<i64>>,
+        columns: Option<Vec<String>>,
+    ) -> PyResult<NativePlan> {
+        let ds = &self.ds;
+        let bounds = bounds.map(|v| parse_box("bounds", &v, 2)).transpose()?;
+        let clip = clip.map(|v| parse_box("clip", &v, 3)).transpose()?;
+        let classes = classes
+            .map(|v| {
+                v.into_iter()
+                    .map(|c| {
+                        u8::try_from(c).map_err(|_| {
+                            PyValueError::new_err(format!("class {c} is not a class (0 to 255)"))
+                        })
+                    })
+                    .collect::<PyResult<Vec<u8>>>()
+            })
+            .transpose()?;
+        let selection = Selection {
+            clip: both(bounds, clip),
+            classes,
+        };
+        let plan = query::plan(ds, level, |b| selection.may_hold(b));
+        let mut all = vec![field(ds, "x"), field(ds, "y"), field(ds, "z")];
+        all.extend(plan_all(ds).bands.iter().map(|b| field(ds, b)));
+        let fields = match columns {
+            None => all,
+            Some(names) => names
+                .iter()
+                .map(|n| {
+                    all.iter()
+                        .find(|f| f.name.eq_ignore_ascii_case(n) || f.band.eq_ignore_ascii_case(n))
+                        .cloned()
+                        .ok_or_else(|| {
+                            let have: Vec<&str> = all.iter().map(|f| f.name.as_str()).collect();
+                            PyValueError::new_err(format!(
+                                "{}: no field '{n}'; it has {}",
+                                self.location,
+                                have.join(", ")
+                            ))
+                        })
+                })
+                .collect::<PyResult<Vec<Field>>>()?,
+        };
+        for (i, f) in fields.iter().enumerate() {
+            if fields[..i].iter().any(|g| g.band == f.band) {
+                return Err(PyValueError::new_err(format!(
+                    "field '{}' asked twice",
+                    f.name
+                )));
+            }
+        }
+        let batches = query::batches(ds, &plan.tiles);
+        Ok(NativePlan {
+            ds: self.ds.clone(),
+            plan,
+            selection,
+            fields,
+            batches,
+        })
+    }
+
+    fn __repr__(&self) -> String {
+        format!(
+            "pcimg.Dataset('{}': {} points in {} parts)",
+            self.location,
+            self.ds.points(),
+            self.ds.parts.len()
+        )
+    }
+}
+
+/// Every tile of level 0: the bands of every part.
+fn plan_all(ds: &Dataset) -> Plan {
+    query::plan(ds, 0, |_| false)
+}
+
+/// A read planned: the tiles it reaches, in batches.
+#[pyclass(frozen, module = "pcimg._pcimg", name = "Plan")]
+struct NativePlan {
+    ds: Arc<Dataset>,
+    plan: Plan,
+    selection: Selection,
+    fields: Vec<Field>,
+    batches: Vec<(usize, usize, Vec<u32>)>,
+}
+
+impl NativePlan {
+    /// Reads batch `i` into one column per field.
+    fn read_one(&self, i: usize) -> Result<Vec<Column>, StoreError> {
+        let mut bands: Vec<String> = self.selection.bands();
+        for f in &self.fields {
+            if !["x", "y", "z"].contains(&f.band.as_str()) && !bands.contains(&f.band) {
+                bands.push(f.band.clone());
+            }
+        }
+        let r = query::read_batch(&self.ds, self.batches[i].clone(), &bands)?;
+        // Coordinates on the part's own lattice (parts from one LAS file share
+        // its scale, each with an origin of its own).
+        let lattice = self.ds.part(r.part).and_then(|p| p.meta.lattice);
+        let keep = self.selection.keep(&r.points, lattice);
+        let mut b = Batch::of_points(&r.points, keep.as_deref(), &bands, lattice);
+        drop(r);
+        let mut xyz = [
+            std::mem::take(&mut b.x),
+            std::mem::take(&mut b.y),
+            std::mem::take(&mut b.z),
+        ];
+        Ok(self
+            .fields
+            .iter()
+            .map(|f| {
+                let v = match f.band.as_str() {
+                    "x" => std::mem::take(&mut xyz[0]),
+                    "y" => std::mem::take(&mut xyz[1]),
+                    "z" => std::mem::take(&mut xyz[2]),
+                    name => {
+                        // (Each band once: `plan` refuses a field asked twice.)
+                        let k = bands.iter().position(|b| b == name).unwrap_or(0);
+                        std::mem::take(&mut b.bands[k])
+                    }
+                };
+                Column::of(v, f.kind)
+            })
+            .collect())
+    }
+
+    /// Columns as a dict of numpy arrays, in the fields' order.
+    fn to_dict<'py>(&self, py: Python<'py>, cols: Vec<Column>) -> PyResult<Bound<'py, PyDict>> {
+        let d = PyDict::new(py);
+        for (f, c) in self.fields.iter().zip(cols) {
+            d.set_item(&f.name, c.into_py(py))?;
+        }
+        Ok(d)
+    }
+}
+
+#[pymethods]
+impl NativePlan {
+    /// The fields read, in order: `[(name, band, numpy type)]`.
+    fn fields(&self) -> Vec<(String, String, &'static str)> {
+        self.fields
+            .iter()
+            .map(|f| (f.name.clone(), f.band.clone(), f.kind.name()))
+            .collect()
+    }
+
+    /// Batches of tiles (each at most 4 M points of one part).
+    fn batches(&self) -> usize {
+        self.batches.len()
+    }
+
+    /// Tiles reached and tiles left unread.
+    fn tiles(&self) -> (usize, usize) {
+        (self.plan.tiles.len(), self.plan.skipped)
+    }
+
+    /// Points in the tiles reached: the most a read returns.
+    fn points(&self) -> u64 {
+        self.plan.points
+    }
+
+    /// Every batch, read in parallel with the GIL released, as one dict of
+    /// columns.
+    fn read<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+        let cols = py
+            .detach(|| -> Result<Vec<Column>, StoreError> {
+                let parts = (0..self.batches.len())
+                    .into_par_iter()
+                    .map(|i| self.read_one(i))
+                    .collect::<Result<Vec<_>, _>>()?;
+                let mut it = parts.into_iter();
+                let Some(mut first) = it.next() else {
+                    return Ok(self
+                        .fields
+                        .iter()
+                        .map(|f| Column::of(Vec::new(), f.kind))
+                        .collect());
+                };
+                for more in it {
+                    for (a, b) in first.iter_mut().zip(more) {
+                        a.extend(b);
+                    }
+                }
+                Ok(first)
+            })
+            .map_err(store_err)?;
+        self.to_dict(py, cols)
+    }
+
+    /// Batch `i` alone, with the GIL released while it is read.
+    fn read_batch<'py>(&self, py: Python<'py>, i: usize) -> PyResult<Bound<'py, PyDict>> {
+        if i >= self.batches.len() {
+            return Err(PyValueError::new_err(format!(
+                "batch {i} of {}",
+                self.batches.len()
+            )));
+        }
+        let cols = py.detach(|| self.read_one(i)).map_err(store_err)?;
+        self.to_dict(py, cols)
+    }
+}
+
+#[pymodule]
+fn _pcimg(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add_function(wrap_pyfunction!(open, m)?)?;
+    m.add_function(wrap_pyfunction!(network_stats, m)?)?;
+    m.add_class::<NativeDataset>()?;
+    m.add_class::<NativePlan>()?;
+    Ok(())
+}
