@@ -111,7 +111,14 @@ pub fn export(
         path: out.to_path_buf(),
         source,
     })?;
-    let mut sink = open_sink(file, out, format, plan)?;
+    // An extended LAS format where a source was in one (its overlap flag,
+    // scanner channel and finer scan angle have no place in the older ones).
+    let extended = ds.parts.iter().any(|p| {
+        p.meta.from_source.iter().any(|(k, v)| {
+            k == crate::store::spec::key::LAS_POINT_FORMAT && v.parse::<u8>().is_ok_and(|f| f >= 6)
+        })
+    });
+    let mut sink = open_sink(file, out, format, plan, extended)?;
     let (mut read, mut written) = (0u64, 0u64);
     let tiles_read = read_batches(ds, &plan.tiles, &plan.bands, |r| {
         if stop.load(Ordering::SeqCst) {
@@ -183,15 +190,20 @@ fn open_sink(
     out: &Path,
     format: OutFormat,
     plan: &Plan,
+    extended: bool,
 ) -> Result<Box<dyn Sink>, ExportError> {
     let werr = |source| ExportError::Write {
         path: out.to_path_buf(),
         source,
     };
     Ok(match format {
-        OutFormat::Las | OutFormat::Laz => {
-            Box::new(LasSink::new(file, out, plan, format == OutFormat::Laz)?)
-        }
+        OutFormat::Las | OutFormat::Laz => Box::new(LasSink::new(
+            file,
+            out,
+            plan,
+            format == OutFormat::Laz,
+            extended,
+        )?),
         OutFormat::Ply => Box::new(PlySink::new(file, out, plan).map_err(werr)?),
         OutFormat::Csv | OutFormat::Xyz => {
             Box::new(TextSink::new(file, out, plan, format == OutFormat::Csv).map_err(werr)?)
@@ -261,7 +273,7 @@ struct LasSink {
     header: las::Header,
     out: PathBuf,
     /// The column of each LAS field in a batch's bands.
-    cols: [Option<usize>; 9],
+    cols: [Option<usize>; LAS_BANDS.len()],
     /// The columns written as extra bytes (a double each), in order, and
     /// their names.
     extra: Vec<usize>,
@@ -275,6 +287,7 @@ impl LasSink {
         out: &Path,
         plan: &Plan,
         compressed: bool,
+        extended: bool,
     ) -> Result<LasSink, ExportError> {
         let lerr = |e: las::Error| ExportError::Las {
             path: out.to_path_buf(),
@@ -287,7 +300,7 @@ impl LasSink {
         // Formats 6 to 8 where the points need them: near-infrared, or more than
         // 2^32 points (classes above 31 are checked per point and clamped out of
         // the legacy formats' 5 bits, so they are asked for up front too).
-        let big_classes = plan.points > u32::MAX as u64 || has("nir");
+        let big_classes = plan.points > u32::MAX as u64 || has("nir") || extended;
         let format_number: u8 = match (big_classes, has("gps_time"), colour) {
             (true, _, _) if has("nir") => 8,
             (true, _, true) => 7,
@@ -456,10 +469,19 @@ impl Sink for LasSink {
                 }
             };
             let time = get(4, i).unwrap_or(0.0).to_le_bytes();
+            let angle = get(9, i).unwrap_or(0.0);
+            let flags = whole(12, i, 255.0) as u8;
+            let source = (whole(11, i, 65535.0) as u16).to_le_bytes();
+            r[17] = whole(10, i, 255.0) as u8;
             if fmt < 6 {
                 let (ret, n) = (whole(1, i, 7.0) as u8, whole(2, i, 7.0) as u8);
-                r[14] = ret | n << 3;
-                r[15] = whole(3, i, 31.0) as u8;
+                // Scan direction and edge (bits 6, 7 of both), then synthetic,
+                // key-point and withheld (the flags' bits 0 to 2, byte 15's
+                // bits 5 to 7): `LAS_FLAGS`.
+                r[14] = ret | n << 3 | (flags & 0xC0);
+                r[15] = whole(3, i, 31.0) as u8 | (flags & 7) << 5;
+                r[16] = round(angle).clamp(-90.0, 90.0) as i8 as u8;
+                r[18..20].copy_from_slice(&source);
                 if matches!(fmt, 1 | 3) {
                     r[20..28].copy_from_slice(&time);
                 }
@@ -471,7 +493,11 @@ impl Sink for LasSink {
             } else {
                 let (ret, n) = (whole(1, i, 15.0) as u8, whole(2, i, 15.0) as u8);
                 r[14] = ret | n << 4;
+                r[15] = flags;
                 r[16] = whole(3, i, 255.0) as u8;
+                let steps = round(angle / 0.006).clamp(-30_000.0, 30_000.0) as i16;
+                r[18..20].copy_from_slice(&steps.to_le_bytes());
+                r[20..22].copy_from_slice(&source);
                 r[22..30].copy_from_slice(&time);
                 if fmt >= 7 {
                     colour(r, 30);
@@ -530,8 +556,10 @@ impl Sink for LasSink {
 /// values are whole numbers.
 fn band_kind(name: &str) -> (&'static str, bool) {
     match name {
-        "classification" | "return_number" | "number_of_returns" => ("uchar", true),
-        "intensity" | "red" | "green" | "blue" | "nir" => ("ushort", true),
+        "classification" | "return_number" | "number_of_returns" | "user_data" | "las_flags" => {
+            ("uchar", true)
+        }
+        "intensity" | "red" | "green" | "blue" | "nir" | "point_source_id" => ("ushort", true),
         _ => ("double", false),
     }
 }

@@ -91,6 +91,46 @@ fn a_las_converted_and_exported_is_its_source_again_in_laspy() {
     }
 }
 
+/// A LAS 1.4 source in an extended format (7: colour, time), its overlap
+/// flags, scanner channels and fine scan angles set, comes back in an
+/// extended format with all of them, as laspy reads them.
+#[test]
+fn an_extended_format_source_keeps_its_flags_channels_and_fine_angles() {
+    let Some(py) = laspy() else {
+        return;
+    };
+    let dir = tempfile::tempdir().unwrap();
+    let las = dir.path().join("f7.las");
+    let o = Command::new(py)
+        .args(["-c", EXTENDED])
+        .arg(fixture())
+        .arg(&las)
+        .output()
+        .unwrap();
+    ok(&o, "laspy: the fixture as point format 7");
+    let ds = dir.path().join("f7.pcimg");
+    convert(&las, &ds, &[]);
+    let out = dir.path().join("back.laz");
+    let said = export(&ds, &out, &[]);
+    assert!(said.contains("LAS 1.4 point format 7"), "{said}");
+    let checked = check(py, &las, &out, &[]);
+    assert!(checked.starts_with("110000 points equal"), "{checked}");
+}
+
+/// The fixture as LAS 1.4 point format 7, with overlap flags, scanner
+/// channels and scan angles in 0.006° steps that whole degrees cannot hold.
+const EXTENDED: &str = r#"
+import sys, laspy, numpy as np
+src = laspy.read(sys.argv[1])
+las = laspy.convert(src, point_format_id=7, file_version="1.4")
+n = len(las.points)
+i = np.arange(n)
+las.overlap = (i % 3 == 0).astype(np.uint8)
+las.scanner_channel = (i % 4).astype(np.uint8)
+las.scan_angle = ((i % 20001) - 10000).astype(np.int16)
+las.write(sys.argv[2])
+"#;
+
 #[test]
 fn a_clipped_or_class_filtered_export_is_the_source_filtered_the_same_way() {
     let Some(py) = laspy() else {
@@ -166,7 +206,8 @@ fn a_level_is_an_even_sample_of_the_levels_points() {
     assert_eq!(
         lines.next(),
         Some(
-            "x,y,z,intensity,return_number,number_of_returns,classification,gps_time,red,green,blue"
+            "x,y,z,intensity,return_number,number_of_returns,classification,gps_time,red,green,blue,\
+             scan_angle,user_data,point_source_id,las_flags"
         )
     );
     assert_eq!(lines.count() as u64, level1);
@@ -391,7 +432,7 @@ fn exact_stats_equal_numpys_over_the_source_points() {
         .output()
         .unwrap();
     let said = ok(&o, "stats_match_las.py");
-    assert!(said.starts_with("11 bands and 2 classes equal"), "{said}");
+    assert!(said.starts_with("15 bands and 2 classes equal"), "{said}");
 }
 
 /// A level is an even sample: `stats --level 1` reads that level's points and

@@ -74,9 +74,21 @@ fn las_field(band: &str) -> (&str, Kind) {
         "green" => ("Green", Kind::U16),
         "blue" => ("Blue", Kind::U16),
         "nir" => ("Infrared", Kind::U16),
+        "scan_angle" => ("ScanAngleRank", Kind::F64),
+        "user_data" => ("UserData", Kind::U8),
+        "point_source_id" => ("PointSourceId", Kind::U16),
         other => (other, Kind::F64),
     }
 }
+
+/// The fields PDAL splits LAS's flags into, from the `las_flags` band (its
+/// layout: `pcimg_ingest::las::LAS_FLAGS`): name, first bit, mask.
+const FLAG_FIELDS: [(&str, u8, u8); 4] = [
+    ("ClassFlags", 0, 0x0f),
+    ("ScanChannel", 4, 0x03),
+    ("ScanDirectionFlag", 6, 0x01),
+    ("EdgeOfFlightLine", 7, 0x01),
+];
 
 /// One field of what a read returns.
 #[derive(Debug, Clone)]
@@ -86,6 +98,24 @@ struct Field {
     /// The dataset's band (`x`, `y`, `z` for the coordinates).
     band: String,
     kind: Kind,
+    /// Bits of the band's whole numbers (shift, mask): flags packed in one.
+    bits: Option<(u8, u8)>,
+}
+
+/// The fields of `band` in `ds`: one, or the flags packed in `las_flags`.
+fn fields_of(ds: &Dataset, band: &str) -> Vec<Field> {
+    if band == "las_flags" {
+        return FLAG_FIELDS
+            .iter()
+            .map(|&(name, shift, mask)| Field {
+                name: name.to_string(),
+                band: band.to_string(),
+                kind: Kind::U8,
+                bits: Some((shift, mask)),
+            })
+            .collect();
+    }
+    vec![field(ds, band)]
 }
 
 /// The field for `band` in `ds`: LAS's integer type only where every part that
@@ -110,6 +140,7 @@ fn field(ds: &Dataset, band: &str) -> Field {
         name: name.to_string(),
         band: band.to_string(),
         kind,
+        bits: None,
     }
 }
 
@@ -266,8 +297,7 @@ impl NativeDataset {
         let mut bands = vec!["x".to_string(), "y".into(), "z".into()];
         bands.extend(plan_all(ds).bands);
         let fields = PyDict::new(py);
-        for b in &bands {
-            let f = field(ds, b);
+        for f in bands.iter().flat_map(|b| fields_of(ds, b)) {
             fields.set_item(&f.name, (f.band.as_str(), f.kind.name()))?;
         }
         d.set_item("fields", fields)?;
@@ -329,15 +359,28 @@ impl NativeDataset {
         };
         let plan = query::plan(ds, level, |b| selection.may_hold(b));
         let mut all = vec![field(ds, "x"), field(ds, "y"), field(ds, "z")];
-        all.extend(plan_all(ds).bands.iter().map(|b| field(ds, b)));
+        all.extend(plan_all(ds).bands.iter().flat_map(|b| fields_of(ds, b)));
         let fields = match columns {
             None => all,
             Some(names) => names
                 .iter()
                 .map(|n| {
-                    all.iter()
-                        .find(|f| f.name.eq_ignore_ascii_case(n) || f.band.eq_ignore_ascii_case(n))
+                    // A field's name, or a band's (all of its fields).
+                    let by_name: Vec<Field> = all
+                        .iter()
+                        .filter(|f| f.name.eq_ignore_ascii_case(n))
                         .cloned()
+                        .collect();
+                    let found = if by_name.is_empty() {
+                        all.iter()
+                            .filter(|f| f.band.eq_ignore_ascii_case(n))
+                            .cloned()
+                            .collect()
+                    } else {
+                        by_name
+                    };
+                    Some(found)
+                        .filter(|f: &Vec<Field>| !f.is_empty())
                         .ok_or_else(|| {
                             let have: Vec<&str> = all.iter().map(|f| f.name.as_str()).collect();
                             PyValueError::new_err(format!(
@@ -347,10 +390,13 @@ impl NativeDataset {
                             ))
                         })
                 })
-                .collect::<PyResult<Vec<Field>>>()?,
+                .collect::<PyResult<Vec<Vec<Field>>>>()?
+                .into_iter()
+                .flatten()
+                .collect(),
         };
         for (i, f) in fields.iter().enumerate() {
-            if fields[..i].iter().any(|g| g.band == f.band) {
+            if fields[..i].iter().any(|g| g.name == f.name) {
                 return Err(PyValueError::new_err(format!(
                     "field '{}' asked twice",
                     f.name
@@ -422,12 +468,31 @@ impl NativePlan {
                     "y" => std::mem::take(&mut xyz[1]),
                     "z" => std::mem::take(&mut xyz[2]),
                     name => {
-                        // (Each band once: `plan` refuses a field asked twice.)
                         let k = bands.iter().position(|b| b == name).unwrap_or(0);
-                        std::mem::take(&mut b.bands[k])
+                        match f.bits {
+                            // (Several fields share the flags' band.)
+                            Some(_) => b.bands[k].clone(),
+                            // (Each other band once: `plan` refuses a field
+                            // asked twice.)
+                            None => std::mem::take(&mut b.bands[k]),
+                        }
                     }
                 };
-                Column::of(v, f.kind)
+                match f.bits {
+                    Some((shift, mask)) => Column::U8(
+                        v.iter()
+                            .map(|&x| {
+                                let w = if x.is_nan() {
+                                    0
+                                } else {
+                                    x.clamp(0.0, 255.0) as u8
+                                };
+                                (w >> shift) & mask
+                            })
+                            .collect(),
+                    ),
+                    None => Column::of(v, f.kind),
+                }
             })
             .collect())
     }

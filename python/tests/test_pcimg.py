@@ -33,6 +33,11 @@ EXACT = {
     "Red": "red",
     "Green": "green",
     "Blue": "blue",
+    "ScanAngleRank": "scan_angle_rank",
+    "UserData": "user_data",
+    "PointSourceId": "point_source_id",
+    "ScanDirectionFlag": "scan_direction_flag",
+    "EdgeOfFlightLine": "edge_of_flight_line",
 }
 
 
@@ -58,6 +63,10 @@ def ordered_las(las, mask=None):
     for ours, theirs in EXACT.items():
         cols[ours] = np.asarray(las.points[theirs]).astype(np.int64)
     cols["GpsTime"] = np.asarray(las.points["gps_time"], dtype=np.float64)
+    # PDAL's ClassFlags: synthetic, key-point, withheld (and overlap) as bits.
+    cols["ClassFlags"] = sum(
+        np.asarray(las.points[d]).astype(np.int64) << k for k, d in enumerate(["synthetic", "key_point", "withheld"])
+    )
     if mask is not None:
         cols = {k: v[mask] for k, v in cols.items()}
     order = np.lexsort([cols[k] for k in ["GpsTime", "Intensity", "Z", "Y", "X"]])
@@ -66,7 +75,7 @@ def ordered_las(las, mask=None):
 
 def ordered_ours(las, pts):
     cols = dict(zip("XYZ", lattice(las, pts)))
-    for k in EXACT:
+    for k in [*EXACT, "ClassFlags"]:
         cols[k] = pts[k].astype(np.int64)
     cols["GpsTime"] = pts["GpsTime"]
     order = np.lexsort([cols[k] for k in ["GpsTime", "Intensity", "Z", "Y", "X"]])
@@ -77,7 +86,7 @@ def assert_same_points(las, pts, mask=None):
     want = ordered_las(las, mask)
     got = ordered_ours(las, pts)
     assert len(got["X"]) == len(want["X"])
-    for k in ["X", "Y", "Z", *EXACT]:
+    for k in ["X", "Y", "Z", *EXACT, "ClassFlags"]:
         np.testing.assert_array_equal(got[k], want[k], err_msg=k)
     # GPS time: a part stores it as its offset plus a Float32 (within 1 µs here).
     np.testing.assert_allclose(got["GpsTime"], want["GpsTime"], rtol=0, atol=1e-6)
@@ -97,6 +106,9 @@ def test_info_gives_the_facts_as_plain_values(ds, las):
     assert info["fields"]["X"] == ("x", "float64")
     assert info["fields"]["Intensity"] == ("intensity", "uint16")
     assert info["fields"]["Classification"] == ("classification", "uint8")
+    assert info["fields"]["PointSourceId"] == ("point_source_id", "uint16")
+    assert info["fields"]["ScanDirectionFlag"] == ("las_flags", "uint8")
+    assert info["fields"]["ScanChannel"] == ("las_flags", "uint8")
     assert isinstance(info["crs"], (str, type(None)))
 
 
@@ -145,6 +157,9 @@ def test_columns_are_chosen_by_field_or_band_name_in_the_order_given(ds):
         ds.read(columns=["X", "Reflectance"])
     with pytest.raises(ValueError, match="asked twice"):
         ds.read(columns=["X", "x"])
+    # A band of packed flags gives all of its fields.
+    flags = ds.read(columns=["las_flags"])
+    assert flags.dtype.names == ("ClassFlags", "ScanChannel", "ScanDirectionFlag", "EdgeOfFlightLine")
 
 
 def test_chunks_give_the_same_points_as_one_read(ds):

@@ -1,10 +1,11 @@
 #!/usr/bin/env python3
 """A LAS/LAZ that `pcimg export` wrote against its source, through laspy (with
 lazrs), which pcimg does not use: the same points as a multiset, every
-attribute pcimg keeps compared point for point after sorting both by X, Y, Z
-and time: X Y Z as the same integers under the same scale and offset,
-intensity, returns, classification and colour exactly, gps_time to the
-float32 precision pcimg stores it with (relative to the part's offset).
+attribute compared point for point after sorting both by X, Y, Z and time: X Y
+Z as the same integers under the same scale and offset, intensity, returns,
+classification, colour, user data, point source ID, the flags and the scan
+angle exactly, gps_time to the float32 precision pcimg stores it with
+(relative to the part's offset).
 
     /usr/bin/python3 tests/python/export_matches_las.py SOURCE EXPORTED \
         [--clip MINX,MINY,MINZ,MAXX,MAXY,MAXZ] [--classes 2,6]
@@ -59,8 +60,29 @@ def main():
 
     so, oo = order(src, keep), order(out)
     fields = ["X", "Y", "Z", "intensity", "return_number", "number_of_returns", "classification"]
-    names = src.point_format.dimension_names
+    names = list(src.point_format.dimension_names)
     fields += [f for f in ("red", "green", "blue", "nir") if f in names]
+    # The fields every format has, and the flags (overlap and the scanner
+    # channel where both formats have them: the extended ones).
+    out_names = list(out.point_format.dimension_names)
+    fields += [
+        f
+        for f in ("user_data", "point_source_id", "scan_direction_flag", "edge_of_flight_line",
+                  "synthetic", "key_point", "withheld", "overlap", "scanner_channel")
+        if f in names and f in out_names
+    ]
+
+    def degrees(p, dims):
+        if "scan_angle_rank" in dims:
+            return np.asarray(p.scan_angle_rank, dtype=np.float64)
+        return np.asarray(p.scan_angle, dtype=np.float64) * 0.006
+
+    a = degrees(src, names)[keep][so]
+    b = degrees(out, out_names)[oo]
+    same = ("scan_angle_rank" in names) == ("scan_angle_rank" in out_names)
+    if n and np.abs(a - b).max() > (0.0 if same else 0.003):
+        i = int(np.argmax(np.abs(a - b)))
+        fail(f"scan angle: point {i} of the sorted points is {a[i]}° in the source, {b[i]}° exported")
     for f in fields:
         a = np.asarray(getattr(src, f))[keep][so]
         b = np.asarray(getattr(out, f))[oo]

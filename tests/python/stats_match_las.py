@@ -29,11 +29,22 @@ def main():
     if stats["level"] != 0 or stats["sampled"] != len(src.points):
         fail(f"not every point: level {stats['level']}, {stats['sampled']} of {len(src.points)}")
     checked = []
+    dims = list(src.point_format.dimension_names)
     for b in stats["bands"]:
         name = b["name"]
-        if name not in ("x", "y", "z") and name not in src.point_format.dimension_names:
+        if name == "scan_angle" and "scan_angle_rank" in dims:
+            v = np.asarray(src.scan_angle_rank, dtype=np.float64)
+        elif name == "las_flags" and "scan_direction_flag" in dims:
+            # LAS_FLAGS: the legacy formats' synthetic, key-point, withheld
+            # bits 0 to 2, scan direction 6, edge of flight line 7.
+            bits = ["synthetic", "key_point", "withheld"]
+            v = sum(np.asarray(src[d], dtype=np.float64) * 2**k for k, d in enumerate(bits))
+            v = v + np.asarray(src.scan_direction_flag, dtype=np.float64) * 64
+            v = v + np.asarray(src.edge_of_flight_line, dtype=np.float64) * 128
+        elif name in ("x", "y", "z") or name in dims:
+            v = np.asarray(getattr(src, name), dtype=np.float64)
+        else:
             continue
-        v = np.asarray(getattr(src, name), dtype=np.float64)
         if b["count"] != len(v):
             fail(f"{name}: count {b['count']} against {len(v)}")
         tol = 1e-6 * float(src.header.scales[0]) if name in "xyz" else 0.0

@@ -11,6 +11,9 @@ pub mod key {
     /// "rotation": [w, x, y, z], "translation": [x, y, z]}]`; `scan` is the
     /// value of the `scan` band.
     pub const SCANS: &str = "SCANS";
+    /// LAS and LAZ inputs: the source's point format, `0` to `10` (an export
+    /// writes an extended format, 6 to 8, for a source in one).
+    pub const LAS_POINT_FORMAT: &str = "LAS_POINT_FORMAT";
 }
 
 /// `v` rounded to the nearest whole number (halves away from zero) without a

@@ -95,7 +95,13 @@ pub(crate) struct LasReader {
 /// The band each LAS point field the reader keeps becomes, in the order it
 /// gives them (a format without time, colour or near-infrared leaves those
 /// out); `pcimg export` writes them back to the same fields.
-pub const LAS_BANDS: [&str; 9] = [
+///
+/// `scan_angle` is in degrees (LAS 1.4's formats 6 to 10 count 0.006° steps;
+/// the older ones whole degrees). `las_flags` packs the flags as LAS 1.4's
+/// formats 6 to 10 lay out their byte 15 (whatever the source's format): bits
+/// 0 to 3 synthetic, key-point, withheld, overlap; 4 and 5 the scanner channel;
+/// 6 the scan direction; 7 the edge of a flight line ([`LAS_FLAGS`]).
+pub const LAS_BANDS: [&str; 13] = [
     "intensity",
     "return_number",
     "number_of_returns",
@@ -105,6 +111,21 @@ pub const LAS_BANDS: [&str; 9] = [
     "green",
     "blue",
     "nir",
+    "scan_angle",
+    "user_data",
+    "point_source_id",
+    "las_flags",
+];
+
+/// The fields packed in the `las_flags` band: name (laspy's), first bit, bits.
+pub const LAS_FLAGS: [(&str, u8, u8); 7] = [
+    ("synthetic", 0, 1),
+    ("key_point", 1, 1),
+    ("withheld", 2, 1),
+    ("overlap", 3, 1),
+    ("scanner_channel", 4, 2),
+    ("scan_direction_flag", 6, 1),
+    ("edge_of_flight_line", 7, 1),
 ];
 
 /// The attribute names for a point format.
@@ -119,7 +140,21 @@ fn attribute_names(f: &las::point::Format) -> Vec<String> {
     if f.has_nir {
         v.push(LAS_BANDS[8]);
     }
+    v.extend(&LAS_BANDS[9..]);
     v.into_iter().map(String::from).collect()
+}
+
+/// A record's flags as the `las_flags` band packs them ([`LAS_BANDS`]): the
+/// extended formats' byte 15 as it is; the older formats' scan direction and
+/// edge bits (byte 14, bits 6 and 7) and their synthetic, key-point and
+/// withheld bits (byte 15, bits 5 to 7) moved there.
+#[inline]
+pub(crate) fn las_flags(record: &[u8], extended: bool) -> u8 {
+    if extended {
+        record[15]
+    } else {
+        (record[15] >> 5) | (record[14] & 0xC0)
+    }
 }
 
 /// The header's bounds, when they are finite and not inverted.
@@ -488,7 +523,10 @@ pub(crate) fn open_header(path: &Path) -> Result<Opened, IngestError> {
             attribute_names: attribute_names(&format),
             file_bytes: file_len,
             notes: Vec::new(),
-            metadata: Vec::new(),
+            metadata: vec![(
+                crate::points::key::LAS_POINT_FORMAT.to_string(),
+                format.to_u8().map_or(String::new(), |f| f.to_string()),
+            )],
             coordinate_step: Some(scales.map(f64::abs)),
             coordinate_lattice: Some(crate::points::Lattice {
                 step: scales,
@@ -740,6 +778,24 @@ fn append_columns(pd: &las::PointData, cols: &mut PointColumns, gps_offset: &mut
     {
         a.values.extend(nir.map(f32::from));
     }
+    if let Some(a) = next() {
+        a.values.extend(pd.scan_angle_degrees());
+    }
+    if let Some(a) = next() {
+        a.values.extend(pd.user_data().map(f32::from));
+    }
+    if let Some(a) = next() {
+        a.values.extend(pd.point_source_id().map(f32::from));
+    }
+    if let Some(a) = next() {
+        let extended = pd.format().is_extended;
+        let rec = pd.record_len();
+        a.values.extend(
+            pd.raw_bytes()
+                .chunks_exact(rec)
+                .map(|r| f32::from(las_flags(r, extended))),
+        );
+    }
 }
 
 impl PointReader for LasReader {
@@ -967,6 +1023,68 @@ mod tests {
         assert_eq!(r.bytes_done(), info.file_bytes);
     }
 
+    /// Scan angle, user data, point source ID and every flag, in an older and
+    /// an extended format, as the `las` crate's own points give them: the flags
+    /// packed as `LAS_FLAGS` says.
+    #[test]
+    fn scan_angle_user_data_source_and_flags_are_kept() {
+        let dir = tempfile::tempdir().unwrap();
+        for f in [1u8, 6] {
+            let format = las::point::Format::new(f).unwrap();
+            let mut b = las::Builder::default();
+            b.version = las::Version::new(1, 4);
+            b.point_format = format;
+            let path = dir.path().join(format!("f{f}.las"));
+            let mut w = las::Writer::from_path(&path, b.into_header().unwrap()).unwrap();
+            for i in 0..500u32 {
+                w.write_point(las::Point {
+                    x: i as f64,
+                    y: 1.0,
+                    z: 2.0,
+                    gps_time: Some(i as f64),
+                    scan_angle: if format.is_extended {
+                        (i as f32 - 250.0) * 0.3
+                    } else {
+                        (i % 181) as f32 - 90.0
+                    },
+                    user_data: (i % 256) as u8,
+                    point_source_id: (i * 131) as u16,
+                    scan_direction: if i.is_multiple_of(2) {
+                        las::point::ScanDirection::LeftToRight
+                    } else {
+                        las::point::ScanDirection::RightToLeft
+                    },
+                    is_edge_of_flight_line: i.is_multiple_of(3),
+                    is_synthetic: i.is_multiple_of(5),
+                    is_key_point: i.is_multiple_of(7),
+                    is_withheld: i.is_multiple_of(11),
+                    is_overlap: format.is_extended && i.is_multiple_of(13),
+                    scanner_channel: if format.is_extended { (i % 4) as u8 } else { 0 },
+                    ..Default::default()
+                })
+                .unwrap();
+            }
+            w.close().unwrap();
+            let (_, c, _) = read_all(&path, &ReadOptions::default()).unwrap();
+            let data = las::Reader::from_path(&path).unwrap().read_all().unwrap();
+            for (i, p) in data.points().enumerate() {
+                let p = p.unwrap();
+                let want = [p.is_synthetic, p.is_key_point, p.is_withheld, p.is_overlap]
+                    .iter()
+                    .enumerate()
+                    .fold(0u8, |m, (k, &on)| m | (u8::from(on) << k))
+                    | p.scanner_channel << 4
+                    | u8::from(p.scan_direction == las::point::ScanDirection::LeftToRight) << 6
+                    | u8::from(p.is_edge_of_flight_line) << 7;
+                let got = |n: &str| values(&c, n).values[i];
+                assert_eq!(got("las_flags"), f32::from(want), "format {f}, point {i}");
+                assert_eq!(got("scan_angle"), p.scan_angle, "format {f}, point {i}");
+                assert_eq!(got("user_data"), f32::from(p.user_data));
+                assert_eq!(got("point_source_id"), f32::from(p.point_source_id));
+            }
+        }
+    }
+
     #[test]
     fn las_and_laz_round_trip() {
         let d = tempfile::tempdir().unwrap();
@@ -1042,7 +1160,11 @@ mod tests {
                 "red",
                 "green",
                 "blue",
-                "nir"
+                "nir",
+                "scan_angle",
+                "user_data",
+                "point_source_id",
+                "las_flags"
             ]
         );
         assert_eq!(c.len(), 100);

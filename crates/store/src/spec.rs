@@ -108,10 +108,11 @@ pub mod key {
     /// `classification` band; counted when the part is written.
     pub const CLASS_COUNTS: &str = "CLASS_COUNTS";
     /// What a source says of itself, set by the readers on their columns' metadata
-    /// (`VIEWPOINT` of PCD, `SCANS` of E57): defined beside the columns.
-    pub use crate::points::key::{SCANS, VIEWPOINT};
+    /// (`VIEWPOINT` of PCD, `SCANS` of E57, `LAS_POINT_FORMAT` of LAS):
+    /// defined beside the columns.
+    pub use crate::points::key::{LAS_POINT_FORMAT, SCANS, VIEWPOINT};
     /// The items above: what a source says of itself, shown by `info`.
-    pub const FROM_SOURCE: &[&str] = &[VIEWPOINT, SCANS];
+    pub const FROM_SOURCE: &[&str] = &[VIEWPOINT, SCANS, LAS_POINT_FORMAT];
     /// Per-band minimum and maximum of the stored values (before the band offset),
     /// as GDAL names its band statistics, so `gdalinfo` shows them.
     pub const STATISTICS_MINIMUM: &str = "STATISTICS_MINIMUM";
