@@ -1238,7 +1238,7 @@ fn las_rows_read_from_the_input_match_a_held_copy() {
             assert_eq!(ds.parts.len(), 1);
             let p = &ds.parts[0];
             let bands: Vec<usize> = (0..p.bands.len()).collect();
-            assert_eq!(p.bands.len(), 8, "x y z and five attributes");
+            assert_eq!(p.bands.len(), 12, "x y z and nine attributes");
             (0..p.levels.len())
                 .map(|l| {
                     let pts = p.read_level(l, &bands).unwrap();

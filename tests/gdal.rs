@@ -742,10 +742,11 @@ fn gdal_unscales_the_compact_default_to_the_source() {
     assert_eq!(meta["PCIMG_FORMAT"], "2", "{meta}");
     assert_eq!(meta["TILE_ORDER"], "rows");
     assert_eq!(meta["LATTICE"], "0.01 0.01 0.01 0.0 0.0 0.0");
-    // Every band but gps_time (8) holds whole numbers.
-    assert_eq!(meta["WHOLE_BANDS"], "1 2 3 4 5 6 7 9 10 11");
+    // Every band but gps_time (8) holds whole numbers (the scan angle too:
+    // LAS 1.2's whole degrees).
+    assert_eq!(meta["WHOLE_BANDS"], "1 2 3 4 5 6 7 9 10 11 12 13 14 15");
     let bands = info["bands"].as_array().unwrap();
-    assert_eq!(bands.len(), 11);
+    assert_eq!(bands.len(), 15);
     for (i, b) in bands.iter().enumerate() {
         assert_eq!(b["type"], "Float32");
         assert_eq!(
@@ -770,7 +771,7 @@ fn gdal_unscales_the_compact_default_to_the_source() {
         .chunks_exact(8)
         .map(|c| f64::from_le_bytes(c.try_into().unwrap()))
         .collect();
-    let plane = values.len() / 11;
+    let plane = values.len() / 15;
     let band = |b: usize| &values[b * plane..(b + 1) * plane];
     let (_, src, _) = pcimg::ingest::read_all(&las, &Default::default()).unwrap();
     let n = src.x.len();
@@ -788,7 +789,7 @@ fn gdal_unscales_the_compact_default_to_the_source() {
         for v in c {
             worst = worst.max((v / 0.01 - (v / 0.01).round()).abs());
         }
-        ours.push(key(c, &mut (3..11).map(|b| band(b)[p])));
+        ours.push(key(c, &mut (3..15).map(|b| band(b)[p])));
     }
     assert!(
         worst < 1e-6,

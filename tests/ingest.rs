@@ -41,7 +41,11 @@ fn autzen_laz() {
             "gps_time",
             "red",
             "green",
-            "blue"
+            "blue",
+            "scan_angle",
+            "user_data",
+            "point_source_id",
+            "las_flags"
         ]
     );
     for c in ["red", "green", "blue"] {

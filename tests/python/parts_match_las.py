@@ -28,6 +28,27 @@ def fail(msg):
     sys.exit(1)
 
 
+def las_band(src, name):
+    """The source's values of pcimg band `name`: a LAS dimension of that name,
+    or the scan angle in degrees, or the flags packed as `las_flags` packs them
+    (the extended formats' byte 15: synthetic, key-point, withheld, overlap in
+    bits 0 to 3, the scanner channel in 4 and 5, scan direction 6, edge 7)."""
+    dims = list(src.point_format.dimension_names)
+    if name == "scan_angle":
+        if "scan_angle_rank" in dims:
+            return np.asarray(src.scan_angle_rank, dtype=np.float64)
+        return (np.asarray(src.scan_angle, dtype=np.float32) * np.float32(0.006)).astype(np.float64)
+    if name == "las_flags":
+        bits = [("synthetic", 0), ("key_point", 1), ("withheld", 2), ("overlap", 3),
+                ("scanner_channel", 4), ("scan_direction_flag", 6), ("edge_of_flight_line", 7)]
+        v = np.zeros(len(src.points), dtype=np.int64)
+        for d, shift in bits:
+            if d in dims:
+                v |= np.asarray(src[d]).astype(np.int64) << shift
+        return v.astype(np.float64)
+    return np.asarray(src[name], dtype=np.float64)
+
+
 def main():
     source, dataset = sys.argv[1], sys.argv[2]
     src = laspy.read(source)
@@ -85,7 +106,7 @@ def main():
         fail("the parts store no attribute")
     for name in names:
         mine = values[name][o]
-        source_values = np.asarray(src[name], dtype=np.float64)[t]
+        source_values = las_band(src, name)[t]
         if name == "gps_time":
             # float32 relative to the band's offset: within one unit in the last place.
             tol = ulps[name][o]

@@ -876,7 +876,11 @@ mod tests {
                 x: i as f64,
                 y: -(i as f64),
                 z: (i % 13) as f64,
-                gps_time: Some(if i.is_multiple_of(5) { f64::NAN } else { i as f64 }),
+                gps_time: Some(if i.is_multiple_of(5) {
+                    f64::NAN
+                } else {
+                    i as f64
+                }),
                 color: Some(las::Color::new(c, 255 - c.min(255), 7)),
                 ..Default::default()
             })
