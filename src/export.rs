@@ -112,11 +112,19 @@ pub fn export(
         source,
     })?;
     // An extended LAS format where a source was in one (its overlap flag,
-    // scanner channel and finer scan angle have no place in the older ones).
+    // scanner channel and finer scan angle have no place in the older ones),
+    // or where a part records classes above 31 (the older formats have 5 bits).
     let extended = ds.parts.iter().any(|p| {
-        p.meta.from_source.iter().any(|(k, v)| {
+        let from_extended = p.meta.from_source.iter().any(|(k, v)| {
             k == crate::store::spec::key::LAS_POINT_FORMAT && v.parse::<u8>().is_ok_and(|f| f >= 6)
-        })
+        });
+        let high_classes = p
+            .bands
+            .iter()
+            .find(|b| b.name == "classification")
+            .and_then(|b| b.range)
+            .is_some_and(|(_, hi)| hi > 31.0);
+        from_extended || high_classes
     });
     let mut sink = open_sink(file, out, format, plan, extended)?;
     let (mut read, mut written) = (0u64, 0u64);
@@ -297,9 +305,8 @@ impl LasSink {
         let cols = LAS_BANDS.map(col);
         let has = |n: &str| col(n).is_some();
         let colour = has("red") || has("green") || has("blue");
-        // Formats 6 to 8 where the points need them: near-infrared, or more than
-        // 2^32 points (classes above 31 are checked per point and clamped out of
-        // the legacy formats' 5 bits, so they are asked for up front too).
+        // Formats 6 to 8 where the points need them: near-infrared, more than
+        // 2^32 points, classes above 31 or an extended source (`extended`).
         let big_classes = plan.points > u32::MAX as u64 || has("nir") || extended;
         let format_number: u8 = match (big_classes, has("gps_time"), colour) {
             (true, _, _) if has("nir") => 8,

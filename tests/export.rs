@@ -263,6 +263,44 @@ fn ply_csv_and_xyz_exports_convert_back_to_the_same_points() {
     }
 }
 
+/// Classes above 31 (here from a CSV) need LAS 1.4's extended formats: the
+/// export takes one, and laspy reads every class back.
+#[test]
+fn classes_above_31_are_exported_in_an_extended_format() {
+    let Some(py) = laspy() else {
+        return;
+    };
+    let dir = tempfile::tempdir().unwrap();
+    let csv = dir.path().join("classes.csv");
+    let mut text = String::from("x,y,z,classification\n");
+    for i in 0..3000 {
+        text += &format!(
+            "{},{},{},{}\n",
+            i % 60,
+            i / 60,
+            i % 7,
+            [2, 31, 64, 200][i % 4]
+        );
+    }
+    std::fs::write(&csv, text).unwrap();
+    let ds = dir.path().join("classes.pcimg");
+    convert(&csv, &ds, &[]);
+    let out = dir.path().join("classes.las");
+    let said = export(&ds, &out, &[]);
+    assert!(said.contains("point format 6"), "{said}");
+    let o = Command::new(py)
+        .args([
+            "-c",
+            "import sys, laspy, numpy as np; c = laspy.read(sys.argv[1]).classification; \
+             print(dict(zip(*[a.tolist() for a in np.unique(np.asarray(c), return_counts=True)])))",
+        ])
+        .arg(&out)
+        .output()
+        .unwrap();
+    let said = ok(&o, "laspy");
+    assert_eq!(said.trim(), "{2: 750, 31: 750, 64: 750, 200: 750}");
+}
+
 #[test]
 fn an_existing_output_is_refused_and_a_failed_export_leaves_nothing() {
     let dir = tempfile::tempdir().unwrap();

@@ -43,14 +43,16 @@ def network_stats():
     return _pcimg.network_stats()
 
 
-def _structured(fields, columns):
-    """One structured array from a dict of equally long columns."""
-    dtype = np.dtype([(name, np.dtype(kind)) for name, _band, kind in fields])
-    n = len(columns[fields[0][0]]) if fields else 0
-    out = np.empty(n, dtype=dtype)
-    for name, _band, _kind in fields:
-        out[name] = columns[name]
-    return out
+def _dtype(fields):
+    return np.dtype([(name, np.dtype(kind)) for name, _band, kind in fields])
+
+
+def _records(plan, batch=None):
+    """The plan's points (or batch `batch`'s) written by the native module
+    straight into a structured array."""
+    dtype = _dtype(plan.fields())
+    offsets = [dtype.fields[name][1] for name in dtype.names]
+    return plan.records(dtype, offsets, batch)
 
 
 class Dataset:
@@ -89,16 +91,14 @@ class Dataset:
         ``(minx, miny, minz, maxx, maxy, maxz)`` (both inclusive), of
         ``classes`` (codes), with ``columns`` (field or band names; every
         field when None), as a numpy structured array."""
-        plan = self._plan(level, bounds, clip, classes, columns)
-        return _structured(plan.fields(), plan.read())
+        return _records(self._plan(level, bounds, clip, classes, columns))
 
     def chunks(self, level=0, bounds=None, clip=None, classes=None, columns=None):
         """As ``read``, a batch of tiles at a time (at most 4 M points each):
         an iterator of structured arrays, for data larger than memory."""
         plan = self._plan(level, bounds, clip, classes, columns)
-        fields = plan.fields()
         for i in range(plan.batches()):
-            yield _structured(fields, plan.read_batch(i))
+            yield _records(plan, i)
 
     def arrow(self, level=0, bounds=None, clip=None, classes=None, columns=None):
         """As ``chunks``, as a ``pyarrow.RecordBatchReader`` (needs pyarrow)."""

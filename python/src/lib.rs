@@ -173,15 +173,6 @@ impl Column {
         }
     }
 
-    fn extend(&mut self, other: Column) {
-        match (self, other) {
-            (Column::U8(a), Column::U8(b)) => a.extend(b),
-            (Column::U16(a), Column::U16(b)) => a.extend(b),
-            (Column::F64(a), Column::F64(b)) => a.extend(b),
-            _ => unreachable!("a field's type is the same in every batch"),
-        }
-    }
-
     fn into_py(self, py: Python<'_>) -> Bound<'_, PyAny> {
         match self {
             Column::U8(v) => v.into_pyarray(py).into_any(),
@@ -428,6 +419,45 @@ fn plan_all(ds: &Dataset) -> Plan {
     query::plan(ds, 0, |_| false)
 }
 
+/// A batch read: its columns, the rows the selection keeps (`None`: all) and
+/// its part's lattice.
+struct Kept {
+    points: pcimg_store::Points,
+    rows: Option<Vec<u32>>,
+    lattice: Option<pcimg_core::points::Lattice>,
+}
+
+impl Kept {
+    fn len(&self) -> usize {
+        self.rows.as_ref().map_or(self.points.len(), Vec::len)
+    }
+}
+
+/// Writes `value(r)` at byte `at` of each of the first `n` records of `out`
+/// (`record` bytes each).
+#[inline(always)]
+fn put<const W: usize>(
+    out: &mut [u8],
+    record: usize,
+    at: usize,
+    n: usize,
+    value: impl Fn(usize) -> [u8; W],
+) {
+    for (r, rec) in out.chunks_exact_mut(record).take(n).enumerate() {
+        rec[at..at + W].copy_from_slice(&value(r));
+    }
+}
+
+/// `v` as a whole number within `0..=max` (NaN: 0).
+#[inline(always)]
+fn whole(v: f64, max: f64) -> f64 {
+    if v.is_nan() {
+        0.0
+    } else {
+        pcimg_core::points::round_whole(v.clamp(0.0, max))
+    }
+}
+
 /// A read planned: the tiles it reaches, in batches.
 #[pyclass(frozen, module = "pcimg._pcimg", name = "Plan")]
 struct NativePlan {
@@ -439,14 +469,126 @@ struct NativePlan {
 }
 
 impl NativePlan {
-    /// Reads batch `i` into one column per field.
-    fn read_one(&self, i: usize) -> Result<Vec<Column>, StoreError> {
+    /// The bands a batch is read with besides x y z: the selection's, then the
+    /// fields'.
+    fn bands(&self) -> Vec<String> {
         let mut bands: Vec<String> = self.selection.bands();
         for f in &self.fields {
             if !["x", "y", "z"].contains(&f.band.as_str()) && !bands.contains(&f.band) {
                 bands.push(f.band.clone());
             }
         }
+        bands
+    }
+
+    /// Batch `i` read, and which of its points the selection keeps.
+    fn read_kept(&self, i: usize, bands: &[String]) -> Result<Kept, StoreError> {
+        let r = query::read_batch(&self.ds, self.batches[i].clone(), bands)?;
+        let lattice = self.ds.part(r.part).and_then(|p| p.meta.lattice);
+        let keep = self.selection.keep(&r.points, lattice);
+        let rows: Option<Vec<u32>> = keep.map(|k| {
+            k.iter()
+                .enumerate()
+                .filter(|(_, k)| **k)
+                .map(|(i, _)| i as u32)
+                .collect()
+        });
+        Ok(Kept {
+            points: r.points,
+            rows,
+            lattice,
+        })
+    }
+
+    /// Writes the kept points of `k` as records into `out` (`record` bytes
+    /// each, field `j` at `offsets[j]`), in parallel.
+    fn fill(&self, k: &Kept, out: &mut [u8], record: usize, offsets: &[usize]) {
+        let p = &k.points;
+        // Each field's column (offset and values) in the batch, if the part has it.
+        let cols: Vec<Option<(f64, &[f32])>> = self
+            .fields
+            .iter()
+            .map(|f| {
+                let i = p.bands.iter().position(|b| *b == f.band)?;
+                Some((p.offsets[i], p.columns[i].as_slice()))
+            })
+            .collect();
+        let axis: Vec<Option<usize>> = self
+            .fields
+            .iter()
+            .map(|f| ["x", "y", "z"].iter().position(|a| *a == f.band))
+            .collect();
+        const ROWS: usize = 1 << 14;
+        out.par_chunks_mut(ROWS * record)
+            .enumerate()
+            .for_each(|(c, chunk)| {
+                let first = c * ROWS;
+                let n = chunk.len() / record;
+                let row = |r: usize| match &k.rows {
+                    Some(rows) => rows[first + r] as usize,
+                    None => first + r,
+                };
+                // Field by field, each with its own loop (no choice per value).
+                for (j, f) in self.fields.iter().enumerate() {
+                    let at = offsets[j];
+                    let Some((off, col)) = cols[j] else {
+                        let nan = f64::NAN.to_le_bytes();
+                        match f.kind {
+                            Kind::F64 if f.bits.is_none() => put(chunk, record, at, n, |_| nan),
+                            Kind::U16 if f.bits.is_none() => {
+                                put(chunk, record, at, n, |_| [0u8; 2])
+                            }
+                            _ => put(chunk, record, at, n, |_| [0u8; 1]),
+                        }
+                        continue;
+                    };
+                    let value = |r: usize| off + col[row(r)] as f64;
+                    match (f.kind, f.bits, axis[j].zip(k.lattice)) {
+                        (_, Some((shift, mask)), _) => put(chunk, record, at, n, |r| {
+                            [(whole(value(r), 255.0) as u8 >> shift) & mask]
+                        }),
+                        (Kind::F64, None, Some((a, l))) => {
+                            let (o, step) = (l.origin[a], l.step[a]);
+                            put(chunk, record, at, n, |r| {
+                                let v = value(r);
+                                (o + pcimg_core::points::round_whole((v - o) / step) * step)
+                                    .to_le_bytes()
+                            })
+                        }
+                        (Kind::F64, None, None) => {
+                            put(chunk, record, at, n, |r| value(r).to_le_bytes())
+                        }
+                        (Kind::U16, None, _) => put(chunk, record, at, n, |r| {
+                            (whole(value(r), 65535.0) as u16).to_le_bytes()
+                        }),
+                        (Kind::U8, None, _) => {
+                            put(chunk, record, at, n, |r| [whole(value(r), 255.0) as u8])
+                        }
+                    }
+                }
+            });
+    }
+
+    /// The points batch `i`'s tiles record.
+    fn batch_points(&self, i: usize) -> usize {
+        let (p, l, tiles) = &self.batches[i];
+        let Some(level) = self.ds.part(*p).and_then(|p| p.levels.get(*l)) else {
+            return 0;
+        };
+        let count: std::collections::HashMap<u32, u32> = level
+            .tiles
+            .iter()
+            .map(|t| (t.index, t.points.unwrap_or(0)))
+            .collect();
+        tiles
+            .iter()
+            .map(|t| count.get(t).copied().unwrap_or(0) as usize)
+            .sum()
+    }
+
+    /// Reads batch `i` into one column per field.
+    fn read_one(&self, i: usize) -> Result<Vec<Column>, StoreError> {
+        let bands = self.bands();
         let r = query::read_batch(&self.ds, self.batches[i].clone(), &bands)?;
         // Coordinates on the part's own lattice (parts from one LAS file share
         // its scale, each with an origin of its own).
@@ -532,32 +674,92 @@ impl NativePlan {
         self.plan.points
     }
 
-    /// Every batch, read in parallel with the GIL released, as one dict of
-    /// columns.
-    fn read<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
-        let cols = py
-            .detach(|| -> Result<Vec<Column>, StoreError> {
-                let parts = (0..self.batches.len())
-                    .into_par_iter()
-                    .map(|i| self.read_one(i))
-                    .collect::<Result<Vec<_>, _>>()?;
-                let mut it = parts.into_iter();
-                let Some(mut first) = it.next() else {
-                    return Ok(self
-                        .fields
-                        .iter()
-                        .map(|f| Column::of(Vec::new(), f.kind))
-                        .collect());
-                };
-                for more in it {
-                    for (a, b) in first.iter_mut().zip(more) {
-                        a.extend(b);
+    /// Every point as a numpy structured array of `dtype` (its fields those of
+    /// [`fields`](Self::fields), at `offsets`), written straight into it.
+    /// Without a selection the batches' sizes are known (the tiles record
+    /// them), so each batch is read and written in turn, in parallel; with one,
+    /// the batches are read first, then written.
+    fn records<'py>(
+        &self,
+        py: Python<'py>,
+        dtype: Bound<'py, PyAny>,
+        offsets: Vec<usize>,
+        batch: Option<usize>,
+    ) -> PyResult<Bound<'py, PyAny>> {
+        let record: usize = dtype.getattr("itemsize")?.extract()?;
+        if offsets.len() != self.fields.len() {
+            return Err(PyValueError::new_err("one offset a field"));
+        }
+        let which: Vec<usize> = match batch {
+            Some(i) if i >= self.batches.len() => {
+                return Err(PyValueError::new_err(format!(
+                    "batch {i} of {}",
+                    self.batches.len()
+                )));
+            }
+            Some(i) => vec![i],
+            None => (0..self.batches.len()).collect(),
+        };
+        let bands = self.bands();
+        let plain = self.selection == Selection::default();
+        // The batches' points: from the tiles' counts, or read first.
+        let (sizes, held): (Vec<usize>, Option<Vec<Kept>>) = if plain {
+            let sizes = which.iter().map(|&i| self.batch_points(i)).collect();
+            (sizes, None)
+        } else {
+            let held = py
+                .detach(|| {
+                    which
+                        .par_iter()
+                        .map(|&i| self.read_kept(i, &bands))
+                        .collect::<Result<Vec<Kept>, _>>()
+                })
+                .map_err(store_err)?;
+            (held.iter().map(Kept::len).collect(), Some(held))
+        };
+        let total: usize = sizes.iter().sum();
+        let np = py.import("numpy")?;
+        let out = np.call_method1("empty", (total, &dtype))?;
+        let bytes = out.call_method1("view", (np.getattr("uint8")?,))?;
+        let mut rw: numpy::PyReadwriteArray1<'py, u8> = bytes.extract()?;
+        let slice = rw
+            .as_slice_mut()
+            .map_err(|e| PyValueError::new_err(e.to_string()))?;
+        // Each batch's records.
+        let mut parts: Vec<&mut [u8]> = Vec::with_capacity(sizes.len());
+        let mut rest = slice;
+        for &n in &sizes {
+            let (a, b) = rest.split_at_mut(n * record);
+            parts.push(a);
+            rest = b;
+        }
+        py.detach(|| -> Result<(), StoreError> {
+            match held {
+                Some(held) => {
+                    for (k, part) in held.iter().zip(parts) {
+                        self.fill(k, part, record, &offsets);
                     }
+                    Ok(())
                 }
-                Ok(first)
-            })
-            .map_err(store_err)?;
-        self.to_dict(py, cols)
+                None => which.par_iter().zip(parts).try_for_each(|(&i, part)| {
+                    let k = self.read_kept(i, &bands)?;
+                    if k.len() * record != part.len() {
+                        return Err(StoreError::new(
+                            &self.ds.path,
+                            format!(
+                                "batch {i}: {} points read where its tiles record {}",
+                                k.len(),
+                                part.len() / record
+                            ),
+                        ));
+                    }
+                    self.fill(&k, part, record, &offsets);
+                    Ok(())
+                }),
+            }
+        })
+        .map_err(store_err)?;
+        Ok(out)
     }
 
     /// Batch `i` alone, with the GIL released while it is read.
