@@ -12,7 +12,7 @@
 
 mod common;
 
-use common::cli::{err, info_json, ok, pcimg};
+use common::cli::{convert, err, info_json, ok, pcimg};
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
@@ -32,18 +32,6 @@ fn info(ds: &Path) -> serde_json::Value {
         &pcimg().args(["info", "--json"]).arg(ds).output().unwrap(),
         "info",
     ))
-}
-
-fn convert(input: &Path, out: &Path, extra: &[&str]) {
-    let o = pcimg()
-        .args(["convert", "-q"])
-        .args(extra)
-        .arg(input)
-        .arg("-o")
-        .arg(out)
-        .output()
-        .unwrap();
-    ok(&o, "convert");
 }
 
 /// `pcimg export DATASET -o OUT ARGS…`; its standard error (the summary).

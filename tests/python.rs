@@ -9,7 +9,7 @@
 //! a skip that says how to install them.
 
 mod common;
-use common::cli::{ok, pcimg};
+use common::cli::{convert, ok, pcimg};
 use common::http::HttpServer;
 use std::path::Path;
 use std::process::Command;
@@ -55,16 +55,7 @@ fn the_python_package_reads_what_laspy_reads_locally_and_over_http() {
     let dir = tempfile::tempdir().unwrap();
     let laz = Path::new(env!("CARGO_MANIFEST_DIR")).join("fixtures/autzen_trim.laz");
     let ds = dir.path().join("autzen.pcimg");
-    ok(
-        &pcimg()
-            .args(["convert", "-q"])
-            .arg(&laz)
-            .arg("-o")
-            .arg(&ds)
-            .output()
-            .unwrap(),
-        "convert",
-    );
+    convert(&laz, &ds, &[]);
     let Some(server) = HttpServer::start(dir.path()) else {
         return;
     };
@@ -94,16 +85,7 @@ fn the_python_package_reads_a_dataset_of_many_parts_as_one() {
         "synth",
     );
     let ds = dir.path().join("scan.pcimg");
-    ok(
-        &pcimg()
-            .args(["convert", "-q", "--memory", "1MiB"])
-            .arg(&las)
-            .arg("-o")
-            .arg(&ds)
-            .output()
-            .unwrap(),
-        "convert",
-    );
+    convert(&las, &ds, &["--memory", "1MiB"]);
     pytest(
         py,
         &[

@@ -110,8 +110,9 @@ class Dataset:
 
         def batches():
             for i in range(plan.batches()):
-                cols = plan.read_batch(i)
-                yield pa.record_batch([cols[name] for name, _b, _k in fields], schema=schema)
+                rec = _records(plan, i)
+                cols = [np.ascontiguousarray(rec[name]) for name, _b, _k in fields]
+                yield pa.record_batch(cols, schema=schema)
 
         return pa.RecordBatchReader.from_batches(schema, batches())
 

@@ -1,7 +1,7 @@
 //! The native half of the `pcimg` Python package (`pcimg._pcimg`): a dataset
 //! opened through the store crate alone (no renderer, no terminal), its facts as
-//! plain Python values, and its points read into numpy arrays, one per field,
-//! which `pcimg/__init__.py` lays out as a structured array.
+//! plain Python values, and its points written straight into a numpy structured
+//! array (`pcimg/__init__.py` gives its dtype: one field per [`Field`]).
 //!
 //! Reading goes through the store's query path (`pcimg_store::query`), the one
 //! `pcimg export` uses: only the tiles a selection reaches are read (locally not
@@ -15,9 +15,8 @@
 //! LAS's whole-number fields in LAS's own integer types where every part's
 //! recorded range fits them, anything else as float64.
 
-use numpy::IntoPyArray;
 use pcimg_core::points::Bounds;
-use pcimg_store::query::{self, Batch, Plan, Selection};
+use pcimg_store::query::{self, Plan, Selection};
 use pcimg_store::{Dataset, OpenOptions, StoreError};
 use pyo3::exceptions::{PyOSError, PyValueError};
 use pyo3::prelude::*;
@@ -141,44 +140,6 @@ fn field(ds: &Dataset, band: &str) -> Field {
         band: band.to_string(),
         kind,
         bits: None,
-    }
-}
-
-/// A column read, in its field's type.
-enum Column {
-    U8(Vec<u8>),
-    U16(Vec<u16>),
-    F64(Vec<f64>),
-}
-
-impl Column {
-    /// `v` in `kind`: whole-number fields rounded and held to their range
-    /// (a part without the band gives NaN: 0).
-    fn of(v: Vec<f64>, kind: Kind) -> Column {
-        let whole = |v: &[f64]| -> Vec<f64> {
-            v.par_iter()
-                .map(|&x| {
-                    if x.is_nan() {
-                        0.0
-                    } else {
-                        pcimg_core::points::round_whole(x.clamp(0.0, kind.max()))
-                    }
-                })
-                .collect()
-        };
-        match kind {
-            Kind::F64 => Column::F64(v),
-            Kind::U8 => Column::U8(whole(&v).into_iter().map(|x| x as u8).collect()),
-            Kind::U16 => Column::U16(whole(&v).into_iter().map(|x| x as u16).collect()),
-        }
-    }
-
-    fn into_py(self, py: Python<'_>) -> Bound<'_, PyAny> {
-        match self {
-            Column::U8(v) => v.into_pyarray(py).into_any(),
-            Column::U16(v) => v.into_pyarray(py).into_any(),
-            Column::F64(v) => v.into_pyarray(py).into_any(),
-        }
     }
 }
 
@@ -585,68 +546,6 @@ impl NativePlan {
             .map(|t| count.get(t).copied().unwrap_or(0) as usize)
             .sum()
     }
-
-    /// Reads batch `i` into one column per field.
-    fn read_one(&self, i: usize) -> Result<Vec<Column>, StoreError> {
-        let bands = self.bands();
-        let r = query::read_batch(&self.ds, self.batches[i].clone(), &bands)?;
-        // Coordinates on the part's own lattice (parts from one LAS file share
-        // its scale, each with an origin of its own).
-        let lattice = self.ds.part(r.part).and_then(|p| p.meta.lattice);
-        let keep = self.selection.keep(&r.points, lattice);
-        let mut b = Batch::of_points(&r.points, keep.as_deref(), &bands, lattice);
-        drop(r);
-        let mut xyz = [
-            std::mem::take(&mut b.x),
-            std::mem::take(&mut b.y),
-            std::mem::take(&mut b.z),
-        ];
-        Ok(self
-            .fields
-            .iter()
-            .map(|f| {
-                let v = match f.band.as_str() {
-                    "x" => std::mem::take(&mut xyz[0]),
-                    "y" => std::mem::take(&mut xyz[1]),
-                    "z" => std::mem::take(&mut xyz[2]),
-                    name => {
-                        let k = bands.iter().position(|b| b == name).unwrap_or(0);
-                        match f.bits {
-                            // (Several fields share the flags' band.)
-                            Some(_) => b.bands[k].clone(),
-                            // (Each other band once: `plan` refuses a field
-                            // asked twice.)
-                            None => std::mem::take(&mut b.bands[k]),
-                        }
-                    }
-                };
-                match f.bits {
-                    Some((shift, mask)) => Column::U8(
-                        v.iter()
-                            .map(|&x| {
-                                let w = if x.is_nan() {
-                                    0
-                                } else {
-                                    x.clamp(0.0, 255.0) as u8
-                                };
-                                (w >> shift) & mask
-                            })
-                            .collect(),
-                    ),
-                    None => Column::of(v, f.kind),
-                }
-            })
-            .collect())
-    }
-
-    /// Columns as a dict of numpy arrays, in the fields' order.
-    fn to_dict<'py>(&self, py: Python<'py>, cols: Vec<Column>) -> PyResult<Bound<'py, PyDict>> {
-        let d = PyDict::new(py);
-        for (f, c) in self.fields.iter().zip(cols) {
-            d.set_item(&f.name, c.into_py(py))?;
-        }
-        Ok(d)
-    }
 }
 
 #[pymethods]
@@ -760,18 +659,6 @@ impl NativePlan {
         })
         .map_err(store_err)?;
         Ok(out)
-    }
-
-    /// Batch `i` alone, with the GIL released while it is read.
-    fn read_batch<'py>(&self, py: Python<'py>, i: usize) -> PyResult<Bound<'py, PyDict>> {
-        if i >= self.batches.len() {
-            return Err(PyValueError::new_err(format!(
-                "batch {i} of {}",
-                self.batches.len()
-            )));
-        }
-        let cols = py.detach(|| self.read_one(i)).map_err(store_err)?;
-        self.to_dict(py, cols)
     }
 }
 

@@ -6,32 +6,13 @@ synthetic scan) and PCIMG_TEST_PARTS_DATASET (it converted under a 1 MiB
 budget: several parts).
 """
 
-import os
-
 import laspy
 import numpy as np
-import pytest
 
 import pcimg
+from las_fields import EXACT, given
 
-LAS = os.environ.get("PCIMG_TEST_PARTS_LAS")
-DATASET = os.environ.get("PCIMG_TEST_PARTS_DATASET")
-if not (LAS and DATASET):
-    pytest.skip(
-        "run through `cargo test --test python` (it makes the test dataset)",
-        allow_module_level=True,
-    )
-
-# pcimg's field and laspy's dimension, for the whole-number fields.
-WHOLE = {
-    "Intensity": "intensity",
-    "ReturnNumber": "return_number",
-    "NumberOfReturns": "number_of_returns",
-    "Classification": "classification",
-    "Red": "red",
-    "Green": "green",
-    "Blue": "blue",
-}
+LAS, DATASET = given("PCIMG_TEST_PARTS_LAS", "PCIMG_TEST_PARTS_DATASET")
 
 
 def test_every_part_is_read_once_and_the_overview_never():
@@ -45,10 +26,10 @@ def test_every_part_is_read_once_and_the_overview_never():
     h = las.header
     ours = [np.round((pts[a] - h.offsets[i]) / h.scales[i]).astype(np.int64) for i, a in enumerate("XYZ")]
     theirs = [np.asarray(las.points[a], dtype=np.int64) for a in "XYZ"]
-    fields = [f for f in WHOLE if f in pts.dtype.names and WHOLE[f] in las.point_format.dimension_names]
+    fields = [f for f in EXACT if f in pts.dtype.names and EXACT[f] in las.point_format.dimension_names]
     assert fields, pts.dtype.names
     ours += [pts[f].astype(np.int64) for f in fields]
-    theirs += [np.asarray(las.points[WHOLE[f]], dtype=np.int64) for f in fields]
+    theirs += [np.asarray(las.points[EXACT[f]], dtype=np.int64) for f in fields]
     a = np.lexsort(ours[::-1])
     b = np.lexsort(theirs[::-1])
     for k, (o, t) in enumerate(zip(ours, theirs)):

@@ -14,31 +14,10 @@ import numpy as np
 import pytest
 
 import pcimg
+from las_fields import EXACT, given
 
-LAZ = os.environ.get("PCIMG_TEST_LAZ")
-DATASET = os.environ.get("PCIMG_TEST_DATASET")
+LAZ, DATASET = given("PCIMG_TEST_LAZ", "PCIMG_TEST_DATASET")
 URL = os.environ.get("PCIMG_TEST_URL")
-if not (LAZ and DATASET):
-    pytest.skip(
-        "run through `cargo test --test python` (it makes the test dataset)",
-        allow_module_level=True,
-    )
-
-# Fields that come back exactly, and laspy's name for each.
-EXACT = {
-    "Intensity": "intensity",
-    "ReturnNumber": "return_number",
-    "NumberOfReturns": "number_of_returns",
-    "Classification": "classification",
-    "Red": "red",
-    "Green": "green",
-    "Blue": "blue",
-    "ScanAngleRank": "scan_angle_rank",
-    "UserData": "user_data",
-    "PointSourceId": "point_source_id",
-    "ScanDirectionFlag": "scan_direction_flag",
-    "EdgeOfFlightLine": "edge_of_flight_line",
-}
 
 
 @pytest.fixture(scope="module")

@@ -12,6 +12,19 @@ pub fn pcimg() -> Command {
     c
 }
 
+/// `pcimg convert -q EXTRA… INPUT -o OUT`, which must succeed.
+pub fn convert(input: &Path, out: &Path, extra: &[&str]) {
+    let o = pcimg()
+        .args(["convert", "-q"])
+        .args(extra)
+        .arg(input)
+        .arg("-o")
+        .arg(out)
+        .output()
+        .unwrap();
+    ok(&o, "convert");
+}
+
 /// Its standard output; fails the test, showing both streams, if it failed.
 pub fn ok(o: &Output, what: &str) -> String {
     assert!(
