@@ -311,7 +311,8 @@ impl NativeDataset {
         };
         let plan = query::plan(ds, level, |b| selection.may_hold(b));
         let mut all = vec![field(ds, "x"), field(ds, "y"), field(ds, "z")];
-        all.extend(plan_all(ds).bands.iter().flat_map(|b| fields_of(ds, b)));
+        // (A plan's bands are every part's, whatever its tiles.)
+        all.extend(plan.bands.iter().flat_map(|b| fields_of(ds, b)));
         let fields = match columns {
             None => all,
             Some(names) => names
