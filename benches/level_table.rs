@@ -44,7 +44,13 @@ fn main() -> anyhow::Result<()> {
         .cloned()
         .ok_or_else(|| anyhow::anyhow!("usage: level_table DATASET [--paper]"))?;
     let ds = Dataset::open(std::path::Path::new(&path))?;
-    let levels = ds.parts.iter().map(|p| p.levels.len()).max().unwrap_or(0);
+    let levels = ds
+        .parts()
+        .unwrap()
+        .into_iter()
+        .map(|p| p.levels.len())
+        .max()
+        .unwrap_or(0);
     let cam = {
         let mut c = Camera::fit(&ds.bounds());
         c.set_clip_from_bounds(&ds.bounds());
@@ -61,7 +67,7 @@ fn main() -> anyhow::Result<()> {
     println!(
         "dataset {path}: {} points in {} parts",
         ds.points(),
-        ds.parts.len()
+        ds.part_count()
     );
     println!("renderers: {}", names.join(" | "));
     let fps_names = names
@@ -84,8 +90,9 @@ fn main() -> anyhow::Result<()> {
         for _ in 0..3 {
             let t = Instant::now();
             data = ds
-                .parts
-                .iter()
+                .parts()
+                .unwrap()
+                .into_iter()
                 .map(|p| p.read_level(level.min(p.levels.len() - 1), &[0, 1, 2]))
                 .collect::<Result<Vec<_>, _>>()?;
             loads.push(t.elapsed().as_secs_f64() * 1e3);

@@ -236,16 +236,20 @@ fn evaluate_dataset(dir: &Path) -> anyhow::Result<()> {
         }
         Ok(out)
     };
-    let parts: Vec<&Part> = ds.parts.iter().collect();
+    let parts: Vec<&Part> = ds.parts().unwrap().into_iter().collect();
     let cloud = union(&parts, Some(0))?;
     let own = ds.own_levels();
     let mut samples: Vec<(String, Vec<P3>)> = Vec::new();
     for k in 1..own {
         samples.push((format!("parts' level {k}"), union(&parts, Some(k))?));
     }
-    if let Some(o) = &ds.overview {
-        for layer in 1..=o.layer_count() {
-            let nodes: Vec<&Part> = o.layer(layer).map(|k| &o.nodes[k]).collect();
+    if ds.has_overview() {
+        for layer in 1..=ds.layer_count() {
+            let nodes: Vec<&Part> = ds
+                .layer_nodes(layer)?
+                .into_iter()
+                .filter_map(|id| ds.part(id))
+                .collect();
             samples.push((
                 format!("overview layer {layer} ({} nodes)", nodes.len()),
                 union(&nodes, None)?,
@@ -256,7 +260,7 @@ fn evaluate_dataset(dir: &Path) -> anyhow::Result<()> {
         "{}: {} parts, {} points. Distance from every point to the nearest point of the \
          level: mean / p95; ratio = level ÷ voxel sample of the same size.",
         dir.display(),
-        ds.parts.len(),
+        ds.part_count(),
         cloud.len()
     );
     println!();

@@ -34,8 +34,8 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     // Every part's points, timed; then (untimed) their sum, to compare reads.
     let read_all = || -> Result<(usize, f64, f64), Box<dyn std::error::Error>> {
         let t = Instant::now();
-        let mut read = Vec::with_capacity(ds.parts.len());
-        for part in &ds.parts {
+        let mut read = Vec::with_capacity(ds.part_count());
+        for part in ds.parts().unwrap() {
             let l = level.min(part.levels.len().saturating_sub(1));
             read.push(part.read_level(l, &part.band_indices(&names)?)?);
         }

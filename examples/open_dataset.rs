@@ -22,7 +22,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     println!(
         "{} points in {} parts, x {:.2}..{:.2}, y {:.2}..{:.2}, z {:.2}..{:.2}",
         ds.points(),
-        ds.parts.len(),
+        ds.part_count(),
         b.min[0],
         b.max[0],
         b.min[1],
@@ -30,7 +30,10 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         b.min[2],
         b.max[2]
     );
-    for part in &ds.parts {
+    // (A dataset of many parts has a paged index: listing every part reads
+    // every page.)
+    let parts = ds.parts()?;
+    for part in &parts {
         let bands: Vec<&str> = part.bands.iter().map(|b| b.name.as_str()).collect();
         println!("{}: bands {}", part.path.display(), bands.join(" "));
         for level in &part.levels {
@@ -43,7 +46,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         }
     }
     // The points of the first tile of the first part's coarsest level.
-    if let Some(part) = ds.parts.first() {
+    if let Some(part) = parts.first() {
         let top = part.levels.len() - 1;
         let names: Vec<&str> = part.bands.iter().map(|b| b.name.as_str()).collect();
         let read = part.read_tiles(top, &[0], &part.band_indices(&names)?)?;

@@ -239,7 +239,7 @@ pub fn dataset_note(ds: &Dataset) -> Option<String> {
             "note: this dataset has no index (made by an older pcimg); `pcimg index {}` makes \
              one, for faster opening and an overview of all {} parts",
             quoted_path(&ds.path),
-            ds.parts.len()
+            ds.part_count()
         )
     })
 }

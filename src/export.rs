@@ -73,8 +73,8 @@ pub enum ExportError {
 
 /// The tiles of level `level` (each part's coarsest where it has fewer) that
 /// `filter` may keep points of, in the parts only (overview nodes hold copies).
-pub fn plan(ds: &Dataset, level: usize, filter: &Filter) -> Plan {
-    query::plan(ds, level, |b| filter.may_show(b))
+pub fn plan(ds: &Dataset, level: usize, filter: &Filter) -> Result<Plan, ExportError> {
+    Ok(query::plan(ds, level, |b| filter.may_show(b))?)
 }
 
 /// What an export wrote.
@@ -114,7 +114,9 @@ pub fn export(
     // An extended LAS format where a source was in one (its overlap flag,
     // scanner channel and finer scan angle have no place in the older ones),
     // or where a part records classes above 31 (the older formats have 5 bits).
-    let extended = ds.parts.iter().any(|p| {
+    let mut reached: Vec<usize> = plan.tiles.iter().map(|t| t.0).collect();
+    reached.dedup();
+    let extended = reached.iter().filter_map(|&i| ds.part(i)).any(|p| {
         let from_extended = p.meta.from_source.iter().any(|(k, v)| {
             k == crate::store::spec::key::LAS_POINT_FORMAT && v.parse::<u8>().is_ok_and(|f| f >= 6)
         });

@@ -90,8 +90,9 @@ pub fn sample_level(ds: &Dataset, target: u64) -> usize {
 
 /// Points in level `l` of every part (each part's coarsest where it has fewer).
 pub fn level_points(ds: &Dataset, l: usize) -> u64 {
-    ds.parts
-        .iter()
+    ds.parts()
+        .unwrap_or_default()
+        .into_iter()
         .filter_map(|p| p.levels.get(l.min(p.levels.len().saturating_sub(1))))
         .map(|lv| lv.points.unwrap_or(0))
         .sum()
@@ -107,9 +108,12 @@ pub fn compute(
     bins: usize,
     map_width: u32,
 ) -> Result<Stats, ExportError> {
+    // Statistics are of every part: every page of a paged index.
+    let parts = ds.parts()?;
+    let ids = ds.part_ids()?;
     let mut names: Vec<String> = if bands.is_empty() {
         let mut v: Vec<String> = vec!["x".into(), "y".into(), "z".into()];
-        for p in &ds.parts {
+        for p in &parts {
             for b in p.bands.iter().skip(3) {
                 if !v.contains(&b.name) {
                     v.push(b.name.clone());
@@ -127,11 +131,10 @@ pub fn compute(
         .cloned()
         .chain(std::iter::once("classification".to_string()))
         .collect();
-    let tiles: Vec<(usize, usize, u32)> = ds
-        .parts
+    let tiles: Vec<(usize, usize, u32)> = parts
         .iter()
-        .enumerate()
-        .filter_map(|(i, p)| {
+        .zip(&ids)
+        .filter_map(|(p, &i)| {
             let l = p.levels.get(level.min(p.levels.len().saturating_sub(1)))?;
             Some(l.tiles.iter().map(move |t| (i, l.index, t.index)))
         })
@@ -310,18 +313,16 @@ pub fn compute(
         0.0
     };
     map.iter_mut().for_each(|v| *v *= scale);
-    let has_class = ds
-        .parts
+    let has_class = parts
         .iter()
         .any(|p| p.band_index("classification").is_some());
     let exact = has_class
-        && ds
-            .parts
+        && parts
             .iter()
             .all(|p| p.band_index("classification").is_none() || !p.meta.class_counts.is_empty());
     let mut classes = [0u64; 256];
     if exact {
-        for p in &ds.parts {
+        for p in &parts {
             for &(c, k) in &p.meta.class_counts {
                 classes[c as usize] += k;
             }

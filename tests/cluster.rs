@@ -69,7 +69,7 @@ fn digest(dir: &Path) -> Digest {
     let ds = Dataset::open(dir).unwrap();
     let mut all: Vec<[i64; 4]> = Vec::new();
     let mut bands = None;
-    for p in &ds.parts {
+    for p in ds.parts().unwrap() {
         let names: Vec<String> = p.bands.iter().map(|b| b.name.clone()).collect();
         assert!(bands.is_none() || bands.as_ref() == Some(&names));
         bands = Some(names);

@@ -21,7 +21,7 @@ fn fixture(name: &str) -> PathBuf {
 fn dataset_points(path: &Path) -> Vec<[i64; 3]> {
     let ds = Dataset::open(path).unwrap();
     let mut all = Vec::new();
-    for p in &ds.parts {
+    for p in ds.parts().unwrap() {
         let pts = p.read_level(0, &[0, 1, 2]).unwrap();
         for i in 0..pts.len() {
             all.push(
@@ -58,8 +58,9 @@ fn worst_offset(got: &[[i64; 3]], want: &[[i64; 3]]) -> i64 {
 /// Parts do not overlap: each pair is separated on some axis.
 fn assert_parts_disjoint(path: &Path) {
     let ds = Dataset::open(path).unwrap();
-    for (i, a) in ds.parts.iter().enumerate() {
-        for b in &ds.parts[i + 1..] {
+    let parts = ds.parts().unwrap();
+    for (i, a) in parts.iter().enumerate() {
+        for b in &parts[i + 1..] {
             let (a, b) = (a.meta.bounds, b.meta.bounds);
             assert!(
                 (0..3).any(|k| a.max[k] <= b.min[k] || b.max[k] <= a.min[k]),
@@ -94,7 +95,7 @@ fn lerc_gives_las_coordinates_back_on_their_lattice() {
             ..common::convert_options(out.clone(), 1 << 30)
         };
         convert::convert(&fixture(input), &o, &Quiet).unwrap();
-        Dataset::open(&out).unwrap().parts.remove(0)
+        pcimg::store::Part::open(&out).unwrap()
     };
     let plain = part("autzen_trim.laz", "none.tif", Compression::None, None);
     let lerc = part("autzen_trim.laz", "lerc.tif", Compression::LercZstd, None);
@@ -179,7 +180,7 @@ fn real_samples_convert_with_reference_counts_and_bounds() {
         assert_eq!(s.points, n, "{name}");
         let ds = Dataset::open(&out).unwrap();
         assert_eq!(ds.points(), n);
-        let p = &ds.parts[0];
+        let p = &ds.parts().unwrap()[0];
         assert_eq!(p.meta.source.as_deref(), Some(name));
         if let Some((min, max)) = bounds {
             for a in 0..3 {
@@ -242,8 +243,9 @@ fn budget_far_below_input_gives_spatial_parts_with_every_point() {
     assert!(s.phases.iter().all(|(name, _)| name != "split"));
     let ds = Dataset::open(&out).unwrap();
     let got = ds
-        .parts
-        .iter()
+        .parts()
+        .unwrap()
+        .into_iter()
         .fold(pcimg::points::Bounds::EMPTY, |b, p| b.union(&p.meta.bounds));
     let (_, read, _) = pcimg::ingest::read_all(&input, &ReadOptions::default()).unwrap();
     assert_eq!(got, read.bounds());
@@ -418,7 +420,7 @@ fn stream_partition_keeps_file_order() {
     let ds = Dataset::open(&out).unwrap();
     let pts = pcimg::synth::scene(300_000, 5);
     let mut start = 0usize;
-    for p in &ds.parts {
+    for p in ds.parts().unwrap() {
         let got = p.read_level(0, &[0]).unwrap();
         for i in [0, got.len() / 2, got.len() - 1] {
             let x = got.offsets[0] + got.columns[0][i] as f64;
@@ -580,7 +582,7 @@ fn wrong_header_bounds_are_not_trusted() {
             convert::convert(&bad, &common::convert_options(b.clone(), 1 << 30), &Quiet).unwrap();
         assert_eq!((sa.points, sb.points), (50_000, 50_000));
         assert_eq!(dataset_points(&a), dataset_points(&b));
-        let part = &Dataset::open(&b).unwrap().parts[0];
+        let part = &pcimg::store::Part::open(&b).unwrap();
         let centre = part.meta.bounds.center();
         assert!((0..3).all(|k| (part.meta.origin[k] - centre[k]).abs() < 1e-6));
         assert!(
@@ -609,7 +611,7 @@ fn first_window_far_from_the_rest_is_read_again() {
     o.read.chunk_points = 1000;
     let s = convert::convert(&input, &o, &Quiet).unwrap();
     assert_eq!(s.points, 5000);
-    let part = &Dataset::open(&out).unwrap().parts[0];
+    let part = &pcimg::store::Part::open(&out).unwrap();
     assert!(
         (part.meta.origin[0] - 29_999.5).abs() < 1e-9,
         "{:?}",
@@ -849,8 +851,9 @@ fn colour_scale_does_not_depend_on_memory() {
         // Every channel of the 300,000 later points was clamped, and is counted.
         assert_eq!(s.clamped_colours, 900_000);
         let ds = Dataset::open(&out).unwrap();
-        ds.parts
-            .iter()
+        ds.parts()
+            .unwrap()
+            .into_iter()
             .map(|p| {
                 p.bands
                     .iter()
@@ -949,7 +952,11 @@ fn several_files_become_one_dataset() {
         assert_parts_disjoint(&out);
         // The parts name the files they come from.
         let ds = Dataset::open(&out).unwrap();
-        let source = ds.parts[0].meta.source.clone().unwrap_or_default();
+        let source = ds.parts().unwrap()[0]
+            .meta
+            .source
+            .clone()
+            .unwrap_or_default();
         assert!(
             source.contains(&format!("({} files)", files.len())),
             "{source}"
@@ -1088,8 +1095,9 @@ fn far_points_the_sample_misses_get_their_own_parts() {
         let ds = Dataset::open(&out).unwrap();
         for x in [707_000.0, 777_000.0] {
             assert!(
-                ds.parts
-                    .iter()
+                ds.parts()
+                    .unwrap()
+                    .into_iter()
                     .any(|p| p.meta.bounds.min[0] == x && p.meta.point_count == 1),
                 "the point at x = {x} has no part of its own"
             );
@@ -1132,8 +1140,9 @@ fn one_wild_coordinate_gets_a_part_of_its_own() {
     assert!(worst_offset(&dataset_points(&out), &file_points(&input)) <= 10);
     let ds = Dataset::open(&out).unwrap();
     assert!(
-        ds.parts
-            .iter()
+        ds.parts()
+            .unwrap()
+            .into_iter()
             .any(|p| p.meta.bounds.min[1] > 6e7 && p.meta.point_count == 1),
         "the wild point has no part of its own"
     );
@@ -1235,8 +1244,8 @@ fn las_rows_read_from_the_input_match_a_held_copy() {
             let las = input.extension().is_some_and(|e| e == "las");
             assert_eq!(s.parts[0].rows_from_input, las, "{input:?} {layout:?}");
             let ds = Dataset::open(&out).unwrap();
-            assert_eq!(ds.parts.len(), 1);
-            let p = &ds.parts[0];
+            assert_eq!(ds.part_count(), 1);
+            let p = &ds.parts().unwrap()[0];
             let bands: Vec<usize> = (0..p.bands.len()).collect();
             assert_eq!(p.bands.len(), 12, "x y z and nine attributes");
             (0..p.levels.len())

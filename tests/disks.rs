@@ -507,9 +507,9 @@ fn readers_see_the_old_or_the_new_index_never_a_torn_one() {
         .unwrap();
     assert!(o.status.success(), "{}", stderr(&o));
     let first = pcimg::store::Dataset::open(&ds).unwrap();
-    let nodes_of = |d: &pcimg::store::Dataset| d.overview.as_ref().map_or(0, |o| o.nodes.len());
-    assert!(first.parts.len() > 1 && nodes_of(&first) > 0);
-    let (parts, nodes) = (first.parts.len(), nodes_of(&first));
+    let nodes_of = |d: &pcimg::store::Dataset| d.node_count();
+    assert!(first.part_count() > 1 && nodes_of(&first) > 0);
+    let (parts, nodes) = (first.part_count(), nodes_of(&first));
     let done = AtomicBool::new(false);
     let (reads, rewrites) = (AtomicUsize::new(0), AtomicUsize::new(0));
     std::thread::scope(|s| {
@@ -520,7 +520,7 @@ fn readers_see_the_old_or_the_new_index_never_a_torn_one() {
                     let got = got.unwrap_or_else(|e| panic!("a reader failed: {e}"));
                     // Read from an index (not by opening every part), whole.
                     assert!(got.index_bytes.is_some(), "no index seen");
-                    assert_eq!((got.parts.len(), nodes_of(&got)), (parts, nodes));
+                    assert_eq!((got.part_count(), nodes_of(&got)), (parts, nodes));
                     assert_eq!(got.points(), 1_000_000);
                     reads.fetch_add(1, Ordering::Relaxed);
                 }

@@ -370,7 +370,7 @@ fn converted_parts_keep_scans_and_viewpoint_and_info_shows_them() {
     assert_eq!(s.points, 300_000);
     assert!(s.parts.len() > 1, "{}", s.parts.len());
     let ds = Dataset::open(&out).unwrap();
-    let meta = &ds.parts[0].meta;
+    let meta = &ds.parts().unwrap()[0].meta;
     assert_eq!(meta.from_source[0].0, "SCANS");
     let text = pcimg::cli::info::render_text(&pcimg::cli::info::report(&ds, false));
     assert!(

@@ -577,7 +577,12 @@ fn gdal_reads_overview_nodes() {
     let o = pcimg::store::dataset::overview::IndexOptions::default();
     pcimg::store::dataset::overview::build_index(&ds, &o, &|_| {}).unwrap();
     let opened = pcimg::store::Dataset::open(&ds).unwrap();
-    let nodes = &opened.overview.as_ref().unwrap().nodes;
+    let nodes: Vec<&pcimg::store::Part> = opened
+        .node_ids()
+        .unwrap()
+        .into_iter()
+        .filter_map(|id| opened.part(id))
+        .collect();
     assert!(!nodes.is_empty());
     for node in nodes {
         let info: serde_json::Value =

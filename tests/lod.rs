@@ -65,7 +65,7 @@ fn distance_mode_picks_one_level_per_part_from_the_camera() {
         let sel = lod::select(&ds, &cam, 640, 480, LodMode::Distance, u64::MAX);
         assert!(!sel.tiles.is_empty());
         for t in &sel.tiles {
-            let levels = ds.parts[t.part].levels.len();
+            let levels = ds.part(t.part).unwrap().levels.len();
             assert_eq!(
                 t.level,
                 lod::distance_level(d, diag, levels),
@@ -229,7 +229,7 @@ fn unreadable_tiles_are_not_retried_and_coarser_tiles_stand_in() {
     }
     std::fs::write(&path, &bytes).unwrap();
     let ds = Arc::new(Dataset::open(&path).unwrap());
-    assert!(ds.parts[0].levels.len() >= 3);
+    assert!(ds.parts().unwrap()[0].levels.len() >= 3);
     let cam = Camera::fit(&ds.bounds());
     let pick = |level| lod::select(&ds, &cam, 800, 600, LodMode::Fixed(level), u64::MAX).tiles;
     let (fine, coarse) = (pick(0), pick(1));

@@ -8,7 +8,7 @@ mod common;
 
 use pcimg::camera::{self, Camera, Containment};
 use pcimg::lod::{self, LodMode};
-use pcimg::points::{Attribute, PointColumns};
+use pcimg::points::{Attribute, Bounds, PointColumns};
 use pcimg::store::dataset::overview::{IndexOptions, build_index};
 use pcimg::store::{Dataset, WriteOptions, write_part};
 use std::path::{Path, PathBuf};
@@ -124,12 +124,16 @@ fn top_view_of_many_parts_covers_what_one_part_covers() {
     let dir = tempfile::tempdir().unwrap();
     let (many, one) = datasets(dir.path(), 400_000, 6, 4);
     let ds = Dataset::open(&many).unwrap();
-    assert!(ds.index_bytes.is_some() && ds.overview.is_some());
-    assert!(ds.parts.iter().all(|p| !p.is_open()), "opening read a part");
+    assert!(ds.index_bytes.is_some() && ds.has_overview());
+    assert!(
+        ds.parts().unwrap().into_iter().all(|p| !p.is_open()),
+        "opening read a part"
+    );
     // The parts' coarsest tiles alone hold more than the budget.
     let tops: u64 = ds
-        .parts
-        .iter()
+        .parts()
+        .unwrap()
+        .into_iter()
         .map(|p| p.levels.last().unwrap().points.unwrap())
         .sum();
     let budget = 60_000;
@@ -193,8 +197,13 @@ fn the_index_notices_removed_replaced_and_unlisted_parts() {
     // milliseconds), so the change is named when the part is first read.
     let read_err = || {
         let ds = Dataset::open(&many).unwrap();
-        let k = ds.parts.iter().position(|p| p.path == part).unwrap();
-        advised(ds.parts[k].read_level(0, &[0]).unwrap_err())
+        let k = ds
+            .parts()
+            .unwrap()
+            .into_iter()
+            .position(|p| p.path == part)
+            .unwrap();
+        advised(ds.parts().unwrap()[k].read_level(0, &[0]).unwrap_err())
     };
     let other = cell(&terrain(20_000, 99), 3, 2, 1, 1);
     write_part(&part, &other, &WriteOptions::default()).unwrap();
@@ -232,7 +241,7 @@ fn the_index_notices_removed_replaced_and_unlisted_parts() {
     // An old dataset (no index) opens as before, with a hint.
     std::fs::remove_file(many.join("pcimg-index.json")).unwrap();
     let ds = Dataset::open(&many).unwrap();
-    assert!(ds.overview.is_none() && ds.parts.len() == 6);
+    assert!(!ds.has_overview() && ds.part_count() == 6);
     assert!(ds.unindexed);
     assert!(
         pcimg::advice::dataset_note(&ds)
@@ -244,8 +253,13 @@ fn the_index_notices_removed_replaced_and_unlisted_parts() {
     build_index(&many, &IndexOptions::default(), &|_| {}).unwrap();
     let ds = Dataset::open(&many).unwrap();
     std::fs::write(&part, b"II*\0 not a part any more").unwrap();
-    let k = ds.parts.iter().position(|p| p.path == part).unwrap();
-    let e = advised(ds.parts[k].read_level(0, &[0]).unwrap_err());
+    let k = ds
+        .parts()
+        .unwrap()
+        .into_iter()
+        .position(|p| p.path == part)
+        .unwrap();
+    let e = advised(ds.parts().unwrap()[k].read_level(0, &[0]).unwrap_err());
     assert!(
         e.contains("tile-1-1.tif") && e.contains("pcimg index"),
         "{e}"
@@ -257,8 +271,7 @@ fn selection_keeps_the_budget_and_every_visible_part() {
     let dir = tempfile::tempdir().unwrap();
     let (many, _) = datasets(dir.path(), 300_000, 5, 5);
     let ds = Dataset::open(&many).unwrap();
-    let o = ds.overview.as_ref().unwrap();
-    let root_points = ds.part(ds.parts.len() + o.root()).unwrap().meta.point_count;
+    let root_points = ds.part(ds.root().unwrap()).unwrap().meta.point_count;
     let bounds = ds.bounds();
     let mut r = pcimg::synth::Rng::new(3);
     for case in 0..200 {
@@ -283,7 +296,7 @@ fn selection_keeps_the_budget_and_every_visible_part() {
         // Every part in view is drawn, itself or through a node above it.
         let frustum = cam.frustum(w as f64 / h as f64);
         let drawn: std::collections::HashSet<usize> = sel.tiles.iter().map(|t| t.part).collect();
-        for (i, p) in ds.parts.iter().enumerate() {
+        for (i, p) in ds.parts().unwrap().into_iter().enumerate() {
             let visible = p.levels[0]
                 .tiles
                 .iter()
@@ -305,8 +318,14 @@ fn selection_keeps_the_budget_and_every_visible_part() {
     }
     // The paper's distance rule and fixed levels reach the overview's layers.
     let levels = lod::level_count(&ds);
-    let own = ds.parts.iter().map(|p| p.levels.len()).max().unwrap();
-    assert_eq!(levels, own + o.layer_count() as usize);
+    let own = ds
+        .parts()
+        .unwrap()
+        .into_iter()
+        .map(|p| p.levels.len())
+        .max()
+        .unwrap();
+    assert_eq!(levels, own + ds.layer_count() as usize);
     let cam = Camera::fit(&bounds);
     let top = lod::select(&ds, &cam, 320, 200, LodMode::Fixed(levels - 1), u64::MAX);
     assert_eq!(top.overview_tiles, top.tiles.len());
@@ -343,4 +362,135 @@ fn info_and_index_commands_show_the_overview() {
         .unwrap();
     assert!(!o.status.success());
     assert!(String::from_utf8_lossy(&o.stderr).contains("not a directory"));
+}
+
+#[test]
+fn a_paged_index_opens_from_its_root_and_reads_the_pages_views_reach() {
+    use pcimg::store::dataset::index::{INDEX_FILE, IndexFile, entry_of};
+    let dir = tempfile::tempdir().unwrap();
+    let ds_dir = common::grid_dataset(dir.path(), 40, 40, 30);
+    let root_bytes = std::fs::metadata(ds_dir.join(INDEX_FILE)).unwrap().len();
+    assert!(root_bytes <= 256 << 10, "root {root_bytes} bytes");
+
+    // Opened from the root alone: totals, layers, the first page.
+    let ds = Dataset::open(&ds_dir).unwrap();
+    let (pages, loaded) = ds.index_pages();
+    assert!(pages > 4 && loaded == 1, "{pages} pages, {loaded} loaded");
+    assert_eq!(ds.part_count(), 1600);
+    assert_eq!(ds.points(), 1600 * 30);
+    assert!(ds.has_overview() && ds.layer_count() >= 2);
+
+    // A view of one corner reads the pages of that corner.
+    let b = ds.bounds();
+    let corner = Bounds {
+        min: b.min,
+        max: [b.min[0] + 40.0, b.min[1] + 40.0, b.max[2]],
+    };
+    let mut cam = Camera::fit(&corner);
+    cam.apply_view(&camera::parse_view("0,-89").unwrap());
+    cam.set_clip_from_bounds(&b);
+    let view = LodMode::View { budget: 50_000 };
+    let near = lod::select(&ds, &cam, 320, 200, view, u64::MAX);
+    let (_, after) = ds.index_pages();
+    assert!(after < pages / 2, "{after} of {pages} pages for one corner");
+    assert!(near.tiles.iter().any(|t| !ds.is_overview(t.part)));
+
+    // What lazily loaded pages give is what every page loaded gives.
+    let all = Dataset::open(&ds_dir).unwrap();
+    assert_eq!(all.part_ids().unwrap().len(), 1600);
+    assert_eq!(all.index_pages(), (pages, pages));
+    let again = lod::select(&all, &cam, 320, 200, view, u64::MAX);
+    let key = |s: &lod::Selection| {
+        let mut v: Vec<_> = s.tiles.iter().map(|t| (t.part, t.level, t.tile)).collect();
+        v.sort();
+        v
+    };
+    assert_eq!(key(&near), key(&again));
+    let whole = Camera::fit(&b);
+    assert_eq!(
+        lod::select(&ds, &whole, 320, 200, LodMode::Fixed(0), u64::MAX).points,
+        ds.points()
+    );
+
+    // A box reaches the parts under it through the overview's covers.
+    let ids = ds.parts_where(&|x: &Bounds| x.intersects(&corner)).unwrap();
+    assert!(!ids.is_empty() && ids.len() < 50, "{} parts", ids.len());
+
+    // `info` sums the dataset up from the root; `--parts` lists every part.
+    let o = exe().arg("info").arg(&ds_dir).output().unwrap();
+    let out = String::from_utf8_lossy(&o.stdout);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(
+        out.contains("1600 part(s)") && out.contains("more pages"),
+        "{out}"
+    );
+    assert!(!out.contains("part 1/1600"), "{out}");
+    let o = exe()
+        .args(["info", "--parts"])
+        .arg(&ds_dir)
+        .output()
+        .unwrap();
+    let out = String::from_utf8_lossy(&o.stdout);
+    assert!(
+        out.contains("part 1600/1600"),
+        "{}",
+        &out[..out.len().min(400)]
+    );
+
+    // A damaged page is named, with the command that rebuilds the index,
+    // when a view reaches it; nothing panics.
+    let page = std::fs::read_dir(ds_dir.join("pages-0"))
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .max()
+        .unwrap();
+    std::fs::write(&page, "{\"parts\": [").unwrap();
+    let ds = Dataset::open(&ds_dir).unwrap();
+    let e = ds.part_ids().unwrap_err();
+    assert_eq!(
+        e.remedy.as_deref(),
+        Some(&pcimg::store::Remedy::Reindex {
+            dataset: ds_dir.clone()
+        })
+    );
+    let advice = pcimg::advice::store(&e);
+    assert!(
+        advice.contains(&*page.file_name().unwrap().to_string_lossy())
+            && advice.contains("pcimg index"),
+        "{advice}"
+    );
+    let _ = lod::select(&ds, &Camera::fit(&b), 320, 200, view, u64::MAX);
+    let _ = lod::select(&ds, &Camera::fit(&b), 320, 200, LodMode::Fixed(0), u64::MAX);
+
+    // An index of version 1 still opens; `pcimg index` upgrades it in place.
+    let mut files: Vec<PathBuf> = std::fs::read_dir(&ds_dir)
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .filter(|p| p.extension().is_some_and(|e| e == "tif"))
+        .collect();
+    files.sort();
+    let entries = files
+        .iter()
+        .take(3)
+        .map(|f| {
+            let p = pcimg::store::Part::open(f).unwrap();
+            entry_of(&p, &f.file_name().unwrap().to_string_lossy()).unwrap()
+        })
+        .collect();
+    let small = dir.path().join("v1.pcimg");
+    std::fs::create_dir(&small).unwrap();
+    for f in files.iter().take(3) {
+        std::fs::copy(f, small.join(f.file_name().unwrap())).unwrap();
+    }
+    IndexFile::new(entries, Vec::new()).save(&small).unwrap();
+    let v1 = std::fs::read_to_string(small.join(INDEX_FILE)).unwrap();
+    assert!(v1.contains("\"version\":1"), "{v1}");
+    let ds = Dataset::open(&small).unwrap();
+    assert_eq!(ds.part_count(), 3);
+    let o = exe().arg("index").arg(&small).output().unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let v2 = std::fs::read_to_string(small.join(INDEX_FILE)).unwrap();
+    assert!(v2.contains("\"version\":2"), "{}", &v2[..200]);
+    let ds = Dataset::open(&small).unwrap();
+    assert!(ds.has_overview() && ds.part_count() == 3);
 }

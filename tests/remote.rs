@@ -7,10 +7,8 @@ mod common;
 use object_store::memory::InMemory;
 use object_store::throttle::{ThrottleConfig, ThrottledStore};
 use object_store::{ObjectStore, ObjectStoreExt, PutPayload};
-use pcimg::points::{Attribute, PointColumns};
 use pcimg::remote::Remote;
-use pcimg::store::dataset::overview::{IndexOptions, build_index};
-use pcimg::store::{Dataset, WriteOptions, write_part};
+use pcimg::store::Dataset;
 use std::path::Path;
 use std::sync::Arc;
 use std::sync::atomic::Ordering;
@@ -18,30 +16,7 @@ use std::time::Duration;
 
 /// `nx` × `ny` parts of a terrain, each its own file, indexed.
 fn dataset(dir: &Path, nx: usize, ny: usize, per_part: usize) -> std::path::PathBuf {
-    let ds = dir.join("grid.pcimg");
-    std::fs::create_dir(&ds).unwrap();
-    let mut r = pcimg::synth::Rng::new(3);
-    for j in 0..ny {
-        for i in 0..nx {
-            let mut c = PointColumns {
-                attributes: vec![Attribute::new("intensity", Vec::new())],
-                ..Default::default()
-            };
-            for _ in 0..per_part {
-                let (x, y) = (i as f64 + r.f64(), j as f64 + r.f64());
-                c.x.push(500_000.0 + 10.0 * x);
-                c.y.push(4_000_000.0 + 10.0 * y);
-                c.z.push(100.0 + (x * 0.7).sin() + (y * 0.3).cos());
-                c.attributes[0]
-                    .values
-                    .push((r.f64() * 255.0).round() as f32);
-            }
-            let f = ds.join(format!("tile-{i:02}-{j:02}.tif"));
-            write_part(&f, &c, &WriteOptions::default()).unwrap();
-        }
-    }
-    build_index(&ds, &IndexOptions::default(), &|_| {}).unwrap();
-    ds
+    common::grid_dataset(dir, nx, ny, per_part)
 }
 
 /// Every file under `dir` put into an in-memory store under `prefix`, behind
@@ -90,15 +65,15 @@ fn a_remote_dataset_opens_with_one_request_and_reads_parts_only_when_needed() {
     let ds = Dataset::open_remote(remote.clone()).unwrap();
     let count = || remote.requests.load(Ordering::Relaxed);
     assert_eq!(count(), 1, "opening is one request for the index");
-    assert_eq!(ds.parts.len(), 144);
-    assert!(ds.parts.iter().all(|p| !p.is_open()));
+    assert_eq!(ds.part_count(), 144);
+    assert!(ds.parts().unwrap().into_iter().all(|p| !p.is_open()));
     let here = Dataset::open(&local).unwrap();
     assert_eq!(ds.points(), here.points());
 
     // One part's level 0: its head, then its tiles (merged into few requests).
     let bands: Vec<usize> = (0..4).collect();
-    let a = ds.parts[17].read_level(0, &bands).unwrap();
-    let b = here.parts[17].read_level(0, &bands).unwrap();
+    let a = ds.parts().unwrap()[17].read_level(0, &bands).unwrap();
+    let b = here.parts().unwrap()[17].read_level(0, &bands).unwrap();
     assert_eq!(a.columns, b.columns);
     let after_one = count();
     // These parts' index entries record no head length (`head` 0, as parts
@@ -108,9 +83,16 @@ fn a_remote_dataset_opens_with_one_request_and_reads_parts_only_when_needed() {
         (3..=8).contains(&after_one),
         "the index, the part's head (with its ETag) and its tiles: {after_one} requests"
     );
-    assert_eq!(ds.parts.iter().filter(|p| p.is_open()).count(), 1);
+    assert_eq!(
+        ds.parts()
+            .unwrap()
+            .into_iter()
+            .filter(|p| p.is_open())
+            .count(),
+        1
+    );
     // Read again: from the memory cache.
-    let _ = ds.parts[17].read_level(0, &bands).unwrap();
+    let _ = ds.parts().unwrap()[17].read_level(0, &bands).unwrap();
     assert_eq!(count(), after_one);
 
     // The first frame of the whole dataset: the overview's top tiles.
@@ -128,13 +110,20 @@ fn a_remote_dataset_opens_with_one_request_and_reads_parts_only_when_needed() {
         assert_eq!(got.columns, want.columns);
     }
     let frame = count() - before;
-    let nodes = ds.overview.as_ref().unwrap().nodes.len() as u64;
+    let nodes = ds.node_count() as u64;
     assert!(
         frame <= 48,
         "first frame took {frame} requests for {nodes} overview nodes"
     );
     // No part below the overview was touched.
-    assert_eq!(ds.parts.iter().filter(|p| p.is_open()).count(), 1);
+    assert_eq!(
+        ds.parts()
+            .unwrap()
+            .into_iter()
+            .filter(|p| p.is_open())
+            .count(),
+        1
+    );
 }
 
 #[test]
@@ -150,10 +139,16 @@ fn a_remote_part_of_an_older_layout_opens_by_successive_ranges() {
     let ds = Dataset::open_remote(remote.clone()).unwrap();
     let here = Dataset::open(&local.join("tile-00-00.tif")).unwrap();
     let bands: Vec<usize> = (0..4).collect();
-    for l in 0..here.parts[0].levels.len() {
+    for l in 0..here.parts().unwrap()[0].levels.len() {
         assert_eq!(
-            ds.parts[0].read_level(l, &bands).unwrap().columns,
-            here.parts[0].read_level(l, &bands).unwrap().columns
+            ds.parts().unwrap()[0]
+                .read_level(l, &bands)
+                .unwrap()
+                .columns,
+            here.parts().unwrap()[0]
+                .read_level(l, &bands)
+                .unwrap()
+                .columns
         );
     }
 }
@@ -306,7 +301,7 @@ fn a_queued_upload_survives_its_directory_being_moved() {
 fn read_all(ds: &Dataset, which: &[usize]) -> Vec<Vec<Vec<f32>>> {
     let mut out = Vec::new();
     for &i in which {
-        let p = &ds.parts[i];
+        let p = &ds.parts().unwrap()[i];
         let bands: Vec<usize> = (0..p.bands.len()).collect();
         for l in 0..p.levels.len() {
             out.push(p.read_level(l, &bands).unwrap().columns);
@@ -318,7 +313,7 @@ fn read_all(ds: &Dataset, which: &[usize]) -> Vec<Vec<Vec<f32>>> {
 #[test]
 fn a_converted_dataset_reads_warm_without_heads_and_a_replaced_part_is_an_error() {
     use pcimg::convert::{Quiet, upload::RemoteOutput};
-    use pcimg::store::dataset::index::{INDEX_FILE, IndexFile};
+    use pcimg::store::dataset::index::{INDEX_FILE, Index};
     use std::sync::atomic::AtomicBool;
     let dir = tempfile::tempdir().unwrap();
     let input = dir.path().join("in.xyz");
@@ -336,11 +331,13 @@ fn a_converted_dataset_reads_warm_without_heads_and_a_replaced_part_is_an_error(
     out.finish(&Quiet).unwrap();
     drop(out);
     let (text, _, _) = remote(url).get(INDEX_FILE).unwrap().unwrap();
-    let index = IndexFile::parse(&text, Path::new(url)).unwrap();
-    assert_eq!(index.uploaded_to.as_deref(), Some(url));
+    let root = Index::parse(&text, Path::new(url)).unwrap();
+    assert_eq!(root.uploaded_to(), Some(url));
+    let page = |n: &str| Ok(remote(url).get(n).unwrap().unwrap().0.to_vec());
+    let index = root.listing(Path::new(url), &page).unwrap();
     assert!(index.parts.len() >= 3, "{} parts", index.parts.len());
     assert!(index.parts.iter().all(|p| p.etag.is_some()));
-    assert!(index.nodes.iter().all(|n| n.entry.etag.is_some()));
+    assert!(index.nodes.iter().all(|n| n.etag.is_some()));
 
     let cache = dir.path().join("cache");
     pcimg::remote::disk::configure(&cache, 64 << 20).unwrap();
@@ -382,14 +379,14 @@ fn a_converted_dataset_reads_warm_without_heads_and_a_replaced_part_is_an_error(
     pcimg::remote::file::forget_cached(url);
     pcimg::remote::disk::disable();
     let ds = Dataset::open_remote(remote(url)).unwrap();
-    let p = &ds.parts[1];
+    let p = &ds.parts().unwrap()[1];
     let e = p.read_level(0, &[0, 1, 2]).unwrap_err().to_string();
     assert!(
         e.contains(&format!("{url}/{victim}")) && e.contains("changed since the index was written"),
         "{e}"
     );
     // The parts not replaced still read as before.
-    let first = ds.parts[0].levels.len();
+    let first = ds.parts().unwrap()[0].levels.len();
     assert_eq!(read_all(&ds, &[0]), cold[..first].to_vec());
 
     // The same index read from another URL (a copy made by other tools): the
@@ -467,4 +464,78 @@ fn queued_uploads_hold_no_open_file_each() {
     let q = q.to_path_buf();
     drop(up);
     assert!(!q.exists(), "the queue folder is removed");
+}
+
+/// The first frame of a whole dataset as a viewer draws it: the tiles selected
+/// for a top view under a point budget, read.
+fn first_frame(ds: &Dataset) -> u64 {
+    use pcimg::camera::Camera;
+    use pcimg::lod::{self, LodMode};
+    let cam = Camera::fit(&ds.bounds());
+    let sel = lod::select(
+        ds,
+        &cam,
+        320,
+        200,
+        LodMode::View { budget: 200_000 },
+        1 << 30,
+    );
+    assert_eq!(sel.dropped_tiles, 0);
+    let mut points = 0;
+    for t in &sel.tiles {
+        let p = ds.part(t.part).unwrap();
+        let bands: Vec<usize> = (0..p.bands.len()).collect();
+        points += p.read_tiles(t.level, &[t.tile], &bands).unwrap().len() as u64;
+    }
+    points
+}
+
+#[test]
+fn a_paged_index_opens_in_one_request_and_its_first_frame_costs_what_a_small_one_does() {
+    // 400 and 10,000 parts (issue 44, test-sized): opening is one request of
+    // at most 256 KB whatever the parts; the first frame fetches the pages
+    // the view reaches, and reads about as many bytes at both sizes.
+    let dir = tempfile::tempdir().unwrap();
+    let mut seen = Vec::new();
+    for side in [20, 100] {
+        let local = dataset(dir.path(), side, side, 40);
+        let store = upload(&local, "n.pcimg", Duration::ZERO);
+        let remote = Arc::new(Remote::with_store(store, "n.pcimg", "memory://n.pcimg"));
+        let ds = Dataset::open_remote(remote.clone()).unwrap();
+        let (requests, bytes) = (
+            remote.requests.load(Ordering::Relaxed),
+            remote.received.load(Ordering::Relaxed),
+        );
+        assert_eq!(requests, 1, "{side}²: opening is one request");
+        assert!(bytes <= 256 << 10, "{side}²: opening read {bytes} bytes");
+        assert_eq!(ds.part_count(), side * side);
+        let (pages, loaded) = ds.index_pages();
+        assert_eq!(loaded, 1);
+        let points = first_frame(&ds);
+        assert!(points > 0);
+        let frame_requests = remote.requests.load(Ordering::Relaxed) - requests;
+        let frame_bytes = remote.received.load(Ordering::Relaxed) - bytes;
+        let (fetched, _) = ds.pages_fetched();
+        // The same frame from the local dataset: the same points.
+        let here = Dataset::open(&local).unwrap();
+        assert_eq!(first_frame(&here), points);
+        seen.push((
+            side * side,
+            pages,
+            fetched,
+            frame_requests,
+            bytes + frame_bytes,
+        ));
+    }
+    let (small, large) = (seen[0], seen[1]);
+    assert!(large.1 > 1, "10,000 parts: a paged index ({seen:?})");
+    assert!(
+        large.2 < large.1 as u64 / 4,
+        "the first frame reads a few of the pages: {seen:?}"
+    );
+    assert!(large.3 <= 48, "a few dozen requests: {seen:?}");
+    assert!(
+        large.4 <= 2 * small.4,
+        "bytes before the first frame hardly grow with the parts: {seen:?}"
+    );
 }

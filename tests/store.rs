@@ -496,9 +496,9 @@ fn metadata_survives_and_dataset_directory_opens() {
     opts.source = Some("b.las".into());
     write_part(&dir.path().join("b.tif"), &random_cloud(50, 2, 0), &opts).unwrap();
     let ds = Dataset::open(dir.path()).unwrap();
-    assert_eq!(ds.parts.len(), 2);
+    assert_eq!(ds.part_count(), 2);
     assert_eq!(ds.points(), 150);
-    let p = &ds.parts[0];
+    let p = &ds.parts().unwrap()[0];
     // Control characters are replaced when written (GDAL would print them).
     assert_eq!(p.meta.source.as_deref(), Some("scan \u{FFFD}[31mred.las"));
     assert_eq!(p.meta.crs.as_deref(), Some("EPSG:2992"));

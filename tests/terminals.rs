@@ -1259,7 +1259,7 @@ fn the_crosshair_and_picks_send_no_new_sixel_frame() {
     let dir = tempfile::tempdir().unwrap();
     let ds = dataset(dir.path());
     // The coarsest level, loaded before the first frame: one frame, no redraws.
-    let coarsest = pcimg::store::Dataset::open(&ds).unwrap().parts[0]
+    let coarsest = pcimg::store::Dataset::open(&ds).unwrap().parts().unwrap()[0]
         .levels
         .len()
         - 1;

@@ -90,7 +90,7 @@ fn panels_list_parts_bands_and_levels() {
         text.contains("bounds x ") && text.contains("extent x×y×z"),
         "{text}"
     );
-    for band in &app.dataset.parts[0].bands {
+    for band in &app.dataset.parts().unwrap()[0].bands {
         assert!(
             text.contains(&band.name),
             "band {} missing:\n{text}",
@@ -99,7 +99,7 @@ fn panels_list_parts_bands_and_levels() {
     }
     assert!(text.contains("intensity"));
     // Every level of the selected part, with its raster size.
-    let levels = &app.dataset.parts[0].levels;
+    let levels = &app.dataset.parts().unwrap()[0].levels;
     assert!(levels.len() >= 3);
     for l in levels {
         assert!(
@@ -115,7 +115,7 @@ fn panels_list_parts_bands_and_levels() {
     press(&mut app, KeyCode::Tab);
     let text = screen(&app, None).join("\n");
     assert!(text.contains("levels of part 2"), "{text}");
-    let l0 = &app.dataset.parts[1].levels[0];
+    let l0 = &app.dataset.parts().unwrap()[1].levels[0];
     assert!(text.contains(&format!("{}×{}", l0.width, l0.height)));
 }
 
@@ -228,8 +228,9 @@ fn the_worker_renders_and_encodes_half_block_frames() {
     assert_eq!(frame.status.levels, Some((1, 1)));
     let expected: u64 = app
         .dataset
-        .parts
-        .iter()
+        .parts()
+        .unwrap()
+        .into_iter()
         .map(|p| p.levels[1].points.unwrap())
         .sum();
     assert_eq!(

@@ -314,7 +314,7 @@ fn legends_sum_class_counts_over_parts() {
         let p = dir.path().join(format!("ds/part{k}.tif"));
         store::write_part(&p, h, &WriteOptions::default()).unwrap();
         let one = Dataset::open(&p).unwrap();
-        let recorded: Vec<(u8, u64)> = one.parts[0].meta.class_counts.clone();
+        let recorded: Vec<(u8, u64)> = one.parts().unwrap()[0].meta.class_counts.clone();
         let truth: Vec<(u8, u64)> = (0..256)
             .filter(|&c| want[k][c] > 0)
             .map(|c| (c as u8, want[k][c]))
@@ -322,7 +322,7 @@ fn legends_sum_class_counts_over_parts() {
         assert_eq!(recorded, truth, "part {k}");
     }
     let ds = Dataset::open(&dir.path().join("ds")).unwrap();
-    assert_eq!(ds.parts.len(), 2);
+    assert_eq!(ds.part_count(), 2);
     let hidden = ClassMask::new(None, &[2]);
     let e = legend::class_entries(&ds, &hidden);
     for x in &e {

@@ -122,15 +122,16 @@ fn fields_of(ds: &Dataset, band: &str) -> Vec<Field> {
 fn field(ds: &Dataset, band: &str) -> Field {
     let (name, mut kind) = las_field(band);
     if kind != Kind::F64 {
-        let fits = ds
-            .parts
+        // (The index's totals: the band's range over every part that has it.)
+        let t = ds.totals();
+        let range = t
+            .bands
             .iter()
-            .filter_map(|p| p.bands.iter().find(|b| b.name == band))
-            .all(|b| {
-                b.range.is_some_and(|(lo, hi)| {
-                    lo >= 0.0 && hi <= kind.max() && lo.fract() == 0.0 && hi.fract() == 0.0
-                })
-            });
+            .position(|b| b == band)
+            .and_then(|i| t.ranges[i]);
+        let fits = range.is_some_and(|(lo, hi)| {
+            lo >= 0.0 && hi <= kind.max() && lo.fract() == 0.0 && hi.fract() == 0.0
+        });
         if !fits {
             kind = Kind::F64;
         }
@@ -229,25 +230,18 @@ impl NativeDataset {
         let ds = &self.ds;
         let d = PyDict::new(py);
         d.set_item("location", &self.location)?;
-        d.set_item("parts", ds.parts.len())?;
+        let t = ds.totals();
+        d.set_item("parts", t.parts)?;
         d.set_item("points", ds.points())?;
-        let levels = ds.parts.iter().map(|p| p.levels.len()).max().unwrap_or(0);
-        // Each level's points over the parts (a part with fewer levels gives
-        // its coarsest to the deeper ones, as a read of that level does).
-        let level_points: Vec<u64> = (0..levels)
-            .map(|l| {
-                ds.parts
-                    .iter()
-                    .filter_map(|p| {
-                        let n = p.meta.level_points.len();
-                        (n > 0).then(|| p.meta.level_points[l.min(n - 1)])
-                    })
-                    .sum()
-            })
-            .collect();
+        let level_points = t.level_points.clone();
         d.set_item("levels", level_points)?;
         let mut bands = vec!["x".to_string(), "y".into(), "z".into()];
-        bands.extend(plan_all(ds).bands);
+        bands.extend(
+            t.bands
+                .iter()
+                .filter(|b| !["x", "y", "z"].contains(&b.as_str()))
+                .cloned(),
+        );
         let fields = PyDict::new(py);
         for f in bands.iter().flat_map(|b| fields_of(ds, b)) {
             fields.set_item(&f.name, (f.band.as_str(), f.kind.name()))?;
@@ -258,20 +252,12 @@ impl NativeDataset {
             "bounds",
             (b.min[0], b.min[1], b.min[2], b.max[0], b.max[1], b.max[2]),
         )?;
-        d.set_item("crs", ds.parts.iter().find_map(|p| p.meta.crs.clone()))?;
+        d.set_item("crs", t.crs.clone())?;
         // Class counts, every point's, where every classified part records them.
-        let classified: Vec<_> = ds
-            .parts
-            .iter()
-            .filter(|p| p.band_index("classification").is_some())
-            .collect();
-        if !classified.is_empty() && classified.iter().all(|p| !p.meta.class_counts.is_empty()) {
-            let mut counts = std::collections::BTreeMap::<u8, u64>::new();
-            for p in classified {
-                for &(c, n) in &p.meta.class_counts {
-                    *counts.entry(c).or_default() += n;
-                }
-            }
+        let classified = t.bands.iter().any(|b| b == "classification");
+        if classified && t.classes_complete && !t.class_counts.is_empty() {
+            let counts: std::collections::BTreeMap<u8, u64> =
+                t.class_counts.iter().copied().collect();
             d.set_item("classes", counts)?;
         } else {
             d.set_item("classes", py.None())?;
@@ -309,7 +295,7 @@ impl NativeDataset {
             clip: both(bounds, clip),
             classes,
         };
-        let plan = query::plan(ds, level, |b| selection.may_hold(b));
+        let plan = query::plan(ds, level, |b| selection.may_hold(b)).map_err(store_err)?;
         let mut all = vec![field(ds, "x"), field(ds, "y"), field(ds, "z")];
         // (A plan's bands are every part's, whatever its tiles.)
         all.extend(plan.bands.iter().flat_map(|b| fields_of(ds, b)));
@@ -371,14 +357,9 @@ impl NativeDataset {
             "pcimg.Dataset('{}': {} points in {} parts)",
             self.location,
             self.ds.points(),
-            self.ds.parts.len()
+            self.ds.part_count()
         )
     }
-}
-
-/// Every tile of level 0: the bands of every part.
-fn plan_all(ds: &Dataset) -> Plan {
-    query::plan(ds, 0, |_| false)
 }
 
 /// A batch read: its columns, the rows the selection keeps (`None`: all) and

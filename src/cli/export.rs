@@ -88,7 +88,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
             a.level
         );
     }
-    let plan = export::plan(&ds, a.level, &filter);
+    let plan = export::plan(&ds, a.level, &filter)?;
     let _ = ctrlc::set_handler(|| STOP.store(true, Ordering::SeqCst));
     let bar = if a.quiet {
         ProgressBar::hidden()

@@ -18,6 +18,11 @@ pub struct Args {
     /// Also list every tile of every level with its points and bounds.
     #[arg(long)]
     pub tiles: bool,
+    /// List every part even when the dataset's index is paged (a dataset of
+    /// many parts: every page of the index is read). Without it such a
+    /// dataset is summed up from the index's root alone.
+    #[arg(long)]
+    pub parts: bool,
     #[command(flatten)]
     pub cache: super::remote::CacheArgs,
 }
@@ -32,6 +37,11 @@ pub struct DatasetReport {
     pub index_bytes: Option<u64>,
     /// The overview's layers above the parts, lowest first (empty without one).
     pub overview: Vec<LayerReport>,
+    /// Parts in the dataset.
+    pub part_count: usize,
+    /// Pages of the index (1: every entry in its root; `null`: no index).
+    pub index_pages: Option<usize>,
+    /// The parts, every one; empty for a paged index unless `--parts`.
     pub parts: Vec<PartReport>,
 }
 
@@ -160,7 +170,18 @@ fn part_report(p: &Part, tiles: bool) -> PartReport {
 }
 
 /// The report for a dataset.
+/// Every part is listed when the index is one page; a paged one's are not.
 pub fn report(ds: &Dataset, tiles: bool) -> DatasetReport {
+    let listed = if ds.index_pages().0 <= 1 {
+        ds.parts().unwrap_or_default()
+    } else {
+        Vec::new()
+    };
+    report_of(ds, tiles, &listed)
+}
+
+/// The report listing `parts`.
+pub fn report_of(ds: &Dataset, tiles: bool, parts: &[&Part]) -> DatasetReport {
     DatasetReport {
         path: ds.path.display().to_string(),
         points: ds.points(),
@@ -168,17 +189,16 @@ pub fn report(ds: &Dataset, tiles: bool) -> DatasetReport {
         bounds: ds.bounds(),
         index_bytes: ds.index_bytes,
         overview: overview_report(ds),
-        parts: ds.parts.iter().map(|p| part_report(p, tiles)).collect(),
+        part_count: ds.part_count(),
+        index_pages: ds.index_bytes.map(|_| ds.index_pages().0),
+        parts: parts.iter().map(|p| part_report(p, tiles)).collect(),
     }
 }
 
 fn overview_report(ds: &Dataset) -> Vec<LayerReport> {
-    let Some(o) = &ds.overview else {
-        return Vec::new();
-    };
-    (1..=o.layer_count())
+    (1..=ds.layer_count())
         .map(|layer| {
-            let s = o.layer_summary(layer);
+            let s = ds.layer_summary(layer);
             LayerReport {
                 layer,
                 nodes: s.nodes,
@@ -202,7 +222,7 @@ pub fn render_text(r: &DatasetReport) -> String {
         o,
         "dataset  {}\n         {} part(s), {} points, {}",
         sanitize(&r.path),
-        r.parts.len(),
+        r.part_count,
         count(r.points),
         bytes(r.bytes)
     );
@@ -213,13 +233,22 @@ pub fn render_text(r: &DatasetReport) -> String {
         xyz(r.bounds.max)
     );
     let _ = match r.index_bytes {
-        Some(b) => writeln!(
-            o,
-            "index    {} ({}): opened without reading the parts' headers",
-            crate::store::dataset::index::INDEX_FILE,
-            bytes(b)
-        ),
-        None if r.parts.len() > 1 => writeln!(o, "index    none (`pcimg index` makes one)"),
+        Some(b) => match r.index_pages {
+            Some(pages) if pages > 1 => writeln!(
+                o,
+                "index    {} ({}) and {} more pages, read as a view reaches them",
+                crate::store::dataset::index::INDEX_FILE,
+                bytes(b),
+                pages - 1
+            ),
+            _ => writeln!(
+                o,
+                "index    {} ({}): opened without reading the parts' headers",
+                crate::store::dataset::index::INDEX_FILE,
+                bytes(b)
+            ),
+        },
+        None if r.part_count > 1 => writeln!(o, "index    none (`pcimg index` makes one)"),
         None => Ok(()),
     };
     if !r.overview.is_empty() {
@@ -240,12 +269,19 @@ pub fn render_text(r: &DatasetReport) -> String {
             );
         }
     }
+    if r.parts.is_empty() && r.part_count > 0 {
+        let _ = writeln!(
+            o,
+            "\n(the parts are not listed: `pcimg info --parts` lists all {}, reading every page of the index)",
+            count(r.part_count as u64)
+        );
+    }
     for (i, p) in r.parts.iter().enumerate() {
         let _ = writeln!(
             o,
             "\npart {}/{}  {}",
             i + 1,
-            r.parts.len(),
+            r.part_count,
             sanitize(&p.path)
         );
         let _ = writeln!(
@@ -397,7 +433,11 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     if let Some(h) = crate::advice::dataset_note(&ds) {
         note!("{h}");
     }
-    let r = report(&ds, a.tiles);
+    let r = if a.parts {
+        report_of(&ds, a.tiles, &ds.parts()?)
+    } else {
+        report(&ds, a.tiles)
+    };
     if a.json {
         super::print_out(&format!("{}\n", serde_json::to_string_pretty(&r)?))?;
     } else {

@@ -93,11 +93,9 @@ pub fn open(ds: Arc<Dataset>, a: &Args, temporary: Option<&Path>) -> anyhow::Res
     let mut extra_bands = view::bands_for(&style, &filter);
     // The legend's class toggles, the `C` key and `v` (every band in turn)
     // need the bands at hand: tiles load all of them.
-    for p in &ds.parts {
-        for b in &p.bands {
-            if !["x", "y", "z"].contains(&b.name.as_str()) && !extra_bands.contains(&b.name) {
-                extra_bands.push(b.name.clone());
-            }
+    for b in &ds.totals().bands {
+        if !["x", "y", "z"].contains(&b.as_str()) && !extra_bands.contains(b) {
+            extra_bands.push(b.clone());
         }
     }
     let settings = Settings {

@@ -190,7 +190,7 @@ fn text(s: &Stats, ds: &Dataset) -> String {
             );
         }
     }
-    let unit = crate::store::crs::unit_symbol(ds.parts.first().and_then(|p| p.meta.crs.as_deref()));
+    let unit = crate::store::crs::unit_symbol(ds.totals().crs.as_deref());
     let square = if unit == "units" {
         "square units".to_string()
     } else {

@@ -117,12 +117,14 @@ pub fn lod_for(s: &str, budget: u64, ds: &Dataset) -> anyhow::Result<LodMode> {
     if let LodMode::Fixed(k) = mode {
         let levels = lod::level_count(ds);
         if k >= levels {
-            let above = ds.overview.as_ref().map_or(String::new(), |o| {
+            let above = if ds.has_overview() {
                 format!(
                     " (the last {} above the parts: the overview)",
-                    o.layer_count()
+                    ds.layer_count()
                 )
-            });
+            } else {
+                String::new()
+            };
             anyhow::bail!(
                 "--lod {k}: {} has levels 0 (finest) to {}{above}",
                 crate::text::sanitize(&ds.path.display().to_string()),
@@ -157,16 +159,12 @@ pub fn camera_for(a: &ViewArgs, ds: &Dataset) -> anyhow::Result<Camera> {
 
 /// Whether some part of `ds` has band `name` (x, y and z always exist).
 pub fn has_band(ds: &Dataset, name: &str) -> bool {
-    ["x", "y", "z"].contains(&name) || ds.parts.iter().any(|p| p.band_index(name).is_some())
+    ["x", "y", "z"].contains(&name) || ds.totals().bands.iter().any(|b| b == name)
 }
 
 /// The error for a band no part has, listing those there are.
 pub fn no_band(ds: &Dataset, name: &str, what: &str) -> anyhow::Error {
-    let mut names: Vec<String> = ds
-        .parts
-        .iter()
-        .flat_map(|p| p.bands.iter().map(|b| b.name.clone()))
-        .collect();
+    let mut names: Vec<String> = ds.totals().bands.clone();
     names.sort();
     names.dedup();
     anyhow::anyhow!(

@@ -8,7 +8,7 @@ use super::{PartHook, Progress};
 use crate::remote::Remote;
 use crate::remote::lock::{Lock, Taken};
 use crate::remote::upload::Uploader;
-use crate::store::dataset::index::{INDEX_FILE, IndexFile};
+use crate::store::dataset::index::{INDEX_FILE, Index, PAGES_DIR, rewrite_entries};
 use anyhow::{Result, anyhow, bail};
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
@@ -118,11 +118,19 @@ impl RemoteOutput {
                      to replace it"
                 );
             }
-            let index = IndexFile::parse(&text, Path::new(url))?;
+            let index = Index::parse(&text, Path::new(url))?;
+            let page = |name: &str| -> crate::store::Result<Vec<u8>> {
+                match remote.get(name).map_err(crate::store::StoreError::remote)? {
+                    Some((t, _, _)) => Ok(t.to_vec()),
+                    None => Err(crate::store::StoreError::new(
+                        Path::new(&remote.url_of(name)),
+                        "an index page is missing",
+                    )),
+                }
+            };
             // The index first: the old dataset is absent from its first deletion on.
             old.push(INDEX_FILE.to_string());
-            old.extend(index.parts.iter().map(|p| p.file.clone()));
-            old.extend(index.nodes.iter().map(|n| n.entry.file.clone()));
+            old.extend(index.files(Path::new(url), &page)?);
         } else if !force && let Some(first) = remote.first_object().map_err(|m| anyhow!(m))? {
             bail!(
                 "{shown}: holds objects but no dataset index (e.g. {}): not a pcimg dataset, or \
@@ -203,8 +211,11 @@ impl RemoteOutput {
             .sum();
         let started = self.uploader.started();
         let index = files.iter().find(|(_, n)| n == INDEX_FILE).cloned();
+        // The index's root and pages go last, once they record the parts'
+        // ETags.
+        let is_index = |n: &str| n == INDEX_FILE || n.starts_with(&format!("{PAGES_DIR}-"));
         for (path, name) in &files {
-            if name != INDEX_FILE && !started.contains(name) {
+            if !is_index(name) && !started.contains(name) {
                 self.uploader.start(path, name).map_err(|m| anyhow!(m))?;
             }
         }
@@ -233,7 +244,12 @@ impl RemoteOutput {
             bail!("{e}: cannot remove an object the dataset does not hold");
         }
         if let Some((path, name)) = index {
-            self.record_etags(&path)?;
+            let dir = path.parent().unwrap_or(Path::new("."));
+            for page in self.record_etags(&path)? {
+                self.uploader
+                    .put_now(&dir.join(&page), &page)
+                    .map_err(|m| anyhow!(m))?;
+            }
             self.uploader
                 .put_now(&path, &name)
                 .map_err(|m| anyhow!(m))?;
@@ -247,22 +263,15 @@ impl RemoteOutput {
     /// (no HEAD per part with a warm disk cache) and sends its range requests
     /// conditional on these. An entry whose upload returned no ETag, or another
     /// size, keeps none (the reader asks, as for an index written locally).
-    fn record_etags(&self, index: &Path) -> Result<()> {
+    fn record_etags(&self, index: &Path) -> Result<Vec<String>> {
         let dir = index.parent().unwrap_or(Path::new("."));
-        let text =
-            std::fs::read(index).map_err(|e| anyhow!("{}: cannot read: {e}", index.display()))?;
-        let mut ix = IndexFile::parse(&text, dir)?;
         let fill = |e: &mut crate::store::dataset::index::FileEntry| {
             e.etag = match self.uploader.uploaded(&e.file) {
                 Some((size, Some(etag))) if size == e.bytes && !etag.is_empty() => Some(etag),
                 _ => None,
             };
         };
-        ix.parts.iter_mut().for_each(fill);
-        ix.nodes.iter_mut().for_each(|n| fill(&mut n.entry));
-        ix.uploaded_to = Some(self.url.clone());
-        ix.save(dir)?;
-        Ok(())
+        Ok(rewrite_entries(dir, Some(self.url.clone()), &fill)?)
     }
 
     /// Deletes every object uploaded (and, with `--force`, what is left of the

@@ -312,11 +312,9 @@ impl App {
     /// y left out.
     pub fn band_names(&self) -> Vec<String> {
         let mut names: Vec<String> = vec!["z".into()];
-        for p in &self.dataset.parts {
-            for b in &p.bands {
-                if !names.contains(&b.name) && !["x", "y", "z"].contains(&b.name.as_str()) {
-                    names.push(b.name.clone());
-                }
+        for b in &self.dataset.totals().bands {
+            if !names.contains(b) && !["x", "y", "z"].contains(&b.as_str()) {
+                names.push(b.clone());
             }
         }
         names
@@ -324,9 +322,22 @@ impl App {
 
     pub fn has_classes(&self) -> bool {
         self.dataset
-            .parts
+            .totals()
+            .bands
             .iter()
-            .any(|p| p.band_index("classification").is_some())
+            .any(|b| b == "classification")
+    }
+
+    /// The parts the panels list: every part, but for a paged index those of
+    /// the pages the views have reached so far.
+    pub fn part_ids(&self) -> Vec<usize> {
+        self.dataset.loaded_part_ids()
+    }
+
+    /// The id and the part of the parts panel's selection.
+    pub fn current_part(&self) -> Option<(usize, &crate::store::Part)> {
+        let id = *self.part_ids().get(self.part)?;
+        Some((id, self.dataset.part(id)?))
     }
 
     /// The classes present with their counts and whether each is shown.
@@ -363,13 +374,7 @@ impl App {
 
     /// The finest-to-coarsest level count of the deepest part.
     pub fn max_levels(&self) -> usize {
-        self.dataset
-            .parts
-            .iter()
-            .map(|p| p.levels.len())
-            .max()
-            .unwrap_or(1)
-            .max(1)
+        self.dataset.own_levels()
     }
 
     /// Applies one command.
@@ -395,11 +400,11 @@ impl App {
             }
             SaveFrame => return Effect::Save,
             NextPart => {
-                self.part = (self.part + 1) % self.dataset.parts.len().max(1);
+                self.part = (self.part + 1) % self.part_ids().len().max(1);
                 return Effect::Redraw;
             }
             PreviousPart => {
-                let n = self.dataset.parts.len().max(1);
+                let n = self.part_ids().len().max(1);
                 self.part = (self.part + n - 1) % n;
                 return Effect::Redraw;
             }
@@ -1080,7 +1085,7 @@ mod tests {
         let after_next = a.part;
         a.apply(Command::PreviousPart);
         a.apply(Command::PreviousPart);
-        let n = a.dataset.parts.len();
+        let n = a.dataset.part_count();
         assert_eq!(a.part, (after_next + 2 * n - 2) % n);
         assert_eq!(a.part, 0, "one part wraps around");
         assert_eq!(a.apply(Command::SaveFrame), Effect::Save);

@@ -43,8 +43,8 @@ pub fn areas(area: Rect, app: &App) -> Areas {
     let left_width = (area.width * 2 / 5).clamp(20.min(area.width), 72);
     let [left, view] =
         Layout::horizontal([Constraint::Length(left_width), Constraint::Min(1)]).areas(main);
-    let part = app.dataset.parts.get(app.part);
-    let n_parts = app.dataset.parts.len() as u16;
+    let part = app.current_part().map(|(_, p)| p);
+    let n_parts = app.part_ids().len() as u16;
     let n_bands = part.map_or(0, |p| p.bands.len()) as u16;
     let [parts, bands, levels, tools, memory] = Layout::vertical([
         Constraint::Length(n_parts.min(8) + 5),
@@ -128,10 +128,10 @@ pub fn draw(f: &mut Frame, app: &App, image: Option<&PaneImage>) {
 }
 
 fn draw_parts(f: &mut Frame, app: &App, area: Rect) {
-    let rows: Vec<Row> = app
-        .dataset
-        .parts
+    let ids = app.part_ids();
+    let rows: Vec<Row> = ids
         .iter()
+        .filter_map(|&id| app.dataset.part(id))
         .map(|p| {
             let name = p
                 .path
@@ -153,7 +153,7 @@ fn draw_parts(f: &mut Frame, app: &App, area: Rect) {
             ])
         })
         .collect();
-    let part = app.dataset.parts.get(app.part);
+    let part = app.current_part().map(|(_, p)| p);
     let source = part
         .and_then(|p| p.meta.source.as_deref())
         .map(sanitize)
@@ -162,8 +162,11 @@ fn draw_parts(f: &mut Frame, app: &App, area: Rect) {
         .and_then(|p| p.meta.crs.as_deref())
         .map(sanitize)
         .unwrap_or_else(|| "-".into());
-    let n = app.dataset.parts.len();
-    let heading = if n > 1 {
+    let n = ids.len();
+    let total = app.dataset.part_count();
+    let heading = if n < total {
+        format!(" parts ({}/{n} reached of {total}) ", app.part + 1)
+    } else if n > 1 {
         format!(" parts ({}/{n}) ", app.part + 1)
     } else {
         " parts ".to_string()
@@ -261,10 +264,8 @@ fn short(v: f64) -> String {
 
 fn draw_bands(f: &mut Frame, app: &App, area: Rect) {
     let rows: Vec<Row> = app
-        .dataset
-        .parts
-        .get(app.part)
-        .map(|p| {
+        .current_part()
+        .map(|(_, p)| {
             p.bands
                 .iter()
                 .map(|b| {
@@ -298,16 +299,14 @@ fn draw_levels(f: &mut Frame, app: &App, area: Rect) {
         app.frame
             .loaded
             .iter()
-            .find(|(k, _)| *k == (app.part, level))
+            .find(|(k, _)| Some(*k) == app.current_part().map(|(id, _)| (id, level)))
             .map_or(0, |(_, n)| *n)
     };
     let shown = app.frame.levels;
     let mut rows = overview_rows(app);
     let own: Vec<Row> = app
-        .dataset
-        .parts
-        .get(app.part)
-        .map(|p| {
+        .current_part()
+        .map(|(_, p)| {
             p.levels
                 .iter()
                 .map(|l| {
@@ -353,10 +352,13 @@ fn draw_levels(f: &mut Frame, app: &App, area: Rect) {
     .header(header(&[
         "level", "size", "points", "bytes", "codec", "cache",
     ]))
-    .block(Block::bordered().title(title(match &app.dataset.overview {
-        Some(_) => format!(" overview + levels of part {} ", app.part + 1),
-        None => format!(" levels of part {} ", app.part + 1),
-    })));
+    .block(
+        Block::bordered().title(title(if app.dataset.has_overview() {
+            format!(" overview + levels of part {} ", app.part + 1)
+        } else {
+            format!(" levels of part {} ", app.part + 1)
+        })),
+    );
     f.render_widget(t, area);
 }
 
@@ -364,32 +366,41 @@ fn draw_levels(f: &mut Frame, app: &App, area: Rect) {
 /// the points a view of the layer draws, bytes, and how many nodes are loaded.
 fn overview_rows(app: &App) -> Vec<Row<'static>> {
     let ds = &app.dataset;
-    let Some(o) = &ds.overview else {
+    if !ds.has_overview() {
         return Vec::new();
-    };
-    let np = ds.parts.len();
-    (1..=o.layer_count())
+    }
+    // The nodes drawn, by layer (a node's layer from its page, loaded since
+    // it was drawn).
+    let mut drawn: Vec<(u32, usize)> = app
+        .frame
+        .loaded
+        .iter()
+        .filter(|((p, _), n)| *n > 0 && ds.is_overview(*p))
+        .filter_map(|((p, _), _)| Some((ds.node(*p)?.layer, *p)))
+        .collect();
+    drawn.sort_unstable();
+    drawn.dedup();
+    (1..=ds.layer_count())
         .rev()
         .map(|layer| {
-            let s = o.layer_summary(layer);
-            let loaded = o
-                .layer(layer)
-                .filter(|&k| {
-                    app.frame
-                        .loaded
-                        .iter()
-                        .any(|((p, _), n)| *p == np + k && *n > 0)
-                })
-                .count();
+            let s = ds.layer_summary(layer);
+            let mine: Vec<usize> = drawn
+                .iter()
+                .filter(|(l, _)| *l == layer)
+                .map(|&(_, id)| id)
+                .collect();
+            let loaded = mine.len();
             let state = match loaded {
                 0 => "-".to_string(),
                 n if n == s.nodes => "loaded".to_string(),
                 n => format!("{n}/{} nodes", s.nodes),
             };
-            let codec = o
-                .layer(layer)
-                .next()
-                .map_or(1, |k| o.nodes[k].levels[0].compression);
+            let codec = mine
+                .first()
+                .copied()
+                .or(ds.root())
+                .and_then(|id| ds.part(id))
+                .map_or(1, |p| p.levels[0].compression);
             let row = Row::new(vec![
                 Cell::from(format!("O{layer}")),
                 Cell::from(format!(

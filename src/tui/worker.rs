@@ -329,9 +329,10 @@ fn first_tiles(ds: &Dataset, cache: &TileCache) -> Vec<Arc<LoadedTile>> {
     let refs: Vec<TileRef> = if !first.is_empty() {
         first
     } else {
-        ds.parts
-            .iter()
-            .enumerate()
+        ds.part_ids()
+            .unwrap_or_default()
+            .into_iter()
+            .filter_map(|pi| ds.part(pi).map(|p| (pi, p)))
             .filter_map(|(pi, p)| p.levels.last().map(|l| (pi, l)))
             .flat_map(|(pi, l)| {
                 l.tiles.iter().map(move |t| TileRef {

@@ -434,8 +434,8 @@ fn read_all(part: &Part) -> pcimg::store::Result<()> {
 
 /// Every level of every part and overview node of a dataset.
 pub fn read_dataset(ds: &Dataset) -> pcimg::store::Result<()> {
-    let nodes = ds.overview.as_ref().map_or(0, |o| o.nodes.len());
-    for i in 0..ds.parts.len() + nodes {
+    let nodes = ds.node_count();
+    for i in 0..ds.part_count() + nodes {
         if let Some(p) = ds.part(i) {
             read_all(p)?;
         }

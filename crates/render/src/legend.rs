@@ -25,10 +25,8 @@ pub struct ClassEntry {
 /// ascending; empty when no part records classes.
 pub fn class_entries(ds: &Dataset, mask: &ClassMask) -> Vec<ClassEntry> {
     let mut counts = [0u64; 256];
-    for p in &ds.parts {
-        for &(c, n) in &p.meta.class_counts {
-            counts[c as usize] += n;
-        }
+    for &(c, n) in &ds.totals().class_counts {
+        counts[c as usize] += n;
     }
     (0..=255u8)
         .filter(|&c| counts[c as usize] > 0)
@@ -185,7 +183,7 @@ pub fn length_label(len: f64, unit: &str) -> String {
 /// The symbol lengths in `ds` are labelled in: its first part's CRS's unit
 /// (`m`, `ft`; `units` when no CRS says, see [`crate::store::crs::unit_symbol`]).
 pub fn dataset_unit(ds: &Dataset) -> String {
-    crate::store::crs::unit_symbol(ds.parts.first().and_then(|p| p.meta.crs.as_deref()))
+    crate::store::crs::unit_symbol(ds.totals().crs.as_deref())
 }
 
 fn fill(f: &mut Frame, x: i64, y: i64, w: i64, h: i64, c: [u8; 3]) {

@@ -39,7 +39,9 @@
 //!
 //! let ds = Dataset::open(&path)?;
 //! assert_eq!(ds.points(), n as u64);
-//! let part = &ds.parts[0];
+//! // (Parts are named by ids; `parts()` lists every one, reading every page
+//! // of a paged index.)
+//! let part = ds.parts()?[0];
 //! for level in &part.levels {
 //!     for tile in &level.tiles {
 //!         assert!(tile.bounds.min[2] <= tile.bounds.max[2]);
@@ -86,7 +88,7 @@ pub mod tiff;
 pub mod write;
 
 pub use dataset::overview::{IndexOptions, IndexReport, build_index};
-pub use dataset::{Dataset, OpenOptions, Overview, PartHeader};
+pub use dataset::{Dataset, LayerSummary, Node, OpenOptions, PartHeader};
 pub use error::{Remedy, Result, StoreError};
 pub use read::part::{BandInfo, Level, Part, PartMeta, TileInfo};
 pub use read::points::Points;

@@ -20,8 +20,12 @@ pub struct Plan {
     pub tiles: Vec<(usize, usize, u32)>,
     /// Points in those tiles (the most a reader of them gets).
     pub points: u64,
-    /// Tiles of the chosen levels the selection cannot reach (not read).
+    /// Tiles of the chosen levels, in the parts looked at, that the selection
+    /// cannot reach (not read).
     pub skipped: usize,
+    /// Parts not looked at: their bounds (or their overview node's) lie
+    /// outside the selection.
+    pub parts_passed: usize,
     /// Bands besides x, y, z, in the order of the first part that has each.
     pub bands: Vec<String>,
     /// The lattice every part's coordinates lie on, when they all share one.
@@ -34,24 +38,37 @@ pub struct Plan {
 
 /// The tiles of level `level` (each part's coarsest where it has fewer) whose
 /// bounds `may_hold` accepts, in the parts only (overview nodes hold copies).
-pub fn plan(ds: &Dataset, level: usize, may_hold: impl Fn(&Bounds) -> bool) -> Plan {
+///
+/// Parts whose bounds it refuses are not looked at, and with an overview whole
+/// subtrees of them are not (a paged index's pages for them are not read):
+/// [`Plan::parts_passed`] counts them.
+pub fn plan(
+    ds: &Dataset,
+    level: usize,
+    may_hold: impl Fn(&Bounds) -> bool,
+) -> Result<Plan, StoreError> {
     let mut tiles = Vec::new();
     let (mut points, mut skipped) = (0u64, 0usize);
-    let mut bands: Vec<String> = Vec::new();
+    // Every part's bands (the index's totals), whether reached or not.
+    let bands: Vec<String> = ds
+        .totals()
+        .bands
+        .iter()
+        .filter(|b| !["x", "y", "z"].contains(&b.as_str()))
+        .cloned()
+        .collect();
     let mut bounds = Bounds::EMPTY;
     let mut lattices = Vec::new();
-    for (i, part) in ds.parts.iter().enumerate() {
+    let ids = ds.parts_where(&may_hold)?;
+    let parts_passed = ds.part_count().saturating_sub(ids.len());
+    for i in ids {
+        let part = ds.try_part(i)?;
         let Some(l) = part
             .levels
             .get(level.min(part.levels.len().saturating_sub(1)))
         else {
             continue;
         };
-        for b in part.bands.iter().skip(3) {
-            if !bands.contains(&b.name) {
-                bands.push(b.name.clone());
-            }
-        }
         lattices.push(part.meta.lattice);
         for t in &l.tiles {
             if may_hold(&t.bounds) {
@@ -67,15 +84,16 @@ pub fn plan(ds: &Dataset, level: usize, may_hold: impl Fn(&Bounds) -> bool) -> P
         Some(Some(first)) if lattices.iter().all(|l| l.as_ref() == Some(first)) => Some(*first),
         _ => None,
     };
-    Plan {
+    Ok(Plan {
         tiles,
         points,
         skipped,
+        parts_passed,
         bands,
         lattice,
         bounds,
-        crs: ds.parts.iter().find_map(|p| p.meta.crs.clone()),
-    }
+        crs: ds.totals().crs.clone(),
+    })
 }
 
 /// Points read at most at once (a batch of tiles): about 100 MB of columns.
@@ -364,8 +382,8 @@ mod tests {
             }),
             classes: Some(vec![1, 3]),
         };
-        let all = plan(&ds, 0, |_| true);
-        let p = plan(&ds, 0, |b| sel.may_hold(b));
+        let all = plan(&ds, 0, |_| true).unwrap();
+        let p = plan(&ds, 0, |b| sel.may_hold(b)).unwrap();
         assert_eq!(all.points, 400_000);
         assert!(p.tiles.len() < all.tiles.len(), "{} tiles", p.tiles.len());
         assert_eq!(p.skipped, all.tiles.len() - p.tiles.len());
@@ -395,7 +413,7 @@ mod tests {
     fn batches_hold_one_part_and_level_and_at_most_the_batch_points() {
         let dir = tempfile::tempdir().unwrap();
         let ds = dataset(dir.path());
-        let p = plan(&ds, 0, |_| true);
+        let p = plan(&ds, 0, |_| true).unwrap();
         let b = batches(&ds, &p.tiles);
         let tiles: usize = b.iter().map(|b| b.2.len()).sum();
         assert_eq!(tiles, p.tiles.len());

@@ -144,9 +144,7 @@ fn level_tiles(ds: &Dataset, part: usize, level: usize) -> Vec<TileRef> {
         return Vec::new();
     };
     // A node's tiles stand for all of its children's points.
-    let cover = part
-        .checked_sub(ds.parts.len())
-        .and_then(|k| ds.overview.as_ref()?.covers.get(k).copied());
+    let cover = ds.cover(part);
     l.tiles
         .iter()
         .map(|t| TileRef {
@@ -163,14 +161,33 @@ fn level_tiles(ds: &Dataset, part: usize, level: usize) -> Vec<TileRef> {
 
 /// The four children (one level finer) of a tile, when the level below has a tile
 /// index with the same Z-order structure.
-fn children(ds: &Dataset, t: &TileRef) -> Option<Vec<TileRef>> {
-    if let Some(o) = ds.overview.as_ref().filter(|_| ds.is_overview(t.part)) {
-        let kids = o.children.get(t.part - ds.parts.len())?;
-        return Some(
-            kids.iter()
-                .flat_map(|&c| top_tiles(ds, ds.child_part(c)))
-                .collect(),
-        );
+fn children(
+    ds: &Dataset,
+    t: &TileRef,
+    visible: &dyn Fn(&TileRef) -> bool,
+    culled: &mut usize,
+) -> Option<Vec<TileRef>> {
+    if ds.is_overview(t.part) {
+        // Children the view cannot show are culled by the bounds their parent
+        // records, before their index pages are read. (A child whose page
+        // cannot be read: nothing finer.)
+        let mut tiles = Vec::new();
+        for (c, b) in ds.children(t.part).ok()? {
+            let probe = TileRef {
+                part: c,
+                level: 0,
+                tile: 0,
+                points: 0,
+                bounds: b,
+            };
+            if !visible(&probe) {
+                *culled += 1;
+                continue;
+            }
+            ds.child(t.part, c).ok()?;
+            tiles.extend(top_tiles(ds, c));
+        }
+        return Some(tiles);
     }
     if t.level == 0 {
         return None;
@@ -212,23 +229,29 @@ fn top_tiles(ds: &Dataset, part: usize) -> Vec<TileRef> {
 /// Levels a `Fixed` or `Distance` selection counts: the parts' own, then one per
 /// overview layer.
 pub fn level_count(ds: &Dataset) -> usize {
-    ds.own_levels() + ds.overview.as_ref().map_or(0, |o| o.layer_count() as usize)
+    ds.own_levels() + ds.layer_count() as usize
 }
 
 /// The tiles of dataset level `level` (clamped per part; past the parts' own
 /// levels, the overview layer's nodes).
 fn tiles_at(ds: &Dataset, level: usize) -> Vec<TileRef> {
+    // (A level over the whole dataset reads every page of a paged index; one
+    // that cannot be read gives its entries' tiles up.)
     let own = ds.own_levels();
-    if let Some(o) = ds.overview.as_ref().filter(|_| level >= own) {
-        let layer = ((level - own + 1) as u32).min(o.layer_count());
-        return o
-            .layer(layer)
-            .flat_map(|k| top_tiles(ds, ds.parts.len() + k))
+    if ds.has_overview() && level >= own {
+        let layer = ((level - own + 1) as u32).min(ds.layer_count());
+        return ds
+            .layer_nodes(layer)
+            .unwrap_or_default()
+            .into_iter()
+            .flat_map(|id| top_tiles(ds, id))
             .collect();
     }
-    (0..ds.parts.len())
+    ds.part_ids()
+        .unwrap_or_default()
+        .into_iter()
         .flat_map(|pi| {
-            let n = ds.parts[pi].levels.len();
+            let n = ds.part(pi).map_or(0, |p| p.levels.len());
             level_tiles(ds, pi, level.min(n.saturating_sub(1)))
         })
         .collect()
@@ -302,9 +325,9 @@ pub fn select_region(
             let ppu = |b: &Bounds| camera.pixels_per_unit(distance_to_box(eye, b), height);
             let mut heap = BinaryHeap::new();
             let mut total = 0u64;
-            let starts: Vec<usize> = match &ds.overview {
-                Some(o) => vec![ds.parts.len() + o.root()],
-                None => (0..ds.parts.len()).collect(),
+            let starts: Vec<usize> = match ds.root() {
+                Some(root) => vec![root],
+                None => ds.part_ids().unwrap_or_default(),
             };
             for pi in starts {
                 for t in top_tiles(ds, pi) {
@@ -321,8 +344,9 @@ pub fn select_region(
             }
             while let Some(c) = heap.pop() {
                 // Fine enough, or nothing finer: keep it.
+                let mut culled_early = 0;
                 let kids = if c.key > 1.0 {
-                    children(ds, &c.tile)
+                    children(ds, &c.tile, &visible, &mut culled_early)
                 } else {
                     None
                 };
@@ -337,7 +361,7 @@ pub fn select_region(
                     continue;
                 }
                 total = total - c.tile.points + added;
-                sel.culled += kids.len() - vis.len();
+                sel.culled += kids.len() - vis.len() + culled_early;
                 for k in vis {
                     heap.push(Candidate {
                         key: spacing(&k.bounds, k.points) * ppu(&k.bounds),

@@ -1,9 +1,16 @@
 //! The dataset index, `pcimg-index.json` in a dataset directory: every part's file,
 //! size, modification time and header, and the overview nodes above the parts. It
 //! is written last (its presence marks a finished dataset); opening a dataset
-//! reads it instead of every part's header, after checking that the directory
-//! still holds exactly the files it lists.
+//! reads it instead of every part's header.
+//!
+//! Version 2 (written since issue 44) is paged: the root file holds the totals,
+//! the layers' summaries and the first page (the overview's top nodes); every
+//! other page, a JSON file in `pages-G/`, holds entries of one subtree, fetched
+//! when selection descends into it ([`paginate`]). An entry is named by an id:
+//! part ids `page * stride + slot` below `pages * stride`, node ids the same
+//! above it. Version 1 (one document, every entry) still opens.
 
+use crate::dataset::paged::{IndexPage, IndexRoot, Slot, locate, page_file};
 use crate::dataset::summary::PartHeader;
 use crate::error::{Remedy, Result, StoreError};
 use crate::read::part::Part;
@@ -14,9 +21,18 @@ use std::time::UNIX_EPOCH;
 pub const INDEX_FILE: &str = "pcimg-index.json";
 /// The folder of overview parts inside a dataset directory.
 pub const OVERVIEW_DIR: &str = "overview";
+/// The folders of a paged index's pages: `pages-0` and `pages-1`, one for each
+/// overview generation (`overview.rs`).
+pub const PAGES_DIR: &str = "pages";
 /// The index format this pcimg writes and reads.
-pub(crate) const INDEX_VERSION: u32 = 1;
-const FORMAT_NAME: &str = "pcimg-index";
+pub(crate) const INDEX_VERSION: u32 = 2;
+/// The largest first page, inside the root file: with the rest of the root,
+/// opening any dataset reads well under 256 KB.
+pub const ROOT_PAGE_BYTES: usize = 160 * 1024;
+/// The largest other page (one more unit may carry a page past it only when
+/// the unit alone is larger).
+pub const PAGE_BYTES: usize = 192 * 1024;
+pub(crate) const FORMAT_NAME: &str = "pcimg-index";
 
 /// A file the index lists: its path relative to the dataset, size, modification
 /// time and header.
@@ -114,6 +130,136 @@ pub fn head_of(path: &Path) -> Result<u64> {
     Ok(tiff.head_first_len(&map))
 }
 
+/// The text of `dir`'s index, if it has one.
+pub(crate) fn read_index(dir: &Path) -> Result<Option<Vec<u8>>> {
+    let path = dir.join(INDEX_FILE);
+    match std::fs::read(&path) {
+        Ok(t) => Ok(Some(t)),
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(None),
+        Err(e) => Err(StoreError::new(&path, format!("cannot read: {e}"))),
+    }
+}
+
+/// Every file `dir`'s index names (its pages included), if it has an index.
+pub fn indexed_files(dir: &Path) -> Result<Option<Vec<String>>> {
+    let Some(text) = read_index(dir)? else {
+        return Ok(None);
+    };
+    Index::parse(&text, dir)?
+        .files(dir, &local_page(dir))
+        .map(Some)
+}
+
+/// The part files directly in `dir` (names, sorted).
+pub(crate) fn present_parts(dir: &Path) -> Vec<String> {
+    crate::dataset::list_parts(dir)
+        .unwrap_or_default()
+        .iter()
+        .filter_map(|p| p.file_name())
+        .map(|n| n.to_string_lossy().into_owned())
+        .collect()
+}
+
+/// A hash of sorted part names (FNV-1a, 64 bits): a paged index records its
+/// parts' ([`crate::dataset::paged::IndexRoot::listing`]), so that opening
+/// compares the directory's listing with it without reading every page.
+pub(crate) fn names_hash<'a>(names: impl Iterator<Item = &'a str>) -> u64 {
+    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
+    for n in names {
+        for b in n.bytes().chain(std::iter::once(b'\n')) {
+            h ^= b as u64;
+            h = h.wrapping_mul(0x0100_0000_01b3);
+        }
+    }
+    h
+}
+
+/// Checks that the dataset directory holds every part and node the index
+/// lists, and no part it does not list (names the first either way).
+pub(crate) fn check_listed(dir: &Path, parts: &[&str], nodes: &[&str]) -> Result<()> {
+    let mut here: std::collections::HashSet<String> = present_parts(dir).into_iter().collect();
+    let listed: std::collections::HashSet<&str> = parts.iter().copied().collect();
+    let mut unlisted: Vec<&String> = here
+        .iter()
+        .filter(|n| !listed.contains(n.as_str()))
+        .collect();
+    unlisted.sort();
+    if let Some(n) = unlisted.first() {
+        return Err(StoreError::new(
+            &dir.join(n),
+            format!(
+                "is not in the dataset's index ({} unlisted part{})",
+                unlisted.len(),
+                if unlisted.len() == 1 { "" } else { "s" },
+            ),
+        )
+        .with_remedy(reindex(dir)));
+    }
+    if !nodes.is_empty() {
+        let od = dir.join(OVERVIEW_DIR);
+        here.extend(
+            present_parts(&od)
+                .into_iter()
+                .map(|n| format!("{OVERVIEW_DIR}/{n}")),
+        );
+    }
+    if let Some(f) = parts.iter().chain(nodes).find(|f| !here.contains(**f)) {
+        return Err(StoreError::new(
+            &dir.join(f),
+            "is listed in the dataset's index but missing (restore the file if it was lost)",
+        )
+        .with_remedy(reindex(dir)));
+    }
+    Ok(())
+}
+
+/// Reads a page of `dir`'s index (a file relative to it).
+pub fn local_page(dir: &Path) -> impl Fn(&str) -> Result<Vec<u8>> + '_ {
+    move |name: &str| {
+        let p = dir.join(name);
+        std::fs::read(&p).map_err(|e| StoreError::new(&p, format!("cannot read: {e}")))
+    }
+}
+
+/// Writes `text` to `path` atomically (a temporary file beside it, renamed).
+pub(crate) fn write_atomic(path: &Path, text: &[u8]) -> Result<()> {
+    let dir = path.parent().unwrap_or(Path::new("."));
+    let name = path
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_default();
+    let tmp = dir.join(format!(".{name}.tmp-{}", std::process::id()));
+    let r = std::fs::write(&tmp, text).and_then(|()| std::fs::rename(&tmp, path));
+    if let Err(e) = r {
+        let _ = std::fs::remove_file(&tmp);
+        #[cfg(unix)]
+        let e = pcimg_core::disk::with_full_note(e, path, Some(text.len() as u64));
+        return Err(StoreError::new(path, format!("cannot write: {e}")));
+    }
+    Ok(())
+}
+
+/// An entry names a file inside the dataset, with levels and at least x, y, z.
+pub(crate) fn check_entry(e: &FileEntry) -> std::result::Result<(), String> {
+    let p = Path::new(&e.file);
+    if p.is_absolute()
+        || p.components()
+            .any(|c| !matches!(c, std::path::Component::Normal(_)))
+    {
+        return Err(format!(
+            "lists '{}', which is not a file inside the dataset",
+            crate::text::sanitize(&e.file)
+        ));
+    }
+    if e.header.bands.len() < 3 || e.header.levels.is_empty() {
+        return Err(format!(
+            "entry '{}' has no levels or fewer than 3 bands",
+            crate::text::sanitize(&e.file)
+        ));
+    }
+    Ok(())
+}
+
 /// The remedy for a dataset whose index is missing, unreadable or stale.
 fn reindex(dir: &Path) -> Remedy {
     Remedy::Reindex {
@@ -121,37 +267,202 @@ fn reindex(dir: &Path) -> Remedy {
     }
 }
 
+/// An index as read: version 1 (one document) or the paged version 2.
+#[derive(Debug, Clone)]
+pub enum Index {
+    One(IndexFile),
+    Paged(Box<IndexRoot>),
+}
+
+/// The two fields every version begins with.
+#[derive(serde::Deserialize)]
+struct Probe {
+    #[serde(default)]
+    format: String,
+    #[serde(default)]
+    version: u32,
+}
+
+impl Index {
+    /// An index's text, checked; `dir` names the dataset in messages (a
+    /// directory, or the URL of one in object storage).
+    pub fn parse(text: &[u8], dir: &Path) -> Result<Index> {
+        let path = dir.join(INDEX_FILE);
+        let not_json = |e: serde_json::Error| {
+            StoreError::new(
+                &path,
+                format!(
+                    "not a valid dataset index (line {}, column {}: {e})",
+                    e.line(),
+                    e.column(),
+                ),
+            )
+            .with_remedy(reindex(dir))
+        };
+        let probe: Probe = serde_json::from_slice(text).map_err(not_json)?;
+        if probe.format != FORMAT_NAME || probe.version > INDEX_VERSION || probe.version == 0 {
+            return Err(StoreError::new(
+                &path,
+                format!(
+                    "index format '{}' version {} is not one this version reads ({FORMAT_NAME} 1 to {INDEX_VERSION})",
+                    crate::text::sanitize(&probe.format),
+                    probe.version,
+                ),
+            )
+            .with_remedy(if probe.format == FORMAT_NAME && probe.version > INDEX_VERSION {
+                Remedy::Upgrade
+            } else {
+                reindex(dir)
+            }));
+        }
+        if probe.version == 1 {
+            return Ok(Index::One(IndexFile::parse_v1(text, dir)?));
+        }
+        let root: IndexRoot = serde_json::from_slice(text).map_err(not_json)?;
+        let bad = |m: String| StoreError::new(&path, m).with_remedy(reindex(dir));
+        let dir_ok = Path::new(&root.pages_dir)
+            .components()
+            .all(|c| matches!(c, std::path::Component::Normal(_)));
+        if root.pages == 0
+            || root.stride == 0
+            || root
+                .pages
+                .checked_mul(root.stride)
+                .and_then(|s| s.checked_mul(2))
+                .is_none()
+            || !dir_ok
+            || root.pages_dir.is_empty()
+        {
+            return Err(bad("has an impossible page table".into()));
+        }
+        if root
+            .root
+            .is_some_and(|id| !matches!(locate(id, root.pages, root.stride), Some(Slot::Node(..))))
+        {
+            return Err(bad("names a root node that cannot exist".into()));
+        }
+        root.first.check(&path, dir, root.pages, root.stride)?;
+        Ok(Index::Paged(Box::new(root)))
+    }
+
+    /// Every entry the index holds, and its pages' files: the pages are read
+    /// through `page` (a page's file, relative to the dataset).
+    pub fn listing(&self, dir: &Path, page: &dyn Fn(&str) -> Result<Vec<u8>>) -> Result<Listing> {
+        match self {
+            Index::One(i) => Ok(Listing {
+                parts: i.parts.clone(),
+                nodes: i.nodes.iter().map(|n| n.entry.clone()).collect(),
+                pages: Vec::new(),
+            }),
+            Index::Paged(r) => {
+                let mut out = Listing::default();
+                let add = |out: &mut Listing, p: &IndexPage| {
+                    out.parts.extend(p.parts.iter().map(|e| e.entry.clone()));
+                    out.nodes.extend(p.nodes.iter().map(|e| e.entry.clone()));
+                };
+                add(&mut out, &r.first);
+                for k in 1..r.pages {
+                    let name = page_file(&r.pages_dir, k);
+                    let text = page(&name)?;
+                    let p = IndexPage::parse(&text, &dir.join(&name), dir, r.pages, r.stride)?;
+                    add(&mut out, &p);
+                    out.pages.push(name);
+                }
+                Ok(out)
+            }
+        }
+    }
+
+    /// Every file the index names: parts, nodes and its own pages.
+    pub fn files(&self, dir: &Path, page: &dyn Fn(&str) -> Result<Vec<u8>>) -> Result<Vec<String>> {
+        let l = self.listing(dir, page)?;
+        Ok(l.parts
+            .into_iter()
+            .chain(l.nodes)
+            .map(|e| e.file)
+            .chain(l.pages)
+            .collect())
+    }
+
+    /// The URL the entries' ETags were recorded for.
+    pub fn uploaded_to(&self) -> Option<&str> {
+        match self {
+            Index::One(i) => i.uploaded_to.as_deref(),
+            Index::Paged(r) => r.uploaded_to.as_deref(),
+        }
+    }
+}
+
+/// What an index lists ([`Index::listing`]).
+#[derive(Debug, Clone, Default)]
+pub struct Listing {
+    pub parts: Vec<FileEntry>,
+    /// The overview nodes' entries.
+    pub nodes: Vec<FileEntry>,
+    /// The index's page files after its root (a paged index's).
+    pub pages: Vec<String>,
+}
+
+/// Rewrites `dir`'s index with `f` applied to every entry (parts and nodes, in
+/// every page) and `uploaded_to` set; returns the page files written (the
+/// root's excluded). Pages first, then the root, each atomically.
+pub fn rewrite_entries(
+    dir: &Path,
+    uploaded_to: Option<String>,
+    f: &dyn Fn(&mut FileEntry),
+) -> Result<Vec<String>> {
+    let path = dir.join(INDEX_FILE);
+    let text = read_index(dir)?.ok_or_else(|| StoreError::new(&path, "cannot read: no index"))?;
+    match Index::parse(&text, dir)? {
+        Index::One(mut ix) => {
+            ix.parts.iter_mut().for_each(f);
+            ix.nodes.iter_mut().for_each(|n| f(&mut n.entry));
+            ix.uploaded_to = uploaded_to;
+            ix.save(dir)?;
+            Ok(Vec::new())
+        }
+        Index::Paged(mut root) => {
+            let mut pages = root.read_pages(dir)?;
+            let mut fix = |p: &mut IndexPage| {
+                p.parts.iter_mut().for_each(|e| f(&mut e.entry));
+                p.nodes.iter_mut().for_each(|n| f(&mut n.entry));
+            };
+            fix(&mut root.first);
+            pages.iter_mut().for_each(&mut fix);
+            root.uploaded_to = uploaded_to;
+            root.save(dir, &pages)?;
+            Ok((1..root.pages)
+                .map(|k| page_file(&root.pages_dir, k))
+                .collect())
+        }
+    }
+}
+
 impl IndexFile {
+    /// A version 1 index (still read; written now only to test that it is).
     pub fn new(parts: Vec<FileEntry>, nodes: Vec<NodeEntry>) -> Self {
         IndexFile {
             format: FORMAT_NAME.into(),
-            version: INDEX_VERSION,
+            version: 1,
             parts,
             nodes,
             uploaded_to: None,
         }
     }
 
-    /// Reads `dir`'s index, if it has one, and its size in bytes.
-    pub fn load(dir: &Path) -> Result<Option<(IndexFile, u64)>> {
-        Ok(Self::load_text(dir)?.map(|(i, t)| (i, t.len() as u64)))
-    }
-
-    /// [`IndexFile::load`], with the index's text.
-    pub(crate) fn load_text(dir: &Path) -> Result<Option<(IndexFile, Vec<u8>)>> {
-        let path = dir.join(INDEX_FILE);
-        let text = match std::fs::read(&path) {
-            Ok(t) => t,
-            Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(None),
-            Err(e) => return Err(StoreError::new(&path, format!("cannot read: {e}"))),
-        };
-        let idx = Self::parse(&text, dir)?;
-        Ok(Some((idx, text)))
-    }
-
-    /// An index's text, checked; `dir` names the dataset in messages (a
-    /// directory, or the URL of one in object storage).
+    /// A version 1 index's text, checked; `dir` names the dataset in messages
+    /// (a directory, or the URL of one in object storage).
     pub fn parse(text: &[u8], dir: &Path) -> Result<IndexFile> {
+        match Index::parse(text, dir)? {
+            Index::One(i) => Ok(i),
+            Index::Paged(_) => Err(StoreError::new(
+                &dir.join(INDEX_FILE),
+                "a paged index (version 2), where version 1 was expected",
+            )),
+        }
+    }
+
+    fn parse_v1(text: &[u8], dir: &Path) -> Result<IndexFile> {
         let path = dir.join(INDEX_FILE);
         let idx: IndexFile = serde_json::from_slice(text).map_err(|e| {
             StoreError::new(
@@ -164,21 +475,6 @@ impl IndexFile {
             )
             .with_remedy(reindex(dir))
         })?;
-        if idx.format != FORMAT_NAME || idx.version > INDEX_VERSION {
-            return Err(StoreError::new(
-                &path,
-                format!(
-                    "index format '{}' version {} is not one this version reads ({FORMAT_NAME} {INDEX_VERSION})",
-                    crate::text::sanitize(&idx.format),
-                    idx.version,
-                ),
-            )
-            .with_remedy(if idx.format == FORMAT_NAME {
-                Remedy::Upgrade
-            } else {
-                reindex(dir)
-            }));
-        }
         idx.check_structure(dir)?;
         Ok(idx)
     }
@@ -188,22 +484,7 @@ impl IndexFile {
         let bad = |m: String| StoreError::new(&dir.join(INDEX_FILE), m).with_remedy(reindex(dir));
         let names = self.parts.iter().chain(self.nodes.iter().map(|n| &n.entry));
         for e in names {
-            let p = Path::new(&e.file);
-            if p.is_absolute()
-                || p.components()
-                    .any(|c| !matches!(c, std::path::Component::Normal(_)))
-            {
-                return Err(bad(format!(
-                    "lists '{}', which is not a file inside the dataset",
-                    crate::text::sanitize(&e.file)
-                )));
-            }
-            if e.header.bands.len() < 3 || e.header.levels.is_empty() {
-                return Err(bad(format!(
-                    "entry '{}' has no levels or fewer than 3 bands",
-                    crate::text::sanitize(&e.file)
-                )));
-            }
+            check_entry(e).map_err(bad)?;
         }
         for (i, n) in self.nodes.iter().enumerate() {
             for c in &n.children {
@@ -225,57 +506,15 @@ impl IndexFile {
     /// and nodes, unopened. Whether a part changed (size or modification time) is
     /// checked when its file is first read.
     pub(crate) fn open_parts(self, dir: &Path) -> Result<(Vec<Part>, Vec<Part>)> {
-        let present = |d: &Path| -> std::collections::HashSet<String> {
-            crate::dataset::list_parts(d)
-                .unwrap_or_default()
-                .iter()
-                .filter_map(|p| p.strip_prefix(dir).ok())
-                .map(|p| p.to_string_lossy().replace('\\', "/"))
-                .collect()
-        };
-        let mut here = present(dir);
-        if !self.nodes.is_empty() {
-            here.extend(present(&dir.join(OVERVIEW_DIR)));
-        }
-        let listed: std::collections::HashSet<&str> =
-            self.parts.iter().map(|e| e.file.as_str()).collect();
-        let mut unlisted: Vec<&String> = here
-            .iter()
-            .filter(|n| !n.contains('/') && !listed.contains(n.as_str()))
-            .collect();
-        unlisted.sort();
-        if let Some(n) = unlisted.first() {
-            return Err(StoreError::new(
-                &dir.join(n),
-                format!(
-                    "is not in the dataset's index ({} unlisted part{})",
-                    unlisted.len(),
-                    if unlisted.len() == 1 { "" } else { "s" },
-                ),
-            )
-            .with_remedy(reindex(dir)));
-        }
-        let open = |e: FileEntry| -> Result<Part> {
+        let parts: Vec<&str> = self.parts.iter().map(|e| e.file.as_str()).collect();
+        let nodes: Vec<&str> = self.nodes.iter().map(|n| n.entry.file.as_str()).collect();
+        check_listed(dir, &parts, &nodes)?;
+        let open = |e: FileEntry| -> Part {
             let path = dir.join(&e.file);
-            if !here.contains(&e.file) {
-                return Err(StoreError::new(
-                    &path,
-                    "is listed in the dataset's index but missing (restore the file if it was lost)",
-                )
-                .with_remedy(reindex(dir)));
-            }
-            Ok(Part::from_header(dir, &path, (e.bytes, e.mtime), e.header))
+            Part::from_header(dir, &path, (e.bytes, e.mtime), e.header)
         };
-        let parts = self
-            .parts
-            .into_iter()
-            .map(open)
-            .collect::<Result<Vec<_>>>()?;
-        let nodes = self
-            .nodes
-            .into_iter()
-            .map(|n| open(n.entry))
-            .collect::<Result<Vec<_>>>()?;
+        let parts = self.parts.into_iter().map(open).collect();
+        let nodes = self.nodes.into_iter().map(|n| open(n.entry)).collect();
         Ok((parts, nodes))
     }
 
@@ -304,16 +543,9 @@ impl IndexFile {
     /// Writes the index into `dir` atomically (a temporary file renamed).
     pub fn save(&self, dir: &Path) -> Result<u64> {
         let path = dir.join(INDEX_FILE);
-        let tmp = dir.join(format!(".{INDEX_FILE}.tmp-{}", std::process::id()));
         let text = serde_json::to_vec(self)
             .map_err(|e| StoreError::new(&path, format!("cannot encode: {e}")))?;
-        let r = std::fs::write(&tmp, &text).and_then(|()| std::fs::rename(&tmp, &path));
-        if let Err(e) = r {
-            let _ = std::fs::remove_file(&tmp);
-            #[cfg(unix)]
-            let e = pcimg_core::disk::with_full_note(e, &path, Some(text.len() as u64));
-            return Err(StoreError::new(&path, format!("cannot write: {e}")));
-        }
+        write_atomic(&path, &text)?;
         Ok(text.len() as u64)
     }
 }

@@ -3,83 +3,56 @@
 
 pub mod index;
 pub mod overview;
+pub mod paged;
 pub(crate) mod summary;
+pub(crate) mod table;
 
 pub use summary::PartHeader;
+pub use table::Node;
 
-use crate::dataset::index::{Child, IndexFile};
+use crate::dataset::index::{Child, Index, IndexFile};
+use crate::dataset::paged::Totals;
+use crate::dataset::table::{PageSource, Table};
 use crate::error::{Remedy, Result, StoreError};
 use crate::points::Bounds;
 use crate::read::part::Part;
 use std::path::{Path, PathBuf};
 
 /// An opened dataset (headers only; parts opened from an index not even those).
+///
+/// Its parts and the overview nodes above them are named by ids: what
+/// [`Dataset::part`] takes and a tile reference carries. The ids of a dataset
+/// opened from a paged index are spread over its pages; only
+/// [`Dataset::part_ids`] and [`Dataset::node_ids`] list them (loading every page).
 #[derive(Debug, Default)]
 pub struct Dataset {
     pub path: PathBuf,
-    pub parts: Vec<Part>,
-    /// The overview above the parts, from the index.
-    pub overview: Option<Overview>,
-    /// Bytes of the index the dataset was opened from.
+    pub(crate) table: Table,
+    /// Bytes of the index the dataset was opened from (its root, when paged).
     pub index_bytes: Option<u64>,
     /// A directory of several parts opened without an index (one would open it
     /// faster and add an overview of all its parts).
     pub unindexed: bool,
 }
 
-/// Overview nodes above the parts: ordinary parts whose coarsest level is an even
-/// sample of their children's coarsest levels. In a [`crate::lod::TileRef`], node
-/// `k` is part number `parts.len() + k` (see [`Dataset::part`]).
-#[derive(Debug)]
-pub struct Overview {
-    pub nodes: Vec<Part>,
-    pub children: Vec<Vec<Child>>,
-    /// Layer of each node: 1 just above the parts.
-    pub layers: Vec<u32>,
-    /// The node above each part number (parts, then nodes), `None` for the root.
-    pub parents: Vec<Option<usize>>,
-    /// What each node stands for: the union of its children's bounds (its own
-    /// points, a sample, may not reach the edges of its children's).
-    pub covers: Vec<Bounds>,
-}
-
-impl Overview {
-    /// The root node (the last).
-    pub fn root(&self) -> usize {
-        self.nodes.len() - 1
-    }
-
-    /// Number of layers above the parts.
-    pub fn layer_count(&self) -> u32 {
-        self.layers.iter().copied().max().unwrap_or(0)
-    }
-
-    /// The nodes (numbers into `nodes`) of `layer`.
-    pub fn layer(&self, layer: u32) -> impl Iterator<Item = usize> + '_ {
-        (0..self.nodes.len()).filter(move |&k| self.layers[k] == layer)
-    }
-
-    /// What `layer` holds: its nodes, the points a view of it draws (their
-    /// coarsest levels), the points and bytes stored.
-    pub fn layer_summary(&self, layer: u32) -> LayerSummary {
-        let mut s = LayerSummary::default();
-        for n in self.layer(layer).map(|k| &self.nodes[k]) {
-            s.nodes += 1;
-            s.points += n.levels.last().and_then(|l| l.points).unwrap_or(0);
-            s.stored_points += n.meta.point_count;
-            s.bytes += n.file_bytes;
-        }
-        s
-    }
-}
-
-/// One overview layer in numbers ([`Overview::layer_summary`]).
-#[derive(Debug, Clone, Copy, Default)]
+/// One overview layer in numbers ([`Dataset::layer_summary`]).
+#[derive(Debug, Clone, Copy, Default, serde::Serialize, serde::Deserialize)]
 pub struct LayerSummary {
     pub nodes: usize,
+    /// The points a view of the layer draws (its nodes' coarsest levels).
     pub points: u64,
     pub stored_points: u64,
     pub bytes: u64,
+}
+
+impl LayerSummary {
+    /// Counts node `n` in.
+    pub fn add(&mut self, n: &Part) {
+        self.nodes += 1;
+        self.points += n.levels.last().and_then(|l| l.points).unwrap_or(0);
+        self.stored_points += n.meta.point_count;
+        self.bytes += n.file_bytes;
+    }
 }
 
 fn is_part_file(p: &Path) -> bool {
@@ -95,15 +68,6 @@ fn is_part_file(p: &Path) -> bool {
 }
 
 /// The parts of a directory dataset, sorted by name (an error when it has none).
-/// The part number of overview child `c` in a dataset of `parts` parts (nodes
-/// come after the parts).
-fn child_number(parts: usize, c: Child) -> usize {
-    match c {
-        Child::Part(i) => i,
-        Child::Node(k) => parts + k,
-    }
-}
-
 pub(crate) fn list_parts(dir: &Path) -> Result<Vec<PathBuf>> {
     // The entry's own type where the directory gives it (no stat a file: a
     // thousand parts cost a thousand stats), following links.
@@ -136,6 +100,22 @@ fn starts_like_tiff(path: &Path) -> bool {
     std::fs::File::open(path)
         .and_then(|mut f| f.read_exact(&mut head))
         .is_ok_and(|()| matches!(&head, b"II*\0" | b"MM\0*" | b"II+\0" | b"MM\0+"))
+}
+
+/// Checks a local paged index against its directory, as a version 1 index is
+/// checked ([`index::check_listed`]): with one page, from its entries; with
+/// more, from the listing's hash, every page read only when it differs.
+fn check_paged(dir: &Path, root: &paged::IndexRoot) -> Result<()> {
+    if root.pages > 1 {
+        let here = index::present_parts(dir);
+        if root.listing == Some(index::names_hash(here.iter().map(String::as_str))) {
+            return Ok(());
+        }
+    }
+    let all = Index::Paged(Box::new(root.clone())).listing(dir, &index::local_page(dir))?;
+    let parts: Vec<&str> = all.parts.iter().map(|e| e.file.as_str()).collect();
+    let nodes: Vec<&str> = all.nodes.iter().map(|e| e.file.as_str()).collect();
+    index::check_listed(dir, &parts, &nodes)
 }
 
 /// Each overview node's layer and children, from the index.
@@ -199,12 +179,32 @@ impl Dataset {
         // one read listed: the new one is read again, a few times at most.
         let mut tries = 0;
         while meta.is_dir()
-            && let Some((index, text)) = IndexFile::load_text(path)?
+            && let Some(text) = index::read_index(path)?
         {
-            let tree = tree_of(&index);
-            match index.open_parts(path) {
-                Ok((parts, nodes)) => {
-                    return Ok(Self::assemble(path, tree, parts, nodes, text.len() as u64));
+            let index = Index::parse(&text, path)?;
+            let r = match index {
+                Index::One(index) => {
+                    let tree = tree_of(&index);
+                    index
+                        .open_parts(path)
+                        .map(|(parts, nodes)| Table::from_tree(path, parts, nodes, tree))
+                }
+                Index::Paged(root) => check_paged(path, &root).map(|()| {
+                    let source = PageSource::Local {
+                        dir: path.to_path_buf(),
+                        pages_dir: root.pages_dir.clone(),
+                    };
+                    Table::paged(path, *root, source)
+                }),
+            };
+            match r {
+                Ok(table) => {
+                    return Ok(Dataset {
+                        path: path.to_path_buf(),
+                        table,
+                        index_bytes: Some(text.len() as u64),
+                        unindexed: false,
+                    });
                 }
                 Err(e) => {
                     tries += 1;
@@ -245,9 +245,9 @@ impl Dataset {
         let unindexed = parts.len() > 1;
         Ok(Dataset {
             path: path.to_path_buf(),
-            parts,
+            table: Table::loaded(path, parts),
             unindexed,
-            ..Default::default()
+            index_bytes: None,
         })
     }
 
@@ -277,7 +277,7 @@ impl Dataset {
             let file = std::sync::Arc::new(remote.file(""));
             return Ok(Dataset {
                 path: path.to_path_buf(),
-                parts: vec![Part::open_remote(file, 0, None)?],
+                table: Table::loaded(path, vec![Part::open_remote(file, 0, None)?]),
                 ..Default::default()
             });
         }
@@ -296,126 +296,275 @@ impl Dataset {
             );
             return Err(e);
         };
-        let index = IndexFile::parse(&text, path)?;
-        let tree = tree_of(&index);
-        let (parts, nodes) = index.remote_parts(&remote);
-        Ok(Self::assemble(path, tree, parts, nodes, size))
+        let table = match Index::parse(&text, path)? {
+            Index::One(index) => {
+                let tree = tree_of(&index);
+                let (parts, nodes) = index.remote_parts(&remote);
+                Table::from_tree(path, parts, nodes, tree)
+            }
+            Index::Paged(root) => {
+                // The ETags hold for the store they were recorded in.
+                let pinned = root.uploaded_to.as_deref() == Some(remote.url.as_str());
+                let source = PageSource::Remote {
+                    remote: remote.clone(),
+                    pages_dir: root.pages_dir.clone(),
+                    pinned,
+                };
+                Table::paged(path, *root, source)
+            }
+        };
+        Ok(Dataset {
+            path: path.to_path_buf(),
+            table,
+            index_bytes: Some(size),
+            unindexed: false,
+        })
     }
 
-    /// A dataset opened from its index: parts, overview nodes and their tree.
-    fn assemble(
-        path: &Path,
-        tree: Vec<(u32, Vec<Child>)>,
-        parts: Vec<Part>,
-        nodes: Vec<Part>,
-        index_bytes: u64,
-    ) -> Dataset {
-        let np = parts.len();
-        let overview = (!nodes.is_empty()).then(|| {
-            let mut parents = vec![None; np + nodes.len()];
-            for (k, (_, children)) in tree.iter().enumerate() {
-                for &c in children {
-                    parents[child_number(np, c)] = Some(np + k);
-                }
-            }
-            let mut covers: Vec<Bounds> = Vec::with_capacity(nodes.len());
-            for (_, children) in &tree {
-                let b = children.iter().fold(Bounds::EMPTY, |b, c| match *c {
-                    Child::Part(i) => b.union(&parts[i].meta.bounds),
-                    Child::Node(j) => b.union(&covers[j]),
-                });
-                covers.push(b);
-            }
-            Overview {
-                nodes,
-                layers: tree.iter().map(|t| t.0).collect(),
-                children: tree.into_iter().map(|t| t.1).collect(),
-                parents,
-                covers,
-            }
-        });
-        Dataset {
-            path: path.to_path_buf(),
-            parts,
-            overview,
-            index_bytes: Some(index_bytes),
-            unindexed: false,
-        }
+    /// The dataset's totals (parts, points, bounds...), from its index.
+    pub fn totals(&self) -> &Totals {
+        &self.table.totals
+    }
+
+    /// The number of parts (not counting overview nodes).
+    pub fn part_count(&self) -> usize {
+        self.table.totals.parts
+    }
+
+    /// The number of overview nodes.
+    pub fn node_count(&self) -> usize {
+        self.table.totals.nodes
     }
 
     /// The most levels a part has (at least 1).
     pub fn own_levels(&self) -> usize {
-        self.parts.iter().map(|p| p.levels.len()).max().unwrap_or(1)
+        self.table.totals.own_levels.max(1)
     }
 
-    /// Part `i` of a [`crate::lod::TileRef`]: a part, or past the parts an
-    /// overview node.
-    pub fn part(&self, i: usize) -> Option<&Part> {
-        match i.checked_sub(self.parts.len()) {
-            None => self.parts.get(i),
-            Some(k) => self.overview.as_ref().and_then(|o| o.nodes.get(k)),
+    /// The part or overview node `id` names; `None` when there is none, or its
+    /// index page cannot be read ([`Dataset::try_part`] says why).
+    pub fn part(&self, id: usize) -> Option<&Part> {
+        self.table.entry(id).ok().map(|(p, _)| p)
+    }
+
+    /// [`Dataset::part`], or why it cannot be had (its index page could not be
+    /// read or parsed).
+    pub fn try_part(&self, id: usize) -> Result<&Part> {
+        self.table.entry(id).map(|(p, _)| p)
+    }
+
+    /// The overview node `id` names.
+    pub fn node(&self, id: usize) -> Option<&Node> {
+        self.table.entry(id).ok().and_then(|(_, n)| n)
+    }
+
+    /// Every part's id (the parts of a paged index: every page loaded).
+    pub fn part_ids(&self) -> Result<Vec<usize>> {
+        self.table.part_ids()
+    }
+
+    /// Every overview node's id (every page loaded).
+    pub fn node_ids(&self) -> Result<Vec<usize>> {
+        self.table.node_ids()
+    }
+
+    /// The ids of the parts in the pages loaded so far (every part, but for
+    /// a paged index).
+    pub fn loaded_part_ids(&self) -> Vec<usize> {
+        self.table.loaded_part_ids()
+    }
+
+    /// Every part (every page loaded).
+    pub fn parts(&self) -> Result<Vec<&Part>> {
+        self.part_ids()?
+            .into_iter()
+            .map(|id| self.try_part(id))
+            .collect()
+    }
+
+    /// The first part.
+    pub fn first_part(&self) -> Option<&Part> {
+        self.part(0)
+    }
+
+    /// The ids of the parts whose bounds `may_hold` accepts: with an overview,
+    /// found from the root down, so that pages of subtrees it refuses are not
+    /// read.
+    pub fn parts_where(&self, may_hold: &dyn Fn(&Bounds) -> bool) -> Result<Vec<usize>> {
+        let Some(root) = self.table.root else {
+            let ids = self.part_ids()?;
+            return Ok(ids
+                .into_iter()
+                .filter(|&id| self.part(id).is_some_and(|p| may_hold(&p.meta.bounds)))
+                .collect());
+        };
+        let mut out = Vec::new();
+        let mut stack = vec![root];
+        while let Some(id) = stack.pop() {
+            for (c, b) in self.children(id)?.into_iter().rev() {
+                if !may_hold(&b) {
+                    continue;
+                }
+                self.child(id, c)?;
+                if self.is_overview(c) {
+                    stack.push(c);
+                } else {
+                    out.push(c);
+                }
+            }
         }
+        out.sort_unstable();
+        Ok(out)
     }
 
-    /// The part number of an overview child.
-    pub fn child_part(&self, c: Child) -> usize {
-        child_number(self.parts.len(), c)
+    /// Whether there is an overview above the parts.
+    pub fn has_overview(&self) -> bool {
+        self.table.root.is_some()
     }
 
-    /// The overview node above part number `i` (a part or a node).
-    pub fn parent(&self, i: usize) -> Option<usize> {
-        self.overview.as_ref()?.parents.get(i).copied().flatten()
+    /// The overview's root node.
+    pub fn root(&self) -> Option<usize> {
+        self.table.root
     }
 
-    /// The coarsest tiles of the overview's top layers, root first, up to `points`
-    /// points in all: what a viewer loads before anything else.
+    /// Layers of overview nodes above the parts.
+    pub fn layer_count(&self) -> u32 {
+        self.table.layers.len() as u32
+    }
+
+    /// Layer `layer` (1 just above the parts) in numbers, from the index.
+    pub fn layer_summary(&self, layer: u32) -> LayerSummary {
+        (layer as usize)
+            .checked_sub(1)
+            .and_then(|l| self.table.layers.get(l))
+            .copied()
+            .unwrap_or_default()
+    }
+
+    /// The ids of the nodes of `layer` (every page loaded).
+    pub fn layer_nodes(&self, layer: u32) -> Result<Vec<usize>> {
+        Ok(self
+            .node_ids()?
+            .into_iter()
+            .filter(|&id| self.node(id).is_some_and(|n| n.layer == layer))
+            .collect())
+    }
+
+    /// The children of node `id` and each one's bounds, from the node's own
+    /// entry: nothing else is read (a view culls children by these bounds
+    /// before reading their pages). Empty for a part.
+    pub fn children(&self, id: usize) -> Result<Vec<(usize, Bounds)>> {
+        let (_, node) = self.table.entry(id)?;
+        Ok(node.map_or_else(Vec::new, |n| {
+            n.children
+                .iter()
+                .copied()
+                .zip(n.child_bounds.iter().copied())
+                .collect()
+        }))
+    }
+
+    /// Child `child` of node `id`, read (its page loaded): a part, or a node of
+    /// a lower layer (an index naming any other is refused: no cycles).
+    pub fn child(&self, id: usize, child: usize) -> Result<&Part> {
+        let (_, Some(n)) = self.table.entry(id)? else {
+            return Err(StoreError::new(
+                &self.path,
+                format!("entry {id} is not a node"),
+            ));
+        };
+        let (part, kid) = self.table.entry(child)?;
+        let lower = match kid {
+            Some(k) => k.layer < n.layer,
+            None => n.layer >= 1,
+        };
+        if !lower || !n.children.contains(&child) {
+            return Err(StoreError::new(
+                &self.path.join(index::INDEX_FILE),
+                format!("overview node {id} names a child that is not below it"),
+            )
+            .with_remedy(Remedy::Reindex {
+                dataset: self.path.clone(),
+            }));
+        }
+        Ok(part)
+    }
+
+    /// What node `id` stands for: the union of its children's bounds.
+    pub fn cover(&self, id: usize) -> Option<Bounds> {
+        self.node(id).map(|n| n.cover)
+    }
+
+    /// Index pages: in all, and loaded now.
+    pub fn index_pages(&self) -> (usize, usize) {
+        (self.table.page_count(), self.table.pages_loaded())
+    }
+
+    /// Index pages read after opening, and their bytes.
+    pub fn pages_fetched(&self) -> (u64, u64) {
+        use std::sync::atomic::Ordering::Relaxed;
+        (
+            self.table.fetched.load(Relaxed),
+            self.table.fetched_bytes.load(Relaxed),
+        )
+    }
+
+    /// The overview node above entry `id` (a part or a node).
+    pub fn parent(&self, id: usize) -> Option<usize> {
+        self.table.parent(id)
+    }
+
+    /// The coarsest tiles of the overview's top layers, root first (breadth
+    /// first), up to `points` points in all: what a viewer loads before
+    /// anything else.
     pub fn overview_first(&self, points: u64) -> Vec<(usize, usize, u32, u64)> {
-        let Some(o) = &self.overview else {
+        let Some(root) = self.table.root else {
             return Vec::new();
         };
-        let mut order: Vec<usize> = (0..o.nodes.len()).collect();
-        order.sort_by_key(|&k| (std::cmp::Reverse(o.layers[k]), k));
         let mut out = Vec::new();
         let mut sum = 0;
-        for k in order {
-            let n = &o.nodes[k];
-            let Some(l) = n.levels.last() else { continue };
+        let mut queue = std::collections::VecDeque::from([root]);
+        while let Some(id) = queue.pop_front() {
+            let Some(n) = self.node(id) else { continue };
+            let Some(l) = n.part.levels.last() else {
+                continue;
+            };
             let pts = l.points.unwrap_or(0);
             if sum + pts > points && !out.is_empty() {
                 break;
             }
             sum += pts;
             for t in &l.tiles {
-                out.push((
-                    self.parts.len() + k,
-                    l.index,
-                    t.index,
-                    t.points.unwrap_or(0) as u64,
-                ));
+                out.push((id, l.index, t.index, t.points.unwrap_or(0) as u64));
+            }
+            if let Ok(kids) = self.children(id) {
+                queue.extend(
+                    kids.into_iter()
+                        .map(|(c, _)| c)
+                        .filter(|&c| self.table.is_node(c) && self.child(id, c).is_ok()),
+                );
             }
         }
         out
     }
 
-    /// Whether part number `i` is an overview node.
-    pub fn is_overview(&self, i: usize) -> bool {
-        i >= self.parts.len()
+    /// Whether `id` names an overview node (nothing is loaded to tell).
+    pub fn is_overview(&self, id: usize) -> bool {
+        self.table.is_node(id)
     }
 
     /// Union of the parts' bounds.
     pub fn bounds(&self) -> Bounds {
-        self.parts
-            .iter()
-            .fold(Bounds::EMPTY, |b, p| b.union(&p.meta.bounds))
+        self.table.totals.bounds
     }
 
     /// Total points over all parts.
     pub fn points(&self) -> u64 {
-        self.parts.iter().map(|p| p.meta.point_count).sum()
+        self.table.totals.points
     }
 
     /// Total bytes of all part files.
     pub fn bytes(&self) -> u64 {
-        self.parts.iter().map(|p| p.file_bytes).sum()
+        self.table.totals.bytes
     }
 }

@@ -6,9 +6,10 @@
 //! centres); layer after layer up to one root; then the index, written last.
 
 use crate::dataset::index::{
-    Child, FileEntry, INDEX_FILE, IndexFile, NodeEntry, OVERVIEW_DIR, entry_of,
+    Child, FileEntry, INDEX_FILE, NodeEntry, OVERVIEW_DIR, PAGES_DIR, entry_of, indexed_files,
 };
 use crate::dataset::list_parts;
+use crate::dataset::paged::{layer_summaries, paginate};
 use crate::error::{Result, StoreError};
 use crate::points::{Attribute, PointColumns};
 use crate::read::part::Part;
@@ -26,6 +27,12 @@ use std::time::Instant;
 /// times its points, as a level of a part's own pyramid does.
 pub const GROUP_POINTS: u64 = 4 * TILE_PIXELS as u64;
 
+/// The most children a node has: many small parts would otherwise make one
+/// node of hundreds (a view refining it then loads them all at once), and its
+/// index entries one page of megabytes (`paged.rs`: a node's parts share its
+/// page).
+pub const MAX_CHILDREN: usize = 64;
+
 /// What building the index did.
 #[derive(Debug, Clone, Default)]
 pub struct IndexReport {
@@ -36,7 +43,10 @@ pub struct IndexReport {
     /// Points stored in the overview nodes (all levels).
     pub node_points: u64,
     pub node_bytes: u64,
+    /// Bytes of the index's root file.
     pub index_bytes: u64,
+    /// Pages of the index, the root's included.
+    pub index_pages: usize,
     pub seconds: f64,
     /// Why there is no overview, when there is none.
     pub no_overview: Option<String>,
@@ -45,16 +55,19 @@ pub struct IndexReport {
     pub leftovers: Vec<PathBuf>,
 }
 
-/// One member of a layer: a part or a node, with what grouping needs.
+/// One member of a layer: a part or a node, with what grouping and writing
+/// its node need (its file is opened only to read its coarsest level).
 struct Member<'a> {
     child: Child,
-    part: &'a Part,
+    path: PathBuf,
+    entry: &'a FileEntry,
     top_points: u64,
     center: [f64; 3],
 }
 
 /// Groups a layer's members into compact runs whose coarsest levels hold at most
-/// [`GROUP_POINTS`] (so a node, a quarter of that, fits one tile): the members are
+/// [`GROUP_POINTS`] (so a node, a quarter of that, fits one tile), of at most
+/// [`MAX_CHILDREN`] members: the members are
 /// split in two at the median of their points along the longer side of their
 /// centres' box (a k-d split), again and again, never into fewer than two.
 fn group(members: &mut [Member]) -> Vec<std::ops::Range<usize>> {
@@ -65,7 +78,7 @@ fn group(members: &mut [Member]) -> Vec<std::ops::Range<usize>> {
 
 fn split(m: &mut [Member], at: usize, runs: &mut Vec<std::ops::Range<usize>>) {
     let sum: u64 = m.iter().map(|x| x.top_points).sum();
-    if sum <= GROUP_POINTS || m.len() < 4 {
+    if (sum <= GROUP_POINTS && m.len() <= MAX_CHILDREN) || m.len() < 4 {
         runs.push(at..at + m.len());
         return;
     }
@@ -176,16 +189,26 @@ fn node_generation(name: &str) -> Option<u32> {
 }
 
 /// Why the parts cannot share an overview, if they cannot.
-fn incompatible(parts: &[Part]) -> Option<String> {
-    let names = |p: &Part| p.bands.iter().map(|b| b.name.clone()).collect::<Vec<_>>();
+fn incompatible(parts: &[FileEntry], files: &[PathBuf]) -> Option<String> {
+    let names = |e: &FileEntry| {
+        e.header
+            .bands
+            .iter()
+            .map(|b| b.name.clone())
+            .collect::<Vec<_>>()
+    };
     let first = names(&parts[0]);
-    parts.iter().find(|p| names(p) != first).map(|p| {
-        format!(
-            "{} has other bands than {}",
-            p.path.display(),
-            parts[0].path.display()
-        )
-    })
+    parts
+        .iter()
+        .zip(files)
+        .find(|(e, _)| names(e) != first)
+        .map(|(_, f)| {
+            format!(
+                "{} has other bands than {}",
+                f.display(),
+                files[0].display()
+            )
+        })
 }
 
 /// Options of [`build_index`].
@@ -206,33 +229,33 @@ pub fn build_index(
     let t0 = Instant::now();
     let leftovers = remove_leftovers(dir);
     let files = list_parts(dir)?;
-    let parts: Vec<Part> = files
-        .par_iter()
-        .map(|f| Part::open(f))
-        .collect::<Result<_>>()?;
-    if let Some(empty) = parts.iter().find(|p| p.meta.point_count == 0) {
-        return Err(StoreError::new(
-            &empty.path,
-            "holds no points: a dataset's index lists parts with points only; move it out \
-             of the directory",
-        ));
-    }
+    // Each part's entry, the part closed again: a hundred thousand parts held
+    // open would pass the kernel's limit on memory maps (65,530 by default).
     let name = |f: &Path| f.file_name().map(|n| n.to_string_lossy().into_owned());
-    let entries: Vec<FileEntry> = parts
-        .iter()
-        .zip(&files)
-        .map(|(p, f)| entry_of(p, &name(f).unwrap_or_default()))
+    let entries: Vec<FileEntry> = files
+        .par_iter()
+        .map(|f| {
+            let p = Part::open(f)?;
+            if p.meta.point_count == 0 {
+                return Err(StoreError::new(
+                    &p.path,
+                    "holds no points: a dataset's index lists parts with points only; move \
+                     it out of the directory",
+                ));
+            }
+            entry_of(&p, &name(f).unwrap_or_default())
+        })
         .collect::<Result<_>>()?;
     let mut report = IndexReport {
-        parts: parts.len(),
-        points: parts.iter().map(|p| p.meta.point_count).sum(),
+        parts: entries.len(),
+        points: entries.iter().map(|e| e.header.meta.point_count).sum(),
         leftovers,
         ..Default::default()
     };
-    report.no_overview = if parts.len() < 2 {
+    report.no_overview = if entries.len() < 2 {
         Some("a single part is its own overview".into())
     } else {
-        incompatible(&parts)
+        incompatible(&entries, &files)
     };
     // The earlier index and overview stay in use until the new index replaces
     // the old in one rename: a reader sees the one or the other, and one that
@@ -241,11 +264,13 @@ pub fn build_index(
     // the overview folder until then.
     let old = dir.join(OVERVIEW_DIR);
     check_overview(&old)?;
-    let in_use: Vec<String> = IndexFile::load(dir)
+    let in_use: Vec<String> = indexed_files(dir)
         .ok()
         .flatten()
-        .map(|(i, _)| i.nodes.into_iter().map(|n| n.entry.file).collect())
-        .unwrap_or_default();
+        .unwrap_or_default()
+        .into_iter()
+        .filter(|f| f.starts_with(&format!("{OVERVIEW_DIR}/")))
+        .collect();
     let generation = u32::from(in_use.iter().any(|f| {
         f.strip_prefix(&format!("{OVERVIEW_DIR}/"))
             .is_some_and(|n| node_generation(n) == Some(0))
@@ -261,7 +286,7 @@ pub fn build_index(
         std::fs::create_dir(&tmp).map_err(|e| {
             StoreError::new(&tmp, format!("cannot create: {}", full_note(e, &tmp, None)))
         })?;
-        let built = build_nodes(&parts, &files, &tmp, generation, o, progress)
+        let built = build_nodes(&entries, &files, &tmp, generation, o, progress)
             .and_then(|nodes| move_nodes(&tmp, &old, &nodes).map(|()| nodes));
         let _ = std::fs::remove_dir_all(&tmp);
         match built {
@@ -280,7 +305,14 @@ pub fn build_index(
     report.node_points = nodes.iter().map(|n| n.entry.header.meta.point_count).sum();
     report.node_bytes = nodes.iter().map(|n| n.entry.bytes).sum();
     let listed: Vec<String> = nodes.iter().map(|n| n.entry.file.clone()).collect();
-    report.index_bytes = match IndexFile::new(entries, nodes).save(dir) {
+    let layers = layer_summaries(&nodes);
+    let saved = paginate(entries, nodes, layers, &format!("{PAGES_DIR}-{generation}")).and_then(
+        |(root, pages)| {
+            report.index_pages = root.pages;
+            root.save(dir, &pages)
+        },
+    );
+    report.index_bytes = match saved {
         Ok(b) => b,
         Err(e) => {
             // The old index stands: the new nodes go.
@@ -309,6 +341,8 @@ pub fn remove_leftovers(dir: &Path) -> Vec<PathBuf> {
     let tags = [
         format!(".{OVERVIEW_DIR}-tmp-"),
         format!(".{INDEX_FILE}.tmp-"),
+        format!(".{PAGES_DIR}-0-tmp-"),
+        format!(".{PAGES_DIR}-1-tmp-"),
     ];
     for e in entries.flatten() {
         let name = e.file_name().to_string_lossy().into_owned();
@@ -410,7 +444,7 @@ fn remove_unlisted(old: &Path, listed: &[String]) -> Result<()> {
 /// Writes the nodes layer by layer into `tmp`; their entries name them inside
 /// the final overview folder.
 fn build_nodes(
-    parts: &[Part],
+    parts: &[FileEntry],
     files: &[PathBuf],
     tmp: &Path,
     generation: u32,
@@ -418,18 +452,17 @@ fn build_nodes(
     progress: &(dyn Fn(usize) + Sync),
 ) -> Result<Vec<NodeEntry>> {
     let compression = o.compression.unwrap_or_else(|| {
-        let l = &parts[0].levels[0];
+        let l = &parts[0].header.levels[0];
         // (LERC nodes keep their coordinates losslessly: they are read
         // back from parts whose values already carry the parts' bound.)
         Compression::from_codes(l.compression, l.lerc_extra).unwrap_or(Compression::None)
     });
-    let top = |p: &Part| p.levels.last().and_then(|l| l.points).unwrap_or(0);
+    let top = |e: &FileEntry| e.header.levels.last().and_then(|l| l.points).unwrap_or(0);
     let file_name = |f: &Path| f.file_name().map(|n| n.to_string_lossy().into_owned());
     let mut names: Vec<String> = files
         .iter()
         .map(|f| file_name(f).unwrap_or_default())
         .collect();
-    let mut opened: Vec<Part> = Vec::new();
     let mut nodes: Vec<NodeEntry> = Vec::new();
     let mut members: Vec<Child> = (0..parts.len()).map(Child::Part).collect();
     let done = AtomicUsize::new(0);
@@ -437,20 +470,21 @@ fn build_nodes(
     while members.len() > 1 {
         layer += 1;
         let member = |&child: &Child| -> Member {
-            let part = match child {
-                Child::Part(i) => &parts[i],
-                Child::Node(k) => &opened[k],
+            let (entry, path) = match child {
+                Child::Part(i) => (&parts[i], files[i].clone()),
+                Child::Node(k) => (&nodes[k].entry, tmp.join(&names[parts.len() + k])),
             };
             Member {
                 child,
-                part,
-                top_points: top(part),
-                center: part.meta.bounds.center(),
+                path,
+                entry,
+                top_points: top(entry),
+                center: entry.header.meta.bounds.center(),
             }
         };
         let mut m: Vec<Member> = members.iter().map(member).collect();
         let runs = group(&mut m);
-        let written: Vec<(Part, NodeEntry)> = runs
+        let written: Vec<NodeEntry> = runs
             .par_iter()
             .enumerate()
             .map(|(k, run)| {
@@ -460,7 +494,7 @@ fn build_nodes(
                 let kids = &m[run.clone()];
                 let mut pts = PointColumns::default();
                 for kid in kids {
-                    append(&mut pts, next_coarser(kid.part)?);
+                    append(&mut pts, next_coarser(&Part::open(&kid.path)?)?);
                 }
                 let child_names: Vec<String> = kids
                     .iter()
@@ -470,42 +504,36 @@ fn build_nodes(
                     })
                     .collect();
                 let path = tmp.join(node_name(generation, layer, k));
+                let meta = &kids[0].entry.header.meta;
                 let opts = WriteOptions {
                     compression,
                     source: Some(format!("pcimg overview of {}", child_names.join(" "))),
-                    crs: kids[0].part.meta.crs.clone(),
+                    crs: meta.crs.clone(),
                     cancel: o.cancel.clone(),
                     // Children on one lattice: the node keeps their whole numbers.
-                    lattice: kids[0]
-                        .part
-                        .meta
+                    lattice: meta
                         .lattice
-                        .filter(|l| kids.iter().all(|k| k.part.meta.lattice == Some(*l))),
+                        .filter(|l| kids.iter().all(|k| k.entry.header.meta.lattice == Some(*l))),
                     ..Default::default()
                 };
                 write_part(&path, &pts, &opts)?;
-                let part = Part::open(&path)?;
                 let entry = entry_of(
-                    &part,
+                    &Part::open(&path)?,
                     &format!("{OVERVIEW_DIR}/{}", node_name(generation, layer, k)),
                 )?;
                 progress(done.fetch_add(1, Ordering::Relaxed) + 1);
-                Ok((
-                    part,
-                    NodeEntry {
-                        entry,
-                        layer,
-                        children: kids.iter().map(|kid| kid.child).collect(),
-                    },
-                ))
+                Ok(NodeEntry {
+                    entry,
+                    layer,
+                    children: kids.iter().map(|kid| kid.child).collect(),
+                })
             })
             .collect::<Result<_>>()?;
         drop(m);
         members.clear();
-        for (part, entry) in written {
-            members.push(Child::Node(opened.len()));
+        for entry in written {
+            members.push(Child::Node(nodes.len()));
             names.push(node_name(generation, layer, members.len() - 1));
-            opened.push(part);
             nodes.push(entry);
         }
     }

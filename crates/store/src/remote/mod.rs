@@ -67,16 +67,17 @@ pub fn stats() -> Stats {
 }
 
 /// Counts one request from start to end.
-struct InFlight;
+struct InFlight(Arc<AtomicU64>);
 impl InFlight {
     fn start(remote: &Remote) -> InFlight {
         remote.requests.fetch_add(1, Ordering::Relaxed);
         REQUESTS.fetch_add(1, Ordering::Relaxed);
         IN_FLIGHT.fetch_add(1, Ordering::Relaxed);
-        InFlight
+        InFlight(remote.received.clone())
     }
     fn done(self, bytes: u64, ok: bool) {
         BYTES.fetch_add(bytes, Ordering::Relaxed);
+        self.0.fetch_add(bytes, Ordering::Relaxed);
         if !ok {
             FAILED.fetch_add(1, Ordering::Relaxed);
         }
@@ -101,6 +102,8 @@ pub struct Remote {
     pub url: String,
     /// Requests sent through this dataset (tests, benchmarks).
     pub requests: Arc<AtomicU64>,
+    /// Bytes received through this dataset (tests, benchmarks).
+    pub received: Arc<AtomicU64>,
     /// Set once the server answered a ranged GET with the whole object (a
     /// static file server without Range support): objects are then fetched
     /// whole, once each, and ranges cut from them.
@@ -397,6 +400,7 @@ impl Remote {
             prefix,
             url: trimmed.to_string(),
             requests: Default::default(),
+            received: Default::default(),
             ignores_range: Default::default(),
             options: *options,
         })
@@ -410,6 +414,7 @@ impl Remote {
             prefix: ObjPath::from(prefix),
             url: url.trim_end_matches('/').to_string(),
             requests: Default::default(),
+            received: Default::default(),
             ignores_range: Default::default(),
             options: Options::default(),
         }
