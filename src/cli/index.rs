@@ -30,8 +30,12 @@ pub fn describe(r: &IndexReport) -> String {
             bytes(r.node_bytes)
         ),
     };
+    let pages = match r.index_pages {
+        0 | 1 => String::new(),
+        n => format!(" and {} more pages", count(n as u64 - 1)),
+    };
     format!(
-        "indexed {} part(s), {} points: {overview}; index {}; {:.2} s",
+        "indexed {} part(s), {} points: {overview}; index {}{pages}; {:.2} s",
         count(r.parts as u64),
         count(r.points),
         bytes(r.index_bytes),

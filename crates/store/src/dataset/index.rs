@@ -110,11 +110,23 @@ pub fn entry_of(part: &Part, file: &str) -> Result<FileEntry> {
     Ok(FileEntry {
         file: file.to_string(),
         bytes: meta.len(),
-        head: head_of(&part.path)?,
+        head: head_of_part(part)?,
         mtime: mtime_of(&meta),
         header: part.header(),
         etag: None,
     })
+}
+
+/// [`head_of`] for an opened part, from the bytes it holds (a part opened
+/// from its file holds them all; one opened from an index, or remote, is
+/// read again from its path).
+fn head_of_part(part: &Part) -> Result<u64> {
+    if part.lazy.is_none() && part.remote.is_none() && !part.map.is_empty() {
+        let tiff =
+            crate::tiff::ifd::Tiff::parse(&part.map).map_err(|e| StoreError::new(&part.path, e))?;
+        return Ok(tiff.head_first_len(&part.map));
+    }
+    head_of(&part.path)
 }
 
 /// The head's length of the part at `path` when it was written head-first

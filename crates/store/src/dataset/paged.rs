@@ -272,8 +272,9 @@ pub fn paginate(
                         Child::Node(_) => None,
                     })
                     .collect();
+                // (A child's id and bounds take about 120 bytes.)
                 let unit = size(&n.entry)
-                    + 8 * n.children.len()
+                    + 120 * n.children.len()
                     + kids_parts.iter().map(|&i| size(&parts[i])).sum::<usize>();
                 if np + nn > 0 && bytes + unit > limit {
                     roots.push_back(k);
