@@ -171,7 +171,7 @@ fn children(
         // Children the view cannot show are culled by the bounds their parent
         // records, before their index pages are read. (A child whose page
         // cannot be read: nothing finer.)
-        let mut tiles = Vec::new();
+        let mut shown = Vec::new();
         for (c, b) in ds.children(t.part).ok()? {
             let probe = TileRef {
                 part: c,
@@ -180,10 +180,15 @@ fn children(
                 points: 0,
                 bounds: b,
             };
-            if !visible(&probe) {
+            if visible(&probe) {
+                shown.push(c);
+            } else {
                 *culled += 1;
-                continue;
             }
+        }
+        ds.prefetch(&shown);
+        let mut tiles = Vec::new();
+        for c in shown {
             ds.child(t.part, c).ok()?;
             tiles.extend(top_tiles(ds, c));
         }

@@ -412,10 +412,13 @@ impl Dataset {
         let mut out = Vec::new();
         let mut stack = vec![root];
         while let Some(id) = stack.pop() {
-            for (c, b) in self.children(id)?.into_iter().rev() {
-                if !may_hold(&b) {
-                    continue;
-                }
+            let kids: Vec<(usize, Bounds)> = self
+                .children(id)?
+                .into_iter()
+                .filter(|(_, b)| may_hold(b))
+                .collect();
+            self.prefetch(&kids.iter().map(|k| k.0).collect::<Vec<_>>());
+            for (c, _) in kids.into_iter().rev() {
                 self.child(id, c)?;
                 if self.is_overview(c) {
                     stack.push(c);
@@ -473,6 +476,12 @@ impl Dataset {
                 .zip(n.child_bounds.iter().copied())
                 .collect()
         }))
+    }
+
+    /// Reads the index pages that hold `ids` (entries a view is about to
+    /// reach) together, rather than one request after another.
+    pub fn prefetch(&self, ids: &[usize]) {
+        self.table.prefetch(ids);
     }
 
     /// Child `child` of node `id`, read (its page loaded): a part, or a node of

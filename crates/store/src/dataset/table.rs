@@ -59,8 +59,9 @@ pub(crate) enum PageSource {
 pub(crate) struct Table {
     pub(crate) stride: usize,
     pages: Vec<OnceLock<Box<Page>>>,
-    /// Held while a page loads: two readers of one page fetch it once.
-    loading: Mutex<()>,
+    /// Held while page `k` loads: two readers of one page fetch it once,
+    /// readers of different pages fetch them together.
+    loading: Vec<Mutex<()>>,
     source: PageSource,
     pub(crate) totals: Totals,
     pub(crate) layers: Vec<LayerSummary>,
@@ -90,7 +91,7 @@ impl Table {
         Table {
             stride,
             pages: vec![OnceLock::from(Box::new(page))],
-            loading: Mutex::new(()),
+            loading: vec![Mutex::new(())],
             source: PageSource::Loaded,
             totals,
             layers: Vec::new(),
@@ -168,7 +169,7 @@ impl Table {
         Table {
             stride,
             pages: vec![OnceLock::from(Box::new(page))],
-            loading: Mutex::new(()),
+            loading: vec![Mutex::new(())],
             source: PageSource::Loaded,
             totals,
             layers,
@@ -185,7 +186,7 @@ impl Table {
         let t = Table {
             stride: root.stride,
             pages: (0..root.pages).map(|_| OnceLock::new()).collect(),
-            loading: Mutex::new(()),
+            loading: (0..root.pages).map(|_| Mutex::new(())).collect(),
             source,
             totals: root.totals,
             layers: root.layers,
@@ -262,7 +263,7 @@ impl Table {
         if let Some(p) = slot.get() {
             return Ok(p);
         }
-        let _one = self.loading.lock().unwrap_or_else(|p| p.into_inner());
+        let _one = self.loading[k].lock().unwrap_or_else(|p| p.into_inner());
         if let Some(p) = slot.get() {
             return Ok(p);
         }
@@ -275,6 +276,36 @@ impl Table {
             .fetch_add(text.len() as u64, std::sync::atomic::Ordering::Relaxed);
         let _ = slot.set(Box::new(self.page_of(page)));
         Ok(slot.get().expect("just set"))
+    }
+
+    /// Loads the pages holding `ids` that are not loaded yet, several at once
+    /// (a view refining a node needs its children's pages together: fetched
+    /// one after the other, each would wait a request's latency). Failures
+    /// are left for the reader of the entry to meet.
+    pub(crate) fn prefetch(&self, ids: &[usize]) {
+        let mut want: Vec<usize> = ids
+            .iter()
+            .filter_map(|&id| match locate(id, self.pages.len(), self.stride)? {
+                Slot::Part(p, _) | Slot::Node(p, _) => Some(p),
+            })
+            .filter(|&p| self.pages[p].get().is_none())
+            .collect();
+        want.sort_unstable();
+        want.dedup();
+        if want.len() < 2 {
+            return;
+        }
+        const THREADS: usize = 8;
+        let per = want.len().div_ceil(THREADS);
+        std::thread::scope(|s| {
+            for chunk in want.chunks(per) {
+                s.spawn(move || {
+                    for &p in chunk {
+                        let _ = self.page(p);
+                    }
+                });
+            }
+        });
     }
 
     /// Page `k`'s text and its file relative to the dataset.
