@@ -536,3 +536,71 @@ fn a_paged_index_opens_in_one_request_and_its_first_frame_costs_what_a_small_one
         "bytes before the first frame hardly grow with the parts: {seen:?}"
     );
 }
+
+#[test]
+fn a_paged_dataset_uploads_its_pages_last_with_etags_and_a_forced_replace_removes_them() {
+    use pcimg::convert::{Quiet, upload::RemoteOutput};
+    use pcimg::store::dataset::index::{INDEX_FILE, Index};
+    use std::sync::atomic::AtomicBool;
+    let dir = tempfile::tempdir().unwrap();
+    let mem = Arc::new(InMemory::new());
+    let rt = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()
+        .unwrap();
+    let listed = || -> Vec<String> {
+        use futures_util::TryStreamExt;
+        let p = object_store::path::Path::from("paged.pcimg");
+        let v: Vec<object_store::ObjectMeta> =
+            rt.block_on(mem.list(Some(&p)).try_collect()).unwrap();
+        let mut v: Vec<String> = v.into_iter().map(|m| m.location.to_string()).collect();
+        v.sort();
+        v
+    };
+    let url = "memory://b/paged.pcimg";
+    let remote = |u: &str| Arc::new(Remote::with_store(mem.clone(), "paged.pcimg", u));
+    // What `convert -o URL` does once its parts are written: upload them, then
+    // the index (a paged one: 400 parts) with every object's ETag.
+    let upload = |grid: &Path, force: bool| {
+        let cancel = Arc::new(AtomicBool::new(false));
+        let out = RemoteOutput::prepare_in(remote(url), force, cancel).unwrap();
+        let _ = std::fs::remove_dir_all(&out.local);
+        std::fs::rename(grid, &out.local).unwrap();
+        out.finish(&Quiet).unwrap();
+    };
+    upload(&dataset(dir.path(), 20, 20, 20), false);
+    let (text, _, _) = remote(url).get(INDEX_FILE).unwrap().unwrap();
+    let root = Index::parse(&text, Path::new(url)).unwrap();
+    assert_eq!(root.uploaded_to(), Some(url));
+    let page = |n: &str| Ok(remote(url).get(n).unwrap().unwrap().0.to_vec());
+    let all = root.listing(Path::new(url), &page).unwrap();
+    assert!(!all.pages.is_empty(), "a paged index");
+    assert_eq!(all.parts.len(), 400);
+    assert!(all.parts.iter().chain(&all.nodes).all(|e| e.etag.is_some()));
+    let ds = Dataset::open_remote(remote(url)).unwrap();
+    assert_eq!(ds.points(), 400 * 20);
+    let read: usize = ds
+        .parts()
+        .unwrap()
+        .iter()
+        .map(|p| p.read_level(0, &[0, 1, 2]).unwrap().len())
+        .sum();
+    assert_eq!(read, 400 * 20);
+    let before = listed();
+    assert!(
+        before.iter().any(|n| n.contains("/pages-0/page-")),
+        "{before:?}"
+    );
+
+    // Replaced (`--force`) by a dataset of one page: nothing of the old one is
+    // left, its pages included.
+    let small = dir.path().join("small");
+    std::fs::create_dir(&small).unwrap();
+    upload(&dataset(&small, 2, 2, 20), true);
+    let after = listed();
+    assert!(
+        after.iter().all(|n| !n.contains("/pages-")),
+        "old pages left: {after:?}"
+    );
+    assert_eq!(Dataset::open_remote(remote(url)).unwrap().part_count(), 4);
+}

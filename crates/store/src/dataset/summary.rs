@@ -47,7 +47,12 @@ impl Part {
         PartHeader {
             bigtiff: self.bigtiff,
             little_endian: self.little_endian,
-            meta: self.meta.clone(),
+            // (Without the raw metadata items: the index does not keep them,
+            // and `pcimg index` holds every part's header while it builds.)
+            meta: PartMeta {
+                items: Default::default(),
+                ..self.meta.clone()
+            },
             bands: self.bands.clone(),
             levels: self
                 .levels
