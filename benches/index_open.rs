@@ -115,6 +115,32 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             sloaded - loaded,
         );
     }
+    // Parsing the index: the root, then every page (what version 1 parsed
+    // before its first frame, in one document).
+    let t = Instant::now();
+    let text = std::fs::read(dir.join(pcimg::store::dataset::index::INDEX_FILE))?;
+    let index = pcimg::store::dataset::index::Index::parse(&text, dir)?;
+    let root_ms = t.elapsed().as_secs_f64() * 1e3;
+    let page_bytes = std::cell::Cell::new(0u64);
+    let read = |name: &str| {
+        let b = std::fs::read(dir.join(name))
+            .map_err(|e| pcimg::store::StoreError::new(&dir.join(name), e.to_string()))?;
+        page_bytes.set(page_bytes.get() + b.len() as u64);
+        Ok(b)
+    };
+    let listing = index.listing(dir, &read)?;
+    let all_ms = t.elapsed().as_secs_f64() * 1e3;
+    let pages = listing.pages.len().max(1);
+    println!(
+        "parse: root {} bytes in {root_ms:.2} ms; then {} more pages, {} bytes, in {:.1} ms \
+         ({:.2} ms a page, {:.0} MB/s)",
+        text.len(),
+        listing.pages.len(),
+        page_bytes.get(),
+        all_ms - root_ms,
+        (all_ms - root_ms) / pages as f64,
+        page_bytes.get() as f64 / 1e6 / ((all_ms - root_ms) / 1e3).max(1e-9),
+    );
     let t = Instant::now();
     let mem = upload(dir, "ds")?;
     eprintln!("(uploaded to memory in {:.1} s)", t.elapsed().as_secs_f64());

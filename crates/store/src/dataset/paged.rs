@@ -11,8 +11,8 @@
 //! overview's generation (`overview.rs`): a rebuild writes the other
 //! generation's folder, and a reader holding the old root still finds its pages.
 //!
-//! JSON, as version 1 was: a page of 100 entries parses in about a millisecond
-//! (`bench/index.sh`), well under the request that fetched it.
+//! JSON, as version 1 was (`bench/index.sh` prints what parsing every page
+//! costs: `bench/RESULTS.md`).
 
 use crate::dataset::LayerSummary;
 use crate::dataset::index::{Child, FileEntry, NodeEntry, PAGE_BYTES, ROOT_PAGE_BYTES};
