@@ -14,6 +14,11 @@ use std::sync::Arc;
 use std::sync::atomic::Ordering;
 use std::time::Duration;
 
+/// The parts of `ds` whose files have been read.
+fn opened(ds: &Dataset) -> usize {
+    ds.parts().unwrap().iter().filter(|p| p.is_open()).count()
+}
+
 /// `nx` × `ny` parts of a terrain, each its own file, indexed.
 fn dataset(dir: &Path, nx: usize, ny: usize, per_part: usize) -> std::path::PathBuf {
     common::grid_dataset(dir, nx, ny, per_part)
@@ -83,14 +88,7 @@ fn a_remote_dataset_opens_with_one_request_and_reads_parts_only_when_needed() {
         (3..=8).contains(&after_one),
         "the index, the part's head (with its ETag) and its tiles: {after_one} requests"
     );
-    assert_eq!(
-        ds.parts()
-            .unwrap()
-            .into_iter()
-            .filter(|p| p.is_open())
-            .count(),
-        1
-    );
+    assert_eq!(opened(&ds), 1);
     // Read again: from the memory cache.
     let _ = ds.parts().unwrap()[17].read_level(0, &bands).unwrap();
     assert_eq!(count(), after_one);
@@ -116,14 +114,7 @@ fn a_remote_dataset_opens_with_one_request_and_reads_parts_only_when_needed() {
         "first frame took {frame} requests for {nodes} overview nodes"
     );
     // No part below the overview was touched.
-    assert_eq!(
-        ds.parts()
-            .unwrap()
-            .into_iter()
-            .filter(|p| p.is_open())
-            .count(),
-        1
-    );
+    assert_eq!(opened(&ds), 1);
 }
 
 #[test]

@@ -272,6 +272,19 @@ pub(crate) fn check_entry(e: &FileEntry) -> std::result::Result<(), String> {
     Ok(())
 }
 
+/// The error for `dir`'s index text that is not the JSON of an index.
+fn not_an_index(dir: &Path, e: serde_json::Error) -> StoreError {
+    StoreError::new(
+        &dir.join(INDEX_FILE),
+        format!(
+            "not a valid dataset index (line {}, column {}: {e})",
+            e.line(),
+            e.column(),
+        ),
+    )
+    .with_remedy(reindex(dir))
+}
+
 /// The remedy for a dataset whose index is missing, unreadable or stale.
 fn reindex(dir: &Path) -> Remedy {
     Remedy::Reindex {
@@ -300,17 +313,7 @@ impl Index {
     /// directory, or the URL of one in object storage).
     pub fn parse(text: &[u8], dir: &Path) -> Result<Index> {
         let path = dir.join(INDEX_FILE);
-        let not_json = |e: serde_json::Error| {
-            StoreError::new(
-                &path,
-                format!(
-                    "not a valid dataset index (line {}, column {}: {e})",
-                    e.line(),
-                    e.column(),
-                ),
-            )
-            .with_remedy(reindex(dir))
-        };
+        let not_json = |e| not_an_index(dir, e);
         let probe: Probe = serde_json::from_slice(text).map_err(not_json)?;
         if probe.format != FORMAT_NAME || probe.version > INDEX_VERSION || probe.version == 0 {
             return Err(StoreError::new(
@@ -475,18 +478,7 @@ impl IndexFile {
     }
 
     fn parse_v1(text: &[u8], dir: &Path) -> Result<IndexFile> {
-        let path = dir.join(INDEX_FILE);
-        let idx: IndexFile = serde_json::from_slice(text).map_err(|e| {
-            StoreError::new(
-                &path,
-                format!(
-                    "not a valid dataset index (line {}, column {}: {e})",
-                    e.line(),
-                    e.column(),
-                ),
-            )
-            .with_remedy(reindex(dir))
-        })?;
+        let idx: IndexFile = serde_json::from_slice(text).map_err(|e| not_an_index(dir, e))?;
         idx.check_structure(dir)?;
         Ok(idx)
     }

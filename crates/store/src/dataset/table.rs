@@ -88,14 +88,26 @@ impl Table {
             parts: parts.into_iter().map(|p| (p, None)).collect(),
             nodes: Vec::new(),
         };
+        Table::one_page(dir, page, stride, totals, Vec::new(), None)
+    }
+
+    /// A table of one page, loaded.
+    fn one_page(
+        dir: &Path,
+        page: Page,
+        stride: usize,
+        totals: Totals,
+        layers: Vec<LayerSummary>,
+        root: Option<usize>,
+    ) -> Table {
         Table {
             stride,
             pages: vec![OnceLock::from(Box::new(page))],
             loading: vec![Mutex::new(())],
             source: PageSource::Loaded,
             totals,
-            layers: Vec::new(),
-            root: None,
+            layers,
+            root,
             dir: dir.to_path_buf(),
             fetched: Default::default(),
             fetched_bytes: Default::default(),
@@ -166,18 +178,8 @@ impl Table {
                 })
                 .collect(),
         };
-        Table {
-            stride,
-            pages: vec![OnceLock::from(Box::new(page))],
-            loading: vec![Mutex::new(())],
-            source: PageSource::Loaded,
-            totals,
-            layers,
-            root: (nn > 0).then(|| stride + nn - 1),
-            dir: dir.to_path_buf(),
-            fetched: Default::default(),
-            fetched_bytes: Default::default(),
-        }
+        let root = (nn > 0).then(|| stride + nn - 1);
+        Table::one_page(dir, page, stride, totals, layers, root)
     }
 
     /// A paged index: its first page loaded, the others when reached.
