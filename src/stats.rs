@@ -109,8 +109,11 @@ pub fn compute(
     map_width: u32,
 ) -> Result<Stats, ExportError> {
     // Statistics are of every part: every page of a paged index.
-    let parts = ds.parts()?;
     let ids = ds.part_ids()?;
+    let parts = ids
+        .iter()
+        .map(|&i| ds.try_part(i))
+        .collect::<Result<Vec<_>, _>>()?;
     let mut names: Vec<String> = if bands.is_empty() {
         let mut v: Vec<String> = vec!["x".into(), "y".into(), "z".into()];
         for p in &parts {

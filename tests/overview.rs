@@ -72,6 +72,15 @@ fn datasets(dir: &Path, n: usize, nx: usize, ny: usize) -> (PathBuf, PathBuf) {
     (many, one)
 }
 
+/// The part of `ds` whose file is `path`.
+fn the_part<'a>(ds: &'a Dataset, path: &Path) -> &'a pcimg::store::Part {
+    ds.parts()
+        .unwrap()
+        .into_iter()
+        .find(|p| p.path == path)
+        .unwrap()
+}
+
 fn exe() -> Command {
     let mut c = Command::new(env!("CARGO_BIN_EXE_pcimg"));
     c.env("NODEVICE_SELECT", "1");
@@ -197,13 +206,7 @@ fn the_index_notices_removed_replaced_and_unlisted_parts() {
     // milliseconds), so the change is named when the part is first read.
     let read_err = || {
         let ds = Dataset::open(&many).unwrap();
-        let k = ds
-            .parts()
-            .unwrap()
-            .into_iter()
-            .position(|p| p.path == part)
-            .unwrap();
-        advised(ds.parts().unwrap()[k].read_level(0, &[0]).unwrap_err())
+        advised(the_part(&ds, &part).read_level(0, &[0]).unwrap_err())
     };
     let other = cell(&terrain(20_000, 99), 3, 2, 1, 1);
     write_part(&part, &other, &WriteOptions::default()).unwrap();
@@ -253,13 +256,7 @@ fn the_index_notices_removed_replaced_and_unlisted_parts() {
     build_index(&many, &IndexOptions::default(), &|_| {}).unwrap();
     let ds = Dataset::open(&many).unwrap();
     std::fs::write(&part, b"II*\0 not a part any more").unwrap();
-    let k = ds
-        .parts()
-        .unwrap()
-        .into_iter()
-        .position(|p| p.path == part)
-        .unwrap();
-    let e = advised(ds.parts().unwrap()[k].read_level(0, &[0]).unwrap_err());
+    let e = advised(the_part(&ds, &part).read_level(0, &[0]).unwrap_err());
     assert!(
         e.contains("tile-1-1.tif") && e.contains("pcimg index"),
         "{e}"

@@ -295,11 +295,12 @@ fn draw_bands(f: &mut Frame, app: &App, area: Rect) {
 }
 
 fn draw_levels(f: &mut Frame, app: &App, area: Rect) {
+    let current = app.current_part().map(|(id, _)| id);
     let loaded = |level: usize| {
         app.frame
             .loaded
             .iter()
-            .find(|(k, _)| Some(*k) == app.current_part().map(|(id, _)| (id, level)))
+            .find(|(k, _)| current.map(|id| (id, level)) == Some(*k))
             .map_or(0, |(_, n)| *n)
     };
     let shown = app.frame.levels;

@@ -48,10 +48,20 @@ pub struct LayerSummary {
 impl LayerSummary {
     /// Counts node `n` in.
     pub fn add(&mut self, n: &Part) {
+        self.add_node(&n.levels, n.meta.point_count, n.file_bytes);
+    }
+
+    /// Counts in a node of these levels, points stored and file bytes.
+    pub(crate) fn add_node(
+        &mut self,
+        levels: &[crate::read::part::Level],
+        stored: u64,
+        bytes: u64,
+    ) {
         self.nodes += 1;
-        self.points += n.levels.last().and_then(|l| l.points).unwrap_or(0);
-        self.stored_points += n.meta.point_count;
-        self.bytes += n.file_bytes;
+        self.points += levels.last().and_then(|l| l.points).unwrap_or(0);
+        self.stored_points += stored;
+        self.bytes += bytes;
     }
 }
 

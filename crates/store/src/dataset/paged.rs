@@ -537,12 +537,8 @@ pub fn layer_summaries(nodes: &[NodeEntry]) -> Vec<LayerSummary> {
         if layers.len() < l {
             layers.resize(l, LayerSummary::default());
         }
-        let s = &mut layers[l - 1];
         let h = &n.entry.header;
-        s.nodes += 1;
-        s.points += h.levels.last().and_then(|l| l.points).unwrap_or(0);
-        s.stored_points += h.meta.point_count;
-        s.bytes += n.entry.bytes;
+        layers[l - 1].add_node(&h.levels, h.meta.point_count, n.entry.bytes);
     }
     layers
 }
