@@ -7,6 +7,7 @@
 //! `cargo bench --bench render -- --sample-size 10`
 
 use criterion::{BenchmarkId, Criterion, Throughput, criterion_group};
+use rayon::slice::ParallelSliceMut;
 
 use pcimg::points::Bounds;
 use pcimg::render::color::pack_rgb;
@@ -61,7 +62,8 @@ fn terrain(n: usize) -> Cloud {
             (key, x, y, z)
         })
         .collect();
-    pts.sort_unstable_by_key(|p| p.0);
+    // In parallel: 500 M points take a minute on one core of the lent GPU machine.
+    pts.par_sort_unstable_by_key(|p| p.0);
     let mut c = Cloud {
         x: Vec::with_capacity(n),
         y: Vec::with_capacity(n),
@@ -209,47 +211,96 @@ fn bench_color(cr: &mut Criterion) {
 
 criterion_group!(benches, bench, bench_color);
 
+/// The wgpu shader variants `ab` compares: `ppt<N>` points per invocation,
+/// `+pretest` the depth pre-test, `+merge` per-invocation run merging, `+sg`
+/// the subgroup reduction, `+seg` its segmented minimum.
+fn variants() -> Vec<(String, GpuOptions)> {
+    let mut v: Vec<(String, GpuOptions)> = vec![("default".into(), GpuOptions::default())];
+    let combos = [
+        (8, true, false, false, false),
+        (32, true, false, false, false),
+        (16, true, true, false, false),
+        (32, true, true, false, false),
+        (64, true, true, false, false),
+        (32, false, true, false, false),
+        (1, true, false, true, false),
+        (4, true, false, true, false),
+        (8, true, false, true, false),
+        (16, true, false, true, false),
+        (8, false, false, true, false),
+        (8, true, false, true, true),
+        (16, true, false, true, true),
+    ];
+    v.extend(combos.into_iter().map(|(ppt, pre, merge, sg, seg)| {
+        (
+            format!(
+                "ppt{ppt}{}{}{}{}",
+                if pre { "+pretest" } else { "" },
+                if merge { "+merge" } else { "" },
+                if sg { "+sg" } else { "" },
+                if seg { "+seg" } else { "" },
+            ),
+            GpuOptions {
+                points_per_thread: ppt,
+                no_early_depth_test: !pre,
+                merge_runs: Some(merge),
+                subgroups: Some(sg),
+                segmented_runs: seg,
+                ..Default::default()
+            },
+        )
+    }));
+    v
+}
+
 /// `PCIMG_RENDER_AB=1 cargo bench --bench render` (or `=<points>`): interleaved A/B of wgpu
 /// shader variants, best of several frames each (robust on a shared machine).
+/// `PCIMG_RENDER_VARIANTS=default,ppt8+pretest+sg` picks variants (all by
+/// default), `PCIMG_RENDER_ORDERS=morton` the point orders, `PCIMG_RENDER_CPU=0`
+/// leaves the CPU rasterizers out, `PCIMG_RENDER_ROUNDS` sets the rounds (7).
 fn ab() {
-    let mut variants: Vec<(String, GpuOptions)> = vec![("default".into(), GpuOptions::default())];
-    variants.extend(
-        [
-            (8, true, false),
-            (32, true, false),
-            (16, true, true),
-            (32, true, true),
-            (64, true, true),
-            (32, false, true),
-        ]
+    let pick = std::env::var("PCIMG_RENDER_VARIANTS").ok();
+    let picked = |name: &str| {
+        pick.as_deref()
+            .is_none_or(|p| p.split(',').any(|n| n == name))
+    };
+    let mut gpus: Vec<(String, GpuRasterizer)> = variants()
         .into_iter()
-        .map(|(ppt, pre, merge)| {
-            (
-                format!(
-                    "ppt{ppt}{}{}",
-                    if pre { "+pretest" } else { "" },
-                    if merge { "+merge" } else { "" }
-                ),
-                GpuOptions {
-                    points_per_thread: ppt,
-                    no_early_depth_test: !pre,
-                    merge_runs: Some(merge),
-                    ..Default::default()
-                },
-            )
-        }),
-    );
-    let mut gpus: Vec<(String, GpuRasterizer)> = variants
-        .into_iter()
-        .filter_map(|(n, o)| GpuRasterizer::with_options(o).ok().map(|g| (n, g)))
+        .filter(|(n, _)| picked(n))
+        .filter_map(|(n, o)| match GpuRasterizer::with_options(o) {
+            Ok(g) => {
+                if o.subgroups == Some(true) && !g.has_subgroups() {
+                    eprintln!("{n}: no subgroups on {}, left out", g.name());
+                    return None;
+                }
+                Some((n, g))
+            }
+            Err(e) => {
+                eprintln!("{n}: {e}");
+                None
+            }
+        })
         .collect();
-    let mut cpus = [
-        ("cpu", CpuRasterizer::with_strategy(CpuStrategy::PerThread)),
-        (
-            "cpu_atomic",
-            CpuRasterizer::with_strategy(CpuStrategy::SharedAtomic),
-        ),
-    ];
+    if let Some((_, g)) = gpus.first() {
+        println!("gpu: {}", g.name());
+    }
+    let with_cpu = std::env::var("PCIMG_RENDER_CPU").map_or(true, |v| v != "0");
+    let mut cpus: Vec<(&str, CpuRasterizer)> = if with_cpu {
+        vec![
+            ("cpu", CpuRasterizer::with_strategy(CpuStrategy::PerThread)),
+            (
+                "cpu_atomic",
+                CpuRasterizer::with_strategy(CpuStrategy::SharedAtomic),
+            ),
+        ]
+    } else {
+        Vec::new()
+    };
+    let rounds = std::env::var("PCIMG_RENDER_ROUNDS")
+        .ok()
+        .and_then(|v| v.parse::<usize>().ok())
+        .unwrap_or(7);
+    let order_pick = std::env::var("PCIMG_RENDER_ORDERS").ok();
     let opts = RenderOptions {
         width: 1280,
         height: 720,
@@ -267,11 +318,23 @@ fn ab() {
         .filter(|&n| n > 1)
         .unwrap_or(10_000_000);
     let morton = terrain(n);
-    let orders = [
-        ("morton", morton.clone()),
-        ("morton_blocks_shuffled", block_shuffled(&morton, 10_240)),
-        ("shuffled", shuffled(&morton)),
-    ];
+    let want = |o: &str| {
+        order_pick
+            .as_deref()
+            .is_none_or(|p| p.split(',').any(|n| n == o))
+    };
+    let mut orders: Vec<(&str, Cloud)> = Vec::new();
+    if want("morton_blocks_shuffled") {
+        orders.push(("morton_blocks_shuffled", block_shuffled(&morton, 10_240)));
+    }
+    if want("shuffled") {
+        orders.push(("shuffled", shuffled(&morton)));
+    }
+    if want("morton") {
+        orders.insert(0, ("morton", morton));
+    } else {
+        drop(morton);
+    }
     for (order, c) in &orders {
         let batch = PointBatch {
             origin: [bounds.min[0], bounds.min[1], 0.0],
@@ -281,13 +344,18 @@ fn ab() {
             color: &c.c,
         };
         let mut best = vec![f64::INFINITY; gpus.len() + cpus.len()];
-        for _ in 0..7 {
-            for (k, (_, g)) in gpus.iter_mut().enumerate() {
+        let mut all = vec![Vec::new(); gpus.len()];
+        for _ in 0..rounds {
+            for (k, (name, g)) in gpus.iter_mut().enumerate() {
                 // One frame untimed first: whatever ran before (the CPU renderers)
                 // has the caches, and the first variant of a round would pay.
                 let _ = g.render(&cam, &[batch], &opts);
-                if let Ok(f) = g.render(&cam, &[batch], &opts) {
-                    best[k] = best[k].min(f.stats.render_ms);
+                match g.render(&cam, &[batch], &opts) {
+                    Ok(f) => {
+                        best[k] = best[k].min(f.stats.render_ms);
+                        all[k].push(f.stats.render_ms);
+                    }
+                    Err(e) => eprintln!("{name}: {e}"),
                 }
             }
             for (k, (_, c)) in cpus.iter_mut().enumerate() {
@@ -301,9 +369,21 @@ fn ab() {
             .iter()
             .map(|g| g.0.as_str())
             .chain(cpus.iter().map(|c| c.0));
-        for (name, ms) in names.zip(&best) {
+        for (k, (name, ms)) in names.zip(&best).enumerate() {
+            let spread = match all.get_mut(k) {
+                Some(v) if !v.is_empty() => {
+                    v.sort_by(f64::total_cmp);
+                    format!(
+                        "  median {:.2} ms, range {:.2}-{:.2}",
+                        v[v.len() / 2],
+                        v[0],
+                        v[v.len() - 1]
+                    )
+                }
+                _ => String::new(),
+            };
             println!(
-                "{order:24} {name:14} {ms:8.1} ms {:7.1} M points/s",
+                "{order:24} {name:26} {ms:8.2} ms {:9.1} M points/s{spread}",
                 n as f64 / ms / 1e3
             );
         }

@@ -408,26 +408,114 @@ fn gpu_shader_variants_agree() {
         let Some(reference) = reference else {
             return;
         };
-        for (no_early_depth_test, points_per_thread, merge_runs) in [
-            (true, 1, false),
-            (false, 3, false),
-            (true, 64, false),
-            (false, 8, true),
-            (true, 5, true),
+        for (no_early_depth_test, points_per_thread, merge_runs, subgroups, segmented_runs) in [
+            (true, 1, false, false, false),
+            (false, 3, false, false, false),
+            (true, 64, false, false, false),
+            (false, 8, true, false, false),
+            (true, 5, true, false, false),
+            (false, 1, false, true, false),
+            (false, 8, false, true, false),
+            (true, 3, false, true, false),
+            (false, 8, false, true, true),
+            (true, 2, false, true, true),
         ] {
             let mut g = GpuRasterizer::with_options(GpuOptions {
                 no_early_depth_test,
                 points_per_thread,
                 merge_runs: Some(merge_runs),
+                subgroups: Some(subgroups),
+                segmented_runs,
                 ..Default::default()
             })
             .unwrap();
+            if subgroups && std::env::var("CI").is_ok_and(|v| v == "true") {
+                assert!(g.has_subgroups(), "{}: no subgroups", g.name());
+            }
             let f = g.render(&cam, &bs, &o).unwrap();
             assert_eq!(
                 f.rgba, reference.rgba,
-                "size {size}, no early {no_early_depth_test}, ppt {points_per_thread}, merge {merge_runs}"
+                "size {size}, no early {no_early_depth_test}, ppt {points_per_thread}, merge {merge_runs}, subgroups {subgroups}, segmented {segmented_runs}"
             );
         }
+    }
+}
+
+/// Runs of 1 to 48 consecutive points on one spot (or straddling a few pixels),
+/// with depths from a small set so that ties are common and broken by colour:
+/// what the subgroup reduction sees in Morton order, where a subgroup's points
+/// mostly share a pixel. Every variant must leave the image the plain
+/// per-point atomics leave.
+#[test]
+fn gpu_subgroup_reduction_keeps_the_nearest_point_of_each_pixel() {
+    let origin = [500_000.0, 4_000_000.0, 0.0];
+    let mut cols = Cols::new(origin);
+    let mut r = Rng(0x51ed_270b_2744_1f01);
+    while cols.x.len() < 150_000 {
+        let len = 1 + (r.f() * 48.0) as usize;
+        let (x, y) = (r.f() * 60.0, r.f() * 40.0);
+        let spread = if r.f() < 0.3 { 0.6 } else { 0.0 };
+        for _ in 0..len {
+            let z = (r.f() * 4.0).floor() * 0.5;
+            let c = pack_rgb((r.f() * 255.0) as u8, (r.f() * 255.0) as u8, 7);
+            let (dx, dy) = (r.f() * spread, r.f() * spread);
+            cols.push([origin[0] + x + dx, origin[1] + y + dy, origin[2] + z], c);
+        }
+    }
+    let bounds = Bounds {
+        min: [origin[0], origin[1], 0.0],
+        max: [origin[0] + 61.0, origin[1] + 41.0, 2.0],
+    };
+    let cam = Camera::fit(&bounds);
+    let o = opts(96, 64, 1);
+    let bs = [cols.batch()];
+    let plain = |subgroups, segmented_runs, points_per_thread| {
+        GpuRasterizer::with_options(GpuOptions {
+            subgroups: Some(subgroups),
+            segmented_runs,
+            points_per_thread,
+            ..Default::default()
+        })
+    };
+    let mut reference = match plain(false, false, 1) {
+        Ok(g) => g,
+        Err(e) => {
+            assert!(
+                !std::env::var("CI").is_ok_and(|v| v == "true"),
+                "CI=true but no wgpu adapter: {e}"
+            );
+            eprintln!("note: skipping wgpu test, no adapter: {e}");
+            return;
+        }
+    };
+    if !reference.has_int64_atomics() {
+        return;
+    }
+    let want = reference.render(&cam, &bs, &o).unwrap();
+    let drawn = count_drawn(&want);
+    assert!(
+        drawn > 500 && drawn * 20 < cols.x.len(),
+        "{drawn} pixels drawn: the scene should pile many points on each"
+    );
+    for (segmented, ppt) in [(false, 1), (false, 8), (true, 1), (true, 8), (true, 3)] {
+        let mut g = plain(true, segmented, ppt).unwrap();
+        if !g.has_subgroups() {
+            assert!(
+                !std::env::var("CI").is_ok_and(|v| v == "true"),
+                "{}: no subgroups",
+                g.name()
+            );
+            eprintln!("note: {}: no subgroups, nothing to compare", g.name());
+            return;
+        }
+        let f = g.render(&cam, &bs, &o).unwrap();
+        let differ = f
+            .rgba
+            .chunks(4)
+            .zip(want.rgba.chunks(4))
+            .filter(|(a, b)| a != b)
+            .count();
+        assert_eq!(differ, 0, "segmented {segmented}, ppt {ppt}: pixels differ");
     }
 }
 
