@@ -1,5 +1,6 @@
-//! E57 point clouds (ASTM E2807), read with the `e57` crate: every scan of the
-//! file, one after the other, each in the file's frame (its pose applied).
+//! E57 point clouds (ASTM E2807): every scan of the file, one after the other,
+//! each in the file's frame (its pose applied). The `e57` crate reads the
+//! header and the XML section; the points are decoded here (`records.rs`).
 //!
 //! * Coordinates: cartesian, or spherical converted to cartesian; scaled
 //!   integers, floats and doubles alike. Points whose `cartesianInvalidState` /
@@ -14,12 +15,13 @@
 //!   (`SCANS`); embedded images are skipped, and the summary says so.
 //! * Out of core: a thread of its own decodes scan by scan, packet by packet,
 //!   into chunks of [`ReadOptions::chunk_points`] and hands them over one at a
-//!   time; the file is read through its memory map (`map.rs`), the pages behind
-//!   the reader released.
+//!   time; the file is read through its memory map, the pages behind the reader
+//!   released. Page checksums use the `crc32c` crate (SSE 4.2).
 //! * Errors (a bad page checksum, a truncated file, a malformed XML section) name
 //!   the file and the byte offset of the last read.
 
 mod map;
+mod records;
 mod scan;
 
 use std::path::{Path, PathBuf};
@@ -65,7 +67,7 @@ type Chunk = Result<PointColumns, IngestError>;
 
 enum State {
     /// Opened, no point read yet (a reader opened for its header starts no thread).
-    Ready(Box<E57Reader<MapCursor>>),
+    Ready(Arc<memmap2::Mmap>),
     Running {
         rx: Receiver<Chunk>,
         thread: Option<std::thread::JoinHandle<()>>,
@@ -143,7 +145,7 @@ pub fn open(path: &Path, opts: &ReadOptions) -> Result<Box<dyn PointReader>, Ing
         records,
         chunk_points: opts.chunk_points.max(1),
         shared,
-        state: State::Ready(Box::new(reader)),
+        state: State::Ready(map),
     }))
 }
 
@@ -187,9 +189,12 @@ fn empty(layout: &Layout, n: usize) -> PointColumns {
     }
 }
 
+/// Bytes of the map kept behind the decoder before their pages are released.
+const KEEP: u64 = 1 << 20;
+
 /// The decoding thread: every scan, chunk by chunk, into `tx`.
 fn decode(
-    mut reader: Box<E57Reader<MapCursor>>,
+    map: Arc<memmap2::Mmap>,
     scans: Vec<PointCloud>,
     layout: Layout,
     chunk: usize,
@@ -198,42 +203,51 @@ fn decode(
 ) {
     let mut cols = empty(&layout, chunk);
     let mut attrs = vec![0.0; layout.names.len()];
+    let mut released = 0;
     let run = || -> Result<bool, IngestError> {
+        let fault = |f: records::Fault| {
+            IngestError::binary(&shared.path, f.offset, format!("E57: {}", f.message))
+        };
         for (i, pc) in scans.iter().enumerate() {
             let scan = Scan::new(pc, i);
-            let points = reader.pointcloud_raw(pc).map_err(|e| shared.error(e))?;
-            let mut left_out = 0;
-            for (k, values) in points.enumerate() {
-                let values = values.map_err(|e| shared.error(e))?;
-                match scan
-                    .point(&values, &layout, &mut attrs)
-                    .map_err(|e| shared.error(e))?
-                {
-                    Point::Valid(p) => {
-                        cols.x.push(p[0]);
-                        cols.y.push(p[1]);
-                        cols.z.push(p[2]);
-                        for (a, v) in cols.attributes.iter_mut().zip(&attrs) {
-                            a.values.push(*v as f32);
+            let mut values = vec![0.0; pc.prototype.len()];
+            let mut rec = records::Records::new(&map, pc).map_err(fault)?;
+            let before = shared.records_done.load(Ordering::Relaxed);
+            let mut done = 0;
+            loop {
+                let ready = rec.fill().map_err(fault)?;
+                if ready == 0 {
+                    break;
+                }
+                let mut left_out = 0;
+                for k in 0..ready {
+                    rec.values(k, &mut values);
+                    match scan.point(&values, &layout, &mut attrs) {
+                        Point::Valid(p) => {
+                            cols.x.push(p[0]);
+                            cols.y.push(p[1]);
+                            cols.z.push(p[2]);
+                            for (a, v) in cols.attributes.iter_mut().zip(&attrs) {
+                                a.values.push(*v as f32);
+                            }
+                        }
+                        Point::Invalid => left_out += 1,
+                    }
+                    if cols.len() >= chunk {
+                        let full = std::mem::replace(&mut cols, empty(&layout, chunk));
+                        if tx.send(Ok(full)).is_err() {
+                            return Ok(false);
                         }
                     }
-                    Point::Invalid => left_out += 1,
                 }
-                if k % 4096 == 4095 {
-                    shared.records_done.fetch_add(4096, Ordering::Relaxed);
-                    shared.left_out.fetch_add(left_out, Ordering::Relaxed);
-                    left_out = 0;
-                }
-                if cols.len() >= chunk {
-                    let full = std::mem::replace(&mut cols, empty(&layout, chunk));
-                    if tx.send(Ok(full)).is_err() {
-                        return Ok(false);
-                    }
-                }
+                rec.take();
+                done += ready as u64;
+                shared.records_done.store(before + done, Ordering::Relaxed);
+                shared.left_out.fetch_add(left_out, Ordering::Relaxed);
+                let at = rec.offset();
+                shared.last_read.store(at, Ordering::Relaxed);
+                super::release_consumed(&map, &mut released, at.saturating_sub(KEEP) as usize);
             }
-            shared.left_out.fetch_add(left_out, Ordering::Relaxed);
-            let done: u64 = scans[..=i].iter().map(|s| s.records).sum();
-            shared.records_done.store(done, Ordering::Relaxed);
         }
         Ok(true)
     };
@@ -255,7 +269,7 @@ impl E57Input {
         if !matches!(self.state, State::Ready(_)) {
             return Ok(());
         }
-        let State::Ready(reader) = std::mem::replace(&mut self.state, State::Done) else {
+        let State::Ready(map) = std::mem::replace(&mut self.state, State::Done) else {
             return Ok(());
         };
         let (tx, rx) = sync_channel(1);
@@ -267,7 +281,7 @@ impl E57Input {
         );
         let thread = std::thread::Builder::new()
             .name("e57".into())
-            .spawn(move || decode(reader, scans, layout, chunk, shared, tx))
+            .spawn(move || decode(map, scans, layout, chunk, shared, tx))
             .map_err(|e| IngestError::io(&self.info.path, "cannot start the E57 decoder", e))?;
         self.state = State::Running {
             rx,

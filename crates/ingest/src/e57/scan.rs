@@ -4,6 +4,9 @@
 
 use e57::{PointCloud, RecordDataType, RecordName, RecordValue};
 
+// The values a point is made of come from `records.rs`, one per record of the
+// prototype, already as numbers (scaled integers scaled).
+
 /// The attribute columns of a file (the union over its scans), by role.
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct Layout {
@@ -118,7 +121,6 @@ fn type_range(dt: &RecordDataType) -> Option<(f64, f64)> {
 
 /// How to read one scan's records.
 pub struct Scan {
-    types: Vec<RecordDataType>,
     cart: Option<[usize; 3]>,
     cart_state: Option<usize>,
     sph: Option<[usize; 3]>,
@@ -153,11 +155,11 @@ impl Scan {
             (Some(a), Some(b), Some(c)) => Some([a, b, c]),
             _ => None,
         };
-        let types: Vec<RecordDataType> = pc.prototype.iter().map(|r| r.data_type.clone()).collect();
+        let types: Vec<&RecordDataType> = pc.prototype.iter().map(|r| &r.data_type).collect();
         let norm = |i: usize, lim: (Option<f64>, Option<f64>)| {
             let (lo, hi) = match lim {
                 (Some(lo), Some(hi)) => (lo, hi),
-                _ => type_range(&types[i]).unwrap_or((0.0, 1.0)),
+                _ => type_range(types[i]).unwrap_or((0.0, 1.0)),
             };
             Norm::new(i, lo, hi)
         };
@@ -225,7 +227,6 @@ impl Scan {
             return_index: at(RecordName::ReturnIndex),
             return_count: at(RecordName::ReturnCount),
             time: at(RecordName::TimeStamp),
-            types,
             rotation,
             translation,
             index,
@@ -237,36 +238,26 @@ impl Scan {
         self.cart.is_some() || self.sph.is_some()
     }
 
-    fn get(&self, v: &[RecordValue], i: usize) -> Result<f64, e57::Error> {
-        match v.get(i) {
-            Some(x) => x.to_f64(&self.types[i]),
-            None => Ok(0.0),
-        }
+    fn get(v: &[f64], i: usize) -> f64 {
+        v.get(i).copied().unwrap_or(0.0)
     }
 
     /// Whether the state value at `i` (when the scan has one) says "valid" (0).
-    fn valid(&self, v: &[RecordValue], i: Option<usize>) -> Result<bool, e57::Error> {
-        Ok(match i {
-            Some(i) => self.get(v, i)? == 0.0,
-            None => true,
-        })
+    fn valid(v: &[f64], i: Option<usize>) -> bool {
+        i.is_none_or(|i| Self::get(v, i) == 0.0)
     }
 
-    /// The point of the raw values `v`: its coordinates in the file's frame,
-    /// and its attributes written into `attrs` (laid out by `layout`).
-    pub fn point(
-        &self,
-        v: &[RecordValue],
-        layout: &Layout,
-        attrs: &mut [f64],
-    ) -> Result<Point, e57::Error> {
-        let local = if let (Some([x, y, z]), true) = (self.cart, self.valid(v, self.cart_state)?) {
-            [self.get(v, x)?, self.get(v, y)?, self.get(v, z)?]
-        } else if let (Some([r, a, e]), true) = (self.sph, self.valid(v, self.sph_state)?) {
-            let (r, a, e) = (self.get(v, r)?, self.get(v, a)?, self.get(v, e)?);
+    /// The point of the record values `v`: its coordinates in the file's
+    /// frame, and its attributes written into `attrs` (laid out by `layout`).
+    pub fn point(&self, v: &[f64], layout: &Layout, attrs: &mut [f64]) -> Point {
+        let get = |i| Self::get(v, i);
+        let local = if let (Some([x, y, z]), true) = (self.cart, Self::valid(v, self.cart_state)) {
+            [get(x), get(y), get(z)]
+        } else if let (Some([r, a, e]), true) = (self.sph, Self::valid(v, self.sph_state)) {
+            let (r, a, e) = (get(r), get(a), get(e));
             [r * e.cos() * a.cos(), r * e.cos() * a.sin(), r * e.sin()]
         } else {
-            return Ok(Point::Invalid);
+            return Point::Invalid;
         };
         let m = &self.rotation;
         let p = [
@@ -275,19 +266,17 @@ impl Scan {
             m[6] * local[0] + m[7] * local[1] + m[8] * local[2] + self.translation[2],
         ];
         attrs.fill(0.0);
-        let unit = |n: &Norm| -> Result<f64, e57::Error> {
-            Ok(((self.get(v, n.at)? - n.min) * n.inv).clamp(0.0, 1.0))
-        };
+        let unit = |n: &Norm| ((get(n.at) - n.min) * n.inv).clamp(0.0, 1.0);
         if let (Some(n), Some(a)) = (&self.intensity, layout.intensity)
-            && self.valid(v, self.intensity_state)?
+            && Self::valid(v, self.intensity_state)
         {
-            attrs[a] = unit(n)?;
+            attrs[a] = unit(n);
         }
         if let (Some(c), Some(a)) = (&self.color, layout.color)
-            && self.valid(v, self.color_state)?
+            && Self::valid(v, self.color_state)
         {
             for k in 0..3 {
-                attrs[a + k] = unit(&c[k])? * 255.0;
+                attrs[a + k] = unit(&c[k]) * 255.0;
             }
         }
         let plain = [
@@ -300,13 +289,13 @@ impl Scan {
         ];
         for (from, to, plus) in plain {
             if let (Some(i), Some(a)) = (from, to) {
-                attrs[a] = self.get(v, i)? + plus;
+                attrs[a] = get(i) + plus;
             }
         }
         if let Some(a) = layout.scan {
             attrs[a] = self.index as f64;
         }
-        Ok(Point::Valid(p))
+        Point::Valid(p)
     }
 }
 
