@@ -295,7 +295,17 @@ impl<'a> Records<'a> {
     /// Decodes packets until some records are ready; how many (0: all were
     /// handed out). Hand them out with [`Records::values`], then [`Records::take`].
     pub fn fill(&mut self) -> Result<usize, Fault> {
+        let constants = self
+            .streams
+            .iter()
+            .all(|s| matches!(s.kind, Kind::Constant(_)));
         while self.ready == 0 && self.left > 0 {
+            if constants {
+                // Every record of the prototype holds its one value in no
+                // bytes: the records need no packet; a block at a time.
+                self.ready = self.left.min(1 << 16) as usize;
+                break;
+            }
             self.packet()?;
             let mut ready = usize::MAX;
             for s in &self.streams {
@@ -569,6 +579,49 @@ mod tests {
             n += ready as u64;
             rec.take();
         }
+    }
+
+    /// Coordinates that are all one value take no bytes, and a prototype of
+    /// such records alone needs no packet at all (the crate cannot write one:
+    /// here the file has a 1-bit record too, left out of the prototype read).
+    #[test]
+    fn records_of_one_value_take_no_bytes_and_every_record_is_given() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("constants.e57");
+        let record = |name, min, max| Record {
+            name,
+            data_type: RecordDataType::Integer { min, max },
+        };
+        let proto = vec![
+            record(RecordName::CartesianX, 5, 5),
+            record(RecordName::CartesianY, -2, -2),
+            record(RecordName::CartesianZ, 9, 9),
+            record(RecordName::Intensity, 0, 1),
+        ];
+        let mut w = E57Writer::from_file(&path, "constants").unwrap();
+        let mut pc = w.add_pointcloud("c", proto).unwrap();
+        for i in 0..70_000 {
+            let v = [5, -2, 9, i % 2].map(RecordValue::Integer).to_vec();
+            pc.add_point(v).unwrap();
+        }
+        pc.finalize().unwrap();
+        w.finalize().unwrap();
+        same(&path);
+        let reader = E57Reader::from_file(&path).unwrap();
+        let map = std::fs::read(&path).unwrap();
+        let mut pc = reader.pointclouds()[0].clone();
+        pc.prototype.truncate(3);
+        let mut rec = Records::new(&map, &pc).unwrap();
+        let (mut n, mut vals) = (0, [0.0; 3]);
+        while rec.fill().unwrap() > 0 {
+            for k in 0..rec.ready {
+                rec.values(k, &mut vals);
+                assert_eq!(vals, [5.0, -2.0, 9.0]);
+            }
+            n += rec.ready;
+            rec.take();
+        }
+        assert_eq!(n, 70_000);
     }
 
     #[test]
