@@ -331,9 +331,24 @@ impl GpuRasterizer {
         }
         let mut last_err = String::new();
         for (_, adapter) in scored {
-            match Self::with_adapter(adapter, opts) {
+            // The subgroup path is the default wherever the adapter has the
+            // feature: should its device or shader fail on a driver, the
+            // adapter still serves without it.
+            let retry = opts.subgroups.is_none()
+                && adapter.features().contains(wgpu::Features::SUBGROUP);
+            match Self::with_adapter(adapter.clone(), opts) {
                 Ok(r) => return Ok(r),
                 Err(e) => last_err = e.to_string(),
+            }
+            if retry {
+                let plain = GpuOptions {
+                    subgroups: Some(false),
+                    ..opts
+                };
+                match Self::with_adapter(adapter, plain) {
+                    Ok(r) => return Ok(r),
+                    Err(e) => last_err = e.to_string(),
+                }
             }
         }
         Err(RenderError::NoAdapter(last_err))
