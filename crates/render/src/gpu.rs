@@ -334,8 +334,8 @@ impl GpuRasterizer {
             // The subgroup path is the default wherever the adapter has the
             // feature: should its device or shader fail on a driver, the
             // adapter still serves without it.
-            let retry = opts.subgroups.is_none()
-                && adapter.features().contains(wgpu::Features::SUBGROUP);
+            let retry =
+                opts.subgroups.is_none() && adapter.features().contains(wgpu::Features::SUBGROUP);
             match Self::with_adapter(adapter.clone(), opts) {
                 Ok(r) => return Ok(r),
                 Err(e) => last_err = e.to_string(),

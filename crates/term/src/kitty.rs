@@ -75,7 +75,7 @@ fn indexed_png(image: &super::palette::Indexed, width: u32, height: u32) -> Opti
         palette.extend_from_slice(&[0, 0, 0]);
     }
     enc.set_palette(palette);
-    enc.set_compression(png::Compression::Fast);
+    enc.set_compression(png::Compression::Balanced);
     enc.set_filter(png::Filter::NoFilter);
     let mut w = enc.write_header().ok()?;
     w.write_image_data(&image.indices).ok()?;
