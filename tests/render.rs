@@ -188,20 +188,29 @@ fn agreement_tol(a: &Frame, b: &Frame, tol: u8) -> f64 {
 }
 
 /// One shared GPU rasterizer per process (device creation is slow on lavapipe).
+fn in_ci() -> bool {
+    std::env::var("CI").is_ok_and(|v| v == "true")
+}
+
+/// A wgpu rasterizer with `o`; `None` (and a note) where no adapter exists,
+/// a failure with `CI=true`.
+fn gpu_or_skip(o: GpuOptions) -> Option<GpuRasterizer> {
+    match GpuRasterizer::with_options(o) {
+        Ok(g) => Some(g),
+        Err(e) => {
+            assert!(
+                !in_ci(),
+                "CI=true but no wgpu adapter could be created: {e}"
+            );
+            eprintln!("note: skipping wgpu test, no adapter: {e}");
+            None
+        }
+    }
+}
+
 fn with_gpu(f: impl FnOnce(&mut GpuRasterizer)) {
     static GPU: OnceLock<Mutex<Option<GpuRasterizer>>> = OnceLock::new();
-    let cell = GPU.get_or_init(|| {
-        Mutex::new(match GpuRasterizer::new() {
-            Ok(g) => Some(g),
-            Err(e) => {
-                if std::env::var("CI").is_ok_and(|v| v == "true") {
-                    panic!("CI=true but no wgpu adapter could be created: {e}");
-                }
-                eprintln!("note: skipping wgpu test, no adapter: {e}");
-                None
-            }
-        })
-    });
+    let cell = GPU.get_or_init(|| Mutex::new(gpu_or_skip(GpuOptions::default())));
     let mut guard = cell.lock().unwrap_or_else(|p| p.into_inner());
     if let Some(g) = guard.as_mut() {
         f(g);
@@ -429,7 +438,7 @@ fn gpu_shader_variants_agree() {
                 ..Default::default()
             })
             .unwrap();
-            if subgroups && std::env::var("CI").is_ok_and(|v| v == "true") {
+            if subgroups && in_ci() {
                 assert!(g.has_subgroups(), "{}: no subgroups", g.name());
             }
             let f = g.render(&cam, &bs, &o).unwrap();
@@ -470,23 +479,15 @@ fn gpu_subgroup_reduction_keeps_the_nearest_point_of_each_pixel() {
     let o = opts(96, 64, 1);
     let bs = [cols.batch()];
     let plain = |subgroups, segmented_runs, points_per_thread| {
-        GpuRasterizer::with_options(GpuOptions {
+        gpu_or_skip(GpuOptions {
             subgroups: Some(subgroups),
             segmented_runs,
             points_per_thread,
             ..Default::default()
         })
     };
-    let mut reference = match plain(false, false, 1) {
-        Ok(g) => g,
-        Err(e) => {
-            assert!(
-                !std::env::var("CI").is_ok_and(|v| v == "true"),
-                "CI=true but no wgpu adapter: {e}"
-            );
-            eprintln!("note: skipping wgpu test, no adapter: {e}");
-            return;
-        }
+    let Some(mut reference) = plain(false, false, 1) else {
+        return;
     };
     if !reference.has_int64_atomics() {
         return;
@@ -500,11 +501,7 @@ fn gpu_subgroup_reduction_keeps_the_nearest_point_of_each_pixel() {
     for (segmented, ppt) in [(false, 1), (false, 8), (true, 1), (true, 8), (true, 3)] {
         let mut g = plain(true, segmented, ppt).unwrap();
         if !g.has_subgroups() {
-            assert!(
-                !std::env::var("CI").is_ok_and(|v| v == "true"),
-                "{}: no subgroups",
-                g.name()
-            );
+            assert!(!in_ci(), "{}: no subgroups", g.name());
             eprintln!("note: {}: no subgroups, nothing to compare", g.name());
             return;
         }
@@ -540,7 +537,7 @@ fn all_renderers() -> Vec<Box<dyn Rasterizer>> {
         .collect();
     if let Ok(g) = GpuRasterizer::new() {
         v.push(Box::new(g));
-    } else if std::env::var("CI").is_ok_and(|v| v == "true") {
+    } else if in_ci() {
         panic!("CI=true but no wgpu adapter could be created");
     }
     v

@@ -8,8 +8,9 @@ use std::io::{Read, Seek, SeekFrom};
 use std::sync::Arc;
 use std::sync::atomic::{AtomicU64, Ordering};
 
-/// Bytes read past a position before the pages below it are released.
-const KEEP: usize = 1 << 20;
+/// Bytes read past a position before the pages below it are released (by
+/// this cursor, and by the points' decoder in `mod.rs`).
+pub(super) const KEEP: usize = 1 << 20;
 
 pub(crate) struct MapCursor {
     map: Arc<Mmap>,

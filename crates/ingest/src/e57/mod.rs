@@ -189,9 +189,6 @@ fn empty(layout: &Layout, n: usize) -> PointColumns {
     }
 }
 
-/// Bytes of the map kept behind the decoder before their pages are released.
-const KEEP: u64 = 1 << 20;
-
 /// The decoding thread: every scan, chunk by chunk, into `tx`.
 fn decode(
     map: Arc<memmap2::Mmap>,
@@ -246,7 +243,8 @@ fn decode(
                 shared.left_out.fetch_add(left_out, Ordering::Relaxed);
                 let at = rec.offset();
                 shared.last_read.store(at, Ordering::Relaxed);
-                super::release_consumed(&map, &mut released, at.saturating_sub(KEEP) as usize);
+                let upto = (at as usize).saturating_sub(map::KEEP);
+                super::release_consumed(&map, &mut released, upto);
             }
         }
         Ok(true)
