@@ -484,9 +484,13 @@ fn prefix(i: usize) -> String {
 }
 
 /// Removes the staging directories of shards that were killed (any shard's:
-/// [`spill::stale`]) from the output `dir`. Returns what it removed.
+/// [`spill::stale`]) from the output `dir`, and the conversion's own staging
+/// directory (`..shard-I.tmp-*.pcimg-out-PID`) of a shard killed between
+/// opening its inputs and taking its locked one. Returns what it removed.
 pub fn remove_leftovers(dir: &Path) -> Vec<PathBuf> {
-    spill::sweep(dir, ".shard-", ".tmp-", "")
+    let mut gone = spill::sweep(dir, ".shard-", ".tmp-", "");
+    gone.extend(spill::sweep(dir, "..shard-", "pcimg-out-", ""));
+    gone
 }
 
 fn receipt_path(dir: &Path, i: usize) -> PathBuf {
@@ -785,6 +789,25 @@ pub fn check_receipts(dir: &Path) -> Result<Option<Checked>> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A shard killed after its conversion made its own staging directory but
+    /// before it took the locked one leaves `..shard-I.tmp-*.pcimg-out-PID`:
+    /// the next shard removes it, and leaves a live process's alone.
+    #[test]
+    fn leftovers_include_a_shards_unlocked_conversion_staging() {
+        let dir = tempfile::tempdir().unwrap();
+        let d = dir.path();
+        let mut child = std::process::Command::new("true").spawn().unwrap();
+        let dead = child.id();
+        child.wait().unwrap();
+        let me = std::process::id();
+        let killed = d.join(format!("..shard-00000.tmp-{dead}-7.pcimg-out-{dead}"));
+        let live = d.join(format!("..shard-00001.tmp-{me}-7.pcimg-out-{me}"));
+        std::fs::create_dir(&killed).unwrap();
+        std::fs::create_dir(&live).unwrap();
+        assert_eq!(remove_leftovers(d), vec![killed.clone()]);
+        assert!(!killed.exists() && live.exists());
+    }
 
     #[test]
     fn balance_gives_contiguous_cover() {
