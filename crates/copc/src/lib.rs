@@ -46,7 +46,7 @@ pub trait ByteSource: Send + Sync {
     /// The first `max` bytes, or the whole source where it is shorter.
     fn read_prefix(&self, max: u64) -> std::io::Result<Vec<u8>>;
     /// The source's length in bytes (known after [`ByteSource::read_prefix`]).
-    fn len(&self) -> std::io::Result<u64>;
+    fn size(&self) -> std::io::Result<u64>;
     /// The bytes of each range, in order (each must lie inside the source).
     fn read_ranges(&self, ranges: &[Range<u64>]) -> std::io::Result<Vec<Vec<u8>>>;
 }
@@ -77,9 +77,9 @@ impl ByteSource for FileSource {
     }
     fn read_prefix(&self, max: u64) -> std::io::Result<Vec<u8>> {
         let n = max.min(self.len);
-        Ok(self.read_ranges(&[0..n])?.remove(0))
+        Ok(self.read_ranges(std::slice::from_ref(&(0..n)))?.remove(0))
     }
-    fn len(&self) -> std::io::Result<u64> {
+    fn size(&self) -> std::io::Result<u64> {
         Ok(self.len)
     }
     fn read_ranges(&self, ranges: &[Range<u64>]) -> std::io::Result<Vec<Vec<u8>>> {
@@ -256,11 +256,13 @@ impl Copc {
         let name = source.name();
         let io = |e: std::io::Error| error(&name, None, Kind::Io, e.to_string());
         let mut head = source.read_prefix(PREFIX).map_err(io)?;
-        let len = source.len().map_err(io)?;
+        let len = source.size().map_err(io)?;
         let header = parse_header(&name, &head, len)?;
         if header.point_data_offset > head.len() as u64 {
             let more = source
-                .read_ranges(&[head.len() as u64..header.point_data_offset])
+                .read_ranges(std::slice::from_ref(
+                    &(head.len() as u64..header.point_data_offset),
+                ))
                 .map_err(io)?;
             head.extend_from_slice(&more[0]);
         }
@@ -278,7 +280,7 @@ impl Copc {
             hierarchy: Mutex::new(Hierarchy::default()),
         };
         let root = info.root_hier_offset..info.root_hier_offset + info.root_hier_size;
-        let page = copc.read(&[root.clone()])?.remove(0);
+        let page = copc.read(std::slice::from_ref(&root))?.remove(0);
         copc.add_page(root.start, &page)?;
         if !copc.lock().nodes.contains_key(&Key::ROOT) {
             return Err(copc.err(

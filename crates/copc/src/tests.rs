@@ -21,7 +21,7 @@ impl ByteSource for Counted {
         self.reads.fetch_add(1, Ordering::Relaxed);
         Ok(self.bytes[..(max as usize).min(self.bytes.len())].to_vec())
     }
-    fn len(&self) -> std::io::Result<u64> {
+    fn size(&self) -> std::io::Result<u64> {
         Ok(self.bytes.len() as u64)
     }
     fn read_ranges(&self, ranges: &[Range<u64>]) -> std::io::Result<Vec<Vec<u8>>> {
