@@ -147,6 +147,9 @@ pub struct Info {
     pub gps_time: [f64; 2],
 }
 
+/// A node's cube: its smallest and largest corner.
+pub type Cube = ([f64; 3], [f64; 3]);
+
 /// A node of the octree: depth and position at that depth.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
 pub struct Key {
@@ -175,7 +178,7 @@ impl Key {
     }
 
     /// The node's cube (min, max).
-    pub fn bounds(&self, info: &Info) -> ([f64; 3], [f64; 3]) {
+    pub fn bounds(&self, info: &Info) -> Cube {
         let side = 2.0 * info.halfsize / f64::from(1u32 << self.d.clamp(0, 31) as u32);
         let at = [self.x, self.y, self.z];
         let min: [f64; 3] =
@@ -309,7 +312,7 @@ impl Copc {
 
     /// Adds the entries of the hierarchy page read from byte `at`.
     fn add_page(&self, at: u64, page: &[u8]) -> Result<()> {
-        if page.len() as u64 % ENTRY_SIZE != 0 {
+        if !(page.len() as u64).is_multiple_of(ENTRY_SIZE) {
             return Err(self.err(
                 Some(at),
                 Kind::Corrupt,
@@ -413,11 +416,7 @@ impl Copc {
     /// Every node whose cube `keep` accepts and whose ancestors' cubes it
     /// accepted, breadth first (a level's pages read as one batch), down to
     /// depth `max_depth`.
-    pub fn nodes_where(
-        &self,
-        keep: &dyn Fn(&([f64; 3], [f64; 3])) -> bool,
-        max_depth: i32,
-    ) -> Result<Vec<Entry>> {
+    pub fn nodes_where(&self, keep: &dyn Fn(&Cube) -> bool, max_depth: i32) -> Result<Vec<Entry>> {
         let mut out = Vec::new();
         let mut level = vec![self.root()];
         level.retain(|e| keep(&e.key.bounds(&self.info)));

@@ -84,9 +84,7 @@ fn opens_in_two_reads_and_every_node_decompresses_inside_its_cube() {
     }
     // A walk that keeps only one octant's cube reads fewer nodes.
     let (lo, _) = Key::ROOT.bounds(&c.info);
-    let corner = c
-        .nodes_where(&|b: &([f64; 3], [f64; 3])| b.0 == lo, i32::MAX)
-        .unwrap();
+    let corner = c.nodes_where(&|b: &Cube| b.0 == lo, i32::MAX).unwrap();
     assert!(corner.len() < nodes.len() && corner[0].key == Key::ROOT);
 }
 
