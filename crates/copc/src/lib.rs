@@ -614,9 +614,8 @@ fn parse_info(name: &str, b: &[u8], len: u64) -> Result<Info> {
         root_hier_size: u64_at(b, at + 48),
         gps_time: [f(7), f(8)],
     };
-    if !(info.halfsize.is_finite() && info.halfsize > 0.0)
-        || !info.center.iter().all(|c| c.is_finite())
-    {
+    let usable = info.halfsize.is_finite() && info.halfsize > 0.0;
+    if !usable || !info.center.iter().all(|c| c.is_finite()) {
         return Err(error(
             name,
             Some(INFO_OFFSET),
