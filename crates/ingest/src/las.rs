@@ -129,7 +129,7 @@ pub const LAS_FLAGS: [(&str, u8, u8); 7] = [
 ];
 
 /// The attribute names for a point format.
-fn attribute_names(f: &las::point::Format) -> Vec<String> {
+pub(crate) fn attribute_names(f: &las::point::Format) -> Vec<String> {
     let mut v: Vec<&str> = LAS_BANDS[..4].to_vec();
     if f.has_gps_time {
         v.push(LAS_BANDS[4]);
@@ -158,7 +158,7 @@ pub(crate) fn las_flags(record: &[u8], extended: bool) -> u8 {
 }
 
 /// The header's bounds, when they are finite and not inverted.
-fn declared_bounds(header: &las::Header) -> Option<crate::points::Bounds> {
+pub(crate) fn declared_bounds(header: &las::Header) -> Option<crate::points::Bounds> {
     let b = header.bounds();
     let (min, max) = ([b.min.x, b.min.y, b.min.z], [b.max.x, b.max.y, b.max.z]);
     let ok = (0..3).all(|a| min[a].is_finite() && max[a].is_finite() && min[a] <= max[a]);
@@ -166,7 +166,7 @@ fn declared_bounds(header: &las::Header) -> Option<crate::points::Bounds> {
 }
 
 /// The CRS of a LAS header: WKT, else `EPSG:<code>` from GeoTIFF keys.
-fn crs_of(h: &las::Header) -> Option<String> {
+pub(crate) fn crs_of(h: &las::Header) -> Option<String> {
     if let Some(w) = h.get_wkt_crs_bytes() {
         let s = String::from_utf8_lossy(w);
         let s = s.trim_end_matches('\0').trim();

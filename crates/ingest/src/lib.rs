@@ -32,6 +32,7 @@ use pcimg_core::{bigvec, points};
 pub mod ahead;
 pub mod color;
 pub(crate) mod contain;
+pub mod copc;
 pub mod e57;
 pub mod error;
 pub mod las;
@@ -94,6 +95,9 @@ pub struct ReadOptions {
     pub skip_invalid: bool,
     /// Target number of points per chunk.
     pub chunk_points: usize,
+    /// Only the points inside this box (COPC: only the octree's nodes that
+    /// reach it are read). Other formats refuse it.
+    pub region: Option<crate::points::Bounds>,
 }
 
 /// Default target points per chunk. Kept just under 2^22 so that an `f64` column
@@ -108,6 +112,7 @@ impl Default for ReadOptions {
             columns: None,
             skip_invalid: false,
             chunk_points: DEFAULT_CHUNK_POINTS,
+            region: None,
         }
     }
 }
@@ -303,6 +308,19 @@ pub fn open(path: &Path, opts: &ReadOptions) -> Result<Box<dyn PointReader>, Ing
                 kind.name()
             ),
         ));
+    }
+    if opts.region.is_some() {
+        if kind != InputKind::Las || !copc::is_copc(path) {
+            return Err(IngestError::format(
+                path,
+                format!(
+                    "a region is read only from COPC inputs (their octree says which points \
+                     lie in it), and this is {}",
+                    kind.name()
+                ),
+            ));
+        }
+        return Ok(Box::new(copc::open(path, opts)?));
     }
     let reader: Box<dyn PointReader> = match kind {
         InputKind::Text => Box::new(text::TextReader::open(path, opts)?),

@@ -26,10 +26,10 @@ const SAMPLE_WINDOW: usize = 1024;
 
 /// Where the fields of one record format are.
 #[derive(Debug, Clone, Copy)]
-struct Fields {
+pub(crate) struct Fields {
     stride: usize,
     extended: bool,
-    gps: Option<usize>,
+    pub(crate) gps: Option<usize>,
     rgb: Option<usize>,
     nir: Option<usize>,
     /// Scale and offset per axis (`value = scale · raw + offset`, as the `las`
@@ -38,7 +38,7 @@ struct Fields {
 }
 
 impl Fields {
-    fn new(
+    pub(crate) fn new(
         path: &Path,
         f: &las::point::Format,
         stride: usize,
@@ -231,6 +231,65 @@ fn decode_window(rec: &[u8], f: &Fields, gps_offset: f64, out: Out<'_>) {
             0,
         );
     }
+}
+
+/// Decodes the whole records `rec` into columns named `names` (those of
+/// `las::attribute_names` for the format), GPS time less `gps_offset`. One
+/// window: callers decode many at once in parallel (COPC nodes).
+pub(crate) fn decode_records(
+    rec: &[u8],
+    f: &Fields,
+    gps_offset: f64,
+    names: &[String],
+) -> PointColumns {
+    let n = rec.len() / f.stride;
+    let mut xyz: [Vec<f64>; 3] = std::array::from_fn(|_| Vec::with_capacity(n));
+    let mut attrs: Vec<Vec<f32>> = names.iter().map(|_| Vec::with_capacity(n)).collect();
+    {
+        let [x, y, z] = &mut xyz;
+        let out = Out {
+            xyz: [
+                &mut x.spare_capacity_mut()[..n],
+                &mut y.spare_capacity_mut()[..n],
+                &mut z.spare_capacity_mut()[..n],
+            ],
+            attrs: attrs
+                .iter_mut()
+                .map(|a| &mut a.spare_capacity_mut()[..n])
+                .collect(),
+        };
+        decode_window(&rec[..n * f.stride], f, gps_offset, out);
+    }
+    for c in xyz.iter_mut() {
+        // SAFETY: `decode_window` wrote every one of the n slots of each column.
+        unsafe { c.set_len(n) };
+    }
+    for c in attrs.iter_mut() {
+        // SAFETY: as above.
+        unsafe { c.set_len(n) };
+    }
+    let [x, y, z] = xyz;
+    PointColumns {
+        x,
+        y,
+        z,
+        attributes: names
+            .iter()
+            .zip(attrs)
+            .map(|(name, values)| {
+                let mut a = Attribute::new(name.clone(), values);
+                if name == "gps_time" {
+                    a.offset = gps_offset;
+                }
+                a
+            })
+            .collect(),
+    }
+}
+
+/// GPS time of record `r` (for the offset the columns keep it relative to).
+pub(crate) fn gps_of(r: &[u8], f: &Fields) -> Option<f64> {
+    f.gps.map(|g| f64_at(r, g))
 }
 
 /// Value `j` of each row of `dst` (`m` values a row, one row a record of `rec`):
