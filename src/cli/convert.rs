@@ -61,6 +61,14 @@ pub struct Args {
     /// Skip malformed lines (and report how many) instead of stopping.
     #[arg(long)]
     pub skip_invalid: bool,
+    /// Only the points inside this rectangle, every height (in the input's
+    /// coordinates): XMIN,YMIN,XMAX,YMAX. COPC inputs only: just the octree's
+    /// nodes that reach it are read (from a URL, just their bytes fetched).
+    #[arg(long, value_name = "XMIN,YMIN,XMAX,YMAX", value_parser = parse_bounds, conflicts_with = "clip")]
+    pub bounds: Option<crate::points::Bounds>,
+    /// As --bounds, a box in 3D: XMIN,YMIN,ZMIN,XMAX,YMAX,ZMAX.
+    #[arg(long, value_name = "XMIN,YMIN,ZMIN,XMAX,YMAX,ZMAX", value_parser = parse_clip)]
+    pub clip: Option<crate::points::Bounds>,
     /// Replace an existing output.
     #[arg(long)]
     pub force: bool,
@@ -268,6 +276,12 @@ fn is_point_cloud(p: &std::path::Path) -> bool {
 
 /// The default output: `INPUT.pcimg` beside one file or directory.
 fn default_output(args: &[PathBuf]) -> anyhow::Result<PathBuf> {
+    if let Some(url) = args.iter().find(|p| crate::ingest::is_url(p)) {
+        anyhow::bail!(
+            "{}: an input at a URL: name the output with -o",
+            sanitize(&url.to_string_lossy())
+        );
+    }
     match args {
         [one] if one.is_dir() => {
             // The directory's own name (`tiles/` → `tiles.pcimg` beside it).
@@ -303,6 +317,41 @@ fn parse_max_error(s: &str) -> Result<f64, String> {
     }
 }
 
+/// `n` comma-separated finite numbers.
+fn numbers(s: &str, n: usize, form: &str) -> Result<Vec<f64>, String> {
+    let v: Vec<f64> = s
+        .split(',')
+        .map(|t| t.trim().parse::<f64>())
+        .collect::<Result<_, _>>()
+        .map_err(|_| format!("'{s}' is not {form}"))?;
+    if v.len() != n || !v.iter().all(|x| x.is_finite()) {
+        return Err(format!("'{s}' is not {form} ({n} numbers)"));
+    }
+    Ok(v)
+}
+
+/// The box of `min` and `max`, each at most its maximum.
+fn ordered(min: [f64; 3], max: [f64; 3], s: &str) -> Result<crate::points::Bounds, String> {
+    if (0..3).any(|a| min[a] > max[a]) {
+        return Err(format!("'{s}': a minimum is above its maximum"));
+    }
+    Ok(crate::points::Bounds { min, max })
+}
+
+fn parse_bounds(s: &str) -> Result<crate::points::Bounds, String> {
+    let v = numbers(s, 4, "XMIN,YMIN,XMAX,YMAX")?;
+    ordered(
+        [v[0], v[1], f64::NEG_INFINITY],
+        [v[2], v[3], f64::INFINITY],
+        s,
+    )
+}
+
+fn parse_clip(s: &str) -> Result<crate::points::Bounds, String> {
+    let v = numbers(s, 6, "XMIN,YMIN,ZMIN,XMAX,YMAX,ZMAX")?;
+    ordered([v[0], v[1], v[2]], [v[3], v[4], v[5]], s)
+}
+
 fn parse_precision(s: &str) -> Result<f64, String> {
     match s.trim().parse::<f64>() {
         Ok(e) if e.is_finite() && e > 0.0 => Ok(e),
@@ -332,6 +381,7 @@ fn options(a: &Args, output: PathBuf) -> ConvertOptions {
         read: ReadOptions {
             columns: a.columns.clone(),
             skip_invalid: a.skip_invalid,
+            region: a.bounds.or(a.clip),
             ..Default::default()
         },
         allow_lossy: a.allow_lossy,
@@ -418,6 +468,14 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         None => default_output(&a.inputs)?,
     };
     let inputs = input_files(&a.inputs)?;
+    if inputs.iter().any(|p| crate::ingest::is_url(p)) {
+        let net = a.timeout.remote_options();
+        crate::ingest::set_url_opener(Box::new(move |url| {
+            let s = crate::store::remote::copc::RemoteBytes::open(url, &net)
+                .map_err(|e| e.to_string())?;
+            Ok(Arc::new(s) as Arc<dyn pcimg_copc::ByteSource>)
+        }));
+    }
     let mut opts = options(&a, output);
     let url = convert::upload::is_remote(&opts.output).map(str::to_string);
     if let Some(plan) = &a.plan {

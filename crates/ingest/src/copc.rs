@@ -43,7 +43,9 @@ pub struct CopcReader {
     nodes: Vec<Entry>,
     next: usize,
     fields: Fields,
-    gps_offset: f64,
+    /// GPS time is kept relative to the median of the first node's first
+    /// values (decided with the first chunk).
+    gps_offset: Option<f64>,
     info: SourceInfo,
     colors: ColorNormalizer,
     region: Option<Bounds>,
@@ -105,22 +107,6 @@ pub fn from_copc(copc: Arc<Copc>, opts: &ReadOptions) -> Result<CopcReader, Inge
         |c: &pcimg_copc::Cube| region.is_none_or(|r| r.intersects(&Bounds { min: c.0, max: c.1 }));
     let nodes = copc.nodes_where(&reaches, i32::MAX).map_err(error)?;
     let nodes: Vec<Entry> = nodes.into_iter().filter(|e| e.points > 0).collect();
-    // GPS time kept relative to the median of the root's first values.
-    let gps_offset = match nodes.first() {
-        Some(e) if fields_have_gps(&fields) => {
-            let chunk = copc.fetch(std::slice::from_ref(e)).map_err(error)?;
-            let rec = copc
-                .decompress(e, &chunk[0], laz::DecompressionSelection::all())
-                .map_err(error)?;
-            let mut t: Vec<f64> = rec
-                .chunks_exact(stride)
-                .take(crate::OFFSET_SAMPLE)
-                .filter_map(|r| gps_of(r, &fields))
-                .collect();
-            crate::attribute_offset(&mut t, true)
-        }
-        _ => 0.0,
-    };
     let bytes: u64 = nodes.iter().map(|e| u64::from(e.bytes)).sum();
     let mut declared = super::las::declared_bounds(&header);
     if let (Some(d), Some(r)) = (declared.as_mut(), region) {
@@ -138,7 +124,18 @@ pub fn from_copc(copc: Arc<Copc>, opts: &ReadOptions) -> Result<CopcReader, Inge
         crs_wkt: super::las::crs_of(&header),
         attribute_names: super::las::attribute_names(&format),
         file_bytes: bytes,
-        notes: Vec::new(),
+        notes: region
+            .map(|_| {
+                format!(
+                    "COPC: read the {} octree nodes that reach the region ({} of the file's {}); \
+                     points outside it left out",
+                    nodes.len(),
+                    pcimg_core::text::bytes(bytes),
+                    pcimg_core::text::bytes(copc.len)
+                )
+            })
+            .into_iter()
+            .collect(),
         metadata: vec![(
             crate::points::key::LAS_POINT_FORMAT.to_string(),
             copc.header.format.to_string(),
@@ -154,7 +151,7 @@ pub fn from_copc(copc: Arc<Copc>, opts: &ReadOptions) -> Result<CopcReader, Inge
         nodes,
         next: 0,
         fields,
-        gps_offset,
+        gps_offset: None,
         info,
         colors: ColorNormalizer::new(false),
         region,
@@ -163,10 +160,6 @@ pub fn from_copc(copc: Arc<Copc>, opts: &ReadOptions) -> Result<CopcReader, Inge
         left_out: 0,
         selection: laz::DecompressionSelection::all(),
     })
-}
-
-fn fields_have_gps(f: &Fields) -> bool {
-    f.gps.is_some()
 }
 
 impl CopcReader {
@@ -226,21 +219,30 @@ impl PointReader for CopcReader {
         }
         let batch = &self.nodes[self.next..end];
         let chunks = self.copc.fetch(batch).map_err(error)?;
-        let (copc, f, g, names, sel) = (
-            &self.copc,
-            &self.fields,
-            self.gps_offset,
-            &self.info.attribute_names,
-            self.selection,
-        );
-        let decoded: Vec<PointColumns> = batch
+        let (copc, sel) = (&self.copc, self.selection);
+        let records: Vec<Vec<u8>> = batch
             .par_iter()
             .zip(chunks.par_iter())
-            .map(|(e, chunk)| {
-                let rec = copc.decompress(e, chunk, sel).map_err(error)?;
-                Ok(decode_records(&rec, f, g, names))
-            })
+            .map(|(e, chunk)| copc.decompress(e, chunk, sel).map_err(error))
             .collect::<Result<_, IngestError>>()?;
+        let f = &self.fields;
+        let g = *self.gps_offset.get_or_insert_with(|| {
+            let mut t: Vec<f64> = records[0]
+                .chunks_exact(f.stride)
+                .take(crate::OFFSET_SAMPLE)
+                .filter_map(|r| gps_of(r, f))
+                .collect();
+            if t.is_empty() {
+                0.0
+            } else {
+                crate::attribute_offset(&mut t, true)
+            }
+        });
+        let names = &self.info.attribute_names;
+        let decoded: Vec<PointColumns> = records
+            .par_iter()
+            .map(|rec| decode_records(rec, f, g, names))
+            .collect();
         let mut parts = decoded.into_iter();
         let mut cols = parts.next().unwrap_or_default();
         cols.x.reserve(points as usize);

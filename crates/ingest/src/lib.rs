@@ -97,6 +97,7 @@ pub struct ReadOptions {
     pub chunk_points: usize,
     /// Only the points inside this box (COPC: only the octree's nodes that
     /// reach it are read). Other formats refuse it.
+    #[serde(default)]
     pub region: Option<crate::points::Bounds>,
 }
 
@@ -294,10 +295,58 @@ pub fn detect(path: &Path) -> Result<InputKind, IngestError> {
     }
 }
 
-/// Opens a point-cloud file for chunked reading.
+/// Opens a URL as a byte source for COPC: set once by a program that has an
+/// object-storage client (the binary sets `store::remote::copc::RemoteBytes`);
+/// without one a URL input is refused.
+pub type UrlOpener =
+    dyn Fn(&str) -> Result<std::sync::Arc<dyn pcimg_copc::ByteSource>, String> + Send + Sync;
+
+static URL_OPENER: std::sync::OnceLock<Box<UrlOpener>> = std::sync::OnceLock::new();
+
+/// Sets how URL inputs are opened (once; later calls are ignored).
+pub fn set_url_opener(f: Box<UrlOpener>) {
+    let _ = URL_OPENER.set(f);
+}
+
+/// Whether `path` is a URL input (object storage or HTTP).
+pub fn is_url(path: &Path) -> bool {
+    const SCHEMES: [&str; 8] = [
+        "s3://", "s3a://", "gs://", "az://", "abfs://", "abfss://", "http://", "https://",
+    ];
+    let s = path.to_string_lossy().to_ascii_lowercase();
+    SCHEMES.iter().any(|p| s.starts_with(p))
+}
+
+/// Opens the COPC file at URL `path`.
+fn open_url(path: &Path, opts: &ReadOptions) -> Result<Box<dyn PointReader>, IngestError> {
+    let url = path.to_string_lossy();
+    let Some(opener) = URL_OPENER.get() else {
+        return Err(IngestError::format(
+            path,
+            "this program reads no URLs (it has no object-storage client)",
+        ));
+    };
+    let source = opener(&url).map_err(|m| IngestError::format(path, m))?;
+    let opened = pcimg_copc::Copc::open(source).map_err(|mut e| {
+        if e.kind == pcimg_copc::Kind::NotCopc {
+            e.what += "; from a URL only COPC files are read: download it first";
+        }
+        copc::error(e)
+    })?;
+    Ok(Box::new(copc::from_copc(
+        std::sync::Arc::new(opened),
+        opts,
+    )?))
+}
+
+/// Opens a point-cloud file (or, through [`set_url_opener`], a COPC file at a
+/// URL) for chunked reading.
 pub fn open(path: &Path, opts: &ReadOptions) -> Result<Box<dyn PointReader>, IngestError> {
     if opts.chunk_points == 0 {
         return Err(IngestError::format(path, "chunk_points must be at least 1"));
+    }
+    if is_url(path) {
+        return open_url(path, opts);
     }
     let kind = detect(path)?;
     if opts.columns.is_some() && kind != InputKind::Text {

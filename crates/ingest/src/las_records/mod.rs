@@ -27,7 +27,7 @@ const SAMPLE_WINDOW: usize = 1024;
 /// Where the fields of one record format are.
 #[derive(Debug, Clone, Copy)]
 pub(crate) struct Fields {
-    stride: usize,
+    pub(crate) stride: usize,
     extended: bool,
     pub(crate) gps: Option<usize>,
     rgb: Option<usize>,

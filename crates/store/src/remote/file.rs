@@ -167,7 +167,11 @@ impl RemoteFile {
         if self.remote.ignores_range.load(Ordering::Relaxed) {
             return self.cut_from_whole(r).await;
         }
-        match self.remote.retrying(|| self.ranged_once(r.clone())).await? {
+        match self
+            .remote
+            .retrying(|| self.ranged_once(r.clone(), false))
+            .await?
+        {
             Some(b) => Ok(b),
             None => {
                 // A 200 with the whole object (its body not read): from now on
@@ -178,9 +182,14 @@ impl RemoteFile {
         }
     }
 
-    /// One ranged request for `r`; `None` where the server answered with the
+    /// One ranged request for `r` (`short_ok`: or for what of it the object
+    /// holds, where it ends first); `None` where the server answered with the
     /// whole object instead (it ignores Range).
-    async fn ranged_once(&self, r: Range<u64>) -> Result<Option<Bytes>, RemoteError> {
+    async fn ranged_once(
+        &self,
+        r: Range<u64>,
+        short_ok: bool,
+    ) -> Result<Option<Bytes>, RemoteError> {
         let loc = self.remote.location(&self.name);
         let opts = GetOptions {
             range: Some(GetRange::Bounded(r.clone())),
@@ -198,7 +207,8 @@ impl RemoteFile {
         match got {
             Ok((b, meta, range)) => {
                 f.done(b.len() as u64, true);
-                if range != r || b.len() as u64 != r.end - r.start {
+                let cut = short_ok && range.start == r.start && range.end == meta.0.min(r.end);
+                if (range != r && !cut) || b.len() as u64 != range.end - range.start {
                     return Err(self.fail(Problem::WrongRange {
                         asked: r,
                         got: range,
@@ -217,6 +227,42 @@ impl RemoteFile {
                 Err(self.changed_or(&e))
             }
         }
+    }
+
+    /// The first `max` bytes of the object, or all of it where it is shorter,
+    /// in one request (which pins its size and ETag, as the first ranged read
+    /// does): a file's header before its size is known.
+    pub fn read_prefix(&self, max: u64) -> Result<Bytes, RemoteError> {
+        use std::sync::atomic::Ordering;
+        if let Some(&(size, _)) = self.seen.get() {
+            return Ok(self.read_ranges(std::slice::from_ref(&(0..max.min(size))))?.remove(0));
+        }
+        super::block_on(async {
+            if !self.remote.ignores_range.load(Ordering::Relaxed)
+                && let Some(b) = self
+                    .remote
+                    .retrying(|| self.ranged_once(0..max, true))
+                    .await?
+            {
+                return Ok(b);
+            }
+            self.remote.ignores_range.store(true, Ordering::Relaxed);
+            // The whole object (one request), then its first bytes.
+            self.cut_from_whole(0..0).await?;
+            let len = self.whole.get().map_or(0, |w| w.len() as u64);
+            self.cut_from_whole(0..max.min(len)).await
+        })
+    }
+
+    /// The object's size: known from a request already made, or asked for by
+    /// a HEAD request.
+    pub fn object_size(&self) -> Result<u64, RemoteError> {
+        self.size()
+    }
+
+    /// The bytes of each of `ranges`, in order (as [`RemoteFile::read_ranges`]).
+    pub fn ranges(&self, ranges: &[Range<u64>]) -> Result<Vec<Bytes>, RemoteError> {
+        self.read_ranges(ranges)
     }
 
     /// The error for a failed request: for a part pinned by the index, a

@@ -5,6 +5,7 @@
 //! status or the network condition; the command line adds what to do). Ranged,
 //! cached reads of one object are `file.rs`.
 
+pub mod copc;
 pub mod disk;
 pub mod file;
 pub mod lock;
