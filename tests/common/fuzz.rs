@@ -222,6 +222,7 @@ pub fn options(rng: &mut Rng, ext: &str, output: &Path) -> ConvertOptions {
             .filter(|_| !matches!(ext, "ply" | "las" | "laz" | "pcd" | "e57" | "tif")),
             skip_invalid: below(rng, 2) == 0,
             chunk_points: [1usize, 7, 500, 4096][below(rng, 4) as usize],
+            region: None,
         },
         allow_lossy: below(rng, 2) == 0,
         cancel: Arc::new(AtomicBool::new(false)),

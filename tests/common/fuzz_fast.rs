@@ -285,6 +285,7 @@ impl Fuzzer {
             .filter(|_| text),
             skip_invalid: below(rng, 2) == 0,
             chunk_points: [1usize, 7, 64, 4096][below(rng, 4) as usize],
+            region: None,
         };
         let mode = below(rng, 3) as u8;
         let faults = if self.kind == Kind::Http {
