@@ -84,8 +84,21 @@ pub fn open_source(
     source: Arc<dyn ByteSource>,
     opts: &ReadOptions,
 ) -> Result<CopcReader, IngestError> {
-    let copc = Arc::new(Copc::open(source).map_err(error)?);
-    from_copc(copc, opts)
+    from_copc(Arc::new(open_copc(source).map_err(error)?), opts)
+}
+
+/// Opens the COPC file in `source` (a panic of the LAZ crate on a corrupt
+/// VLR contained).
+pub fn open_copc(source: Arc<dyn ByteSource>) -> Result<Copc, CopcError> {
+    let name = source.name();
+    crate::contain::contain(|| Copc::open(source)).unwrap_or_else(|| {
+        Err(CopcError {
+            name,
+            offset: None,
+            what: "the COPC header or its LAZ VLR is corrupt".into(),
+            kind: pcimg_copc::Kind::Corrupt,
+        })
+    })
 }
 
 /// Opens the local COPC file `path`.
@@ -223,7 +236,20 @@ impl PointReader for CopcReader {
         let records: Vec<Vec<u8>> = batch
             .par_iter()
             .zip(chunks.par_iter())
-            .map(|(e, chunk)| copc.decompress(e, chunk, sel).map_err(error))
+            .map(|(e, chunk)| {
+                // (The LAZ decoder's panic on a corrupt chunk stays off the
+                // terminal: `decompress` makes it an error naming the chunk.)
+                crate::contain::contain(|| copc.decompress(e, chunk, sel))
+                    .unwrap_or_else(|| {
+                        Err(pcimg_copc::CopcError {
+                            name: copc.name().to_string(),
+                            offset: Some(e.offset),
+                            what: "the LAZ decompressor failed on corrupt data".into(),
+                            kind: pcimg_copc::Kind::Corrupt,
+                        })
+                    })
+                    .map_err(error)
+            })
             .collect::<Result<_, IngestError>>()?;
         let f = &self.fields;
         let g = *self.gps_offset.get_or_insert_with(|| {

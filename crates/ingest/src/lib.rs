@@ -46,6 +46,7 @@ pub mod value;
 
 use std::io::Read;
 use std::path::{Path, PathBuf};
+use std::sync::Arc;
 
 pub use error::IngestError;
 
@@ -326,17 +327,34 @@ fn open_url(path: &Path, opts: &ReadOptions) -> Result<Box<dyn PointReader>, Ing
             "this program reads no URLs (it has no object-storage client)",
         ));
     };
-    let source = opener(&url).map_err(|m| IngestError::format(path, m))?;
-    let opened = pcimg_copc::Copc::open(source).map_err(|mut e| {
-        if e.kind == pcimg_copc::Kind::NotCopc {
-            e.what += "; from a URL only COPC files are read: download it first";
+    // A conversion opens its inputs more than once (to plan, then to read):
+    // the header and hierarchy pages read the first time are kept.
+    type Opened = std::sync::Mutex<std::collections::HashMap<String, Arc<pcimg_copc::Copc>>>;
+    static OPENED: std::sync::OnceLock<Opened> = std::sync::OnceLock::new();
+    let opened = OPENED.get_or_init(Default::default);
+    let known = opened
+        .lock()
+        .unwrap_or_else(|p| p.into_inner())
+        .get(url.as_ref())
+        .cloned();
+    let copc = match known {
+        Some(c) => c,
+        None => {
+            let source = opener(&url).map_err(|m| IngestError::format(path, m))?;
+            let c = Arc::new(copc::open_copc(source).map_err(|mut e| {
+                if e.kind == pcimg_copc::Kind::NotCopc {
+                    e.what += "; from a URL only COPC files are read: download it first";
+                }
+                copc::error(e)
+            })?);
+            opened
+                .lock()
+                .unwrap_or_else(|p| p.into_inner())
+                .insert(url.to_string(), c.clone());
+            c
         }
-        copc::error(e)
-    })?;
-    Ok(Box::new(copc::from_copc(
-        std::sync::Arc::new(opened),
-        opts,
-    )?))
+    };
+    Ok(Box::new(copc::from_copc(copc, opts)?))
 }
 
 /// Opens a point-cloud file (or, through [`set_url_opener`], a COPC file at a

@@ -235,7 +235,9 @@ impl RemoteFile {
     pub fn read_prefix(&self, max: u64) -> Result<Bytes, RemoteError> {
         use std::sync::atomic::Ordering;
         if let Some(&(size, _)) = self.seen.get() {
-            return Ok(self.read_ranges(std::slice::from_ref(&(0..max.min(size))))?.remove(0));
+            return Ok(self
+                .read_ranges(std::slice::from_ref(&(0..max.min(size))))?
+                .remove(0));
         }
         super::block_on(async {
             if !self.remote.ignores_range.load(Ordering::Relaxed)
