@@ -70,6 +70,16 @@ fn a_region_of_a_local_copc_holds_exactly_the_laz_points_inside_it() {
     let t = tempfile::tempdir().unwrap();
     let copc = fixture("autzen_trim.copc.laz");
     let copc = copc.to_str().unwrap();
+    // `info` describes it without converting: the octree's levels.
+    let o = pcimg().args(["info", "--json", copc]).output().unwrap();
+    let v: serde_json::Value = serde_json::from_str(&ok(&o, "info")).unwrap();
+    let levels = v["levels"].as_array().unwrap();
+    let per_level: Vec<(u64, u64)> = levels
+        .iter()
+        .map(|l| (l["nodes"].as_u64().unwrap(), l["points"].as_u64().unwrap()))
+        .collect();
+    assert_eq!(per_level, [(1, 9_260), (8, 100_740)]);
+    assert_eq!(v["point_format"].as_u64(), Some(7));
     let whole = t.path().join("whole.pcimg");
     ok(&convert(copc, &whole, &["-q"]), "convert");
     assert_eq!(points(&whole), 110_000);
@@ -260,6 +270,19 @@ fn a_copc_in_object_storage_fetches_only_the_nodes_of_the_region() {
         ok(&o, "convert from S3");
         network(&e)
     };
+    // Opening it (`info`) is two requests: the header, the root page.
+    let o = weed
+        .pcimg(&weed.endpoint(), &["info", "--json", "--net-stats", &url])
+        .output()
+        .unwrap();
+    let said = ok(&o, "info of a COPC in S3");
+    let (opening, _) = network(&String::from_utf8_lossy(&o.stderr));
+    assert!(opening <= 2, "{opening} requests to open");
+    let v: serde_json::Value = serde_json::from_str(&said).unwrap();
+    assert_eq!(
+        (v["points"].as_u64(), v["format"].as_str()),
+        (Some(110_000), Some("copc"))
+    );
     let whole = t.path().join("whole.pcimg");
     let (all_requests, all_bytes) = run(&whole, &[]);
     assert_eq!(points(&whole), 110_000);

@@ -468,14 +468,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         None => default_output(&a.inputs)?,
     };
     let inputs = input_files(&a.inputs)?;
-    if inputs.iter().any(|p| crate::ingest::is_url(p)) {
-        let net = a.timeout.remote_options();
-        crate::ingest::set_url_opener(Box::new(move |url| {
-            let s = crate::store::remote::copc::RemoteBytes::open(url, &net)
-                .map_err(|e| e.to_string())?;
-            Ok(Arc::new(s) as Arc<dyn pcimg_copc::ByteSource>)
-        }));
-    }
+    super::remote::read_url_inputs(a.timeout.remote_options());
     let mut opts = options(&a, output);
     let url = convert::upload::is_remote(&opts.output).map(str::to_string);
     if let Some(plan) = &a.plan {

@@ -10,7 +10,8 @@ use std::path::PathBuf;
 
 #[derive(Debug, clap::Args)]
 pub struct Args {
-    /// A part (.tif) or a directory of parts.
+    /// A part (.tif) or a directory of parts; or a COPC file (.copc.laz), local
+    /// or at a URL (s3://, https://, ...), described without converting it.
     pub path: PathBuf,
     /// Print JSON (stable field names) instead of text.
     #[arg(long)]
@@ -427,8 +428,159 @@ fn source_lines(o: &mut String, key: &str, value: &str) {
     }
 }
 
+/// What `info` says of a COPC file: its header and the octree's levels as
+/// far as the hierarchy pages read (the root page: `--tiles` reads them all).
+#[derive(Debug, Serialize)]
+pub struct CopcReport {
+    pub path: String,
+    pub format: &'static str,
+    pub points: u64,
+    pub bytes: u64,
+    pub bounds: Bounds,
+    pub point_format: u8,
+    pub record_bytes: u16,
+    pub crs: Option<String>,
+    pub attributes: Vec<String>,
+    /// The octree's cube: centre and half its side; the root's point spacing.
+    pub center: [f64; 3],
+    pub halfsize: f64,
+    pub spacing: f64,
+    /// Nodes and points at each depth, in the pages read.
+    pub levels: Vec<CopcLevel>,
+    pub pages_read: usize,
+    /// Hierarchy pages known but not read (their nodes are not counted).
+    pub pages_unread: usize,
+}
+
+#[derive(Debug, Serialize)]
+pub struct CopcLevel {
+    pub depth: i32,
+    pub nodes: usize,
+    pub points: u64,
+    pub bytes: u64,
+}
+
+fn copc_report(a: &Args) -> anyhow::Result<CopcReport> {
+    let c = crate::ingest::copc::open_any(&a.path)?;
+    let (crs, attributes) = crate::ingest::copc::describe(&c)?;
+    // The nodes of the pages read (the root page), or of every page.
+    let max_depth = if a.tiles { i32::MAX } else { 0 };
+    let mut nodes = c.nodes_where(&|_| true, max_depth)?;
+    if !a.tiles {
+        let mut level = vec![c.root().key];
+        while let Some(k) = level.pop() {
+            for ch in k.children() {
+                if let Some(e) = c.known(&ch) {
+                    nodes.push(e);
+                    level.push(ch);
+                }
+            }
+        }
+    }
+    let mut levels: Vec<CopcLevel> = Vec::new();
+    for e in &nodes {
+        let d = e.key.d;
+        while levels.len() <= d as usize {
+            levels.push(CopcLevel {
+                depth: levels.len() as i32,
+                nodes: 0,
+                points: 0,
+                bytes: 0,
+            });
+        }
+        let l = &mut levels[d as usize];
+        l.nodes += 1;
+        l.points += u64::from(e.points);
+        l.bytes += u64::from(e.bytes);
+    }
+    let (pages_read, pages_unread) = c.pages();
+    Ok(CopcReport {
+        path: a.path.display().to_string(),
+        format: "copc",
+        points: c.header.points,
+        bytes: c.len,
+        bounds: Bounds {
+            min: c.header.min,
+            max: c.header.max,
+        },
+        point_format: c.header.format,
+        record_bytes: c.header.record_len,
+        crs,
+        attributes,
+        center: c.info.center,
+        halfsize: c.info.halfsize,
+        spacing: c.info.spacing,
+        levels,
+        pages_read,
+        pages_unread,
+    })
+}
+
+fn copc_text(r: &CopcReport) -> String {
+    use std::fmt::Write;
+    let mut s = String::new();
+    let v = |p: [f64; 3]| format!("({:.3}, {:.3}, {:.3})", p[0], p[1], p[2]);
+    let _ = writeln!(s, "copc     {}", sanitize(&r.path));
+    let _ = writeln!(
+        s,
+        "         {} points, {}; LAS 1.4 point format {} ({}-byte records), LAZ chunks in an octree",
+        count(r.points),
+        bytes(r.bytes),
+        r.point_format,
+        r.record_bytes
+    );
+    let _ = writeln!(s, "bounds   min {}", v(r.bounds.min));
+    let _ = writeln!(s, "         max {}", v(r.bounds.max));
+    let _ = writeln!(
+        s,
+        "octree   cube centre {}, half side {:.3}; root spacing {:.3}",
+        v(r.center),
+        r.halfsize,
+        r.spacing
+    );
+    for l in &r.levels {
+        let _ = writeln!(
+            s,
+            "  depth {:>2}  {:>7} nodes  {:>13} points  {:>10}",
+            l.depth,
+            count(l.nodes as u64),
+            count(l.points),
+            bytes(l.bytes)
+        );
+    }
+    let _ = writeln!(
+        s,
+        "         hierarchy: {} page(s) read{}",
+        r.pages_read,
+        if r.pages_unread > 0 {
+            format!(
+                ", {} not read (their nodes are not counted above; --tiles reads them)",
+                r.pages_unread
+            )
+        } else {
+            String::new()
+        }
+    );
+    let _ = writeln!(s, "bands    x y z {}", r.attributes.join(" "));
+    if let Some(c) = &r.crs {
+        let short: String = c.chars().take(120).collect();
+        let _ = writeln!(s, "crs      {}", sanitize(&short));
+    }
+    s
+}
+
 pub fn run(a: Args) -> anyhow::Result<()> {
     a.cache.apply()?;
+    if super::remote::is_copc(&a.path) {
+        super::remote::read_url_inputs(a.cache.timeout.remote_options());
+        let r = copc_report(&a)?;
+        if a.json {
+            super::print_out(&format!("{}\n", serde_json::to_string_pretty(&r)?))?;
+        } else {
+            super::print_out(&copc_text(&r))?;
+        }
+        return Ok(());
+    }
     let ds = Dataset::open_with(&a.path, &a.cache.open_options())?;
     if let Some(h) = crate::advice::dataset_note(&ds) {
         note!("{h}");

@@ -62,6 +62,28 @@ impl TimeoutArg {
     }
 }
 
+/// Lets the input readers open COPC files at URLs (object storage, HTTP)
+/// through the store's ranged reads, retried as `net` says.
+pub fn read_url_inputs(net: crate::remote::Options) {
+    crate::ingest::set_url_opener(Box::new(move |url| {
+        let s =
+            crate::store::remote::copc::RemoteBytes::open(url, &net).map_err(|e| e.to_string())?;
+        Ok(std::sync::Arc::new(s) as std::sync::Arc<dyn pcimg_copc::ByteSource>)
+    }));
+}
+
+/// Whether `path` names a COPC file: a local one by its first bytes, a URL
+/// by its name (`.copc.laz`).
+pub fn is_copc(path: &std::path::Path) -> bool {
+    if crate::ingest::is_url(path) {
+        return path
+            .to_string_lossy()
+            .to_ascii_lowercase()
+            .ends_with(".copc.laz");
+    }
+    path.is_file() && crate::ingest::copc::is_copc(path)
+}
+
 impl CacheArgs {
     /// How the dataset is opened (`--timeout`).
     pub fn open_options(&self) -> crate::store::OpenOptions {

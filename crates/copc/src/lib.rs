@@ -442,6 +442,11 @@ impl Copc {
         self.nodes_where(&|_| true, i32::MAX)
     }
 
+    /// The entry of node `key` if a page read so far holds it.
+    pub fn known(&self, key: &Key) -> Option<Entry> {
+        self.lock().nodes.get(key).copied()
+    }
+
     /// Hierarchy pages read so far, and pages known but not read.
     pub fn pages(&self) -> (usize, usize) {
         let h = self.lock();

@@ -78,6 +78,27 @@ fn las_header(copc: &Copc, path: &Path) -> Result<las::Header, IngestError> {
     b.into_header().map_err(bad)
 }
 
+/// The CRS (WKT, or a short description from GeoTIFF keys) and the attribute
+/// columns of `copc`'s points, from its header and VLRs.
+pub fn describe(copc: &Copc) -> Result<(Option<String>, Vec<String>), IngestError> {
+    let h = las_header(copc, &PathBuf::from(copc.name()))?;
+    Ok((
+        super::las::crs_of(&h),
+        super::las::attribute_names(h.point_format()),
+    ))
+}
+
+/// The COPC file at `path` (local) or URL (through [`crate::set_url_opener`]),
+/// opened: its header, VLRs and root hierarchy page.
+pub fn open_any(path: &Path) -> Result<Arc<Copc>, IngestError> {
+    if crate::is_url(path) {
+        return crate::opened_url(path);
+    }
+    let src =
+        pcimg_copc::FileSource::open(path).map_err(|e| IngestError::io(path, "cannot open", e))?;
+    Ok(Arc::new(open_copc(Arc::new(src)).map_err(error)?))
+}
+
 /// Opens the COPC file in `source` for reading the points in `opts.region`
 /// (all without one).
 pub fn open_source(

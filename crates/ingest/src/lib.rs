@@ -320,6 +320,11 @@ pub fn is_url(path: &Path) -> bool {
 
 /// Opens the COPC file at URL `path`.
 fn open_url(path: &Path, opts: &ReadOptions) -> Result<Box<dyn PointReader>, IngestError> {
+    Ok(Box::new(copc::from_copc(opened_url(path)?, opts)?))
+}
+
+/// The COPC file at URL `path`, opened once per process.
+pub(crate) fn opened_url(path: &Path) -> Result<Arc<pcimg_copc::Copc>, IngestError> {
     let url = path.to_string_lossy();
     let Some(opener) = URL_OPENER.get() else {
         return Err(IngestError::format(
@@ -354,7 +359,7 @@ fn open_url(path: &Path, opts: &ReadOptions) -> Result<Box<dyn PointReader>, Ing
             c
         }
     };
-    Ok(Box::new(copc::from_copc(copc, opts)?))
+    Ok(copc)
 }
 
 /// Opens a point-cloud file (or, through [`set_url_opener`], a COPC file at a
