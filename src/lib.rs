@@ -27,6 +27,7 @@ pub use pcimg_term as term;
 pub mod advice;
 pub mod cli;
 pub mod convert;
+pub mod copc_tiles;
 pub mod export;
 pub mod stats;
 pub mod synth;

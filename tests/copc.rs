@@ -61,6 +61,17 @@ fn network(stderr: &str) -> (u64, u64) {
     (n[0], n[1])
 }
 
+/// The cube of the root's first octant, 1 % inside (from the COPC info VLR:
+/// centre at byte 429, half size at 453).
+fn octant_box() -> ([f64; 3], [f64; 3]) {
+    let b = std::fs::read(fixture("autzen_trim.copc.laz")).unwrap();
+    let f = |at: usize| f64::from_le_bytes(b[at..at + 8].try_into().unwrap());
+    let (c, h) = ([f(429), f(437), f(445)], f(453));
+    let lo: [f64; 3] = std::array::from_fn(|a| c[a] - h + 0.01 * h);
+    let hi: [f64; 3] = std::array::from_fn(|a| c[a] - 0.01 * h);
+    (lo, hi)
+}
+
 const BOUNDS: &str = "636001,848935,636500,849200";
 const LO: [f64; 3] = [636001.0, 848935.0, f64::NEG_INFINITY];
 const HI: [f64; 3] = [636500.0, 849200.0, f64::INFINITY];
@@ -289,6 +300,36 @@ fn a_copc_in_object_storage_fetches_only_the_nodes_of_the_region() {
     // Header and root page, then the nine chunks merged into one range.
     assert!(all_requests <= 3, "{all_requests} requests");
     assert!(all_bytes >= len - 2048, "{all_bytes} of {len}");
+    // A frame of one octant (`render --clip`) fetches the root and that
+    // octant's node, not the file (after the two requests that open it).
+    let (lo, hi) = octant_box();
+    let clip = format!(
+        "{},{},{},{},{},{}",
+        lo[0], lo[1], lo[2], hi[0], hi[1], hi[2]
+    );
+    let png = t.path().join("octant.png");
+    let o = weed
+        .pcimg(
+            &weed.endpoint(),
+            &[
+                "render",
+                &url,
+                "--clip",
+                &clip,
+                "--net-stats",
+                "-o",
+                png.to_str().unwrap(),
+            ],
+        )
+        .output()
+        .unwrap();
+    ok(&o, "render --clip from S3");
+    let e = String::from_utf8_lossy(&o.stderr).into_owned();
+    let (frame_requests, frame_bytes) = network(&e);
+    eprintln!("S3 frame of one octant: {frame_requests} requests, {frame_bytes} bytes");
+    assert!(e.contains("from 2 tiles"), "{e}");
+    assert!(frame_requests <= 4, "{e}");
+    assert!(frame_bytes < len * 6 / 10, "{e}");
     let part = t.path().join("part.pcimg");
     let (requests, got) = run(&part, &["--bounds", BOUNDS]);
     assert_eq!(points(&part), laz_points_inside(LO, HI));
@@ -298,4 +339,57 @@ fn a_copc_in_object_storage_fetches_only_the_nodes_of_the_region() {
     );
     assert!(requests <= 4, "{requests} requests");
     assert!(got < len * 6 / 10, "{got} bytes of {len}");
+}
+
+/// The pixels of the PNG at `p` that are not the background (black).
+fn footprint(p: &Path) -> Vec<bool> {
+    let img = image::open(p).unwrap().to_rgba8();
+    img.pixels().map(|px| px.0[..3] != [0, 0, 0]).collect()
+}
+
+fn iou(a: &[bool], b: &[bool]) -> f64 {
+    let inter = a.iter().zip(b).filter(|(x, y)| **x && **y).count();
+    let union = a.iter().zip(b).filter(|(x, y)| **x || **y).count();
+    inter as f64 / union.max(1) as f64
+}
+
+/// `render` draws a COPC file from its octree, with no conversion: the frame
+/// covers the pixels the converted points cover, in colour and by class; a
+/// small budget draws the root node alone.
+#[test]
+fn a_copc_renders_as_its_converted_points_do() {
+    let t = tempfile::tempdir().unwrap();
+    let copc = fixture("autzen_trim.copc.laz");
+    let converted = t.path().join("c.pcimg");
+    common::cli::convert(&copc, &converted, &[]);
+    let render = |input: &Path, png: &str, extra: &[&str]| {
+        let out = t.path().join(png);
+        let o = pcimg()
+            .arg("render")
+            .arg(input)
+            .args(["--width", "480", "--height", "320", "-o"])
+            .arg(&out)
+            .args(extra)
+            .output()
+            .unwrap();
+        let said = String::from_utf8_lossy(&o.stderr).into_owned();
+        ok(&o, "render");
+        (out, said)
+    };
+    for color in ["rgb", "classification", "elevation"] {
+        let (a, said) = render(&copc, &format!("copc-{color}.png"), &["--color", color]);
+        assert!(said.contains("110,000 points from 9 tiles"), "{said}");
+        let (b, _) = render(
+            &converted,
+            &format!("conv-{color}.png"),
+            &["--color", color],
+        );
+        let (fa, fb) = (footprint(&a), footprint(&b));
+        let v = iou(&fa, &fb);
+        eprintln!("{color}: footprint IoU {v:.4}");
+        assert!(v >= 0.95, "{color}: footprint IoU {v:.3}");
+        assert!(fa.iter().filter(|&&p| p).count() > 10_000);
+    }
+    let (_, said) = render(&copc, "root.png", &["--budget", "10000"]);
+    assert!(said.contains("9,260 points from 1 tiles"), "{said}");
 }

@@ -60,10 +60,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     no_device_select();
     // The dataset first: a wrong path is the error to report, terminal or not.
     a.view.cache.apply()?;
-    let ds = Arc::new(Dataset::open_with(
-        &a.view.path,
-        &a.view.cache.open_options(),
-    )?);
+    let ds = Arc::new(super::remote::open_for_view(&a.view.path, &a.view.cache)?);
     if let Some(h) = crate::advice::dataset_note(&ds) {
         note!("{h}");
     }

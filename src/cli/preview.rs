@@ -2,7 +2,6 @@
 //! SSH.
 
 use super::view::{self, ViewArgs};
-use crate::store::Dataset;
 use crate::term::symbols::SymbolSet;
 use crate::term::{self, Protocol};
 use std::io::IsTerminal;
@@ -31,10 +30,7 @@ pub struct Args {
 pub fn run(a: Args) -> anyhow::Result<()> {
     // The dataset first: a wrong path is the error to report, terminal or not.
     a.view.cache.apply()?;
-    let ds = Arc::new(Dataset::open_with(
-        &a.view.path,
-        &a.view.cache.open_options(),
-    )?);
+    let ds = Arc::new(super::remote::open_for_view(&a.view.path, &a.view.cache)?);
     if let Some(h) = crate::advice::dataset_note(&ds) {
         note!("{h}");
     }

@@ -84,6 +84,22 @@ pub fn is_copc(path: &std::path::Path) -> bool {
     path.is_file() && crate::ingest::copc::is_copc(path)
 }
 
+/// The dataset at `path` for a view: a dataset of parts, or a COPC file
+/// (local or at a URL) whose octree is drawn with no conversion.
+pub fn open_for_view(
+    path: &std::path::Path,
+    cache: &CacheArgs,
+) -> anyhow::Result<crate::store::Dataset> {
+    if is_copc(path) {
+        read_url_inputs(cache.timeout.remote_options());
+        return crate::copc_tiles::open(path);
+    }
+    Ok(crate::store::Dataset::open_with(
+        path,
+        &cache.open_options(),
+    )?)
+}
+
 impl CacheArgs {
     /// How the dataset is opened (`--timeout`).
     pub fn open_options(&self) -> crate::store::OpenOptions {

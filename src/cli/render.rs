@@ -4,7 +4,6 @@
 
 use super::turntable;
 use super::view::{self, Drawing, ViewArgs};
-use crate::store::Dataset;
 use std::path::PathBuf;
 use std::sync::Arc;
 
@@ -80,10 +79,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         std::process::exit(130);
     });
     a.view.cache.apply()?;
-    let ds = Arc::new(Dataset::open_with(
-        &a.view.path,
-        &a.view.cache.open_options(),
-    )?);
+    let ds = Arc::new(super::remote::open_for_view(&a.view.path, &a.view.cache)?);
     if let Some(h) = crate::advice::dataset_note(&ds) {
         note!("{h}");
     }

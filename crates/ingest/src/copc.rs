@@ -486,3 +486,87 @@ mod tests {
         assert!(e.to_string().contains("only from COPC inputs"), "{e}");
     }
 }
+
+/// The fields of a node to decompress for `bands` (x, y, z, returns always):
+/// the `laz` crate skips the layers of the others.
+pub fn selection_for(bands: &[String]) -> laz::DecompressionSelection {
+    use laz::DecompressionSelection as S;
+    let mut bits = S::Z;
+    for b in bands {
+        bits |= match b.as_str() {
+            "intensity" => S::INTENSITY,
+            "classification" => S::CLASSIFICATION,
+            "red" | "green" | "blue" => S::RGB,
+            "nir" => S::NIR,
+            "gps_time" => S::GPS_TIME,
+            "scan_angle" => S::SCAN_ANGLE,
+            "user_data" => S::USER_DATA,
+            "point_source_id" => S::POINT_SOURCE_ID,
+            "las_flags" => S::FLAGS | S::CLASSIFICATION,
+            _ => 0,
+        };
+    }
+    laz::DecompressionSelection(bits)
+}
+
+/// Turns one node of a COPC file into columns, as a view loads it: the
+/// attribute columns a LAS input of its format has, GPS time relative to the
+/// file's first (COPC info), colour scaled as the first node decided.
+#[derive(Debug)]
+pub struct NodeDecoder {
+    fields: Fields,
+    names: Vec<String>,
+    gps_offset: f64,
+    colors: std::sync::Mutex<ColorNormalizer>,
+}
+
+impl NodeDecoder {
+    pub fn new(copc: &Copc) -> Result<NodeDecoder, IngestError> {
+        let path = PathBuf::from(copc.name());
+        let header = las_header(copc, &path)?;
+        let stride = usize::from(copc.header.record_len);
+        let fields = Fields::new(&path, header.point_format(), stride, &header)?;
+        let t = copc.info.gps_time[0];
+        Ok(NodeDecoder {
+            fields,
+            names: super::las::attribute_names(header.point_format()),
+            gps_offset: if t.is_finite() { t.round() } else { 0.0 },
+            colors: std::sync::Mutex::new(ColorNormalizer::new(false)),
+        })
+    }
+
+    /// The attribute columns (after x, y, z).
+    pub fn names(&self) -> &[String] {
+        &self.names
+    }
+
+    /// Node `e`'s points, the fields of `bands` decompressed (the others 0).
+    pub fn read(
+        &self,
+        copc: &Copc,
+        e: &Entry,
+        bands: &[String],
+    ) -> Result<PointColumns, IngestError> {
+        let chunk = copc
+            .fetch(std::slice::from_ref(e))
+            .map_err(error)?
+            .remove(0);
+        let sel = selection_for(bands);
+        let rec = crate::contain::contain(|| copc.decompress(e, &chunk, sel))
+            .unwrap_or_else(|| {
+                Err(CopcError {
+                    name: copc.name().to_string(),
+                    offset: Some(e.offset),
+                    what: "the LAZ decompressor failed on corrupt data".into(),
+                    kind: pcimg_copc::Kind::Corrupt,
+                })
+            })
+            .map_err(error)?;
+        let mut cols = decode_records(&rec, &self.fields, self.gps_offset, &self.names);
+        self.colors
+            .lock()
+            .unwrap_or_else(|p| p.into_inner())
+            .apply(&mut cols);
+        Ok(cols)
+    }
+}

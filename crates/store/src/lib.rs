@@ -88,6 +88,8 @@ pub mod tiff;
 pub mod write;
 
 pub use dataset::overview::{IndexOptions, IndexReport, build_index};
+pub use dataset::paged::Totals;
+pub use dataset::source::{SOURCE_PART, SourceStats, SourceTile, TileSource};
 pub use dataset::{Dataset, LayerSummary, Node, OpenOptions, PartHeader};
 pub use error::{Remedy, Result, StoreError};
 pub use read::part::{BandInfo, Level, Part, PartMeta, TileInfo};

@@ -184,6 +184,26 @@ pub(crate) fn load_tile_bands(
     extra: &Extra,
 ) -> Result<LoadedTile, StoreError> {
     let t0 = Instant::now();
+    if let (Some(src), true) = (ds.source(), key.part == crate::store::SOURCE_PART) {
+        let mut names: Vec<String> = match extra {
+            Extra::All => ds.totals().bands.iter().skip(3).cloned().collect(),
+            Extra::Color | Extra::Also(_) => COLOR_BANDS.iter().map(|n| n.to_string()).collect(),
+        };
+        if let Extra::Also(also) = extra {
+            names.extend(
+                also.iter()
+                    .filter(|n| !names.contains(n))
+                    .cloned()
+                    .collect::<Vec<_>>(),
+            );
+        }
+        let p = src.load(key.tile, &names)?;
+        return Ok(LoadedTile::of_points(
+            key,
+            p,
+            t0.elapsed().as_secs_f64() * 1e3,
+        ));
+    }
     let part = ds
         .part(key.part)
         .ok_or_else(|| StoreError::new(&ds.path, format!("has no part {}", key.part)))?;

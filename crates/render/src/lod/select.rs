@@ -22,7 +22,7 @@
 
 use crate::camera::{Camera, Containment, Frustum};
 use crate::points::Bounds;
-use crate::store::Dataset;
+use crate::store::{Dataset, SOURCE_PART, SourceTile, TileSource};
 use std::cmp::Ordering;
 use std::collections::BinaryHeap;
 
@@ -262,6 +262,105 @@ fn tiles_at(ds: &Dataset, level: usize) -> Vec<TileRef> {
         .collect()
 }
 
+/// A source's tile as a tile reference.
+fn source_ref(t: &SourceTile) -> TileRef {
+    TileRef {
+        part: SOURCE_PART,
+        level: t.depth,
+        tile: t.id,
+        points: t.points,
+        bounds: t.bounds,
+    }
+}
+
+/// The tiles of a [`TileSource`] (a COPC octree) for the view: from its roots,
+/// the visible tile whose points are spread widest on screen is refined first
+/// (`View`) until every tile's spacing is below about a pixel or the budget
+/// is spent; `Fixed(k)` and `Distance` refine every visible tile down to one
+/// depth. A refined tile of an additive source stays drawn with its children.
+fn select_source(
+    src: &dyn TileSource,
+    ds: &Dataset,
+    camera: &Camera,
+    height: u32,
+    mode: LodMode,
+    visible: &dyn Fn(&TileRef) -> bool,
+    sel: &mut Selection,
+) -> Vec<TileRef> {
+    let eye = camera.eye().to_array();
+    let ppu = |b: &Bounds| camera.pixels_per_unit(distance_to_box(eye, b), height);
+    let depth = match mode {
+        LodMode::Fixed(k) => Some(k),
+        LodMode::Distance => {
+            let total = ds.bounds();
+            let diag = total.extent().iter().map(|e| e * e).sum::<f64>().sqrt();
+            // Finest near, coarser by one depth per doubling of the distance.
+            let far = distance_level(camera.distance_to(total.center()), diag, 32);
+            Some(20usize.saturating_sub(far))
+        }
+        LodMode::View { .. } => None,
+    };
+    let budget = match mode {
+        LodMode::View { budget } => budget,
+        _ => u64::MAX,
+    };
+    let additive = src.additive();
+    let mut chosen = Vec::new();
+    let mut heap = BinaryHeap::new();
+    let mut total = 0u64;
+    for t in src.roots().iter().map(source_ref) {
+        if !visible(&t) {
+            sel.culled += 1;
+            continue;
+        }
+        total += t.points;
+        heap.push(Candidate {
+            key: spacing(&t.bounds, t.points) * ppu(&t.bounds),
+            tile: t,
+        });
+    }
+    while let Some(c) = heap.pop() {
+        let finer = match depth {
+            Some(k) => c.tile.level < k,
+            None => c.key > 1.0,
+        };
+        // (A tile whose children cannot be read: nothing finer.)
+        let kids = if finer {
+            src.children(c.tile.tile).unwrap_or_default()
+        } else {
+            Vec::new()
+        };
+        if kids.is_empty() {
+            chosen.push(c.tile);
+            continue;
+        }
+        let kids: Vec<TileRef> = kids.iter().map(source_ref).collect();
+        let vis: Vec<TileRef> = kids.iter().copied().filter(|k| visible(k)).collect();
+        let added: u64 = vis.iter().map(|k| k.points).sum();
+        let after = if additive {
+            total + added
+        } else {
+            total - c.tile.points + added
+        };
+        if after > budget {
+            chosen.push(c.tile);
+            continue;
+        }
+        total = after;
+        sel.culled += kids.len() - vis.len();
+        if additive {
+            chosen.push(c.tile);
+        }
+        for k in vis {
+            heap.push(Candidate {
+                key: spacing(&k.bounds, k.points) * ppu(&k.bounds),
+                tile: k,
+            });
+        }
+    }
+    chosen
+}
+
 /// Selects the tiles to draw for `camera` on a `width`×`height` view.
 pub fn select(
     ds: &Dataset,
@@ -309,69 +408,73 @@ pub fn select_region(
     let visible = |t: &TileRef| {
         may_show(&t.bounds) && frustum.contains_aabb(&t.bounds) != Containment::Outside
     };
-    match mode {
-        LodMode::Distance | LodMode::Fixed(_) => {
-            let total = ds.bounds();
-            let diag = total.extent().iter().map(|e| e * e).sum::<f64>().sqrt();
-            let d = camera.distance_to(total.center());
-            let level = match mode {
-                LodMode::Fixed(k) => k,
-                _ => distance_level(d, diag, level_count(ds)),
-            };
-            for t in tiles_at(ds, level) {
-                if visible(&t) {
-                    chosen.push(t);
-                } else {
-                    sel.culled += 1;
+    if let Some(src) = ds.source() {
+        chosen = select_source(src.as_ref(), ds, camera, height, mode, &visible, &mut sel);
+    } else {
+        match mode {
+            LodMode::Distance | LodMode::Fixed(_) => {
+                let total = ds.bounds();
+                let diag = total.extent().iter().map(|e| e * e).sum::<f64>().sqrt();
+                let d = camera.distance_to(total.center());
+                let level = match mode {
+                    LodMode::Fixed(k) => k,
+                    _ => distance_level(d, diag, level_count(ds)),
+                };
+                for t in tiles_at(ds, level) {
+                    if visible(&t) {
+                        chosen.push(t);
+                    } else {
+                        sel.culled += 1;
+                    }
                 }
             }
-        }
-        LodMode::View { budget } => {
-            let ppu = |b: &Bounds| camera.pixels_per_unit(distance_to_box(eye, b), height);
-            let mut heap = BinaryHeap::new();
-            let mut total = 0u64;
-            let starts: Vec<usize> = match ds.root() {
-                Some(root) => vec![root],
-                None => ds.part_ids().unwrap_or_default(),
-            };
-            for pi in starts {
-                for t in top_tiles(ds, pi) {
-                    if !visible(&t) {
-                        sel.culled += 1;
+            LodMode::View { budget } => {
+                let ppu = |b: &Bounds| camera.pixels_per_unit(distance_to_box(eye, b), height);
+                let mut heap = BinaryHeap::new();
+                let mut total = 0u64;
+                let starts: Vec<usize> = match ds.root() {
+                    Some(root) => vec![root],
+                    None => ds.part_ids().unwrap_or_default(),
+                };
+                for pi in starts {
+                    for t in top_tiles(ds, pi) {
+                        if !visible(&t) {
+                            sel.culled += 1;
+                            continue;
+                        }
+                        total += t.points;
+                        heap.push(Candidate {
+                            key: spacing(&t.bounds, t.points) * ppu(&t.bounds),
+                            tile: t,
+                        });
+                    }
+                }
+                while let Some(c) = heap.pop() {
+                    // Fine enough, or nothing finer: keep it.
+                    let mut culled_early = 0;
+                    let kids = if c.key > 1.0 {
+                        children(ds, &c.tile, &visible, &mut culled_early)
+                    } else {
+                        None
+                    };
+                    let Some(kids) = kids else {
+                        chosen.push(c.tile);
+                        continue;
+                    };
+                    let vis: Vec<TileRef> = kids.iter().copied().filter(|k| visible(k)).collect();
+                    let added: u64 = vis.iter().map(|k| k.points).sum::<u64>();
+                    if total - c.tile.points + added > budget {
+                        chosen.push(c.tile);
                         continue;
                     }
-                    total += t.points;
-                    heap.push(Candidate {
-                        key: spacing(&t.bounds, t.points) * ppu(&t.bounds),
-                        tile: t,
-                    });
-                }
-            }
-            while let Some(c) = heap.pop() {
-                // Fine enough, or nothing finer: keep it.
-                let mut culled_early = 0;
-                let kids = if c.key > 1.0 {
-                    children(ds, &c.tile, &visible, &mut culled_early)
-                } else {
-                    None
-                };
-                let Some(kids) = kids else {
-                    chosen.push(c.tile);
-                    continue;
-                };
-                let vis: Vec<TileRef> = kids.iter().copied().filter(|k| visible(k)).collect();
-                let added: u64 = vis.iter().map(|k| k.points).sum::<u64>();
-                if total - c.tile.points + added > budget {
-                    chosen.push(c.tile);
-                    continue;
-                }
-                total = total - c.tile.points + added;
-                sel.culled += kids.len() - vis.len() + culled_early;
-                for k in vis {
-                    heap.push(Candidate {
-                        key: spacing(&k.bounds, k.points) * ppu(&k.bounds),
-                        tile: k,
-                    });
+                    total = total - c.tile.points + added;
+                    sel.culled += kids.len() - vis.len() + culled_early;
+                    for k in vis {
+                        heap.push(Candidate {
+                            key: spacing(&k.bounds, k.points) * ppu(&k.bounds),
+                            tile: k,
+                        });
+                    }
                 }
             }
         }

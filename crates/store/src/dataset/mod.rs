@@ -4,6 +4,7 @@
 pub mod index;
 pub mod overview;
 pub mod paged;
+pub mod source;
 pub(crate) mod summary;
 pub(crate) mod table;
 
@@ -33,6 +34,8 @@ pub struct Dataset {
     /// A directory of several parts opened without an index (one would open it
     /// faster and add an overview of all its parts).
     pub unindexed: bool,
+    /// Tiles kept by another format (a COPC file) rather than parts.
+    pub(crate) source: Option<std::sync::Arc<dyn source::TileSource>>,
 }
 
 /// One overview layer in numbers ([`Dataset::layer_summary`]).
@@ -167,6 +170,29 @@ impl Default for OpenOptions {
 }
 
 impl Dataset {
+    /// A dataset of the tiles `source` keeps (a COPC file), with no parts:
+    /// `totals` says its points, bounds, bands and CRS.
+    pub fn from_source(
+        path: &Path,
+        totals: Totals,
+        source: std::sync::Arc<dyn source::TileSource>,
+    ) -> Dataset {
+        let mut table = Table::default();
+        table.totals = totals;
+        Dataset {
+            path: path.to_path_buf(),
+            table,
+            index_bytes: None,
+            unindexed: false,
+            source: Some(source),
+        }
+    }
+
+    /// The tile source of a dataset made by [`Dataset::from_source`].
+    pub fn source(&self) -> Option<&std::sync::Arc<dyn source::TileSource>> {
+        self.source.as_ref()
+    }
+
     /// Opens a `.tif` part or a directory of them (sorted by name).
     pub fn open(path: &Path) -> Result<Dataset> {
         Self::open_with(path, &OpenOptions::default())
@@ -225,6 +251,7 @@ impl Dataset {
                         table,
                         index_bytes: Some(text.len() as u64),
                         unindexed: false,
+                        source: None,
                     });
                 }
                 Err(e) => {
@@ -269,6 +296,7 @@ impl Dataset {
             table: Table::loaded(path, parts),
             unindexed,
             index_bytes: None,
+            source: None,
         })
     }
 
@@ -339,6 +367,7 @@ impl Dataset {
             table,
             index_bytes: Some(size),
             unindexed: false,
+            source: None,
         })
     }
 
