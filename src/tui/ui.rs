@@ -45,7 +45,11 @@ pub fn areas(area: Rect, app: &App) -> Areas {
         Layout::horizontal([Constraint::Length(left_width), Constraint::Min(1)]).areas(main);
     let part = app.current_part().map(|(_, p)| p);
     let n_parts = app.part_ids().len() as u16;
-    let n_bands = part.map_or(0, |p| p.bands.len()) as u16;
+    let mut n_bands = part.map_or(0, |p| p.bands.len()) as u16;
+    if app.dataset.source().is_some() {
+        // The file's fields (after x, y, z), in the source's panels.
+        n_bands = app.dataset.totals().bands.len().saturating_sub(3) as u16;
+    }
     let [parts, bands, levels, tools, memory] = Layout::vertical([
         Constraint::Length(n_parts.min(8) + 5),
         Constraint::Length(n_bands + 3),
@@ -80,9 +84,14 @@ fn header(cells: &[&'static str]) -> Row<'static> {
 /// Draws the whole screen; `image` is the latest encoded frame, if any.
 pub fn draw(f: &mut Frame, app: &App, image: Option<&PaneImage>) {
     let a = areas(f.area(), app);
-    draw_parts(f, app, a.parts);
-    draw_bands(f, app, a.bands);
-    draw_levels(f, app, a.levels);
+    match app.dataset.source() {
+        Some(src) => draw_source(f, app, src.as_ref(), [a.parts, a.bands, a.levels]),
+        None => {
+            draw_parts(f, app, a.parts);
+            draw_bands(f, app, a.bands);
+            draw_levels(f, app, a.levels);
+        }
+    }
     super::panels::draw(f, app, a.tools);
     draw_memory(f, app, a.memory);
 
@@ -125,6 +134,96 @@ pub fn draw(f: &mut Frame, app: &App, image: Option<&PaneImage>) {
     if app.show_help {
         draw_help(f, f.area());
     }
+}
+
+/// The parts, bands and levels panels of a dataset drawn from another
+/// format's tiles (a COPC file): the file, its fields, and the octree's depths
+/// as far as its hierarchy was read, with the nodes loaded at each.
+fn draw_source(f: &mut Frame, app: &App, src: &dyn crate::store::TileSource, areas: [Rect; 3]) {
+    let ds = &app.dataset;
+    let t = ds.totals();
+    let stats = src.stats();
+    let name = ds
+        .path
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_else(|| ds.path.display().to_string());
+    let b = &t.bounds;
+    let lines = vec![
+        Line::from(format!(
+            "{} · {} points · {}",
+            sanitize(&name),
+            count(t.points),
+            bytes(t.bytes)
+        )),
+        Line::from(format!(
+            "bounds {}",
+            (0..3)
+                .map(|a| format!(
+                    "{} {}..{}",
+                    ["x", "y", "z"][a],
+                    coordinate(b.min[a]),
+                    coordinate(b.max[a])
+                ))
+                .collect::<Vec<_>>()
+                .join("  ")
+        )),
+        Line::from(format!(
+            "crs {}",
+            t.crs.as_deref().map(sanitize).unwrap_or_else(|| "-".into())
+        ))
+        .dark_gray(),
+    ];
+    f.render_widget(
+        Paragraph::new(lines)
+            .block(Block::bordered().title(title(format!(" {} file ", stats.format)))),
+        areas[0],
+    );
+    let rows: Vec<Row> = t
+        .bands
+        .iter()
+        .skip(3)
+        .map(|n| Row::new(vec![Cell::from(sanitize(n)), Cell::from("LAS")]))
+        .collect();
+    let bands = Table::new(rows, [Constraint::Fill(1), Constraint::Length(8)])
+        .header(header(&["band", "type"]))
+        .block(Block::bordered().title(title(" bands ")));
+    f.render_widget(bands, areas[1]);
+    let rows: Vec<Row> = stats
+        .depths
+        .iter()
+        .enumerate()
+        .map(|(d, (nodes, points))| {
+            let loaded = app
+                .frame
+                .loaded
+                .iter()
+                .filter(|((part, level), _)| *part == crate::store::SOURCE_PART && *level == d)
+                .map(|(_, n)| *n)
+                .sum::<usize>();
+            Row::new(vec![
+                Cell::from(d.to_string()),
+                Cell::from(count(*nodes as u64)),
+                Cell::from(count(*points)),
+                Cell::from(format!("{loaded}/{nodes}")),
+            ])
+        })
+        .collect();
+    let (read, unread) = stats.pages;
+    let levels = Table::new(
+        rows,
+        [
+            Constraint::Length(6),
+            Constraint::Length(8),
+            Constraint::Length(12),
+            Constraint::Fill(1),
+        ],
+    )
+    .header(header(&["depth", "nodes", "points", "loaded"]))
+    .block(Block::bordered().title(title(format!(
+        " octree: nodes reached · {read} page(s) read, {unread} not yet "
+    ))));
+    f.render_widget(levels, areas[2]);
 }
 
 fn draw_parts(f: &mut Frame, app: &App, area: Rect) {
