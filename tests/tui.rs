@@ -858,3 +858,32 @@ fn the_binary_ends_when_its_terminal_goes_away() {
         std::thread::sleep(Duration::from_millis(100));
     }
 }
+
+/// A COPC file in the inspector, with no conversion: the worker draws its
+/// octree's nodes, and the panels show the file, its fields and the depths
+/// reached with the nodes loaded.
+#[test]
+fn a_copc_file_is_inspected_from_its_octree() {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("fixtures/autzen_trim.copc.laz");
+    let ds = Arc::new(pcimg::copc_tiles::open(&path).unwrap());
+    let cam = Camera::fit(&ds.bounds());
+    let mut app = App::new(ds, cam, Settings::default());
+    let w = common::halfblock_worker(app.dataset.clone());
+    let area = ui::areas(ratatui::layout::Rect::new(0, 0, 160, 48), &app).view_inner;
+    w.request(frame_request(&app, area, 1));
+    let frame = complete_frame(&w, 1);
+    assert!(frame.status.points >= 9_260, "{:?}", frame.status.points);
+    app.frame = frame.status.clone();
+    let text = screen(&app, Some(&frame.image)).join("\n");
+    for want in [
+        "COPC file",
+        "autzen_trim.copc.laz",
+        "110,000 points",
+        "octree",
+        "9,260",
+        "classification",
+        "1/1",
+    ] {
+        assert!(text.contains(want), "{want} missing:\n{text}");
+    }
+}
