@@ -31,6 +31,8 @@ pub struct CopcTiles {
     /// that views cull by where points are.
     bounds: Bounds,
     nodes: Mutex<Registry>,
+    /// At a URL: chunks are read ahead in batches.
+    remote: bool,
 }
 
 impl CopcTiles {
@@ -110,6 +112,15 @@ impl TileSource for CopcTiles {
         Ok(p)
     }
 
+    fn prefetch(&self, ids: &[u32]) {
+        if !self.remote {
+            return;
+        }
+        let entries: Vec<Entry> = ids.iter().filter_map(|&id| self.entry(id).ok()).collect();
+        // (A failure is met again, and reported, by the tile's own load.)
+        let _ = self.copc.fetch(&entries);
+    }
+
     fn stats(&self) -> SourceStats {
         let r = self.nodes.lock().unwrap_or_else(|p| p.into_inner());
         let mut depths: Vec<(usize, u64)> = Vec::new();
@@ -162,6 +173,7 @@ pub fn open(path: &Path) -> anyhow::Result<Dataset> {
         path: path.to_path_buf(),
         bounds,
         nodes: Mutex::new(Registry::default()),
+        remote: crate::ingest::is_url(path),
     };
     Ok(Dataset::from_source(path, totals, Arc::new(tiles)))
 }

@@ -689,6 +689,16 @@ impl TileCache {
         use rayon::prelude::*;
         let ds: &Dataset = &self.ds;
         let extra: &[String] = &self.extra;
+        if let Some(src) = ds.source() {
+            let ids: Vec<u32> = tiles
+                .iter()
+                .filter(|t| t.part == crate::store::SOURCE_PART)
+                .map(|t| t.tile)
+                .collect();
+            if ids.len() > 1 {
+                src.prefetch(&ids);
+            }
+        }
         let load = || {
             tiles
                 .par_iter()

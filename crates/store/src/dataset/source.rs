@@ -55,6 +55,10 @@ pub trait TileSource: Send + Sync + std::fmt::Debug {
     /// Tile `id`'s points: x, y, z relative to an origin (the columns'
     /// offsets) and the bands of `bands` it has.
     fn load(&self, id: u32, bands: &[String]) -> Result<Points>;
+    /// Reads ahead the bytes of tiles `ids`, about to be loaded one by one:
+    /// a remote source fetches them as one batch (near ranges merged, the
+    /// rest concurrent), whose bytes the loads then find in its cache.
+    fn prefetch(&self, _ids: &[u32]) {}
     /// What the source has read of its hierarchy.
     fn stats(&self) -> SourceStats;
 }

@@ -1,0 +1,73 @@
+#!/usr/bin/env bash
+# COPC with no conversion (issue 42): the first frame (`pcimg render`, CPU
+# rasterizer, 1280x720) of a COPC file and of the same points converted to our
+# format, local and from SeaweedFS (`weed mini`) behind a proxy that adds 50 ms
+# to every request (bench/remote.sh's), with the requests and bytes each took
+# (--net-stats); then `info` (opening: header and root page) and a conversion
+# of a region (`convert --bounds`) from S3. Runs interleaved, REPS each
+# (default 7): median and range.
+#
+#   bash bench/copc.sh                               # fixtures/autzen_trim.copc.laz
+#   COPC=big.copc.laz BOUNDS=x0,y0,x1,y1 bash bench/copc.sh
+set -euo pipefail
+cd "$(dirname "$0")/.."
+COPC=${COPC:-fixtures/autzen_trim.copc.laz}
+BOUNDS=${BOUNDS:-636001,848935,636500,849200}
+REPS=${REPS:-7}
+DELAY_MS=${DELAY_MS:-50}
+DIR=${DIR:-/tmp/pcimg-copc-bench}
+BIN=$PWD/target/release/pcimg
+[ "${BUILD:-1}" = 0 ] || cargo build --release -q
+rm -rf "$DIR"
+mkdir -p "$DIR"
+echo "machine: $(nproc) cores; $(date -u +%FT%TZ); $(weed version 2>&1 | head -1); input $COPC ($(du -h "$COPC" | cut -f1))"
+. bench/lib.sh
+free_port() { python3 -c 'import socket; s=socket.socket(); s.bind(("127.0.0.1",0)); print(s.getsockname()[1])'; }
+PROXY=$(free_port)
+start_weed "$DIR" bench benchkey benchsecret
+# The delaying proxy of bench/remote.sh.
+sed -n '/^cat > "\$DIR\/proxy.py" <<.EOF.$/,/^EOF$/p' bench/remote.sh | sed '1d;$d' > "$DIR/proxy.py"
+python3 "$DIR/proxy.py" "$PROXY" "$S3" "$DELAY_MS" &
+PROXY_PID=$!
+cleanup() {
+  kill "$PROXY_PID" "$WEED" 2>/dev/null || true
+  wait "$PROXY_PID" "$WEED" 2>/dev/null || true
+  rm -rf "$DIR"
+}
+trap cleanup EXIT
+export AWS_ACCESS_KEY_ID=benchkey AWS_SECRET_ACCESS_KEY=benchsecret AWS_REGION=us-east-1 AWS_ALLOW_HTTP=true
+export NODEVICE_SELECT=1
+direct=http://127.0.0.1:$S3
+delayed=http://127.0.0.1:$PROXY
+
+name=$(basename "$COPC")
+curl -sf --aws-sigv4 "aws:amz:us-east-1:s3" --user benchkey:benchsecret -T "$COPC" "$direct/bench/$name"
+"$BIN" convert "$COPC" -o "$DIR/local.pcimg" -q
+AWS_ENDPOINT=$direct "$BIN" convert "$COPC" -o s3://bench/conv.pcimg -q
+echo "converted: $(du -sh "$DIR/local.pcimg" | cut -f1)"
+
+# one LABEL COMMAND...: wall ms and the network counters.
+one() {
+  local label=$1 t0 t1 net
+  shift
+  t0=$(date +%s%N)
+  AWS_ENDPOINT=$delayed "$BIN" "$@" --net-stats > /dev/null 2> "$DIR/err.txt" || { cat "$DIR/err.txt"; exit 1; }
+  t1=$(date +%s%N)
+  net=$(grep -oE '[0-9]+ requests, [0-9]+ bytes received' "$DIR/err.txt" || echo "0 requests, 0 bytes received")
+  printf '%s %d %s | %s\n' "$label" "$(( (t1 - t0) / 1000000 ))" "$net" "$(grep ' points from ' "$DIR/err.txt" | tail -1)" >> "$DIR/runs.txt"
+}
+: > "$DIR/runs.txt"
+for _ in $(seq "$REPS"); do
+  one copc-local render "$COPC" -o "$DIR/f.png" --renderer cpu
+  one conv-local render "$DIR/local.pcimg" -o "$DIR/f.png" --renderer cpu
+  one copc-s3 render "s3://bench/$name" -o "$DIR/f.png" --renderer cpu
+  one conv-s3 render s3://bench/conv.pcimg -o "$DIR/f.png" --renderer cpu
+  one copc-s3-info info "s3://bench/$name"
+  rm -rf "$DIR/region.pcimg"
+  one copc-s3-region convert "s3://bench/$name" -o "$DIR/region.pcimg" -q --bounds "$BOUNDS"
+done
+for label in copc-local conv-local copc-s3 conv-s3 copc-s3-info copc-s3-region; do
+  grep "^$label " "$DIR/runs.txt" | awk '{print $2}' | sort -g |
+    awk -v l="$label" '{v[NR]=$1} END {printf "%-15s median %d ms (%d-%d), %d runs; ", l, v[int((NR+1)/2)], v[1], v[NR], NR}'
+  grep "^$label " "$DIR/runs.txt" | tail -1 | cut -d' ' -f3-
+done
