@@ -1,4 +1,4 @@
-//! A COPC file (local or at a URL) as the viewer's tile source: its octree's
+//! A COPC file or an EPT dataset (local or at a URL) as the viewer's tile source: its octree's
 //! nodes are tiles, selected, cached and drawn as parts' tiles are
 //! (`store::TileSource`). The hierarchy is read as views reach it (the root
 //! page when opened); a node is fetched, decompressed (only the fields the
@@ -95,21 +95,7 @@ impl TileSource for CopcTiles {
         // under the file's scale.
         let (lo, hi) = e.key.bounds(&self.copc.info);
         let o: [f64; 3] = std::array::from_fn(|a| 0.5 * (lo[a] + hi[a]));
-        let rel = |v: &[f64], a: usize| v.iter().map(|&x| (x - o[a]) as f32).collect::<Vec<_>>();
-        let mut p = Points {
-            bands: vec!["x".into(), "y".into(), "z".into()],
-            offsets: o.to_vec(),
-            columns: vec![rel(&cols.x, 0), rel(&cols.y, 1), rel(&cols.z, 2)],
-            tile_points: vec![cols.len() as u32],
-        };
-        for a in cols.attributes {
-            if bands.contains(&a.name) {
-                p.bands.push(a.name);
-                p.offsets.push(a.offset);
-                p.columns.push(a.values);
-            }
-        }
-        Ok(p)
+        Ok(points_of(cols, o, bands))
     }
 
     fn prefetch(&self, ids: &[u32]) {
@@ -123,18 +109,9 @@ impl TileSource for CopcTiles {
 
     fn stats(&self) -> SourceStats {
         let r = self.nodes.lock().unwrap_or_else(|p| p.into_inner());
-        let mut depths: Vec<(usize, u64)> = Vec::new();
-        for e in &r.entries {
-            let d = e.key.d.max(0) as usize;
-            if depths.len() <= d {
-                depths.resize(d + 1, (0, 0));
-            }
-            depths[d].0 += 1;
-            depths[d].1 += u64::from(e.points);
-        }
         SourceStats {
             format: "COPC".into(),
-            depths,
+            depths: depths_of(&r.entries),
             pages: self.copc.pages(),
         }
     }
@@ -153,13 +130,15 @@ pub fn open(path: &Path) -> anyhow::Result<Dataset> {
     };
     let mut bands: Vec<String> = ["x", "y", "z"].map(String::from).to_vec();
     bands.extend(decoder.names().iter().cloned());
+    // Depths the root hierarchy page knows (`--lod N` counts from the finest).
+    let known = deepest_known(|k| copc.known(k).map(|e| e.key));
     let totals = Totals {
         parts: 0,
         nodes: 0,
         points: h.points,
         bytes: copc.len,
         bounds,
-        own_levels: 1,
+        own_levels: known,
         crs,
         class_counts: Vec::new(),
         ranges: vec![None; bands.len()],
@@ -174,6 +153,174 @@ pub fn open(path: &Path) -> anyhow::Result<Dataset> {
         bounds,
         nodes: Mutex::new(Registry::default()),
         remote: crate::ingest::is_url(path),
+    };
+    Ok(Dataset::from_source(path, totals, Arc::new(tiles)))
+}
+
+/// An EPT dataset (its `ept.json`, local or at a URL) as the viewer's tile
+/// source: its octree's nodes are tiles, each node's LAZ file read when the
+/// cache loads it.
+#[derive(Debug)]
+pub struct EptTiles {
+    ept: crate::ingest::ept::Ept,
+    path: PathBuf,
+    gps_offset: f64,
+    nodes: Mutex<Registry>,
+}
+
+impl EptTiles {
+    fn err(&self, e: impl std::fmt::Display) -> StoreError {
+        StoreError::new(&self.path, e.to_string())
+    }
+
+    fn tile(&self, n: crate::ingest::ept::Node) -> SourceTile {
+        let mut r = self.nodes.lock().unwrap_or_else(|p| p.into_inner());
+        let id = match r.ids.get(&n.key) {
+            Some(&id) => id,
+            None => {
+                let id = r.entries.len() as u32;
+                r.entries.push(Entry {
+                    key: n.key,
+                    offset: 0,
+                    bytes: 0,
+                    points: n.points.min(u64::from(u32::MAX)) as u32,
+                });
+                r.ids.insert(n.key, id);
+                id
+            }
+        };
+        let (lo, hi) = self.ept.cube_of(&n.key);
+        let b = &self.ept.bounds;
+        SourceTile {
+            id,
+            depth: n.key.d.max(0) as usize,
+            bounds: Bounds {
+                min: std::array::from_fn(|a| lo[a].max(b.min[a]).min(b.max[a])),
+                max: std::array::from_fn(|a| hi[a].min(b.max[a]).max(b.min[a])),
+            },
+            points: n.points,
+        }
+    }
+
+    fn node(&self, id: u32) -> Result<crate::ingest::ept::Node, StoreError> {
+        let r = self.nodes.lock().unwrap_or_else(|p| p.into_inner());
+        r.entries
+            .get(id as usize)
+            .map(|e| crate::ingest::ept::Node {
+                key: e.key,
+                points: u64::from(e.points),
+            })
+            .ok_or_else(|| StoreError::new(&self.path, format!("has no octree node {id}")))
+    }
+}
+
+impl TileSource for EptTiles {
+    fn roots(&self) -> Vec<SourceTile> {
+        vec![self.tile(self.ept.root())]
+    }
+
+    fn children(&self, id: u32) -> crate::store::Result<Vec<SourceTile>> {
+        let n = self.node(id)?;
+        let kids = self.ept.children(&n.key).map_err(|e| self.err(e))?;
+        Ok(kids.into_iter().map(|k| self.tile(k)).collect())
+    }
+
+    fn load(&self, id: u32, bands: &[String]) -> crate::store::Result<Points> {
+        let n = self.node(id)?;
+        let cols = self
+            .ept
+            .read(&n, self.gps_offset)
+            .map_err(|e| self.err(e))?;
+        let (lo, hi) = self.ept.cube_of(&n.key);
+        let o: [f64; 3] = std::array::from_fn(|a| 0.5 * (lo[a] + hi[a]));
+        Ok(points_of(cols, o, bands))
+    }
+
+    fn stats(&self) -> SourceStats {
+        let r = self.nodes.lock().unwrap_or_else(|p| p.into_inner());
+        SourceStats {
+            format: "EPT".into(),
+            depths: depths_of(&r.entries),
+            pages: self.ept.hierarchy_files(),
+        }
+    }
+}
+
+/// Columns as a tile's points: x, y, z relative to `o`, and the bands asked
+/// for that they have.
+fn points_of(cols: crate::points::PointColumns, o: [f64; 3], bands: &[String]) -> Points {
+    let rel = |v: &[f64], a: usize| v.iter().map(|&x| (x - o[a]) as f32).collect::<Vec<_>>();
+    let mut p = Points {
+        bands: vec!["x".into(), "y".into(), "z".into()],
+        offsets: o.to_vec(),
+        columns: vec![rel(&cols.x, 0), rel(&cols.y, 1), rel(&cols.z, 2)],
+        tile_points: vec![cols.len() as u32],
+    };
+    for a in cols.attributes {
+        if bands.contains(&a.name) {
+            p.bands.push(a.name);
+            p.offsets.push(a.offset);
+            p.columns.push(a.values);
+        }
+    }
+    p
+}
+
+/// Depths reachable from the root through nodes `known` knows, counted.
+fn deepest_known(known: impl Fn(&Key) -> Option<Key>) -> usize {
+    let mut level = vec![Key::ROOT];
+    let mut depths = 0;
+    while !level.is_empty() {
+        depths += 1;
+        level = level
+            .iter()
+            .flat_map(|k| k.children())
+            .filter_map(|k| known(&k))
+            .collect();
+    }
+    depths
+}
+
+/// `(nodes, points)` at each depth of `entries`.
+fn depths_of(entries: &[Entry]) -> Vec<(usize, u64)> {
+    let mut depths: Vec<(usize, u64)> = Vec::new();
+    for e in entries {
+        let d = e.key.d.max(0) as usize;
+        if depths.len() <= d {
+            depths.resize(d + 1, (0, 0));
+        }
+        depths[d].0 += 1;
+        depths[d].1 += u64::from(e.points);
+    }
+    depths
+}
+
+/// The EPT dataset whose `ept.json` is at `path` as a dataset of its nodes.
+pub fn open_ept(path: &Path) -> anyhow::Result<Dataset> {
+    let ept = crate::ingest::ept::Ept::open(path)?;
+    let (names, gps_offset) = ept.probe()?;
+    let mut bands: Vec<String> = ["x", "y", "z"].map(String::from).to_vec();
+    bands.extend(names);
+    let known = deepest_known(|k| ept.known(k).map(|n| n.key));
+    let totals = Totals {
+        parts: 0,
+        nodes: 0,
+        points: ept.points,
+        bytes: 0,
+        bounds: ept.bounds,
+        own_levels: known,
+        crs: ept.srs.clone(),
+        class_counts: Vec::new(),
+        ranges: vec![None; bands.len()],
+        bands,
+        classes_complete: false,
+        level_points: Vec::new(),
+    };
+    let tiles = EptTiles {
+        ept,
+        path: path.to_path_buf(),
+        gps_offset,
+        nodes: Mutex::new(Registry::default()),
     };
     Ok(Dataset::from_source(path, totals, Arc::new(tiles)))
 }

@@ -393,3 +393,208 @@ fn a_copc_renders_as_its_converted_points_do() {
     let (_, said) = render(&copc, "root.png", &["--budget", "10000"]);
     assert!(said.contains("9,260 points from 1 tiles"), "{said}");
 }
+
+/// PDAL's EPT test dataset `lone-star-laszip` (fixtures/ept/, BSD).
+fn ept() -> PathBuf {
+    fixture("ept/lone-star-laszip/ept.json")
+}
+
+/// Every point of every node file of the EPT, read by the `las` crate: each
+/// point's position (on the 0.00025 m lattice) and intensity.
+fn ept_points_by_las(lo: [f64; 3], hi: [f64; 3]) -> Vec<(i64, i64, i64, u16)> {
+    let dir = fixture("ept/lone-star-laszip/ept-data");
+    let mut v = Vec::new();
+    for e in std::fs::read_dir(dir).unwrap() {
+        let mut r = las::Reader::from_path(e.unwrap().path()).unwrap();
+        for p in r.read_all().unwrap().points() {
+            let p = p.unwrap();
+            let c = [p.x, p.y, p.z];
+            if (0..3).all(|a| c[a] >= lo[a] && c[a] <= hi[a]) {
+                let q = |x: f64| (x / 0.00025).round() as i64;
+                v.push((q(p.x), q(p.y), q(p.z), p.intensity));
+            }
+        }
+    }
+    v.sort_unstable();
+    v
+}
+
+/// An EPT dataset converts (whole, or by region reading only the nodes that
+/// reach it) to exactly the points its node files hold; `info` reads the root
+/// hierarchy file alone; a node file whose count disagrees with the hierarchy
+/// and a missing node file are errors naming the file.
+#[test]
+fn an_ept_dataset_converts_whole_and_by_region_to_its_nodes_points() {
+    let t = tempfile::tempdir().unwrap();
+    let input = ept();
+    let input = input.to_str().unwrap();
+    let all = ept_points_by_las([f64::NEG_INFINITY; 3], [f64::INFINITY; 3]);
+    assert_eq!(all.len(), 518_862);
+    let whole = t.path().join("whole.pcimg");
+    ok(&convert(input, &whole, &["-q"]), "convert EPT");
+    assert_eq!(points(&whole), 518_862);
+    // Our points, back out through export (LAS), equal the node files'.
+    let las_out = t.path().join("back.las");
+    let o = pcimg()
+        .args(["export"])
+        .arg(&whole)
+        .arg("-o")
+        .arg(&las_out)
+        .output()
+        .unwrap();
+    ok(&o, "export");
+    let mut back: Vec<(i64, i64, i64, u16)> = las::Reader::from_path(&las_out)
+        .unwrap()
+        .read_all()
+        .unwrap()
+        .points()
+        .map(|p| {
+            let p = p.unwrap();
+            let q = |x: f64| (x / 0.00025).round() as i64;
+            (q(p.x), q(p.y), q(p.z), p.intensity)
+        })
+        .collect();
+    back.sort_unstable();
+    assert!(
+        back == all,
+        "the exported points differ from the node files'"
+    );
+    // A region: the west half.
+    let (lo, hi) = (
+        [515363.0, 4918339.0, f64::NEG_INFINITY],
+        [515385.0, 4918383.0, f64::INFINITY],
+    );
+    let part = t.path().join("part.pcimg");
+    let o = convert(input, &part, &["--bounds", "515363,4918339,515385,4918383"]);
+    let said = String::from_utf8_lossy(&o.stderr).into_owned() + &ok(&o, "convert --bounds");
+    let want = ept_points_by_las(lo, hi).len() as u64;
+    assert!(want > 1000 && want < 518_862);
+    assert_eq!(points(&part), want);
+    assert!(
+        said.contains("octree nodes that reach the region"),
+        "{said}"
+    );
+    // info: the root hierarchy file alone, unless --tiles.
+    let o = pcimg().args(["info", "--json", input]).output().unwrap();
+    let v: serde_json::Value = serde_json::from_str(&ok(&o, "info")).unwrap();
+    assert_eq!(v["hierarchy_files_read"].as_u64(), Some(1));
+    assert_eq!(v["points"].as_u64(), Some(518_862));
+    let o = pcimg()
+        .args(["info", "--json", "--tiles", input])
+        .output()
+        .unwrap();
+    let v: serde_json::Value = serde_json::from_str(&ok(&o, "info --tiles")).unwrap();
+    let sum: u64 = v["levels"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|l| l["points"].as_u64().unwrap())
+        .sum();
+    assert_eq!(sum, 518_862);
+    // PDAL's dataset whose hierarchy says 1000 where the file holds 1065.
+    let bad = fixture("ept/bad-pointcount/laszip/ept.json");
+    let e = err(
+        &convert(bad.to_str().unwrap(), &t.path().join("b.pcimg"), &["-q"]),
+        "bad count",
+    );
+    assert!(
+        e.contains("0-0-0-0.laz") && e.contains("the hierarchy says 1000"),
+        "{e}"
+    );
+    // A node file missing: named.
+    let copy = t.path().join("ept");
+    for sub in ["", "ept-hierarchy", "ept-data"] {
+        std::fs::create_dir_all(copy.join(sub)).unwrap();
+        let from = fixture("ept/lone-star-laszip").join(sub);
+        for f in std::fs::read_dir(from).unwrap() {
+            let f = f.unwrap();
+            if f.file_type().unwrap().is_file() {
+                std::fs::copy(f.path(), copy.join(sub).join(f.file_name())).unwrap();
+            }
+        }
+    }
+    std::fs::remove_file(copy.join("ept-data/2-2-2-2.laz")).unwrap();
+    let e = err(
+        &convert(
+            copy.join("ept.json").to_str().unwrap(),
+            &t.path().join("m.pcimg"),
+            &["-q"],
+        ),
+        "a missing node",
+    );
+    assert!(e.contains("2-2-2-2.laz"), "{e}");
+}
+
+/// `render` draws an EPT dataset from its octree as its converted points draw.
+#[test]
+fn an_ept_dataset_renders_as_its_converted_points_do() {
+    let t = tempfile::tempdir().unwrap();
+    let converted = t.path().join("c.pcimg");
+    common::cli::convert(&ept(), &converted, &[]);
+    // One camera for both (ept.json's bounds are rounded outward: a camera
+    // fitted to each would differ).
+    let o = pcimg()
+        .arg("render")
+        .arg(&converted)
+        .args(["--width", "480", "--height", "320", "--print-camera", "-o"])
+        .arg(t.path().join("probe.png"))
+        .output()
+        .unwrap();
+    let said = ok(&o, "render --print-camera") + &String::from_utf8_lossy(&o.stderr);
+    let camera = said
+        .lines()
+        .find(|l| l.starts_with('{'))
+        .unwrap_or_else(|| panic!("no camera in {said}"))
+        .to_string();
+    let render = |input: &Path, png: &str| {
+        let out = t.path().join(png);
+        let o = pcimg()
+            .arg("render")
+            .arg(input)
+            .args([
+                "--width", "480", "--height", "320", "--lod", "0", "--camera", &camera, "-o",
+            ])
+            .arg(&out)
+            .output()
+            .unwrap();
+        let said = String::from_utf8_lossy(&o.stderr).into_owned();
+        ok(&o, "render");
+        (out, said)
+    };
+    let (a, said) = render(&ept(), "ept.png");
+    assert!(said.contains("518,862 points from 13 tiles"), "{said}");
+    let (b, _) = render(&converted, "conv.png");
+    let v = iou(&footprint(&a), &footprint(&b));
+    eprintln!("EPT footprint IoU {v:.4}");
+    assert!(v >= 0.95, "footprint IoU {v:.3}");
+}
+
+/// An EPT dataset served by `python3 -m http.server` renders and converts by
+/// region over HTTP.
+#[test]
+fn an_ept_dataset_over_http() {
+    let Some(server) = common::http::HttpServer::start(&fixture("ept")) else {
+        return;
+    };
+    let t = tempfile::tempdir().unwrap();
+    let url = server.url("lone-star-laszip/ept.json");
+    let part = t.path().join("part.pcimg");
+    let o = convert(
+        &url,
+        &part,
+        &["-q", "--bounds", "515363,4918339,515385,4918383"],
+    );
+    ok(&o, "convert an EPT over HTTP");
+    let want = ept_points_by_las(
+        [515363.0, 4918339.0, f64::NEG_INFINITY],
+        [515385.0, 4918383.0, f64::INFINITY],
+    );
+    assert_eq!(points(&part), want.len() as u64);
+    let png = t.path().join("e.png");
+    let o = pcimg()
+        .args(["render", &url, "-o"])
+        .arg(&png)
+        .output()
+        .unwrap();
+    ok(&o, "render an EPT over HTTP");
+}

@@ -569,8 +569,125 @@ fn copc_text(r: &CopcReport) -> String {
     s
 }
 
+/// What `info` says of an EPT dataset: its `ept.json` and the octree's
+/// levels in the hierarchy files read (the root's; `--tiles` reads them all).
+#[derive(Debug, Serialize)]
+pub struct EptReport {
+    pub path: String,
+    pub format: &'static str,
+    pub points: u64,
+    pub bounds: Bounds,
+    /// The octree's cube.
+    pub cube: Bounds,
+    pub crs: Option<String>,
+    pub attributes: Vec<String>,
+    pub levels: Vec<CopcLevel>,
+    pub hierarchy_files_read: usize,
+    pub hierarchy_files_unread: usize,
+}
+
+fn ept_report(a: &Args) -> anyhow::Result<EptReport> {
+    let e = crate::ingest::ept::Ept::open(&a.path)?;
+    let (attributes, _) = e.probe()?;
+    let nodes = if a.tiles {
+        e.nodes_where(&|_| true)?
+    } else {
+        // The nodes of the files read (the root's), no other file read.
+        let mut out = vec![e.root()];
+        let mut i = 0;
+        while i < out.len() {
+            let k = out[i].key;
+            i += 1;
+            out.extend(e.known_children(&k));
+        }
+        out
+    };
+    let mut levels: Vec<CopcLevel> = Vec::new();
+    for n in &nodes {
+        let d = n.key.d.max(0) as usize;
+        while levels.len() <= d {
+            levels.push(CopcLevel {
+                depth: levels.len() as i32,
+                nodes: 0,
+                points: 0,
+                bytes: 0,
+            });
+        }
+        levels[d].nodes += 1;
+        levels[d].points += n.points;
+    }
+    let (read, unread) = e.hierarchy_files();
+    Ok(EptReport {
+        path: a.path.display().to_string(),
+        format: "ept",
+        points: e.points,
+        bounds: e.bounds,
+        cube: Bounds {
+            min: e.cube.0,
+            max: e.cube.1,
+        },
+        crs: e.srs.clone(),
+        attributes,
+        levels,
+        hierarchy_files_read: read,
+        hierarchy_files_unread: unread,
+    })
+}
+
+fn ept_text(r: &EptReport) -> String {
+    use std::fmt::Write;
+    let mut s = String::new();
+    let v = |p: [f64; 3]| format!("({:.3}, {:.3}, {:.3})", p[0], p[1], p[2]);
+    let _ = writeln!(s, "ept      {}", sanitize(&r.path));
+    let _ = writeln!(
+        s,
+        "         {} points, LAZ files in an octree",
+        count(r.points)
+    );
+    let _ = writeln!(s, "bounds   min {}", v(r.bounds.min));
+    let _ = writeln!(s, "         max {}", v(r.bounds.max));
+    for l in &r.levels {
+        let _ = writeln!(
+            s,
+            "  depth {:>2}  {:>7} nodes  {:>13} points",
+            l.depth,
+            count(l.nodes as u64),
+            count(l.points)
+        );
+    }
+    let _ = writeln!(
+        s,
+        "         hierarchy: {} file(s) read{}",
+        r.hierarchy_files_read,
+        if r.hierarchy_files_unread > 0 {
+            format!(
+                ", {} not read (their nodes are not counted above; --tiles reads them)",
+                r.hierarchy_files_unread
+            )
+        } else {
+            String::new()
+        }
+    );
+    let _ = writeln!(s, "bands    x y z {}", r.attributes.join(" "));
+    if let Some(c) = &r.crs {
+        let short: String = c.chars().take(120).collect();
+        let _ = writeln!(s, "crs      {}", sanitize(&short));
+    }
+    s
+}
+
 pub fn run(a: Args) -> anyhow::Result<()> {
     a.cache.apply()?;
+    if crate::ingest::ept::is_ept(&a.path) {
+        super::remote::read_url_inputs(a.cache.timeout.remote_options());
+        let r = ept_report(&a)?;
+        if a.json {
+            super::print_out(&format!("{}\n", serde_json::to_string_pretty(&r)?))?;
+        } else {
+            super::print_out(&ept_text(&r))?;
+        }
+        return Ok(());
+    }
     if super::remote::is_copc(&a.path) {
         super::remote::read_url_inputs(a.cache.timeout.remote_options());
         let r = copc_report(&a)?;

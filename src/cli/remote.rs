@@ -94,6 +94,10 @@ pub fn open_for_view(
         read_url_inputs(cache.timeout.remote_options());
         return crate::copc_tiles::open(path);
     }
+    if crate::ingest::ept::is_ept(path) {
+        read_url_inputs(cache.timeout.remote_options());
+        return crate::copc_tiles::open_ept(path);
+    }
     Ok(crate::store::Dataset::open_with(
         path,
         &cache.open_options(),

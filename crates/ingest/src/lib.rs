@@ -34,6 +34,7 @@ pub mod color;
 pub(crate) mod contain;
 pub mod copc;
 pub mod e57;
+pub mod ept;
 pub mod error;
 pub mod las;
 pub mod las_records;
@@ -323,6 +324,17 @@ fn open_url(path: &Path, opts: &ReadOptions) -> Result<Box<dyn PointReader>, Ing
     Ok(Box::new(copc::from_copc(opened_url(path)?, opts)?))
 }
 
+/// The byte source of the URL `path` (through [`set_url_opener`]).
+pub(crate) fn url_source(path: &Path) -> Result<Arc<dyn pcimg_copc::ByteSource>, IngestError> {
+    let Some(opener) = URL_OPENER.get() else {
+        return Err(IngestError::format(
+            path,
+            "this program reads no URLs (it has no object-storage client)",
+        ));
+    };
+    opener(&path.to_string_lossy()).map_err(|m| IngestError::format(path, m))
+}
+
 /// The COPC file at URL `path`, opened once per process.
 pub(crate) fn opened_url(path: &Path) -> Result<Arc<pcimg_copc::Copc>, IngestError> {
     let url = path.to_string_lossy();
@@ -368,6 +380,9 @@ pub fn open(path: &Path, opts: &ReadOptions) -> Result<Box<dyn PointReader>, Ing
     if opts.chunk_points == 0 {
         return Err(IngestError::format(path, "chunk_points must be at least 1"));
     }
+    if ept::is_ept(path) {
+        return Ok(Box::new(ept::open(path, opts)?));
+    }
     if is_url(path) {
         return open_url(path, opts);
     }
@@ -386,8 +401,8 @@ pub fn open(path: &Path, opts: &ReadOptions) -> Result<Box<dyn PointReader>, Ing
             return Err(IngestError::format(
                 path,
                 format!(
-                    "a region is read only from COPC inputs (their octree says which points \
-                     lie in it), and this is {}",
+                    "a region is read only from COPC and EPT inputs (their octree says which \
+                     points lie in it), and this is {}",
                     kind.name()
                 ),
             ));

@@ -275,9 +275,11 @@ fn source_ref(t: &SourceTile) -> TileRef {
 
 /// The tiles of a [`TileSource`] (a COPC octree) for the view: from its roots,
 /// the visible tile whose points are spread widest on screen is refined first
-/// (`View`) until every tile's spacing is below about a pixel or the budget
-/// is spent; `Fixed(k)` and `Distance` refine every visible tile down to one
-/// depth. A refined tile of an additive source stays drawn with its children.
+/// (`View`, and `Distance`, which a source has no levels for) until every
+/// tile's spacing is below about a pixel or the budget is spent; `Fixed(k)`
+/// draws every visible tile but those of the `k` deepest depths (0 = all, as a
+/// part's level 0 is its finest). A refined tile of an additive source stays
+/// drawn with its children.
 fn select_source(
     src: &dyn TileSource,
     ds: &Dataset,
@@ -289,17 +291,10 @@ fn select_source(
 ) -> Vec<TileRef> {
     let eye = camera.eye().to_array();
     let ppu = |b: &Bounds| camera.pixels_per_unit(distance_to_box(eye, b), height);
-    let depth = match mode {
-        LodMode::Fixed(k) => Some(k),
-        LodMode::Distance => {
-            let total = ds.bounds();
-            let diag = total.extent().iter().map(|e| e * e).sum::<f64>().sqrt();
-            // Finest near, coarser by one depth per doubling of the distance.
-            let far = distance_level(camera.distance_to(total.center()), diag, 32);
-            Some(20usize.saturating_sub(far))
-        }
-        LodMode::View { .. } => None,
-    };
+    // `Fixed(k)`: every visible tile down to the deepest, then the `k`
+    // deepest depths left out (0 = finest, as for parts' levels).
+    let full = matches!(mode, LodMode::Fixed(_));
+    let _ = ds;
     let budget = match mode {
         LodMode::View { budget } => budget,
         _ => u64::MAX,
@@ -320,10 +315,7 @@ fn select_source(
         });
     }
     while let Some(c) = heap.pop() {
-        let finer = match depth {
-            Some(k) => c.tile.level < k,
-            None => c.key > 1.0,
-        };
+        let finer = full || c.key > 1.0;
         // (A tile whose children cannot be read: nothing finer.)
         let kids = if finer {
             src.children(c.tile.tile).unwrap_or_default()
@@ -357,6 +349,10 @@ fn select_source(
                 tile: k,
             });
         }
+    }
+    if let LodMode::Fixed(k) = mode {
+        let deepest = chosen.iter().map(|t| t.level).max().unwrap_or(0);
+        chosen.retain(|t| t.level + k <= deepest);
     }
     chosen
 }
