@@ -392,6 +392,28 @@ fn a_copc_renders_as_its_converted_points_do() {
     }
     let (_, said) = render(&copc, "root.png", &["--budget", "10000"]);
     assert!(said.contains("9,260 points from 1 tiles"), "{said}");
+    // Picking the point at the frame's centre gives every field of it.
+    let o = pcimg()
+        .arg("render")
+        .arg(&copc)
+        .args([
+            "--width", "480", "--height", "320", "--pick", "240,160", "-o",
+        ])
+        .arg(t.path().join("pick.png"))
+        .output()
+        .unwrap();
+    let v: serde_json::Value =
+        serde_json::from_str(ok(&o, "render --pick").lines().next().unwrap()).unwrap();
+    assert!(
+        v["part"]
+            .as_str()
+            .unwrap()
+            .ends_with("autzen_trim.copc.laz"),
+        "{v}"
+    );
+    for f in ["classification", "gps_time", "intensity", "red"] {
+        assert!(v["attributes"][f].is_number(), "{f} in {v}");
+    }
 }
 
 /// PDAL's EPT test dataset `lone-star-laszip` (fixtures/ept/, BSD).

@@ -35,7 +35,8 @@ pub fn point_record(ds: &Dataset, key: TileKey, index: usize) -> Result<PointRec
     let part = ds
         .part(key.part)
         .map(|p| p.path.display().to_string())
-        .unwrap_or_default();
+        // (A source's tile: the file it came from.)
+        .unwrap_or_else(|| ds.path.display().to_string());
     Ok(PointRecord {
         part,
         level: key.level,
