@@ -22,6 +22,34 @@ struct Registry {
     ids: HashMap<Key, u32>,
 }
 
+impl Registry {
+    /// Node `e`'s id (given the first time).
+    fn id_of(&mut self, e: Entry) -> u32 {
+        if let Some(&id) = self.ids.get(&e.key) {
+            return id;
+        }
+        let id = self.entries.len() as u32;
+        self.entries.push(e);
+        self.ids.insert(e.key, id);
+        id
+    }
+}
+
+/// Node `key` with id `id` as a tile: its cube cut to the points' bounds `b`
+/// (views cull by where points are).
+fn source_tile(id: u32, key: Key, cube: pcimg_copc::Cube, b: &Bounds, points: u64) -> SourceTile {
+    let (lo, hi) = cube;
+    SourceTile {
+        id,
+        depth: key.d.max(0) as usize,
+        bounds: Bounds {
+            min: std::array::from_fn(|a| lo[a].max(b.min[a]).min(b.max[a])),
+            max: std::array::from_fn(|a| hi[a].min(b.max[a]).max(b.min[a])),
+        },
+        points,
+    }
+}
+
 #[derive(Debug)]
 pub struct CopcTiles {
     copc: Arc<Copc>,
@@ -40,29 +68,15 @@ impl CopcTiles {
         StoreError::new(&self.path, e.to_string())
     }
 
-    /// Node `e` as a tile (given an id the first time).
+    /// Node `e` as a tile.
     fn tile(&self, e: Entry) -> SourceTile {
-        let mut r = self.nodes.lock().unwrap_or_else(|p| p.into_inner());
-        let id = match r.ids.get(&e.key) {
-            Some(&id) => id,
-            None => {
-                let id = r.entries.len() as u32;
-                r.entries.push(e);
-                r.ids.insert(e.key, id);
-                id
-            }
-        };
-        let (lo, hi) = e.key.bounds(&self.copc.info);
-        let b = &self.bounds;
-        SourceTile {
-            id,
-            depth: e.key.d.max(0) as usize,
-            bounds: Bounds {
-                min: std::array::from_fn(|a| lo[a].max(b.min[a]).min(b.max[a])),
-                max: std::array::from_fn(|a| hi[a].min(b.max[a]).max(b.min[a])),
-            },
-            points: u64::from(e.points),
-        }
+        let id = self
+            .nodes
+            .lock()
+            .unwrap_or_else(|p| p.into_inner())
+            .id_of(e);
+        let cube = e.key.bounds(&self.copc.info);
+        source_tile(id, e.key, cube, &self.bounds, u64::from(e.points))
     }
 
     fn entry(&self, id: u32) -> Result<Entry, StoreError> {
@@ -174,32 +188,23 @@ impl EptTiles {
     }
 
     fn tile(&self, n: crate::ingest::ept::Node) -> SourceTile {
-        let mut r = self.nodes.lock().unwrap_or_else(|p| p.into_inner());
-        let id = match r.ids.get(&n.key) {
-            Some(&id) => id,
-            None => {
-                let id = r.entries.len() as u32;
-                r.entries.push(Entry {
-                    key: n.key,
-                    offset: 0,
-                    bytes: 0,
-                    points: n.points.min(u64::from(u32::MAX)) as u32,
-                });
-                r.ids.insert(n.key, id);
-                id
-            }
-        };
-        let (lo, hi) = self.ept.cube_of(&n.key);
-        let b = &self.ept.bounds;
-        SourceTile {
+        let id = self
+            .nodes
+            .lock()
+            .unwrap_or_else(|p| p.into_inner())
+            .id_of(Entry {
+                key: n.key,
+                offset: 0,
+                bytes: 0,
+                points: n.points.min(u64::from(u32::MAX)) as u32,
+            });
+        source_tile(
             id,
-            depth: n.key.d.max(0) as usize,
-            bounds: Bounds {
-                min: std::array::from_fn(|a| lo[a].max(b.min[a]).min(b.max[a])),
-                max: std::array::from_fn(|a| hi[a].min(b.max[a]).max(b.min[a])),
-            },
-            points: n.points,
-        }
+            n.key,
+            self.ept.cube_of(&n.key),
+            &self.ept.bounds,
+            n.points,
+        )
     }
 
     fn node(&self, id: u32) -> Result<crate::ingest::ept::Node, StoreError> {

@@ -538,35 +538,54 @@ fn copc_text(r: &CopcReport) -> String {
         r.halfsize,
         r.spacing
     );
-    for l in &r.levels {
+    octree_text(
+        &mut s,
+        &r.levels,
+        (r.pages_read, r.pages_unread, "page"),
+        &r.attributes,
+        r.crs.as_deref(),
+    );
+    s
+}
+
+/// The octree's levels (bytes where known), what of its hierarchy was read
+/// (`unit`: page or file), the bands and the CRS, as `info` prints them.
+fn octree_text(
+    s: &mut String,
+    levels: &[CopcLevel],
+    (read, unread, unit): (usize, usize, &str),
+    attributes: &[String],
+    crs: Option<&str>,
+) {
+    use std::fmt::Write;
+    for l in levels {
+        let size = if l.bytes > 0 {
+            format!("  {:>10}", bytes(l.bytes))
+        } else {
+            String::new()
+        };
         let _ = writeln!(
             s,
-            "  depth {:>2}  {:>7} nodes  {:>13} points  {:>10}",
+            "  depth {:>2}  {:>7} nodes  {:>13} points{size}",
             l.depth,
             count(l.nodes as u64),
             count(l.points),
-            bytes(l.bytes)
         );
     }
     let _ = writeln!(
         s,
-        "         hierarchy: {} page(s) read{}",
-        r.pages_read,
-        if r.pages_unread > 0 {
-            format!(
-                ", {} not read (their nodes are not counted above; --tiles reads them)",
-                r.pages_unread
-            )
+        "         hierarchy: {read} {unit}(s) read{}",
+        if unread > 0 {
+            format!(", {unread} not read (their nodes are not counted above; --tiles reads them)")
         } else {
             String::new()
         }
     );
-    let _ = writeln!(s, "bands    x y z {}", r.attributes.join(" "));
-    if let Some(c) = &r.crs {
+    let _ = writeln!(s, "bands    x y z {}", attributes.join(" "));
+    if let Some(c) = crs {
         let short: String = c.chars().take(120).collect();
         let _ = writeln!(s, "crs      {}", sanitize(&short));
     }
-    s
 }
 
 /// What `info` says of an EPT dataset: its `ept.json` and the octree's
@@ -646,33 +665,13 @@ fn ept_text(r: &EptReport) -> String {
     );
     let _ = writeln!(s, "bounds   min {}", v(r.bounds.min));
     let _ = writeln!(s, "         max {}", v(r.bounds.max));
-    for l in &r.levels {
-        let _ = writeln!(
-            s,
-            "  depth {:>2}  {:>7} nodes  {:>13} points",
-            l.depth,
-            count(l.nodes as u64),
-            count(l.points)
-        );
-    }
-    let _ = writeln!(
-        s,
-        "         hierarchy: {} file(s) read{}",
-        r.hierarchy_files_read,
-        if r.hierarchy_files_unread > 0 {
-            format!(
-                ", {} not read (their nodes are not counted above; --tiles reads them)",
-                r.hierarchy_files_unread
-            )
-        } else {
-            String::new()
-        }
+    octree_text(
+        &mut s,
+        &r.levels,
+        (r.hierarchy_files_read, r.hierarchy_files_unread, "file"),
+        &r.attributes,
+        r.crs.as_deref(),
     );
-    let _ = writeln!(s, "bands    x y z {}", r.attributes.join(" "));
-    if let Some(c) = &r.crs {
-        let short: String = c.chars().take(120).collect();
-        let _ = writeln!(s, "crs      {}", sanitize(&short));
-    }
     s
 }
 

@@ -156,18 +156,7 @@ fn draw_source(f: &mut Frame, app: &App, src: &dyn crate::store::TileSource, are
             count(t.points),
             bytes(t.bytes)
         )),
-        Line::from(format!(
-            "bounds {}",
-            (0..3)
-                .map(|a| format!(
-                    "{} {}..{}",
-                    ["x", "y", "z"][a],
-                    coordinate(b.min[a]),
-                    coordinate(b.max[a])
-                ))
-                .collect::<Vec<_>>()
-                .join("  ")
-        )),
+        Line::from(format!("bounds {}", bounds_text(b))),
         Line::from(format!(
             "crs {}",
             t.crs.as_deref().map(sanitize).unwrap_or_else(|| "-".into())
@@ -294,28 +283,27 @@ fn draw_parts(f: &mut Frame, app: &App, area: Rect) {
     let mut state = TableState::new().with_selected(Some(app.part));
     f.render_stateful_widget(table, table_area, &mut state);
     // The selected part's bounds in full (the table shows each part's extent).
-    let bounds = part.map_or_else(
-        || "-".to_string(),
-        |p| {
-            let b = &p.meta.bounds;
-            (0..3)
-                .map(|a| {
-                    format!(
-                        "{} {}..{}",
-                        ["x", "y", "z"][a],
-                        coordinate(b.min[a]),
-                        coordinate(b.max[a])
-                    )
-                })
-                .collect::<Vec<_>>()
-                .join("  ")
-        },
-    );
+    let bounds = part.map_or_else(|| "-".to_string(), |p| bounds_text(&p.meta.bounds));
     f.render_widget(Paragraph::new(format!("bounds {bounds}")), bounds_line);
     f.render_widget(
         Paragraph::new(format!("source {source} · crs {crs}")).dark_gray(),
         detail,
     );
+}
+
+/// `x LO..HI  y LO..HI  z LO..HI`, for a bounds line.
+fn bounds_text(b: &crate::points::Bounds) -> String {
+    (0..3)
+        .map(|a| {
+            format!(
+                "{} {}..{}",
+                ["x", "y", "z"][a],
+                coordinate(b.min[a]),
+                coordinate(b.max[a])
+            )
+        })
+        .collect::<Vec<_>>()
+        .join("  ")
 }
 
 /// A coordinate for the bounds line: whole units from 10,000 up (georeferenced

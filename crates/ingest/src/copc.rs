@@ -235,6 +235,22 @@ pub(crate) fn keep_inside(c: &mut PointColumns, r: &Bounds) -> u64 {
     dropped
 }
 
+/// The end of the batch of nodes from `next` (of `len`) that holds about
+/// `chunk` points (at least one node), and its points; `points(i)`: node `i`'s.
+pub(crate) fn batch(
+    next: usize,
+    len: usize,
+    chunk: u64,
+    points: impl Fn(usize) -> u64,
+) -> (usize, u64) {
+    let (mut end, mut sum) = (next, 0u64);
+    while end < len && (end == next || sum < chunk) {
+        sum += points(end);
+        end += 1;
+    }
+    (end, sum)
+}
+
 impl PointReader for CopcReader {
     fn info(&self) -> &SourceInfo {
         &self.info
@@ -244,13 +260,9 @@ impl PointReader for CopcReader {
         if self.next >= self.nodes.len() {
             return Ok(None);
         }
-        // Nodes up to the chunk's points (at least one).
-        let mut end = self.next;
-        let mut points = 0u64;
-        while end < self.nodes.len() && (end == self.next || points < self.chunk) {
-            points += u64::from(self.nodes[end].points);
-            end += 1;
-        }
+        let (end, points) = batch(self.next, self.nodes.len(), self.chunk, |i| {
+            u64::from(self.nodes[i].points)
+        });
         let batch = &self.nodes[self.next..end];
         let chunks = self.copc.fetch(batch).map_err(error)?;
         let (copc, sel) = (&self.copc, self.selection);

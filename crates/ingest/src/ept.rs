@@ -421,12 +421,9 @@ impl PointReader for EptReader {
         if self.next >= self.nodes.len() {
             return Ok(None);
         }
-        let mut end = self.next;
-        let mut points = 0;
-        while end < self.nodes.len() && (end == self.next || points < self.chunk) {
-            points += self.nodes[end].points;
-            end += 1;
-        }
+        let (end, points) = super::copc::batch(self.next, self.nodes.len(), self.chunk, |i| {
+            self.nodes[i].points
+        });
         let (ept, g) = (&self.ept, self.gps_offset);
         let parts: Vec<PointColumns> = self.nodes[self.next..end]
             .par_iter()
