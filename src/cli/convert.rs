@@ -13,7 +13,8 @@ use std::sync::{Arc, Mutex};
 #[derive(Debug, clap::Args)]
 pub struct Args {
     /// Input point cloud(s): .xyz .txt .csv .asc .pts (text), .ply, .las, .laz,
-    /// .pcd, .e57.
+    /// .pcd, .e57; a COPC file (.copc.laz) or an EPT dataset (its ept.json),
+    /// local or at a URL (s3://, https://: -o needed), whole or by --bounds.
     /// Several files (tiles of one survey, `tiles/*.laz`) or a directory (its
     /// point-cloud files, in name order) become one dataset; they must carry the
     /// same attributes and coordinate reference system.
@@ -62,8 +63,9 @@ pub struct Args {
     #[arg(long)]
     pub skip_invalid: bool,
     /// Only the points inside this rectangle, every height (in the input's
-    /// coordinates): XMIN,YMIN,XMAX,YMAX. COPC inputs only: just the octree's
-    /// nodes that reach it are read (from a URL, just their bytes fetched).
+    /// coordinates): XMIN,YMIN,XMAX,YMAX. COPC and EPT inputs only: just the
+    /// octree's nodes that reach it are read (from a URL, just their bytes
+    /// fetched).
     #[arg(long, value_name = "XMIN,YMIN,XMAX,YMAX", value_parser = parse_bounds, conflicts_with = "clip")]
     pub bounds: Option<crate::points::Bounds>,
     /// As --bounds, a box in 3D: XMIN,YMIN,ZMIN,XMAX,YMAX,ZMAX.

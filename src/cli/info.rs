@@ -10,8 +10,9 @@ use std::path::PathBuf;
 
 #[derive(Debug, clap::Args)]
 pub struct Args {
-    /// A part (.tif) or a directory of parts; or a COPC file (.copc.laz), local
-    /// or at a URL (s3://, https://, ...), described without converting it.
+    /// A part (.tif) or a directory of parts; or a COPC file (.copc.laz) or an
+    /// EPT dataset (its ept.json), local or at a URL (s3://, https://, ...),
+    /// described without converting it.
     pub path: PathBuf,
     /// Print JSON (stable field names) instead of text.
     #[arg(long)]

@@ -45,9 +45,11 @@ pub struct Cli {
 
 #[derive(Debug, Subcommand)]
 pub enum Command {
-    /// List a dataset's parts, bands, pyramid levels, bounds and metadata.
+    /// List a dataset's parts, bands, pyramid levels, bounds and metadata (or a
+    /// COPC file's or EPT dataset's octree).
     Info(info::Args),
-    /// Convert a point cloud (text, PLY, LAS/LAZ, PCD, E57) into an image dataset, out of core.
+    /// Convert a point cloud (text, PLY, LAS/LAZ, PCD, E57, COPC, EPT) into an
+    /// image dataset, out of core.
     Convert(convert::Args),
     /// Write a dataset's points (all, a level's even sample, a box, some classes)
     /// as LAS, LAZ, PLY, CSV or XYZ.

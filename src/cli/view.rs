@@ -19,8 +19,9 @@ use std::sync::Arc;
 #[derive(Debug, Clone, clap::Args)]
 pub struct ViewArgs {
     /// A part (.tif) or a directory of parts (local or at a URL); or a COPC
-    /// file (.copc.laz, local or at a URL), drawn from its octree with no
-    /// conversion: only the nodes a view needs are read.
+    /// file (.copc.laz) or an EPT dataset (its ept.json), local or at a URL,
+    /// drawn from its octree with no conversion: only the nodes a view needs
+    /// are read.
     pub path: PathBuf,
     /// Viewpoint as `yaw,pitch[,distance]` in degrees (and world units) around the
     /// centre of the bounds: yaw from +x, pitch -90 (straight down) to 90 (within
