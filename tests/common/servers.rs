@@ -42,11 +42,29 @@ impl Drop for Weed {
 
 impl Weed {
     /// Starts `weed mini` with one identity and the bucket, and waits (at most
-    /// 60 s) until the bucket lists.
+    /// 60 s) until the bucket lists. The free ports are chosen by binding and
+    /// letting go, so another process can take one before weed binds it: weed
+    /// then exits saying "address already in use", and is started again on
+    /// other ports (up to 5 times).
     pub fn start() -> Option<Weed> {
         if !super::tool_available("weed", "version") {
             return None;
         }
+        for _ in 0..5 {
+            match Weed::try_start() {
+                Ok(w) => return Some(w),
+                Err(log) if log.contains("address already in use") => continue,
+                Err(log) => {
+                    panic!("SeaweedFS did not serve the bucket within 60 s; its log:\n{log}")
+                }
+            }
+        }
+        panic!("SeaweedFS found a port taken on each of 5 starts");
+    }
+
+    /// One start: the server, or its log when it exited or did not serve the
+    /// bucket within 60 s.
+    fn try_start() -> Result<Weed, String> {
         let dir = tempfile::tempdir().unwrap();
         let config = dir.path().join("s3.json");
         std::fs::write(
@@ -83,21 +101,23 @@ impl Weed {
             .stderr(log)
             .spawn()
             .expect("cannot start weed");
-        let w = Weed {
+        let mut w = Weed {
             child,
             port: p[6],
             dir,
         };
         let start = Instant::now();
+        let log =
+            |w: &Weed| std::fs::read_to_string(w.dir.path().join("weed.log")).unwrap_or_default();
         loop {
             if w.list("").is_ok() {
-                return Some(w);
+                return Ok(w);
             }
-            assert!(
-                start.elapsed() < Duration::from_secs(60),
-                "SeaweedFS did not serve the bucket within 60 s; its log:\n{}",
-                std::fs::read_to_string(w.dir.path().join("weed.log")).unwrap_or_default()
-            );
+            if w.child.try_wait().ok().flatten().is_some()
+                || start.elapsed() >= Duration::from_secs(60)
+            {
+                return Err(log(&w));
+            }
             std::thread::sleep(Duration::from_millis(100));
         }
     }
