@@ -134,41 +134,54 @@ impl TileSource for CopcTiles {
 /// The COPC file at `path` (local, or a URL once `cli::remote::read_url_inputs`
 /// set how URLs are read) as a dataset of its octree's nodes.
 pub fn open(path: &Path) -> anyhow::Result<Dataset> {
-    let copc = crate::ingest::copc::open_any(path)?;
-    let decoder = NodeDecoder::new(&copc)?;
-    let (crs, _) = crate::ingest::copc::describe(&copc)?;
-    let h = &copc.header;
-    let bounds = Bounds {
-        min: h.min,
-        max: h.max,
-    };
-    let mut bands: Vec<String> = ["x", "y", "z"].map(String::from).to_vec();
-    bands.extend(decoder.names().iter().cloned());
-    // Depths the root hierarchy page knows (`--lod N` counts from the finest).
-    let known = deepest_known(|k| copc.known(k).map(|e| e.key));
-    let totals = Totals {
-        parts: 0,
-        nodes: 0,
-        points: h.points,
-        bytes: copc.len,
-        bounds,
-        own_levels: known,
-        crs,
-        class_counts: Vec::new(),
-        ranges: vec![None; bands.len()],
-        bands,
-        classes_complete: false,
-        level_points: Vec::new(),
-    };
-    let tiles = CopcTiles {
-        copc,
-        decoder,
-        path: path.to_path_buf(),
-        bounds,
-        nodes: Mutex::new(Registry::default()),
-        remote: crate::ingest::is_url(path),
-    };
+    let (tiles, totals) = CopcTiles::open(path)?;
     Ok(Dataset::from_source(path, totals, Arc::new(tiles)))
+}
+
+impl CopcTiles {
+    /// The COPC file at `path` (local or a URL) as tiles, and its totals.
+    pub fn open(path: &Path) -> anyhow::Result<(CopcTiles, Totals)> {
+        let copc = crate::ingest::copc::open_any(path)?;
+        let decoder = NodeDecoder::new(&copc)?;
+        let (crs, _) = crate::ingest::copc::describe(&copc)?;
+        let h = &copc.header;
+        let bounds = Bounds {
+            min: h.min,
+            max: h.max,
+        };
+        let mut bands: Vec<String> = ["x", "y", "z"].map(String::from).to_vec();
+        bands.extend(decoder.names().iter().cloned());
+        // Depths the root hierarchy page knows (`--lod N` counts from the finest).
+        let known = deepest_known(|k| copc.known(k).map(|e| e.key));
+        let totals = Totals {
+            parts: 0,
+            nodes: 0,
+            points: h.points,
+            bytes: copc.len,
+            bounds,
+            own_levels: known,
+            crs,
+            class_counts: Vec::new(),
+            ranges: vec![None; bands.len()],
+            bands,
+            classes_complete: false,
+            level_points: Vec::new(),
+        };
+        let tiles = CopcTiles {
+            copc,
+            decoder,
+            path: path.to_path_buf(),
+            bounds,
+            nodes: Mutex::new(Registry::default()),
+            remote: crate::ingest::is_url(path),
+        };
+        Ok((tiles, totals))
+    }
+
+    /// The nodes handed out so far: `(nodes, points)` at each depth.
+    pub fn depths(&self) -> Vec<(usize, u64)> {
+        depths_of(&self.nodes.lock().unwrap_or_else(|p| p.into_inner()).entries)
+    }
 }
 
 /// An EPT dataset (its `ept.json`, local or at a URL) as the viewer's tile

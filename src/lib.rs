@@ -30,6 +30,7 @@ pub mod convert;
 pub mod copc_tiles;
 pub mod export;
 pub mod stats;
+pub mod survey;
 pub mod synth;
 pub mod synth_formats;
 pub mod tui;

@@ -620,3 +620,224 @@ fn an_ept_dataset_over_http() {
         .unwrap();
     ok(&o, "render an EPT over HTTP");
 }
+
+/// The four quadrants of autzen_trim.laz, each made a COPC file by
+/// `copc_converter` (fixtures/survey/), copied into `dir`.
+fn quadrants(dir: &Path) -> Vec<PathBuf> {
+    std::fs::create_dir_all(dir).unwrap();
+    ["q00", "q01", "q10", "q11"]
+        .iter()
+        .map(|q| {
+            let name = format!("autzen-{q}.copc.laz");
+            let to = dir.join(&name);
+            std::fs::copy(fixture(&format!("survey/{name}")), &to).unwrap();
+            to
+        })
+        .collect()
+}
+
+/// What a directory holds besides `keep`'s names (temporary or half-made
+/// things a failed index would leave).
+fn others(dir: &Path, keep: &[&str]) -> Vec<String> {
+    std::fs::read_dir(dir)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .filter(|n| !keep.iter().any(|k| n.ends_with(k)))
+        .collect()
+}
+
+/// `pcimg index` over a directory of COPC tiles writes a survey: one dataset
+/// of them all whose first frame draws the overview node built from their
+/// root nodes, whose full frame covers what the whole COPC covers, and which
+/// opens no file until a view reaches it.
+#[test]
+fn copc_tiles_indexed_as_a_survey_are_one_dataset() {
+    let t = tempfile::tempdir().unwrap();
+    let dir = t.path().join("tiles");
+    let files = quadrants(&dir);
+    let o = pcimg().arg("index").arg(&dir).output().unwrap();
+    let said = ok(&o, "index of COPC tiles");
+    assert!(
+        said.contains("surveyed 4 COPC file(s), 110,000 points"),
+        "{said}"
+    );
+    assert!(dir.join("pcimg-survey.json").is_file());
+    assert!(
+        others(&dir, &[".copc.laz", "pcimg-survey.json"])
+            .iter()
+            .all(|n| n.starts_with("survey-overview-")),
+        "{:?}",
+        others(&dir, &[])
+    );
+    let o = pcimg().args(["info", "--json"]).arg(&dir).output().unwrap();
+    let v: serde_json::Value = serde_json::from_str(&ok(&o, "info of a survey")).unwrap();
+    assert_eq!(
+        (
+            v["format"].as_str(),
+            v["files"].as_u64(),
+            v["points"].as_u64()
+        ),
+        (Some("copc-survey"), Some(4), Some(110_000)),
+        "{v}"
+    );
+    // One camera for the survey and for the COPC of all the points.
+    let whole = fixture("autzen_trim.copc.laz");
+    let o = pcimg()
+        .arg("render")
+        .arg(&whole)
+        .args(["--width", "480", "--height", "320", "--print-camera", "-o"])
+        .arg(t.path().join("probe.png"))
+        .output()
+        .unwrap();
+    let said = ok(&o, "render --print-camera") + &String::from_utf8_lossy(&o.stderr);
+    let camera = said
+        .lines()
+        .find(|l| l.starts_with('{'))
+        .unwrap_or_else(|| panic!("no camera in {said}"))
+        .to_string();
+    let render = |input: &Path, png: &str, extra: &[&str]| {
+        let out = t.path().join(png);
+        let o = pcimg()
+            .arg("render")
+            .arg(input)
+            .args(["--width", "480", "--height", "320", "--camera", &camera])
+            .args(extra)
+            .arg("-o")
+            .arg(&out)
+            .output()
+            .unwrap();
+        let said = String::from_utf8_lossy(&o.stderr).into_owned();
+        ok(&o, "render");
+        (out, said)
+    };
+    let (a, said) = render(&dir, "survey.png", &[]);
+    assert!(said.contains("110,000 points from 4 tiles"), "{said}");
+    let (b, _) = render(&whole, "whole.png", &[]);
+    let v = iou(&footprint(&a), &footprint(&b));
+    eprintln!("survey against the whole COPC: footprint IoU {v:.4}");
+    assert!(v >= 0.95, "footprint IoU {v:.3}");
+    // A small budget draws the overview node alone: a quarter of the roots.
+    let (c, said) = render(&dir, "top.png", &["--budget", "40000"]);
+    assert!(said.contains("27,502 points from 1 tiles"), "{said}");
+    let v = iou(&footprint(&c), &footprint(&b));
+    eprintln!("overview node against the whole COPC: footprint IoU {v:.4}");
+    assert!(v >= 0.5, "footprint IoU {v:.3}");
+    // `--lod 1` (all but the deepest depth): the overview node, which the
+    // files' roots replace.
+    let (_, said) = render(&dir, "lod1.png", &["--lod", "1"]);
+    assert!(said.contains("27,502 points from 1 tiles"), "{said}");
+
+    // A list of files (paths relative to it) into another directory.
+    let list = t.path().join("tiles.txt");
+    std::fs::write(
+        &list,
+        "# the quadrants\ntiles/autzen-q00.copc.laz\n\ntiles/autzen-q01.copc.laz\n\
+         tiles/autzen-q10.copc.laz\ntiles/autzen-q11.copc.laz\n",
+    )
+    .unwrap();
+    let out = t.path().join("out");
+    let o = pcimg()
+        .arg("index")
+        .arg(&list)
+        .arg("-o")
+        .arg(&out)
+        .output()
+        .unwrap();
+    ok(&o, "index of a list");
+    let (_, said) = render(&out.join("pcimg-survey.json"), "list.png", &[]);
+    assert!(said.contains("110,000 points from 4 tiles"), "{said}");
+    // A list needs -o.
+    let o = pcimg().arg("index").arg(&list).output().unwrap();
+    assert!(err(&o, "a list with no -o").contains("-o DIR"));
+
+    // A file that changed since the survey is named, with what to do.
+    std::fs::copy(&files[3], &files[0]).unwrap();
+    let o = pcimg()
+        .arg("render")
+        .arg(&dir)
+        .arg("-o")
+        .arg(t.path().join("stale.png"))
+        .output()
+        .unwrap();
+    let e = err(&o, "a changed file");
+    assert!(
+        e.contains("autzen-q00.copc.laz") && e.contains("pcimg index"),
+        "{e}"
+    );
+}
+
+/// A survey's bad inputs are named, and a failed index leaves nothing in its
+/// output directory.
+#[test]
+fn a_survey_of_bad_inputs_is_refused_and_leaves_nothing() {
+    let t = tempfile::tempdir().unwrap();
+    let dir = t.path().join("tiles");
+    quadrants(&dir);
+    let out = t.path().join("out");
+    let index = |lines: &str| {
+        let list = t.path().join("list.txt");
+        std::fs::write(&list, lines).unwrap();
+        let o = pcimg()
+            .arg("index")
+            .arg(&list)
+            .arg("-o")
+            .arg(&out)
+            .output()
+            .unwrap();
+        let e = err(&o, lines);
+        assert!(
+            !out.exists() || others(&out, &[]).is_empty(),
+            "{lines}: left {:?}",
+            others(&out, &[])
+        );
+        e
+    };
+    let e = index("tiles/autzen-q00.copc.laz\ntiles/missing.copc.laz\n");
+    assert!(e.contains("missing.copc.laz"), "{e}");
+    // A LAS file is not COPC.
+    std::fs::copy(fixture("autzen_trim.laz"), dir.join("plain.laz")).unwrap();
+    let e = index("tiles/autzen-q00.copc.laz\ntiles/plain.laz\n");
+    assert!(e.contains("plain.laz") && e.contains("COPC"), "{e}");
+    let e = index("ftp://example.com/a.copc.laz\n");
+    assert!(e.contains("list.txt:1"), "{e}");
+    let e = index("# nothing\n");
+    assert!(e.contains("lists no files"), "{e}");
+}
+
+/// A survey served by `python3 -m http.server`: `info` reads the survey
+/// file alone, a first frame reads it and the overview node, no COPC file.
+#[test]
+fn a_survey_over_http_reads_only_what_its_frame_draws() {
+    let t = tempfile::tempdir().unwrap();
+    let dir = t.path().join("tiles");
+    quadrants(&dir);
+    let o = pcimg().arg("index").arg(&dir).output().unwrap();
+    ok(&o, "index");
+    let Some(server) = common::http::HttpServer::start(&dir) else {
+        return;
+    };
+    let url = server.url("pcimg-survey.json");
+    let o = pcimg()
+        .args(["info", "--net-stats", &url])
+        .output()
+        .unwrap();
+    let said = ok(&o, "info of a survey over HTTP");
+    assert!(said.contains("4 COPC files, 110,000 points"), "{said}");
+    assert_eq!(network(&String::from_utf8_lossy(&o.stderr)).0, 1);
+    let frame = |extra: &[&str]| {
+        let o = pcimg()
+            .args(["render", &url, "--net-stats", "-o"])
+            .arg(t.path().join("f.png"))
+            .args(extra)
+            .output()
+            .unwrap();
+        ok(&o, "render a survey over HTTP");
+        let e = String::from_utf8_lossy(&o.stderr).into_owned();
+        (network(&e).0, e)
+    };
+    let (requests, e) = frame(&["--budget", "40000"]);
+    assert!(e.contains("27,502 points from 1 tiles"), "{e}");
+    assert!(requests <= 2, "{e}");
+    let (_, e) = frame(&[]);
+    assert!(e.contains("110,000 points from 4 tiles"), "{e}");
+}

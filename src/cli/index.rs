@@ -1,6 +1,9 @@
 //! `pcimg index DIR`: (re)builds a dataset directory's index and overview, for
 //! parts made separately, added, replaced or removed since the last index; the
 //! finalize step of a cluster conversion (its receipts checked against the plan).
+//! Over COPC files (a directory of them, or a text file listing paths and
+//! URLs) it writes a survey instead (`crate::survey`): one dataset of them all,
+//! with overview nodes above their root nodes, and no conversion.
 
 use crate::store::{IndexOptions, IndexReport, build_index};
 use crate::text::{bytes, count, sanitize};
@@ -10,9 +13,22 @@ use std::sync::atomic::AtomicBool;
 
 #[derive(Debug, clap::Args)]
 pub struct Args {
-    /// A directory of parts (.tif). Its index (pcimg-index.json) and overview
-    /// folder (overview/) are replaced; the parts are only read.
+    /// A directory of parts (.tif): its index (pcimg-index.json) and overview
+    /// folder (overview/) are replaced; the parts are only read. Or COPC files
+    /// (a tiled survey): a directory of .copc.laz files, or a text file
+    /// listing them, one path (relative to the list) or URL (s3://, https://,
+    /// ...) a line. Their survey (pcimg-survey.json and a survey-overview-*
+    /// folder) is written to --output (default: the directory), built from
+    /// each file's header and root node only; `pcimg render|inspect` then
+    /// open the survey as one dataset.
+    #[arg(value_name = "DIR_OR_LIST")]
     pub dir: PathBuf,
+    /// Where a survey of COPC files is written (a directory; needed for a
+    /// list of files).
+    #[arg(short, long, value_name = "DIR")]
+    pub output: Option<PathBuf>,
+    #[command(flatten)]
+    pub timeout: super::remote::TimeoutArg,
     /// Print nothing but errors.
     #[arg(short, long)]
     pub quiet: bool,
@@ -43,7 +59,101 @@ pub fn describe(r: &IndexReport) -> String {
     )
 }
 
+/// Whether `a` asks for a survey of COPC files: a list of files, or a
+/// directory with COPC files and no parts.
+fn is_survey(a: &Args) -> bool {
+    if a.dir.is_file() {
+        return true;
+    }
+    let has = |ext: &str| {
+        std::fs::read_dir(&a.dir).is_ok_and(|mut d| {
+            d.any(|e| {
+                e.is_ok_and(|e| {
+                    e.file_name()
+                        .to_string_lossy()
+                        .to_lowercase()
+                        .ends_with(ext)
+                })
+            })
+        })
+    };
+    a.dir.is_dir() && has(".copc.laz") && !has(".tif")
+}
+
+/// `pcimg index` over COPC files: their survey.
+fn run_survey(a: Args) -> anyhow::Result<()> {
+    let out = match (&a.output, a.dir.is_dir()) {
+        (Some(o), _) => o.clone(),
+        (None, true) => a.dir.clone(),
+        (None, false) => anyhow::bail!(
+            "{}: a list of COPC files needs -o DIR, the directory to write their survey to",
+            sanitize(&a.dir.display().to_string())
+        ),
+    };
+    let inputs = crate::survey::inputs_of(&a.dir)?;
+    super::remote::read_url_inputs(a.timeout.remote_options());
+    let cancel = Arc::new(AtomicBool::new(false));
+    {
+        let c = cancel.clone();
+        let _ = ctrlc::set_handler(move || c.store(true, std::sync::atomic::Ordering::Relaxed));
+    }
+    use std::io::IsTerminal;
+    let show = !a.quiet && std::io::stderr().is_terminal();
+    let progress = move |what: &str, done: usize, of: usize| {
+        if show {
+            use std::io::Write;
+            let of = if of > 0 {
+                format!(" of {of}")
+            } else {
+                String::new()
+            };
+            let _ = write!(std::io::stderr(), "\r\x1b[Ksurvey: {done}{of} {what}");
+        }
+    };
+    let r = crate::survey::build(&inputs, &out, &cancel, &progress);
+    if show {
+        note!("");
+    }
+    let r = r?;
+    for gone in &r.removed {
+        note!(
+            "removed {}, an earlier survey's overview or a stopped run's",
+            sanitize(&gone.display().to_string())
+        );
+    }
+    if !a.quiet {
+        let overview = match r.nodes {
+            0 => "no overview (a single file is its own)".to_string(),
+            n => format!(
+                "overview of {} node(s) in {} layer(s), {} points, {}",
+                count(n as u64),
+                r.layers,
+                count(r.node_points),
+                bytes(r.node_bytes)
+            ),
+        };
+        super::print_out(&format!(
+            "surveyed {} COPC file(s), {} points: {overview}; {} {}; {:.2} s\n",
+            count(r.files as u64),
+            count(r.points),
+            sanitize(&out.join(crate::survey::SURVEY_FILE).display().to_string()),
+            bytes(r.survey_bytes),
+            r.seconds
+        ))?;
+    }
+    Ok(())
+}
+
 pub fn run(a: Args) -> anyhow::Result<()> {
+    if is_survey(&a) {
+        return run_survey(a);
+    }
+    if a.output.is_some() {
+        anyhow::bail!(
+            "{}: -o is for a survey of COPC files; a directory of parts is indexed in place",
+            sanitize(&a.dir.display().to_string())
+        );
+    }
     if !a.dir.is_dir() {
         anyhow::bail!(
             "{}: not a directory of parts (a single .tif part needs no index)",

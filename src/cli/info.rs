@@ -10,9 +10,10 @@ use std::path::PathBuf;
 
 #[derive(Debug, clap::Args)]
 pub struct Args {
-    /// A part (.tif) or a directory of parts; or a COPC file (.copc.laz) or an
-    /// EPT dataset (its ept.json), local or at a URL (s3://, https://, ...),
-    /// described without converting it.
+    /// A part (.tif) or a directory of parts; or a COPC file (.copc.laz), an
+    /// EPT dataset (its ept.json) or a survey of COPC files (its directory or
+    /// pcimg-survey.json, made by `pcimg index`), local or at a URL (s3://,
+    /// https://, ...), described without converting it.
     pub path: PathBuf,
     /// Print JSON (stable field names) instead of text.
     #[arg(long)]
@@ -549,6 +550,108 @@ fn copc_text(r: &CopcReport) -> String {
     s
 }
 
+/// What `info` says of a survey of COPC files (`pcimg index` over them):
+/// from its survey file alone, no COPC file opened.
+#[derive(Debug, Serialize)]
+pub struct SurveyReport {
+    pub path: String,
+    pub format: &'static str,
+    pub files: usize,
+    pub points: u64,
+    /// Bytes of the COPC files, and of the overview nodes.
+    pub bytes: u64,
+    pub overview_bytes: u64,
+    pub bounds: Bounds,
+    pub crs: Option<String>,
+    pub attributes: Vec<String>,
+    /// The overview's layers above the files' root nodes, lowest first.
+    pub overview: Vec<SurveyLayer>,
+    /// Every file (`--tiles`), else none.
+    pub file_list: Vec<crate::survey::SurveyFile>,
+}
+
+#[derive(Debug, Serialize)]
+pub struct SurveyLayer {
+    pub layer: u32,
+    pub nodes: usize,
+    pub points: u64,
+    pub bytes: u64,
+}
+
+fn survey_report(a: &Args) -> anyhow::Result<SurveyReport> {
+    let (at, s) = crate::survey::read(&a.path)?;
+    let mut overview: Vec<SurveyLayer> = (1..=s.layers())
+        .map(|layer| SurveyLayer {
+            layer,
+            nodes: 0,
+            points: 0,
+            bytes: 0,
+        })
+        .collect();
+    for n in &s.nodes {
+        let l = &mut overview[n.layer as usize - 1];
+        l.nodes += 1;
+        l.points += n.points;
+        l.bytes += n.bytes;
+    }
+    Ok(SurveyReport {
+        path: at.display().to_string(),
+        format: "copc-survey",
+        files: s.files.len(),
+        points: s.points(),
+        bytes: s.files.iter().map(|f| f.bytes).sum(),
+        overview_bytes: s.nodes.iter().map(|n| n.bytes).sum(),
+        bounds: s.bounds(),
+        crs: s.crs.clone(),
+        attributes: s.bands.clone(),
+        overview,
+        file_list: if a.tiles { s.files } else { Vec::new() },
+    })
+}
+
+fn survey_text(r: &SurveyReport) -> String {
+    use std::fmt::Write;
+    let mut s = String::new();
+    let v = |p: [f64; 3]| format!("({:.3}, {:.3}, {:.3})", p[0], p[1], p[2]);
+    let _ = writeln!(s, "survey   {}", sanitize(&r.path));
+    let _ = writeln!(
+        s,
+        "         {} COPC files, {} points, {}; overview {}",
+        count(r.files as u64),
+        count(r.points),
+        bytes(r.bytes),
+        bytes(r.overview_bytes)
+    );
+    let _ = writeln!(s, "bounds   min {}", v(r.bounds.min));
+    let _ = writeln!(s, "         max {}", v(r.bounds.max));
+    for l in r.overview.iter().rev() {
+        let _ = writeln!(
+            s,
+            "layer {:>2}  {:>7} nodes  {:>13} points  {}",
+            l.layer,
+            count(l.nodes as u64),
+            count(l.points),
+            bytes(l.bytes)
+        );
+    }
+    for f in &r.file_list {
+        let _ = writeln!(
+            s,
+            "file     {}  {} points (root {}), {}",
+            sanitize(&f.file),
+            count(f.points),
+            count(f.root_points),
+            bytes(f.bytes)
+        );
+    }
+    let _ = writeln!(s, "bands    x y z {}", r.attributes.join(" "));
+    if let Some(c) = &r.crs {
+        let short: String = c.chars().take(60).collect();
+        let _ = writeln!(s, "crs      {}", sanitize(&short));
+    }
+    s
+}
+
 /// The octree's levels (bytes where known), what of its hierarchy was read
 /// (`unit`: page or file), the bands and the CRS, as `info` prints them.
 fn octree_text(
@@ -685,6 +788,16 @@ pub fn run(a: Args) -> anyhow::Result<()> {
             super::print_out(&format!("{}\n", serde_json::to_string_pretty(&r)?))?;
         } else {
             super::print_out(&ept_text(&r))?;
+        }
+        return Ok(());
+    }
+    if crate::survey::is_survey(&a.path) {
+        super::remote::read_url_inputs(a.cache.timeout.remote_options());
+        let r = survey_report(&a)?;
+        if a.json {
+            super::print_out(&format!("{}\n", serde_json::to_string_pretty(&r)?))?;
+        } else {
+            super::print_out(&survey_text(&r))?;
         }
         return Ok(());
     }

@@ -84,8 +84,9 @@ pub fn is_copc(path: &std::path::Path) -> bool {
     path.is_file() && crate::ingest::copc::is_copc(path)
 }
 
-/// The dataset at `path` for a view: a dataset of parts, or a COPC file
-/// (local or at a URL) whose octree is drawn with no conversion.
+/// The dataset at `path` for a view: a dataset of parts; or a COPC file, an
+/// EPT dataset or a survey of COPC files (`pcimg index` over them), local or
+/// at a URL, whose octrees are drawn with no conversion.
 pub fn open_for_view(
     path: &std::path::Path,
     cache: &CacheArgs,
@@ -97,6 +98,10 @@ pub fn open_for_view(
     if crate::ingest::ept::is_ept(path) {
         read_url_inputs(cache.timeout.remote_options());
         return crate::copc_tiles::open_ept(path);
+    }
+    if crate::survey::is_survey(path) {
+        read_url_inputs(cache.timeout.remote_options());
+        return crate::survey::open(path);
     }
     Ok(crate::store::Dataset::open_with(
         path,

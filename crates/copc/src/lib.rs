@@ -45,6 +45,10 @@ pub trait ByteSource: Send + Sync {
     fn name(&self) -> String;
     /// The first `max` bytes, or the whole source where it is shorter.
     fn read_prefix(&self, max: u64) -> std::io::Result<Vec<u8>>;
+    /// The whole source (a small file read whole).
+    fn read_all(&self) -> std::io::Result<Vec<u8>> {
+        self.read_prefix(u64::MAX)
+    }
     /// The source's length in bytes (known after [`ByteSource::read_prefix`]).
     fn size(&self) -> std::io::Result<u64>;
     /// The bytes of each range, in order (each must lie inside the source).

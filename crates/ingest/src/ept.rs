@@ -347,9 +347,7 @@ fn get(at: &str, remote: bool) -> Result<Vec<u8>, IngestError> {
     if !remote {
         return std::fs::read(path).map_err(|e| IngestError::io(path, "cannot read", e));
     }
-    let src = crate::url_source(path)?;
-    src.read_prefix(u64::MAX)
-        .map_err(|e| IngestError::format(path, e.to_string()))
+    crate::read_url(path)
 }
 
 /// An EPT dataset's points in a region (all without one).

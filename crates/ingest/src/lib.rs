@@ -335,6 +335,13 @@ pub(crate) fn url_source(path: &Path) -> Result<Arc<dyn pcimg_copc::ByteSource>,
     opener(&path.to_string_lossy()).map_err(|m| IngestError::format(path, m))
 }
 
+/// The whole object at URL `path` (through [`set_url_opener`]).
+pub fn read_url(path: &Path) -> Result<Vec<u8>, IngestError> {
+    url_source(path)?
+        .read_all()
+        .map_err(|e| IngestError::format(path, e.to_string()))
+}
+
 /// The COPC file at URL `path`, opened once per process.
 pub(crate) fn opened_url(path: &Path) -> Result<Arc<pcimg_copc::Copc>, IngestError> {
     let url = path.to_string_lossy();

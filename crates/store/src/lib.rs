@@ -87,7 +87,9 @@ pub mod spec;
 pub mod tiff;
 pub mod write;
 
-pub use dataset::overview::{IndexOptions, IndexReport, build_index};
+pub use dataset::overview::{
+    GROUP_POINTS, IndexOptions, IndexReport, MAX_CHILDREN, build_index, group_compact,
+};
 pub use dataset::paged::Totals;
 pub use dataset::source::{SOURCE_PART, SourceStats, SourceTile, TileSource};
 pub use dataset::{Dataset, LayerSummary, Node, OpenOptions, PartHeader};

@@ -278,11 +278,10 @@ fn source_ref(t: &SourceTile) -> TileRef {
 /// (`View`, and `Distance`, which a source has no levels for) until every
 /// tile's spacing is below about a pixel or the budget is spent; `Fixed(k)`
 /// draws every visible tile but those of the `k` deepest depths (0 = all, as a
-/// part's level 0 is its finest). A refined tile of an additive source stays
-/// drawn with its children.
+/// part's level 0 is its finest). A refined tile stays drawn with its
+/// children where the source says its refinement is additive.
 fn select_source(
     src: &dyn TileSource,
-    ds: &Dataset,
     camera: &Camera,
     height: u32,
     mode: LodMode,
@@ -294,13 +293,13 @@ fn select_source(
     // `Fixed(k)`: every visible tile down to the deepest, then the `k`
     // deepest depths left out (0 = finest, as for parts' levels).
     let full = matches!(mode, LodMode::Fixed(_));
-    let _ = ds;
     let budget = match mode {
         LodMode::View { budget } => budget,
         _ => u64::MAX,
     };
-    let additive = src.additive();
     let mut chosen = Vec::new();
+    // Tiles refined by replacement (`Fixed` only).
+    let mut replaced = Vec::new();
     let mut heap = BinaryHeap::new();
     let mut total = 0u64;
     for t in src.roots().iter().map(source_ref) {
@@ -329,6 +328,7 @@ fn select_source(
         let kids: Vec<TileRef> = kids.iter().map(source_ref).collect();
         let vis: Vec<TileRef> = kids.iter().copied().filter(|k| visible(k)).collect();
         let added: u64 = vis.iter().map(|k| k.points).sum();
+        let additive = src.additive(c.tile.tile);
         let after = if additive {
             total + added
         } else {
@@ -342,6 +342,8 @@ fn select_source(
         sel.culled += kids.len() - vis.len();
         if additive {
             chosen.push(c.tile);
+        } else if full {
+            replaced.push(c.tile);
         }
         for k in vis {
             heap.push(Candidate {
@@ -351,8 +353,11 @@ fn select_source(
         }
     }
     if let LodMode::Fixed(k) = mode {
+        // Down to depth `deepest - k`: a replaced tile stands for its
+        // children where they are left out.
         let deepest = chosen.iter().map(|t| t.level).max().unwrap_or(0);
         chosen.retain(|t| t.level + k <= deepest);
+        chosen.extend(replaced.into_iter().filter(|t| t.level + k == deepest));
     }
     chosen
 }
@@ -405,7 +410,7 @@ pub fn select_region(
         may_show(&t.bounds) && frustum.contains_aabb(&t.bounds) != Containment::Outside
     };
     if let Some(src) = ds.source() {
-        chosen = select_source(src.as_ref(), ds, camera, height, mode, &visible, &mut sel);
+        chosen = select_source(src.as_ref(), camera, height, mode, &visible, &mut sel);
     } else {
         match mode {
             LodMode::Distance | LodMode::Fixed(_) => {

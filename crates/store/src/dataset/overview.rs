@@ -71,14 +71,35 @@ struct Member<'a> {
 /// split in two at the median of their points along the longer side of their
 /// centres' box (a k-d split), again and again, never into fewer than two.
 fn group(members: &mut [Member]) -> Vec<std::ops::Range<usize>> {
+    group_compact(members, GROUP_POINTS, &|m| m.center, &|m| m.top_points)
+}
+
+/// Orders `m` and cuts it into runs of members near each other, each holding
+/// at most `limit` points (`points`) and [`MAX_CHILDREN`] members: split in
+/// two at the median of their points along the longer side of their centres'
+/// (`center`) box, again and again, never into fewer than two. The overview's
+/// grouping, and a COPC survey's (`pcimg index` over COPC files).
+pub fn group_compact<T>(
+    m: &mut [T],
+    limit: u64,
+    center: &dyn Fn(&T) -> [f64; 3],
+    points: &dyn Fn(&T) -> u64,
+) -> Vec<std::ops::Range<usize>> {
     let mut runs = Vec::new();
-    split(members, 0, &mut runs);
+    split(m, 0, limit, center, points, &mut runs);
     runs
 }
 
-fn split(m: &mut [Member], at: usize, runs: &mut Vec<std::ops::Range<usize>>) {
-    let sum: u64 = m.iter().map(|x| x.top_points).sum();
-    if (sum <= GROUP_POINTS && m.len() <= MAX_CHILDREN) || m.len() < 4 {
+fn split<T>(
+    m: &mut [T],
+    at: usize,
+    limit: u64,
+    center: &dyn Fn(&T) -> [f64; 3],
+    points: &dyn Fn(&T) -> u64,
+    runs: &mut Vec<std::ops::Range<usize>>,
+) {
+    let sum: u64 = m.iter().map(points).sum();
+    if (sum <= limit && m.len() <= MAX_CHILDREN) || m.len() < 4 {
         runs.push(at..at + m.len());
         return;
     }
@@ -86,16 +107,16 @@ fn split(m: &mut [Member], at: usize, runs: &mut Vec<std::ops::Range<usize>>) {
         let (lo, hi) = m
             .iter()
             .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), x| {
-                (lo.min(x.center[a]), hi.max(x.center[a]))
+                (lo.min(center(x)[a]), hi.max(center(x)[a]))
             });
         hi - lo
     };
     let axis = if extent(0) >= extent(1) { 0 } else { 1 };
-    m.sort_by(|a, b| a.center[axis].total_cmp(&b.center[axis]));
+    m.sort_by(|a, b| center(a)[axis].total_cmp(&center(b)[axis]));
     let mut half = 0;
     let mut mid = m.len() / 2;
     for (i, x) in m.iter().enumerate() {
-        half += x.top_points;
+        half += points(x);
         if 2 * half >= sum {
             mid = i + 1;
             break;
@@ -103,8 +124,8 @@ fn split(m: &mut [Member], at: usize, runs: &mut Vec<std::ops::Range<usize>>) {
     }
     let mid = mid.clamp(2, m.len() - 2);
     let (left, right) = m.split_at_mut(mid);
-    split(left, at, runs);
-    split(right, at + mid, runs);
+    split(left, at, limit, center, points, runs);
+    split(right, at + mid, limit, center, points, runs);
 }
 
 /// The level one coarser than a part's coarsest, as its pyramid would make it:

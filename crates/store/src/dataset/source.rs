@@ -5,10 +5,11 @@
 //! A [`TileSource`] gives its root tiles, each tile's children (read as the
 //! view reaches them) and a tile's points. Its tiles are named in tile
 //! references by `part` [`SOURCE_PART`], `level` the tile's depth and
-//! `tile` the source's own id. Refinement is additive where the source says so
-//! (a COPC node's points are not repeated in its children: a finer view draws
-//! the node and its children), where a part's pyramid replaces a tile by its
-//! four children.
+//! `tile` the source's own id. Refinement is additive where the source says so,
+//! tile by tile (a COPC node's points are not repeated in its children: a finer
+//! view draws the node and its children), and replaces a tile by its children
+//! elsewhere, as a part's pyramid does (a survey's overview nodes above its
+//! COPC files).
 //!
 //! The store implements no source itself: the binary, where readers and the
 //! store meet, implements the COPC one over `pcimg-copc` and `pcimg-ingest`.
@@ -48,8 +49,10 @@ pub trait TileSource: Send + Sync + std::fmt::Debug {
     fn roots(&self) -> Vec<SourceTile>;
     /// The children of tile `id` (reading the hierarchy where needed).
     fn children(&self, id: u32) -> Result<Vec<SourceTile>>;
-    /// Whether a refined tile's own points stay drawn (COPC, EPT: yes).
-    fn additive(&self) -> bool {
+    /// Whether tile `id`'s own points stay drawn when it is refined (a COPC
+    /// or EPT node: yes; an overview node, a sample of its children's
+    /// points: no, its children replace it).
+    fn additive(&self, _id: u32) -> bool {
         true
     }
     /// Tile `id`'s points: x, y, z relative to an origin (the columns'

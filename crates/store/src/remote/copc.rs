@@ -47,6 +47,9 @@ impl pcimg_copc::ByteSource for RemoteBytes {
     fn read_prefix(&self, max: u64) -> std::io::Result<Vec<u8>> {
         self.file.read_prefix(max).map(|b| b.to_vec()).map_err(io)
     }
+    fn read_all(&self) -> std::io::Result<Vec<u8>> {
+        self.file.read_whole().map(|b| b.to_vec()).map_err(io)
+    }
     fn size(&self) -> std::io::Result<u64> {
         self.file.object_size().map_err(io)
     }

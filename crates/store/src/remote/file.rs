@@ -256,6 +256,17 @@ impl RemoteFile {
         })
     }
 
+    /// The whole object in one plain request (a small file read whole: a
+    /// survey's index, an EPT dataset's JSON), where a ranged read of it would
+    /// take two from a server that ignores ranges.
+    pub fn read_whole(&self) -> Result<Bytes, RemoteError> {
+        super::block_on(async {
+            self.cut_from_whole(0..0).await?;
+            let len = self.whole.get().map_or(0, |w| w.len() as u64);
+            self.cut_from_whole(0..len).await
+        })
+    }
+
     /// The object's size: known from a request already made, or asked for by
     /// a HEAD request.
     pub fn object_size(&self) -> Result<u64, RemoteError> {
