@@ -841,3 +841,87 @@ fn a_survey_over_http_reads_only_what_its_frame_draws() {
     let (_, e) = frame(&[]);
     assert!(e.contains("110,000 points from 4 tiles"), "{e}");
 }
+
+/// laspy's COPC test files (fixtures/laspy/, written by another COPC writer
+/// than autzen_trim's): `simple_with_page.copc.laz` keeps its octree's
+/// hierarchy in two pages. `info` reads the root page alone (`--tiles`
+/// both), and every point read through the octree (a region covering all,
+/// which reads node by node) equals laspy's `simple.las` it was made from.
+#[test]
+fn laspys_paged_copc_reads_its_second_page_only_when_asked() {
+    let t = tempfile::tempdir().unwrap();
+    let paged = fixture("laspy/simple_with_page.copc.laz");
+    let info = |extra: &[&str]| -> serde_json::Value {
+        let o = pcimg()
+            .args(["info", "--json"])
+            .args(extra)
+            .arg(&paged)
+            .output()
+            .unwrap();
+        serde_json::from_str(&ok(&o, "info")).unwrap()
+    };
+    let v = info(&[]);
+    assert_eq!(
+        (v["pages_read"].as_u64(), v["pages_unread"].as_u64()),
+        (Some(1), Some(1)),
+        "{v}"
+    );
+    let v = info(&["--tiles"]);
+    assert_eq!(
+        (v["pages_read"].as_u64(), v["pages_unread"].as_u64()),
+        (Some(2), Some(0)),
+        "{v}"
+    );
+    let sum: u64 = v["levels"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|l| l["points"].as_u64().unwrap())
+        .sum();
+    assert_eq!(sum, 1065);
+    let key = |p: las::Point| {
+        let q = |x: f64| (x * 100.0).round() as i64;
+        let c = p.color.map(|c| (c.red, c.green, c.blue));
+        (
+            q(p.x),
+            q(p.y),
+            q(p.z),
+            p.intensity,
+            u8::from(p.classification),
+            p.return_number,
+            c,
+        )
+    };
+    let read = |p: &Path| -> Vec<_> {
+        let mut r = las::Reader::from_path(p).unwrap();
+        r.read_all()
+            .unwrap()
+            .points()
+            .map(|p| key(p.unwrap()))
+            .collect()
+    };
+    let mut want = read(&fixture("laspy/simple.las"));
+    want.sort_unstable();
+    for name in ["simple_with_page.copc.laz", "simple.copc.laz"] {
+        let part = t.path().join(format!("{name}.pcimg"));
+        let o = convert(
+            fixture(&format!("laspy/{name}")).to_str().unwrap(),
+            &part,
+            &["-q", "--bounds", "0,0,1e9,1e9"],
+        );
+        ok(&o, "convert by region");
+        let las_out = t.path().join(format!("{name}.las"));
+        let o = pcimg()
+            .arg("export")
+            .arg(&part)
+            .arg("-o")
+            .arg(&las_out)
+            .output()
+            .unwrap();
+        ok(&o, "export");
+        let mut got = read(&las_out);
+        got.sort_unstable();
+        assert_eq!(got.len(), want.len(), "{name}");
+        assert!(got == want, "{name}: the points differ from simple.las");
+    }
+}

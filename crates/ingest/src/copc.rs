@@ -208,6 +208,27 @@ impl CopcReader {
     }
 }
 
+/// Node `e`'s records from its `chunk`, the fields of `sel` decompressed. The
+/// LAZ decoder's panic on a corrupt chunk stays off the terminal: an error
+/// naming the chunk's offset instead.
+fn decompress(
+    copc: &Copc,
+    e: &Entry,
+    chunk: &[u8],
+    sel: laz::DecompressionSelection,
+) -> Result<Vec<u8>, IngestError> {
+    crate::contain::contain(|| copc.decompress(e, chunk, sel))
+        .unwrap_or_else(|| {
+            Err(CopcError {
+                name: copc.name().to_string(),
+                offset: Some(e.offset),
+                what: "the LAZ decompressor failed on corrupt data".into(),
+                kind: pcimg_copc::Kind::Corrupt,
+            })
+        })
+        .map_err(error)
+}
+
 /// Keeps the points of `c` inside `r`; returns how many it dropped.
 pub(crate) fn keep_inside(c: &mut PointColumns, r: &Bounds) -> u64 {
     let inside: Vec<bool> = (0..c.len())
@@ -269,20 +290,7 @@ impl PointReader for CopcReader {
         let records: Vec<Vec<u8>> = batch
             .par_iter()
             .zip(chunks.par_iter())
-            .map(|(e, chunk)| {
-                // (The LAZ decoder's panic on a corrupt chunk stays off the
-                // terminal: `decompress` makes it an error naming the chunk.)
-                crate::contain::contain(|| copc.decompress(e, chunk, sel))
-                    .unwrap_or_else(|| {
-                        Err(pcimg_copc::CopcError {
-                            name: copc.name().to_string(),
-                            offset: Some(e.offset),
-                            what: "the LAZ decompressor failed on corrupt data".into(),
-                            kind: pcimg_copc::Kind::Corrupt,
-                        })
-                    })
-                    .map_err(error)
-            })
+            .map(|(e, chunk)| decompress(copc, e, chunk, sel))
             .collect::<Result<_, IngestError>>()?;
         let f = &self.fields;
         let g = *self.gps_offset.get_or_insert_with(|| {
@@ -563,17 +571,7 @@ impl NodeDecoder {
             .fetch(std::slice::from_ref(e))
             .map_err(error)?
             .remove(0);
-        let sel = selection_for(bands);
-        let rec = crate::contain::contain(|| copc.decompress(e, &chunk, sel))
-            .unwrap_or_else(|| {
-                Err(CopcError {
-                    name: copc.name().to_string(),
-                    offset: Some(e.offset),
-                    what: "the LAZ decompressor failed on corrupt data".into(),
-                    kind: pcimg_copc::Kind::Corrupt,
-                })
-            })
-            .map_err(error)?;
+        let rec = decompress(copc, e, &chunk, selection_for(bands))?;
         let mut cols = decode_records(&rec, &self.fields, self.gps_offset, &self.names);
         self.colors
             .lock()

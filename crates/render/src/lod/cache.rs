@@ -534,6 +534,7 @@ impl TileCache {
         s.clock += 1;
         let clock = s.clock;
         let mut waiting = false;
+        let mut new = Vec::new();
         for t in tiles {
             let k = TileKey::from(t);
             if let Some(e) = s.tiles.get_mut(&k) {
@@ -542,12 +543,35 @@ impl TileCache {
                 waiting = true;
             } else if !s.queued.contains(&k) && !s.unreadable.contains(&k) {
                 s.queued.insert(k);
-                if let Some(j) = &self.jobs {
-                    let _ = j.send(k);
-                }
+                new.push(k);
             }
         }
         drop(s);
+        let batch: Vec<u32> = new
+            .iter()
+            .filter(|k| k.part == crate::store::SOURCE_PART)
+            .map(|k| k.tile)
+            .collect();
+        match (self.ds.source(), &self.jobs) {
+            // A source's new tiles read ahead as one batch (a remote COPC's
+            // chunks: near ranges merged, the rest concurrent) off this
+            // thread, then queued: each load finds its bytes fetched.
+            (Some(src), Some(j)) if batch.len() > 1 => {
+                let (src, j) = (src.clone(), j.clone());
+                std::thread::spawn(move || {
+                    src.prefetch(&batch);
+                    for k in new {
+                        let _ = j.send(k);
+                    }
+                });
+            }
+            (_, Some(j)) => {
+                for k in new {
+                    let _ = j.send(k);
+                }
+            }
+            _ => {}
+        }
         if waiting {
             // Wanted again, some may be due already.
             self.shared.wake.notify_all();

@@ -28,12 +28,31 @@ impl RemoteBytes {
                 ));
             }
         };
-        let remote = Arc::new(Remote::open_with(dir, options)?);
+        let remote = client(dir, options)?;
         Ok(RemoteBytes {
             file: remote.file(name),
             url: url.to_string(),
         })
     }
+}
+
+/// The client of directory `dir`, one per directory and options in a
+/// process: an EPT dataset's node files, a survey's COPC files, share its
+/// connections (and what it learnt of the server: that it ignores ranges).
+fn client(dir: &str, options: &Options) -> Result<Arc<Remote>, RemoteError> {
+    type Clients = std::sync::Mutex<std::collections::HashMap<(String, u128), Arc<Remote>>>;
+    static CLIENTS: std::sync::OnceLock<Clients> = std::sync::OnceLock::new();
+    let key = (dir.to_string(), options.timeout.as_nanos());
+    let clients = CLIENTS.get_or_init(Default::default);
+    if let Some(r) = clients.lock().unwrap_or_else(|p| p.into_inner()).get(&key) {
+        return Ok(r.clone());
+    }
+    let r = Arc::new(Remote::open_with(dir, options)?);
+    clients
+        .lock()
+        .unwrap_or_else(|p| p.into_inner())
+        .insert(key, r.clone());
+    Ok(r)
 }
 
 fn io(e: RemoteError) -> std::io::Error {
