@@ -925,3 +925,82 @@ fn laspys_paged_copc_reads_its_second_page_only_when_asked() {
         assert!(got == want, "{name}: the points differ from simple.las");
     }
 }
+
+/// Every file under `dir`, uploaded to `weed` under `prefix/`.
+fn upload_dir(weed: &common::servers::Weed, dir: &Path, prefix: &str) {
+    for (name, _) in common::cli::local_files(dir) {
+        let bytes = std::fs::read(dir.join(&name)).unwrap();
+        weed.put(&format!("{prefix}/{name}"), bytes).unwrap();
+    }
+}
+
+/// In SeaweedFS: a survey of COPC files in the bucket (indexed from their
+/// URLs, uploaded beside them) opens in one request and draws its first frame
+/// from the overview node in one more; an EPT dataset reads from there too.
+#[test]
+fn a_survey_and_an_ept_dataset_in_object_storage() {
+    let Some(weed) = common::servers::Weed::start() else {
+        return;
+    };
+    let bucket = common::servers::WEED_BUCKET;
+    let t = tempfile::tempdir().unwrap();
+    let tiles = t.path().join("tiles");
+    let files = quadrants(&tiles);
+    upload_dir(&weed, &tiles, "lidar/tiles");
+    let list = t.path().join("tiles.txt");
+    let urls: Vec<String> = files
+        .iter()
+        .map(|f| {
+            format!(
+                "s3://{bucket}/lidar/tiles/{}",
+                f.file_name().unwrap().to_string_lossy()
+            )
+        })
+        .collect();
+    std::fs::write(&list, urls.join("\n")).unwrap();
+    let survey = t.path().join("survey");
+    let o = weed
+        .pcimg(
+            &weed.endpoint(),
+            &[
+                "index",
+                list.to_str().unwrap(),
+                "-o",
+                survey.to_str().unwrap(),
+            ],
+        )
+        .output()
+        .unwrap();
+    ok(&o, "index of COPC files in S3");
+    upload_dir(&weed, &survey, "lidar/survey");
+    let url = format!("s3://{bucket}/lidar/survey/pcimg-survey.json");
+    let run = |args: &[&str]| {
+        let mut a = args.to_vec();
+        a.push("--net-stats");
+        let o = weed.pcimg(&weed.endpoint(), &a).output().unwrap();
+        let said = ok(&o, &args.join(" "));
+        let e = String::from_utf8_lossy(&o.stderr).into_owned();
+        (said, network(&e).0, e)
+    };
+    let (said, requests, _) = run(&["info", &url]);
+    assert!(said.contains("4 COPC files, 110,000 points"), "{said}");
+    assert_eq!(requests, 1);
+    let png = t.path().join("f.png");
+    let png = png.to_str().unwrap();
+    let (_, requests, e) = run(&["render", &url, "-o", png, "--budget", "40000"]);
+    assert!(e.contains("27,502 points from 1 tiles"), "{e}");
+    assert!(requests <= 2, "{e}");
+    // The whole survey: each file opened (header, root page) and its node read.
+    let (_, requests, e) = run(&["render", &url, "-o", png]);
+    assert!(e.contains("110,000 points from 4 tiles"), "{e}");
+    assert!(requests <= 1 + 4 * 3, "{e}");
+
+    // An EPT dataset in the bucket: its JSON files read whole.
+    upload_dir(&weed, &fixture("ept/lone-star-laszip"), "lidar/ept");
+    let ept = format!("s3://{bucket}/lidar/ept/ept.json");
+    let (said, requests, _) = run(&["info", &ept]);
+    assert!(said.contains("518,862"), "{said}");
+    assert!(requests <= 2, "{requests} requests");
+    let (_, _, e) = run(&["render", &ept, "-o", png, "--lod", "0"]);
+    assert!(e.contains("518,862 points from 13 tiles"), "{e}");
+}
