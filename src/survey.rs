@@ -218,6 +218,12 @@ pub fn inputs_of(arg: &Path) -> anyhow::Result<Vec<PathBuf>> {
         out.sort();
         return Ok(out);
     }
+    if crate::ingest::copc::is_copc(arg) {
+        anyhow::bail!(
+            "{}: one COPC file needs no survey: `pcimg render|inspect|info` open it as it is",
+            arg.display()
+        );
+    }
     let text = std::fs::read_to_string(arg)
         .map_err(|e| anyhow::anyhow!("{}: cannot read the list of files: {e}", arg.display()))?;
     let base = arg.parent().unwrap_or(Path::new("."));

@@ -63,7 +63,8 @@ pub fn describe(r: &IndexReport) -> String {
 /// directory with COPC files and no parts.
 fn is_survey(a: &Args) -> bool {
     if a.dir.is_file() {
-        return true;
+        // (A part is not a list: it is refused below, as needing no index.)
+        return !a.dir.to_string_lossy().to_lowercase().ends_with(".tif");
     }
     let has = |ext: &str| {
         std::fs::read_dir(&a.dir).is_ok_and(|mut d| {
