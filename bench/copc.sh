@@ -22,23 +22,7 @@ rm -rf "$DIR"
 mkdir -p "$DIR"
 echo "machine: $(nproc) cores; $(date -u +%FT%TZ); $(weed version 2>&1 | head -1); input $COPC ($(du -h "$COPC" | cut -f1))"
 . bench/lib.sh
-free_port() { python3 -c 'import socket; s=socket.socket(); s.bind(("127.0.0.1",0)); print(s.getsockname()[1])'; }
-PROXY=$(free_port)
-start_weed "$DIR" bench benchkey benchsecret
-# The delaying proxy of bench/remote.sh.
-sed -n '/^cat > "\$DIR\/proxy.py" <<.EOF.$/,/^EOF$/p' bench/remote.sh | sed '1d;$d' > "$DIR/proxy.py"
-python3 "$DIR/proxy.py" "$PROXY" "$S3" "$DELAY_MS" &
-PROXY_PID=$!
-cleanup() {
-  kill "$PROXY_PID" "$WEED" 2>/dev/null || true
-  wait "$PROXY_PID" "$WEED" 2>/dev/null || true
-  rm -rf "$DIR"
-}
-trap cleanup EXIT
-export AWS_ACCESS_KEY_ID=benchkey AWS_SECRET_ACCESS_KEY=benchsecret AWS_REGION=us-east-1 AWS_ALLOW_HTTP=true
-export NODEVICE_SELECT=1
-direct=http://127.0.0.1:$S3
-delayed=http://127.0.0.1:$PROXY
+start_delayed_s3 "$DIR" "$DELAY_MS"
 
 name=$(basename "$COPC")
 curl -sf --aws-sigv4 "aws:amz:us-east-1:s3" --user benchkey:benchsecret -T "$COPC" "$direct/bench/$name"

@@ -64,3 +64,22 @@ start_weed() {
   done
   sleep 1
 }
+
+# start_delayed_s3 DIR DELAY_MS: SeaweedFS (start_weed, bucket `bench`, key
+# benchkey/benchsecret) behind bench/delay_proxy.py, which holds every request
+# DELAY_MS before passing it on; sets S3, WEED, PROXY, `direct` and `delayed`
+# (the endpoints), exports the AWS variables pcimg reads (and
+# NODEVICE_SELECT=1), and on exit stops both and removes DIR.
+start_delayed_s3() {
+  local dir=$1 delay=$2
+  PROXY=$(python3 -c 'import socket; s=socket.socket(); s.bind(("127.0.0.1",0)); print(s.getsockname()[1])')
+  start_weed "$dir" bench benchkey benchsecret
+  python3 "$(dirname "${BASH_SOURCE[0]}")/delay_proxy.py" "$PROXY" "$S3" "$delay" &
+  PROXY_PID=$!
+  _S3_DIR=$dir
+  trap 'kill "$PROXY_PID" "$WEED" 2>/dev/null || true; wait "$PROXY_PID" "$WEED" 2>/dev/null || true; rm -rf "$_S3_DIR"' EXIT
+  export AWS_ACCESS_KEY_ID=benchkey AWS_SECRET_ACCESS_KEY=benchsecret AWS_REGION=us-east-1 AWS_ALLOW_HTTP=true
+  export NODEVICE_SELECT=1
+  direct=http://127.0.0.1:$S3
+  delayed=http://127.0.0.1:$PROXY
+}

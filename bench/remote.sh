@@ -29,50 +29,7 @@ echo "machine: $(nproc) cores, $(free -g | awk '/Mem:/ {print $2}') GiB; $(date 
 df -h "$DIR" | tail -1
 
 . bench/lib.sh
-free_port() { python3 -c 'import socket; s=socket.socket(); s.bind(("127.0.0.1",0)); print(s.getsockname()[1])'; }
-PROXY=$(free_port)
-start_weed "$DIR" bench benchkey benchsecret
-# The delaying proxy: every chunk a client sends (an HTTP request: its headers
-# arrive in one read) waits DELAY_MS before it is forwarded.
-cat > "$DIR/proxy.py" <<'EOF'
-import asyncio, sys
-listen, target, delay = int(sys.argv[1]), int(sys.argv[2]), float(sys.argv[3]) / 1000
-async def pipe(r, w, wait):
-    try:
-        while True:
-            data = await r.read(65536)
-            if not data:
-                break
-            if wait:
-                await asyncio.sleep(delay)
-            w.write(data)
-            await w.drain()
-    except (ConnectionError, asyncio.CancelledError):
-        pass
-    finally:
-        w.close()
-async def handle(cr, cw):
-    sr, sw = await asyncio.open_connection("127.0.0.1", target)
-    await asyncio.gather(pipe(cr, sw, True), pipe(sr, cw, False))
-async def main():
-    srv = await asyncio.start_server(handle, "127.0.0.1", listen)
-    async with srv:
-        await srv.serve_forever()
-asyncio.run(main())
-EOF
-python3 "$DIR/proxy.py" "$PROXY" "$S3" "$DELAY_MS" &
-PROXY_PID=$!
-cleanup() {
-  kill "$PROXY_PID" "$WEED" 2>/dev/null || true
-  wait "$PROXY_PID" "$WEED" 2>/dev/null || true
-  rm -rf "$DIR"
-}
-trap cleanup EXIT
-
-export AWS_ACCESS_KEY_ID=benchkey AWS_SECRET_ACCESS_KEY=benchsecret AWS_REGION=us-east-1 AWS_ALLOW_HTTP=true
-export NODEVICE_SELECT=1
-direct=http://127.0.0.1:$S3
-delayed=http://127.0.0.1:$PROXY
+start_delayed_s3 "$DIR" "$DELAY_MS"
 
 t0=$(date +%s.%N)
 if [ -n "${INPUT:-}" ]; then

@@ -24,22 +24,7 @@ mkdir -p "$DIR"
 n=$(ls "$TILES"/*.copc.laz | wc -l)
 echo "machine: $(nproc) cores; $(date -u +%FT%TZ); $(weed version 2>&1 | head -1); $n tiles in $TILES ($(du -sh "$TILES" | cut -f1)); one: $(basename "$ONE")"
 . bench/lib.sh
-free_port() { python3 -c 'import socket; s=socket.socket(); s.bind(("127.0.0.1",0)); print(s.getsockname()[1])'; }
-PROXY=$(free_port)
-start_weed "$DIR" bench benchkey benchsecret
-sed -n '/^cat > "\$DIR\/proxy.py" <<.EOF.$/,/^EOF$/p' bench/remote.sh | sed '1d;$d' > "$DIR/proxy.py"
-python3 "$DIR/proxy.py" "$PROXY" "$S3" "$DELAY_MS" &
-PROXY_PID=$!
-cleanup() {
-  kill "$PROXY_PID" "$WEED" 2>/dev/null || true
-  wait "$PROXY_PID" "$WEED" 2>/dev/null || true
-  rm -rf "$DIR"
-}
-trap cleanup EXIT
-export AWS_ACCESS_KEY_ID=benchkey AWS_SECRET_ACCESS_KEY=benchsecret AWS_REGION=us-east-1 AWS_ALLOW_HTTP=true
-export NODEVICE_SELECT=1
-direct=http://127.0.0.1:$S3
-delayed=http://127.0.0.1:$PROXY
+start_delayed_s3 "$DIR" "$DELAY_MS"
 put() { curl -sf --aws-sigv4 "aws:amz:us-east-1:s3" --user benchkey:benchsecret -T "$1" "$direct/bench/$2"; }
 
 for f in "$TILES"/*.copc.laz; do put "$f" "tiles/$(basename "$f")"; done

@@ -416,6 +416,23 @@ fn a_copc_renders_as_its_converted_points_do() {
     }
 }
 
+/// The camera a 480×320 frame of `input` is fitted to (`--print-camera`), as
+/// `--camera` takes it: one camera for frames of two inputs.
+fn camera_of(input: &Path, scratch: &Path) -> String {
+    let o = pcimg()
+        .arg("render")
+        .arg(input)
+        .args(["--width", "480", "--height", "320", "--print-camera", "-o"])
+        .arg(scratch.join("probe.png"))
+        .output()
+        .unwrap();
+    let said = ok(&o, "render --print-camera") + &String::from_utf8_lossy(&o.stderr);
+    said.lines()
+        .find(|l| l.starts_with('{'))
+        .unwrap_or_else(|| panic!("no camera in {said}"))
+        .to_string()
+}
+
 /// PDAL's EPT test dataset `lone-star-laszip` (fixtures/ept/, BSD).
 fn ept() -> PathBuf {
     fixture("ept/lone-star-laszip/ept.json")
@@ -555,19 +572,7 @@ fn an_ept_dataset_renders_as_its_converted_points_do() {
     common::cli::convert(&ept(), &converted, &[]);
     // One camera for both (ept.json's bounds are rounded outward: a camera
     // fitted to each would differ).
-    let o = pcimg()
-        .arg("render")
-        .arg(&converted)
-        .args(["--width", "480", "--height", "320", "--print-camera", "-o"])
-        .arg(t.path().join("probe.png"))
-        .output()
-        .unwrap();
-    let said = ok(&o, "render --print-camera") + &String::from_utf8_lossy(&o.stderr);
-    let camera = said
-        .lines()
-        .find(|l| l.starts_with('{'))
-        .unwrap_or_else(|| panic!("no camera in {said}"))
-        .to_string();
+    let camera = camera_of(&converted, t.path());
     let render = |input: &Path, png: &str| {
         let out = t.path().join(png);
         let o = pcimg()
@@ -682,19 +687,7 @@ fn copc_tiles_indexed_as_a_survey_are_one_dataset() {
     );
     // One camera for the survey and for the COPC of all the points.
     let whole = fixture("autzen_trim.copc.laz");
-    let o = pcimg()
-        .arg("render")
-        .arg(&whole)
-        .args(["--width", "480", "--height", "320", "--print-camera", "-o"])
-        .arg(t.path().join("probe.png"))
-        .output()
-        .unwrap();
-    let said = ok(&o, "render --print-camera") + &String::from_utf8_lossy(&o.stderr);
-    let camera = said
-        .lines()
-        .find(|l| l.starts_with('{'))
-        .unwrap_or_else(|| panic!("no camera in {said}"))
-        .to_string();
+    let camera = camera_of(&whole, t.path());
     let render = |input: &Path, png: &str, extra: &[&str]| {
         let out = t.path().join(png);
         let o = pcimg()
