@@ -16,6 +16,11 @@
 //! whole visible dataset is drawn under any budget. For `Distance` and `Fixed`
 //! the overview's layers are the levels above the parts' own.
 //!
+//! A dataset's parts and a [`TileSource`] (COPC, EPT, a survey of COPC files)
+//! are refined by one loop ([`refine`]) over a [`TileTree`]: roots, children,
+//! and whether a refined tile stays drawn (a source's octree node) or gives
+//! way to its children (a part's tile, an overview node).
+//!
 //! Every mode then respects a memory budget: tiles that do not fit are not loaded,
 //! farthest first, and the selection says so (the paper: "it has to give up
 //! loading").
@@ -273,13 +278,165 @@ fn source_ref(t: &SourceTile) -> TileRef {
     }
 }
 
-/// The tiles of a [`TileSource`] (a COPC octree) for the view: from its roots,
-/// the visible tile whose points are spread widest on screen is refined first
-/// (`View`, and `Distance`, which a source has no levels for) until every
-/// tile's spacing is below about a pixel or the budget is spent; `Fixed(k)`
-/// draws every visible tile but those of the `k` deepest depths (0 = all, as a
-/// part's level 0 is its finest). A refined tile stays drawn with its
-/// children where the source says its refinement is additive.
+/// A hierarchy of tiles the view refines: a dataset's parts (their pyramids,
+/// and the overview nodes above them) or a [`TileSource`] (a COPC or EPT
+/// octree, a survey of COPC files). One refinement ([`refine`]) serves them
+/// all; they differ only in their roots, each tile's children and whether a
+/// refined tile stays drawn.
+trait TileTree {
+    /// The tiles refinement starts from.
+    fn roots(&self) -> Vec<TileRef>;
+    /// Tile `t`'s children (`None`: nothing finer), counting in `culled`
+    /// those it leaves out before reading them (an overview node's children
+    /// culled by the bounds it records).
+    fn children(
+        &self,
+        t: &TileRef,
+        visible: &dyn Fn(&TileRef) -> bool,
+        culled: &mut usize,
+    ) -> Option<Vec<TileRef>>;
+    /// Whether `t` stays drawn with its children (a COPC node: its points are
+    /// not repeated in them) or is replaced by them (a part's tile, whose
+    /// children hold its points and three times more).
+    fn additive(&self, t: &TileRef) -> bool;
+}
+
+/// A dataset's parts: from the overview's root (or every part's coarsest
+/// level), a node's coarsest tile refines into its children's coarsest tiles,
+/// then into each part's own pyramid.
+struct PartTree<'a>(&'a Dataset);
+
+impl TileTree for PartTree<'_> {
+    fn roots(&self) -> Vec<TileRef> {
+        let starts: Vec<usize> = match self.0.root() {
+            Some(root) => vec![root],
+            None => self.0.part_ids().unwrap_or_default(),
+        };
+        starts
+            .into_iter()
+            .flat_map(|pi| top_tiles(self.0, pi))
+            .collect()
+    }
+    fn children(
+        &self,
+        t: &TileRef,
+        visible: &dyn Fn(&TileRef) -> bool,
+        culled: &mut usize,
+    ) -> Option<Vec<TileRef>> {
+        children(self.0, t, visible, culled)
+    }
+    fn additive(&self, _t: &TileRef) -> bool {
+        false
+    }
+}
+
+/// A [`TileSource`]'s tiles (read as the view reaches them).
+struct SourceTree<'a>(&'a dyn TileSource);
+
+impl TileTree for SourceTree<'_> {
+    fn roots(&self) -> Vec<TileRef> {
+        self.0.roots().iter().map(source_ref).collect()
+    }
+    fn children(
+        &self,
+        t: &TileRef,
+        _visible: &dyn Fn(&TileRef) -> bool,
+        _culled: &mut usize,
+    ) -> Option<Vec<TileRef>> {
+        // (A tile whose children cannot be read: nothing finer.)
+        let kids = self.0.children(t.tile).ok()?;
+        (!kids.is_empty()).then(|| kids.iter().map(source_ref).collect())
+    }
+    fn additive(&self, t: &TileRef) -> bool {
+        self.0.additive(t.tile)
+    }
+}
+
+/// What [`refine`] chose: the tiles to draw, and (refining `full`) those
+/// replaced by their children.
+struct Refined {
+    chosen: Vec<TileRef>,
+    replaced: Vec<TileRef>,
+}
+
+/// The view's refinement of `tree`: from its visible roots, the tile whose
+/// points are spread widest on screen is refined first, until every tile's
+/// projected spacing is below about a pixel or its children would pass
+/// `budget` points (or, `full`, down to the finest tiles).
+fn refine(
+    tree: &dyn TileTree,
+    camera: &Camera,
+    height: u32,
+    budget: u64,
+    full: bool,
+    visible: &dyn Fn(&TileRef) -> bool,
+    sel: &mut Selection,
+) -> Refined {
+    let eye = camera.eye().to_array();
+    let ppu = |b: &Bounds| camera.pixels_per_unit(distance_to_box(eye, b), height);
+    let key = |t: &TileRef| spacing(&t.bounds, t.points) * ppu(&t.bounds);
+    let mut out = Refined {
+        chosen: Vec::new(),
+        replaced: Vec::new(),
+    };
+    let mut heap = BinaryHeap::new();
+    let mut total = 0u64;
+    for t in tree.roots() {
+        if !visible(&t) {
+            sel.culled += 1;
+            continue;
+        }
+        total += t.points;
+        heap.push(Candidate {
+            key: key(&t),
+            tile: t,
+        });
+    }
+    while let Some(c) = heap.pop() {
+        // Fine enough, or nothing finer: keep it.
+        let mut culled_early = 0;
+        let kids = if full || c.key > 1.0 {
+            tree.children(&c.tile, visible, &mut culled_early)
+        } else {
+            None
+        };
+        let Some(kids) = kids else {
+            out.chosen.push(c.tile);
+            continue;
+        };
+        let vis: Vec<TileRef> = kids.iter().copied().filter(|k| visible(k)).collect();
+        let added: u64 = vis.iter().map(|k| k.points).sum();
+        let additive = tree.additive(&c.tile);
+        let after = if additive {
+            total + added
+        } else {
+            total - c.tile.points + added
+        };
+        if after > budget {
+            out.chosen.push(c.tile);
+            continue;
+        }
+        total = after;
+        sel.culled += kids.len() - vis.len() + culled_early;
+        if additive {
+            out.chosen.push(c.tile);
+        } else if full {
+            out.replaced.push(c.tile);
+        }
+        for k in vis {
+            heap.push(Candidate {
+                key: key(&k),
+                tile: k,
+            });
+        }
+    }
+    out
+}
+
+/// The tiles of a [`TileSource`] for the view: [`refine`]d (`View`, and
+/// `Distance`, which a source has no levels for); `Fixed(k)` draws every
+/// visible tile but those of the `k` deepest depths (0 = all, as a part's
+/// level 0 is its finest).
 fn select_source(
     src: &dyn TileSource,
     camera: &Camera,
@@ -288,70 +445,15 @@ fn select_source(
     visible: &dyn Fn(&TileRef) -> bool,
     sel: &mut Selection,
 ) -> Vec<TileRef> {
-    let eye = camera.eye().to_array();
-    let ppu = |b: &Bounds| camera.pixels_per_unit(distance_to_box(eye, b), height);
-    // `Fixed(k)`: every visible tile down to the deepest, then the `k`
-    // deepest depths left out (0 = finest, as for parts' levels).
-    let full = matches!(mode, LodMode::Fixed(_));
     let budget = match mode {
         LodMode::View { budget } => budget,
         _ => u64::MAX,
     };
-    let mut chosen = Vec::new();
-    // Tiles refined by replacement (`Fixed` only).
-    let mut replaced = Vec::new();
-    let mut heap = BinaryHeap::new();
-    let mut total = 0u64;
-    for t in src.roots().iter().map(source_ref) {
-        if !visible(&t) {
-            sel.culled += 1;
-            continue;
-        }
-        total += t.points;
-        heap.push(Candidate {
-            key: spacing(&t.bounds, t.points) * ppu(&t.bounds),
-            tile: t,
-        });
-    }
-    while let Some(c) = heap.pop() {
-        let finer = full || c.key > 1.0;
-        // (A tile whose children cannot be read: nothing finer.)
-        let kids = if finer {
-            src.children(c.tile.tile).unwrap_or_default()
-        } else {
-            Vec::new()
-        };
-        if kids.is_empty() {
-            chosen.push(c.tile);
-            continue;
-        }
-        let kids: Vec<TileRef> = kids.iter().map(source_ref).collect();
-        let vis: Vec<TileRef> = kids.iter().copied().filter(|k| visible(k)).collect();
-        let added: u64 = vis.iter().map(|k| k.points).sum();
-        let additive = src.additive(c.tile.tile);
-        let after = if additive {
-            total + added
-        } else {
-            total - c.tile.points + added
-        };
-        if after > budget {
-            chosen.push(c.tile);
-            continue;
-        }
-        total = after;
-        sel.culled += kids.len() - vis.len();
-        if additive {
-            chosen.push(c.tile);
-        } else if full {
-            replaced.push(c.tile);
-        }
-        for k in vis {
-            heap.push(Candidate {
-                key: spacing(&k.bounds, k.points) * ppu(&k.bounds),
-                tile: k,
-            });
-        }
-    }
+    let full = matches!(mode, LodMode::Fixed(_));
+    let Refined {
+        mut chosen,
+        replaced,
+    } = refine(&SourceTree(src), camera, height, budget, full, visible, sel);
     if let LodMode::Fixed(k) = mode {
         // Down to depth `deepest - k`: a replaced tile stands for its
         // children where they are left out.
@@ -430,53 +532,16 @@ pub fn select_region(
                 }
             }
             LodMode::View { budget } => {
-                let ppu = |b: &Bounds| camera.pixels_per_unit(distance_to_box(eye, b), height);
-                let mut heap = BinaryHeap::new();
-                let mut total = 0u64;
-                let starts: Vec<usize> = match ds.root() {
-                    Some(root) => vec![root],
-                    None => ds.part_ids().unwrap_or_default(),
-                };
-                for pi in starts {
-                    for t in top_tiles(ds, pi) {
-                        if !visible(&t) {
-                            sel.culled += 1;
-                            continue;
-                        }
-                        total += t.points;
-                        heap.push(Candidate {
-                            key: spacing(&t.bounds, t.points) * ppu(&t.bounds),
-                            tile: t,
-                        });
-                    }
-                }
-                while let Some(c) = heap.pop() {
-                    // Fine enough, or nothing finer: keep it.
-                    let mut culled_early = 0;
-                    let kids = if c.key > 1.0 {
-                        children(ds, &c.tile, &visible, &mut culled_early)
-                    } else {
-                        None
-                    };
-                    let Some(kids) = kids else {
-                        chosen.push(c.tile);
-                        continue;
-                    };
-                    let vis: Vec<TileRef> = kids.iter().copied().filter(|k| visible(k)).collect();
-                    let added: u64 = vis.iter().map(|k| k.points).sum::<u64>();
-                    if total - c.tile.points + added > budget {
-                        chosen.push(c.tile);
-                        continue;
-                    }
-                    total = total - c.tile.points + added;
-                    sel.culled += kids.len() - vis.len() + culled_early;
-                    for k in vis {
-                        heap.push(Candidate {
-                            key: spacing(&k.bounds, k.points) * ppu(&k.bounds),
-                            tile: k,
-                        });
-                    }
-                }
+                chosen = refine(
+                    &PartTree(ds),
+                    camera,
+                    height,
+                    budget,
+                    false,
+                    &visible,
+                    &mut sel,
+                )
+                .chosen;
             }
         }
     }
