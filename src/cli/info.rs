@@ -466,19 +466,11 @@ fn copc_report(a: &Args) -> anyhow::Result<CopcReport> {
     let c = crate::ingest::copc::open_any(&a.path)?;
     let (crs, attributes) = crate::ingest::copc::describe(&c)?;
     // The nodes of the pages read (the root page), or of every page.
-    let max_depth = if a.tiles { i32::MAX } else { 0 };
-    let mut nodes = c.nodes_where(&|_| true, max_depth)?;
-    if !a.tiles {
-        let mut level = vec![c.root().key];
-        while let Some(k) = level.pop() {
-            for ch in k.children() {
-                if let Some(e) = c.known(&ch) {
-                    nodes.push(e);
-                    level.push(ch);
-                }
-            }
-        }
-    }
+    let nodes = if a.tiles {
+        c.all_nodes()?
+    } else {
+        c.known_nodes()
+    };
     let mut levels: Vec<CopcLevel> = Vec::new();
     for e in &nodes {
         let d = e.key.d;

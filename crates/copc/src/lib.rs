@@ -451,6 +451,12 @@ impl Copc {
         self.lock().nodes.get(key).copied()
     }
 
+    /// Every node of the hierarchy pages read so far (the root page's once
+    /// opened), in no order: what is known without another read.
+    pub fn known_nodes(&self) -> Vec<Entry> {
+        self.lock().nodes.values().copied().collect()
+    }
+
     /// Hierarchy pages read so far, and pages known but not read.
     pub fn pages(&self) -> (usize, usize) {
         let h = self.lock();

@@ -159,3 +159,26 @@ fn broken_hierarchy_and_chunks_are_named_by_byte() {
     }
     let _ = good.decompress(&root, &junk, laz::DecompressionSelection::all());
 }
+
+/// laspy's `simple_with_page.copc.laz` keeps its hierarchy in two pages: the
+/// nodes known after opening are the root page's, the rest only once a walk
+/// reads the second page, which adds no read of the first.
+#[test]
+fn known_nodes_are_those_of_the_pages_read() {
+    let path = fixture().with_file_name("laspy/simple_with_page.copc.laz");
+    let src = counted(std::fs::read(path).unwrap());
+    let c = Copc::open(src.clone()).unwrap();
+    let first = c.known_nodes();
+    assert_eq!(c.pages(), (1, 1));
+    let all = c.all_nodes().unwrap();
+    assert_eq!(c.pages(), (2, 0));
+    assert!(first.len() < all.len(), "{} of {}", first.len(), all.len());
+    assert_eq!(c.known_nodes().len(), all.len());
+    let total: u64 = all.iter().map(|e| u64::from(e.points)).sum();
+    assert_eq!(total, 1065);
+    assert_eq!(
+        src.reads.load(Ordering::Relaxed),
+        3,
+        "header, root page, second page"
+    );
+}
