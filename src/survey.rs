@@ -781,6 +781,15 @@ impl TileSource for SurveyTiles {
         });
     }
 
+    fn file_of(&self, id: u32) -> Option<String> {
+        let rel = if id < self.nodes() {
+            &self.survey.nodes[id as usize].file
+        } else {
+            &self.survey.files[self.inner(id).ok()?.0 as usize].file
+        };
+        Some(resolve(&self.at, rel).display().to_string())
+    }
+
     fn stats(&self) -> SourceStats {
         let mut depths: Vec<(usize, u64)> = vec![(0, 0); self.top];
         for n in &self.survey.nodes {

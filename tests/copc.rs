@@ -715,6 +715,23 @@ fn copc_tiles_indexed_as_a_survey_are_one_dataset() {
     let v = iou(&footprint(&c), &footprint(&b));
     eprintln!("overview node against the whole COPC: footprint IoU {v:.4}");
     assert!(v >= 0.5, "footprint IoU {v:.3}");
+    // A pick names the COPC file the point came from.
+    let o = pcimg()
+        .arg("render")
+        .arg(&dir)
+        .args(["--width", "480", "--height", "320", "--camera", &camera])
+        .args(["--pick", "240,160", "-o"])
+        .arg(t.path().join("pick.png"))
+        .output()
+        .unwrap();
+    let v: serde_json::Value =
+        serde_json::from_str(ok(&o, "render --pick").lines().next().unwrap()).unwrap();
+    let from = v["part"].as_str().unwrap_or_default();
+    assert!(
+        from.contains("autzen-q") && from.ends_with(".copc.laz"),
+        "{v}"
+    );
+    assert!(v["attributes"]["classification"].is_number(), "{v}");
     // `--lod 1` (all but the deepest depth): the overview node, which the
     // files' roots replace.
     let (_, said) = render(&dir, "lod1.png", &["--lod", "1"]);

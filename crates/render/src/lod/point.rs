@@ -36,6 +36,7 @@ pub fn point_record(ds: &Dataset, key: TileKey, index: usize) -> Result<PointRec
         .part(key.part)
         .map(|p| p.path.display().to_string())
         // (A source's tile: the file it came from.)
+        .or_else(|| ds.source().and_then(|s| s.file_of(key.tile)))
         .unwrap_or_else(|| ds.path.display().to_string());
     Ok(PointRecord {
         part,

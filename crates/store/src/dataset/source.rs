@@ -64,4 +64,9 @@ pub trait TileSource: Send + Sync + std::fmt::Debug {
     fn prefetch(&self, _ids: &[u32]) {}
     /// What the source has read of its hierarchy.
     fn stats(&self) -> SourceStats;
+    /// The file tile `id`'s points come from, where the source has several
+    /// (a survey's COPC files); `None`: the source's own path.
+    fn file_of(&self, _id: u32) -> Option<String> {
+        None
+    }
 }
