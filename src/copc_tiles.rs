@@ -124,7 +124,7 @@ impl TileSource for CopcTiles {
     fn stats(&self) -> SourceStats {
         let r = self.nodes.lock().unwrap_or_else(|p| p.into_inner());
         SourceStats {
-            format: "COPC".into(),
+            format: "COPC file".into(),
             depths: depths_of(&r.entries),
             pages: self.copc.pages(),
         }
@@ -257,7 +257,7 @@ impl TileSource for EptTiles {
     fn stats(&self) -> SourceStats {
         let r = self.nodes.lock().unwrap_or_else(|p| p.into_inner());
         SourceStats {
-            format: "EPT".into(),
+            format: "EPT dataset".into(),
             depths: depths_of(&r.entries),
             pages: self.ept.hierarchy_files(),
         }

@@ -815,7 +815,7 @@ impl TileSource for SurveyTiles {
         }
         SourceStats {
             format: format!(
-                "COPC survey, {} of {} files opened",
+                "COPC survey · {} of {} files opened",
                 opened,
                 self.files.len()
             ),

@@ -887,3 +887,41 @@ fn a_copc_file_is_inspected_from_its_octree() {
         assert!(text.contains(want), "{want} missing:\n{text}");
     }
 }
+
+/// A survey of COPC files (`pcimg index` over the four quadrants of
+/// autzen_trim) in the inspector: the first frame draws the overview node,
+/// no file opened, and the panels say so.
+#[test]
+fn a_survey_of_copc_files_is_inspected_from_its_overview() {
+    let t = tempfile::tempdir().unwrap();
+    let fixtures = Path::new(env!("CARGO_MANIFEST_DIR")).join("fixtures/survey");
+    for q in ["q00", "q01", "q10", "q11"] {
+        let name = format!("autzen-{q}.copc.laz");
+        std::fs::copy(fixtures.join(&name), t.path().join(&name)).unwrap();
+    }
+    let o = Command::new(env!("CARGO_BIN_EXE_pcimg"))
+        .arg("index")
+        .arg(t.path())
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let ds = Arc::new(pcimg::survey::open(t.path()).unwrap());
+    let cam = Camera::fit(&ds.bounds());
+    let mut app = App::new(ds, cam, Settings::default());
+    app.settings.budget = 40_000;
+    let w = common::halfblock_worker(app.dataset.clone());
+    let area = ui::areas(ratatui::layout::Rect::new(0, 0, 160, 48), &app).view_inner;
+    w.request(frame_request(&app, area, 1));
+    let frame = complete_frame(&w, 1);
+    assert_eq!(frame.status.points, 27_502, "{:?}", frame.status);
+    app.frame = frame.status.clone();
+    let text = screen(&app, Some(&frame.image)).join("\n");
+    for want in [
+        "COPC survey · 0 of 4 files opened",
+        "110,000 points",
+        "27,502",
+        "1/1",
+    ] {
+        assert!(text.contains(want), "{want} missing:\n{text}");
+    }
+}

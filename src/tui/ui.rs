@@ -164,8 +164,7 @@ fn draw_source(f: &mut Frame, app: &App, src: &dyn crate::store::TileSource, are
         .dark_gray(),
     ];
     f.render_widget(
-        Paragraph::new(lines)
-            .block(Block::bordered().title(title(format!(" {} file ", stats.format)))),
+        Paragraph::new(lines).block(Block::bordered().title(title(format!(" {} ", stats.format)))),
         areas[0],
     );
     let rows: Vec<Row> = t

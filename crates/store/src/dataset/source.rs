@@ -35,7 +35,7 @@ pub struct SourceTile {
 /// views reach it).
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct SourceStats {
-    /// The format, as a panel says it ("COPC").
+    /// What the source is, as a panel's title says it ("COPC file").
     pub format: String,
     /// `(tiles, points)` known at each depth.
     pub depths: Vec<(usize, u64)>,
