@@ -184,6 +184,24 @@ pub fn read(path: &Path) -> anyhow::Result<(PathBuf, Survey)> {
     Ok((at, s))
 }
 
+/// The survey at `path`'s files (paths or URLs) whose recorded bounds reach
+/// `region` (all without one), in the survey's order.
+pub fn files_in(path: &Path, region: Option<&Bounds>) -> anyhow::Result<Vec<PathBuf>> {
+    let (at, s) = read(path)?;
+    Ok(s.files
+        .iter()
+        .filter(|f| {
+            region.is_none_or(|r| {
+                r.intersects(&Bounds {
+                    min: f.min,
+                    max: f.max,
+                })
+            })
+        })
+        .map(|f| resolve(&at, &f.file))
+        .collect())
+}
+
 // ---------------------------------------------------------------- building
 
 /// What `pcimg index` over COPC files did.

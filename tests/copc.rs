@@ -760,6 +760,22 @@ fn copc_tiles_indexed_as_a_survey_are_one_dataset() {
     let o = pcimg().arg("index").arg(&list).output().unwrap();
     assert!(err(&o, "a list with no -o").contains("-o DIR"));
 
+    // A region converts from the files whose recorded bounds reach it alone
+    // (autzen-q00 here), to exactly the points inside it.
+    let region = t.path().join("region.pcimg");
+    let o = convert(dir.to_str().unwrap(), &region, &["--bounds", BOUNDS]);
+    let said = ok(&o, "convert a survey by region");
+    assert!(
+        said.contains("autzen-q00") && !said.contains("autzen-q11"),
+        "{said}"
+    );
+    assert_eq!(points(&region), laz_points_inside(LO, HI));
+    let o = convert(
+        dir.to_str().unwrap(),
+        &t.path().join("none.pcimg"),
+        &["--bounds", "0,0,1,1"],
+    );
+    assert!(err(&o, "a region off the survey").contains("no file of the survey reaches"));
     // A file that changed since the survey is named, with what to do.
     std::fs::copy(&files[3], &files[0]).unwrap();
     let o = pcimg()

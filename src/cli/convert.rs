@@ -17,7 +17,9 @@ pub struct Args {
     /// local or at a URL (s3://, https://: -o needed), whole or by --bounds.
     /// Several files (tiles of one survey, `tiles/*.laz`) or a directory (its
     /// point-cloud files, in name order) become one dataset; they must carry the
-    /// same attributes and coordinate reference system.
+    /// same attributes and coordinate reference system. A survey of COPC files
+    /// (`pcimg index` over them: its directory or pcimg-survey.json) reads only
+    /// the files whose recorded bounds reach --bounds/--clip.
     /// With --plan and no inputs, a cluster shard runs instead.
     #[arg(required_unless_present = "plan", num_args = 1.., value_name = "INPUT")]
     pub inputs: Vec<PathBuf>,
@@ -242,10 +244,26 @@ impl Progress for Bars {
 }
 
 /// The input files: each argument, or a directory's point-cloud files in name
-/// order (not its subdirectories).
-fn input_files(args: &[PathBuf]) -> anyhow::Result<Vec<PathBuf>> {
+/// order (not its subdirectories), or a survey's COPC files (`pcimg index`
+/// over them) whose recorded bounds reach `region` (all without one: no other
+/// file is opened).
+fn input_files(
+    args: &[PathBuf],
+    region: Option<&crate::points::Bounds>,
+) -> anyhow::Result<Vec<PathBuf>> {
     let mut files = Vec::new();
     for a in args {
+        if crate::survey::is_survey(a) {
+            let here = crate::survey::files_in(a, region)?;
+            if here.is_empty() {
+                anyhow::bail!(
+                    "{}: no file of the survey reaches the region",
+                    sanitize(&a.display().to_string())
+                );
+            }
+            files.extend(here);
+            continue;
+        }
         if !a.is_dir() {
             files.push(a.clone());
             continue;
@@ -427,7 +445,8 @@ fn run_cluster(a: &Args, plan: &std::path::Path, opts: ConvertOptions) -> anyhow
     if a.shard.is_some() {
         anyhow::bail!("--shard runs a planned shard: give --plan PLAN.json without INPUTS");
     }
-    let inputs = input_files(&a.inputs)?;
+    super::remote::read_url_inputs(a.timeout.remote_options());
+    let inputs = input_files(&a.inputs, a.bounds.as_ref().or(a.clip.as_ref()))?;
     let t = std::time::Instant::now();
     let cp = cluster::make_plan(&inputs, &opts, a.shards, &bars);
     bars.finish();
@@ -469,8 +488,8 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         Some(o) => o,
         None => default_output(&a.inputs)?,
     };
-    let inputs = input_files(&a.inputs)?;
     super::remote::read_url_inputs(a.timeout.remote_options());
+    let inputs = input_files(&a.inputs, a.bounds.as_ref().or(a.clip.as_ref()))?;
     let mut opts = options(&a, output);
     let url = convert::upload::is_remote(&opts.output).map(str::to_string);
     if let Some(plan) = &a.plan {
