@@ -270,11 +270,12 @@ pub fn inputs_of(arg: &Path) -> anyhow::Result<Vec<PathBuf>> {
     Ok(out)
 }
 
-/// A file opened for the overview: its record and a quarter of its root's
-/// points.
+/// What opening a file tells the survey (its header and root page): its
+/// record, fields, CRS and lattice. Its points are read again, a group at a
+/// time, when its overview node is written: nothing of a file is held
+/// between.
 struct Opened {
     rec: SurveyFile,
-    sample: PointColumns,
     names: Vec<String>,
     crs: Option<String>,
     lattice: crate::points::Lattice,
@@ -331,7 +332,7 @@ fn entry_name(file: &Path, out: &Path) -> String {
 }
 
 fn open_one(file: &Path, out: &Path) -> anyhow::Result<Opened> {
-    let copc = crate::ingest::copc::open_any(file)?;
+    let copc = crate::ingest::copc::open_once(file)?;
     let decoder = crate::ingest::copc::NodeDecoder::new(&copc)?;
     let (crs, _) = crate::ingest::copc::describe(&copc)?;
     let h = &copc.header;
@@ -341,11 +342,6 @@ fn open_one(file: &Path, out: &Path) -> anyhow::Result<Opened> {
             file.display()
         );
     }
-    let root = copc.root();
-    let names = decoder.names().to_vec();
-    let mut bands = names.clone();
-    bands.extend(["x", "y", "z"].map(String::from));
-    let pts = decoder.read(&copc, &root, &bands)?;
     Ok(Opened {
         rec: SurveyFile {
             file: entry_name(file, out),
@@ -353,15 +349,61 @@ fn open_one(file: &Path, out: &Path) -> anyhow::Result<Opened> {
             max: h.max,
             points: h.points,
             bytes: copc.len,
-            root_points: u64::from(root.points),
+            root_points: u64::from(copc.root().points),
         },
-        sample: every(pts, 4),
-        names,
+        names: decoder.names().to_vec(),
         crs,
         lattice: crate::points::Lattice {
             step: h.scale,
             origin: h.offset,
         },
+    })
+}
+
+/// A quarter of the points of `file`'s root node, every field.
+fn root_sample(file: &Path) -> anyhow::Result<PointColumns> {
+    let copc = crate::ingest::copc::open_once(file)?;
+    let decoder = crate::ingest::copc::NodeDecoder::new(&copc)?;
+    let mut bands = decoder.names().to_vec();
+    bands.extend(["x", "y", "z"].map(String::from));
+    let pts = decoder.read(&copc, &copc.root(), &bands)?;
+    Ok(every(pts, 4))
+}
+
+/// A quarter of the points of the overview node written at `path`.
+fn node_sample(path: &Path) -> anyhow::Result<PointColumns> {
+    let part = Part::open(path)?;
+    let all: Vec<usize> = (0..part.bands.len()).collect();
+    let p = part.read_level(0, &all)?;
+    let mut cols = p.columns.into_iter();
+    let mut coord = |o: f64| -> Vec<f64> {
+        cols.next()
+            .unwrap_or_default()
+            .into_iter()
+            .step_by(4)
+            .map(|v| v as f64 + o)
+            .collect()
+    };
+    let (x, y, z) = (
+        coord(p.offsets[0]),
+        coord(p.offsets[1]),
+        coord(p.offsets[2]),
+    );
+    let attributes = p.bands[3..]
+        .iter()
+        .zip(&p.offsets[3..])
+        .zip(cols)
+        .map(|((name, &offset), values)| crate::points::Attribute {
+            name: name.clone(),
+            offset,
+            values: values.into_iter().step_by(4).collect(),
+        })
+        .collect();
+    Ok(PointColumns {
+        x,
+        y,
+        z,
+        attributes,
     })
 }
 
@@ -477,7 +519,7 @@ pub fn build(
                 lattice,
                 ..Default::default()
             };
-            survey.nodes = build_nodes(&opened, &tmp, &stamp, &opts, cancel, progress)?;
+            survey.nodes = build_nodes(&opened, inputs, &tmp, &stamp, &opts, cancel, progress)?;
             std::fs::rename(&tmp, out.join(&stamp))
                 .map_err(|e| anyhow::anyhow!("{}: cannot rename: {e}", tmp.display()))?;
         }
@@ -514,9 +556,12 @@ fn current_overview(out: &Path) -> Option<String> {
 }
 
 /// Writes the overview's nodes into `tmp` (named as they will be in folder
-/// `stamp`), layer after layer up to one root.
+/// `stamp`), layer after layer up to one root. A node's points are read when
+/// it is written: its files' root nodes (layer 1), or its children nodes from
+/// `tmp`; memory holds the groups being written, not the survey.
 fn build_nodes(
     opened: &[Opened],
+    inputs: &[PathBuf],
     tmp: &Path,
     stamp: &str,
     opts: &WriteOptions,
@@ -532,12 +577,6 @@ fn build_nodes(
         std::array::from_fn(|a| 0.5 * (min[a] + max[a]))
     };
     let mut nodes: Vec<SurveyNode> = Vec::new();
-    // Each member's quarter sample: what its parent keeps.
-    let mut samples: HashMap<Member, PointColumns> = opened
-        .iter()
-        .enumerate()
-        .map(|(i, o)| (Member::File(i), o.sample.clone()))
-        .collect();
     let mut members: Vec<M> = opened
         .iter()
         .enumerate()
@@ -548,74 +587,95 @@ fn build_nodes(
         })
         .collect();
     let written = AtomicUsize::new(0);
+    // Layer 1 waits on the network where the files are remote.
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(if inputs.iter().any(|f| crate::ingest::is_url(f)) {
+            OPEN_THREADS
+        } else {
+            rayon::current_num_threads()
+        })
+        .build()
+        .map_err(|e| anyhow::anyhow!("cannot start threads: {e}"))?;
     let mut layer = 0;
     while members.len() > 1 {
         layer += 1;
         let runs = group_compact(&mut members, GROUP_POINTS, &|m| m.center, &|m| m.points);
-        let made: Vec<(SurveyNode, PointColumns)> = runs
-            .par_iter()
-            .enumerate()
-            .map(|(k, run)| {
-                if cancel.load(Ordering::Relaxed) {
-                    anyhow::bail!("{}: interrupted; nothing was written", tmp.display());
-                }
-                let kids = &members[run.clone()];
-                let mut pts = PointColumns::default();
-                for m in kids {
-                    append(&mut pts, &samples[&m.member]);
-                }
-                let name = format!("node-{layer}-{k:05}.tif");
-                let path = tmp.join(&name);
-                let o = WriteOptions {
-                    source: Some(format!("pcimg survey overview of {} member(s)", kids.len())),
-                    ..opts.clone()
+        let write = |(k, run): (usize, &std::ops::Range<usize>)| {
+            if cancel.load(Ordering::Relaxed) {
+                anyhow::bail!("{}: interrupted; nothing was written", tmp.display());
+            }
+            let kids = &members[run.clone()];
+            let mut pts = PointColumns::default();
+            for m in kids {
+                let sample = match m.member {
+                    Member::File(i) => root_sample(&inputs[i])?,
+                    Member::Node(j) => node_sample(&tmp.join(node_file(&nodes[j].file)))?,
                 };
-                write_part(&path, &pts, &o)?;
-                let bytes = std::fs::metadata(&path).map(|m| m.len()).unwrap_or(0);
-                let (mut min, mut max) = ([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]);
-                for m in kids {
-                    let (lo, hi) = match m.member {
-                        Member::File(i) => (opened[i].rec.min, opened[i].rec.max),
-                        Member::Node(j) => (nodes[j].min, nodes[j].max),
-                    };
-                    for a in 0..3 {
-                        min[a] = min[a].min(lo[a]);
-                        max[a] = max[a].max(hi[a]);
-                    }
-                }
-                let n = SurveyNode {
-                    file: format!("{stamp}/{name}"),
-                    layer,
-                    min,
-                    max,
-                    points: pts.x.len() as u64,
-                    bytes,
-                    children: kids.iter().map(|m| m.member).collect(),
+                append(&mut pts, &sample);
+            }
+            let name = format!("node-{layer}-{k:05}.tif");
+            let path = tmp.join(&name);
+            let o = WriteOptions {
+                source: Some(format!("pcimg survey overview of {} member(s)", kids.len())),
+                ..opts.clone()
+            };
+            write_part(&path, &pts, &o)?;
+            let bytes = std::fs::metadata(&path).map(|m| m.len()).unwrap_or(0);
+            let (mut min, mut max) = ([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]);
+            for m in kids {
+                let (lo, hi) = match m.member {
+                    Member::File(i) => (opened[i].rec.min, opened[i].rec.max),
+                    Member::Node(j) => (nodes[j].min, nodes[j].max),
                 };
-                progress(
-                    "nodes written",
-                    written.fetch_add(1, Ordering::Relaxed) + 1,
-                    0,
-                );
-                Ok((n, every(pts, 4)))
+                for a in 0..3 {
+                    min[a] = min[a].min(lo[a]);
+                    max[a] = max[a].max(hi[a]);
+                }
+            }
+            progress(
+                "nodes written",
+                written.fetch_add(1, Ordering::Relaxed) + 1,
+                0,
+            );
+            Ok(SurveyNode {
+                file: format!("{stamp}/{name}"),
+                layer,
+                min,
+                max,
+                points: pts.x.len() as u64,
+                bytes,
+                children: kids.iter().map(|m| m.member).collect(),
             })
-            .collect::<anyhow::Result<_>>()?;
-        for m in &members {
-            samples.remove(&m.member);
-        }
+        };
+        let made: Vec<SurveyNode> = if layer == 1 {
+            pool.install(|| {
+                runs.par_iter()
+                    .enumerate()
+                    .map(write)
+                    .collect::<anyhow::Result<_>>()
+            })?
+        } else {
+            runs.par_iter()
+                .enumerate()
+                .map(write)
+                .collect::<anyhow::Result<_>>()?
+        };
         members.clear();
-        for (n, sample) in made {
-            let id = Member::Node(nodes.len());
+        for n in made {
             members.push(M {
-                member: id,
+                member: Member::Node(nodes.len()),
                 center: center(n.min, n.max),
                 points: n.points,
             });
-            samples.insert(id, sample);
             nodes.push(n);
         }
     }
     Ok(nodes)
+}
+
+/// A node's file name inside its folder (`stamp/name` in the survey).
+fn node_file(entry: &str) -> &str {
+    entry.rsplit('/').next().unwrap_or(entry)
 }
 
 // ---------------------------------------------------------------- viewing

@@ -99,6 +99,16 @@ pub fn open_any(path: &Path) -> Result<Arc<Copc>, IngestError> {
     Ok(Arc::new(open_copc(Arc::new(src)).map_err(error)?))
 }
 
+/// [`open_any`], a URL opened afresh rather than kept for the process (a
+/// survey of many files opens each twice, and keeps none).
+pub fn open_once(path: &Path) -> Result<Arc<Copc>, IngestError> {
+    if crate::is_url(path) {
+        let source = crate::url_source(path)?;
+        return Ok(Arc::new(open_copc(source).map_err(error)?));
+    }
+    open_any(path)
+}
+
 /// Opens the COPC file in `source` for reading the points in `opts.region`
 /// (all without one).
 pub fn open_source(
