@@ -57,7 +57,8 @@ pub enum Command {
     /// Statistics of a dataset's bands (range, mean, percentiles, histogram), its
     /// classes and its point density (from an even sample, or --exact).
     Stats(stats::Args),
-    /// Rebuild a dataset directory's index and overview (for parts made separately).
+    /// Rebuild a dataset directory's index and overview (for parts made separately), or
+    /// index COPC files (a directory or a list) as one survey, with no conversion.
     Index(index::Args),
     /// Browse a dataset in the terminal: parts, bands, levels and a live view.
     Inspect(inspect::Args),
