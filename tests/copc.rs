@@ -674,6 +674,11 @@ fn copc_tiles_indexed_as_a_survey_are_one_dataset() {
         "{:?}",
         others(&dir, &[])
     );
+    // Indexed again: the new overview replaces the old, one folder left.
+    let o = pcimg().arg("index").arg(&dir).output().unwrap();
+    ok(&o, "index again");
+    let folders: Vec<String> = others(&dir, &[".copc.laz", "pcimg-survey.json"]);
+    assert_eq!(folders.len(), 1, "{folders:?}");
     let o = pcimg().args(["info", "--json"]).arg(&dir).output().unwrap();
     let v: serde_json::Value = serde_json::from_str(&ok(&o, "info of a survey")).unwrap();
     assert_eq!(
@@ -866,6 +871,15 @@ fn a_survey_over_http_reads_only_what_its_frame_draws() {
     assert!(requests <= 2, "{e}");
     let (_, e) = frame(&[]);
     assert!(e.contains("110,000 points from 4 tiles"), "{e}");
+    // A survey that is not there is named.
+    let missing = server.url("none/pcimg-survey.json");
+    let o = pcimg()
+        .args(["render", &missing, "-o"])
+        .arg(t.path().join("m.png"))
+        .output()
+        .unwrap();
+    let e = err(&o, "a missing survey");
+    assert!(e.contains("none/pcimg-survey.json"), "{e}");
 }
 
 /// laspy's COPC test files (fixtures/laspy/, written by another COPC writer
