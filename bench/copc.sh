@@ -30,28 +30,14 @@ curl -sf --aws-sigv4 "aws:amz:us-east-1:s3" --user benchkey:benchsecret -T "$COP
 AWS_ENDPOINT=$direct "$BIN" convert "$COPC" -o s3://bench/conv.pcimg -q
 echo "converted: $(du -sh "$DIR/local.pcimg" | cut -f1)"
 
-# one LABEL COMMAND...: wall ms and the network counters.
-one() {
-  local label=$1 t0 t1 net
-  shift
-  t0=$(date +%s%N)
-  AWS_ENDPOINT=$delayed "$BIN" "$@" --net-stats > /dev/null 2> "$DIR/err.txt" || { cat "$DIR/err.txt"; exit 1; }
-  t1=$(date +%s%N)
-  net=$(grep -oE '[0-9]+ requests, [0-9]+ bytes received' "$DIR/err.txt" || echo "0 requests, 0 bytes received")
-  printf '%s %d %s | %s\n' "$label" "$(( (t1 - t0) / 1000000 ))" "$net" "$(grep ' points from ' "$DIR/err.txt" | tail -1)" >> "$DIR/runs.txt"
-}
 : > "$DIR/runs.txt"
 for _ in $(seq "$REPS"); do
-  one copc-local render "$COPC" -o "$DIR/f.png" --renderer cpu
-  one conv-local render "$DIR/local.pcimg" -o "$DIR/f.png" --renderer cpu
-  one copc-s3 render "s3://bench/$name" -o "$DIR/f.png" --renderer cpu
-  one conv-s3 render s3://bench/conv.pcimg -o "$DIR/f.png" --renderer cpu
-  one copc-s3-info info "s3://bench/$name"
+  net_run copc-local render "$COPC" -o "$DIR/f.png" --renderer cpu
+  net_run conv-local render "$DIR/local.pcimg" -o "$DIR/f.png" --renderer cpu
+  net_run copc-s3 render "s3://bench/$name" -o "$DIR/f.png" --renderer cpu
+  net_run conv-s3 render s3://bench/conv.pcimg -o "$DIR/f.png" --renderer cpu
+  net_run copc-s3-info info "s3://bench/$name"
   rm -rf "$DIR/region.pcimg"
-  one copc-s3-region convert "s3://bench/$name" -o "$DIR/region.pcimg" -q --bounds "$BOUNDS"
+  net_run copc-s3-region convert "s3://bench/$name" -o "$DIR/region.pcimg" -q --bounds "$BOUNDS"
 done
-for label in copc-local conv-local copc-s3 conv-s3 copc-s3-info copc-s3-region; do
-  grep "^$label " "$DIR/runs.txt" | awk '{print $2}' | sort -g |
-    awk -v l="$label" '{v[NR]=$1} END {printf "%-15s median %d ms (%d-%d), %d runs; ", l, v[int((NR+1)/2)], v[1], v[NR], NR}'
-  grep "^$label " "$DIR/runs.txt" | tail -1 | cut -d' ' -f3-
-done
+net_summary copc-local conv-local copc-s3 conv-s3 copc-s3-info copc-s3-region

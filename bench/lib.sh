@@ -83,3 +83,27 @@ start_delayed_s3() {
   direct=http://127.0.0.1:$S3
   delayed=http://127.0.0.1:$PROXY
 }
+
+# net_run LABEL COMMAND...: runs `$BIN COMMAND... --net-stats` against the
+# delaying proxy (start_delayed_s3) and appends to $DIR/runs.txt its wall ms,
+# the network counters and the frame's summary line.
+net_run() {
+  local label=$1 t0 t1 net
+  shift
+  t0=$(date +%s%N)
+  AWS_ENDPOINT=$delayed "$BIN" "$@" --net-stats > /dev/null 2> "$DIR/err.txt" || { cat "$DIR/err.txt"; exit 1; }
+  t1=$(date +%s%N)
+  net=$(grep -oE '[0-9]+ requests, [0-9]+ bytes received' "$DIR/err.txt" || echo "0 requests, 0 bytes received")
+  printf '%s %d %s | %s\n' "$label" "$(( (t1 - t0) / 1000000 ))" "$net" "$(grep ' points from ' "$DIR/err.txt" | tail -1)" >> "$DIR/runs.txt"
+}
+
+# net_summary LABEL...: per label of $DIR/runs.txt, the median wall ms (range)
+# and the last run's counters and frame.
+net_summary() {
+  local label
+  for label in "$@"; do
+    grep "^$label " "$DIR/runs.txt" | awk '{print $2}' | sort -g |
+      awk -v l="$label" '{v[NR]=$1} END {printf "%-15s median %d ms (%d-%d), %d runs; ", l, v[int((NR+1)/2)], v[1], v[NR], NR}'
+    grep "^$label " "$DIR/runs.txt" | tail -1 | cut -d' ' -f3-
+  done
+}

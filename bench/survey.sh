@@ -46,27 +46,14 @@ t0=$(date +%s%N)
 echo "converted: $(du -sh "$DIR/conv" | cut -f1), $(( ($(date +%s%N) - t0) / 1000000 )) ms"
 AWS_ENDPOINT=$direct "$BIN" convert "$TILES" -o s3://bench/conv -q
 
-one() {
-  local label=$1 t0 t1 net
-  shift
-  t0=$(date +%s%N)
-  AWS_ENDPOINT=$delayed "$BIN" "$@" --net-stats > /dev/null 2> "$DIR/err.txt" || { cat "$DIR/err.txt"; exit 1; }
-  t1=$(date +%s%N)
-  net=$(grep -oE '[0-9]+ requests, [0-9]+ bytes received' "$DIR/err.txt" || echo "0 requests, 0 bytes received")
-  printf '%s %d %s | %s\n' "$label" "$(( (t1 - t0) / 1000000 ))" "$net" "$(grep ' points from ' "$DIR/err.txt" | tail -1)" >> "$DIR/runs.txt"
-}
 : > "$DIR/runs.txt"
 for _ in $(seq "$REPS"); do
-  one survey-local render "$DIR/local-survey" -o "$DIR/f.png" --renderer cpu
-  one tile-local render "$ONE" -o "$DIR/f.png" --renderer cpu
-  one conv-local render "$DIR/conv" -o "$DIR/f.png" --renderer cpu
-  one survey-s3 render s3://bench/survey/pcimg-survey.json -o "$DIR/f.png" --renderer cpu
-  one tile-s3 render "s3://bench/tiles/$one" -o "$DIR/f.png" --renderer cpu
-  one conv-s3 render s3://bench/conv -o "$DIR/f.png" --renderer cpu
-  one survey-s3-info info s3://bench/survey/pcimg-survey.json
+  net_run survey-local render "$DIR/local-survey" -o "$DIR/f.png" --renderer cpu
+  net_run tile-local render "$ONE" -o "$DIR/f.png" --renderer cpu
+  net_run conv-local render "$DIR/conv" -o "$DIR/f.png" --renderer cpu
+  net_run survey-s3 render s3://bench/survey/pcimg-survey.json -o "$DIR/f.png" --renderer cpu
+  net_run tile-s3 render "s3://bench/tiles/$one" -o "$DIR/f.png" --renderer cpu
+  net_run conv-s3 render s3://bench/conv -o "$DIR/f.png" --renderer cpu
+  net_run survey-s3-info info s3://bench/survey/pcimg-survey.json
 done
-for label in survey-local tile-local conv-local survey-s3 tile-s3 conv-s3 survey-s3-info; do
-  grep "^$label " "$DIR/runs.txt" | awk '{print $2}' | sort -g |
-    awk -v l="$label" '{v[NR]=$1} END {printf "%-15s median %d ms (%d-%d), %d runs; ", l, v[int((NR+1)/2)], v[1], v[NR], NR}'
-  grep "^$label " "$DIR/runs.txt" | tail -1 | cut -d' ' -f3-
-done
+net_summary survey-local tile-local conv-local survey-s3 tile-s3 conv-s3 survey-s3-info

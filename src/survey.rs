@@ -23,7 +23,7 @@ use crate::copc_tiles::CopcTiles;
 use crate::points::{Bounds, PointColumns};
 use crate::store::{
     Compression, Dataset, GROUP_POINTS, Part, Points, SourceStats, SourceTile, StoreError,
-    TileSource, Totals, WriteOptions, group_compact, write_part,
+    TileSource, Totals, WriteOptions, group_compact, next_coarser, write_part,
 };
 use rayon::prelude::*;
 use std::collections::HashMap;
@@ -370,43 +370,6 @@ fn root_sample(file: &Path) -> anyhow::Result<PointColumns> {
     Ok(every(pts, 4))
 }
 
-/// A quarter of the points of the overview node written at `path`.
-fn node_sample(path: &Path) -> anyhow::Result<PointColumns> {
-    let part = Part::open(path)?;
-    let all: Vec<usize> = (0..part.bands.len()).collect();
-    let p = part.read_level(0, &all)?;
-    let mut cols = p.columns.into_iter();
-    let mut coord = |o: f64| -> Vec<f64> {
-        cols.next()
-            .unwrap_or_default()
-            .into_iter()
-            .step_by(4)
-            .map(|v| v as f64 + o)
-            .collect()
-    };
-    let (x, y, z) = (
-        coord(p.offsets[0]),
-        coord(p.offsets[1]),
-        coord(p.offsets[2]),
-    );
-    let attributes = p.bands[3..]
-        .iter()
-        .zip(&p.offsets[3..])
-        .zip(cols)
-        .map(|((name, &offset), values)| crate::points::Attribute {
-            name: name.clone(),
-            offset,
-            values: values.into_iter().step_by(4).collect(),
-        })
-        .collect();
-    Ok(PointColumns {
-        x,
-        y,
-        z,
-        attributes,
-    })
-}
-
 /// Removes the overview folders in `out` that `keep` does not name: an
 /// earlier survey's, and what killed runs left (`.survey-tmp-PID`, that
 /// process gone).
@@ -609,7 +572,9 @@ fn build_nodes(
             for m in kids {
                 let sample = match m.member {
                     Member::File(i) => root_sample(&inputs[i])?,
-                    Member::Node(j) => node_sample(&tmp.join(node_file(&nodes[j].file)))?,
+                    Member::Node(j) => {
+                        next_coarser(&Part::open(&tmp.join(node_file(&nodes[j].file)))?)?
+                    }
                 };
                 append(&mut pts, &sample);
             }

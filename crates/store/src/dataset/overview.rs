@@ -131,8 +131,9 @@ fn split<T>(
 /// The level one coarser than a part's coarsest, as its pyramid would make it:
 /// every fourth point of the coarsest level in its Z order (the first of each 2×2
 /// block, which the layout made the block's representative), every band, as
-/// columns in source units.
-fn next_coarser(part: &Part) -> Result<PointColumns> {
+/// columns in source units. (An overview node's points for the layer above:
+/// here, and in a survey of COPC files.)
+pub fn next_coarser(part: &Part) -> Result<PointColumns> {
     let top = part.levels.len() - 1;
     let bands: Vec<usize> = (0..part.bands.len()).collect();
     let p = part.read_level(top, &bands)?;
