@@ -370,22 +370,34 @@ fn root_sample(file: &Path) -> anyhow::Result<PointColumns> {
     Ok(every(pts, 4))
 }
 
-/// Removes the overview folders in `out` that `keep` does not name: an
-/// earlier survey's, and what killed runs left (`.survey-tmp-PID`, that
-/// process gone).
-fn remove_others(out: &Path, keep: Option<&str>) -> Vec<PathBuf> {
+/// Removes the overview folders in `out` that `keep` does not name (an
+/// older survey's) and what killed runs left (`.survey-tmp-PID` and
+/// `.pcimg-survey.json.tmp-PID`, that process gone).
+fn remove_others(out: &Path, keep: &[&str]) -> Vec<PathBuf> {
     let mut gone = Vec::new();
     let Ok(entries) = std::fs::read_dir(out) else {
         return gone;
     };
+    let json_tmp = format!(".{SURVEY_FILE}.tmp-");
     for e in entries.flatten() {
         let name = e.file_name().to_string_lossy().into_owned();
+        let dead = |pid: &str| pid.parse::<u32>().is_ok_and(|p| !crate::disk::pid_alive(p));
         let stale = if let Some(pid) = name.strip_prefix(".survey-tmp-") {
-            pid.parse::<u32>().is_ok_and(|p| !crate::disk::pid_alive(p))
+            dead(pid)
+        } else if let Some(pid) = name.strip_prefix(&json_tmp) {
+            dead(pid)
         } else {
-            name.starts_with(OVERVIEW_PREFIX) && Some(name.as_str()) != keep
+            name.starts_with(OVERVIEW_PREFIX) && !keep.contains(&name.as_str())
         };
-        if stale && std::fs::remove_dir_all(e.path()).is_ok() {
+        if !stale {
+            continue;
+        }
+        let removed = if e.path().is_dir() {
+            std::fs::remove_dir_all(e.path())
+        } else {
+            std::fs::remove_file(e.path())
+        };
+        if removed.is_ok() {
             gone.push(e.path());
         }
     }
@@ -408,8 +420,11 @@ pub fn build(
     }
     std::fs::create_dir_all(out)
         .map_err(|e| anyhow::anyhow!("{}: cannot create: {e}", out.display()))?;
+    // The overview the survey in use names stays until the rebuild after
+    // this one: a reader that opened it still finds its nodes.
+    let current = current_overview(out);
     let mut report = BuildReport {
-        removed: remove_others(out, current_overview(out).as_deref()),
+        removed: remove_others(out, &current.iter().map(String::as_str).collect::<Vec<_>>()),
         ..Default::default()
     };
     let done = AtomicUsize::new(0);
@@ -501,8 +516,9 @@ pub fn build(
         let _ = std::fs::remove_dir_all(out.join(&stamp));
         return Err(e);
     }
-    let keep = (!survey.nodes.is_empty()).then_some(stamp.as_str());
-    report.removed.extend(remove_others(out, keep));
+    let mut keep = vec![stamp.as_str()];
+    keep.extend(current.as_deref());
+    report.removed.extend(remove_others(out, &keep));
     report.nodes = survey.nodes.len();
     report.layers = survey.layers();
     report.node_points = survey.nodes.iter().map(|n| n.points).sum();

@@ -93,6 +93,15 @@ fn run_survey(a: Args) -> anyhow::Result<()> {
     };
     let inputs = crate::survey::inputs_of(&a.dir)?;
     super::remote::read_url_inputs(a.timeout.remote_options());
+    // One run at a time in a directory (a second is refused, naming the first).
+    let created = !out.exists();
+    std::fs::create_dir_all(&out).map_err(|e| {
+        anyhow::anyhow!(
+            "{}: cannot create: {e}",
+            sanitize(&out.display().to_string())
+        )
+    })?;
+    let _lock = crate::convert::output::lock(&out.canonicalize()?)?;
     let cancel = Arc::new(AtomicBool::new(false));
     {
         let c = cancel.clone();
@@ -114,6 +123,10 @@ fn run_survey(a: Args) -> anyhow::Result<()> {
     let r = crate::survey::build(&inputs, &out, &cancel, &progress);
     if show {
         note!("");
+    }
+    if r.is_err() && created {
+        // (Only if empty: a failed build leaves nothing else.)
+        let _ = std::fs::remove_dir(&out);
     }
     let r = r?;
     for gone in &r.removed {
