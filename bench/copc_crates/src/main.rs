@@ -234,6 +234,58 @@ trait Reader {
     fn region(&self, path: &Path, l: &Lattice, b: &Box3) -> Result<Run>;
 }
 
+/// A reader as measured: how it opens a file over a counted source, and the
+/// sums of the points it reads (those in `b`, where given). [`Reader`]'s
+/// three measures follow from these.
+trait Measured {
+    /// The opened file.
+    type Handle;
+    fn name(&self) -> &'static str;
+    fn exact(&self) -> bool {
+        true
+    }
+    fn open_counted(&self, path: &Path, n: &Arc<Counter>) -> Result<Self::Handle>;
+    fn sums(&self, h: &mut Self::Handle, l: &Lattice, b: Option<&Box3>) -> Result<Sums>;
+}
+
+impl<M: Measured> Reader for M {
+    fn name(&self) -> &'static str {
+        Measured::name(self)
+    }
+    fn exact(&self) -> bool {
+        Measured::exact(self)
+    }
+    fn open(&self, path: &Path) -> Result<Run> {
+        let n = Arc::new(Counter::default());
+        let (secs, _) = timed(|| self.open_counted(path, &n))?;
+        Ok(Run {
+            secs,
+            io: n.take(),
+            sums: Sums::default(),
+        })
+    }
+    fn read(&self, path: &Path, l: &Lattice) -> Result<Run> {
+        let n = Arc::new(Counter::default());
+        let (secs, sums) = timed(|| self.sums(&mut self.open_counted(path, &n)?, l, None))?;
+        Ok(Run {
+            secs,
+            io: n.take(),
+            sums,
+        })
+    }
+    fn region(&self, path: &Path, l: &Lattice, b: &Box3) -> Result<Run> {
+        let n = Arc::new(Counter::default());
+        let mut h = self.open_counted(path, &n)?;
+        n.take();
+        let (secs, sums) = timed(|| self.sums(&mut h, l, Some(b)))?;
+        Ok(Run {
+            secs,
+            io: n.take(),
+            sums,
+        })
+    }
+}
+
 fn timed<T>(f: impl FnOnce() -> Result<T>) -> Result<(f64, T)> {
     let t = Instant::now();
     let v = f()?;
@@ -283,7 +335,7 @@ struct PcimgReader {
 }
 
 impl PcimgReader {
-    fn run(&self, copc: pcimg_copc::Copc, l: &Lattice, b: Option<&Box3>) -> Result<Sums> {
+    fn run(&self, copc: Arc<pcimg_copc::Copc>, l: &Lattice, b: Option<&Box3>) -> Result<Sums> {
         use pcimg_ingest::PointReader;
         let opts = pcimg_ingest::ReadOptions {
             region: b.map(|b| pcimg_core::points::Bounds {
@@ -293,7 +345,7 @@ impl PcimgReader {
             ..Default::default()
         };
         self.pool.install(|| {
-            let mut r = pcimg_ingest::copc::from_copc(Arc::new(copc), &opts)?;
+            let mut r = pcimg_ingest::copc::from_copc(copc, &opts)?;
             let mut s = Sums::default();
             while let Some(c) = r.next_chunk()? {
                 add_columns(&mut s, l, &c, None);
@@ -303,41 +355,19 @@ impl PcimgReader {
     }
 }
 
-impl Reader for PcimgReader {
+impl Measured for PcimgReader {
+    type Handle = Arc<pcimg_copc::Copc>;
     fn name(&self) -> &'static str {
         "pcimg ingest::copc::CopcReader"
     }
     fn exact(&self) -> bool {
         false
     }
-    fn open(&self, path: &Path) -> Result<Run> {
-        let n = Arc::new(Counter::default());
-        let (secs, _) = timed(|| pcimg_open(path, &n))?;
-        Ok(Run {
-            secs,
-            io: n.take(),
-            sums: Sums::default(),
-        })
+    fn open_counted(&self, path: &Path, n: &Arc<Counter>) -> Result<Self::Handle> {
+        Ok(Arc::new(pcimg_open(path, n)?))
     }
-    fn read(&self, path: &Path, l: &Lattice) -> Result<Run> {
-        let n = Arc::new(Counter::default());
-        let (secs, sums) = timed(|| self.run(pcimg_open(path, &n)?, l, None))?;
-        Ok(Run {
-            secs,
-            io: n.take(),
-            sums,
-        })
-    }
-    fn region(&self, path: &Path, l: &Lattice, b: &Box3) -> Result<Run> {
-        let n = Arc::new(Counter::default());
-        let copc = pcimg_open(path, &n)?;
-        n.take();
-        let (secs, sums) = timed(|| self.run(copc, l, Some(b)))?;
-        Ok(Run {
-            secs,
-            io: n.take(),
-            sums,
-        })
+    fn sums(&self, h: &mut Self::Handle, l: &Lattice, b: Option<&Box3>) -> Result<Sums> {
+        self.run(h.clone(), l, b)
     }
 }
 
@@ -374,41 +404,19 @@ impl PcimgNodes {
     }
 }
 
-impl Reader for PcimgNodes {
+impl Measured for PcimgNodes {
+    type Handle = pcimg_copc::Copc;
     fn name(&self) -> &'static str {
         "pcimg NodeDecoder (6 bands)"
     }
     fn exact(&self) -> bool {
         false
     }
-    fn open(&self, path: &Path) -> Result<Run> {
-        let n = Arc::new(Counter::default());
-        let (secs, _) = timed(|| pcimg_open(path, &n))?;
-        Ok(Run {
-            secs,
-            io: n.take(),
-            sums: Sums::default(),
-        })
+    fn open_counted(&self, path: &Path, n: &Arc<Counter>) -> Result<Self::Handle> {
+        pcimg_open(path, n)
     }
-    fn read(&self, path: &Path, l: &Lattice) -> Result<Run> {
-        let n = Arc::new(Counter::default());
-        let (secs, sums) = timed(|| self.run(&pcimg_open(path, &n)?, l, None))?;
-        Ok(Run {
-            secs,
-            io: n.take(),
-            sums,
-        })
-    }
-    fn region(&self, path: &Path, l: &Lattice, b: &Box3) -> Result<Run> {
-        let n = Arc::new(Counter::default());
-        let copc = pcimg_open(path, &n)?;
-        n.take();
-        let (secs, sums) = timed(|| self.run(&copc, l, Some(b)))?;
-        Ok(Run {
-            secs,
-            io: n.take(),
-            sums,
-        })
+    fn sums(&self, h: &mut Self::Handle, l: &Lattice, b: Option<&Box3>) -> Result<Sums> {
+        self.run(h, l, b)
     }
 }
 
@@ -470,43 +478,16 @@ impl StreamingReader {
     }
 }
 
-impl Reader for StreamingReader {
+impl Measured for StreamingReader {
+    type Handle = Streaming;
     fn name(&self) -> &'static str {
         self.label
     }
-    fn open(&self, path: &Path) -> Result<Run> {
-        let n = Arc::new(Counter::default());
-        let (secs, _) = timed(|| futures_executor::block_on(streaming_open(path, &n)))?;
-        Ok(Run {
-            secs,
-            io: n.take(),
-            sums: Sums::default(),
-        })
+    fn open_counted(&self, path: &Path, n: &Arc<Counter>) -> Result<Self::Handle> {
+        futures_executor::block_on(streaming_open(path, n))
     }
-    fn read(&self, path: &Path, l: &Lattice) -> Result<Run> {
-        let n = Arc::new(Counter::default());
-        let (secs, sums) = timed(|| {
-            futures_executor::block_on(async {
-                let mut r = streaming_open(path, &n).await?;
-                self.run(&mut r, l, None).await
-            })
-        })?;
-        Ok(Run {
-            secs,
-            io: n.take(),
-            sums,
-        })
-    }
-    fn region(&self, path: &Path, l: &Lattice, b: &Box3) -> Result<Run> {
-        let n = Arc::new(Counter::default());
-        let mut r = futures_executor::block_on(streaming_open(path, &n))?;
-        n.take();
-        let (secs, sums) = timed(|| futures_executor::block_on(self.run(&mut r, l, Some(b))))?;
-        Ok(Run {
-            secs,
-            io: n.take(),
-            sums,
-        })
+    fn sums(&self, h: &mut Self::Handle, l: &Lattice, b: Option<&Box3>) -> Result<Sums> {
+        futures_executor::block_on(self.run(h, l, b))
     }
 }
 
@@ -538,6 +519,13 @@ fn query(b: Option<&Box3>) -> copc_reader::PointQuery {
             )),
         },
     )
+}
+
+/// The sums of a copc-reader column batch.
+fn batch_sums(l: &Lattice, batch: &copc_core::LasColumnBatch) -> Result<Sums> {
+    let mut s = Sums::default();
+    add_batch(&mut s, l, batch)?;
+    Ok(s)
 }
 
 fn add_batch(s: &mut Sums, l: &Lattice, batch: &copc_core::LasColumnBatch) -> Result<()> {
@@ -583,49 +571,16 @@ fn range_open(path: &Path, n: &Arc<Counter>) -> Result<copc_reader::CopcRangeRea
     Ok(copc_reader::CopcRangeReader::open(src)?)
 }
 
-impl Reader for RangeReader {
+impl Measured for RangeReader {
+    type Handle = copc_reader::CopcRangeReader<CountedRange>;
     fn name(&self) -> &'static str {
         "copc-reader CopcRangeReader"
     }
-    fn open(&self, path: &Path) -> Result<Run> {
-        let n = Arc::new(Counter::default());
-        let (secs, _) = timed(|| range_open(path, &n))?;
-        Ok(Run {
-            secs,
-            io: n.take(),
-            sums: Sums::default(),
-        })
+    fn open_counted(&self, path: &Path, n: &Arc<Counter>) -> Result<Self::Handle> {
+        range_open(path, n)
     }
-    fn read(&self, path: &Path, l: &Lattice) -> Result<Run> {
-        let n = Arc::new(Counter::default());
-        let (secs, sums) = timed(|| {
-            let mut r = range_open(path, &n)?;
-            let batch = r.read_columns(query(None), selection())?;
-            let mut s = Sums::default();
-            add_batch(&mut s, l, &batch)?;
-            Ok(s)
-        })?;
-        Ok(Run {
-            secs,
-            io: n.take(),
-            sums,
-        })
-    }
-    fn region(&self, path: &Path, l: &Lattice, b: &Box3) -> Result<Run> {
-        let n = Arc::new(Counter::default());
-        let mut r = range_open(path, &n)?;
-        n.take();
-        let (secs, sums) = timed(|| {
-            let batch = r.read_columns(query(Some(b)), selection())?;
-            let mut s = Sums::default();
-            add_batch(&mut s, l, &batch)?;
-            Ok(s)
-        })?;
-        Ok(Run {
-            secs,
-            io: n.take(),
-            sums,
-        })
+    fn sums(&self, h: &mut Self::Handle, l: &Lattice, b: Option<&Box3>) -> Result<Sums> {
+        batch_sums(l, &h.read_columns(query(b), selection())?)
     }
 }
 
@@ -639,49 +594,16 @@ fn seek_open(path: &Path, n: &Arc<Counter>) -> Result<SeekCopc> {
     Ok(copc_reader::CopcReader::open(counted_file(path, n)?)?)
 }
 
-impl Reader for SeekReader {
+impl Measured for SeekReader {
+    type Handle = SeekCopc;
     fn name(&self) -> &'static str {
         "copc-reader CopcReader (Read+Seek)"
     }
-    fn open(&self, path: &Path) -> Result<Run> {
-        let n = Arc::new(Counter::default());
-        let (secs, _) = timed(|| seek_open(path, &n))?;
-        Ok(Run {
-            secs,
-            io: n.take(),
-            sums: Sums::default(),
-        })
+    fn open_counted(&self, path: &Path, n: &Arc<Counter>) -> Result<Self::Handle> {
+        seek_open(path, n)
     }
-    fn read(&self, path: &Path, l: &Lattice) -> Result<Run> {
-        let n = Arc::new(Counter::default());
-        let (secs, sums) = timed(|| {
-            let mut r = seek_open(path, &n)?;
-            let batch = r.read_columns(query(None), selection())?;
-            let mut s = Sums::default();
-            add_batch(&mut s, l, &batch)?;
-            Ok(s)
-        })?;
-        Ok(Run {
-            secs,
-            io: n.take(),
-            sums,
-        })
-    }
-    fn region(&self, path: &Path, l: &Lattice, b: &Box3) -> Result<Run> {
-        let n = Arc::new(Counter::default());
-        let mut r = seek_open(path, &n)?;
-        n.take();
-        let (secs, sums) = timed(|| {
-            let batch = r.read_columns(query(Some(b)), selection())?;
-            let mut s = Sums::default();
-            add_batch(&mut s, l, &batch)?;
-            Ok(s)
-        })?;
-        Ok(Run {
-            secs,
-            io: n.take(),
-            sums,
-        })
+    fn sums(&self, h: &mut Self::Handle, l: &Lattice, b: Option<&Box3>) -> Result<Sums> {
+        batch_sums(l, &h.read_columns(query(b), selection())?)
     }
 }
 
@@ -731,38 +653,16 @@ fn las_sums(r: &mut LasCopc, l: &Lattice, b: Option<&Box3>) -> Result<Sums> {
     Ok(s)
 }
 
-impl Reader for LasReader {
+impl Measured for LasReader {
+    type Handle = LasCopc;
     fn name(&self) -> &'static str {
         "las CopcReader"
     }
-    fn open(&self, path: &Path) -> Result<Run> {
-        let n = Arc::new(Counter::default());
-        let (secs, _) = timed(|| las_open(path, &n))?;
-        Ok(Run {
-            secs,
-            io: n.take(),
-            sums: Sums::default(),
-        })
+    fn open_counted(&self, path: &Path, n: &Arc<Counter>) -> Result<Self::Handle> {
+        las_open(path, n)
     }
-    fn read(&self, path: &Path, l: &Lattice) -> Result<Run> {
-        let n = Arc::new(Counter::default());
-        let (secs, sums) = timed(|| las_sums(&mut las_open(path, &n)?, l, None))?;
-        Ok(Run {
-            secs,
-            io: n.take(),
-            sums,
-        })
-    }
-    fn region(&self, path: &Path, l: &Lattice, b: &Box3) -> Result<Run> {
-        let n = Arc::new(Counter::default());
-        let mut r = las_open(path, &n)?;
-        n.take();
-        let (secs, sums) = timed(|| las_sums(&mut r, l, Some(b)))?;
-        Ok(Run {
-            secs,
-            io: n.take(),
-            sums,
-        })
+    fn sums(&self, h: &mut Self::Handle, l: &Lattice, b: Option<&Box3>) -> Result<Sums> {
+        las_sums(h, l, b)
     }
 }
 
