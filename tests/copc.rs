@@ -641,6 +641,17 @@ fn quadrants(dir: &Path) -> Vec<PathBuf> {
         .collect()
 }
 
+/// `pcimg index LIST -o OUT`.
+fn index_list(list: &Path, out: &Path) -> std::process::Output {
+    pcimg()
+        .arg("index")
+        .arg(list)
+        .arg("-o")
+        .arg(out)
+        .output()
+        .unwrap()
+}
+
 /// What a directory holds besides `keep`'s names (temporary or half-made
 /// things a failed index would leave).
 fn others(dir: &Path, keep: &[&str]) -> Vec<String> {
@@ -754,14 +765,7 @@ fn copc_tiles_indexed_as_a_survey_are_one_dataset() {
     )
     .unwrap();
     let out = t.path().join("out");
-    let o = pcimg()
-        .arg("index")
-        .arg(&list)
-        .arg("-o")
-        .arg(&out)
-        .output()
-        .unwrap();
-    ok(&o, "index of a list");
+    ok(&index_list(&list, &out), "index of a list");
     let (_, said) = render(&out.join("pcimg-survey.json"), "list.png", &[]);
     assert!(said.contains("110,000 points from 4 tiles"), "{said}");
     // A list needs -o.
@@ -811,14 +815,7 @@ fn a_survey_of_bad_inputs_is_refused_and_leaves_nothing() {
     let index = |lines: &str| {
         let list = t.path().join("list.txt");
         std::fs::write(&list, lines).unwrap();
-        let o = pcimg()
-            .arg("index")
-            .arg(&list)
-            .arg("-o")
-            .arg(&out)
-            .output()
-            .unwrap();
-        let e = err(&o, lines);
+        let e = err(&index_list(&list, &out), lines);
         assert!(!out.exists(), "{lines}: left {:?}", others(&out, &[]));
         e
     };
