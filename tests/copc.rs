@@ -788,6 +788,20 @@ fn copc_tiles_indexed_as_a_survey_are_one_dataset() {
         &["--bounds", "0,0,1,1"],
     );
     assert!(err(&o, "a region off the survey").contains("no file of the survey reaches"));
+    // `export` reads datasets of parts: for the survey's directory it says to
+    // convert it.
+    let o = pcimg()
+        .arg("export")
+        .arg(&dir)
+        .arg("-o")
+        .arg(t.path().join("x.las"))
+        .output()
+        .unwrap();
+    let e = err(&o, "export of a survey");
+    assert!(
+        e.contains("4 point-cloud file(s)") && e.contains("pcimg convert"),
+        "{e}"
+    );
     // A file that changed since the survey is named, with what to do.
     std::fs::copy(&files[3], &files[0]).unwrap();
     let o = pcimg()

@@ -97,6 +97,36 @@ pub(crate) fn list_parts(dir: &Path) -> Result<Vec<PathBuf>> {
         .collect();
     files.sort();
     if files.is_empty() {
+        // A directory of point clouds (tiles of a survey, COPC files): what
+        // to do with them, rather than only what is missing.
+        let clouds = std::fs::read_dir(dir)
+            .map(|d| {
+                d.filter_map(|e| e.ok())
+                    .filter(|e| {
+                        let p = e.path();
+                        let ext = p
+                            .extension()
+                            .and_then(|x| x.to_str())
+                            .map(str::to_ascii_lowercase);
+                        ext.is_some_and(|x| POINT_CLOUD_EXTENSIONS.contains(&x.as_str()))
+                    })
+                    .count()
+            })
+            .unwrap_or(0);
+        if clouds > 0 {
+            let name = dir
+                .file_name()
+                .map(|n| n.to_string_lossy().into_owned())
+                .unwrap_or_else(|| "clouds".into());
+            return Err(StoreError::new(
+                dir,
+                format!("holds {clouds} point-cloud file(s), not image parts"),
+            )
+            .with_remedy(Remedy::Convert {
+                input: dir.to_path_buf(),
+                output: PathBuf::from(format!("{name}.pcimg")),
+            }));
+        }
         return Err(StoreError::new(dir, "directory holds no .tif parts"));
     }
     Ok(files)
