@@ -119,6 +119,33 @@ fn view_mode_never_exceeds_the_budget_and_refines_near_tiles() {
     assert_eq!(sel.points, sel.tiles[0].points);
 }
 
+/// A small view (a terminal pane in text mode) zoomed onto the centre, where
+/// tiles' children meet, still refines past the coarsest tiles: the automatic
+/// budget holds what one refinement adds (four tiles).
+#[test]
+fn a_small_view_zoomed_in_refines_past_the_coarsest_tiles() {
+    let dir = tempfile::tempdir().unwrap();
+    let ds = dataset(dir.path());
+    let b = ds.bounds();
+    let budget = lod::budget_for_pixels(160, 90, lod::DEFAULT_BUDGET_CAP);
+    let coarsest = (0..3)
+        .filter_map(|p| ds.part(p))
+        .map(|p| p.levels.len() - 1)
+        .min()
+        .unwrap();
+    let mut cam = Camera::fit(&b);
+    cam.zoom(0.02);
+    cam.set_clip_from_bounds(&b);
+    let sel = lod::select(&ds, &cam, 160, 90, LodMode::View { budget }, u64::MAX);
+    let finest = sel.levels.map(|l| l.0).unwrap();
+    assert!(
+        finest < coarsest,
+        "level {finest} (coarsest {coarsest}), {} points, budget {budget}",
+        sel.points
+    );
+    assert!(sel.points <= budget);
+}
+
 #[test]
 fn tiles_outside_the_frustum_are_never_selected_or_loaded() {
     let dir = tempfile::tempdir().unwrap();

@@ -72,10 +72,13 @@ pub const DEFAULT_BUDGET_CAP: u64 = 16_000_000;
 pub(crate) const POINTS_PER_PIXEL: u64 = 2;
 
 /// The point budget for a `width`×`height` frame: two points a pixel, at least
-/// one tile's worth (65,536), at most `cap`.
+/// four tiles' worth (262,144), at most `cap`. Four tiles are what one
+/// refinement needs (a tile's children, an overview node's children): with
+/// less, a small view (text mode in a terminal pane) zoomed onto the line
+/// where a node's children meet could never refine past that node.
 pub fn budget_for_pixels(width: u32, height: u32, cap: u64) -> u64 {
     (POINTS_PER_PIXEL * width as u64 * height as u64)
-        .max(crate::store::spec::TILE_PIXELS as u64)
+        .max(4 * crate::store::spec::TILE_PIXELS as u64)
         .min(cap)
 }
 
