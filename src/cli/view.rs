@@ -38,7 +38,7 @@ pub struct ViewArgs {
     #[arg(long, default_value = "view")]
     pub lod: String,
     /// Most points drawn with --lod view. Each frame draws about two points a
-    /// pixel (at least 65,536), never more than this (at least 1,000; the nearest
+    /// pixel (at least 262,144), never more than this (at least 1,000; the nearest
     /// tile is drawn whatever the budget).
     #[arg(long, default_value_t = crate::lod::DEFAULT_BUDGET_CAP,
           value_parser = clap::value_parser!(u64).range(1_000..))]
