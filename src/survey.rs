@@ -23,7 +23,7 @@ use crate::copc_tiles::CopcTiles;
 use crate::points::{Bounds, PointColumns};
 use crate::store::{
     Compression, Dataset, GROUP_POINTS, Part, Points, SourceStats, SourceTile, StoreError,
-    TileSource, Totals, WriteOptions, group_compact, next_coarser, write_part,
+    TileSource, Totals, WriteOptions, append_columns, group_compact, next_coarser, write_part,
 };
 use rayon::prelude::*;
 use std::collections::HashMap;
@@ -144,10 +144,7 @@ fn resolve(at: &Path, rel: &str) -> PathBuf {
 
 /// The whole file at `path`, local or a URL.
 fn read_bytes(path: &Path) -> anyhow::Result<Vec<u8>> {
-    if crate::ingest::is_url(path) {
-        return Ok(crate::ingest::read_url(path)?);
-    }
-    std::fs::read(path).map_err(|e| anyhow::anyhow!("{}: cannot read: {e}", path.display()))
+    Ok(crate::ingest::read_whole(path)?)
 }
 
 /// Reads the survey at `path` (its file or directory, local or a URL).
@@ -296,21 +293,6 @@ fn every(c: PointColumns, step: usize) -> PointColumns {
                 a
             })
             .collect(),
-    }
-}
-
-/// Appends `b` to `a`, bringing `b`'s attributes to `a`'s offsets.
-fn append(a: &mut PointColumns, b: &PointColumns) {
-    if a.x.is_empty() && a.attributes.is_empty() {
-        *a = b.clone();
-        return;
-    }
-    a.x.extend(&b.x);
-    a.y.extend(&b.y);
-    a.z.extend(&b.z);
-    for (ta, tb) in a.attributes.iter_mut().zip(&b.attributes) {
-        let shift = (tb.offset - ta.offset) as f32;
-        ta.values.extend(tb.values.iter().map(|v| v + shift));
     }
 }
 
@@ -592,7 +574,7 @@ fn build_nodes(
                         next_coarser(&Part::open(&tmp.join(node_file(&nodes[j].file)))?)?
                     }
                 };
-                append(&mut pts, &sample);
+                append_columns(&mut pts, sample);
             }
             let name = format!("node-{layer}-{k:05}.tif");
             let path = tmp.join(&name);

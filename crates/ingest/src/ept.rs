@@ -83,14 +83,14 @@ impl Ept {
 
     /// The bytes of the dataset's file `rel`.
     fn get(&self, rel: &str) -> Result<Vec<u8>, IngestError> {
-        get(&self.at(rel), self.remote)
+        get(&self.at(rel))
     }
 
     /// Opens the EPT dataset whose `ept.json` is at `path` (local or URL).
     pub fn open(path: &Path) -> Result<Ept, IngestError> {
         let name = path.to_string_lossy().into_owned();
         let remote = crate::is_url(path);
-        let text = get(&name, remote)?;
+        let text = get(&name)?;
         let bad = |what: String| IngestError::format(path, what);
         let v: serde_json::Value = serde_json::from_slice(&text)
             .map_err(|e| IngestError::format(path, format!("not JSON: {e}")))?;
@@ -342,12 +342,8 @@ impl Ept {
 }
 
 /// The bytes of the file or URL `at`.
-fn get(at: &str, remote: bool) -> Result<Vec<u8>, IngestError> {
-    let path = Path::new(at);
-    if !remote {
-        return std::fs::read(path).map_err(|e| IngestError::io(path, "cannot read", e));
-    }
-    crate::read_url(path)
+fn get(at: &str) -> Result<Vec<u8>, IngestError> {
+    crate::read_whole(Path::new(at))
 }
 
 /// An EPT dataset's points in a region (all without one).

@@ -335,6 +335,15 @@ pub(crate) fn url_source(path: &Path) -> Result<Arc<dyn pcimg_copc::ByteSource>,
     opener(&path.to_string_lossy()).map_err(|m| IngestError::format(path, m))
 }
 
+/// The whole file at `path`, local or a URL (a small file read whole: an EPT
+/// dataset's JSON, a survey's index).
+pub fn read_whole(path: &Path) -> Result<Vec<u8>, IngestError> {
+    if is_url(path) {
+        return read_url(path);
+    }
+    std::fs::read(path).map_err(|e| IngestError::io(path, "cannot read", e))
+}
+
 /// The whole object at URL `path` (through [`set_url_opener`]).
 pub fn read_url(path: &Path) -> Result<Vec<u8>, IngestError> {
     url_source(path)?

@@ -88,7 +88,8 @@ pub mod tiff;
 pub mod write;
 
 pub use dataset::overview::{
-    GROUP_POINTS, IndexOptions, IndexReport, MAX_CHILDREN, build_index, group_compact, next_coarser,
+    GROUP_POINTS, IndexOptions, IndexReport, MAX_CHILDREN, append as append_columns, build_index,
+    group_compact, next_coarser,
 };
 pub use dataset::paged::Totals;
 pub use dataset::source::{SOURCE_PART, SourceStats, SourceTile, TileSource};

@@ -102,14 +102,7 @@ pub(crate) fn list_parts(dir: &Path) -> Result<Vec<PathBuf>> {
         let clouds = std::fs::read_dir(dir)
             .map(|d| {
                 d.filter_map(|e| e.ok())
-                    .filter(|e| {
-                        let p = e.path();
-                        let ext = p
-                            .extension()
-                            .and_then(|x| x.to_str())
-                            .map(str::to_ascii_lowercase);
-                        ext.is_some_and(|x| POINT_CLOUD_EXTENSIONS.contains(&x.as_str()))
-                    })
+                    .filter(|e| cloud_extension(&e.path()).is_some())
                     .count()
             })
             .unwrap_or(0);
@@ -134,6 +127,14 @@ pub(crate) fn list_parts(dir: &Path) -> Result<Vec<PathBuf>> {
 
 /// Extensions of the point clouds `pcimg convert` reads (named when one is
 /// opened as a dataset).
+/// `p`'s extension, lower case, when it is a point cloud's.
+fn cloud_extension(p: &Path) -> Option<String> {
+    p.extension()
+        .and_then(|e| e.to_str())
+        .map(str::to_ascii_lowercase)
+        .filter(|e| POINT_CLOUD_EXTENSIONS.contains(&e.as_str()))
+}
+
 const POINT_CLOUD_EXTENSIONS: [&str; 8] = ["las", "laz", "xyz", "txt", "csv", "asc", "pts", "ply"];
 
 /// Whether the file begins as a TIFF does (a part renamed `.txt` is a part).
@@ -299,12 +300,7 @@ impl Dataset {
                 .map(|f| Part::open(f))
                 .collect::<Result<Vec<_>>>()?
         } else {
-            let cloud = path
-                .extension()
-                .and_then(|e| e.to_str())
-                .map(str::to_ascii_lowercase)
-                .filter(|e| POINT_CLOUD_EXTENSIONS.contains(&e.as_str()));
-            if let Some(ext) = cloud.filter(|_| !starts_like_tiff(path)) {
+            if let Some(ext) = cloud_extension(path).filter(|_| !starts_like_tiff(path)) {
                 let stem = path
                     .file_stem()
                     .map(|s| s.to_string_lossy().into_owned())

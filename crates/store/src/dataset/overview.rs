@@ -170,7 +170,7 @@ pub fn next_coarser(part: &Part) -> Result<PointColumns> {
 }
 
 /// Appends `b` to `a`, bringing `b`'s attributes to `a`'s offsets.
-fn append(a: &mut PointColumns, b: PointColumns) {
+pub fn append(a: &mut PointColumns, b: PointColumns) {
     if a.x.is_empty() && a.attributes.is_empty() {
         *a = b;
         return;
