@@ -2,7 +2,8 @@
 # The Python package's read speed (issue 41): `pcimg.open(ds).read()` of a
 # dataset converted from real airborne LAS (fixtures/autzen_trim.laz tiled with
 # jitter, bench/autzen_tiled.py: 47.7 M points) against `laspy.read` of the same
-# points as LAZ (lazrs) and as LAS, and a 1 % box. Each run is its own process;
+# points as LAZ (lazrs) and as LAS, a 1 % box, and the dataset's Arrow stream
+# read whole by pyarrow. Each run is its own process;
 # runs are interleaved, REPS of each; prints each run, then the median
 # (min-max) seconds and M points/s.
 #
@@ -38,9 +39,10 @@ echo "pcimg $($py -c 'import pcimg, os; print(os.path.dirname(pcimg.__file__))')
 runs=$dir/runs.txt
 rm -f "$runs"
 for r in $(seq "$reps"); do
-  for what in pcimg laspy-laz laspy-las pcimg-box; do
+  for what in pcimg laspy-laz laspy-las pcimg-box pcimg-arrow; do
     case $what in
       pcimg) out=$($py bench/python_read.py pcimg "$ds") ;;
+      pcimg-arrow) out=$($py bench/python_read.py pcimg-arrow "$ds") ;;
       pcimg-box) out=$($py bench/python_read.py pcimg "$ds" "$box") ;;
       laspy-laz) out=$($py bench/python_read.py laspy "$laz") ;;
       laspy-las) out=$($py bench/python_read.py laspy "$input") ;;

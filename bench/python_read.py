@@ -1,6 +1,7 @@
 """One timed read for bench/python.sh: `python_read.py WHAT PATH [BOX]`.
 
-WHAT is `pcimg` (pcimg.open(PATH).read(), or with bounds=BOX), `laspy`
+WHAT is `pcimg` (pcimg.open(PATH).read(), or with bounds=BOX),
+`pcimg-arrow` (the dataset's Arrow stream read whole by pyarrow), `laspy`
 (laspy.read(PATH): LAZ through lazrs) or `laspy-las`. Prints seconds and
 points on one line.
 """
@@ -16,6 +17,11 @@ if what == "pcimg":
 
     pts = pcimg.open(path).read(bounds=box)
     n = len(pts)
+elif what == "pcimg-arrow":
+    import pcimg
+    import pyarrow as pa
+
+    n = pa.RecordBatchReader.from_stream(pcimg.open(path)).read_all().num_rows
 else:
     import laspy
 

@@ -101,22 +101,21 @@ class Dataset:
             yield _records(plan, i)
 
     def arrow(self, level=0, bounds=None, clip=None, classes=None, columns=None):
-        """As ``chunks``, as a ``pyarrow.RecordBatchReader`` (needs pyarrow)."""
-        import pyarrow as pa
-
-        plan = self._plan(level, bounds, clip, classes, columns)
-        fields = plan.fields()
-        schema = pa.schema([(name, pa.from_numpy_dtype(np.dtype(kind))) for name, _b, kind in fields])
-
-        def batches():
-            for i in range(plan.batches()):
-                rec = _records(plan, i)
-                cols = [np.ascontiguousarray(rec[name]) for name, _b, _k in fields]
-                yield pa.record_batch(cols, schema=schema)
-
-        return pa.RecordBatchReader.from_batches(schema, batches())
+        """As ``chunks``, as an Arrow stream: a ``pyarrow.RecordBatchReader``
+        where pyarrow is installed, else an object with ``__arrow_c_stream__``
+        (the Arrow PyCapsule interface) that polars, DuckDB, pandas and any
+        other Arrow consumer take. A record batch per batch of tiles, each
+        read when the consumer asks for it; the columns are ``read``'s
+        fields in Arrow's types (float64, uint8, uint16)."""
+        stream = self._plan(level, bounds, clip, classes, columns).arrow()
+        try:
+            import pyarrow as pa
+        except ImportError:
+            return stream
+        return pa.RecordBatchReader.from_stream(stream)
 
     def __arrow_c_stream__(self, requested_schema=None):
         """The Arrow PyCapsule stream of every point (pandas, polars, DuckDB
-        take it); needs pyarrow."""
-        return self.arrow().__arrow_c_stream__(requested_schema)
+        take it), made by the native module: no pyarrow needed."""
+        stream = self._plan(0, None, None, None, None).arrow()
+        return stream.__arrow_c_stream__(requested_schema)

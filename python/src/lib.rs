@@ -15,12 +15,18 @@
 //! LAS's whole-number fields in LAS's own integer types where every part's
 //! recorded range fits them, anything else as float64.
 
+use arrow_array::{
+    ArrayRef, Float64Array, RecordBatch, RecordBatchReader, UInt8Array, UInt16Array,
+};
+use arrow_buffer::{ArrowNativeType, ScalarBuffer};
+use arrow_schema::{ArrowError, DataType, Field as ArrowField, Schema, SchemaRef};
 use pcimg_core::points::Bounds;
 use pcimg_store::query::{self, Plan, Selection};
 use pcimg_store::{Dataset, OpenOptions, StoreError};
 use pyo3::exceptions::{PyOSError, PyValueError};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
+use pyo3_arrow::PyRecordBatchReader;
 use rayon::prelude::*;
 use std::path::Path;
 use std::sync::Arc;
@@ -401,6 +407,75 @@ fn whole(v: f64, max: f64) -> f64 {
     }
 }
 
+/// Writes field `f` of `n` points into `out` (`record` bytes each, the field
+/// at byte `at`), point `r` being row `row(r)` of the band's column `col`
+/// (offset and values; `None` where the part lacks the band: NaN, or 0 in an
+/// integer type): a coordinate back on its `lattice` (origin and step), a LAS
+/// field as its whole number (a flag as its bits), anything else as read.
+/// The one place values are made for both `read` and the Arrow stream.
+#[allow(clippy::too_many_arguments)]
+#[inline(always)]
+fn put_field(
+    f: &Field,
+    col: Option<(f64, &[f32])>,
+    lattice: Option<(f64, f64)>,
+    row: impl Fn(usize) -> usize,
+    out: &mut [u8],
+    record: usize,
+    at: usize,
+    n: usize,
+) {
+    let Some((off, col)) = col else {
+        let nan = f64::NAN.to_le_bytes();
+        match f.kind {
+            Kind::F64 if f.bits.is_none() => put(out, record, at, n, |_| nan),
+            Kind::U16 if f.bits.is_none() => put(out, record, at, n, |_| [0u8; 2]),
+            _ => put(out, record, at, n, |_| [0u8; 1]),
+        }
+        return;
+    };
+    let value = |r: usize| off + col[row(r)] as f64;
+    match (f.kind, f.bits, lattice) {
+        (_, Some((shift, mask)), _) => put(out, record, at, n, |r| {
+            [(whole(value(r), 255.0) as u8 >> shift) & mask]
+        }),
+        (Kind::F64, None, Some((o, step))) => put(out, record, at, n, |r| {
+            let v = value(r);
+            (o + pcimg_core::points::round_whole((v - o) / step) * step).to_le_bytes()
+        }),
+        (Kind::F64, None, None) => put(out, record, at, n, |r| value(r).to_le_bytes()),
+        (Kind::U16, None, _) => put(out, record, at, n, |r| {
+            (whole(value(r), 65535.0) as u16).to_le_bytes()
+        }),
+        (Kind::U8, None, _) => put(out, record, at, n, |r| [whole(value(r), 255.0) as u8]),
+    }
+}
+
+impl Kind {
+    /// Bytes of one value.
+    fn width(self) -> usize {
+        match self {
+            Kind::U8 => 1,
+            Kind::U16 => 2,
+            Kind::F64 => 8,
+        }
+    }
+}
+
+/// A column of `n` values of `T` (u8, u16 or f64), its little-endian bytes
+/// written by `fill`.
+fn column<T: ArrowNativeType>(n: usize, fill: impl FnOnce(&mut [u8])) -> ScalarBuffer<T> {
+    let mut v = vec![T::default(); n];
+    // SAFETY: T is a plain number type, every bit pattern a value; the byte
+    // slice covers exactly `v`'s values (this is a little-endian target, as
+    // the records `read` writes assume).
+    let bytes = unsafe {
+        std::slice::from_raw_parts_mut(v.as_mut_ptr().cast::<u8>(), std::mem::size_of_val(&v[..]))
+    };
+    fill(bytes);
+    ScalarBuffer::from(v)
+}
+
 /// A read planned: the tiles it reaches, in batches.
 #[pyclass(frozen, module = "pcimg._pcimg", name = "Plan")]
 struct NativePlan {
@@ -473,43 +548,84 @@ impl NativePlan {
                 };
                 // Field by field, each with its own loop (no choice per value).
                 for (j, f) in self.fields.iter().enumerate() {
-                    let at = offsets[j];
-                    let Some((off, col)) = cols[j] else {
-                        let nan = f64::NAN.to_le_bytes();
-                        match f.kind {
-                            Kind::F64 if f.bits.is_none() => put(chunk, record, at, n, |_| nan),
-                            Kind::U16 if f.bits.is_none() => {
-                                put(chunk, record, at, n, |_| [0u8; 2])
-                            }
-                            _ => put(chunk, record, at, n, |_| [0u8; 1]),
-                        }
-                        continue;
-                    };
-                    let value = |r: usize| off + col[row(r)] as f64;
-                    match (f.kind, f.bits, axis[j].zip(k.lattice)) {
-                        (_, Some((shift, mask)), _) => put(chunk, record, at, n, |r| {
-                            [(whole(value(r), 255.0) as u8 >> shift) & mask]
-                        }),
-                        (Kind::F64, None, Some((a, l))) => {
-                            let (o, step) = (l.origin[a], l.step[a]);
-                            put(chunk, record, at, n, |r| {
-                                let v = value(r);
-                                (o + pcimg_core::points::round_whole((v - o) / step) * step)
-                                    .to_le_bytes()
-                            })
-                        }
-                        (Kind::F64, None, None) => {
-                            put(chunk, record, at, n, |r| value(r).to_le_bytes())
-                        }
-                        (Kind::U16, None, _) => put(chunk, record, at, n, |r| {
-                            (whole(value(r), 65535.0) as u16).to_le_bytes()
-                        }),
-                        (Kind::U8, None, _) => {
-                            put(chunk, record, at, n, |r| [whole(value(r), 255.0) as u8])
-                        }
-                    }
+                    let lattice = axis[j]
+                        .zip(k.lattice)
+                        .map(|(a, l)| (l.origin[a], l.step[a]));
+                    put_field(f, cols[j], lattice, row, chunk, record, offsets[j], n);
                 }
             });
+    }
+
+    /// The Arrow schema of the fields: LAS's integer types, float64 else.
+    fn arrow_schema(&self) -> SchemaRef {
+        let fields: Vec<ArrowField> = self
+            .fields
+            .iter()
+            .map(|f| {
+                let t = match f.kind {
+                    Kind::U8 => DataType::UInt8,
+                    Kind::U16 => DataType::UInt16,
+                    Kind::F64 => DataType::Float64,
+                };
+                ArrowField::new(&f.name, t, false)
+            })
+            .collect();
+        Arc::new(Schema::new(fields))
+    }
+
+    /// Batch `i`'s kept points as an Arrow record batch of `schema`, the same
+    /// values as [`records`](Self::records) writes.
+    fn arrow_batch(
+        &self,
+        i: usize,
+        bands: &[String],
+        schema: &SchemaRef,
+    ) -> Result<RecordBatch, ArrowError> {
+        let k = self
+            .read_kept(i, bands)
+            .map_err(|e| ArrowError::ExternalError(Box::new(e)))?;
+        let p = &k.points;
+        let n = k.len();
+        const ROWS: usize = 1 << 14;
+        let columns: Vec<ArrayRef> = self
+            .fields
+            .iter()
+            .map(|f| {
+                let col = p
+                    .bands
+                    .iter()
+                    .position(|b| *b == f.band)
+                    .map(|i| (p.offsets[i], p.columns[i].as_slice()));
+                let lattice = ["x", "y", "z"]
+                    .iter()
+                    .position(|a| *a == f.band)
+                    .zip(k.lattice)
+                    .map(|(a, l)| (l.origin[a], l.step[a]));
+                // The field's values written as `read` writes them, into
+                // the Arrow type's own buffer.
+                let fill = |bytes: &mut [u8]| {
+                    let w = f.kind.width();
+                    bytes
+                        .par_chunks_mut(ROWS * w)
+                        .enumerate()
+                        .for_each(|(c, chunk)| {
+                            let first = c * ROWS;
+                            let row = |r: usize| match &k.rows {
+                                Some(rows) => rows[first + r] as usize,
+                                None => first + r,
+                            };
+                            put_field(f, col, lattice, row, chunk, w, 0, chunk.len() / w);
+                        })
+                };
+                let array: ArrayRef = match f.kind {
+                    Kind::U8 => Arc::new(UInt8Array::new(column(n, fill), None)),
+                    Kind::U16 => Arc::new(UInt16Array::new(column(n, fill), None)),
+                    Kind::F64 => Arc::new(Float64Array::new(column(n, fill), None)),
+                };
+                array
+            })
+            .collect();
+        RecordBatch::try_new(schema.clone(), columns)
     }
 
     /// The points batch `i`'s tiles record.
@@ -553,6 +669,20 @@ impl NativePlan {
     /// Points in the tiles reached: the most a read returns.
     fn points(&self) -> u64 {
         self.plan.points
+    }
+
+    /// Every point as an Arrow stream (pyo3-arrow's `RecordBatchReader`, which
+    /// has `__arrow_c_stream__`): a record batch per batch of tiles, each read
+    /// when the consumer asks for it.
+    fn arrow(slf: Bound<'_, Self>) -> PyRecordBatchReader {
+        let plan = slf.get();
+        let reader = ArrowBatches {
+            schema: plan.arrow_schema(),
+            bands: plan.bands(),
+            plan: slf.clone().unbind(),
+            next: 0,
+        };
+        PyRecordBatchReader::new(Box::new(reader))
     }
 
     /// Every point as a numpy structured array of `dtype` (its fields those of
@@ -641,6 +771,34 @@ impl NativePlan {
         })
         .map_err(store_err)?;
         Ok(out)
+    }
+}
+
+/// A plan's batches as Arrow record batches, read one at a time as the
+/// stream's consumer asks (the reads themselves in parallel).
+struct ArrowBatches {
+    plan: Py<NativePlan>,
+    schema: SchemaRef,
+    bands: Vec<String>,
+    next: usize,
+}
+
+impl Iterator for ArrowBatches {
+    type Item = Result<RecordBatch, ArrowError>;
+
+    fn next(&mut self) -> Option<Self::Item> {
+        let plan = self.plan.get();
+        if self.next >= plan.batches.len() {
+            return None;
+        }
+        self.next += 1;
+        Some(plan.arrow_batch(self.next - 1, &self.bands, &self.schema))
+    }
+}
+
+impl RecordBatchReader for ArrowBatches {
+    fn schema(&self) -> SchemaRef {
+        self.schema.clone()
     }
 }
 

@@ -157,13 +157,13 @@ pub fn encode(
             let raw = predict_float(values, width);
             // Level 1: on row-ordered tiles within 0.2 % of level 3's size at
             // about twice its speed (bench/RESULTS.md, "Compact storage").
-            zstd::bulk::compress(&raw, 1).unwrap_or_default()
+            zstd_compress(&raw, 1).map_err(|e| format!("zstd: {e}"))?
         }
         Compression::Lerc => encode_lerc(values, width, max_error)?,
         Compression::LercDeflate => deflate(&encode_lerc(values, width, max_error)?),
         Compression::LercZstd => {
             // GDAL's default level for LERC_ZSTD: the blobs are small.
-            zstd::bulk::compress(&encode_lerc(values, width, max_error)?, 9)
+            zstd_compress(&encode_lerc(values, width, max_error)?, 9)
                 .map_err(|e| format!("zstd: {e}"))?
         }
     })
@@ -405,6 +405,25 @@ thread_local! {
     /// Each thread's Zstd decompression context, kept between tiles.
     static ZSTD: std::cell::RefCell<Option<zstd::bulk::Decompressor<'static>>> =
         const { std::cell::RefCell::new(None) };
+}
+
+thread_local! {
+    /// Each thread's Zstd compression context and its level, kept between
+    /// tiles (a fresh context a tile cost its set-up every time).
+    static ZSTD_OUT: std::cell::RefCell<Option<(i32, zstd::bulk::Compressor<'static>)>> =
+        const { std::cell::RefCell::new(None) };
+}
+
+/// Compresses `raw` as one Zstd frame at `level` with this thread's context.
+fn zstd_compress(raw: &[u8], level: i32) -> std::io::Result<Vec<u8>> {
+    ZSTD_OUT.with(|z| {
+        let mut z = z.borrow_mut();
+        let c = match &mut *z {
+            Some((l, c)) if *l == level => c,
+            _ => &mut z.insert((level, zstd::bulk::Compressor::new(level)?)).1,
+        };
+        c.compress(raw)
+    })
 }
 
 /// Decompresses a Zstd frame of at most `capacity` bytes with this thread's
