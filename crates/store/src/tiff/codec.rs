@@ -153,12 +153,13 @@ pub fn encode(
     Ok(match c {
         Compression::None => bytemuck::cast_slice(values).to_vec(),
         Compression::Deflate => deflate(&predict_float(values, width)),
-        Compression::Zstd => {
-            let raw = predict_float(values, width);
+        Compression::Zstd => PREDICTED.with(|raw| {
+            let mut raw = raw.borrow_mut();
+            predict_float_into(values, width, &mut raw);
             // Level 1: on row-ordered tiles within 0.2 % of level 3's size at
             // about twice its speed (bench/RESULTS.md, "Compact storage").
-            zstd_compress(&raw, 1).map_err(|e| format!("zstd: {e}"))?
-        }
+            zstd_compress(&raw, 1).map_err(|e| format!("zstd: {e}"))
+        })?,
         Compression::Lerc => encode_lerc(values, width, max_error)?,
         Compression::LercDeflate => deflate(&encode_lerc(values, width, max_error)?),
         Compression::LercZstd => {
@@ -283,8 +284,31 @@ fn lerc_v3_as_v4(b: &[u8]) -> Option<Vec<u8>> {
 /// TIFF floating-point predictor on rows of one sample per pixel: bytes of each row
 /// regrouped most significant first, then differenced.
 fn predict_float(values: &[f32], width: usize) -> Vec<u8> {
-    let mut out = vec![0u8; values.len() * 4];
-    let mut planes = vec![0u8; width * 4];
+    let mut out = Vec::new();
+    predict_float_into(values, width, &mut out);
+    out
+}
+
+thread_local! {
+    /// Each thread's buffer for a tile's predicted bytes, and for Zstd's
+    /// output: reused from tile to tile (fresh buffers of a tile's size were
+    /// new pages, zeroed by the kernel, every time).
+    static PREDICTED: std::cell::RefCell<Vec<u8>> = const { std::cell::RefCell::new(Vec::new()) };
+    static SQUEEZED: std::cell::RefCell<Vec<u8>> = const { std::cell::RefCell::new(Vec::new()) };
+}
+
+/// [`predict_float`] into `out` (its allocation reused).
+fn predict_float_into(values: &[f32], width: usize, out: &mut Vec<u8>) {
+    out.clear();
+    out.resize(values.len() * 4, 0);
+    let mut planes = [0u8; 4 * spec::TILE_SIZE as usize];
+    let mut heap = Vec::new();
+    let planes: &mut [u8] = if width <= spec::TILE_SIZE as usize {
+        &mut planes[..]
+    } else {
+        heap.resize(width * 4, 0);
+        &mut heap
+    };
     for (row, dst) in values.chunks(width).zip(out.chunks_mut(width * 4)) {
         let w = row.len();
         let planes = &mut planes[..w * 4];
@@ -300,7 +324,6 @@ fn predict_float(values: &[f32], width: usize) -> Vec<u8> {
             *d = b.wrapping_sub(a);
         }
     }
-    out
 }
 
 /// How a stored tile is to be decoded.
@@ -422,7 +445,13 @@ fn zstd_compress(raw: &[u8], level: i32) -> std::io::Result<Vec<u8>> {
             Some((l, c)) if *l == level => c,
             _ => &mut z.insert((level, zstd::bulk::Compressor::new(level)?)).1,
         };
-        c.compress(raw)
+        SQUEEZED.with(|out| {
+            let mut out = out.borrow_mut();
+            out.clear();
+            out.reserve(zstd::zstd_safe::compress_bound(raw.len()));
+            let n = c.compress_to_buffer(raw, &mut *out)?;
+            Ok(out[..n].to_vec())
+        })
     })
 }
 
