@@ -376,9 +376,40 @@ struct Kept {
     lattice: Option<pcimg_core::points::Lattice>,
 }
 
+/// A field's column in a batch (offset and values) and its lattice (origin
+/// and step): [`Kept::source`].
+type Source<'a> = (Option<(f64, &'a [f32])>, Option<(f64, f64)>);
+
 impl Kept {
     fn len(&self) -> usize {
         self.rows.as_ref().map_or(self.points.len(), Vec::len)
+    }
+
+    /// The batch's row of kept point `i`.
+    #[inline(always)]
+    fn row(&self, i: usize) -> usize {
+        match &self.rows {
+            Some(rows) => rows[i] as usize,
+            None => i,
+        }
+    }
+
+    /// Where field `f` comes from: its band's column (offset and values; `None`
+    /// where the part lacks the band) and, for a coordinate, the lattice
+    /// (origin and step) it goes back onto.
+    fn source(&self, f: &Field) -> Source<'_> {
+        let p = &self.points;
+        let col = p
+            .bands
+            .iter()
+            .position(|b| *b == f.band)
+            .map(|i| (p.offsets[i], p.columns[i].as_slice()));
+        let lattice = ["x", "y", "z"]
+            .iter()
+            .position(|a| *a == f.band)
+            .zip(self.lattice)
+            .map(|(a, l)| (l.origin[a], l.step[a]));
+        (col, lattice)
     }
 }
 
@@ -521,37 +552,18 @@ impl NativePlan {
     /// Writes the kept points of `k` as records into `out` (`record` bytes
     /// each, field `j` at `offsets[j]`), in parallel.
     fn fill(&self, k: &Kept, out: &mut [u8], record: usize, offsets: &[usize]) {
-        let p = &k.points;
-        // Each field's column (offset and values) in the batch, if the part has it.
-        let cols: Vec<Option<(f64, &[f32])>> = self
-            .fields
-            .iter()
-            .map(|f| {
-                let i = p.bands.iter().position(|b| *b == f.band)?;
-                Some((p.offsets[i], p.columns[i].as_slice()))
-            })
-            .collect();
-        let axis: Vec<Option<usize>> = self
-            .fields
-            .iter()
-            .map(|f| ["x", "y", "z"].iter().position(|a| *a == f.band))
-            .collect();
+        let sources: Vec<_> = self.fields.iter().map(|f| k.source(f)).collect();
         const ROWS: usize = 1 << 14;
         out.par_chunks_mut(ROWS * record)
             .enumerate()
             .for_each(|(c, chunk)| {
                 let first = c * ROWS;
                 let n = chunk.len() / record;
-                let row = |r: usize| match &k.rows {
-                    Some(rows) => rows[first + r] as usize,
-                    None => first + r,
-                };
+                let row = |r: usize| k.row(first + r);
                 // Field by field, each with its own loop (no choice per value).
                 for (j, f) in self.fields.iter().enumerate() {
-                    let lattice = axis[j]
-                        .zip(k.lattice)
-                        .map(|(a, l)| (l.origin[a], l.step[a]));
-                    put_field(f, cols[j], lattice, row, chunk, record, offsets[j], n);
+                    let (col, lattice) = sources[j];
+                    put_field(f, col, lattice, row, chunk, record, offsets[j], n);
                 }
             });
     }
@@ -584,23 +596,13 @@ impl NativePlan {
         let k = self
             .read_kept(i, bands)
             .map_err(|e| ArrowError::ExternalError(Box::new(e)))?;
-        let p = &k.points;
         let n = k.len();
         const ROWS: usize = 1 << 14;
         let columns: Vec<ArrayRef> = self
             .fields
             .iter()
             .map(|f| {
-                let col = p
-                    .bands
-                    .iter()
-                    .position(|b| *b == f.band)
-                    .map(|i| (p.offsets[i], p.columns[i].as_slice()));
-                let lattice = ["x", "y", "z"]
-                    .iter()
-                    .position(|a| *a == f.band)
-                    .zip(k.lattice)
-                    .map(|(a, l)| (l.origin[a], l.step[a]));
+                let (col, lattice) = k.source(f);
                 // The field's values written as `read` writes them, into
                 // the Arrow type's own buffer.
                 let fill = |bytes: &mut [u8]| {
@@ -609,11 +611,7 @@ impl NativePlan {
                         .par_chunks_mut(ROWS * w)
                         .enumerate()
                         .for_each(|(c, chunk)| {
-                            let first = c * ROWS;
-                            let row = |r: usize| match &k.rows {
-                                Some(rows) => rows[first + r] as usize,
-                                None => first + r,
-                            };
+                            let row = |r: usize| k.row(c * ROWS + r);
                             put_field(f, col, lattice, row, chunk, w, 0, chunk.len() / w);
                         })
                 };

@@ -107,27 +107,29 @@ pub(crate) fn list_parts(dir: &Path) -> Result<Vec<PathBuf>> {
             })
             .unwrap_or(0);
         if clouds > 0 {
-            let name = dir
-                .file_name()
-                .map(|n| n.to_string_lossy().into_owned())
-                .unwrap_or_else(|| "clouds".into());
-            return Err(StoreError::new(
+            let name = dir.file_name().map(|n| n.to_string_lossy().into_owned());
+            return Err(point_clouds(
                 dir,
                 format!("holds {clouds} point-cloud file(s), not image parts"),
-            )
-            .with_remedy(Remedy::Convert {
-                input: dir.to_path_buf(),
-                output: PathBuf::from(format!("{name}.pcimg")),
-            }));
+                name.as_deref().unwrap_or("clouds"),
+            ));
         }
         return Err(StoreError::new(dir, "directory holds no .tif parts"));
     }
     Ok(files)
 }
 
-/// Extensions of the point clouds `pcimg convert` reads (named when one is
-/// opened as a dataset).
-/// `p`'s extension, lower case, when it is a point cloud's.
+/// `path` holds point clouds rather than parts: `message`, and the remedy of
+/// converting it to `NAME.pcimg`.
+fn point_clouds(path: &Path, message: String, name: &str) -> StoreError {
+    StoreError::new(path, message).with_remedy(Remedy::Convert {
+        input: path.to_path_buf(),
+        output: PathBuf::from(format!("{name}.pcimg")),
+    })
+}
+
+/// `p`'s extension, lower case, when it is that of a point cloud `pcimg
+/// convert` reads (named when one is opened as a dataset).
 fn cloud_extension(p: &Path) -> Option<String> {
     p.extension()
         .and_then(|e| e.to_str())
@@ -301,18 +303,12 @@ impl Dataset {
                 .collect::<Result<Vec<_>>>()?
         } else {
             if let Some(ext) = cloud_extension(path).filter(|_| !starts_like_tiff(path)) {
-                let stem = path
-                    .file_stem()
-                    .map(|s| s.to_string_lossy().into_owned())
-                    .unwrap_or_else(|| "cloud".into());
-                return Err(StoreError::new(
+                let stem = path.file_stem().map(|s| s.to_string_lossy().into_owned());
+                return Err(point_clouds(
                     path,
                     format!("a point cloud (.{ext}), not an image dataset"),
-                )
-                .with_remedy(Remedy::Convert {
-                    input: path.to_path_buf(),
-                    output: PathBuf::from(format!("{stem}.pcimg")),
-                }));
+                    stem.as_deref().unwrap_or("cloud"),
+                ));
             }
             vec![Part::open(path)?]
         };
