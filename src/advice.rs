@@ -107,6 +107,9 @@ fn remedy(r: &Remedy) -> String {
             "it was written by a newer pcimg than this one ({}): upgrade pcimg",
             env!("CARGO_PKG_VERSION")
         ),
+        Remedy::MoreMemory { .. } => "give it a larger budget with `--memory`, or split the \
+                                       parts into several datasets"
+            .into(),
         _ => "see the message".into(),
     }
 }

@@ -361,6 +361,61 @@ fn info_and_index_commands_show_the_overview() {
     assert!(String::from_utf8_lossy(&o.stderr).contains("not a directory"));
 }
 
+/// `pcimg index --memory`: a budget below what the parts' count needs is
+/// refused before anything changes (the index in place, no file left); one that
+/// allows a single node at a time builds the same index as an unbounded one.
+#[test]
+fn index_keeps_to_its_memory_budget_or_refuses_it() {
+    let dir = tempfile::tempdir().unwrap();
+    let (many, _) = datasets(dir.path(), 60_000, 3, 2);
+    let root = |ds: &Path| -> serde_json::Value {
+        serde_json::from_slice(&std::fs::read(ds.join("pcimg-index.json")).unwrap()).unwrap()
+    };
+    let before = std::fs::read(many.join("pcimg-index.json")).unwrap();
+    let listing = |ds: &Path| {
+        let mut n: Vec<String> = std::fs::read_dir(ds)
+            .unwrap()
+            .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+            .collect();
+        n.sort();
+        n
+    };
+    let names = listing(&many);
+    let o = exe()
+        .args(["index", "--memory", "1KiB"])
+        .arg(&many)
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success());
+    assert!(
+        err.contains("indexing 6 parts needs about") && err.contains("--memory"),
+        "{err}"
+    );
+    assert_eq!(
+        std::fs::read(many.join("pcimg-index.json")).unwrap(),
+        before
+    );
+    assert_eq!(listing(&many), names);
+    // 6 parts of x, y, z and intensity: a node of at most 15,000 points needs
+    // under 2 MiB, so 2 MiB builds one node at a time.
+    let o = exe()
+        .args(["index", "--memory", "2MiB"])
+        .arg(&many)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let small = root(&many);
+    let o = exe().arg("index").arg(&many).output().unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let free = root(&many);
+    for k in ["totals", "layers", "pages", "stride", "listing"] {
+        assert_eq!(small[k], free[k], "{k}");
+    }
+    assert!(small["totals"]["nodes"].as_u64().unwrap() >= 1);
+    assert!(!listing(&many).iter().any(|n| n.contains("tmp")));
+}
+
 #[test]
 fn a_paged_index_opens_from_its_root_and_reads_the_pages_views_reach() {
     use pcimg::store::dataset::index::{INDEX_FILE, IndexFile, entry_of};

@@ -27,6 +27,14 @@ pub struct Args {
     /// list of files).
     #[arg(short, long, value_name = "DIR")]
     pub output: Option<PathBuf>,
+    /// Memory budget for a directory of parts, e.g. 256MiB or 4G (default:
+    /// half the available memory). Indexing holds about 0.5 KiB a part (the
+    /// parts' entries wait in a file beside them) and builds as many overview
+    /// nodes at once as the rest allows (up to 24 MiB each for parts of 12
+    /// bands); a budget too small for the parts' count is refused before any
+    /// node is written.
+    #[arg(long, value_parser = crate::text::parse_size)]
+    pub memory: Option<u64>,
     #[command(flatten)]
     pub timeout: super::remote::TimeoutArg,
     /// Print nothing but errors.
@@ -192,6 +200,11 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     let o = IndexOptions {
         compression: None,
         cancel: Some(cancel),
+        memory: Some(
+            a.memory
+                .unwrap_or_else(crate::convert::budget::default_budget),
+        ),
+        refuse_over_memory: true,
     };
     use std::io::IsTerminal;
     let show = !a.quiet && std::io::stderr().is_terminal();

@@ -328,6 +328,9 @@ impl<'a> Job<'a> {
             let io = store::dataset::overview::IndexOptions {
                 compression: Some(self.o.compression),
                 cancel: Some(self.o.cancel.clone()),
+                // (The parts' buffers are free by now: the whole budget.)
+                memory: Some(self.o.memory),
+                refuse_over_memory: false,
             };
             let progress = self.progress;
             progress.phase("overview", self.parts.len() as u64 / 3 + 1, "nodes");

@@ -32,6 +32,8 @@ pub enum Remedy {
     Rewrite,
     /// The file was written by a newer version of the format.
     Upgrade,
+    /// The work needs about `needed` bytes of memory, more than its budget.
+    MoreMemory { needed: u64 },
 }
 
 impl StoreError {

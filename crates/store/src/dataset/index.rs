@@ -363,40 +363,58 @@ impl Index {
     /// Every entry the index holds, and its pages' files: the pages are read
     /// through `page` (a page's file, relative to the dataset).
     pub fn listing(&self, dir: &Path, page: &dyn Fn(&str) -> Result<Vec<u8>>) -> Result<Listing> {
+        let mut out = Listing::default();
+        self.visit(dir, page, &mut |v| match v {
+            Listed::Part(e) => out.parts.push(e.clone()),
+            Listed::Node(e) => out.nodes.push(e.clone()),
+            Listed::Page(name) => out.pages.push(name.to_string()),
+        })?;
+        Ok(out)
+    }
+
+    /// Calls `f` with every entry of the index, and the file of every page
+    /// after the root, reading one page at a time.
+    fn visit(
+        &self,
+        dir: &Path,
+        page: &dyn Fn(&str) -> Result<Vec<u8>>,
+        f: &mut dyn FnMut(Listed),
+    ) -> Result<()> {
+        let each = |p: &IndexPage, f: &mut dyn FnMut(Listed)| {
+            p.parts.iter().for_each(|e| f(Listed::Part(&e.entry)));
+            p.nodes.iter().for_each(|e| f(Listed::Node(&e.entry)));
+        };
         match self {
-            Index::One(i) => Ok(Listing {
-                parts: i.parts.clone(),
-                nodes: i.nodes.iter().map(|n| n.entry.clone()).collect(),
-                pages: Vec::new(),
-            }),
+            Index::One(i) => {
+                i.parts.iter().for_each(|e| f(Listed::Part(e)));
+                i.nodes.iter().for_each(|n| f(Listed::Node(&n.entry)));
+            }
             Index::Paged(r) => {
-                let mut out = Listing::default();
-                let add = |out: &mut Listing, p: &IndexPage| {
-                    out.parts.extend(p.parts.iter().map(|e| e.entry.clone()));
-                    out.nodes.extend(p.nodes.iter().map(|e| e.entry.clone()));
-                };
-                add(&mut out, &r.first);
+                each(&r.first, f);
                 for k in 1..r.pages {
                     let name = page_file(&r.pages_dir, k);
                     let text = page(&name)?;
                     let p = IndexPage::parse(&text, &dir.join(&name), dir, r.pages, r.stride)?;
-                    add(&mut out, &p);
-                    out.pages.push(name);
+                    each(&p, f);
+                    f(Listed::Page(&name));
                 }
-                Ok(out)
             }
         }
+        Ok(())
     }
 
-    /// Every file the index names: parts, nodes and its own pages.
+    /// Every file the index names: parts, nodes and its own pages (read one
+    /// page at a time, the names alone kept).
     pub fn files(&self, dir: &Path, page: &dyn Fn(&str) -> Result<Vec<u8>>) -> Result<Vec<String>> {
-        let l = self.listing(dir, page)?;
-        Ok(l.parts
-            .into_iter()
-            .chain(l.nodes)
-            .map(|e| e.file)
-            .chain(l.pages)
-            .collect())
+        let (mut parts, mut nodes, mut pages) = (Vec::new(), Vec::new(), Vec::new());
+        self.visit(dir, page, &mut |v| match v {
+            Listed::Part(e) => parts.push(e.file.clone()),
+            Listed::Node(e) => nodes.push(e.file.clone()),
+            Listed::Page(name) => pages.push(name.to_string()),
+        })?;
+        parts.extend(nodes);
+        parts.extend(pages);
+        Ok(parts)
     }
 
     /// The URL the entries' ETags were recorded for.
@@ -406,6 +424,14 @@ impl Index {
             Index::Paged(r) => r.uploaded_to.as_deref(),
         }
     }
+}
+
+/// One thing an index lists ([`Index::visit`]).
+enum Listed<'a> {
+    Part(&'a FileEntry),
+    Node(&'a FileEntry),
+    /// A page file after the root.
+    Page(&'a str),
 }
 
 /// What an index lists ([`Index::listing`]).

@@ -63,78 +63,126 @@ impl Totals {
         parts: impl Iterator<Item = (&'a PartMeta, &'a [BandInfo], usize, u64)>,
         nodes: usize,
     ) -> Totals {
-        let mut t = Totals {
-            parts: 0,
-            nodes,
-            points: 0,
-            bytes: 0,
-            bounds: Bounds::EMPTY,
-            own_levels: 1,
-            crs: None,
-            class_counts: Vec::new(),
-            bands: Vec::new(),
-            ranges: Vec::new(),
-            classes_complete: true,
-            level_points: Vec::new(),
-        };
-        let mut counts = [0u64; 256];
-        let mut metas = Vec::new();
+        let mut t = TotalsSum::default();
         for (meta, bands, levels, bytes) in parts {
-            metas.push(&meta.level_points);
-            if meta.class_counts.is_empty() && bands.iter().any(|b| b.name == "classification") {
-                t.classes_complete = false;
-            }
-            t.parts += 1;
-            t.points += meta.point_count;
-            t.bytes += bytes;
-            t.bounds = t.bounds.union(&meta.bounds);
-            t.own_levels = t.own_levels.max(levels);
-            if t.crs.is_none() {
-                t.crs = meta.crs.clone();
-            }
-            for &(c, n) in &meta.class_counts {
-                counts[c as usize] += n;
-            }
-            for b in bands {
-                match t.bands.iter().position(|n| *n == b.name) {
-                    None => {
-                        t.bands.push(b.name.clone());
-                        t.ranges.push(b.range);
-                    }
-                    Some(i) => {
-                        t.ranges[i] = match (t.ranges[i], b.range) {
-                            (Some((a, b)), Some((c, d))) => Some((a.min(c), b.max(d))),
-                            _ => None,
-                        }
-                    }
-                }
-            }
+            t.add(meta, bands, levels, bytes);
         }
-        t.level_points = (0..t.own_levels)
-            .map(|l| {
-                metas
-                    .iter()
-                    .filter(|lp| !lp.is_empty())
-                    .map(|lp| lp[l.min(lp.len() - 1)])
-                    .sum()
-            })
-            .collect();
-        t.class_counts = (0..=255u8)
-            .filter(|&c| counts[c as usize] > 0)
-            .map(|c| (c, counts[c as usize]))
-            .collect();
-        t
+        t.finish(nodes)
     }
 
     /// The totals of index entries.
     pub fn of_entries<'a>(parts: impl Iterator<Item = &'a FileEntry>, nodes: usize) -> Totals {
-        Totals::of(
-            parts.map(|e| {
-                let h = &e.header;
-                (&h.meta, h.bands.as_slice(), h.levels.len(), e.bytes)
-            }),
-            nodes,
-        )
+        let mut t = TotalsSum::default();
+        parts.for_each(|e| t.add_entry(e));
+        t.finish(nodes)
+    }
+}
+
+/// [`Totals`] summed one part at a time, holding nothing per part: the index
+/// of a hundred thousand parts is built without keeping their entries.
+#[derive(Debug, Clone)]
+pub struct TotalsSum {
+    t: Totals,
+    counts: Vec<u64>,
+    /// Points of each level over the parts that have it (`levels[l]`), and the
+    /// coarsest level's points of the parts with `L` levels (`beyond[L]`),
+    /// which count at every level from `L` on.
+    levels: Vec<u64>,
+    beyond: Vec<u64>,
+}
+
+impl Default for TotalsSum {
+    fn default() -> Self {
+        TotalsSum {
+            t: Totals {
+                parts: 0,
+                nodes: 0,
+                points: 0,
+                bytes: 0,
+                bounds: Bounds::EMPTY,
+                own_levels: 1,
+                crs: None,
+                class_counts: Vec::new(),
+                bands: Vec::new(),
+                ranges: Vec::new(),
+                classes_complete: true,
+                level_points: Vec::new(),
+            },
+            counts: vec![0; 256],
+            levels: Vec::new(),
+            beyond: Vec::new(),
+        }
+    }
+}
+
+impl TotalsSum {
+    pub fn add_entry(&mut self, e: &FileEntry) {
+        let h = &e.header;
+        self.add(&h.meta, &h.bands, h.levels.len(), e.bytes);
+    }
+
+    pub fn add(&mut self, meta: &PartMeta, bands: &[BandInfo], levels: usize, bytes: u64) {
+        let t = &mut self.t;
+        if meta.class_counts.is_empty() && bands.iter().any(|b| b.name == "classification") {
+            t.classes_complete = false;
+        }
+        t.parts += 1;
+        t.points += meta.point_count;
+        t.bytes += bytes;
+        t.bounds = t.bounds.union(&meta.bounds);
+        t.own_levels = t.own_levels.max(levels);
+        if t.crs.is_none() {
+            t.crs = meta.crs.clone();
+        }
+        for &(c, n) in &meta.class_counts {
+            self.counts[c as usize] += n;
+        }
+        for b in bands {
+            match t.bands.iter().position(|n| *n == b.name) {
+                None => {
+                    t.bands.push(b.name.clone());
+                    t.ranges.push(b.range);
+                }
+                Some(i) => {
+                    t.ranges[i] = match (t.ranges[i], b.range) {
+                        (Some((a, b)), Some((c, d))) => Some((a.min(c), b.max(d))),
+                        _ => None,
+                    }
+                }
+            }
+        }
+        let lp = &meta.level_points;
+        if let Some(&last) = lp.last() {
+            if self.levels.len() < lp.len() {
+                self.levels.resize(lp.len(), 0);
+            }
+            if self.beyond.len() <= lp.len() {
+                self.beyond.resize(lp.len() + 1, 0);
+            }
+            for (l, &n) in lp.iter().enumerate() {
+                self.levels[l] += n;
+            }
+            self.beyond[lp.len()] += last;
+        }
+    }
+
+    /// The totals, with `nodes` overview nodes.
+    pub fn finish(self, nodes: usize) -> Totals {
+        let mut t = self.t;
+        t.nodes = nodes;
+        // (A part with fewer levels gives its coarsest to the deeper ones.)
+        let mut carried = 0;
+        t.level_points = (0..t.own_levels)
+            .map(|l| {
+                carried += self.beyond.get(l).copied().unwrap_or(0);
+                self.levels.get(l).copied().unwrap_or(0) + carried
+            })
+            .collect();
+        t.class_counts = (0..=255u8)
+            .filter(|&c| self.counts[c as usize] > 0)
+            .map(|c| (c, self.counts[c as usize]))
+            .collect();
+        t
     }
 }
 
@@ -226,16 +274,54 @@ pub fn page_file(pages_dir: &str, page: usize) -> String {
     format!("{pages_dir}/page-{page:06}.json")
 }
 
+/// What cutting the tree into pages needs of a part: its file, bounds and the
+/// length of its entry's JSON (the entry itself waits elsewhere: `pcimg index`
+/// keeps a hundred thousand of them in a file, not in memory).
+#[derive(Debug, Clone)]
+pub struct PartBrief {
+    pub file: String,
+    pub bounds: Bounds,
+    pub json_len: usize,
+}
+
+/// One page as [`paginate`] planned it: its parts (their number among the
+/// briefs, and their parent's id) and its nodes' entries, in slot order.
+#[derive(Debug, Default)]
+pub struct PagePlan {
+    pub parts: Vec<(usize, Option<usize>)>,
+    pub nodes: Vec<PageNode>,
+}
+
+impl PagePlan {
+    /// The page, each part's entry given by `entry`.
+    pub fn page(self, entry: &mut dyn FnMut(usize) -> Result<FileEntry>) -> Result<IndexPage> {
+        let parts = self
+            .parts
+            .into_iter()
+            .map(|(i, parent)| {
+                Ok(PagePart {
+                    entry: entry(i)?,
+                    parent,
+                })
+            })
+            .collect::<Result<_>>()?;
+        Ok(IndexPage {
+            parts,
+            nodes: self.nodes,
+        })
+    }
+}
+
 /// Cuts the tree of `parts` and `nodes` (version 1's lists: nodes after their
-/// children, the root last) into pages; returns the root (page 0 inside) and
-/// the other pages, in order.
+/// children, the root last) into pages; returns the root (its first page
+/// still empty) and every page's plan, the first included.
 pub fn paginate(
-    parts: Vec<FileEntry>,
+    parts: &[PartBrief],
     nodes: Vec<NodeEntry>,
     layers: Vec<LayerSummary>,
+    totals: Totals,
     pages_dir: &str,
-) -> Result<(IndexRoot, Vec<IndexPage>)> {
-    let totals = Totals::of_entries(parts.iter(), nodes.len());
+) -> Result<(IndexRoot, Vec<PagePlan>)> {
     let mut names: Vec<&str> = parts.iter().map(|e| e.file.as_str()).collect();
     names.sort_unstable();
     let listing = Some(super::index::names_hash(names.into_iter()));
@@ -275,7 +361,10 @@ pub fn paginate(
                 // (A child's id and bounds take about 120 bytes.)
                 let unit = size(&n.entry)
                     + 120 * n.children.len()
-                    + kids_parts.iter().map(|&i| size(&parts[i])).sum::<usize>();
+                    + kids_parts
+                        .iter()
+                        .map(|&i| parts[i].json_len + 40)
+                        .sum::<usize>();
                 if np + nn > 0 && bytes + unit > limit {
                     roots.push_back(k);
                     continue;
@@ -326,14 +415,14 @@ pub fn paginate(
     let mut covers: Vec<Bounds> = Vec::with_capacity(nodes.len());
     for n in &nodes {
         let b = n.children.iter().fold(Bounds::EMPTY, |b, c| match *c {
-            Child::Part(i) => b.union(&parts[i].header.meta.bounds),
+            Child::Part(i) => b.union(&parts[i].bounds),
             Child::Node(j) => b.union(&covers[j]),
         });
         covers.push(b);
     }
-    let mut out: Vec<IndexPage> = counts
+    let mut out: Vec<PagePlan> = counts
         .iter()
-        .map(|&(a, b)| IndexPage {
+        .map(|&(a, b)| PagePlan {
             parts: Vec::with_capacity(a),
             nodes: Vec::with_capacity(b),
         })
@@ -343,13 +432,8 @@ pub fn paginate(
         .map(|i| (part_at[i].0, part_at[i].1, i))
         .collect();
     by_slot.sort_unstable();
-    let part_bounds: Vec<Bounds> = parts.iter().map(|e| e.header.meta.bounds).collect();
-    let mut parts: Vec<Option<FileEntry>> = parts.into_iter().map(Some).collect();
     for (page, _, i) in by_slot {
-        out[page].parts.push(PagePart {
-            entry: parts[i].take().expect("each part once"),
-            parent: parent[i],
-        });
+        out[page].parts.push((i, parent[i]));
     }
     let np = parts.len();
     let mut by_slot: Vec<(usize, usize, usize)> = (0..nodes.len())
@@ -379,7 +463,7 @@ pub fn paginate(
                 .children
                 .iter()
                 .map(|c| match *c {
-                    Child::Part(i) => part_bounds[i],
+                    Child::Part(i) => parts[i].bounds,
                     Child::Node(j) => covers[j],
                 })
                 .collect(),
@@ -387,8 +471,6 @@ pub fn paginate(
             parent: parent[np + k],
         });
     }
-    let mut rest = out.into_iter();
-    let first = rest.next().unwrap_or_default();
     let root = IndexRoot {
         format: super::index::FORMAT_NAME.into(),
         version: super::index::INDEX_VERSION,
@@ -398,11 +480,11 @@ pub fn paginate(
         stride,
         pages_dir: pages_dir.to_string(),
         root: (!node_at.is_empty()).then(|| node_id(node_at.len() - 1)),
-        first,
+        first: IndexPage::default(),
         listing,
         uploaded_to: None,
     };
-    Ok((root, rest.collect()))
+    Ok((root, out))
 }
 
 impl IndexPage {
@@ -482,17 +564,28 @@ impl IndexRoot {
     /// place, replacing one of that name), then the root, atomically: a
     /// reader finds either the old root or the new one with all its pages.
     pub fn save(&self, dir: &Path, pages: &[IndexPage]) -> Result<u64> {
+        self.save_with(dir, pages.len(), &mut |k| Ok(pages[k].clone()))
+    }
+
+    /// [`IndexRoot::save`] with the pages after the first made one at a time by
+    /// `page(k)` (`k` from 0: the root's page 1): one page in memory at once.
+    pub fn save_with(
+        &self,
+        dir: &Path,
+        count: usize,
+        page: &mut dyn FnMut(usize) -> Result<IndexPage>,
+    ) -> Result<u64> {
         let folder = dir.join(&self.pages_dir);
-        if !pages.is_empty() {
+        if count > 0 {
             let tmp = dir.join(format!(".{}-tmp-{}", self.pages_dir, std::process::id()));
             let _ = std::fs::remove_dir_all(&tmp);
             let written = (|| -> Result<()> {
                 std::fs::create_dir(&tmp).map_err(|e| {
                     StoreError::new(&tmp, format!("cannot create: {}", full_note(e, &tmp, None)))
                 })?;
-                for (k, p) in pages.iter().enumerate() {
+                for k in 0..count {
                     let path = tmp.join(format!("page-{:06}.json", k + 1));
-                    let text = serde_json::to_vec(p)
+                    let text = serde_json::to_vec(&page(k)?)
                         .map_err(|e| StoreError::new(&path, format!("cannot encode: {e}")))?;
                     std::fs::write(&path, &text).map_err(|e| {
                         let n = Some(text.len() as u64);
@@ -541,4 +634,43 @@ pub fn layer_summaries(nodes: &[NodeEntry]) -> Vec<LayerSummary> {
         layers[l - 1].add_node(&h.levels, h.meta.point_count, n.entry.bytes);
     }
     layers
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn meta(level_points: &[u64]) -> PartMeta {
+        PartMeta {
+            format_version: 2,
+            point_count: level_points[0],
+            origin: [0.0; 3],
+            bounds: Bounds::EMPTY,
+            level_points: level_points.to_vec(),
+            layout: String::new(),
+            source: None,
+            crs: None,
+            max_quantization_error: None,
+            codec_max_error: None,
+            class_counts: vec![(2, level_points[0])],
+            from_source: Vec::new(),
+            lattice: None,
+            items: Default::default(),
+        }
+    }
+
+    /// A part with fewer levels gives its coarsest to the deeper ones, summed
+    /// one part at a time as over the whole list.
+    #[test]
+    fn totals_summed_part_by_part_carry_short_pyramids_down() {
+        let parts = [meta(&[1000, 250, 63]), meta(&[40]), meta(&[400, 100])];
+        let t = Totals::of(
+            parts.iter().map(|m| (m, &[][..], m.level_points.len(), 7)),
+            2,
+        );
+        assert_eq!(t.level_points, vec![1440, 390, 203]);
+        assert_eq!((t.parts, t.points, t.bytes, t.nodes), (3, 1440, 21, 2));
+        assert_eq!(t.own_levels, 3);
+        assert_eq!(t.class_counts, vec![(2, 1440)]);
+    }
 }
