@@ -117,6 +117,10 @@ impl<'a> Job<'a> {
             cancel: Some(o.cancel.clone()),
             io: o.io,
             release_pool: false,
+            // A dataset of many parts: small parts carry their levels down to
+            // a quarter tile, the overview above them holding less. (A single
+            // part has no overview: the levels would only add to it.)
+            shallow_coarsest: !as_file && info.declared_points.is_none_or(|n| n > per_part),
         };
         progress.phase("read", info.file_bytes, "bytes");
         let staging = if as_file {

@@ -42,9 +42,10 @@ pub(crate) struct Coarse {
 unsafe impl Sync for Coarse {}
 
 impl Coarse {
-    /// For `n` points of `m` attributes whose tile data starts at byte `first`.
-    pub fn new(n: usize, m: usize, first: u64, lut: Vec<u32>) -> Coarse {
-        let g = Geometry::for_points(n as u64);
+    /// For the points of `g`, of `m` attributes, whose tile data starts at
+    /// byte `first`.
+    pub fn new(g: Geometry, m: usize, first: u64, lut: Vec<u32>) -> Coarse {
+        let n = g.points as usize;
         let tiles = n.div_ceil(TILE_PIXELS);
         let mut leads: Vec<f32> = bigvec::with_capacity(tiles * TILE_PIXELS / 4 * (3 + m));
         let at = Shared(leads.as_mut_ptr());

@@ -58,6 +58,10 @@ pub struct WriteOptions {
     /// coordinate back ([`StoredLattice`]); a part some point of which is not on
     /// it is stored as without one.
     pub lattice: Option<crate::points::Lattice>,
+    /// A part of a dataset of many (`convert` writing several): small parts
+    /// get levels down to a quarter tile, so that the overview above them
+    /// holds less ([`Geometry::for_part`]).
+    pub shallow_coarsest: bool,
     /// Round every coordinate to [`WriteOptions::lattice`] (`--precision`)
     /// instead of keeping the lattice only where every point lies on it; the
     /// part's `MAX_QUANTIZATION_ERROR` grows by half the step.
@@ -406,7 +410,7 @@ fn scan_bounds(path: &Path, chunks: &[PointColumns]) -> Result<Bounds> {
 fn arrange(
     path: &Path,
     part: PartBuilder,
-    layout: Layout,
+    opts: &WriteOptions,
     ph: &mut Phases,
     level0: Option<&TileSink>,
     tiles_at: u64,
@@ -469,7 +473,8 @@ fn arrange(
         (bounds, origin)
     };
     let max_error = quantization_bound(&bounds, origin);
-    let geometry = Geometry::for_points(n as u64);
+    let layout = opts.layout;
+    let geometry = Geometry::for_part(n as u64, opts.shallow_coarsest);
     ph.mark("validate+origin");
     // Points in image order, tile by tile (the tiles themselves in the order
     // `tile_order` gives): positions and their source indices.
@@ -490,7 +495,7 @@ fn arrange(
                 .collect();
             // Levels 1 and up from the tiles' level-1 points, each coarse tile
             // written as soon as the tiles below it are arranged.
-            let coarse = level0.map(|_| Coarse::new(n, m, tiles_at, lut.clone()));
+            let coarse = level0.map(|_| Coarse::new(geometry, m, tiles_at, lut.clone()));
             let filled = |l| geometry.filled_tiles(l);
             let level0_at = region_start(filled, nb, tiles_at, geometry.levels(), 0);
             let on_tile = |t: usize, o: &[[f32; 3]], i: &[u32], tile: Option<layout::TileRows>| {
@@ -1051,7 +1056,7 @@ fn write(
     let mut a = if opts.layout == Layout::Hilbert && opts.compression == Compression::None {
         let cancelled = || opts.cancelled();
         let (a, written) = sink::with_sink(&tiles, &cancelled, |sink| {
-            arrange(path, part, opts.layout, &mut ph, Some(sink), tiles_at)
+            arrange(path, part, opts, &mut ph, Some(sink), tiles_at)
         });
         let a = a?;
         // (Level 0 and the coarser levels, a third more: the tiles' bytes.)
@@ -1060,7 +1065,7 @@ fn write(
         ph.mark("levels written");
         a
     } else {
-        arrange(path, part, opts.layout, &mut ph, None, tiles_at)?
+        arrange(path, part, opts, &mut ph, None, tiles_at)?
     };
     // Lossless predictor codecs store tiles in row order, and coordinates on
     // the input's lattice where every point lies on it (format version 2).
@@ -1407,7 +1412,7 @@ fn software() -> String {
 /// Every tag's count is known; the metadata's length is bounded from what it
 /// holds (the tile index exactly, the rest generously).
 fn head_bound(n: usize, names: &[&str], opts: &WriteOptions) -> u64 {
-    let g = Geometry::for_points(n as u64);
+    let g = Geometry::for_part(n as u64, opts.shallow_coarsest);
     let nb = names.len();
     // The tile index: a header, per level a header and 56 bytes a tile, base64.
     let index: u64 = 12
