@@ -113,7 +113,7 @@ impl Geometry {
     /// from points already arranged, and the overview above the parts, which
     /// `pcimg index` reads back and writes again, then holds a quarter or a
     /// sixteenth of what it held (issue 44: 17.1 M of 92 M points, parts of up
-    /// to 110,000 points, 10.5% of the conversion's time; 3.4 M and 3.7%).
+    /// to 110,000 points, 11.1% of the conversion's time; 4.3 M and 4.2%).
     /// A part alone has no overview to spare: the levels would only add to it
     /// (8.8% to `autzen_trim`). Larger parts are as before: their heads would
     /// grow with the image, and their coarsest levels are a small share.
