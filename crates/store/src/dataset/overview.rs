@@ -79,21 +79,35 @@ struct Brief {
 }
 
 /// The lattices and CRSs of the parts, each once: a hundred thousand parts
-/// of one survey share one of each.
+/// of one survey share one of each, and parts of separate tiles (each its own
+/// LAS offset) as many lattices as tiles, found by hash either way.
 #[derive(Debug, Clone, Default)]
 struct Shared {
     crss: Vec<String>,
     lattices: Vec<Lattice>,
+    crs_at: std::collections::HashMap<String, u32>,
+    /// A lattice's number by the bits of its steps and origin.
+    lattice_at: std::collections::HashMap<[u64; 6], u32>,
 }
 
-/// The number of `v` in `list`, added if new.
-fn intern<T: PartialEq>(list: &mut Vec<T>, v: T) -> u32 {
-    match list.iter().position(|k| *k == v) {
-        Some(i) => i as u32,
-        None => {
-            list.push(v);
-            list.len() as u32 - 1
+impl Shared {
+    fn crs(&mut self, c: &str) -> u32 {
+        if let Some(&i) = self.crs_at.get(c) {
+            return i;
         }
+        self.crss.push(c.to_string());
+        let i = self.crss.len() as u32 - 1;
+        self.crs_at.insert(c.to_string(), i);
+        i
+    }
+
+    fn lattice(&mut self, l: Lattice) -> u32 {
+        let (s, o) = (l.step.map(f64::to_bits), l.origin.map(f64::to_bits));
+        let key = [s[0], s[1], s[2], o[0], o[1], o[2]];
+        *self.lattice_at.entry(key).or_insert_with(|| {
+            self.lattices.push(l);
+            self.lattices.len() as u32 - 1
+        })
     }
 }
 
@@ -109,8 +123,8 @@ impl Brief {
         let m = &e.header.meta;
         let brief = Brief {
             top_points: top_points(e),
-            lattice: m.lattice.map(|l| intern(&mut shared.lattices, l)),
-            crs: m.crs.as_ref().map(|c| intern(&mut shared.crss, c.clone())),
+            lattice: m.lattice.map(|l| shared.lattice(l)),
+            crs: m.crs.as_deref().map(|c| shared.crs(c)),
             at,
             json_len,
         };
