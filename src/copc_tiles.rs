@@ -275,7 +275,7 @@ fn points_of(cols: crate::points::PointColumns, o: [f64; 3], bands: &[String]) -
         tile_points: vec![cols.len() as u32],
     };
     for a in cols.attributes {
-        if bands.contains(&a.name) {
+        if bands.contains(&a.name) && !crate::time::is_exact_band(&a.name) {
             p.bands.push(a.name);
             p.offsets.push(a.offset);
             p.columns.push(a.values);

@@ -14,7 +14,8 @@
 //! number is recovered exactly and written with the same scale and offset, so a
 //! LAS file converted and exported gives the same integers. Whole-number bands
 //! (intensity, returns, classification, colour) come back exactly; `gps_time`
-//! within what the part stores (its offset plus a Float32).
+//! bit for bit where the part keeps the bands that make it exact (level 0 of a
+//! LAS, COPC or EPT source: `pcimg_core::time`), else its offset plus a Float32.
 
 // The LAS point fields pcimg bands fill, by band name (the reader's names).
 use crate::ingest::las::LAS_BANDS;

@@ -14,7 +14,7 @@
 // The layers below the binary, under the names the binary's modules use for them
 // (`crate::store::Dataset`, `pcimg::render::Frame`): each is its own crate
 // (`crates/`), and the compiler keeps the chain one-way.
-pub use pcimg_core::{alloc, bigvec, clock, disk, points, text};
+pub use pcimg_core::{alloc, bigvec, clock, disk, points, text, time};
 pub use pcimg_ingest as ingest;
 pub use pcimg_render as render;
 pub use pcimg_render::{camera, lod};

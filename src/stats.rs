@@ -118,7 +118,7 @@ pub fn compute(
         let mut v: Vec<String> = vec!["x".into(), "y".into(), "z".into()];
         for p in &parts {
             for b in p.bands.iter().skip(3) {
-                if !v.contains(&b.name) {
+                if !v.contains(&b.name) && !crate::time::is_exact_band(&b.name) {
                     v.push(b.name.clone());
                 }
             }

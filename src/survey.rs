@@ -278,7 +278,8 @@ struct Opened {
     lattice: crate::points::Lattice,
 }
 
-/// Every `step`-th point of `c`.
+/// Every `step`-th point of `c`, less the whole numbers that make GPS time
+/// exact (a node is for viewing).
 fn every(c: PointColumns, step: usize) -> PointColumns {
     let pick = |v: Vec<f64>| v.into_iter().step_by(step).collect::<Vec<_>>();
     PointColumns {
@@ -288,6 +289,7 @@ fn every(c: PointColumns, step: usize) -> PointColumns {
         attributes: c
             .attributes
             .into_iter()
+            .filter(|a| !crate::time::is_exact_band(&a.name))
             .map(|mut a| {
                 a.values = a.values.into_iter().step_by(step).collect();
                 a
@@ -453,7 +455,12 @@ pub fn build(
     let mut survey = Survey {
         format: FORMAT.into(),
         version: VERSION,
-        bands: first.names.clone(),
+        bands: first
+            .names
+            .iter()
+            .filter(|n| !crate::time::is_exact_band(n))
+            .cloned()
+            .collect(),
         crs: first.crs.clone(),
         files: opened.iter().map(|o| o.rec.clone()).collect(),
         nodes: Vec::new(),

@@ -1247,7 +1247,11 @@ fn las_rows_read_from_the_input_match_a_held_copy() {
             assert_eq!(ds.part_count(), 1);
             let p = &ds.parts().unwrap()[0];
             let bands: Vec<usize> = (0..p.bands.len()).collect();
-            assert_eq!(p.bands.len(), 12, "x y z and nine attributes");
+            assert_eq!(
+                p.bands.len(),
+                15,
+                "x y z, nine attributes and the three that make GPS time exact"
+            );
             (0..p.levels.len())
                 .map(|l| {
                     let pts = p.read_level(l, &bands).unwrap();

@@ -212,7 +212,8 @@ fn a_level_is_an_even_sample_of_the_levels_points() {
 }
 
 /// PLY and CSV exports read back by pcimg's own readers give the dataset's
-/// points: the same count and bounds, the same bands.
+/// points: the same count and bounds, the same bands (GPS time as one band: a
+/// text or PLY source's has no whole numbers that make it exact).
 #[test]
 fn ply_csv_and_xyz_exports_convert_back_to_the_same_points() {
     let dir = tempfile::tempdir().unwrap();
@@ -225,6 +226,7 @@ fn ply_csv_and_xyz_exports_convert_back_to_the_same_points() {
             .unwrap()
             .iter()
             .map(|b| b["name"].as_str().unwrap().to_string())
+            .filter(|b| !pcimg::time::is_exact_band(b))
             .collect();
         (i["points"].as_u64().unwrap(), i["bounds"].clone(), bands)
     };

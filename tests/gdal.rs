@@ -721,7 +721,7 @@ fn gdal_validates_parts_as_cloud_optimized() {
 /// -ot Float64` gives every point of the source (read by pcimg's LAS reader):
 /// coordinates within 1e-6 LAS units of the source's lattice points (GDAL's
 /// double arithmetic), the same whole numbers exactly, attributes exactly
-/// (gps_time, stored as before, to its f32 precision).
+/// (gps_time's Float32 and the three whole numbers that make it exact).
 #[test]
 fn gdal_unscales_the_compact_default_to_the_source() {
     if !gdal() {
@@ -748,10 +748,14 @@ fn gdal_unscales_the_compact_default_to_the_source() {
     assert_eq!(meta["TILE_ORDER"], "rows");
     assert_eq!(meta["LATTICE"], "0.01 0.01 0.01 0.0 0.0 0.0");
     // Every band but gps_time (8) holds whole numbers (the scan angle too:
-    // LAS 1.2's whole degrees).
-    assert_eq!(meta["WHOLE_BANDS"], "1 2 3 4 5 6 7 9 10 11 12 13 14 15");
+    // LAS 1.2's whole degrees; 9 to 11 the whole numbers that make the time
+    // exact).
+    assert_eq!(
+        meta["WHOLE_BANDS"],
+        "1 2 3 4 5 6 7 9 10 11 12 13 14 15 16 17 18"
+    );
     let bands = info["bands"].as_array().unwrap();
-    assert_eq!(bands.len(), 15);
+    assert_eq!(bands.len(), 18);
     for (i, b) in bands.iter().enumerate() {
         assert_eq!(b["type"], "Float32");
         assert_eq!(
@@ -776,7 +780,7 @@ fn gdal_unscales_the_compact_default_to_the_source() {
         .chunks_exact(8)
         .map(|c| f64::from_le_bytes(c.try_into().unwrap()))
         .collect();
-    let plane = values.len() / 15;
+    let plane = values.len() / 18;
     let band = |b: usize| &values[b * plane..(b + 1) * plane];
     let (_, src, _) = pcimg::ingest::read_all(&las, &Default::default()).unwrap();
     let n = src.x.len();
@@ -794,7 +798,7 @@ fn gdal_unscales_the_compact_default_to_the_source() {
         for v in c {
             worst = worst.max((v / 0.01 - (v / 0.01).round()).abs());
         }
-        ours.push(key(c, &mut (3..15).map(|b| band(b)[p])));
+        ours.push(key(c, &mut (3..18).map(|b| band(b)[p])));
     }
     assert!(
         worst < 1e-6,

@@ -21,6 +21,7 @@ use arrow_array::{
 use arrow_buffer::{ArrowNativeType, ScalarBuffer};
 use arrow_schema::{ArrowError, DataType, Field as ArrowField, Schema, SchemaRef};
 use pcimg_core::points::Bounds;
+use pcimg_core::time;
 use pcimg_store::query::{self, Plan, Selection};
 use pcimg_store::{Dataset, OpenOptions, StoreError};
 use pyo3::exceptions::{PyOSError, PyValueError};
@@ -376,9 +377,13 @@ struct Kept {
     lattice: Option<pcimg_core::points::Lattice>,
 }
 
-/// A field's column in a batch (offset and values) and its lattice (origin
-/// and step): [`Kept::source`].
-type Source<'a> = (Option<(f64, &'a [f32])>, Option<(f64, f64)>);
+/// A band's column in a batch: its offset and values, and for `gps_time` the
+/// columns that make it exact (`pcimg_core::time`) where the part has them.
+type Column<'a> = (f64, &'a [f32], Option<[&'a [f32]; 3]>);
+
+/// A field's column in a batch and its lattice (origin and step):
+/// [`Kept::source`].
+type Source<'a> = (Option<Column<'a>>, Option<(f64, f64)>);
 
 impl Kept {
     fn len(&self) -> usize {
@@ -399,11 +404,11 @@ impl Kept {
     /// (origin and step) it goes back onto.
     fn source(&self, f: &Field) -> Source<'_> {
         let p = &self.points;
-        let col = p
-            .bands
-            .iter()
-            .position(|b| *b == f.band)
-            .map(|i| (p.offsets[i], p.columns[i].as_slice()));
+        let find = |name: &str| p.bands.iter().position(|b| b == name);
+        let exact = (f.band == time::TIME_BAND)
+            .then(|| time::EXACT_BANDS.map(|b| find(b).map(|i| p.columns[i].as_slice())))
+            .and_then(|[lo, mid, hi]| Some([lo?, mid?, hi?]));
+        let col = find(&f.band).map(|i| (p.offsets[i], p.columns[i].as_slice(), exact));
         let lattice = ["x", "y", "z"]
             .iter()
             .position(|a| *a == f.band)
@@ -448,7 +453,7 @@ fn whole(v: f64, max: f64) -> f64 {
 #[inline(always)]
 fn put_field(
     f: &Field,
-    col: Option<(f64, &[f32])>,
+    col: Option<Column<'_>>,
     lattice: Option<(f64, f64)>,
     row: impl Fn(usize) -> usize,
     out: &mut [u8],
@@ -456,7 +461,7 @@ fn put_field(
     at: usize,
     n: usize,
 ) {
-    let Some((off, col)) = col else {
+    let Some((off, col, exact)) = col else {
         let nan = f64::NAN.to_le_bytes();
         match f.kind {
             Kind::F64 if f.bits.is_none() => put(out, record, at, n, |_| nan),
@@ -465,7 +470,13 @@ fn put_field(
         }
         return;
     };
-    let value = |r: usize| off + col[row(r)] as f64;
+    let value = |r: usize| {
+        let i = row(r);
+        match exact {
+            Some([lo, mid, hi]) => time::join(off, col[i], lo[i], mid[i], hi[i]),
+            None => off + col[i] as f64,
+        }
+    };
     match (f.kind, f.bits, lattice) {
         (_, Some((shift, mask)), _) => put(out, record, at, n, |r| {
             [(whole(value(r), 255.0) as u8 >> shift) & mask]

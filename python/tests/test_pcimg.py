@@ -67,8 +67,8 @@ def assert_same_points(las, pts, mask=None):
     assert len(got["X"]) == len(want["X"])
     for k in ["X", "Y", "Z", *EXACT, "ClassFlags"]:
         np.testing.assert_array_equal(got[k], want[k], err_msg=k)
-    # GPS time: a part stores it as its offset plus a Float32 (within 1 µs here).
-    np.testing.assert_allclose(got["GpsTime"], want["GpsTime"], rtol=0, atol=1e-6)
+    # GPS time bit for bit (a part keeps it exactly: docs/format.md).
+    np.testing.assert_array_equal(got["GpsTime"].view(np.int64), want["GpsTime"].view(np.int64))
 
 
 def test_info_gives_the_facts_as_plain_values(ds, las):

@@ -345,6 +345,9 @@ pub fn render_text(r: &DatasetReport) -> String {
             if band.offset != 0.0 {
                 off.push_str(&format!("  offset {}", band.offset));
             }
+            if crate::time::is_exact_band(&band.name) {
+                off.push_str("  (with gps_time: the time bit for bit)");
+            }
             let _ = writeln!(
                 o,
                 "    {:>2}  {:<18} {}{}",

@@ -90,7 +90,7 @@ pub fn open(ds: Arc<Dataset>, a: &Args, temporary: Option<&Path>) -> anyhow::Res
     let mut extra_bands = view::bands_for(&style, &filter);
     // The legend's class toggles, the `C` key and `v` (every band in turn)
     // need the bands at hand: tiles load all of them.
-    for b in &ds.totals().bands {
+    for b in ds.totals().shown_bands() {
         if !["x", "y", "z"].contains(&b.as_str()) && !extra_bands.contains(b) {
             extra_bands.push(b.clone());
         }

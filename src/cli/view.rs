@@ -162,12 +162,12 @@ pub fn camera_for(a: &ViewArgs, ds: &Dataset) -> anyhow::Result<Camera> {
 
 /// Whether some part of `ds` has band `name` (x, y and z always exist).
 pub fn has_band(ds: &Dataset, name: &str) -> bool {
-    ["x", "y", "z"].contains(&name) || ds.totals().bands.iter().any(|b| b == name)
+    ["x", "y", "z"].contains(&name) || ds.totals().shown_bands().any(|b| b == name)
 }
 
 /// The error for a band no part has, listing those there are.
 pub fn no_band(ds: &Dataset, name: &str, what: &str) -> anyhow::Error {
-    let mut names: Vec<String> = ds.totals().bands.clone();
+    let mut names: Vec<String> = ds.totals().shown_bands().cloned().collect();
     names.sort();
     names.dedup();
     anyhow::anyhow!(

@@ -29,6 +29,7 @@ use crate::clock::Span;
 use crate::ingest::{self, ReadOptions};
 use crate::points::{Bounds, PointColumns};
 use crate::store::{self, Compression, Layout, PartSummary};
+use crate::time;
 use rayon::prelude::*;
 use std::cell::Cell;
 use std::path::{Path, PathBuf};
@@ -221,6 +222,7 @@ fn normalize(
     progress: &dyn Progress,
     noted: &Cell<bool>,
 ) {
+    resplit_time(chunk, like);
     for (a, r) in chunk.attributes.iter_mut().zip(&like.attributes) {
         if a.offset != r.offset {
             let shift = a.offset - r.offset;
@@ -245,6 +247,40 @@ fn normalize(
             }
         }
     }
+}
+
+/// Brings `gps_time` to the offset of `like`'s where `chunk` has the bands
+/// that make it exact (`pcimg_core::time`): each time is joined and split
+/// again around the new offset (shifting the Float32 would leave the whole
+/// numbers pointing at other times).
+fn resplit_time(chunk: &mut PointColumns, like: &PointColumns) {
+    let find = |c: &PointColumns, name: &str| c.attributes.iter().position(|a| a.name == name);
+    let (Some(t), Some(r)) = (find(chunk, time::TIME_BAND), find(like, time::TIME_BAND)) else {
+        return;
+    };
+    let [lo, mid, hi] = time::EXACT_BANDS.map(|b| find(chunk, b));
+    let (Some(lo), Some(mid), Some(hi)) = (lo, mid, hi) else {
+        return;
+    };
+    let (from, to) = (chunk.attributes[t].offset, like.attributes[r].offset);
+    if from == to {
+        return;
+    }
+    let a = &mut chunk.attributes;
+    let parts: Vec<[f32; 4]> = (0..a[t].values.len())
+        .into_par_iter()
+        .map(|i| {
+            let v = [t, lo, mid, hi].map(|k| a[k].values[i]);
+            time::split(time::join(from, v[0], v[1], v[2], v[3]), to)
+        })
+        .collect();
+    for (j, k) in [t, lo, mid, hi].into_iter().enumerate() {
+        a[k].values
+            .iter_mut()
+            .zip(&parts)
+            .for_each(|(v, p)| *v = p[j]);
+    }
+    a[t].offset = to;
 }
 
 /// What an attempt at a conversion (or one of its stages) came to: done, or to
@@ -514,4 +550,56 @@ fn check_precision(
         );
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::points::Attribute;
+
+    /// Columns of GPS times `t` around `offset`, with the bands that make
+    /// them exact.
+    fn timed(t: &[f64], offset: f64) -> PointColumns {
+        let parts: Vec<[f32; 4]> = t.iter().map(|&t| time::split(t, offset)).collect();
+        let mut names = vec![time::TIME_BAND];
+        names.extend(time::EXACT_BANDS);
+        PointColumns {
+            x: vec![0.0; t.len()],
+            y: vec![0.0; t.len()],
+            z: vec![0.0; t.len()],
+            attributes: names
+                .iter()
+                .enumerate()
+                .map(|(k, name)| Attribute {
+                    name: name.to_string(),
+                    offset: if k == 0 { offset } else { 0.0 },
+                    values: parts.iter().map(|p| p[k]).collect(),
+                })
+                .collect(),
+        }
+    }
+
+    #[test]
+    fn files_brought_to_one_offset_keep_their_times_bit_for_bit() {
+        // Week seconds of two flights an hour apart, and a time of 0.
+        let t: Vec<f64> = (0..5000)
+            .map(|i| 248_000.123_456_789 + i as f64 * 1.007_923_86e-5)
+            .chain([0.0, 245_380.5])
+            .collect();
+        let mut chunk = timed(&t, 248_000.0);
+        let like = timed(&[], 244_400.0);
+        normalize(&mut chunk, &like, &Quiet, &Cell::new(false));
+        let a = &chunk.attributes;
+        assert_eq!(a[0].offset, 244_400.0);
+        for (i, &t) in t.iter().enumerate() {
+            let back = time::join(
+                a[0].offset,
+                a[0].values[i],
+                a[1].values[i],
+                a[2].values[i],
+                a[3].values[i],
+            );
+            assert_eq!(back.to_bits(), t.to_bits(), "{t}");
+        }
+    }
 }

@@ -312,7 +312,7 @@ impl App {
     /// y left out.
     pub fn band_names(&self) -> Vec<String> {
         let mut names: Vec<String> = vec!["z".into()];
-        for b in &self.dataset.totals().bands {
+        for b in self.dataset.totals().shown_bands() {
             if !names.contains(b) && !["x", "y", "z"].contains(&b.as_str()) {
                 names.push(b.clone());
             }

@@ -5,8 +5,10 @@ Python bindings, each band's value GDAL's `stored * scale + offset` (as
 `gdal_translate -unscale` gives it). Every source point must be in exactly one
 part, its x y z on the LAS grid (a format-2 part keeps the grid's whole numbers:
 its x y z then lie within a millionth of a LAS unit of the source's), and every
-attribute the parts store equal to the source's (integers exactly; gps_time to
-the float32 precision of the part's band).
+attribute the parts store equal to the source's, exactly: gps_time bit for
+bit, joined from its band and the three whole-number bands beside it
+(`gps_time_lo`, `_mid`, `_hi`) as docs/format.md describes, written out again
+here in numpy.
 
     /usr/bin/python3 tests/python/parts_match_las.py SOURCE.las DATASET_DIR
 
@@ -49,13 +51,47 @@ def las_band(src, name):
     return np.asarray(src[name], dtype=np.float64)
 
 
+MASK = (1 << 23) - 1
+SIGNLESS = np.int64(0x7FFF_FFFF_FFFF_FFFF)
+
+
+def ordered(bits):
+    """A double's bits (int64) as an integer ordered like the doubles, and
+    back (the map is its own inverse)."""
+    return bits ^ ((bits >> 63) & SIGNLESS)
+
+
+def ulp(x):
+    a = np.abs(x)
+    return np.nextafter(a, np.array(np.inf, dtype=a.dtype)) - a
+
+
+def join_time(offset, v, lo, mid, hi):
+    """GPS time, bit for bit, from the gps_time band's offset and Float32 `v`
+    and its three whole-number bands (docs/format.md)."""
+    with np.errstate(over="ignore", invalid="ignore"):
+        t = offset + v.astype(np.float64)
+        reach = (0.5 * ulp(v).astype(np.float64) + ulp(np.maximum(abs(offset), np.abs(t)) * 2.0)) / ulp(t) + 2.0
+        plain = np.isfinite(t) & np.isfinite(v) & (t != 0.0)
+        bits = np.where(plain & (reach < 16384.0), 16, 23).astype(np.int64)
+        mask = (np.int64(1) << bits) - 1
+        k = ordered(t.view(np.int64))
+        k[np.isnan(t)] = 0
+        d = lo.astype(np.int64) - (k & mask)
+        half = np.int64(1) << (bits - 1)
+        d = np.where(d >= half, d - (half << 1), d)
+        d = np.where(d < -half, d + (half << 1), d)
+        q = (hi.astype(np.int64) << 23) + mid.astype(np.int64)
+        return ordered(k + d + (q << bits)).view(np.float64)
+
+
 def main():
     source, dataset = sys.argv[1], sys.argv[2]
     src = laspy.read(source)
     parts = sorted(glob.glob(os.path.join(dataset, "*.tif")))
     if len(parts) < 2:
         fail(f"{dataset}: {len(parts)} part(s); the check wants a conversion in several")
-    values, ulps = {}, {}
+    values, raw_time, time_offsets = {}, [], []
     lattice = [0]
     for path in parts:
         image = gdal.Open(path)
@@ -71,10 +107,12 @@ def main():
         for name, (raw, offset, scale) in bands.items():
             r = raw[keep]
             values.setdefault(name, []).append(r.astype(np.float64) * scale + offset)
-            ulps.setdefault(name, []).append(np.spacing(np.abs(r)).astype(np.float64) * abs(scale))
+            if name == "gps_time":
+                # The Float32s as stored, and the part's offset for each.
+                raw_time.append(r)
+                time_offsets.append(np.full(len(r), offset))
         lattice[0] += int(image.GetMetadataItem("PCIMG_FORMAT") == "2" and "LATTICE" in (image.GetMetadata() or {}))
     values = {k: np.concatenate(v) for k, v in values.items()}
-    ulps = {k: np.concatenate(v) for k, v in ulps.items()}
     n = len(values["x"])
     if n != len(src.points):
         fail(f"the parts hold {n} points, the source {len(src.points)}")
@@ -101,19 +139,23 @@ def main():
         if len(bad):
             fail(f"{axis}: {len(bad)} points differ, the first {ours[i][o][bad[0]]} vs {theirs[i][t][bad[0]]}")
 
-    names = [k for k in values if k not in ("x", "y", "z")]
+    exact = ("gps_time_lo", "gps_time_mid", "gps_time_hi")
+    if "gps_time" in values:
+        if not all(e in values for e in exact):
+            fail("the parts store gps_time without the bands that make it exact")
+        values["gps_time"] = join_time(
+            np.concatenate(time_offsets), np.concatenate(raw_time), *(values[e] for e in exact)
+        )
+    names = [k for k in values if k not in ("x", "y", "z", *exact)]
     if not names:
         fail("the parts store no attribute")
     for name in names:
         mine = values[name][o]
         source_values = las_band(src, name)[t]
         if name == "gps_time":
-            # float32 relative to the band's offset: within one unit in the last place.
-            tol = ulps[name][o]
+            bad = np.nonzero(mine.view(np.int64) != source_values.view(np.int64))[0]
         else:
-            tol = np.zeros(n)
-        diff = np.abs(mine - source_values)
-        bad = np.nonzero(diff > tol)[0]
+            bad = np.nonzero(mine != source_values)[0]
         if len(bad):
             k = bad[0]
             fail(f"{name}: {len(bad)} points differ, the first {mine[k]!r} vs {source_values[k]!r}")

@@ -27,3 +27,4 @@ pub mod disk;
 pub mod points;
 pub mod rng;
 pub mod text;
+pub mod time;

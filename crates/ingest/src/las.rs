@@ -133,6 +133,7 @@ pub(crate) fn attribute_names(f: &las::point::Format) -> Vec<String> {
     let mut v: Vec<&str> = LAS_BANDS[..4].to_vec();
     if f.has_gps_time {
         v.push(LAS_BANDS[4]);
+        v.extend(pcimg_core::time::EXACT_BANDS);
     }
     if f.has_color {
         v.extend(&LAS_BANDS[5..8]);
@@ -759,9 +760,15 @@ fn append_columns(pd: &las::PointData, cols: &mut PointColumns, gps_offset: &mut
                 *gps_offset.insert(super::attribute_offset(&mut first, true))
             }
         };
-        if let Some(a) = next() {
+        if let (Some(a), Some(lo), Some(mid), Some(hi)) = (next(), next(), next(), next()) {
             a.offset = off;
-            a.values.extend(t.map(|x| (x - off) as f32));
+            for x in t {
+                let [v, l, m, h] = pcimg_core::time::split(x, off);
+                a.values.push(v);
+                lo.values.push(l);
+                mid.values.push(m);
+                hi.values.push(h);
+            }
         }
     }
     if let Some(rgb) = pd.rgb()
@@ -1139,7 +1146,7 @@ mod tests {
                 return_number: 2,
                 number_of_returns: 5,
                 classification: las::point::Classification::new(40).unwrap(),
-                gps_time: Some(10.0),
+                gps_time: Some(245379.39843682514 + f64::from(i) * 1.00792386e-5),
                 color: Some(las::Color::new(i * 600, 0, 65535)),
                 nir: Some(i),
                 ..Default::default()
@@ -1157,6 +1164,9 @@ mod tests {
                 "number_of_returns",
                 "classification",
                 "gps_time",
+                "gps_time_lo",
+                "gps_time_mid",
+                "gps_time_hi",
                 "red",
                 "green",
                 "blue",
@@ -1174,6 +1184,18 @@ mod tests {
         assert_eq!(a("blue")[5], 255.0);
         assert_eq!(a("red")[99], (99.0f32 * 600.0) / 257.0);
         assert_eq!(a("nir")[99], 99.0);
+        // The time, exact through its three whole-number bands.
+        let off = values(&c, "gps_time").offset;
+        for i in 0..100 {
+            let t = pcimg_core::time::join(
+                off,
+                a("gps_time")[i],
+                a("gps_time_lo")[i],
+                a("gps_time_mid")[i],
+                a("gps_time_hi")[i],
+            );
+            assert_eq!(t, 245379.39843682514 + i as f64 * 1.00792386e-5);
+        }
     }
 
     #[test]

@@ -11,6 +11,7 @@
 
 use crate::points::{Bounds, Lattice, class_code, round_whole};
 use crate::{Dataset, Points, StoreError};
+use pcimg_core::time;
 use std::collections::HashMap;
 
 /// The tiles a selection reaches and what they hold.
@@ -49,12 +50,13 @@ pub fn plan(
 ) -> Result<Plan, StoreError> {
     let mut tiles = Vec::new();
     let (mut points, mut skipped) = (0u64, 0usize);
-    // Every part's bands (the index's totals), whether reached or not.
+    // Every part's bands (the index's totals), whether reached or not; the
+    // bands that make `gps_time` exact are read with it, as part of it.
     let bands: Vec<String> = ds
         .totals()
         .bands
         .iter()
-        .filter(|b| !["x", "y", "z"].contains(&b.as_str()))
+        .filter(|b| !["x", "y", "z"].contains(&b.as_str()) && !time::is_exact_band(b))
         .cloned()
         .collect();
     let mut bounds = Bounds::EMPTY;
@@ -157,6 +159,10 @@ pub fn read_batch(
         .ok_or_else(|| StoreError::new(&ds.path, format!("has no part {p}")))?;
     let mut idx = vec![0usize, 1, 2];
     idx.extend(bands.iter().filter_map(|b| part.band_index(b)));
+    // `gps_time` comes with the bands that make it exact ([`Batch::of`]).
+    if bands.iter().any(|b| b == time::TIME_BAND) {
+        idx.extend(time::EXACT_BANDS.iter().filter_map(|b| part.band_index(b)));
+    }
     let points = part.read_tiles(l, &tiles, &idx)?;
     Ok(Read {
         part: p,
@@ -248,9 +254,18 @@ impl Batch {
             bands: Vec::with_capacity(bands.len()),
         };
         for name in bands {
-            let col = match band(name) {
-                Some((off, c)) => kept.iter().map(|&i| off + c[i] as f64).collect(),
-                None => vec![f64::NAN; kept.len()],
+            let exact = (name == time::TIME_BAND)
+                .then(|| time::EXACT_BANDS.map(|b| band(b).map(|(_, c)| c)))
+                .and_then(|[lo, mid, hi]| Some([lo?, mid?, hi?]));
+            let col = match (band(name), exact) {
+                // GPS time bit for bit, from its value and the whole numbers
+                // beside it (`pcimg_core::time`).
+                (Some((off, c)), Some([lo, mid, hi])) => kept
+                    .iter()
+                    .map(|&i| time::join(off, c[i], lo[i], mid[i], hi[i]))
+                    .collect(),
+                (Some((off, c)), None) => kept.iter().map(|&i| off + c[i] as f64).collect(),
+                (None, _) => vec![f64::NAN; kept.len()],
             };
             b.bands.push(col);
         }

@@ -14,6 +14,7 @@ use super::las::Opened;
 use super::{PointReader, ReadOptions, SourceInfo};
 use crate::bigvec;
 use crate::points::{Attribute, Bounds, ChunkExtent, PointColumns, RowSource};
+use pcimg_core::time::split;
 use rayon::prelude::*;
 use rows::LasRows;
 use std::mem::MaybeUninit;
@@ -129,6 +130,9 @@ enum Field {
     Bits(usize, u8, u8),
     /// GPS time: the `f64` at this byte, less the reader's GPS offset.
     Gps(usize),
+    /// One of the whole numbers that make that GPS time exact: part `k` (1 to
+    /// 3) of `pcimg_core::time::split`.
+    GpsExact(usize, usize),
     /// The scan angle in degrees: the older formats' `i8` of whole degrees at
     /// this byte, or (`true`) the extended formats' `i16` of 0.006° steps.
     Angle(usize, bool),
@@ -144,6 +148,7 @@ impl Field {
             Field::U16(at) => f32::from(u16_at(r, at)),
             Field::Bits(at, shift, mask) => f32::from((r[at] >> shift) & mask),
             Field::Gps(at) => (f64_at(r, at) - gps_offset) as f32,
+            Field::GpsExact(at, k) => split(f64_at(r, at), gps_offset)[k],
             // As the `las` crate gives them (f32 arithmetic).
             Field::Angle(at, false) => f32::from(r[at] as i8),
             Field::Angle(at, true) => f32::from(u16_at(r, at) as i16) * 0.006,
@@ -176,7 +181,12 @@ impl Fields {
                 .map(|f| (f, false)),
             );
         }
-        v.extend(self.gps.map(|g| (Field::Gps(g), false)));
+        if let Some(g) = self.gps {
+            v.extend((0..4).map(|k| match k {
+                0 => (Field::Gps(g), false),
+                k => (Field::GpsExact(g, k), false),
+            }));
+        }
         if let Some(c) = self.rgb {
             v.extend((0..3).map(|j| (Field::U16(c + 2 * j), true)));
         }
@@ -330,6 +340,9 @@ fn fill_field(
             fill(rec, s, dst, m, j, |r| f32::from((r[at] >> shift) & mask))
         }
         (Some(Field::Gps(at)), _) => fill(rec, s, dst, m, j, |r| (f64_at(r, at) - g) as f32),
+        (Some(Field::GpsExact(at, k)), _) => {
+            fill(rec, s, dst, m, j, |r| split(f64_at(r, at), g)[k])
+        }
         (Some(f @ (Field::Angle(..) | Field::LegacyFlags)), _) => {
             fill(rec, s, dst, m, j, |r| f.value(r, g))
         }
@@ -349,7 +362,13 @@ struct Scan {
 
 impl Scan {
     /// The scan of the records `rec` (a whole number of them, at least one).
-    fn of(rec: &[u8], stride: usize, fields: &[(Field, bool)], colour: ColorScale) -> Scan {
+    fn of(
+        rec: &[u8],
+        stride: usize,
+        fields: &[(Field, bool)],
+        colour: ColorScale,
+        gps_offset: f64,
+    ) -> Scan {
         let (mut lo, mut hi) = ([i32::MAX; 3], [i32::MIN; 3]);
         for r in rec.chunks_exact(stride) {
             for a in 0..3 {
@@ -385,8 +404,8 @@ impl Scan {
                     .fold((f64::INFINITY, f64::NEG_INFINITY), |(l, h), v| {
                         (l.min(v), h.max(v))
                     }),
-                Field::Angle(..) | Field::LegacyFlags => records()
-                    .map(|r| f64::from(field.value(r, 0.0)))
+                Field::GpsExact(..) | Field::Angle(..) | Field::LegacyFlags => records()
+                    .map(|r| f64::from(field.value(r, gps_offset)))
                     .fold((f64::INFINITY, f64::NEG_INFINITY), |(l, h), v| {
                         (l.min(v), h.max(v))
                     }),
@@ -672,9 +691,10 @@ impl PointReader for RecordReader {
             }
             None => ColorScale::Identity,
         };
+        let gps_offset = self.gps_offset;
         let scan = bytes
             .par_chunks(WINDOW * f.stride)
-            .map(|w| Scan::of(w, f.stride, &fields, colour))
+            .map(|w| Scan::of(w, f.stride, &fields, colour, gps_offset))
             .reduce_with(Scan::union)
             .expect("a stretch holds at least one record");
         self.colors.add_clamped(scan.clamped);
@@ -695,7 +715,6 @@ impl PointReader for RecordReader {
                 })
             })
             .flatten();
-        let gps_offset = self.gps_offset;
         let ranges = fields
             .iter()
             .zip(scan.ranges)

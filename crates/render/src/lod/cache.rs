@@ -186,7 +186,7 @@ pub(crate) fn load_tile_bands(
     let t0 = Instant::now();
     if let (Some(src), true) = (ds.source(), key.part == crate::store::SOURCE_PART) {
         let mut names: Vec<String> = match extra {
-            Extra::All => ds.totals().bands.iter().skip(3).cloned().collect(),
+            Extra::All => ds.totals().shown_bands().skip(3).cloned().collect(),
             Extra::Color | Extra::Also(_) => COLOR_BANDS.iter().map(|n| n.to_string()).collect(),
         };
         if let Extra::Also(also) = extra {
@@ -209,7 +209,12 @@ pub(crate) fn load_tile_bands(
         .ok_or_else(|| StoreError::new(&ds.path, format!("has no part {}", key.part)))?;
     let mut bands = vec![0usize, 1, 2];
     match extra {
-        Extra::All => bands.extend(3..part.bands.len()),
+        // Every band a user can pick (the whole numbers that make GPS time
+        // exact only matter to programs that take points out).
+        Extra::All => bands.extend(
+            (3..part.bands.len())
+                .filter(|&b| !pcimg_core::time::is_exact_band(&part.bands[b].name)),
+        ),
         Extra::Color | Extra::Also(_) => {
             bands.extend(COLOR_BANDS.iter().filter_map(|n| part.band_index(n)));
             if let Extra::Also(names) = extra {

@@ -280,11 +280,14 @@ fn split<T>(
 /// The level one coarser than a part's coarsest, as its pyramid would make it:
 /// every fourth point of the coarsest level in its Z order (the first of each 2×2
 /// block, which the layout made the block's representative), every band, as
-/// columns in source units. (An overview node's points for the layer above:
-/// here, and in a survey of COPC files.)
+/// columns in source units, less the whole numbers that make GPS time exact
+/// (a node is for viewing; exports read the parts). (An overview node's
+/// points for the layer above: here, and in a survey of COPC files.)
 pub fn next_coarser(part: &Part) -> Result<PointColumns> {
     let top = part.levels.len() - 1;
-    let bands: Vec<usize> = (0..part.bands.len()).collect();
+    let bands: Vec<usize> = (0..part.bands.len())
+        .filter(|&b| !pcimg_core::time::is_exact_band(&part.bands[b].name))
+        .collect();
     let p = part.read_level(top, &bands)?;
     let quarter = |c: Vec<f32>| -> Vec<f32> { c.into_iter().step_by(4).collect() };
     let mut cols = p.columns.into_iter().map(quarter);

@@ -57,6 +57,15 @@ pub struct Totals {
 }
 
 impl Totals {
+    /// The bands a user picks from: every band some part has, less those that
+    /// are parts of another's value (`pcimg_core::time::EXACT_BANDS`, read with
+    /// `gps_time`).
+    pub fn shown_bands(&self) -> impl Iterator<Item = &String> {
+        self.bands
+            .iter()
+            .filter(|b| !pcimg_core::time::is_exact_band(b))
+    }
+
     /// The totals of parts given by their metadata, bands, level count and
     /// file size.
     pub fn of<'a>(

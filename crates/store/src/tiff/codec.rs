@@ -153,13 +153,25 @@ pub fn encode(
     Ok(match c {
         Compression::None => bytemuck::cast_slice(values).to_vec(),
         Compression::Deflate => deflate(&predict_float(values, width)),
-        Compression::Zstd => PREDICTED.with(|raw| {
-            let mut raw = raw.borrow_mut();
-            predict_float_into(values, width, &mut raw);
-            // Level 1: on row-ordered tiles within 0.2 % of level 3's size at
-            // about twice its speed (bench/RESULTS.md, "Compact storage").
-            zstd_compress(&raw, 1).map_err(|e| format!("zstd: {e}"))
-        })?,
+        Compression::Zstd => PREDICTED
+            .with(|raw| {
+                let mut raw = raw.borrow_mut();
+                predict_float_into(values, width, &mut raw);
+                // Level 1: on row-ordered tiles within 0.2 % of level 3's size at
+                // about twice its speed (bench/RESULTS.md, "Compact storage").
+                // But level 1 leaves a tile of one value (a constant band, the
+                // NaN of a coarser level's `gps_time_lo`) at 1.2 KB, where level
+                // 3 makes 50 bytes, as quickly: such tiles are squeezed again.
+                let once = zstd_compress(&raw, 1)?;
+                if once.len() < 4096 {
+                    let again = zstd_compress(&raw, 3)?;
+                    if again.len() < once.len() {
+                        return Ok(again);
+                    }
+                }
+                Ok(once)
+            })
+            .map_err(|e: std::io::Error| format!("zstd: {e}"))?,
         Compression::Lerc => encode_lerc(values, width, max_error)?,
         Compression::LercDeflate => deflate(&encode_lerc(values, width, max_error)?),
         Compression::LercZstd => {
@@ -431,20 +443,24 @@ thread_local! {
 }
 
 thread_local! {
-    /// Each thread's Zstd compression context and its level, kept between
+    /// Each thread's Zstd compression contexts and their levels, kept between
     /// tiles (a fresh context a tile cost its set-up every time).
-    static ZSTD_OUT: std::cell::RefCell<Option<(i32, zstd::bulk::Compressor<'static>)>> =
-        const { std::cell::RefCell::new(None) };
+    static ZSTD_OUT: std::cell::RefCell<Vec<(i32, zstd::bulk::Compressor<'static>)>> =
+        const { std::cell::RefCell::new(Vec::new()) };
 }
 
 /// Compresses `raw` as one Zstd frame at `level` with this thread's context.
 fn zstd_compress(raw: &[u8], level: i32) -> std::io::Result<Vec<u8>> {
     ZSTD_OUT.with(|z| {
         let mut z = z.borrow_mut();
-        let c = match &mut *z {
-            Some((l, c)) if *l == level => c,
-            _ => &mut z.insert((level, zstd::bulk::Compressor::new(level)?)).1,
+        let at = match z.iter().position(|(l, _)| *l == level) {
+            Some(at) => at,
+            None => {
+                z.push((level, zstd::bulk::Compressor::new(level)?));
+                z.len() - 1
+            }
         };
+        let c = &mut z[at].1;
         SQUEEZED.with(|out| {
             let mut out = out.borrow_mut();
             out.clear();

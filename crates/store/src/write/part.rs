@@ -1248,6 +1248,13 @@ fn rows_tile(
             }
         }
         for (k, buf) in attrs.iter_mut().enumerate() {
+            // The coarser levels keep GPS time to its Float32 (`gps_time`):
+            // the whole numbers that make it exact are NaN there (in their
+            // order they would cost four bytes a point; `pcimg_core::time`).
+            if level > 0 && pcimg_core::time::is_exact_band(&a.names[3 + k]) {
+                buf.fill(f32::NAN);
+                continue;
+            }
             let bias = if a.whole[k] {
                 spec::WHOLE_BIAS as f32
             } else {
