@@ -244,8 +244,7 @@ impl NativeDataset {
         d.set_item("levels", level_points)?;
         let mut bands = vec!["x".to_string(), "y".into(), "z".into()];
         bands.extend(
-            t.bands
-                .iter()
+            t.shown_bands()
                 .filter(|b| !["x", "y", "z"].contains(&b.as_str()))
                 .cloned(),
         );

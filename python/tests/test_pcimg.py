@@ -85,6 +85,9 @@ def test_info_gives_the_facts_as_plain_values(ds, las):
     assert info["fields"]["X"] == ("x", "float64")
     assert info["fields"]["Intensity"] == ("intensity", "uint16")
     assert info["fields"]["Classification"] == ("classification", "uint8")
+    # GPS time is one field; the bands that make it exact are not fields.
+    assert info["fields"]["GpsTime"] == ("gps_time", "float64")
+    assert not [b for b, _ in info["fields"].values() if b.startswith("gps_time_")]
     assert info["fields"]["PointSourceId"] == ("point_source_id", "uint16")
     assert info["fields"]["ScanDirectionFlag"] == ("las_flags", "uint8")
     assert info["fields"]["ScanChannel"] == ("las_flags", "uint8")
@@ -97,6 +100,7 @@ def test_read_gives_every_point_of_the_laz(ds, las):
     assert pts.dtype["Intensity"] == np.uint16
     assert pts.dtype["ReturnNumber"] == np.uint8
     assert pts.dtype["Red"] == np.uint16
+    assert not [n for n in pts.dtype.names if n.startswith("gps_time_")]
     assert_same_points(las, pts)
 
 
