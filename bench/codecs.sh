@@ -20,7 +20,7 @@ OUT=$(mktemp -d)
 trap 'rm -rf "$OUT"' EXIT
 laz=$(stat -c %s "$INPUT")
 "$BIN" convert "$INPUT" -o "$OUT/none" -q --compression none
-points=$(python3 -c "import json,sys; print(sum(p['header']['meta']['point_count'] for p in json.load(open(sys.argv[1]))['parts']))" "$OUT/none/pcimg-index.json")
+points=$("$BIN" info --json "$OUT/none" | python3 -c "import json,sys; print(json.load(sys.stdin)['points'])")
 row() { awk -v n="$1" -v b="$2" -v p="$points" -v l="$laz" \
   'BEGIN { printf "%-34s %10d bytes  %6.2f B/point  %5.2f x input\n", n, b, b / p, b / l }'; }
 echo "input: $INPUT, $points points"

@@ -30,7 +30,7 @@ case $INPUT in
 esac
 lazb=$(stat -c %s "$laz")
 "$BIN" convert "$INPUT" -o "$DIR/zstd" -q
-points=$(python3 -c "import json,sys; print(sum(p['header']['meta']['point_count'] for p in json.load(open(sys.argv[1]))['parts']))" "$DIR/zstd/pcimg-index.json")
+points=$("$BIN" info --json "$DIR/zstd" | python3 -c "import json,sys; print(json.load(sys.stdin)['points'])")
 row() { awk -v n="$1" -v b="$2" -v p="$points" -v l="$lazb" \
   'BEGIN { printf "%-40s %12.0f bytes  %6.2f B/point  %5.2f x LAZ\n", n, b, b / p, b / l }'; }
 echo "input: $INPUT, $points points; $(date -u +%FT%TZ), $(nproc) cores, load $(cut -d' ' -f1-3 /proc/loadavg)"

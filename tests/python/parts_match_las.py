@@ -72,8 +72,12 @@ def join_time(offset, v, lo, mid, hi):
     with np.errstate(over="ignore", invalid="ignore"):
         t = offset + v.astype(np.float64)
         reach = (0.5 * ulp(v).astype(np.float64) + ulp(np.maximum(abs(offset), np.abs(t)) * 2.0)) / ulp(t) + 2.0
-        plain = np.isfinite(t) & np.isfinite(v) & (t != 0.0)
-        bits = np.where(plain & (reach < 16384.0), 16, 23).astype(np.int64)
+        plain = np.isfinite(t) & np.isfinite(v) & (t != 0.0) & (reach < 2.0**22)
+        # ceil(log2(reach)) + 1, rounded up to 8, 16 or 23.
+        exponent = np.frexp(np.where(plain, reach, 1.0))[1].astype(np.int64)
+        exact_power = np.where(plain, np.frexp(reach)[0] == 0.5, False)
+        fewest = exponent - exact_power + 1
+        bits = np.where(plain & (fewest <= 8), 8, np.where(plain & (fewest <= 16), 16, 23)).astype(np.int64)
         mask = (np.int64(1) << bits) - 1
         k = ordered(t.view(np.int64))
         k[np.isnan(t)] = 0

@@ -134,7 +134,8 @@ pub struct ChunkExtent {
     pub bounds: Bounds,
     pub attributes: Vec<(String, f64)>,
     /// Each attribute's smallest and largest value, NaN ignored
-    /// (`(inf, -inf)` when it has none).
+    /// (`(inf, -inf)` when it has none); for the whole numbers that make GPS
+    /// time exact, the range they may take (`time::EXACT_RANGE`).
     pub ranges: Vec<(f32, f32)>,
     /// The first point (its index in the chunk and its coordinates) with a
     /// coordinate that is NaN or infinite.
@@ -158,6 +159,11 @@ impl ChunkExtent {
                 .attributes
                 .par_iter()
                 .map(|a| {
+                    // (The whole numbers that make GPS time exact: the range
+                    // they may take, as the store records it.)
+                    if crate::time::is_exact_band(&a.name) {
+                        return crate::time::EXACT_RANGE;
+                    }
                     a.values
                         .iter()
                         .fold((f32::INFINITY, f32::NEG_INFINITY), |r, &v| {

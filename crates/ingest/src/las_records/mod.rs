@@ -217,6 +217,17 @@ impl Fields {
     }
 }
 
+/// Where GPS time's four columns begin among `m` columns of `fields` (its
+/// Float32 and the three whole numbers that make it exact,
+/// `pcimg_core::time::split`), and the byte of the time in a record.
+fn time_columns(fields: &[(Field, bool)], m: usize) -> Option<(usize, usize)> {
+    let k = fields.iter().position(|a| matches!(a.0, Field::Gps(_)))?;
+    match fields[k].0 {
+        Field::Gps(at) if k + 4 <= m => Some((k, at)),
+        _ => None,
+    }
+}
+
 /// Decodes the records `rec` (a whole number of records) into `out`.
 fn decode_window(rec: &[u8], f: &Fields, gps_offset: f64, out: Out<'_>) {
     let records = || rec.chunks_exact(f.stride);
@@ -227,7 +238,24 @@ fn decode_window(rec: &[u8], f: &Fields, gps_offset: f64, out: Out<'_>) {
         }
     }
     let fields = f.attributes();
+    // GPS time and the three whole numbers that make it exact: one pass, one
+    // split a record.
+    let time = time_columns(&fields, attrs.len());
+    if let Some((k, at)) = time
+        && let [c0, c1, c2, c3] = &mut attrs[k..k + 4]
+    {
+        for (i, r) in records().enumerate() {
+            let [v, lo, mid, hi] = split(f64_at(r, at), gps_offset);
+            c0[i].write(v);
+            c1[i].write(lo);
+            c2[i].write(mid);
+            c3[i].write(hi);
+        }
+    }
     for (k, col) in attrs.iter_mut().enumerate() {
+        if time.is_some_and(|(t, _)| (t..t + 4).contains(&k)) {
+            continue;
+        }
         // Every column is written (attribute_names lists the fields); any left
         // over would be NaN rather than unwritten memory.
         fill_field(
@@ -404,7 +432,10 @@ impl Scan {
                     .fold((f64::INFINITY, f64::NEG_INFINITY), |(l, h), v| {
                         (l.min(v), h.max(v))
                     }),
-                Field::GpsExact(..) | Field::Angle(..) | Field::LegacyFlags => records()
+                // The store records the range these may take
+                // (`pcimg_core::time::EXACT_RANGE`), not what they hold.
+                Field::GpsExact(..) => pcimg_core::time::EXACT_RANGE_F64,
+                Field::Angle(..) | Field::LegacyFlags => records()
                     .map(|r| f64::from(field.value(r, gps_offset)))
                     .fold((f64::INFINITY, f64::NEG_INFINITY), |(l, h), v| {
                         (l.min(v), h.max(v))

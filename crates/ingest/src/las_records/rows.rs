@@ -171,7 +171,21 @@ fn decode_rows(
     dst: &mut [MaybeUninit<f32>],
 ) {
     let fields = f.attributes();
+    // GPS time and the three whole numbers that make it exact: one pass, one
+    // split a record.
+    let time = super::time_columns(&fields, m);
+    if let Some((k, at)) = time {
+        for (row, r) in dst.chunks_exact_mut(m).zip(rec.chunks_exact(f.stride)) {
+            let parts = super::split(super::f64_at(r, at), gps_offset);
+            for (slot, v) in row[k..k + 4].iter_mut().zip(parts) {
+                slot.write(v);
+            }
+        }
+    }
     for j in 0..m {
+        if time.is_some_and(|(t, _)| (t..t + 4).contains(&j)) {
+            continue;
+        }
         let field = fields.get(j);
         let scale = field.filter(|a| a.1).map(|_| colour);
         fill_field(

@@ -153,25 +153,36 @@ pub fn encode(
     Ok(match c {
         Compression::None => bytemuck::cast_slice(values).to_vec(),
         Compression::Deflate => deflate(&predict_float(values, width)),
-        Compression::Zstd => PREDICTED
-            .with(|raw| {
-                let mut raw = raw.borrow_mut();
-                predict_float_into(values, width, &mut raw);
-                // Level 1: on row-ordered tiles within 0.2 % of level 3's size at
-                // about twice its speed (bench/RESULTS.md, "Compact storage").
-                // But level 1 leaves a tile of one value (a constant band, the
-                // NaN of a coarser level's `gps_time_lo`) at 1.2 KB, where level
-                // 3 makes 50 bytes, as quickly: such tiles are squeezed again.
-                let once = zstd_compress(&raw, 1)?;
-                if once.len() < 4096 {
-                    let again = zstd_compress(&raw, 3)?;
-                    if again.len() < once.len() {
-                        return Ok(again);
+        Compression::Zstd => {
+            // A tile of one value (a constant band, the NaN of a coarser
+            // level's `gps_time_lo`): level 1 leaves it at 1.2 KB where level
+            // 3 makes 50 bytes, and every such tile of a width encodes alike,
+            // so each thread keeps the last few.
+            if let Some(&first) = values.first()
+                && values.iter().all(|v| v.to_bits() == first.to_bits())
+            {
+                return constant_tile(first, values.len(), width);
+            }
+            PREDICTED
+                .with(|raw| {
+                    let mut raw = raw.borrow_mut();
+                    predict_float_into(values, width, &mut raw);
+                    // Level 1: on row-ordered tiles within 0.2 % of level 3's
+                    // size at about twice its speed (bench/RESULTS.md,
+                    // "Compact storage"); a tile it leaves under 4 KB (one
+                    // value and the NaN past the last point) is squeezed
+                    // again, which costs little at that ratio.
+                    let once = zstd_compress(&raw, 1)?;
+                    if once.len() < 4096 {
+                        let again = zstd_compress(&raw, 3)?;
+                        if again.len() < once.len() {
+                            return Ok(again);
+                        }
                     }
-                }
-                Ok(once)
-            })
-            .map_err(|e: std::io::Error| format!("zstd: {e}"))?,
+                    Ok(once)
+                })
+                .map_err(|e: std::io::Error| format!("zstd: {e}"))?
+        }
         Compression::Lerc => encode_lerc(values, width, max_error)?,
         Compression::LercDeflate => deflate(&encode_lerc(values, width, max_error)?),
         Compression::LercZstd => {
@@ -180,6 +191,34 @@ pub fn encode(
                 .map_err(|e| format!("zstd: {e}"))?
         }
     })
+}
+
+/// The Zstd tile (predicted, level 3) of `len` samples all `v`, `width` to
+/// a row: from this thread's last few, else made and kept.
+fn constant_tile(v: f32, len: usize, width: usize) -> Result<Vec<u8>, String> {
+    /// A tile's value (bits), samples and width, and its encoding.
+    type Made = Vec<((u32, usize, usize), Vec<u8>)>;
+    thread_local! {
+        static MADE: std::cell::RefCell<Made> = const { std::cell::RefCell::new(Vec::new()) };
+    }
+    let key = (v.to_bits(), len, width);
+    if let Some(hit) = MADE.with_borrow(|m| m.iter().find(|e| e.0 == key).map(|e| e.1.clone())) {
+        return Ok(hit);
+    }
+    let tile = PREDICTED
+        .with(|raw| {
+            let mut raw = raw.borrow_mut();
+            predict_float_into(&vec![v; len], width, &mut raw);
+            zstd_compress(&raw, 3)
+        })
+        .map_err(|e| format!("zstd: {e}"))?;
+    MADE.with_borrow_mut(|m| {
+        if m.len() >= 8 {
+            m.remove(0);
+        }
+        m.push((key, tile.clone()));
+    });
+    Ok(tile)
 }
 
 fn deflate(raw: &[u8]) -> Vec<u8> {

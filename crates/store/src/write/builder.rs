@@ -118,13 +118,21 @@ impl PartBuilder {
         }
     }
 
-    /// Widens the attributes' ranges by `ranges` (one per attribute).
+    /// Widens the attributes' ranges by `ranges` (one per attribute). The
+    /// whole numbers that make GPS time exact keep the range they may take
+    /// (`time::EXACT_RANGE`), whatever they hold: readers need not split every
+    /// time an extra time to find it.
     fn widen_ranges(&mut self, ranges: Vec<(f32, f32)>) {
         self.ranges = if self.ranges.is_empty() {
             ranges
         } else {
             widen(&self.ranges, &ranges)
         };
+        for (r, (name, _)) in self.ranges.iter_mut().zip(&self.attributes) {
+            if pcimg_core::time::is_exact_band(name) {
+                *r = pcimg_core::time::EXACT_RANGE;
+            }
+        }
     }
 
     /// Takes the attribute rows from `src` when the part is written instead of

@@ -1293,9 +1293,14 @@ fn round_half(v: f64) -> f64 {
 /// `pos`, `idx` their input indices). Each row is differenced by the TIFF
 /// predictor, so the order should make neighbours alike: the input's order
 /// (a scanner's: points recorded one after another lie close, and their times,
-/// colours and intensities change little) where it takes shorter steps between
-/// consecutive points than the level order, else the level order (an input in
-/// no useful order). Measured in bench/RESULTS.md ("Compact storage").
+/// colours and intensities change little) unless it takes more than twice the
+/// steps between consecutive points that the level order takes (an input in
+/// no useful order: tens of times more), else the level order. Twice, not
+/// once: a coarser level's points in input order take about 1.5 times the
+/// level order's steps (a scan line's end jumps back across the tile), yet
+/// their times, returns and flags change so much less that the tile is
+/// smaller (on `autzen_trim`, level 1 took 3.3 % less; bench/RESULTS.md,
+/// "Compact storage").
 fn tile_order(slots: &[usize], idx: &[u32], pos: &[[f32; 3]]) -> Vec<u32> {
     let n = slots.len() as u32;
     let steps = |o: &mut dyn Iterator<Item = u32>| -> f64 {
@@ -1311,7 +1316,7 @@ fn tile_order(slots: &[usize], idx: &[u32], pos: &[[f32; 3]]) -> Vec<u32> {
         sum
     };
     let input = radix_order(idx);
-    if steps(&mut input.iter().copied()) < steps(&mut (0..n)) {
+    if steps(&mut input.iter().copied()) < 2.0 * steps(&mut (0..n)) {
         input
     } else {
         (0..n).collect()
