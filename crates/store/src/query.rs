@@ -159,8 +159,10 @@ pub fn read_batch(
         .ok_or_else(|| StoreError::new(&ds.path, format!("has no part {p}")))?;
     let mut idx = vec![0usize, 1, 2];
     idx.extend(bands.iter().filter_map(|b| part.band_index(b)));
-    // `gps_time` comes with the bands that make it exact ([`Batch::of`]).
-    if bands.iter().any(|b| b == time::TIME_BAND) {
+    // `gps_time` comes with the bands that make it exact ([`Batch::of`]), at
+    // level 0: coarser levels keep the Float32 alone (their NaN there would
+    // be read for nothing).
+    if l == 0 && bands.iter().any(|b| b == time::TIME_BAND) {
         idx.extend(time::EXACT_BANDS.iter().filter_map(|b| part.band_index(b)));
     }
     let points = part.read_tiles(l, &tiles, &idx)?;

@@ -390,13 +390,7 @@ struct Scan {
 
 impl Scan {
     /// The scan of the records `rec` (a whole number of them, at least one).
-    fn of(
-        rec: &[u8],
-        stride: usize,
-        fields: &[(Field, bool)],
-        colour: ColorScale,
-        gps_offset: f64,
-    ) -> Scan {
+    fn of(rec: &[u8], stride: usize, fields: &[(Field, bool)], colour: ColorScale) -> Scan {
         let (mut lo, mut hi) = ([i32::MAX; 3], [i32::MIN; 3]);
         for r in rec.chunks_exact(stride) {
             for a in 0..3 {
@@ -436,7 +430,7 @@ impl Scan {
                 // (`pcimg_core::time::EXACT_RANGE`), not what they hold.
                 Field::GpsExact(..) => pcimg_core::time::EXACT_RANGE_F64,
                 Field::Angle(..) | Field::LegacyFlags => records()
-                    .map(|r| f64::from(field.value(r, gps_offset)))
+                    .map(|r| f64::from(field.value(r, 0.0)))
                     .fold((f64::INFINITY, f64::NEG_INFINITY), |(l, h), v| {
                         (l.min(v), h.max(v))
                     }),
@@ -722,10 +716,9 @@ impl PointReader for RecordReader {
             }
             None => ColorScale::Identity,
         };
-        let gps_offset = self.gps_offset;
         let scan = bytes
             .par_chunks(WINDOW * f.stride)
-            .map(|w| Scan::of(w, f.stride, &fields, colour, gps_offset))
+            .map(|w| Scan::of(w, f.stride, &fields, colour))
             .reduce_with(Scan::union)
             .expect("a stretch holds at least one record");
         self.colors.add_clamped(scan.clamped);
@@ -746,6 +739,7 @@ impl PointReader for RecordReader {
                 })
             })
             .flatten();
+        let gps_offset = self.gps_offset;
         let ranges = fields
             .iter()
             .zip(scan.ranges)
