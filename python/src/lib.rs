@@ -405,8 +405,8 @@ impl Kept {
         let p = &self.points;
         let find = |name: &str| p.bands.iter().position(|b| b == name);
         let exact = (f.band == time::TIME_BAND)
-            .then(|| time::EXACT_BANDS.map(|b| find(b).map(|i| p.columns[i].as_slice())))
-            .and_then(|[lo, mid, hi]| Some([lo?, mid?, hi?]));
+            .then(|| time::exact_columns(|b| find(b).map(|i| p.columns[i].as_slice())))
+            .flatten();
         let col = find(&f.band).map(|i| (p.offsets[i], p.columns[i].as_slice(), exact));
         let lattice = ["x", "y", "z"]
             .iter()

@@ -41,6 +41,13 @@ pub const EXACT_RANGE_F64: (f64, f64) = (-8_388_608.0, 8_388_607.0);
 /// The band they make exact.
 pub const TIME_BAND: &str = "gps_time";
 
+/// The columns of [`EXACT_BANDS`] that `column` finds by name, when it
+/// finds all three: what [`join`] takes beside the Float32.
+pub fn exact_columns<'a>(column: impl Fn(&str) -> Option<&'a [f32]>) -> Option<[&'a [f32]; 3]> {
+    let [lo, mid, hi] = EXACT_BANDS.map(column);
+    Some([lo?, mid?, hi?])
+}
+
 /// Whether `name` is one of [`EXACT_BANDS`]: a part of another band's value,
 /// which programs that list bands to users (info, export, the legend) leave
 /// out.

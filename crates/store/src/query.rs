@@ -257,8 +257,8 @@ impl Batch {
         };
         for name in bands {
             let exact = (name == time::TIME_BAND)
-                .then(|| time::EXACT_BANDS.map(|b| band(b).map(|(_, c)| c)))
-                .and_then(|[lo, mid, hi]| Some([lo?, mid?, hi?]));
+                .then(|| time::exact_columns(|b| band(b).map(|(_, c)| c)))
+                .flatten();
             let col = match (band(name), exact) {
                 // GPS time bit for bit, from its value and the whole numbers
                 // beside it (`pcimg_core::time`).
