@@ -17,7 +17,8 @@
 //! distance; banding shows there, dither noise does not). Prints one line a
 //! set: SSIM, far and bytes for ours and chafa's, our median encode time,
 //! symbols chafa used that we cannot draw back (counted as background).
-//! `chafa` must be on PATH.
+//! `chafa` must be on PATH. With `CELLS=1` in the environment, each set is
+//! followed by where chafa's frame beats ours, cell by cell (`worst_cells`).
 //!
 //! In 256 and 16 colours ours is `Symbols::of_depth` (fitted in the palette,
 //! the error diffused); `--no-dither` takes the 24-bit cells and maps each
@@ -116,6 +117,9 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         let (chafa_ssim, chafa_bytes, unknown) = match chafa {
             Some(Ok(text)) => {
                 let (px, unknown) = draw_back(&text, cols, rows, cw, ch, &lookup);
+                if std::env::var_os("CELLS").is_some() {
+                    worst_cells(&reference, &reference_px, &ours_px, &px, rw, rh, cw, ch);
+                }
                 let mut u: Vec<String> = unknown.into_iter().map(|c| format!("{c}")).collect();
                 u.sort();
                 (
@@ -444,6 +448,11 @@ fn luma_of(px: &[Colour]) -> Vec<f32> {
 
 /// Mean SSIM of two luma pictures (Wang et al. 2004, Gaussian 11×11, σ 1.5).
 fn ssim(a: &[f32], b: &[f32], w: usize, h: usize) -> f64 {
+    let m = ssim_map(a, b, w, h);
+    m.iter().map(|v| *v as f64).sum::<f64>() / (w * h) as f64
+}
+
+fn ssim_map(a: &[f32], b: &[f32], w: usize, h: usize) -> Vec<f32> {
     let k: Vec<f32> = {
         let v: Vec<f32> = (-5..=5)
             .map(|i: i32| (-(i * i) as f32 / (2.0 * 1.5 * 1.5)).exp())
@@ -480,13 +489,90 @@ fn ssim(a: &[f32], b: &[f32], w: usize, h: usize) -> f64 {
     let (ma, mb) = (blur(a), blur(b));
     let (saa, sbb, sab) = (blur(&prod(a, a)), blur(&prod(b, b)), blur(&prod(a, b)));
     let (c1, c2) = ((0.01f32 * 255.0).powi(2), (0.03f32 * 255.0).powi(2));
-    let mut total = 0f64;
-    for i in 0..w * h {
-        let (mx, my) = (ma[i], mb[i]);
-        let (vx, vy, cxy) = (saa[i] - mx * mx, sbb[i] - my * my, sab[i] - mx * my);
-        let s =
-            ((2.0 * mx * my + c1) * (2.0 * cxy + c2)) / ((mx * mx + my * my + c1) * (vx + vy + c2));
-        total += s as f64;
+    (0..w * h)
+        .map(|i| {
+            let (mx, my) = (ma[i], mb[i]);
+            let (vx, vy, cxy) = (saa[i] - mx * mx, sbb[i] - my * my, sab[i] - mx * my);
+            ((2.0 * mx * my + c1) * (2.0 * cxy + c2)) / ((mx * mx + my * my + c1) * (vx + vy + c2))
+        })
+        .collect()
+}
+
+/// Where chafa's text frame beats ours (`CELLS=1`): the SSIM map of each
+/// summed cell by cell; the totals by what each draws there (black or not);
+/// then the twelve cells where chafa gains most, each as the mean colours of
+/// its 2 × 4 sub-cells in the frame, ours and chafa's.
+#[allow(clippy::too_many_arguments)]
+fn worst_cells(
+    reference: &[f32],
+    reference_px: &[Colour],
+    ours: &[Colour],
+    theirs: &[Colour],
+    w: usize,
+    h: usize,
+    cw: usize,
+    ch: usize,
+) {
+    let (ma, mb) = (
+        ssim_map(reference, &luma_of(ours), w, h),
+        ssim_map(reference, &luma_of(theirs), w, h),
+    );
+    let (cols, rows) = (w / cw, h / ch);
+    let cell = |r: usize, c: usize| {
+        (r * ch..(r + 1) * ch).flat_map(move |y| (c * cw..(c + 1) * cw).map(move |x| y * w + x))
+    };
+    let mut gains: Vec<(f32, usize, usize)> = Vec::new();
+    let mut by_class = [[0f32; 2]; 4];
+    for r in 0..rows {
+        for c in 0..cols {
+            let g: f32 = cell(r, c).map(|i| mb[i] - ma[i]).sum();
+            let lit = |px: &[Colour]| cell(r, c).any(|i| px[i] != [0; 3]);
+            let class = lit(ours) as usize + 2 * lit(theirs) as usize;
+            by_class[class][(g < 0.0) as usize] += g;
+            gains.push((g, r, c));
+        }
     }
-    total / (w * h) as f64
+    gains.sort_by(|a, b| b.0.total_cmp(&a.0));
+    println!(
+        "  chafa − ours, SSIM summed over pixels: chafa ahead / ours ahead where both draw black {:.1} / {:.1}, only ours draws {:.1} / {:.1}, only chafa {:.1} / {:.1}, both {:.1} / {:.1}",
+        by_class[0][0],
+        by_class[0][1],
+        by_class[1][0],
+        by_class[1][1],
+        by_class[2][0],
+        by_class[2][1],
+        by_class[3][0],
+        by_class[3][1]
+    );
+    let mean = |px: &[Colour], x0: usize, y0: usize, x1: usize, y1: usize| {
+        let mut t = [0u32; 3];
+        for y in y0..y1 {
+            for x in x0..x1 {
+                for k in 0..3 {
+                    t[k] += px[y * w + x][k] as u32;
+                }
+            }
+        }
+        t.map(|v| v / ((x1 - x0) * (y1 - y0)) as u32)
+    };
+    for &(g, r, c) in gains.iter().take(12) {
+        let (x0, y0) = (c * cw, r * ch);
+        let mut line = format!("  row {r} col {c} +{g:.1}:");
+        for (name, px) in [("frame", reference_px), ("ours", ours), ("chafa", theirs)] {
+            line += &format!(" {name}");
+            for sy in 0..4 {
+                for sx in 0..2 {
+                    let m = mean(
+                        px,
+                        x0 + sx * cw / 2,
+                        y0 + sy * ch / 4,
+                        x0 + (sx + 1) * cw / 2,
+                        y0 + (sy + 1) * ch / 4,
+                    );
+                    line += &format!(" {},{},{}", m[0], m[1], m[2]);
+                }
+            }
+        }
+        println!("{line}");
+    }
 }

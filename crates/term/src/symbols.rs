@@ -33,20 +33,27 @@
 //! In 256 and 16 colours ([`Symbols::of_depth`]) mapping the two colours to
 //! the nearest palette entries bands a smooth gradient (a scan coloured by
 //! height) into flat stripes. There the fit is done in the palette: for the
-//! one colour and the four best splits, each group takes the palette colour
-//! nearest its mean (the least error for that split), and the least error
-//! wins, which often draws a cell whose two means fall on one palette colour
-//! as a space. And the error is diffused, Floyd–Steinberg between cells
-//! (serpentine): a cell's pixels take on the error passed to it, and half of
-//! the mean difference between them and the cell as drawn goes on to the next
-//! cells. Passing each sub-pixel's own error on instead was slower for a
-//! slightly lower SSIM; passing all of it on drew the bench frames worse (see
-//! [`DIFFUSED`]). Seen from afar (frame and text averaged over two cells) the
-//! colour error falls by 6–23 % in 16 colours and 6–19 % in 256 on the
-//! airborne frames, at an SSIM within 0.0016 of the nearest colours', with
-//! 9–21 % fewer bytes in 16 colours (−8 to +1 % in 256); it is deterministic,
-//! and a palette colour's flat area stays flat (no error to pass on). 24-bit
-//! output is not touched.
+//! one colour and the [`REWEIGHED`] best splits, each group takes the palette
+//! colour of least cost, and the least total wins, which often draws a cell
+//! whose two means fall on one palette colour as a space. The cost is the
+//! squared error plus [`SSIM_WEIGHT`] times SSIM's luminance loss, which
+//! weighs an error by how dark the place is: grey 8 over black is as far
+//! from the picture as white over grey. Each sub-pixel's loss counts the
+//! black blocks of the frame under it apart from the rest ([`dark_share`]):
+//! a speck on black is drawn black, not as a haze over its whole sub-pixel,
+//! while an even dim area keeps a dim colour. A braille dot is a quarter of
+//! its sub-pixel, so a lit group's cost is that of the dot's colour mixed
+//! with the background's. And the error is diffused, Floyd–Steinberg between
+//! cells (serpentine): a cell's pixels take on the error passed to it, and
+//! half of the mean difference between them and the cell as drawn goes on to
+//! the next cells. Passing each sub-pixel's own error on instead was slower
+//! for a slightly lower SSIM; passing all of it on drew the bench frames
+//! worse (see [`DIFFUSED`]). Seen from afar (frame and text averaged over two
+//! cells) the colour error falls by 6–23 % in 16 colours and 6–19 % in 256
+//! on the airborne frames, at an SSIM within 0.0016 of the nearest colours',
+//! with 9–21 % fewer bytes in 16 colours (−8 to +1 % in 256); it is
+//! deterministic, and a palette colour's flat area stays flat (no error to
+//! pass on). 24-bit output is not touched.
 
 use crate::Rgba;
 use rayon::prelude::*;
@@ -133,6 +140,55 @@ fn box_filter(frame: &Rgba<'_>, w: usize, h: usize) -> Vec<Colour> {
             // Truncated, as chafa's means are: SSIM weighs the faint haze that
             // rounding up leaves on a black background (see `bench/text.sh`).
             *o = [a[0] / n, a[1] / n, a[2] / n].map(|s| s as u8);
+        }
+    });
+    out
+}
+
+/// For each of `w` × `h` output pixels (as [`box_filter`]), the share of the
+/// frame pixels it covers that lie in black blocks: blocks of
+/// [`DARK_BLOCK`]² frame pixels (from the output pixel's corner; smaller at
+/// its far edges) whose channels average at most [`DARK`]. A frame no
+/// larger than the output has blocks of one pixel.
+fn dark_share(frame: &Rgba<'_>, w: usize, h: usize) -> Vec<f32> {
+    let (fw, fh) = (frame.width as usize, frame.height as usize);
+    let mut out = vec![0f32; w * h];
+    if w == 0 || h == 0 || fw == 0 || fh == 0 || frame.rgba.len() < fw * fh * 4 {
+        return out;
+    }
+    let xs: Vec<(usize, usize)> = (0..w).map(|x| span(x, w, fw)).collect();
+    out.par_chunks_mut(w).enumerate().for_each(|(y, line_out)| {
+        let (y0, y1) = span(y, h, fh);
+        // Each frame column's sum of its brightest channel over a band of
+        // block rows, then the black pixels each output pixel has.
+        let mut column = vec![0u32; fw];
+        let mut dark = vec![0u32; w];
+        let mut band = y0;
+        while band < y1 {
+            let end = (band + DARK_BLOCK).min(y1);
+            column.fill(0);
+            for row in band..end {
+                let line = &frame.rgba[row * fw * 4..(row + 1) * fw * 4];
+                for (s, px) in column.iter_mut().zip(line.chunks_exact(4)) {
+                    *s += px[0].max(px[1]).max(px[2]) as u32;
+                }
+            }
+            let rows = (end - band) as u32;
+            for (d, &(x0, x1)) in dark.iter_mut().zip(&xs) {
+                let mut x = x0;
+                while x < x1 {
+                    let e = (x + DARK_BLOCK).min(x1);
+                    let n = (e - x) as u32 * rows;
+                    if column[x..e].iter().sum::<u32>() <= DARK as u32 * n {
+                        *d += n;
+                    }
+                    x = e;
+                }
+            }
+            band = end;
+        }
+        for ((o, d), &(x0, x1)) in line_out.iter_mut().zip(&dark).zip(&xs) {
+            *o = *d as f32 / ((x1 - x0) * (y1 - y0)) as f32;
         }
     });
     out
@@ -429,22 +485,86 @@ const WB: f32 = 0.114 * 3.0;
 
 /// How many of the best splits (by the exact fit) [`fit_quantized`] weighs
 /// again with palette colours.
-const REWEIGHED: usize = 4;
+const REWEIGHED: usize = 2;
+
+/// What a palette colour costs a group of sub-pixels beside its squared RGB
+/// error: this many times its SSIM luminance loss. SSIM (the bench's measure,
+/// and close to what the eye sees) compares local means *relatively*, `1 −
+/// (a − b)² / (a² + b² + C₁)`: on a black background the darkest grey over
+/// black costs as much as white over grey, where squared error calls it
+/// nothing. Without this term, in 256 and 16 colours the diffused error
+/// built up into a haze of the darkest grey over sparse points and dim
+/// texture turned black, and chafa scored 0.0001–0.0008 higher on the thin
+/// and dim frames. 20,000 was the best of 3,000–200,000 on the bench frames
+/// (`bash bench/text.sh`; history 48).
+const SSIM_WEIGHT: f32 = 20_000.0;
+
+/// SSIM's C₁ for 8-bit values: (0.01 · 255)².
+const C1: f32 = 6.5025;
+
+/// A channel value at most this is black, for [`dark_share`].
+const DARK: u8 = 2;
+
+/// The side of the blocks [`dark_share`] looks at, in frame pixels: about
+/// the span of SSIM's 11 × 11 Gaussian window (σ 1.5). Single black pixels
+/// between lit ones are not a black area to the eye or to SSIM; 3 and 5 did
+/// as well or worse on the bench frames, 8 worse.
+const DARK_BLOCK: usize = 4;
+
+/// The Rec. 601 luma of a colour, 0–255.
+fn luma(c: Colour) -> f32 {
+    0.299 * c[0] as f32 + 0.587 * c[1] as f32 + 0.114 * c[2] as f32
+}
+
+/// What [`fit_quantized`] knows of a cell's sub-pixels beyond their colours:
+/// how much of each lies in black areas of the frame ([`dark_share`]) and
+/// the luma of the rest.
+#[derive(Clone, Copy, Default)]
+struct Shade {
+    /// The share of the sub-pixel in black blocks, 0–1.
+    dark: [f32; 8],
+    /// The mean luma of the rest of it.
+    lit: [f32; 8],
+}
+
+impl Shade {
+    /// For sub-pixels `px` (each with the error passed to it) of which
+    /// `dark` lies in black blocks.
+    fn of(px: &[Colour], dark: &[f32; 8]) -> Shade {
+        let mut s = Shade {
+            dark: *dark,
+            lit: [0.0; 8],
+        };
+        for (j, c) in px.iter().enumerate() {
+            if dark[j] < 1.0 {
+                s.lit[j] = luma(*c) / (1.0 - dark[j]);
+            }
+        }
+        s
+    }
+}
 
 /// The best cell for these sub-pixels with colours of `depth`'s palette: the
 /// one colour and the [`REWEIGHED`] best splits of the exact fit, each group
-/// taking the palette colour nearest its mean (for a given split that is the
-/// least squared error), weighed by their squared error with those colours;
-/// the least wins. Returns the pattern (0: one colour) and the colours.
-fn fit_quantized(px: &[Colour], table: &Table, depth: Depth) -> (usize, Colour, Colour) {
+/// taking the palette colour of least cost ([`pick`]: squared error and the
+/// SSIM luminance loss); the least total wins. Braille's foreground is drawn
+/// as dots a quarter of their sub-pixel, so its cost is that of the dot's
+/// colour mixed with the background's. Returns the pattern (0: one colour)
+/// and the colours.
+fn fit_quantized(
+    px: &[Colour],
+    dark: &[f32; 8],
+    table: &Table,
+    depth: Depth,
+) -> (usize, Colour, Colour) {
     let n = px.len();
     let full = (1usize << n) - 1;
+    let shade = Shade::of(px, dark);
+    let (c, q) = pick(px, &shade, table, full, depth, None);
     if px.iter().all(|c| *c == px[0]) {
-        let q = quantize(px[0], depth);
         return (0, q, q);
     }
-    let Sums { r, g, b, score } = Sums::of(px, table);
-    let t = [r[full], g[full], b[full]];
+    let Sums { score, .. } = Sums::of(px, table);
     // The best splits, best first (ties: fewer lit sub-pixels, as in the fit).
     let mut top = [(f32::NEG_INFINITY, 0usize); REWEIGHED];
     for &p in &table.order {
@@ -458,40 +578,118 @@ fn fit_quantized(px: &[Colour], table: &Table, depth: Depth) -> (usize, Colour, 
             top[i] = (score[p], p);
         }
     }
-    // A group's squared error with colour q, less the constant Σ|pixel|²:
-    // k·|q|² − 2·S·q.
-    let cost = |s: [f32; 3], k: f32, q: Colour| {
-        let q = q.map(|v| v as f32);
-        k * (q[0] * q[0] + q[1] * q[1] + q[2] * q[2])
-            - 2.0 * (s[0] * q[0] + s[1] * q[1] + s[2] * q[2])
-    };
-    let n = table.whole;
-    let mean = |s: [f32; 3], k: f32| s.map(|v| (v / k) as u8);
-    let q = quantize(mean(t, n), depth);
-    let mut best = (cost(t, n, q), 0usize, q, q);
+    let mut best = (c, 0usize, q, q);
     for &(sc, p) in &top {
-        // A split's error in palette colours is at least its exact error,
-        // −score here (less Σ|pixel|², as `cost`): once that is no better than
-        // the best so far, neither is any split after it.
-        if sc == f32::NEG_INFINITY || -sc >= best.0 {
+        if sc == f32::NEG_INFINITY {
             break;
         }
-        let k = table.lit[p];
-        let s1 = [r[p], g[p], b[p]];
-        let s0 = [t[0] - s1[0], t[1] - s1[1], t[2] - s1[2]];
-        let (q1, q0) = (
-            quantize(mean(s1, k), depth),
-            quantize(mean(s0, n - k), depth),
-        );
-        if q1 == q0 {
+        let (c0, q0) = pick(px, &shade, table, full & !p, depth, None);
+        if c0 >= best.0 {
             continue;
         }
-        let c = cost(s1, k, q1) + cost(s0, n - k, q0);
-        if c < best.0 {
-            best = (c, p, q1, q0);
+        let on = table.dots.then_some(q0);
+        let (c1, q1) = pick(px, &shade, table, p, depth, on);
+        if q1 != q0 && c1 + c0 < best.0 {
+            best = (c1 + c0, p, q1, q0);
         }
     }
     (best.1, best.2, best.3)
+}
+
+/// The palette colour of least cost for the sub-pixels of `mask`, and that
+/// cost: the squared RGB error (weighed as the sub-pixels are) plus
+/// [`SSIM_WEIGHT`] times the SSIM luminance loss. `on`: the group is
+/// braille dots over this background, each showing a quarter dot's colour
+/// and three quarters background. The squared error alone is a lower bound
+/// of the cost, so a candidate whose error is no better than the best cost
+/// so far is not weighed further.
+fn pick(
+    px: &[Colour],
+    shade: &Shade,
+    table: &Table,
+    mask: usize,
+    depth: Depth,
+    on: Option<Colour>,
+) -> (f32, Colour) {
+    // The group's weight k, sums S and Σ w·|p|², for the squared error
+    // k·|q|² − 2·S·q + Σ w·|p|².
+    let (mut k, mut sum, mut sq) = (0f32, [0f32; 3], 0f32);
+    for (j, c) in px.iter().enumerate() {
+        if mask >> j & 1 == 1 {
+            let w = table.weight[j];
+            let c = c.map(|v| v as f32);
+            for i in 0..3 {
+                sum[i] += c[i] * w;
+            }
+            sq += w * (c[0] * c[0] + c[1] * c[1] + c[2] * c[2]);
+            k += w;
+        }
+    }
+    let mean = sum.map(|v| (v / k) as u8);
+    // The loss's terms: the black shares' weight in one, and each lit
+    // share's weight and luma.
+    let (mut dark, mut lit, mut n_lit) = (0f32, [(0f32, 0f32); 8], 0);
+    for j in 0..px.len() {
+        if mask >> j & 1 == 1 {
+            let w = table.weight[j] * SSIM_WEIGHT;
+            dark += w * shade.dark[j];
+            if shade.dark[j] < 1.0 {
+                lit[n_lit] = (w * (1.0 - shade.dark[j]), shade.lit[j]);
+                n_lit += 1;
+            }
+        }
+    }
+    let mut best = (f32::INFINITY, [0u8; 3]);
+    let mut weigh = |q: Colour| {
+        let shown = match on {
+            Some(b) => [0, 1, 2].map(|i| (q[i] as f32 + 3.0 * b[i] as f32) * 0.25),
+            None => q.map(|v| v as f32),
+        };
+        let mut cost = k * (shown[0] * shown[0] + shown[1] * shown[1] + shown[2] * shown[2])
+            - 2.0 * (sum[0] * shown[0] + sum[1] * shown[1] + sum[2] * shown[2])
+            + sq;
+        if cost >= best.0 {
+            return;
+        }
+        let y = 0.299 * shown[0] + 0.587 * shown[1] + 0.114 * shown[2];
+        let y2 = y * y;
+        cost += dark * y2 / (y2 + C1);
+        for &(w, yl) in &lit[..n_lit] {
+            let d = yl - y;
+            cost += w * d * d / (yl * yl + y2 + C1);
+        }
+        if cost < best.0 {
+            best = (cost, q);
+        }
+    };
+    // The nearest colour first: its cost bounds the others'.
+    weigh(quantize(mean, depth));
+    match depth {
+        Depth::True => {}
+        Depth::C16 => ANSI16.into_iter().for_each(&mut weigh),
+        Depth::C256 => {
+            // The cube colours around the mean (each channel's level below
+            // and above it) and the greys either side of it.
+            let around = |v: u8| {
+                let i = CUBE.iter().rposition(|&l| l <= v).unwrap_or(0);
+                [CUBE[i], CUBE[(i + 1).min(5)]]
+            };
+            let (r, g, b) = (around(mean[0]), around(mean[1]), around(mean[2]));
+            for r in r {
+                for g in g {
+                    for b in b {
+                        weigh([r, g, b]);
+                    }
+                }
+            }
+            let m = (mean[0] as i32 + mean[1] as i32 + mean[2] as i32) / 3;
+            let i = ((m - 8).max(0) / 10).min(23);
+            for i in [i, (i + 1).min(23)] {
+                weigh([(8 + 10 * i) as u8; 3]);
+            }
+        }
+    }
+    best
 }
 
 /// The colour the terminal shows for `c` at `depth`: `c` itself in 24-bit, else
@@ -523,30 +721,57 @@ const DIFFUSED: f32 = 0.5;
 /// the same colour error from afar, and cost less.
 fn dithered(
     px: &[Colour],
+    darks: &[f32],
     cols: usize,
     rows: usize,
     set: SymbolSet,
     table: &Table,
     depth: Depth,
 ) -> Vec<Cell> {
+    let blank = Cell {
+        symbol: ' ',
+        fg: [0; 3],
+        bg: [0; 3],
+    };
+    let mut cells = vec![blank; cols * rows];
+    if cols == 0 {
+        return cells;
+    }
+    cells
+        .par_chunks_mut(cols * BAND)
+        .enumerate()
+        .for_each(|(b, band)| dither_band(px, darks, cols, b * BAND, band, set, table, depth));
+    cells
+}
+
+/// Rows of cells [`dithered`] diffuses its error within, each band on its
+/// own (so the bands are fitted in parallel): a seam every 20 rows, which on
+/// the bench frames moved SSIM by −0.0006 to +0.0001 and halved the time to
+/// encode 40 rows on two cores.
+const BAND: usize = 20;
+
+/// [`dithered`]'s rows from `r0`, into `cells` (whole rows).
+#[allow(clippy::too_many_arguments)]
+fn dither_band(
+    px: &[Colour],
+    darks: &[f32],
+    cols: usize,
+    r0: usize,
+    cells: &mut [Cell],
+    set: SymbolSet,
+    table: &Table,
+    depth: Depth,
+) {
     let (gw, gh) = set.grid();
     let n = gw * gh;
     let w = cols * gw;
-    let mut cells = Vec::with_capacity(cols * rows);
-    cells.resize(
-        cols * rows,
-        Cell {
-            symbol: ' ',
-            fg: [0; 3],
-            bg: [0; 3],
-        },
-    );
     // The error passed to each cell of this row and of the next, a cell of
     // margin either side.
     let mut here = vec![[0f32; 3]; cols + 2];
     let mut below = here.clone();
     let mut sub = [[0u8; 3]; 8];
-    for r in 0..rows {
+    let mut dark = [0f32; 8];
+    for r in r0..r0 + cells.len() / cols {
         let forward = r % 2 == 0;
         for i in 0..cols {
             let c = if forward { i } else { cols - 1 - i };
@@ -557,6 +782,7 @@ fn dithered(
                 for x in 0..gw {
                     let p = px[(r * gh + y) * w + c * gw + x];
                     let j = y * gw + x;
+                    dark[j] = darks[(r * gh + y) * w + c * gw + x];
                     for k in 0..3 {
                         // (+0.5 and a cast round a non-negative value without
                         // a libm call.)
@@ -566,8 +792,8 @@ fn dithered(
                     }
                 }
             }
-            let (pattern, fg, bg) = fit_quantized(&sub[..n], table, depth);
-            cells[r * cols + c] = Cell {
+            let (pattern, fg, bg) = fit_quantized(&sub[..n], &dark, table, depth);
+            cells[(r - r0) * cols + c] = Cell {
                 symbol: table.glyphs[pattern].unwrap_or(' '),
                 fg,
                 bg,
@@ -592,7 +818,6 @@ fn dithered(
         std::mem::swap(&mut here, &mut below);
         below.fill([0.0; 3]);
     }
-    cells
 }
 
 /// The sum of the pixels of each pattern, channel by channel, and each
@@ -648,6 +873,8 @@ struct Table {
     w0: [f32; 256],
     /// The patterns the set draws, neither empty nor full, fewest lit first.
     order: Vec<u16>,
+    /// Braille: a lit sub-pixel shows its colour on a dot a quarter of it.
+    dots: bool,
 }
 
 impl Table {
@@ -684,6 +911,7 @@ impl Table {
             w1,
             w0,
             order,
+            dots: set == SymbolSet::Braille,
         }
     }
 }
@@ -871,13 +1099,14 @@ impl Symbols {
         let (gw, gh) = set.grid();
         let (c, r) = (cols as usize, rows as usize);
         let px = box_filter(frame, c * gw, r * gh);
+        let darks = dark_share(frame, c * gw, r * gh);
         let weighed = set.weighed(frame, cols, rows);
         let table = weighed.as_ref().unwrap_or(set.table());
         Symbols {
             cols,
             rows,
             set,
-            cells: dithered(&px, c, r, set, table, depth),
+            cells: dithered(&px, &darks, c, r, set, table, depth),
         }
     }
 
@@ -1433,7 +1662,9 @@ mod tests {
     }
 
     /// The sub-pixels of `s` as drawn: each cell's pattern in its colours
-    /// (`cols·w` × `rows·h`, row by row).
+    /// (`cols·w` × `rows·h`, row by row); a braille dot is a quarter of its
+    /// sub-pixel, so a lit one is a quarter foreground and three quarters
+    /// background.
     fn drawn_back(s: &Symbols) -> Vec<Colour> {
         let (gw, gh) = s.set.grid();
         let w = s.cols as usize * gw;
@@ -1446,7 +1677,13 @@ mod tests {
                 .unwrap_or_else(|| panic!("{} draws no {:?}", s.set, cell.symbol));
             let (c, r) = (i % s.cols as usize, i / s.cols as usize);
             for j in 0..gw * gh {
-                let colour = if p >> j & 1 == 1 { cell.fg } else { cell.bg };
+                let colour = match (p >> j & 1 == 1, s.set) {
+                    (false, _) => cell.bg,
+                    (true, SymbolSet::Braille) => {
+                        [0, 1, 2].map(|k| ((cell.fg[k] as u16 + 3 * cell.bg[k] as u16) / 4) as u8)
+                    }
+                    (true, _) => cell.fg,
+                };
                 out[(r * gh + j / gw) * w + c * gw + j % gw] = colour;
             }
         }
@@ -1570,6 +1807,72 @@ mod tests {
                 }
             }
         }
+    }
+
+    #[test]
+    fn dark_share_counts_black_blocks_not_black_pixels() {
+        // 8 × 8 pixels as one output pixel: four blocks of 4 × 4. One lit
+        // pixel keeps its block from being black; so do lit pixels spread
+        // over a block, but faint ones (a mean of at most 2) do not.
+        let one = frame(
+            8,
+            8,
+            |x, y| if (x, y) == (1, 1) { [255; 3] } else { [0; 3] },
+        );
+        assert_eq!(dark_share(&rgba(8, 8, &one), 1, 1), vec![0.75]);
+        let faint = frame(8, 8, |x, y| {
+            if x < 4 && y < 4 && x == y {
+                [8; 3]
+            } else {
+                [0; 3]
+            }
+        });
+        assert_eq!(dark_share(&rgba(8, 8, &faint), 1, 1), vec![1.0]);
+        // A frame of the output's size: each pixel is its own block.
+        let px = frame(2, 1, |x, _| [x as u8 * 3; 3]);
+        assert_eq!(dark_share(&rgba(2, 1, &px), 2, 1), vec![1.0, 0.0]);
+        // Spans of 6 pixels: blocks of 4 and then 2.
+        let px = frame(6, 6, |x, y| if x >= 4 && y < 4 { [50; 3] } else { [0; 3] });
+        assert_eq!(dark_share(&rgba(6, 6, &px), 1, 1), vec![28.0 / 36.0]);
+    }
+
+    #[test]
+    fn sparse_points_on_black_stay_black_and_dim_areas_stay_lit() {
+        // One cell of half blocks over 8 × 16 pixels. Above, a speck of 4 × 2
+        // grey pixels on black: a mean of 5, nearer grey 8 than black, but
+        // SSIM sees a haze of grey 8 over the black around the speck.
+        let speck = frame(8, 16, |x, y| if x < 4 && y < 2 { [40; 3] } else { [0; 3] });
+        let s = Symbols::of_depth(&rgba(8, 16, &speck), 1, 1, SymbolSet::Half, Depth::C256);
+        assert_eq!(halves(&s.cells[0]), ([0; 3], [0; 3]));
+        // The same mean spread evenly: an area of dim grey, drawn in the
+        // darkest grey rather than lost to black.
+        let dim = frame(8, 16, |_, y| if y < 8 { [5; 3] } else { [0; 3] });
+        let s = Symbols::of_depth(&rgba(8, 16, &dim), 1, 1, SymbolSet::Half, Depth::C256);
+        assert_eq!(halves(&s.cells[0]), ([8; 3], [0; 3]));
+    }
+
+    #[test]
+    fn dim_texture_in_16_colours_is_drawn_as_braille_dots() {
+        // Dim brown texture (luma 22 and 11) with no black in it: the nearest
+        // of the 16 colours is black for both, which SSIM scores as far from
+        // the picture as can be. A bright red dot (a quarter of its
+        // sub-pixel) over black shows luma 19.
+        let px = frame(8, 16, |x, y| {
+            if (x / 4 + y / 4) % 2 == 0 {
+                [30, 22, 0]
+            } else {
+                [15, 11, 0]
+            }
+        });
+        let s = Symbols::of_depth(&rgba(8, 16, &px), 1, 1, SymbolSet::Braille, Depth::C16);
+        let c = s.cells[0];
+        assert_eq!((c.fg, c.bg), ([255, 0, 0], [0; 3]), "{c:?}");
+        // The dots are the brighter sub-pixels: dots 1 and 3 (left, rows 0
+        // and 2), 5 and 8 (right, rows 1 and 3): U+2800 + 0x95.
+        assert_eq!(c.symbol, '⢕', "{c:?}");
+        // Half blocks cannot mix red with black: black it is.
+        let s = Symbols::of_depth(&rgba(8, 16, &px), 1, 1, SymbolSet::Half, Depth::C16);
+        assert_eq!(halves(&s.cells[0]), ([0; 3], [0; 3]));
     }
 
     #[test]
