@@ -97,7 +97,7 @@ pub use dataset::{Dataset, LayerSummary, Node, OpenOptions, PartHeader};
 pub use error::{Remedy, Result, StoreError};
 pub use read::part::{BandInfo, Level, Part, PartMeta, TileInfo};
 pub use read::points::Points;
-pub use tiff::codec::{Compression, compression_name, level_codec_name};
+pub use tiff::codec::{Compression, ZSTD_FAST, ZSTD_SMALL, compression_name, level_codec_name};
 pub use write::builder::{PartBuilder, packed_size};
 pub use write::layout::Layout;
 pub use write::out::TileIo;

@@ -141,14 +141,27 @@ pub fn level_codec_name(code: u16, lerc_extra: u32) -> String {
     }
 }
 
+/// Zstd's level for the tiles of `zstd` parts by default: on row-ordered
+/// tiles within 0.2 % of level 3's size at about twice its speed
+/// (bench/RESULTS.md, "Compact storage").
+pub const ZSTD_FAST: i32 = 1;
+
+/// Zstd's level for small inputs ([`crate::WriteOptions::zstd_level`]): on
+/// `autzen_trim` 6.7 % smaller than level 1, and the lowest level near that
+/// (4: 3.8 %, 5: 4.6 %, 7: 6.3 %), at 1.2× the conversion's time there and
+/// 1.3–1.6× on 47.7 M points (history 48).
+pub const ZSTD_SMALL: i32 = 6;
+
 /// Encodes one tile of one band (`width` samples per row, native byte order).
 /// `max_error` bounds |decoded - value| for the LERC codecs (0: lossless); the
-/// other codecs are lossless.
+/// other codecs are lossless. `zstd_level`: Zstd's level for [`Compression::Zstd`]
+/// ([`ZSTD_FAST`] unless the writer chose another).
 pub fn encode(
     values: &[f32],
     width: usize,
     c: Compression,
     max_error: f64,
+    zstd_level: i32,
 ) -> Result<Vec<u8>, String> {
     Ok(match c {
         Compression::None => bytemuck::cast_slice(values).to_vec(),
@@ -167,13 +180,11 @@ pub fn encode(
                 .with(|raw| {
                     let mut raw = raw.borrow_mut();
                     predict_float_into(values, width, &mut raw);
-                    // Level 1: on row-ordered tiles within 0.2 % of level 3's
-                    // size at about twice its speed (bench/RESULTS.md,
-                    // "Compact storage"); a tile it leaves under 4 KB (one
-                    // value and the NaN past the last point) is squeezed
-                    // again, which costs little at that ratio.
-                    let once = zstd_compress(&raw, 1)?;
-                    if once.len() < 4096 {
+                    // A tile level 1 leaves under 4 KB (one value and the NaN
+                    // past the last point) is squeezed again at level 3, which
+                    // costs little at that ratio.
+                    let once = zstd_compress(&raw, zstd_level)?;
+                    if zstd_level < 3 && once.len() < 4096 {
                         let again = zstd_compress(&raw, 3)?;
                         if again.len() < once.len() {
                             return Ok(again);
@@ -888,7 +899,7 @@ mod tests {
                 (&whole, 0.0),
                 (&odd, 0.0),
             ] {
-                let bytes = encode(v, 256, c, e).unwrap();
+                let bytes = encode(v, 256, c, e, ZSTD_FAST).unwrap();
                 let back = codec.decode(&bytes, n).unwrap();
                 let mut worst = 0f64;
                 for (a, b) in v.iter().zip(&back) {
@@ -904,8 +915,8 @@ mod tests {
             }
             // Within a bound: smaller than lossless (random values, no
             // neighbour alike: a third smaller).
-            let lossy = encode(&lattice, 256, c, 0.005).unwrap().len();
-            let exact = encode(&lattice, 256, c, 0.0).unwrap().len();
+            let lossy = encode(&lattice, 256, c, 0.005, ZSTD_FAST).unwrap().len();
+            let exact = encode(&lattice, 256, c, 0.0, ZSTD_FAST).unwrap().len();
             assert!(lossy * 4 < exact * 3, "{c:?}: {lossy} vs {exact}");
         }
     }
@@ -981,7 +992,7 @@ mod tests {
     fn corrupt_lerc_is_an_error() {
         let v: Vec<f32> = (0..64).map(|i| i as f32 * 0.5).collect();
         for c in [Compression::Lerc, Compression::LercZstd] {
-            let good = encode(&v, 8, c, 0.0).unwrap();
+            let good = encode(&v, 8, c, 0.0, ZSTD_FAST).unwrap();
             let codec = codec_of(c, 8);
             assert_eq!(codec.decode(&good, 64).unwrap(), v);
             assert!(codec.decode(&good[..good.len() / 2], 64).is_err());
@@ -1006,7 +1017,7 @@ mod tests {
             })
             .collect();
         for c in ALL {
-            let bytes = encode(&v, 256, c, 0.0).unwrap();
+            let bytes = encode(&v, 256, c, 0.0, ZSTD_FAST).unwrap();
             let codec = codec_of(c, 256);
             let back = codec.decode(&bytes, v.len()).unwrap();
             assert_eq!(back.len(), v.len());
@@ -1027,7 +1038,7 @@ mod tests {
             lerc_extra: 0,
         };
         assert!(codec.decode(b"not deflate", 16).is_err());
-        let good = encode(&[1.0; 16], 4, Compression::Deflate, 0.0).unwrap();
+        let good = encode(&[1.0; 16], 4, Compression::Deflate, 0.0, ZSTD_FAST).unwrap();
         assert!(codec.decode(&good[..good.len() / 2], 16).is_err());
     }
 }

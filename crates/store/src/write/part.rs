@@ -66,6 +66,10 @@ pub struct WriteOptions {
     /// instead of keeping the lattice only where every point lies on it; the
     /// part's `MAX_QUANTIZATION_ERROR` grows by half the step.
     pub lattice_round: bool,
+    /// Zstd's level for `zstd` tiles; `None`: [`codec::ZSTD_FAST`]. A
+    /// conversion of a small input takes [`codec::ZSTD_SMALL`], smaller
+    /// tiles at a cost in time that is small there.
+    pub zstd_level: Option<i32>,
 }
 
 impl WriteOptions {
@@ -1143,6 +1147,7 @@ const BATCH_TILES: usize = 8;
 
 /// Encodes job `group` (see [`groups`]) of tile `t` (Z-rank; `raster`: its raster
 /// index) at `level`: its bands and their tiles.
+#[allow(clippy::too_many_arguments)]
 fn encode_job(
     a: &Arranged,
     lut: &[u32],
@@ -1151,6 +1156,7 @@ fn encode_job(
     group: usize,
     compression: Compression,
     coord_max_error: [f64; 3],
+    zstd_level: i32,
 ) -> Vec<(usize, Encoded)> {
     let g = a.geometry;
     let count = g.tile_points(level, t as u64) as usize;
@@ -1161,7 +1167,7 @@ fn encode_job(
         Compression::None => Encoded::Raw(buf),
         c => {
             let e = coord_max_error.get(b).copied().unwrap_or(0.0);
-            match codec::encode(&buf, TILE_SIZE as usize, c, e) {
+            match codec::encode(&buf, TILE_SIZE as usize, c, e, zstd_level) {
                 Ok(v) => Encoded::Bytes(v),
                 Err(m) => Encoded::Failed(format!("level {level} tile {t} band {}: {m}", b + 1)),
             }
@@ -1211,6 +1217,7 @@ fn rows_tile(
     level: usize,
     t: usize,
     compression: Compression,
+    zstd_level: i32,
 ) -> Vec<(usize, Encoded)> {
     let g = a.geometry;
     let count = g.tile_points(level, t as u64) as usize;
@@ -1268,7 +1275,7 @@ fn rows_tile(
     bufs.into_par_iter()
         .enumerate()
         .map(|(b, buf)| {
-            let e = match codec::encode(&buf, TILE_SIZE as usize, compression, 0.0) {
+            let e = match codec::encode(&buf, TILE_SIZE as usize, compression, 0.0, zstd_level) {
                 Ok(v) => Encoded::Bytes(v),
                 Err(msg) => {
                     Encoded::Failed(format!("level {level} tile {t} band {}: {msg}", b + 1))
@@ -1542,7 +1549,7 @@ fn encode(
                 (0..jobs).into_par_iter().map(|j| {
                     let (t, group) = (j / per_tile, j % per_tile);
                     let tile = (t, tiles[t].index);
-                    encode_job(a, &lut, level, tile, group, Compression::None, [0.0; 3])
+                    encode_job(a, &lut, level, tile, group, Compression::None, [0.0; 3], 0)
                         .into_iter()
                         .map(move |(b, e)| {
                             let Encoded::Raw(v) = e else {
@@ -1636,13 +1643,14 @@ fn encode_batches(
     let nb = a.names.len();
     let per_band = offsets.len() / nb;
     let filled = tiles.len();
+    let zstd_level = opts.zstd_level.unwrap_or(codec::ZSTD_FAST);
     let encode = |start: usize| -> Vec<(usize, usize, Encoded)> {
         let end = (start + BATCH_TILES).min(filled);
         if a.rows_order {
             let encoded: Vec<Vec<(usize, usize, Encoded)>> = (start..end)
                 .into_par_iter()
                 .map(|t| {
-                    rows_tile(a, level, t, compression)
+                    rows_tile(a, level, t, compression, zstd_level)
                         .into_iter()
                         .map(|(b, e)| (t, b, e))
                         .collect()
@@ -1666,6 +1674,7 @@ fn encode_batches(
                     group,
                     compression,
                     opts.coord_max_error,
+                    zstd_level,
                 )
                 .into_iter()
                 .map(|(b, e)| (t, b, e))
