@@ -776,6 +776,37 @@ fn command_line_convert_and_info_json() {
     assert!(String::from_utf8_lossy(&o.stderr).contains("nope.las"));
 }
 
+/// Every byte under `path` (a dataset directory, or one file).
+fn bytes_under(path: &Path) -> u64 {
+    if path.is_file() {
+        return std::fs::metadata(path).unwrap().len();
+    }
+    std::fs::read_dir(path)
+        .unwrap()
+        .map(|e| bytes_under(&e.unwrap().path()))
+        .sum()
+}
+
+/// Issue 40's storage target on the real airborne fixture: the default
+/// dataset, pyramid, index and heads included, at most twice the LAZ.
+#[test]
+fn the_default_keeps_autzen_trim_within_twice_its_laz() {
+    let dir = tempfile::tempdir().unwrap();
+    let laz = fixture("autzen_trim.laz");
+    let out = dir.path().join("autzen.pcimg");
+    let o = Command::new(env!("CARGO_BIN_EXE_pcimg"))
+        .args(["convert", "-q", "-o"])
+        .arg(&out)
+        .arg(&laz)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let (ours, theirs) = (bytes_under(&out), bytes_under(&laz));
+    let ratio = ours as f64 / theirs as f64;
+    eprintln!("autzen_trim: {ours} bytes, {ratio:.3}× its LAZ ({theirs})");
+    assert!(ratio <= 2.0, "{ours} bytes: {ratio:.3}× the LAZ's {theirs}");
+}
+
 #[test]
 fn force_replaces_only_what_pcimg_wrote() {
     let dir = tempfile::tempdir().unwrap();

@@ -1006,6 +1006,28 @@ mod tests {
     }
 
     #[test]
+    fn zstd_levels_decode_alike_and_the_small_level_is_smaller() {
+        // A scan-like band: a slow walk with a repeating jitter, the kind of
+        // row Zstd's lazier levels find longer matches in.
+        let v: Vec<f32> = (0..512 * 64)
+            .map(|i| (i / 3) as f32 + [0.0, 2.0, 1.0, 5.0, 3.0][i % 5])
+            .collect();
+        let fast = encode(&v, 512, Compression::Zstd, 0.0, ZSTD_FAST).unwrap();
+        let small = encode(&v, 512, Compression::Zstd, 0.0, ZSTD_SMALL).unwrap();
+        assert!(
+            small.len() < fast.len(),
+            "{} vs {}",
+            small.len(),
+            fast.len()
+        );
+        let codec = codec_of(Compression::Zstd, 512);
+        for bytes in [&fast, &small] {
+            let back = codec.decode(bytes, v.len()).unwrap();
+            assert!(v.iter().zip(&back).all(|(a, b)| a.to_bits() == b.to_bits()));
+        }
+    }
+
+    #[test]
     fn round_trip_every_compression() {
         let v: Vec<f32> = (0..256 * 4)
             .map(|i| {
