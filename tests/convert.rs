@@ -788,7 +788,8 @@ fn bytes_under(path: &Path) -> u64 {
 }
 
 /// Issue 40's storage target on the real airborne fixture: the default
-/// dataset, pyramid, index and heads included, at most twice the LAZ.
+/// dataset, pyramid, index and heads included, at most twice the LAZ; and
+/// `--zstd-level`.
 #[test]
 fn the_default_keeps_autzen_trim_within_twice_its_laz() {
     let dir = tempfile::tempdir().unwrap();
@@ -805,6 +806,41 @@ fn the_default_keeps_autzen_trim_within_twice_its_laz() {
     let ratio = ours as f64 / theirs as f64;
     eprintln!("autzen_trim: {ours} bytes, {ratio:.3}× its LAZ ({theirs})");
     assert!(ratio <= 2.0, "{ours} bytes: {ratio:.3}× the LAZ's {theirs}");
+    // `--zstd-level 1`, the level large inputs get, writes more; a level for
+    // another codec is refused before anything is written.
+    let fast = dir.path().join("fast.pcimg");
+    let o = Command::new(env!("CARGO_BIN_EXE_pcimg"))
+        .args(["convert", "-q", "--zstd-level", "1", "-o"])
+        .arg(&fast)
+        .arg(&laz)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(
+        bytes_under(&fast) > ours,
+        "{} vs {ours}",
+        bytes_under(&fast)
+    );
+    let refused = dir.path().join("refused.pcimg");
+    let o = Command::new(env!("CARGO_BIN_EXE_pcimg"))
+        .args([
+            "convert",
+            "--zstd-level",
+            "3",
+            "--compression",
+            "deflate",
+            "-o",
+        ])
+        .arg(&refused)
+        .arg(&laz)
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        !o.status.success() && err.contains("--zstd-level 3") && err.contains("deflate"),
+        "{err}"
+    );
+    assert!(!refused.exists());
 }
 
 #[test]

@@ -44,6 +44,12 @@ pub struct Args {
     /// coordinates within --max-error, attributes lossless.
     #[arg(long, value_parser = Compression::parse)]
     pub compression: Option<Compression>,
+    /// zstd: Zstd's level, 1 (fastest to write) to 19 (smallest). Default: 6
+    /// for an input that declares at most 2 M points, else 1. On 47.7 M points
+    /// of airborne LAS, level 6 is 5.7 % smaller and reads 1.2x faster than 1,
+    /// but takes 1.6x as long to convert.
+    #[arg(long, value_name = "N", value_parser = clap::value_parser!(i32).range(1..=19))]
+    pub zstd_level: Option<i32>,
     /// LERC codecs: the largest error allowed in a coordinate, in the input's
     /// units. Default: half a LAS file's scale factor (the coordinates come back
     /// exactly on their lattice), lossless for other inputs.
@@ -395,6 +401,7 @@ fn options(a: &Args, output: PathBuf) -> ConvertOptions {
         compression: a
             .compression
             .unwrap_or_else(|| Compression::default_for(remote)),
+        zstd_level: a.zstd_level,
         max_error: a.max_error,
         precision: a.precision,
         layout: a.layout.into(),
@@ -477,6 +484,15 @@ pub fn run(a: Args) -> anyhow::Result<()> {
             "--precision {step} keeps coordinates as whole numbers, which only the zstd and \
              deflate codecs store (--compression {} keeps them as floats): leave out \
              --compression, or use --max-error with a LERC codec",
+            c.name()
+        );
+    }
+    if let (Some(level), Some(c)) = (a.zstd_level, a.compression)
+        && c != Compression::Zstd
+    {
+        anyhow::bail!(
+            "--zstd-level {level} sets the level of the zstd codec, not of --compression {} \
+             (lerc_zstd keeps GDAL's level 9): leave out one of them",
             c.name()
         );
     }

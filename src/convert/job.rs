@@ -129,10 +129,11 @@ impl<'a> Job<'a> {
             shallow_coarsest: !as_file && info.declared_points.is_none_or(|n| n > per_part),
             // A small input converts in a fraction of a second at any level:
             // Zstd's slower, tighter one there (see `SMALL_INPUT`).
-            zstd_level: info
-                .declared_points
-                .is_some_and(|n| n <= SMALL_INPUT)
-                .then_some(store::ZSTD_SMALL),
+            zstd_level: o.zstd_level.or_else(|| {
+                info.declared_points
+                    .is_some_and(|n| n <= SMALL_INPUT)
+                    .then_some(store::ZSTD_SMALL)
+            }),
         };
         progress.phase("read", info.file_bytes, "bytes");
         let staging = if as_file {

@@ -56,6 +56,9 @@ pub struct ConvertOptions {
     pub memory: u64,
     pub partition: Partition,
     pub compression: Compression,
+    /// Zstd's level for `zstd` tiles (`--zstd-level`). `None`: by the input's
+    /// size, level 6 for inputs that declare at most 2 M points, else 1.
+    pub zstd_level: Option<i32>,
     /// The LERC codecs: the largest error allowed in a coordinate, in source
     /// units. `None`: half the input's coordinate step where it has one (LAS
     /// scale factors: the coordinates come back on their lattice), else

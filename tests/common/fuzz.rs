@@ -203,6 +203,7 @@ pub fn options(rng: &mut Rng, ext: &str, output: &Path) -> ConvertOptions {
             Compression::LercDeflate,
             Compression::LercZstd,
         ][below(rng, 5) as usize],
+        zstd_level: None,
         // The LERC codecs' coordinate bound (ignored by the others): lossless,
         // or a few millimetres.
         max_error: [None, Some(0.004)][below(rng, 2) as usize],

@@ -90,6 +90,7 @@ pub fn convert_options(output: std::path::PathBuf, memory: u64) -> pcimg::conver
         memory,
         partition: pcimg::convert::Partition::Spatial,
         compression: pcimg::store::Compression::None,
+        zstd_level: None,
         max_error: None,
         precision: None,
         layout: pcimg::store::Layout::Hilbert,
