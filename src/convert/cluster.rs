@@ -345,6 +345,7 @@ pub fn make_plan(
                     max_error: o.max_error,
                     precision: o.precision,
                     layout: o.layout,
+                    zstd_level: o.zstd_level,
                 };
                 let cells = Cells::of(&plan);
                 (plan, cells)
@@ -562,6 +563,7 @@ pub fn run_shard(
             max_error: cp.plan.max_error,
             precision: cp.plan.precision,
             layout: cp.plan.layout,
+            zstd_level: cp.plan.zstd_level,
             read: cp.plan.read.clone(),
             ..o.clone()
         };

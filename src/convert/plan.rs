@@ -48,6 +48,10 @@ pub struct Plan {
     #[serde(default)]
     pub precision: Option<f64>,
     pub layout: Layout,
+    /// `--zstd-level`, when given (plans before it: none, each shard choosing
+    /// by the input's size as `convert` does).
+    #[serde(default)]
+    pub zstd_level: Option<i32>,
 }
 
 /// A plan's count grid and, for each of its cells, the index of its region
@@ -126,6 +130,7 @@ impl Plan {
             max_error: job.o.max_error,
             precision: job.o.precision,
             layout: job.o.layout,
+            zstd_level: job.o.zstd_level,
         };
         (plan, cells)
     }
@@ -197,6 +202,7 @@ mod tests {
             max_error: Some(0.005),
             precision: None,
             layout: Layout::Hilbert,
+            zstd_level: Some(6),
         };
         let again = Cells::of(&plan);
         assert_eq!(again.grid.dims, cells.grid.dims);
