@@ -48,12 +48,15 @@
 //! half of the mean difference between them and the cell as drawn goes on to
 //! the next cells. Passing each sub-pixel's own error on instead was slower
 //! for a slightly lower SSIM; passing all of it on drew the bench frames
-//! worse (see [`DIFFUSED`]). Seen from afar (frame and text averaged over two
-//! cells) the colour error falls by 6–23 % in 16 colours and 6–19 % in 256
-//! on the airborne frames, at an SSIM within 0.0016 of the nearest colours',
-//! with 9–21 % fewer bytes in 16 colours (−8 to +1 % in 256); it is
-//! deterministic, and a palette colour's flat area stays flat (no error to
-//! pass on). 24-bit output is not touched.
+//! worse (see [`DIFFUSED`]). Against each 24-bit cell's colours mapped to the
+//! nearest palette entries, on the airborne bench frames: seen from afar
+//! (frame and text averaged over two cells) the colour error is 0–30 % lower
+//! in 16 colours and −1 to 15 % in 256, with −23 to +13 % bytes in 16 colours
+//! and 1–11 % fewer in 256, at an SSIM within 0.0012 but for braille (the
+//! dots costed as they draw: 0.005–0.008 lower in 16 colours, a third less
+//! colour error; still above chafa's). It is deterministic, and a palette
+//! colour's flat area stays flat (no error to pass on). 24-bit output is not
+//! touched.
 
 use crate::Rgba;
 use rayon::prelude::*;
