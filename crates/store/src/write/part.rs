@@ -1549,15 +1549,24 @@ fn encode(
                 (0..jobs).into_par_iter().map(|j| {
                     let (t, group) = (j / per_tile, j % per_tile);
                     let tile = (t, tiles[t].index);
-                    encode_job(a, &lut, level, tile, group, Compression::None, [0.0; 3], 0)
-                        .into_iter()
-                        .map(move |(b, e)| {
-                            let Encoded::Raw(v) = e else {
-                                unreachable!("uncompressed tiles are raw")
-                            };
-                            (start + (t * nb + b) as u64 * TILE_BYTES, v)
-                        })
-                        .collect::<Vec<_>>()
+                    encode_job(
+                        a,
+                        &lut,
+                        level,
+                        tile,
+                        group,
+                        Compression::None,
+                        [0.0; 3],
+                        codec::ZSTD_FAST,
+                    )
+                    .into_iter()
+                    .map(move |(b, e)| {
+                        let Encoded::Raw(v) = e else {
+                            unreachable!("uncompressed tiles are raw")
+                        };
+                        (start + (t * nb + b) as u64 * TILE_BYTES, v)
+                    })
+                    .collect::<Vec<_>>()
                 }),
             )?;
             let pb = per_band(level);
