@@ -794,13 +794,19 @@ fn bytes_under(path: &Path) -> u64 {
 fn the_default_keeps_autzen_trim_within_twice_its_laz() {
     let dir = tempfile::tempdir().unwrap();
     let laz = fixture("autzen_trim.laz");
+    // `pcimg convert ARGS -o OUT autzen_trim.laz`.
+    let convert = |args: &[&str], out: &Path| {
+        Command::new(env!("CARGO_BIN_EXE_pcimg"))
+            .arg("convert")
+            .args(args)
+            .arg("-o")
+            .arg(out)
+            .arg(&laz)
+            .output()
+            .unwrap()
+    };
     let out = dir.path().join("autzen.pcimg");
-    let o = Command::new(env!("CARGO_BIN_EXE_pcimg"))
-        .args(["convert", "-q", "-o"])
-        .arg(&out)
-        .arg(&laz)
-        .output()
-        .unwrap();
+    let o = convert(&["-q"], &out);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let (ours, theirs) = (bytes_under(&out), bytes_under(&laz));
     let ratio = ours as f64 / theirs as f64;
@@ -809,12 +815,7 @@ fn the_default_keeps_autzen_trim_within_twice_its_laz() {
     // `--zstd-level 1`, the level large inputs get, writes more; a level for
     // another codec is refused before anything is written.
     let fast = dir.path().join("fast.pcimg");
-    let o = Command::new(env!("CARGO_BIN_EXE_pcimg"))
-        .args(["convert", "-q", "--zstd-level", "1", "-o"])
-        .arg(&fast)
-        .arg(&laz)
-        .output()
-        .unwrap();
+    let o = convert(&["-q", "--zstd-level", "1"], &fast);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     assert!(
         bytes_under(&fast) > ours,
@@ -822,19 +823,7 @@ fn the_default_keeps_autzen_trim_within_twice_its_laz() {
         bytes_under(&fast)
     );
     let refused = dir.path().join("refused.pcimg");
-    let o = Command::new(env!("CARGO_BIN_EXE_pcimg"))
-        .args([
-            "convert",
-            "--zstd-level",
-            "3",
-            "--compression",
-            "deflate",
-            "-o",
-        ])
-        .arg(&refused)
-        .arg(&laz)
-        .output()
-        .unwrap();
+    let o = convert(&["--zstd-level", "3", "--compression", "deflate"], &refused);
     let err = String::from_utf8_lossy(&o.stderr);
     assert!(
         !o.status.success() && err.contains("--zstd-level 3") && err.contains("deflate"),

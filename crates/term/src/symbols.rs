@@ -517,7 +517,12 @@ const DARK_BLOCK: usize = 4;
 
 /// The Rec. 601 luma of a colour, 0–255.
 fn luma(c: Colour) -> f32 {
-    0.299 * c[0] as f32 + 0.587 * c[1] as f32 + 0.114 * c[2] as f32
+    luma_of(c.map(|v| v as f32))
+}
+
+/// [`luma`] of a colour in `f32` (a mix of palette colours).
+fn luma_of(c: [f32; 3]) -> f32 {
+    0.299 * c[0] + 0.587 * c[1] + 0.114 * c[2]
 }
 
 /// What [`fit_quantized`] knows of a cell's sub-pixels beyond their colours:
@@ -655,7 +660,7 @@ fn pick(
         if cost >= best.0 {
             return;
         }
-        let y = 0.299 * shown[0] + 0.587 * shown[1] + 0.114 * shown[2];
+        let y = luma_of(shown);
         let y2 = y * y;
         cost += dark * y2 / (y2 + C1);
         for &(w, yl) in &lit[..n_lit] {
