@@ -152,6 +152,18 @@ pub const ZSTD_FAST: i32 = 1;
 /// 1.3–1.6× on 47.7 M points (history 48).
 pub const ZSTD_SMALL: i32 = 6;
 
+/// The shortest match Zstd looks for, at levels up to
+/// [`ZSTD_LONG_MATCHES_UP_TO`] (theirs: 6 at level 1, 5 at level 6). A tile
+/// row's byte planes, once differenced, are runs of zeros and noise: shorter
+/// matches inside the noise cost a sequence each and save little. On the
+/// 47.7 M points at level 1: 0.7 % smaller, read 1.03× faster, no slower to
+/// write; at level 6, 0.7 % smaller (history 49).
+const ZSTD_MIN_MATCH: u32 = 7;
+
+/// The highest level that takes [`ZSTD_MIN_MATCH`]; above it Zstd's optimal
+/// parsers choose matches by their cost and keep their own.
+const ZSTD_LONG_MATCHES_UP_TO: i32 = 9;
+
 /// Encodes one tile of one band (`width` samples per row, native byte order).
 /// `max_error` bounds |decoded - value| for the LERC codecs (0: lossless); the
 /// other codecs are lossless. `zstd_level`: Zstd's level for [`Compression::Zstd`]
@@ -506,7 +518,11 @@ fn zstd_compress(raw: &[u8], level: i32) -> std::io::Result<Vec<u8>> {
         let at = match z.iter().position(|(l, _)| *l == level) {
             Some(at) => at,
             None => {
-                z.push((level, zstd::bulk::Compressor::new(level)?));
+                let mut c = zstd::bulk::Compressor::new(level)?;
+                if level <= ZSTD_LONG_MATCHES_UP_TO {
+                    c.set_parameter(zstd::stream::raw::CParameter::MinMatch(ZSTD_MIN_MATCH))?;
+                }
+                z.push((level, c));
                 z.len() - 1
             }
         };
