@@ -834,9 +834,12 @@ fn running_sum(bytes: &mut [u8]) {
     let bytes = {
         use std::arch::x86_64::*;
         let mut chunks = bytes.chunks_exact_mut(16);
-        // The running total so far in every byte: kept in a register (its
-        // last byte broadcast by shuffles), so the only chain from block to
-        // block is an add and three shuffles, not a trip through a scalar.
+        // The running total so far in every byte, kept in a register. Each
+        // block's own sums (and their last byte, broadcast by shuffles) do not
+        // depend on it, so the only chain from block to block is one add: the
+        // block's sum broadcast is added to the total, not taken from the
+        // totalled block (that chain, an add and three shuffles, took 1.13×
+        // as long over 2,048-byte rows; history 49).
         // SAFETY: SSE2 is part of every x86-64 CPU.
         let mut total = unsafe { _mm_setzero_si128() };
         for c in &mut chunks {
@@ -849,10 +852,10 @@ fn running_sum(bytes: &mut [u8]) {
                 x = _mm_add_epi8(x, _mm_slli_si128::<2>(x));
                 x = _mm_add_epi8(x, _mm_slli_si128::<4>(x));
                 x = _mm_add_epi8(x, _mm_slli_si128::<8>(x));
-                x = _mm_add_epi8(x, total);
-                _mm_storeu_si128(p, x);
                 let t = _mm_unpackhi_epi8(x, x);
-                total = _mm_shuffle_epi32::<0xFF>(_mm_shufflehi_epi16::<0xFF>(t));
+                let last = _mm_shuffle_epi32::<0xFF>(_mm_shufflehi_epi16::<0xFF>(t));
+                _mm_storeu_si128(p, _mm_add_epi8(x, total));
+                total = _mm_add_epi8(total, last);
             }
         }
         // SAFETY: SSE2 is part of every x86-64 CPU.
