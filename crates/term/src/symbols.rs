@@ -75,22 +75,28 @@
 //! [`SYNTH_COLOURS`] palette colours of least cost as a flat colour (and
 //! black) as background and dots, dots each sub-cell or not as costs less:
 //! squared RGB error of the mean shown plus [`SSIM_WEIGHT`] times 1 − SSIM
-//! of the sub-cell's pixels as drawn, computed exactly from those statistics
-//! (a dot's luma variance and its covariance with the frame's middle). The
-//! least total wins, a flat colour included; the error is diffused as
-//! before. On the bench frames (`text_quality`, against chafa 1.12 `--dither
-//! none`): building 0.9710 → 0.9729 (chafa 0.9715), lamppost 0.9865 →
-//! 0.9873, airborne 0.8889 → 0.9005 from above and 0.9121 → 0.9187 at 35°;
-//! the colour error from afar 0.68 → 0.66, 0.35 → 0.33, 3.69 → 3.92 and
-//! 3.10 → 3.42. Faster than the fit it replaces there (it needs no pattern
-//! sums). Tried: keeping the fit's own choice and colours as candidates as
-//! well, lower on the airborne frames (0.8994, 0.9189) and a third slower;
-//! adding the colour a dot needs to show the brightest sub-cell over black,
-//! 0.001–0.003 lower there; all 16 colours paired (with the fit's), 0.002
-//! lower from above at four times the time; the SSIM weight 5,000 (SSIM
-//! 0.001–0.006 lower) and 60,000 (up to 0.003 higher, the colour error from
-//! afar 4–10 % larger). In 256
-//! colours braille was already above chafa and keeps the fit.
+//! of the sub-cell's pixels as drawn (one window a sub-cell), from those
+//! statistics (a dot's luma variance, its covariance with the frame's
+//! middle). The least total wins, a flat colour included. The error
+//! diffused is then that of the cell as it shows, a dot a quarter of its
+//! sub-pixel (with the per-group fit that was worse, history 48; here it
+//! raised SSIM by up to 0.0012 and cut the colour error from afar by
+//! 12–30 %). On the bench
+//! frames (`text_quality`, against chafa 1.12 `--dither none`): building
+//! 0.9710 → 0.9735 (chafa 0.9715), lamppost 0.9865 → 0.9873, airborne
+//! 0.8889 → 0.9006 from above and 0.9121 → 0.9199 at 35°; the colour error
+//! from afar 0.68 → 0.58, 0.35 → 0.29, 3.69 → 3.05 and 3.10 → 2.41. Faster
+//! than the fit it replaces there (it needs no pattern sums). Tried (with
+//! the error diffused as drawn whole): keeping the fit's own choice and
+//! colours as candidates as well, lower on the airborne frames (0.8994,
+//! 0.9189) and a third slower; adding the colour a dot needs to show the
+//! brightest sub-cell over black, 0.001–0.003 lower there; all 16 colours
+//! paired (with the fit's), 0.002 lower from above at four times the time;
+//! the SSIM weight 5,000 (SSIM 0.001–0.006 lower) and 60,000 (up to 0.003
+//! higher, the colour error from afar 4–10 % larger); with the error as
+//! shown, 10,000 and 40,000 moved SSIM by −0.003 to +0.0012 and the colour
+//! error by −14 to +15 %. In 256 colours braille was already above chafa
+//! and keeps the fit.
 
 use crate::Rgba;
 use rayon::prelude::*;
@@ -908,7 +914,12 @@ fn dither_band(
                 bg,
             };
             // The mean error: the pixels' sum less the drawn colours' sum.
-            let (k1, whole) = (table.lit[pattern], table.whole);
+            let (mut k1, whole) = (table.lit[pattern], table.whole);
+            if frame.is_some() {
+                // Braille chosen by its pixels: the dots as they show, a
+                // quarter of their sub-pixels (see the module's doc).
+                k1 *= 0.25;
+            }
             let d = [0, 1, 2].map(|k| {
                 let drawn = fg[k] as f32 * k1 + bg[k] as f32 * (whole - k1);
                 (total[k] - drawn) / whole * DIFFUSED
@@ -2279,6 +2290,37 @@ mod tests {
             })
             .sum::<f32>()
             / 128.0
+    }
+
+    #[test]
+    fn braille_in_16_colours_passes_on_the_error_of_the_dots_as_they_show() {
+        // Dim brown between the palette's colours, over 12 × 6 cells: what
+        // the cells show (a dot a quarter of its sub-pixel) averages near
+        // the frame's luma. Counting dots as whole sub-pixels, the error
+        // passed on says the cells are brighter than they show, and the
+        // whole draws far too dark.
+        let colour = [60, 44, 0];
+        let px = frame(96, 96, |_, _| colour);
+        let s = Symbols::of_depth(&rgba(96, 96, &px), 12, 6, SymbolSet::Braille, Depth::C16);
+        let shown: f32 = s
+            .cells
+            .iter()
+            .map(|c| {
+                let p = (0..256)
+                    .find(|&p| SymbolSet::Braille.symbol(p) == Some(c.symbol))
+                    .unwrap();
+                let k = (p as u32).count_ones() as f32 / 8.0 * 0.25;
+                luma(c.fg) * k + luma(c.bg) * (1.0 - k)
+            })
+            .sum::<f32>()
+            / s.cells.len() as f32;
+        // (Half the error is passed on, not all of it: 36.7 against 43.8
+        // when written, and 18.5 with dots counted whole.)
+        assert!(
+            (shown - luma(colour)).abs() < 10.0,
+            "{shown} against {}",
+            luma(colour)
+        );
     }
 
     #[test]
