@@ -1829,6 +1829,18 @@ mod tests {
         // Nothing to draw: black cells, no panic.
         let s = Symbols::of(&rgba(0, 0, &[]), 3, 2, SymbolSet::Octants);
         assert_eq!(s.cells.len(), 6);
+        // The palettes too, braille in 16 colours (chosen from the frame's
+        // own pixels) included: a frame smaller than the grid, and none.
+        let px = frame(3, 2, |x, _| [(x * 120) as u8, 60, 0]);
+        for depth in [Depth::C256, Depth::C16] {
+            for set in SymbolSet::ALL {
+                let s = Symbols::of_depth(&rgba(3, 2, &px), 5, 4, set, depth);
+                assert_eq!(s.cells.len(), 20, "{set:?} {depth:?}");
+                assert!(s.cells.iter().any(|c| c.bg != [0; 3] || c.fg != [0; 3]));
+                let s = Symbols::of_depth(&rgba(0, 0, &[]), 3, 2, set, depth);
+                assert!(s.cells.iter().all(|c| c.bg == [0; 3]), "{set:?} {depth:?}");
+            }
+        }
     }
 
     #[test]
