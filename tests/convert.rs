@@ -805,9 +805,26 @@ fn the_default_keeps_autzen_trim_within_twice_its_laz() {
             .output()
             .unwrap()
     };
+    // What the summary says of the tiles' codec.
+    let said = |o: &std::process::Output| {
+        let all = format!(
+            "{}{}",
+            String::from_utf8_lossy(&o.stdout),
+            String::from_utf8_lossy(&o.stderr)
+        );
+        all.lines()
+            .find_map(|l| l.trim().strip_prefix("tiles: ").map(str::to_string))
+            .unwrap_or_else(|| panic!("no tiles line in:\n{all}"))
+    };
     let out = dir.path().join("autzen.pcimg");
-    let o = convert(&["-q"], &out);
+    let o = convert(&[], &out);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    // A small input: Zstd's level 6, and the flag that trades it.
+    let line = said(&o);
+    assert!(
+        line.starts_with("zstd, level 6:") && line.contains("--zstd-level 1"),
+        "{line}"
+    );
     let (ours, theirs) = (bytes_under(&out), bytes_under(&laz));
     let ratio = ours as f64 / theirs as f64;
     eprintln!("autzen_trim: {ours} bytes, {ratio:.3}× its LAZ ({theirs})");
@@ -815,8 +832,9 @@ fn the_default_keeps_autzen_trim_within_twice_its_laz() {
     // `--zstd-level 1`, the level large inputs get, writes more; a level for
     // another codec is refused before anything is written.
     let fast = dir.path().join("fast.pcimg");
-    let o = convert(&["-q", "--zstd-level", "1"], &fast);
+    let o = convert(&["--zstd-level", "1"], &fast);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert_eq!(said(&o), "zstd, level 1 (--zstd-level)");
     assert!(
         bytes_under(&fast) > ours,
         "{} vs {ours}",

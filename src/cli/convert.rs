@@ -605,6 +605,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         levels,
         bytes(s.bytes())
     )?;
+    writeln!(out, "  tiles: {}", tiles_codec(&s, &a))?;
     if s.clamped_colours > 0 {
         writeln!(
             out,
@@ -719,4 +720,28 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     }
     super::print_out(&out)?;
     Ok(())
+}
+
+/// The summary's line on the tiles' codec: Zstd's level, and why that one
+/// (what `--zstd-level` would trade), or the codec chosen.
+fn tiles_codec(s: &convert::ConvertSummary, a: &Args) -> String {
+    let Some(level) = s.zstd_level else {
+        return s.compression.name().to_string();
+    };
+    if a.zstd_level.is_some() {
+        return format!("zstd, level {level} (--zstd-level)");
+    }
+    if level == store::ZSTD_SMALL {
+        format!(
+            "zstd, level {level}: a small input, written tighter (--zstd-level {} writes \
+             faster)",
+            store::ZSTD_FAST
+        )
+    } else {
+        format!(
+            "zstd, level {level} (--zstd-level {}: about 6 % smaller and 1.2x faster to \
+             read, 1.6x the time to convert)",
+            store::ZSTD_SMALL
+        )
+    }
 }

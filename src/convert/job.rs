@@ -396,6 +396,9 @@ impl<'a> Job<'a> {
             crs: self.info.crs_wkt.clone(),
             phases: std::mem::take(&mut self.timings.0),
             index,
+            compression: self.write_opts.compression,
+            zstd_level: (self.write_opts.compression == store::Compression::Zstd)
+                .then(|| self.write_opts.zstd_level.unwrap_or(store::ZSTD_FAST)),
         })
     }
 }

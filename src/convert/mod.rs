@@ -151,6 +151,10 @@ pub struct ConvertSummary {
     pub phases: Vec<(String, Span)>,
     /// The index and overview of a directory output.
     pub index: Option<store::dataset::overview::IndexReport>,
+    /// How the tiles were compressed, and Zstd's level where that is Zstd
+    /// (`None` for the other codecs).
+    pub compression: store::Compression,
+    pub zstd_level: Option<i32>,
 }
 
 /// Wall and CPU time per named phase, summed, in first-seen order.
