@@ -398,7 +398,7 @@ impl<'a> Job<'a> {
             index,
             compression: self.write_opts.compression,
             zstd_level: (self.write_opts.compression == store::Compression::Zstd)
-                .then(|| self.write_opts.zstd_level.unwrap_or(store::ZSTD_FAST)),
+                .then(|| self.write_opts.zstd_level_used()),
         })
     }
 }

@@ -1722,6 +1722,18 @@ mod tests {
     }
 
     /// A frame of `w` × `h` from a colour function.
+    /// A `w` × `h` black frame with a `colour` square of pixels 1 and 2 each
+    /// way (a point in the middle of a 4 × 4 sub-cell at the corner).
+    fn point(w: u32, h: u32, colour: Colour) -> Vec<u8> {
+        frame(w, h, |x, y| {
+            if (1..3).contains(&x) && (1..3).contains(&y) {
+                colour
+            } else {
+                [0; 3]
+            }
+        })
+    }
+
     fn frame(w: u32, h: u32, f: impl Fn(u32, u32) -> Colour) -> Vec<u8> {
         let mut v = Vec::new();
         for y in 0..h {
@@ -2172,13 +2184,7 @@ mod tests {
     #[test]
     fn sub_stat_measures_the_middle_and_the_ring() {
         // 4 × 4 pixels, grey 100 in the middle 2 × 2 and black around it.
-        let px = frame(4, 4, |x, y| {
-            if (1..3).contains(&x) && (1..3).contains(&y) {
-                [100; 3]
-            } else {
-                [0; 3]
-            }
-        });
+        let px = point(4, 4, [100; 3]);
         let s = sub_stat(&rgba(4, 4, &px), (0, 4), (0, 4));
         assert_eq!((s.mu, s.m_in, s.m_out), (25.0, 100.0, 0.0));
         assert!((s.var - 1875.0).abs() < 0.01, "{s:?}");
@@ -2191,13 +2197,7 @@ mod tests {
     fn braille_in_16_colours_draws_a_point_where_it_lies() {
         // A white point of 2 × 2 pixels in the middle of the upper left
         // sub-cell of a black 8 × 16 cell: dot 1 in white.
-        let px = frame(8, 16, |x, y| {
-            if (1..3).contains(&x) && (1..3).contains(&y) {
-                [255; 3]
-            } else {
-                [0; 3]
-            }
-        });
+        let px = point(8, 16, [255; 3]);
         let s = Symbols::of_depth(&rgba(8, 16, &px), 1, 1, SymbolSet::Braille, Depth::C16);
         let c = s.cells[0];
         // (In grey 127, not white: white costs too much as a flat colour

@@ -73,6 +73,12 @@ pub struct WriteOptions {
 }
 
 impl WriteOptions {
+    /// The Zstd level `zstd` tiles are written with: [`Self::zstd_level`], or
+    /// [`codec::ZSTD_FAST`] where none is set.
+    pub fn zstd_level_used(&self) -> i32 {
+        self.zstd_level.unwrap_or(codec::ZSTD_FAST)
+    }
+
     fn cancelled(&self) -> bool {
         self.cancel
             .as_ref()
@@ -1652,7 +1658,7 @@ fn encode_batches(
     let nb = a.names.len();
     let per_band = offsets.len() / nb;
     let filled = tiles.len();
-    let zstd_level = opts.zstd_level.unwrap_or(codec::ZSTD_FAST);
+    let zstd_level = opts.zstd_level_used();
     let encode = |start: usize| -> Vec<(usize, usize, Encoded)> {
         let end = (start + BATCH_TILES).min(filled);
         if a.rows_order {
