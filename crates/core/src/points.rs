@@ -92,6 +92,16 @@ pub trait RowSource: Send + Sync {
     fn width(&self) -> usize;
     /// Appends the rows of points `idx` (each below [`RowSource::len`]) to `out`.
     fn gather(&self, idx: &[u32], out: &mut Vec<f32>);
+    /// The rows of points `idx` as columns: value `k` of point `idx[i]` into
+    /// `cols[k][i]` (`cols`: [`RowSource::width`] columns, each at least
+    /// `idx.len()` long). The default gathers rows and moves them over;
+    /// a source that decodes field by field writes the columns directly.
+    fn gather_columns(&self, idx: &[u32], cols: &mut [&mut [f32]]) {
+        let m = self.width();
+        let mut rows = Vec::with_capacity(idx.len() * m);
+        self.gather(idx, &mut rows);
+        columns_of_rows(&rows, m, cols);
+    }
     /// Whether it gives the points' coordinates as well ([`RowSource::positions`]).
     fn has_positions(&self) -> bool {
         false
@@ -393,6 +403,25 @@ impl PointColumns {
             }
         }
         Ok(())
+    }
+}
+
+/// Rows of `m` values (`rows`) into columns (`cols[k][i]`: value `k` of row
+/// `i`), a block of rows at a time so that the block stays in the first-level
+/// cache while each column takes its values.
+pub fn columns_of_rows(rows: &[f32], m: usize, cols: &mut [&mut [f32]]) {
+    if m == 0 {
+        return;
+    }
+    const BLOCK: usize = 128;
+    for (b, chunk) in rows.chunks(BLOCK * m).enumerate() {
+        let i0 = b * BLOCK;
+        for (k, col) in cols.iter_mut().enumerate().take(m) {
+            let dst = &mut col[i0..i0 + chunk.len() / m];
+            for (d, row) in dst.iter_mut().zip(chunk.chunks_exact(m)) {
+                *d = row[k];
+            }
+        }
     }
 }
 

@@ -1053,6 +1053,24 @@ mod tests {
                     assert_eq!(got.to_bits(), want.to_bits(), "format {format} {}", a.name);
                 }
             }
+            // The same as columns, written straight by field (the trait's
+            // default, rows moved over, alike): only the first `n` of each
+            // column, the rest untouched.
+            let mut cols = vec![vec![7.0f32; n + 3]; m];
+            let mut views: Vec<&mut [f32]> = cols.iter_mut().map(|c| &mut c[..]).collect();
+            src.gather_columns(&idx, &mut views);
+            let mut moved = vec![vec![7.0f32; n + 3]; m];
+            let mut views: Vec<&mut [f32]> = moved.iter_mut().map(|c| &mut c[..]).collect();
+            crate::points::columns_of_rows(&rows[1..], m, &mut views);
+            for (j, (col, mv)) in cols.iter().zip(&moved).enumerate() {
+                let name = &all.attributes[j].name;
+                for (k, &i) in idx.iter().enumerate() {
+                    let want = all.attributes[j].values[i as usize].to_bits();
+                    assert_eq!(col[k].to_bits(), want, "format {format} {name} column");
+                    assert_eq!(mv[k].to_bits(), want, "format {format} {name} moved");
+                }
+                assert!(col[n..].iter().chain(&mv[n..]).all(|&v| v == 7.0));
+            }
             // Positions as the store would make them from the chunks, gathered,
             // in a range, and read with the rows.
             assert!(src.has_positions());

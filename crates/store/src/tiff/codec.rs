@@ -373,7 +373,8 @@ thread_local! {
 
 /// [`predict_float`] into `out` (its allocation reused).
 fn predict_float_into(values: &[f32], width: usize, out: &mut Vec<u8>) {
-    out.clear();
+    // Every byte is written below: a buffer already as long is not zeroed
+    // first (for a band of 4-byte samples that is its size again in stores).
     out.resize(values.len() * 4, 0);
     let mut planes = [0u8; 4 * spec::TILE_SIZE as usize];
     let mut heap = Vec::new();

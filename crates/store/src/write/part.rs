@@ -183,6 +183,19 @@ impl Rows {
             Rows::Held(rows) => gather_held(rows, idx, m, out),
         }
     }
+
+    /// The rows (`m` values each) of points `idx` as columns: value `k` of
+    /// point `idx[i]` into `cols[k][i]`.
+    fn gather_columns(&self, idx: &[u32], m: usize, cols: &mut [&mut [f32]]) {
+        match self {
+            Rows::Source(src) => src.gather_columns(idx, cols),
+            Rows::Held(rows) => {
+                let mut out = Vec::with_capacity(idx.len() * m);
+                gather_held(rows, idx, m, &mut out);
+                pcimg_core::points::columns_of_rows(&out, m, cols);
+            }
+        }
+    }
 }
 
 /// A part in image order, ready to be tiled. Positions stay interleaved (`x y z`
@@ -1232,49 +1245,45 @@ fn rows_tile(
     let m = a.m;
     let slots: Vec<usize> = (0..count).map(|i| a.slot((first + i) * stride)).collect();
     let idx: Vec<u32> = slots.iter().map(|&s| a.perm[s]).collect();
-    let order = tile_order(&slots, &idx, &a.pos);
-    // The attribute rows gathered in the tile's order: in input order, that
-    // reads the reader's rows (a LAS file's records) nearly in sequence.
-    let mut rows = Vec::new();
-    if m > 0 {
-        rows.reserve(count * m);
-        let at: Vec<u32> = order.iter().map(|&i| idx[i as usize]).collect();
-        a.rows.gather(&at, m, &mut rows);
-    }
+    // The tile's positions in level order, read once from the part's (the
+    // order's steps and the coordinate bands then read this copy).
+    let pos: Vec<[f32; 3]> = slots.iter().map(|&s| a.pos[s]).collect();
+    drop(slots);
+    let order = tile_order(&idx, &pos);
     let mut bufs: Vec<TileBuf> = (0..3 + m).map(|_| TileBuf::for_points(count)).collect();
-    // Every band in one pass over the points (each point's position and row
-    // read once).
-    {
-        let (xyz, attrs) = bufs.split_at_mut(3);
-        let maps = a
-            .lattice
-            .map(|l| [0, 1, 2].map(|b| l.stored_map(b, a.origin[b])));
-        for (j, &i) in order.iter().enumerate() {
-            let p = a.pos[slots[i as usize]];
-            for b in 0..3 {
-                xyz[b][j] = match &maps {
-                    // (`fit` checked that every point lies on the lattice, so
-                    // its nearest lattice point is its own.)
-                    Some(mp) => round_half(p[b] as f64 * mp[b].0 + mp[b].1) as f32,
-                    None => p[b],
-                };
-            }
-        }
-        for (k, buf) in attrs.iter_mut().enumerate() {
-            // The coarser levels keep GPS time to its Float32 (`gps_time`):
-            // the whole numbers that make it exact are NaN there (in their
-            // order they would cost four bytes a point; `pcimg_core::time`).
-            if level > 0 && pcimg_core::time::is_exact_band(&a.names[3 + k]) {
-                buf.fill(f32::NAN);
-                continue;
-            }
-            let bias = if a.whole[k] {
-                spec::WHOLE_BIAS as f32
-            } else {
-                0.0
+    let (xyz, attrs) = bufs.split_at_mut(3);
+    // The attribute bands gathered in the tile's order, straight into their
+    // tiles: in input order, that reads the reader's rows (a LAS file's
+    // records) nearly in sequence.
+    if m > 0 {
+        let at: Vec<u32> = order.iter().map(|&i| idx[i as usize]).collect();
+        let mut cols: Vec<&mut [f32]> = attrs.iter_mut().map(|b| &mut b[..count]).collect();
+        a.rows.gather_columns(&at, m, &mut cols);
+    }
+    let maps = a
+        .lattice
+        .map(|l| [0, 1, 2].map(|b| l.stored_map(b, a.origin[b])));
+    for (j, &i) in order.iter().enumerate() {
+        let p = pos[i as usize];
+        for b in 0..3 {
+            xyz[b][j] = match &maps {
+                // (`fit` checked that every point lies on the lattice, so
+                // its nearest lattice point is its own.)
+                Some(mp) => round_half(p[b] as f64 * mp[b].0 + mp[b].1) as f32,
+                None => p[b],
             };
-            for (j, row) in rows.chunks_exact(m).enumerate() {
-                buf[j] = row[k] + bias;
+        }
+    }
+    for (k, buf) in attrs.iter_mut().enumerate() {
+        // The coarser levels keep GPS time to its Float32 (`gps_time`): the
+        // whole numbers that make it exact are NaN there (in their order they
+        // would cost four bytes a point; `pcimg_core::time`).
+        if level > 0 && pcimg_core::time::is_exact_band(&a.names[3 + k]) {
+            buf.fill(f32::NAN);
+        } else if a.whole[k] {
+            let bias = spec::WHOLE_BIAS as f32;
+            for v in &mut buf[..count] {
+                *v += bias;
             }
         }
     }
@@ -1302,8 +1311,8 @@ fn round_half(v: f64) -> f64 {
 }
 
 /// The order in which a row-ordered tile keeps its points (indices into the
-/// tile's points, which come in level order: `slots` into the part's positions
-/// `pos`, `idx` their input indices). Each row is differenced by the TIFF
+/// tile's points, which come in level order: `pos` their positions, `idx`
+/// their input indices). Each row is differenced by the TIFF
 /// predictor, so the order should make neighbours alike: the input's order
 /// (a scanner's: points recorded one after another lie close, and their times,
 /// colours and intensities change little) unless it takes more than twice the
@@ -1314,56 +1323,72 @@ fn round_half(v: f64) -> f64 {
 /// their times, returns and flags change so much less that the tile is
 /// smaller (on `autzen_trim`, level 1 took 3.3 % less; bench/RESULTS.md,
 /// "Compact storage").
-fn tile_order(slots: &[usize], idx: &[u32], pos: &[[f32; 3]]) -> Vec<u32> {
-    let n = slots.len() as u32;
-    let steps = |o: &mut dyn Iterator<Item = u32>| -> f64 {
-        let mut last: Option<[f32; 3]> = None;
-        let mut sum = 0.0f64;
-        for i in o {
-            let p = pos[slots[i as usize]];
-            if let Some(q) = last {
-                sum += ((p[0] - q[0]).abs() + (p[1] - q[1]).abs() + (p[2] - q[2]).abs()) as f64;
-            }
-            last = Some(p);
-        }
-        sum
-    };
+fn tile_order(idx: &[u32], pos: &[[f32; 3]]) -> Vec<u32> {
     let input = radix_order(idx);
-    if steps(&mut input.iter().copied()) < 2.0 * steps(&mut (0..n)) {
+    let level = steps(pos, pos.len(), |j| j);
+    if steps(pos, input.len(), |j| input[j] as usize) < 2.0 * level {
         input
     } else {
-        (0..n).collect()
+        (0..pos.len() as u32).collect()
     }
 }
 
+/// The sum of the steps (|dx| + |dy| + |dz|) between consecutive points of
+/// `pos` taken in the order `at(0), at(1), ...at(n - 1)`.
+fn steps(pos: &[[f32; 3]], n: usize, at: impl Fn(usize) -> usize) -> f64 {
+    let mut sum = 0.0f64;
+    if n == 0 {
+        return sum;
+    }
+    let mut q = pos[at(0)];
+    for i in 1..n {
+        let p = pos[at(i)];
+        sum += ((p[0] - q[0]).abs() + (p[1] - q[1]).abs() + (p[2] - q[2]).abs()) as f64;
+        q = p;
+    }
+    sum
+}
+
 /// The stable order of `keys` ascending (indices into it), by a least
-/// significant digit radix sort of 8-bit digits: a tile's 65,536 points in
-/// four passes, where a comparison sort took about ten times as long.
+/// significant digit radix sort of 8-bit digits over each key with its index
+/// in one `u64` (read in sequence, where sorting indices by their keys read
+/// the keys at random): a tile's 65,536 points in at most four passes, after
+/// one that counts every digit, where a comparison sort took about ten times
+/// as long.
 fn radix_order(keys: &[u32]) -> Vec<u32> {
     let n = keys.len();
-    let mut order: Vec<u32> = (0..n as u32).collect();
-    let mut next = vec![0u32; n];
-    for shift in [0u32, 8, 16, 24] {
-        let digit = |i: u32| ((keys[i as usize] >> shift) & 0xff) as usize;
-        let mut count = [0usize; 257];
-        for &i in &order {
-            count[digit(i) + 1] += 1;
+    let mut count = [[0u32; 256]; 4];
+    for &k in keys {
+        for (d, c) in count.iter_mut().enumerate() {
+            c[((k >> (8 * d)) & 0xff) as usize] += 1;
         }
+    }
+    let mut a: Vec<u64> = keys
+        .iter()
+        .enumerate()
+        .map(|(i, &k)| (u64::from(k) << 32) | i as u64)
+        .collect();
+    let mut b = vec![0u64; n];
+    for (d, c) in count.iter().enumerate() {
         // A pass whose digit is the same for every key moves nothing.
-        if count.contains(&n) {
+        if c.iter().any(|&x| x as usize == n) {
             continue;
         }
-        for d in 0..256 {
-            count[d + 1] += count[d];
+        let mut at = [0u32; 256];
+        let mut sum = 0u32;
+        for (s, &x) in at.iter_mut().zip(c) {
+            *s = sum;
+            sum += x;
         }
-        for &i in &order {
-            let d = digit(i);
-            next[count[d]] = i;
-            count[d] += 1;
+        let shift = 32 + 8 * d as u32;
+        for &v in &a {
+            let digit = ((v >> shift) & 0xff) as usize;
+            b[at[digit] as usize] = v;
+            at[digit] += 1;
         }
-        std::mem::swap(&mut order, &mut next);
+        std::mem::swap(&mut a, &mut b);
     }
-    order
+    a.into_iter().map(|v| v as u32).collect()
 }
 
 /// The directory of `level`, its tile offsets and byte counts given.
