@@ -14,7 +14,7 @@ use crate::tiff::zorder::{Geometry, tile_z_to_raster};
 use crate::write::builder::PartBuilder;
 use crate::write::coarse::Coarse;
 use crate::write::layout::{self, Layout};
-use crate::write::out::{self, Out, TileBuf, TileIo, TileWriter};
+use crate::write::out::{self, TileBuf, TileIo, TileWriter};
 use crate::write::paper;
 use crate::write::sink::{self, TileSink};
 use rayon::prelude::*;
@@ -1046,11 +1046,7 @@ fn write(
             ),
         )
     })?;
-    let io = match opts.compression {
-        Compression::None => opts.io,
-        _ => TileIo::Buffered,
-    };
-    let tiles = TileWriter::new(&file, &tmp_path, io);
+    let tiles = TileWriter::new(&file, &tmp_path, opts.io);
     // Uncompressed tiles of the Hilbert layout have their place in the file
     // before the rest is known: level 0 (three quarters of the file) is written
     // while the points are arranged, so the disk works while the CPU does.
@@ -1619,8 +1615,7 @@ fn encode(
         // Compressed tiles (sizes known once encoded) follow the head, the
         // coarsest level's first, each level's aligned to 8 bytes so readers can
         // view planes in place.
-        let mut w = Out::new(file);
-        w.seek(std::io::SeekFrom::Start(head_len))?;
+        let mut w = out::StreamOut::new(file, tile_writer, head_len)?;
         for level in (0..g.levels()).rev() {
             let at = w.stream_position()?;
             if at % 8 != 0 {
@@ -1638,8 +1633,7 @@ fn encode(
                 &mut counts[level],
             )?;
         }
-        w.flush()?;
-        w.stream_position()?
+        w.finish()?
     };
     if !big && end > u32::MAX as u64 {
         return Err(std::io::Error::other(
@@ -1670,7 +1664,7 @@ fn encode(
 /// so encoding and the copy into the page cache overlap.
 #[allow(clippy::too_many_arguments)]
 fn encode_batches(
-    w: &mut Out,
+    w: &mut out::StreamOut,
     opts: &WriteOptions,
     a: &Arranged,
     lut: &[u32],
