@@ -658,6 +658,38 @@ mod tests {
     use super::*;
     use std::io::Read;
 
+    /// Tiles streamed from an unaligned position land where they were
+    /// written whatever the writer's mode (direct from the next block on, or
+    /// buffered where the file system refuses direct writes), the head
+    /// written last and the file cut to the data's end.
+    #[test]
+    fn streamed_tiles_land_in_sequence_in_every_mode() {
+        let dir = tempfile::tempdir().unwrap();
+        for mode in [TileIo::Direct, TileIo::Buffered, TileIo::Auto] {
+            let path = dir.path().join(format!("{mode:?}.bin"));
+            let file = File::create(&path).unwrap();
+            let tiles = TileWriter::new(&file, &path, mode);
+            let head = 1000u64;
+            let mut want = vec![0u8; head as usize];
+            let mut w = StreamOut::new(&file, &tiles, head).unwrap();
+            let mut rng = crate::rng::Rng::new(5);
+            // Pieces of every size around the block and the buffer.
+            for n in [1usize, 3000, 4096, 5000, STAGE - 10, 20, STAGE + 7, 100] {
+                let piece: Vec<u8> = (0..n).map(|_| rng.next_u64() as u8).collect();
+                assert_eq!(w.stream_position().unwrap(), want.len() as u64);
+                w.write_all(&piece).unwrap();
+                want.extend(&piece);
+            }
+            let end = w.finish().unwrap();
+            assert_eq!(end, want.len() as u64, "{mode:?}");
+            write_all_at(&file, &[9u8; 1000], 0).unwrap();
+            want[..1000].fill(9);
+            file.set_len(end).unwrap();
+            drop(file);
+            assert!(std::fs::read(&path).unwrap() == want, "{mode:?}");
+        }
+    }
+
     #[test]
     fn writes_land_where_seeks_put_them() {
         let dir = tempfile::tempdir().unwrap();
