@@ -275,26 +275,6 @@ impl StoredLattice {
         })
     }
 
-    /// The value stored for coordinate `v` (relative to `origin`) on axis `a`:
-    /// its whole number on the lattice plus 2^23, if `v` is (to `f32`'s
-    /// rounding) a point of the lattice within 2^23 steps of `base`.
-    #[inline]
-    fn whole(&self, a: usize, v: f32, origin: f64) -> Option<f32> {
-        let s = self.nearest(a, v, origin)?;
-        let k = s - spec::WHOLE_BIAS;
-        let back = ((self.base[a] + self.step[a] * k) - origin) as f32;
-        (back == v || back.next_up() == v || back.next_down() == v).then_some(s as f32)
-    }
-
-    /// The stored value of the lattice point nearest `v` (relative to
-    /// `origin`) on axis `a`, if it lies within 2^23 steps of `base`.
-    #[inline]
-    fn nearest(&self, a: usize, v: f32, origin: f64) -> Option<f64> {
-        let (inv, shift) = self.stored_map(a, origin);
-        let s = round_half(v as f64 * inv + shift);
-        (0.0..2.0 * spec::WHOLE_BIAS).contains(&s).then_some(s)
-    }
-
     /// For a point on the lattice, its stored value is the nearest whole
     /// number to `v · inv + shift` (`v` relative to `origin`): `(inv, shift)`.
     fn stored_map(&self, a: usize, origin: f64) -> (f64, f64) {
@@ -313,17 +293,25 @@ impl StoredLattice {
         round: bool,
     ) -> Option<Self> {
         let l = Self::new(source, origin)?;
+        // The stored value of each coordinate: the nearest whole number to
+        // `v · inv + shift`, within 2^23 steps of `base`; without `round`, it
+        // must give `v` back to `f32`'s rounding (the next `f32` either way).
+        // Each axis's map worked out once.
+        let maps = [0, 1, 2].map(|a| l.stored_map(a, origin[a]));
+        let fits = |a: usize, v: f32| -> bool {
+            let s = round_half(v as f64 * maps[a].0 + maps[a].1);
+            if !(0.0..2.0 * spec::WHOLE_BIAS).contains(&s) {
+                return false;
+            }
+            if round {
+                return true;
+            }
+            let back = ((l.base[a] + l.step[a] * (s - spec::WHOLE_BIAS)) - origin[a]) as f32;
+            back == v || back.next_up() == v || back.next_down() == v
+        };
         let on = pos.par_chunks(1 << 16).all(|c| {
-            c.iter().all(|p| {
-                (0..3).all(|a| {
-                    p[a].is_nan()
-                        || if round {
-                            l.nearest(a, p[a], origin[a]).is_some()
-                        } else {
-                            l.whole(a, p[a], origin[a]).is_some()
-                        }
-                })
-            })
+            c.iter()
+                .all(|p| (0..3).all(|a| p[a].is_nan() || fits(a, p[a])))
         });
         on.then_some(l)
     }
@@ -1346,23 +1334,27 @@ fn steps(pos: &[[f32; 3]], n: usize, at: impl Fn(usize) -> usize) -> f64 {
 }
 
 /// The stable order of `keys` ascending (indices into it), by a least
-/// significant digit radix sort of 8-bit digits over each key with its index
-/// in one `u64` (read in sequence, where sorting indices by their keys read
-/// the keys at random): a tile's 65,536 points in at most four passes, after
-/// one that counts every digit, where a comparison sort took about ten times
-/// as long.
+/// significant digit radix sort of 11-bit digits of each key less the least,
+/// carried with its index in one `u64` (read in sequence, where sorting
+/// indices by their keys read the keys at random): a tile's 65,536 input
+/// indices span a few million at most, two or three passes after one that
+/// counts every digit, where a comparison sort took about ten times as long.
 fn radix_order(keys: &[u32]) -> Vec<u32> {
+    const BITS: u32 = 11;
+    const DIGITS: usize = 3; // 33 bits: any u32
     let n = keys.len();
-    let mut count = [[0u32; 256]; 4];
+    let least = keys.iter().copied().min().unwrap_or(0);
+    let mut count = vec![[0u32; 1 << BITS]; DIGITS];
     for &k in keys {
+        let k = k - least;
         for (d, c) in count.iter_mut().enumerate() {
-            c[((k >> (8 * d)) & 0xff) as usize] += 1;
+            c[((k >> (BITS * d as u32)) & ((1 << BITS) - 1)) as usize] += 1;
         }
     }
     let mut a: Vec<u64> = keys
         .iter()
         .enumerate()
-        .map(|(i, &k)| (u64::from(k) << 32) | i as u64)
+        .map(|(i, &k)| (u64::from(k - least) << 32) | i as u64)
         .collect();
     let mut b = vec![0u64; n];
     for (d, c) in count.iter().enumerate() {
@@ -1370,15 +1362,15 @@ fn radix_order(keys: &[u32]) -> Vec<u32> {
         if c.iter().any(|&x| x as usize == n) {
             continue;
         }
-        let mut at = [0u32; 256];
+        let mut at = vec![0u32; 1 << BITS];
         let mut sum = 0u32;
         for (s, &x) in at.iter_mut().zip(c) {
             *s = sum;
             sum += x;
         }
-        let shift = 32 + 8 * d as u32;
+        let shift = 32 + BITS * d as u32;
         for &v in &a {
-            let digit = ((v >> shift) & 0xff) as usize;
+            let digit = ((v >> shift) & ((1 << BITS) - 1)) as usize;
             b[at[digit] as usize] = v;
             at[digit] += 1;
         }
