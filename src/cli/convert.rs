@@ -85,13 +85,14 @@ pub struct Args {
     /// Accept parts so large that f32 cannot keep 1 mm.
     #[arg(long)]
     pub allow_lossy: bool,
-    /// How uncompressed tiles are written: buffered (through the page cache, the
+    /// How tile data is written: buffered (through the page cache, the
     /// disk written later), direct (straight to the disk, O_DIRECT where the file
     /// system allows: no CPU spent copying, and your page cache, your input's
     /// pages among them, left alone), or auto: buffered while the page cache takes
     /// the tiles at 1.5 GB/s or more, then direct (on a VM whose host takes freed
     /// memory back, copying into the page cache can run at a third of the disk's
-    /// speed).
+    /// speed). Compressed tiles go direct from the next 4 KiB block on, in
+    /// writes of 4 MiB.
     #[arg(long, default_value = "auto", value_parser = store::TileIo::parse)]
     pub io: store::TileIo,
     /// No progress bars or summary (with --timings, the summary is printed).

@@ -1653,7 +1653,7 @@ fn encode(
 
 /// Compressed tiles (sizes known only once encoded): encoded in batches on the
 /// rayon pool by a producer thread while this thread writes the previous batch,
-/// so encoding and the copy into the page cache overlap.
+/// so encoding and the writes (into the page cache or around it) overlap.
 #[allow(clippy::too_many_arguments)]
 fn encode_batches(
     w: &mut out::StreamOut,
