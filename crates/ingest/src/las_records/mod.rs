@@ -237,6 +237,22 @@ fn decode_window(rec: &[u8], f: &Fields, gps_offset: f64, out: Out<'_>) {
             v.write(coordinate(r, &f.transforms, axis));
         }
     }
+    decode_attributes(rec, f, gps_offset, None, &mut attrs);
+}
+
+/// Decodes the attributes of the records `rec` (a whole number of records)
+/// into the columns `attrs` (one per attribute field, as `attribute_names`
+/// lists them, each at least a value a record), colour scaled by `colour`
+/// where given: GPS time split once a record into its four columns, every
+/// other column a loop of its own.
+pub(super) fn decode_attributes(
+    rec: &[u8],
+    f: &Fields,
+    gps_offset: f64,
+    colour: Option<ColorScale>,
+    attrs: &mut [&mut [MaybeUninit<f32>]],
+) {
+    let records = || rec.chunks_exact(f.stride);
     let fields = f.attributes();
     // GPS time and the three whole numbers that make it exact: one pass, one
     // split a record.
@@ -258,11 +274,12 @@ fn decode_window(rec: &[u8], f: &Fields, gps_offset: f64, out: Out<'_>) {
         }
         // Every column is written (attribute_names lists the fields); any left
         // over would be NaN rather than unwritten memory.
+        let field = fields.get(k);
         fill_field(
             rec,
             f.stride,
-            fields.get(k).map(|a| a.0),
-            None,
+            field.map(|a| a.0),
+            colour.filter(|_| field.is_some_and(|a| a.1)),
             gps_offset,
             col,
             1,

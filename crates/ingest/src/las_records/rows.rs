@@ -38,9 +38,20 @@ impl RowSource for LasRows {
     }
 
     fn gather_columns(&self, idx: &[u32], cols: &mut [&mut [f32]]) {
+        let n = idx.len();
+        let mut cols: Vec<&mut [MaybeUninit<f32>]> = cols
+            .iter_mut()
+            .map(|c| {
+                let c = &mut c[..n];
+                // SAFETY: `MaybeUninit<f32>` has `f32`'s layout, and the
+                // decoder only writes initialized values through it.
+                unsafe { std::slice::from_raw_parts_mut(c.as_mut_ptr().cast(), n) }
+            })
+            .collect();
         RECORDS.with_borrow_mut(|buf| {
             self.copy_records(idx, buf);
-            decode_columns(buf, &self.fields, self.gps_offset, self.colour, cols);
+            let colour = Some(self.colour);
+            super::decode_attributes(buf, &self.fields, self.gps_offset, colour, &mut cols);
         });
     }
 
@@ -204,56 +215,6 @@ fn decode_rows(
             dst,
             m,
             j,
-        );
-    }
-}
-
-/// [`decode_rows`] into columns (`cols[j][i]`: value `j` of record `i`), each
-/// written in sequence: no rows to move over afterwards.
-fn decode_columns(
-    rec: &[u8],
-    f: &Fields,
-    gps_offset: f64,
-    colour: ColorScale,
-    cols: &mut [&mut [f32]],
-) {
-    let n = rec.len() / f.stride;
-    let m = cols.len();
-    let fields = f.attributes();
-    let column = |c: &mut [f32]| -> &mut [MaybeUninit<f32>] {
-        let c = &mut c[..n];
-        // SAFETY: `MaybeUninit<f32>` has `f32`'s layout, and the decoders
-        // below only write initialized values through it.
-        unsafe { std::slice::from_raw_parts_mut(c.as_mut_ptr().cast(), c.len()) }
-    };
-    let time = super::time_columns(&fields, m);
-    if let Some((k, at)) = time
-        && let [c0, c1, c2, c3] = &mut cols[k..k + 4]
-    {
-        let (c0, c1, c2, c3) = (&mut c0[..n], &mut c1[..n], &mut c2[..n], &mut c3[..n]);
-        for (i, r) in rec.chunks_exact(f.stride).enumerate() {
-            let [v, lo, mid, hi] = super::split(super::f64_at(r, at), gps_offset);
-            c0[i] = v;
-            c1[i] = lo;
-            c2[i] = mid;
-            c3[i] = hi;
-        }
-    }
-    for (j, col) in cols.iter_mut().enumerate() {
-        if time.is_some_and(|(t, _)| (t..t + 4).contains(&j)) {
-            continue;
-        }
-        let field = fields.get(j);
-        let scale = field.filter(|a| a.1).map(|_| colour);
-        fill_field(
-            rec,
-            f.stride,
-            field.map(|a| a.0),
-            scale,
-            gps_offset,
-            column(col),
-            1,
-            0,
         );
     }
 }

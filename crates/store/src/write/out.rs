@@ -295,7 +295,7 @@ impl<'f> TileWriter<'f> {
     pub fn write(&self, tile: &[f32], offset: u64) -> io::Result<()> {
         use std::sync::atomic::Ordering::Relaxed;
         let bytes: &[u8] = bytemuck::cast_slice(tile);
-        if let Some(d) = self.direct.as_ref().filter(|_| self.is_direct()) {
+        if let Some(d) = self.direct_now() {
             let aligned = offset.is_multiple_of(DIRECT_ALIGN as u64)
                 && bytes.len().is_multiple_of(DIRECT_ALIGN)
                 && (bytes.as_ptr() as usize).is_multiple_of(DIRECT_ALIGN);
@@ -346,8 +346,8 @@ impl<'f> TileWriter<'f> {
         if tiles.len() < 2 {
             return tiles.first().map_or(Ok(()), |t| self.write(t, offset));
         }
-        let timed = self.mode == TileIo::Auto && self.direct.is_some() && !self.is_direct();
-        let direct = self.direct.as_ref().filter(|_| self.is_direct());
+        let timed = self.judging();
+        let direct = self.direct_now();
         let file = direct.unwrap_or(self.buffered);
         // (Buffered writes in Auto are timed one at a time, as in `write`.)
         let mut lock = timed.then(|| self.timed.lock().unwrap_or_else(|p| p.into_inner()));
