@@ -164,16 +164,46 @@ const ZSTD_MIN_MATCH: u32 = 7;
 /// parsers choose matches by their cost and keep their own.
 const ZSTD_LONG_MATCHES_UP_TO: i32 = 9;
 
+/// How Zstd stores a tile's literals (the bytes no match covers) at
+/// [`ZSTD_FAST`]: Huffman-coded, or as they are.
+///
+/// The coordinate bands take [`Literals::Raw`] there. They are what every
+/// reader decodes (each frame, pick and export), and their literals are the
+/// noisy low bytes of each sample, which Huffman coding shrinks little but
+/// which cost about a third of a read to decode: on the 47.7 M points, raw
+/// literals in x y z read level 0 at 1.45× the speed for 6.7 % more bytes
+/// (x 1.71 → 2.00, y 1.95 → 2.17, z 1.87 → 2.12 B/pt; history 51). Other
+/// levels (small inputs' [`ZSTD_SMALL`], `--zstd-level`) keep Huffman coding
+/// everywhere: they were chosen for size.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Literals {
+    Huffman,
+    Raw,
+}
+
+impl Literals {
+    /// The literals of band `b` (0–2: x y z).
+    pub fn of_band(b: usize) -> Literals {
+        if b < 3 {
+            Literals::Raw
+        } else {
+            Literals::Huffman
+        }
+    }
+}
+
 /// Encodes one tile of one band (`width` samples per row, native byte order).
 /// `max_error` bounds |decoded - value| for the LERC codecs (0: lossless); the
 /// other codecs are lossless. `zstd_level`: Zstd's level for [`Compression::Zstd`]
-/// ([`ZSTD_FAST`] unless the writer chose another).
+/// ([`ZSTD_FAST`] unless the writer chose another); `literals`: how Zstd
+/// stores literals there ([`Literals`]).
 pub fn encode(
     values: &[f32],
     width: usize,
     c: Compression,
     max_error: f64,
     zstd_level: i32,
+    literals: Literals,
 ) -> Result<Vec<u8>, String> {
     Ok(match c {
         Compression::None => bytemuck::cast_slice(values).to_vec(),
@@ -195,9 +225,9 @@ pub fn encode(
                     // A tile level 1 leaves under 4 KB (one value and the NaN
                     // past the last point) is squeezed again at level 3, which
                     // costs little at that ratio.
-                    let once = zstd_compress(&raw, zstd_level)?;
+                    let once = zstd_compress(&raw, zstd_level, literals)?;
                     if zstd_level < 3 && once.len() < 4096 {
-                        let again = zstd_compress(&raw, 3)?;
+                        let again = zstd_compress(&raw, 3, Literals::Huffman)?;
                         if again.len() < once.len() {
                             return Ok(again);
                         }
@@ -210,8 +240,12 @@ pub fn encode(
         Compression::LercDeflate => deflate(&encode_lerc(values, width, max_error)?),
         Compression::LercZstd => {
             // GDAL's default level for LERC_ZSTD: the blobs are small.
-            zstd_compress(&encode_lerc(values, width, max_error)?, 9)
-                .map_err(|e| format!("zstd: {e}"))?
+            zstd_compress(
+                &encode_lerc(values, width, max_error)?,
+                9,
+                Literals::Huffman,
+            )
+            .map_err(|e| format!("zstd: {e}"))?
         }
     })
 }
@@ -232,7 +266,7 @@ fn constant_tile(v: f32, len: usize, width: usize) -> Result<Vec<u8>, String> {
         .with(|raw| {
             let mut raw = raw.borrow_mut();
             predict_float_into(&vec![v; len], width, &mut raw);
-            zstd_compress(&raw, 3)
+            zstd_compress(&raw, 3, Literals::Huffman)
         })
         .map_err(|e| format!("zstd: {e}"))?;
     MADE.with_borrow_mut(|m| {
@@ -559,22 +593,32 @@ thread_local! {
 thread_local! {
     /// Each thread's Zstd compression contexts and their levels, kept between
     /// tiles (a fresh context a tile cost its set-up every time).
-    static ZSTD_OUT: std::cell::RefCell<Vec<(i32, zstd::bulk::Compressor<'static>)>> =
+    static ZSTD_OUT: std::cell::RefCell<Vec<((i32, bool), zstd::bulk::Compressor<'static>)>> =
         const { std::cell::RefCell::new(Vec::new()) };
 }
 
 /// Compresses `raw` as one Zstd frame at `level` with this thread's context.
-fn zstd_compress(raw: &[u8], level: i32) -> std::io::Result<Vec<u8>> {
+fn zstd_compress(raw: &[u8], level: i32, literals: Literals) -> std::io::Result<Vec<u8>> {
     ZSTD_OUT.with(|z| {
         let mut z = z.borrow_mut();
-        let at = match z.iter().position(|(l, _)| *l == level) {
+        let raw_literals = literals == Literals::Raw && level == ZSTD_FAST;
+        let key = (level, raw_literals);
+        let at = match z.iter().position(|(k, _)| *k == key) {
             Some(at) => at,
             None => {
                 let mut c = zstd::bulk::Compressor::new(level)?;
                 if level <= ZSTD_LONG_MATCHES_UP_TO {
                     c.set_parameter(zstd::stream::raw::CParameter::MinMatch(ZSTD_MIN_MATCH))?;
                 }
-                z.push((level, c));
+                if raw_literals {
+                    // Zstd's fast strategy takes a target length above 0 as
+                    // its "acceleration", which at 1 keeps level 1's search
+                    // step (2) and turns off literal compression
+                    // (`ZSTD_literalsCompressionIsDisabled`): the same
+                    // matches, the literals stored as they are.
+                    c.set_parameter(zstd::stream::raw::CParameter::TargetLength(1))?;
+                }
+                z.push((key, c));
                 z.len() - 1
             }
         };
@@ -788,10 +832,19 @@ impl TileCodec {
             if raw.len() < nbytes {
                 return Err(format!("tile holds {} bytes, {nbytes} expected", raw.len()));
             }
+            let avx2 = has_avx2();
             for (row, dst) in raw[..n.div_ceil(w) * w * 4]
                 .chunks_exact_mut(w * 4)
                 .zip(out.chunks_mut(w))
             {
+                // AVX2 where the CPU has it: the row's sum and its planes
+                // joined and mapped in one call, the same values.
+                #[cfg(target_arch = "x86_64")]
+                if avx2 && w % 16 == 0 && dst.len() == w {
+                    // SAFETY: the CPU has AVX2 (checked above).
+                    unsafe { undo_row_avx2(row, dst, map) };
+                    continue;
+                }
                 running_sum(row);
                 let (b0, rest) = row.split_at(w);
                 let (b1, rest) = rest.split_at(w);
@@ -871,6 +924,90 @@ fn join_planes(
     {
         let _ = (planes, dst, map);
         0
+    }
+}
+
+/// Whether the CPU has AVX2 ([`undo_row_avx2`]); false off x86-64.
+#[inline]
+fn has_avx2() -> bool {
+    #[cfg(target_arch = "x86_64")]
+    return std::arch::is_x86_feature_detected!("avx2");
+    #[cfg(not(target_arch = "x86_64"))]
+    false
+}
+
+/// One row of a floating-point-predictor tile undone (the running byte sum over
+/// its four planes, [`running_sum`]) and its samples joined into `dst`, each
+/// mapped by `map` as [`join_planes`] does: the same values, 32 bytes a step in
+/// the sum and the map four samples at a time in `f64` (SSE2 takes two). The
+/// row's width (`dst.len()`) must be a multiple of 16 and `row` its four planes.
+/// `read_speed` (x y z of the 47.7 M points, level 0, 2 cores): see
+/// bench/history/51.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn undo_row_avx2(
+    row: &mut [u8],
+    dst: &mut [std::mem::MaybeUninit<f32>],
+    map: Option<(f64, f64)>,
+) {
+    use std::arch::x86_64::*;
+    let w = dst.len();
+    assert!(w % 16 == 0 && row.len() == 4 * w);
+    // The running sum, 32 bytes a step (4w is a multiple of 64). Each block's
+    // sums within its lanes, then the low lane's total added to the high lane;
+    // the running total's only chain from block to block is one add.
+    let mut total = _mm256_setzero_si256();
+    let fifteen = _mm256_set1_epi8(15);
+    for c in row.chunks_exact_mut(32) {
+        let p = c.as_mut_ptr() as *mut __m256i;
+        // SAFETY: the load and store cover exactly the 32 bytes of `c`.
+        let mut x = unsafe { _mm256_loadu_si256(p) };
+        x = _mm256_add_epi8(x, _mm256_slli_si256::<1>(x));
+        x = _mm256_add_epi8(x, _mm256_slli_si256::<2>(x));
+        x = _mm256_add_epi8(x, _mm256_slli_si256::<4>(x));
+        x = _mm256_add_epi8(x, _mm256_slli_si256::<8>(x));
+        // Each lane's last byte in all of that lane's bytes.
+        let ends = _mm256_shuffle_epi8(x, fifteen);
+        // The low lane's total into the high lane (the low lane gets zero).
+        x = _mm256_add_epi8(x, _mm256_permute2x128_si256::<0x08>(ends, ends));
+        unsafe { _mm256_storeu_si256(p, _mm256_add_epi8(x, total)) };
+        // The block's total (its byte 31) in every byte.
+        let last = _mm256_permute4x64_epi64::<0xFF>(_mm256_shuffle_epi8(x, fifteen));
+        total = _mm256_add_epi8(total, last);
+    }
+    let (b0, rest) = row.split_at(w);
+    let (b1, rest) = rest.split_at(w);
+    let (b2, b3) = rest.split_at(w);
+    let out = dst.as_mut_ptr() as *mut f32;
+    let (step, shift) = map.unwrap_or((1.0, 0.0));
+    let (vstep, vshift) = (_mm256_set1_pd(step), _mm256_set1_pd(shift));
+    for j in (0..w).step_by(16) {
+        // SAFETY: each load reads the 16 bytes at `j < w` of a plane `w` long;
+        // each store writes 4 samples inside `dst[..w]`.
+        unsafe {
+            let ld = |p: &[u8]| _mm_loadu_si128(p.as_ptr().add(j) as *const __m128i);
+            let (x0, x1, x2, x3) = (ld(b0), ld(b1), ld(b2), ld(b3));
+            let lo = [_mm_unpacklo_epi8(x3, x2), _mm_unpackhi_epi8(x3, x2)];
+            let hi = [_mm_unpacklo_epi8(x1, x0), _mm_unpackhi_epi8(x1, x0)];
+            let v = [
+                _mm_unpacklo_epi16(lo[0], hi[0]),
+                _mm_unpackhi_epi16(lo[0], hi[0]),
+                _mm_unpacklo_epi16(lo[1], hi[1]),
+                _mm_unpackhi_epi16(lo[1], hi[1]),
+            ];
+            for (q, &bits) in v.iter().enumerate() {
+                let f = _mm_castsi128_ps(bits);
+                let r = if map.is_some() {
+                    // A product, then a sum, each rounded (no fused
+                    // multiply-add): [`join_planes`]' values exactly.
+                    let d = _mm256_mul_pd(_mm256_cvtps_pd(f), vstep);
+                    _mm256_cvtpd_ps(_mm256_add_pd(d, vshift))
+                } else {
+                    f
+                };
+                _mm_storeu_ps(out.add(j + 4 * q), r);
+            }
+        }
     }
 }
 
@@ -998,7 +1135,7 @@ mod tests {
                 (&whole, 0.0),
                 (&odd, 0.0),
             ] {
-                let bytes = encode(v, 256, c, e, ZSTD_FAST).unwrap();
+                let bytes = encode(v, 256, c, e, ZSTD_FAST, Literals::Huffman).unwrap();
                 let back = codec.decode(&bytes, n).unwrap();
                 let mut worst = 0f64;
                 for (a, b) in v.iter().zip(&back) {
@@ -1014,8 +1151,12 @@ mod tests {
             }
             // Within a bound: smaller than lossless (random values, no
             // neighbour alike: a third smaller).
-            let lossy = encode(&lattice, 256, c, 0.005, ZSTD_FAST).unwrap().len();
-            let exact = encode(&lattice, 256, c, 0.0, ZSTD_FAST).unwrap().len();
+            let lossy = encode(&lattice, 256, c, 0.005, ZSTD_FAST, Literals::Huffman)
+                .unwrap()
+                .len();
+            let exact = encode(&lattice, 256, c, 0.0, ZSTD_FAST, Literals::Huffman)
+                .unwrap()
+                .len();
             assert!(lossy * 4 < exact * 3, "{c:?}: {lossy} vs {exact}");
         }
     }
@@ -1087,11 +1228,113 @@ mod tests {
         }
     }
 
+    /// The AVX2 row (sum, join and map in one) gives the plain path's samples,
+    /// bit for bit, with and without a map, for every width it takes.
+    #[cfg(target_arch = "x86_64")]
+    #[test]
+    fn avx2_rows_are_the_plain_rows() {
+        if !has_avx2() {
+            eprintln!("skipped: this CPU has no AVX2");
+            return;
+        }
+        let mut r = crate::rng::Rng::new(5);
+        for w in [16usize, 32, 48, 256] {
+            for map in [None, Some((0.01, -1234.5678)), Some((0.001, 83_886.07))] {
+                let row: Vec<u8> = (0..4 * w).map(|_| r.next_u64() as u8).collect();
+                let mut plain = row.clone();
+                running_sum(&mut plain);
+                let (b0, rest) = plain.split_at(w);
+                let (b1, rest) = rest.split_at(w);
+                let (b2, b3) = rest.split_at(w);
+                let want: Vec<u32> = (0..w)
+                    .map(|j| {
+                        let v = f32::from_be_bytes([b0[j], b1[j], b2[j], b3[j]]);
+                        match map {
+                            None => v.to_bits(),
+                            Some((step, shift)) => ((v as f64 * step + shift) as f32).to_bits(),
+                        }
+                    })
+                    .collect();
+                let mut fast = row.clone();
+                let mut out = vec![std::mem::MaybeUninit::<f32>::uninit(); w];
+                // SAFETY: the CPU has AVX2 (checked above).
+                unsafe { undo_row_avx2(&mut fast, &mut out, map) };
+                assert_eq!(fast, plain, "width {w}: the running sum");
+                // SAFETY: `undo_row_avx2` writes all `w` samples.
+                let got: Vec<u32> = out
+                    .iter()
+                    .map(|v| unsafe { v.assume_init() }.to_bits())
+                    .collect();
+                assert_eq!(got, want, "width {w}, map {map:?}");
+            }
+        }
+    }
+
+    /// The type of the literals of a Zstd frame's first compressed block
+    /// (RFC 8878: 0 raw, 1 RLE, 2 Huffman-coded, 3 with the previous table).
+    fn first_literals_type(frame: &[u8]) -> Option<u8> {
+        let fhd = frame[4];
+        let single = fhd & 0x20 != 0;
+        let dict = [0, 1, 2, 4][(fhd & 3) as usize];
+        let fcs = match fhd >> 6 {
+            0 => usize::from(single),
+            1 => 2,
+            2 => 4,
+            _ => 8,
+        };
+        let mut at = 5 + usize::from(!single) + dict + fcs;
+        loop {
+            let h = u32::from_le_bytes([frame[at], frame[at + 1], frame[at + 2], 0]);
+            let (last, kind, size) = (h & 1 != 0, (h >> 1) & 3, (h >> 3) as usize);
+            at += 3;
+            match kind {
+                2 => return Some(frame[at] & 3),
+                1 => at += 1,
+                _ => at += size,
+            }
+            if last {
+                return None;
+            }
+        }
+    }
+
+    /// Coordinate tiles at the fast level keep their literals raw; every other
+    /// band and level Huffman-codes them; all decode to the same values.
+    #[test]
+    fn coordinates_keep_raw_literals_at_the_fast_level() {
+        let mut r = crate::rng::Rng::new(9);
+        let mut k = 1_000_000i64;
+        // Whole numbers on a lattice as stored (biased by 2^23), a random walk
+        // along the curve: noisy low bytes.
+        let v: Vec<f32> = (0..256 * 256)
+            .map(|_| {
+                k += (r.next_u64() % 41) as i64 - 20;
+                (k + (1 << 23)) as f32
+            })
+            .collect();
+        let codec = codec_of(Compression::Zstd, 256);
+        for (level, literals, want) in [
+            (ZSTD_FAST, Literals::Raw, 0),
+            (ZSTD_FAST, Literals::Huffman, 2),
+            (ZSTD_SMALL, Literals::Raw, 2),
+        ] {
+            let frame = encode(&v, 256, Compression::Zstd, 0.0, level, literals).unwrap();
+            assert_eq!(
+                first_literals_type(&frame),
+                Some(want),
+                "level {level}, {literals:?}"
+            );
+            assert_eq!(codec.decode(&frame, v.len()).unwrap(), v);
+        }
+        assert_eq!(Literals::of_band(2), Literals::Raw);
+        assert_eq!(Literals::of_band(3), Literals::Huffman);
+    }
+
     #[test]
     fn corrupt_lerc_is_an_error() {
         let v: Vec<f32> = (0..64).map(|i| i as f32 * 0.5).collect();
         for c in [Compression::Lerc, Compression::LercZstd] {
-            let good = encode(&v, 8, c, 0.0, ZSTD_FAST).unwrap();
+            let good = encode(&v, 8, c, 0.0, ZSTD_FAST, Literals::Huffman).unwrap();
             let codec = codec_of(c, 8);
             assert_eq!(codec.decode(&good, 64).unwrap(), v);
             assert!(codec.decode(&good[..good.len() / 2], 64).is_err());
@@ -1111,8 +1354,24 @@ mod tests {
         let v: Vec<f32> = (0..512 * 64)
             .map(|i| (i / 3) as f32 + [0.0, 2.0, 1.0, 5.0, 3.0][i % 5])
             .collect();
-        let fast = encode(&v, 512, Compression::Zstd, 0.0, ZSTD_FAST).unwrap();
-        let small = encode(&v, 512, Compression::Zstd, 0.0, ZSTD_SMALL).unwrap();
+        let fast = encode(
+            &v,
+            512,
+            Compression::Zstd,
+            0.0,
+            ZSTD_FAST,
+            Literals::Huffman,
+        )
+        .unwrap();
+        let small = encode(
+            &v,
+            512,
+            Compression::Zstd,
+            0.0,
+            ZSTD_SMALL,
+            Literals::Huffman,
+        )
+        .unwrap();
         assert!(
             small.len() < fast.len(),
             "{} vs {}",
@@ -1138,7 +1397,7 @@ mod tests {
             })
             .collect();
         for c in ALL {
-            let bytes = encode(&v, 256, c, 0.0, ZSTD_FAST).unwrap();
+            let bytes = encode(&v, 256, c, 0.0, ZSTD_FAST, Literals::Huffman).unwrap();
             let codec = codec_of(c, 256);
             let back = codec.decode(&bytes, v.len()).unwrap();
             assert_eq!(back.len(), v.len());
@@ -1159,7 +1418,15 @@ mod tests {
             lerc_extra: 0,
         };
         assert!(codec.decode(b"not deflate", 16).is_err());
-        let good = encode(&[1.0; 16], 4, Compression::Deflate, 0.0, ZSTD_FAST).unwrap();
+        let good = encode(
+            &[1.0; 16],
+            4,
+            Compression::Deflate,
+            0.0,
+            ZSTD_FAST,
+            Literals::Huffman,
+        )
+        .unwrap();
         assert!(codec.decode(&good[..good.len() / 2], 16).is_err());
     }
 }

@@ -1170,7 +1170,8 @@ fn encode_job(
         Compression::None => Encoded::Raw(buf),
         c => {
             let e = coord_max_error.get(b).copied().unwrap_or(0.0);
-            match codec::encode(&buf, TILE_SIZE as usize, c, e, zstd_level) {
+            let literals = codec::Literals::of_band(b);
+            match codec::encode(&buf, TILE_SIZE as usize, c, e, zstd_level, literals) {
                 Ok(v) => Encoded::Bytes(v),
                 Err(m) => Encoded::Failed(format!("level {level} tile {t} band {}: {m}", b + 1)),
             }
@@ -1274,7 +1275,15 @@ fn rows_tile(
     bufs.into_par_iter()
         .enumerate()
         .map(|(b, buf)| {
-            let e = match codec::encode(&buf, TILE_SIZE as usize, compression, 0.0, zstd_level) {
+            let literals = codec::Literals::of_band(b);
+            let e = match codec::encode(
+                &buf,
+                TILE_SIZE as usize,
+                compression,
+                0.0,
+                zstd_level,
+                literals,
+            ) {
                 Ok(v) => Encoded::Bytes(v),
                 Err(msg) => {
                     Encoded::Failed(format!("level {level} tile {t} band {}: {msg}", b + 1))
