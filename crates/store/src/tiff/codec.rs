@@ -164,46 +164,43 @@ const ZSTD_MIN_MATCH: u32 = 7;
 /// parsers choose matches by their cost and keep their own.
 const ZSTD_LONG_MATCHES_UP_TO: i32 = 9;
 
-/// How Zstd stores a tile's literals (the bytes no match covers) at
-/// [`ZSTD_FAST`]: Huffman-coded, or as they are.
+/// What Zstd does with a band's tiles at [`ZSTD_FAST`] (other levels always
+/// take [`Fast::Zstd`]: they were chosen for size).
 ///
-/// The coordinate bands take [`Literals::Raw`] there. They are what every
-/// reader decodes (each frame, pick and export), and their literals are the
-/// noisy low bytes of each sample, which Huffman coding shrinks little but
-/// which cost about a third of a read to decode: on the 47.7 M points, raw
-/// literals in x y z read level 0 at 1.45× the speed for 6.7 % more bytes
-/// (x 1.71 → 2.00, y 1.95 → 2.17, z 1.87 → 2.12 B/pt; history 51). Other
-/// levels (small inputs' [`ZSTD_SMALL`], `--zstd-level`) keep Huffman coding
-/// everywhere: they were chosen for size.
+/// - The coordinate bands take [`Fast::RawLiterals`]: Zstd's own matches, the
+///   literals (the bytes no match covers) stored as they are. Coordinates are
+///   what every reader decodes (each frame, pick and export), and their
+///   literals, the noisy low bytes of each sample, cost about a third of a
+///   read to Huffman-decode: on the 47.7 M points x y z read level 0 at 1.45×
+///   the speed for 6.7 % more bytes (x 1.71 → 2.00, y 1.95 → 2.17, z 1.87 →
+///   2.12 B/pt; history 51).
+/// - Whole-number bands spanning fewer than 256 values take [`Fast::Runs`]
+///   ([`super::runs`]): matches only where a byte repeats, found by our scan,
+///   where the runs leave at most [`RUNS_MAX_LITERALS`] of the tile as
+///   literals; otherwise Zstd's own.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Literals {
-    Huffman,
-    Raw,
+pub enum Fast {
+    Zstd,
+    RawLiterals,
+    Runs,
 }
 
-impl Literals {
-    /// The literals of band `b` (0–2: x y z).
-    pub fn of_band(b: usize) -> Literals {
-        if b < 3 {
-            Literals::Raw
-        } else {
-            Literals::Huffman
-        }
-    }
-}
+/// The most of a tile (a fraction of its bytes) that [`Fast::Runs`] leaves as
+/// literals; past it the tile is Zstd's.
+pub const RUNS_MAX_LITERALS: f64 = 0.15;
 
 /// Encodes one tile of one band (`width` samples per row, native byte order).
 /// `max_error` bounds |decoded - value| for the LERC codecs (0: lossless); the
 /// other codecs are lossless. `zstd_level`: Zstd's level for [`Compression::Zstd`]
-/// ([`ZSTD_FAST`] unless the writer chose another); `literals`: how Zstd
-/// stores literals there ([`Literals`]).
+/// ([`ZSTD_FAST`] unless the writer chose another); `fast`: what Zstd does
+/// with the tile at that level ([`Fast`]).
 pub fn encode(
     values: &[f32],
     width: usize,
     c: Compression,
     max_error: f64,
     zstd_level: i32,
-    literals: Literals,
+    fast: Fast,
 ) -> Result<Vec<u8>, String> {
     Ok(match c {
         Compression::None => bytemuck::cast_slice(values).to_vec(),
@@ -225,9 +222,15 @@ pub fn encode(
                     // A tile level 1 leaves under 4 KB (one value and the NaN
                     // past the last point) is squeezed again at level 3, which
                     // costs little at that ratio.
-                    let once = zstd_compress(&raw, zstd_level, literals)?;
+                    if fast == Fast::Runs && zstd_level == ZSTD_FAST {
+                        let most = (raw.len() as f64 * RUNS_MAX_LITERALS) as usize;
+                        if let Some(v) = super::runs::compress_runs(&raw, zstd_level, most)? {
+                            return Ok(v);
+                        }
+                    }
+                    let once = zstd_compress(&raw, zstd_level, fast == Fast::RawLiterals)?;
                     if zstd_level < 3 && once.len() < 4096 {
-                        let again = zstd_compress(&raw, 3, Literals::Huffman)?;
+                        let again = zstd_compress(&raw, 3, false)?;
                         if again.len() < once.len() {
                             return Ok(again);
                         }
@@ -240,12 +243,8 @@ pub fn encode(
         Compression::LercDeflate => deflate(&encode_lerc(values, width, max_error)?),
         Compression::LercZstd => {
             // GDAL's default level for LERC_ZSTD: the blobs are small.
-            zstd_compress(
-                &encode_lerc(values, width, max_error)?,
-                9,
-                Literals::Huffman,
-            )
-            .map_err(|e| format!("zstd: {e}"))?
+            zstd_compress(&encode_lerc(values, width, max_error)?, 9, false)
+                .map_err(|e| format!("zstd: {e}"))?
         }
     })
 }
@@ -266,7 +265,7 @@ fn constant_tile(v: f32, len: usize, width: usize) -> Result<Vec<u8>, String> {
         .with(|raw| {
             let mut raw = raw.borrow_mut();
             predict_float_into(&vec![v; len], width, &mut raw);
-            zstd_compress(&raw, 3, Literals::Huffman)
+            zstd_compress(&raw, 3, false)
         })
         .map_err(|e| format!("zstd: {e}"))?;
     MADE.with_borrow_mut(|m| {
@@ -598,10 +597,10 @@ thread_local! {
 }
 
 /// Compresses `raw` as one Zstd frame at `level` with this thread's context.
-fn zstd_compress(raw: &[u8], level: i32, literals: Literals) -> std::io::Result<Vec<u8>> {
+fn zstd_compress(raw: &[u8], level: i32, raw_literals: bool) -> std::io::Result<Vec<u8>> {
     ZSTD_OUT.with(|z| {
         let mut z = z.borrow_mut();
-        let raw_literals = literals == Literals::Raw && level == ZSTD_FAST;
+        let raw_literals = raw_literals && level == ZSTD_FAST;
         let key = (level, raw_literals);
         let at = match z.iter().position(|(k, _)| *k == key) {
             Some(at) => at,
@@ -840,7 +839,7 @@ impl TileCodec {
                 // AVX2 where the CPU has it: the row's sum and its planes
                 // joined and mapped in one call, the same values.
                 #[cfg(target_arch = "x86_64")]
-                if avx2 && w % 16 == 0 && dst.len() == w {
+                if avx2 && w.is_multiple_of(16) && dst.len() == w {
                     // SAFETY: the CPU has AVX2 (checked above).
                     unsafe { undo_row_avx2(row, dst, map) };
                     continue;
@@ -952,7 +951,7 @@ unsafe fn undo_row_avx2(
 ) {
     use std::arch::x86_64::*;
     let w = dst.len();
-    assert!(w % 16 == 0 && row.len() == 4 * w);
+    assert!(w.is_multiple_of(16) && row.len() == 4 * w);
     // The running sum, 32 bytes a step (4w is a multiple of 64). Each block's
     // sums within its lanes, then the low lane's total added to the high lane;
     // the running total's only chain from block to block is one add.
@@ -970,6 +969,7 @@ unsafe fn undo_row_avx2(
         let ends = _mm256_shuffle_epi8(x, fifteen);
         // The low lane's total into the high lane (the low lane gets zero).
         x = _mm256_add_epi8(x, _mm256_permute2x128_si256::<0x08>(ends, ends));
+        // SAFETY: as the load.
         unsafe { _mm256_storeu_si256(p, _mm256_add_epi8(x, total)) };
         // The block's total (its byte 31) in every byte.
         let last = _mm256_permute4x64_epi64::<0xFF>(_mm256_shuffle_epi8(x, fifteen));
@@ -1135,7 +1135,7 @@ mod tests {
                 (&whole, 0.0),
                 (&odd, 0.0),
             ] {
-                let bytes = encode(v, 256, c, e, ZSTD_FAST, Literals::Huffman).unwrap();
+                let bytes = encode(v, 256, c, e, ZSTD_FAST, Fast::Zstd).unwrap();
                 let back = codec.decode(&bytes, n).unwrap();
                 let mut worst = 0f64;
                 for (a, b) in v.iter().zip(&back) {
@@ -1151,10 +1151,10 @@ mod tests {
             }
             // Within a bound: smaller than lossless (random values, no
             // neighbour alike: a third smaller).
-            let lossy = encode(&lattice, 256, c, 0.005, ZSTD_FAST, Literals::Huffman)
+            let lossy = encode(&lattice, 256, c, 0.005, ZSTD_FAST, Fast::Zstd)
                 .unwrap()
                 .len();
-            let exact = encode(&lattice, 256, c, 0.0, ZSTD_FAST, Literals::Huffman)
+            let exact = encode(&lattice, 256, c, 0.0, ZSTD_FAST, Fast::Zstd)
                 .unwrap()
                 .len();
             assert!(lossy * 4 < exact * 3, "{c:?}: {lossy} vs {exact}");
@@ -1314,9 +1314,9 @@ mod tests {
             .collect();
         let codec = codec_of(Compression::Zstd, 256);
         for (level, literals, want) in [
-            (ZSTD_FAST, Literals::Raw, 0),
-            (ZSTD_FAST, Literals::Huffman, 2),
-            (ZSTD_SMALL, Literals::Raw, 2),
+            (ZSTD_FAST, Fast::RawLiterals, 0),
+            (ZSTD_FAST, Fast::Zstd, 2),
+            (ZSTD_SMALL, Fast::RawLiterals, 2),
         ] {
             let frame = encode(&v, 256, Compression::Zstd, 0.0, level, literals).unwrap();
             assert_eq!(
@@ -1326,15 +1326,13 @@ mod tests {
             );
             assert_eq!(codec.decode(&frame, v.len()).unwrap(), v);
         }
-        assert_eq!(Literals::of_band(2), Literals::Raw);
-        assert_eq!(Literals::of_band(3), Literals::Huffman);
     }
 
     #[test]
     fn corrupt_lerc_is_an_error() {
         let v: Vec<f32> = (0..64).map(|i| i as f32 * 0.5).collect();
         for c in [Compression::Lerc, Compression::LercZstd] {
-            let good = encode(&v, 8, c, 0.0, ZSTD_FAST, Literals::Huffman).unwrap();
+            let good = encode(&v, 8, c, 0.0, ZSTD_FAST, Fast::Zstd).unwrap();
             let codec = codec_of(c, 8);
             assert_eq!(codec.decode(&good, 64).unwrap(), v);
             assert!(codec.decode(&good[..good.len() / 2], 64).is_err());
@@ -1354,24 +1352,8 @@ mod tests {
         let v: Vec<f32> = (0..512 * 64)
             .map(|i| (i / 3) as f32 + [0.0, 2.0, 1.0, 5.0, 3.0][i % 5])
             .collect();
-        let fast = encode(
-            &v,
-            512,
-            Compression::Zstd,
-            0.0,
-            ZSTD_FAST,
-            Literals::Huffman,
-        )
-        .unwrap();
-        let small = encode(
-            &v,
-            512,
-            Compression::Zstd,
-            0.0,
-            ZSTD_SMALL,
-            Literals::Huffman,
-        )
-        .unwrap();
+        let fast = encode(&v, 512, Compression::Zstd, 0.0, ZSTD_FAST, Fast::Zstd).unwrap();
+        let small = encode(&v, 512, Compression::Zstd, 0.0, ZSTD_SMALL, Fast::Zstd).unwrap();
         assert!(
             small.len() < fast.len(),
             "{} vs {}",
@@ -1397,7 +1379,7 @@ mod tests {
             })
             .collect();
         for c in ALL {
-            let bytes = encode(&v, 256, c, 0.0, ZSTD_FAST, Literals::Huffman).unwrap();
+            let bytes = encode(&v, 256, c, 0.0, ZSTD_FAST, Fast::Zstd).unwrap();
             let codec = codec_of(c, 256);
             let back = codec.decode(&bytes, v.len()).unwrap();
             assert_eq!(back.len(), v.len());
@@ -1424,7 +1406,7 @@ mod tests {
             Compression::Deflate,
             0.0,
             ZSTD_FAST,
-            Literals::Huffman,
+            Fast::Zstd,
         )
         .unwrap();
         assert!(codec.decode(&good[..good.len() / 2], 16).is_err());

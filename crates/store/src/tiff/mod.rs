@@ -7,5 +7,6 @@ pub(crate) mod codec;
 pub mod ifd;
 mod lerc_z;
 pub(crate) mod metadata;
+mod runs;
 pub(crate) mod tiles;
 pub mod zorder;

@@ -286,18 +286,14 @@ impl StoredLattice {
     /// if every one lies on it.
     /// With `round`, every point is taken to its nearest lattice point: only
     /// the numbers must fit (within 2^23 steps of `base`).
-    fn fit(
-        source: crate::points::Lattice,
-        origin: [f64; 3],
-        pos: &[[f32; 3]],
-        round: bool,
-    ) -> Option<Self> {
-        let l = Self::new(source, origin)?;
-        // The stored value of each coordinate: the nearest whole number to
-        // `v · inv + shift`, within 2^23 steps of `base`; without `round`, it
-        // must give `v` back to `f32`'s rounding (the next `f32` either way).
+    /// Whether every position of `pos` (relative to `origin`) lies on this
+    /// lattice: its stored value, the nearest whole number to `v · inv +
+    /// shift`, lies within 2^23 steps of `base` and, without `round`, gives
+    /// `v` back to `f32`'s rounding (the next `f32` either way). With `round`
+    /// only the numbers must fit.
+    fn holds(&self, origin: [f64; 3], pos: &[[f32; 3]], round: bool) -> bool {
         // Each axis's map worked out once.
-        let maps = [0, 1, 2].map(|a| l.stored_map(a, origin[a]));
+        let maps = [0, 1, 2].map(|a| self.stored_map(a, origin[a]));
         let fits = |a: usize, v: f32| -> bool {
             let s = round_half(v as f64 * maps[a].0 + maps[a].1);
             if !(0.0..2.0 * spec::WHOLE_BIAS).contains(&s) {
@@ -306,18 +302,89 @@ impl StoredLattice {
             if round {
                 return true;
             }
-            let back = ((l.base[a] + l.step[a] * (s - spec::WHOLE_BIAS)) - origin[a]) as f32;
+            let back = ((self.base[a] + self.step[a] * (s - spec::WHOLE_BIAS)) - origin[a]) as f32;
             back == v || back.next_up() == v || back.next_down() == v
         };
-        let on = pos.par_chunks(1 << 16).all(|c| {
-            c.iter()
-                .all(|p| (0..3).all(|a| p[a].is_nan() || fits(a, p[a])))
-        });
-        on.then_some(l)
+        // First without branches, so that it runs vectorized: the stored
+        // value in range and the value given back (as `fits` works it out)
+        // within one step of `v`'s bits, which with the same sign is `v` or
+        // the next `f32` either way; 64 points whose quick look fails are
+        // looked at again exactly (a sign apart, say).
+        let quick = |p: &[f32; 3]| -> bool {
+            let mut ok = true;
+            for a in 0..3 {
+                let v = p[a];
+                let s = round_half(v as f64 * maps[a].0 + maps[a].1);
+                let inside = (0.0..2.0 * spec::WHOLE_BIAS).contains(&s);
+                let back =
+                    ((self.base[a] + self.step[a] * (s - spec::WHOLE_BIAS)) - origin[a]) as f32;
+                let near = (back.to_bits() as i32)
+                    .wrapping_sub(v.to_bits() as i32)
+                    .unsigned_abs()
+                    <= 1;
+                ok &= v.is_nan() || (inside && (round || near));
+            }
+            ok
+        };
+        pos.chunks(64).all(|c| {
+            c.iter().fold(true, |ok, p| ok & quick(p))
+                || c.iter()
+                    .all(|p| (0..3).all(|a| p[a].is_nan() || fits(a, p[a])))
+        })
+    }
+}
+
+/// The input's lattice checked tile by tile while the points are arranged
+/// (each tile then in cache), for a part whose codec keeps coordinates on it:
+/// the candidate, and whether some tile's point lay off it.
+struct LatticeCheck {
+    lattice: StoredLattice,
+    round: bool,
+    off: AtomicBool,
+}
+
+impl LatticeCheck {
+    fn new(opts: &WriteOptions, layout: Layout, origin: [f64; 3]) -> Option<Self> {
+        if layout != Layout::Hilbert || !opts.compression.row_ordered() {
+            return None;
+        }
+        Some(LatticeCheck {
+            lattice: StoredLattice::new(opts.lattice?, origin)?,
+            round: opts.lattice_round,
+            off: AtomicBool::new(false),
+        })
+    }
+
+    /// Checks one arranged tile's positions.
+    fn tile(&self, origin: [f64; 3], pos: &[[f32; 3]]) {
+        if !self.off.load(Ordering::Relaxed) && !self.lattice.holds(origin, pos, self.round) {
+            self.off.store(true, Ordering::Relaxed);
+        }
+    }
+
+    /// The lattice, if every tile lay on it.
+    fn result(self) -> Option<StoredLattice> {
+        (!self.off.into_inner()).then_some(self.lattice)
     }
 }
 
 impl Arranged {
+    /// What Zstd does with band `b`'s tiles at its fast level
+    /// ([`codec::Fast`]): coordinates keep raw literals; whole-number bands
+    /// that span fewer than 256 values (one byte plane of differences) are
+    /// coded as runs.
+    fn fast(&self, b: usize) -> codec::Fast {
+        let Some(k) = b.checked_sub(3) else {
+            return codec::Fast::RawLiterals;
+        };
+        let small = self.ranges.get(k).is_some_and(|&(lo, hi)| hi - lo < 256.0);
+        if self.whole.get(k) == Some(&true) && small {
+            codec::Fast::Runs
+        } else {
+            codec::Fast::Zstd
+        }
+    }
+
     /// The tile of `pos` and `perm` that holds level 0's image tile `t` (Z-rank).
     #[inline]
     fn stored_tile(&self, t: usize) -> usize {
@@ -491,6 +558,7 @@ fn arrange(
     // `tile_order` gives): positions and their source indices.
     let m = attributes.len();
     let mut tile_bounds = Vec::new();
+    let mut lattice = None;
     let (pos, perm, tile_order) = match layout {
         Layout::Hilbert => {
             let lo = [0, 1, 2].map(|a| (bounds.min[a] - origin[a]) as f32);
@@ -507,9 +575,14 @@ fn arrange(
             // Levels 1 and up from the tiles' level-1 points, each coarse tile
             // written as soon as the tiles below it are arranged.
             let coarse = level0.map(|_| Coarse::new(geometry, m, tiles_at, lut.clone()));
+            // The lattice checked while each tile is in cache.
+            let check = LatticeCheck::new(opts, layout, origin);
             let filled = |l| geometry.filled_tiles(l);
             let level0_at = region_start(filled, nb, tiles_at, geometry.levels(), 0);
             let on_tile = |t: usize, o: &[[f32; 3]], i: &[u32], tile: Option<layout::TileRows>| {
+                if let Some(c) = &check {
+                    c.tile(origin, o);
+                }
                 let mut b = [[f32::INFINITY; 3], [f32::NEG_INFINITY; 3]];
                 for p in o {
                     for ax in 0..3 {
@@ -551,6 +624,7 @@ fn arrange(
             drop(pos);
             drop(coarse);
             tile_bounds = found.into_iter().map(|b| b.into_inner()).collect();
+            lattice = check.and_then(LatticeCheck::result);
             ph.mark(if level0.is_some() {
                 "gather+representatives+levels"
             } else {
@@ -580,7 +654,7 @@ fn arrange(
         bounds,
         max_error,
         rows_order: false,
-        lattice: None,
+        lattice,
         whole: Vec::new(),
         class_counts: None,
     })
@@ -1078,9 +1152,6 @@ fn write(
     // the input's lattice where every point lies on it (format version 2).
     if a.layout == Layout::Hilbert && opts.compression.row_ordered() {
         a.rows_order = true;
-        a.lattice = opts
-            .lattice
-            .and_then(|l| StoredLattice::fit(l, a.origin, &a.pos, opts.lattice_round));
         if let Some(l) = a.lattice.filter(|_| opts.lattice_round) {
             let half = l.step.iter().map(|s| s.abs() / 2.0).fold(0.0, f64::max);
             a.max_error += half;
@@ -1170,8 +1241,7 @@ fn encode_job(
         Compression::None => Encoded::Raw(buf),
         c => {
             let e = coord_max_error.get(b).copied().unwrap_or(0.0);
-            let literals = codec::Literals::of_band(b);
-            match codec::encode(&buf, TILE_SIZE as usize, c, e, zstd_level, literals) {
+            match codec::encode(&buf, TILE_SIZE as usize, c, e, zstd_level, a.fast(b)) {
                 Ok(v) => Encoded::Bytes(v),
                 Err(m) => Encoded::Failed(format!("level {level} tile {t} band {}: {m}", b + 1)),
             }
@@ -1275,20 +1345,14 @@ fn rows_tile(
     bufs.into_par_iter()
         .enumerate()
         .map(|(b, buf)| {
-            let literals = codec::Literals::of_band(b);
-            let e = match codec::encode(
-                &buf,
-                TILE_SIZE as usize,
-                compression,
-                0.0,
-                zstd_level,
-                literals,
-            ) {
-                Ok(v) => Encoded::Bytes(v),
-                Err(msg) => {
-                    Encoded::Failed(format!("level {level} tile {t} band {}: {msg}", b + 1))
-                }
-            };
+            let fast = a.fast(b);
+            let e =
+                match codec::encode(&buf, TILE_SIZE as usize, compression, 0.0, zstd_level, fast) {
+                    Ok(v) => Encoded::Bytes(v),
+                    Err(msg) => {
+                        Encoded::Failed(format!("level {level} tile {t} band {}: {msg}", b + 1))
+                    }
+                };
             (b, e)
         })
         .collect()
