@@ -10,6 +10,7 @@
 #   bash bench/remote.sh                          # 200 M points, --memory 282.5MiB: 144 parts
 #   INPUT=in.las bash bench/remote.sh             # an input made before (synth -n 200000000 --order scan)
 #   POINTS=2000000 MEMORY=64MiB bash bench/remote.sh   # a quick check
+#   ZSTD_LEVEL=1 ...                              # zstd at that level (--zstd-level)
 #
 # Needs about 15 GB of disk for 200 M points (LAS input, local dataset, weed's
 # copy); everything is deleted at the end. REPS runs each (default 5).
@@ -19,6 +20,8 @@ POINTS=${POINTS:-200000000}
 MEMORY=${MEMORY:-282.5MiB}
 REPS=${REPS:-5}
 COMPRESSION=${COMPRESSION:-zstd}
+LEVEL=()
+[ -z "${ZSTD_LEVEL:-}" ] || LEVEL=(--zstd-level "$ZSTD_LEVEL")
 DELAY_MS=${DELAY_MS:-50}
 DIR=${DIR:-/tmp/pcimg-remote-bench}
 BIN=$PWD/target/release/pcimg
@@ -39,11 +42,11 @@ else
 fi
 echo "synth: $(echo "$(date +%s.%N) - $t0" | bc) s, $(du -hL "$DIR/in.las" | cut -f1)"
 t0=$(date +%s.%N)
-"$BIN" convert "$DIR/in.las" -o "$DIR/local.pcimg" --memory "$MEMORY" --compression "$COMPRESSION" -q
+"$BIN" convert "$DIR/in.las" -o "$DIR/local.pcimg" --memory "$MEMORY" --compression "$COMPRESSION" "${LEVEL[@]}" -q
 echo "convert (local): $(echo "$(date +%s.%N) - $t0" | bc) s, $(du -sh "$DIR/local.pcimg" | cut -f1), $(ls "$DIR/local.pcimg"/part-*.tif | wc -l) parts"
 t0=$(date +%s.%N)
 AWS_ENDPOINT=$direct TMPDIR=$DIR "$BIN" convert "$DIR/in.las" -o s3://bench/city.pcimg \
-  --memory "$MEMORY" --compression "$COMPRESSION" -q --net-stats 2> "$DIR/up.txt" || { cat "$DIR/up.txt"; exit 1; }
+  --memory "$MEMORY" --compression "$COMPRESSION" "${LEVEL[@]}" -q --net-stats 2> "$DIR/up.txt" || { cat "$DIR/up.txt"; exit 1; }
 echo "convert -o s3:// (direct, no added latency): $(echo "$(date +%s.%N) - $t0" | bc) s; $(grep network "$DIR/up.txt")"
 rm -f "$DIR/in.las"
 
