@@ -282,10 +282,6 @@ impl StoredLattice {
         (inv, (origin - self.base[a]) * inv + spec::WHOLE_BIAS)
     }
 
-    /// The lattice of `source` for a part's positions (relative to `origin`),
-    /// if every one lies on it.
-    /// With `round`, every point is taken to its nearest lattice point: only
-    /// the numbers must fit (within 2^23 steps of `base`).
     /// Whether every position of `pos` (relative to `origin`) lies on this
     /// lattice: its stored value, the nearest whole number to `v · inv +
     /// shift`, lies within 2^23 steps of `base` and, without `round`, gives
@@ -305,32 +301,8 @@ impl StoredLattice {
             let back = ((self.base[a] + self.step[a] * (s - spec::WHOLE_BIAS)) - origin[a]) as f32;
             back == v || back.next_up() == v || back.next_down() == v
         };
-        // First without branches, so that it runs vectorized: the stored
-        // value in range and the value given back (as `fits` works it out)
-        // within one step of `v`'s bits, which with the same sign is `v` or
-        // the next `f32` either way; 64 points whose quick look fails are
-        // looked at again exactly (a sign apart, say).
-        let quick = |p: &[f32; 3]| -> bool {
-            let mut ok = true;
-            for a in 0..3 {
-                let v = p[a];
-                let s = round_half(v as f64 * maps[a].0 + maps[a].1);
-                let inside = (0.0..2.0 * spec::WHOLE_BIAS).contains(&s);
-                let back =
-                    ((self.base[a] + self.step[a] * (s - spec::WHOLE_BIAS)) - origin[a]) as f32;
-                let near = (back.to_bits() as i32)
-                    .wrapping_sub(v.to_bits() as i32)
-                    .unsigned_abs()
-                    <= 1;
-                ok &= v.is_nan() || (inside && (round || near));
-            }
-            ok
-        };
-        pos.chunks(64).all(|c| {
-            c.iter().fold(true, |ok, p| ok & quick(p))
-                || c.iter()
-                    .all(|p| (0..3).all(|a| p[a].is_nan() || fits(a, p[a])))
-        })
+        pos.iter()
+            .all(|p| (0..3).all(|a| p[a].is_nan() || fits(a, p[a])))
     }
 }
 
