@@ -1121,14 +1121,14 @@ fn write(
         arrange(path, part, opts, &mut ph, None, tiles_at)?
     };
     // Lossless predictor codecs store tiles in row order, and coordinates on
-    // the input's lattice where every point lies on it (format version 2).
+    // the input's lattice where every point lies on it (format version 2;
+    // `arrange` checked each tile against it).
     if a.layout == Layout::Hilbert && opts.compression.row_ordered() {
         a.rows_order = true;
         if let Some(l) = a.lattice.filter(|_| opts.lattice_round) {
             let half = l.step.iter().map(|s| s.abs() / 2.0).fold(0.0, f64::max);
             a.max_error += half;
         }
-        ph.mark("lattice");
     }
     // A lossy codec adds its bound, and the f32 rounding of what it gives back,
     // to f32's.
@@ -1889,6 +1889,57 @@ mod tests {
 
     /// Ctrl-C while level 0 is being written (the points still being arranged)
     /// stops the write as interrupted and leaves no file, temporary or final.
+    /// The lattice is kept only where every point of every tile lies on it:
+    /// one point of a part of several tiles a third of a step off, and the
+    /// part stores its coordinates as without one; `lattice_round` keeps it,
+    /// that point within half a step. Either way the points come back.
+    #[test]
+    fn one_point_off_the_lattice_drops_it() {
+        let dir = tempfile::tempdir().unwrap();
+        let n = 3 * TILE_PIXELS + 7;
+        let mut r = crate::rng::Rng::new(8);
+        let mut c = PointColumns::default();
+        for _ in 0..n {
+            c.x.push(1000.0 + (r.f64() * 10_000.0).round() * 0.01);
+            c.y.push(2000.0 + (r.f64() * 10_000.0).round() * 0.01);
+            c.z.push((r.f64() * 1000.0).round() * 0.01);
+        }
+        let lattice = crate::points::Lattice {
+            step: [0.01; 3],
+            origin: [0.0; 3],
+        };
+        let write = |c: &PointColumns, round: bool, name: &str| {
+            let opts = WriteOptions {
+                compression: Compression::Zstd,
+                lattice: Some(lattice),
+                lattice_round: round,
+                ..WriteOptions::default()
+            };
+            let path = dir.path().join(name);
+            (write_part(&path, c, &opts).unwrap(), path)
+        };
+        let (on, _) = write(&c, false, "on.tif");
+        assert!(on.lattice.is_some());
+        let mut off = c.clone();
+        off.x[n - 1] += 0.0033;
+        let (dropped, path) = write(&off, false, "off.tif");
+        assert!(dropped.lattice.is_none(), "a point off the lattice kept it");
+        let (rounded, rpath) = write(&off, true, "round.tif");
+        assert!(rounded.lattice.is_some());
+        for (p, err) in [(path, 1e-3), (rpath, 0.005 + 1e-3)] {
+            let part = crate::Part::open(&p).unwrap();
+            let got = part.read_level(0, &[0]).unwrap();
+            let x0 = got.offsets[0];
+            let mut xs: Vec<f64> = got.columns[0].iter().map(|&v| x0 + v as f64).collect();
+            let mut want = off.x.clone();
+            xs.sort_by(f64::total_cmp);
+            want.sort_by(f64::total_cmp);
+            for (a, b) in xs.iter().zip(&want) {
+                assert!((a - b).abs() <= err, "{a} against {b}");
+            }
+        }
+    }
+
     #[test]
     fn a_write_cancelled_while_arranging_leaves_nothing() {
         let dir = tempfile::tempdir().unwrap();
