@@ -219,15 +219,19 @@ pub fn encode(
                 .with(|raw| {
                     let mut raw = raw.borrow_mut();
                     predict_float_into(values, width, &mut raw);
-                    // A tile level 1 leaves under 4 KB (one value and the NaN
-                    // past the last point) is squeezed again at level 3, which
-                    // costs little at that ratio.
                     if fast == Fast::Runs && zstd_level == ZSTD_FAST {
                         let most = (raw.len() as f64 * RUNS_MAX_LITERALS) as usize;
-                        if let Some(v) = super::runs::compress_runs(&raw, zstd_level, most)? {
+                        let runs = SQUEEZED.with_borrow_mut(|out| {
+                            super::runs::compress_runs(&raw, zstd_level, most, out)
+                                .map(|done| done.then(|| out.to_vec()))
+                        })?;
+                        if let Some(v) = runs {
                             return Ok(v);
                         }
                     }
+                    // A tile level 1 leaves under 4 KB (one value and the NaN
+                    // past the last point) is squeezed again at level 3, which
+                    // costs little at that ratio.
                     let once = zstd_compress(&raw, zstd_level, fast == Fast::RawLiterals)?;
                     if zstd_level < 3 && once.len() < 4096 {
                         let again = zstd_compress(&raw, 3, false)?;
@@ -892,18 +896,10 @@ fn join_planes(
             let (step, shift) = map.unwrap_or((1.0, 0.0));
             let (vstep, vshift) = (_mm_set1_pd(step), _mm_set1_pd(shift));
             for j in (0..n).step_by(16) {
-                let ld = |k: usize| _mm_loadu_si128(planes[k].as_ptr().add(j) as *const __m128i);
-                let (x0, x1, x2, x3) = (ld(0), ld(1), ld(2), ld(3));
-                let lo = [_mm_unpacklo_epi8(x3, x2), _mm_unpackhi_epi8(x3, x2)];
-                let hi = [_mm_unpacklo_epi8(x1, x0), _mm_unpackhi_epi8(x1, x0)];
-                let v = [
-                    _mm_unpacklo_epi16(lo[0], hi[0]),
-                    _mm_unpackhi_epi16(lo[0], hi[0]),
-                    _mm_unpacklo_epi16(lo[1], hi[1]),
-                    _mm_unpackhi_epi16(lo[1], hi[1]),
-                ];
-                for (q, &bits) in v.iter().enumerate() {
-                    let f = _mm_castsi128_ps(bits);
+                for (q, f) in join16([planes[0], planes[1], planes[2], planes[3]], j)
+                    .into_iter()
+                    .enumerate()
+                {
                     let r = if map.is_some() {
                         let a = _mm_cvtps_pd(f);
                         let b = _mm_cvtps_pd(_mm_movehl_ps(f, f));
@@ -923,6 +919,32 @@ fn join_planes(
     {
         let _ = (planes, dst, map);
         0
+    }
+}
+
+/// Samples `j..j + 16` of a row's byte planes (most significant first, the
+/// predictor undone) as four vectors of four `f32`, by unpacking (SSE2):
+/// [`join_planes`]' and [`undo_row_avx2`]'s step.
+///
+/// # Safety
+/// Every plane must hold at least `j + 16` bytes.
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+unsafe fn join16(planes: [&[u8]; 4], j: usize) -> [std::arch::x86_64::__m128; 4] {
+    use std::arch::x86_64::*;
+    // SAFETY: SSE2 is part of every x86-64 CPU; each load reads the 16 bytes
+    // at `j` of a plane, which the caller guarantees are there.
+    unsafe {
+        let ld = |k: usize| _mm_loadu_si128(planes[k].as_ptr().add(j) as *const __m128i);
+        let (x0, x1, x2, x3) = (ld(0), ld(1), ld(2), ld(3));
+        let lo = [_mm_unpacklo_epi8(x3, x2), _mm_unpackhi_epi8(x3, x2)];
+        let hi = [_mm_unpacklo_epi8(x1, x0), _mm_unpackhi_epi8(x1, x0)];
+        [
+            _mm_castsi128_ps(_mm_unpacklo_epi16(lo[0], hi[0])),
+            _mm_castsi128_ps(_mm_unpackhi_epi16(lo[0], hi[0])),
+            _mm_castsi128_ps(_mm_unpacklo_epi16(lo[1], hi[1])),
+            _mm_castsi128_ps(_mm_unpackhi_epi16(lo[1], hi[1])),
+        ]
     }
 }
 
@@ -985,18 +1007,7 @@ unsafe fn undo_row_avx2(
         // SAFETY: each load reads the 16 bytes at `j < w` of a plane `w` long;
         // each store writes 4 samples inside `dst[..w]`.
         unsafe {
-            let ld = |p: &[u8]| _mm_loadu_si128(p.as_ptr().add(j) as *const __m128i);
-            let (x0, x1, x2, x3) = (ld(b0), ld(b1), ld(b2), ld(b3));
-            let lo = [_mm_unpacklo_epi8(x3, x2), _mm_unpackhi_epi8(x3, x2)];
-            let hi = [_mm_unpacklo_epi8(x1, x0), _mm_unpackhi_epi8(x1, x0)];
-            let v = [
-                _mm_unpacklo_epi16(lo[0], hi[0]),
-                _mm_unpackhi_epi16(lo[0], hi[0]),
-                _mm_unpacklo_epi16(lo[1], hi[1]),
-                _mm_unpackhi_epi16(lo[1], hi[1]),
-            ];
-            for (q, &bits) in v.iter().enumerate() {
-                let f = _mm_castsi128_ps(bits);
+            for (q, f) in join16([b0, b1, b2, b3], j).into_iter().enumerate() {
                 let r = if map.is_some() {
                     // A product, then a sum, each rounded (no fused
                     // multiply-add): [`join_planes`]' values exactly.

@@ -26,7 +26,9 @@ impl Drop for Ctx {
 
 thread_local! {
     static CTX: RefCell<Option<Ctx>> = const { RefCell::new(None) };
-    static SEQS: RefCell<Vec<sys::ZSTD_Sequence>> = const { RefCell::new(Vec::new()) };
+    /// The sequences of a tile and its bits of equal bytes, kept between tiles.
+    static SCRATCH: RefCell<(Vec<sys::ZSTD_Sequence>, Vec<u64>)> =
+        const { RefCell::new((Vec::new(), Vec::new())) };
 }
 
 /// Positions `1..n` of `raw` at which the byte equals the one before, as bits
@@ -66,11 +68,15 @@ fn equal_bits(raw: &[u8], words: &mut Vec<u64>) {
 }
 
 /// The sequences of `raw`'s runs (each at least [`MIN_RUN`] bytes equal to the
-/// one before them) into `seqs`; returns the literal bytes left, or `None` once
-/// they pass `max_literals`.
-fn find_runs(raw: &[u8], max_literals: usize, seqs: &mut Vec<sys::ZSTD_Sequence>) -> Option<usize> {
-    let mut words = Vec::new();
-    equal_bits(raw, &mut words);
+/// one before them) into `seqs` (`words`: scratch for [`equal_bits`]); returns
+/// the literal bytes left, or `None` once they pass `max_literals`.
+fn find_runs(
+    raw: &[u8],
+    max_literals: usize,
+    seqs: &mut Vec<sys::ZSTD_Sequence>,
+    words: &mut Vec<u64>,
+) -> Option<usize> {
+    equal_bits(raw, words);
     seqs.clear();
     let (mut anchor, mut literals) = (0usize, 0usize);
     let mut run: Option<usize> = None;
@@ -125,16 +131,18 @@ fn find_runs(raw: &[u8], max_literals: usize, seqs: &mut Vec<sys::ZSTD_Sequence>
     (literals <= max_literals).then_some(literals)
 }
 
-/// `raw` as one Zstd frame of runs at `level`'s entropy coding, if its runs
-/// leave at most `max_literals` literal bytes; `Ok(None)` otherwise.
+/// `raw` as one Zstd frame of runs at `level`'s entropy coding into `out`
+/// (cleared first, its allocation reused), if its runs leave at most
+/// `max_literals` literal bytes; `Ok(false)` otherwise.
 pub(crate) fn compress_runs(
     raw: &[u8],
     level: i32,
     max_literals: usize,
-) -> std::io::Result<Option<Vec<u8>>> {
-    SEQS.with_borrow_mut(|seqs| {
-        if find_runs(raw, max_literals, seqs).is_none() {
-            return Ok(None);
+    out: &mut Vec<u8>,
+) -> std::io::Result<bool> {
+    SCRATCH.with_borrow_mut(|(seqs, words)| {
+        if find_runs(raw, max_literals, seqs, words).is_none() {
+            return Ok(false);
         }
         CTX.with_borrow_mut(|ctx| {
             let c = match ctx {
@@ -172,6 +180,7 @@ pub(crate) fn compress_runs(
                     sys::ZSTD_cParameter::ZSTD_c_compressionLevel,
                     level,
                 ))?;
+                // At most the shortest run (Zstd's largest: 7).
                 check(sys::ZSTD_CCtx_setParameter(
                     c,
                     sys::ZSTD_cParameter::ZSTD_c_minMatch,
@@ -184,7 +193,8 @@ pub(crate) fn compress_runs(
                 ))?;
             }
             let cap = zstd::zstd_safe::compress_bound(raw.len());
-            let mut out: Vec<u8> = Vec::with_capacity(cap);
+            out.clear();
+            out.reserve(cap);
             // SAFETY: `out` has `cap` bytes of room; the sequences cover
             // `raw` in order, each match of offset 1 after at least one byte.
             let n = check(unsafe {
@@ -200,7 +210,7 @@ pub(crate) fn compress_runs(
             })?;
             // SAFETY: Zstd wrote `n` bytes.
             unsafe { out.set_len(n) };
-            Ok(Some(out))
+            Ok(true)
         })
     })
 }
@@ -247,7 +257,7 @@ mod tests {
             raw.extend(std::iter::repeat_n(b, len));
         }
         let mut seqs = Vec::new();
-        let literals = find_runs(&raw, raw.len(), &mut seqs).unwrap();
+        let literals = find_runs(&raw, raw.len(), &mut seqs, &mut Vec::new()).unwrap();
         let mut at = 0;
         let mut matched = 0;
         for s in &seqs {
@@ -275,7 +285,7 @@ mod tests {
             }
         }
         // Past the literals allowed, none.
-        assert!(find_runs(&raw, literals - 1, &mut seqs).is_none());
+        assert!(find_runs(&raw, literals - 1, &mut seqs, &mut Vec::new()).is_none());
     }
 
     /// Frames of runs decode (with Zstd's own decoder) to the input: planes
@@ -303,7 +313,11 @@ mod tests {
             ("noise", noise),
         ] {
             let most = raw.len() * 15 / 100;
-            match compress_runs(&raw, 1, most).unwrap() {
+            let mut frame = Vec::new();
+            match compress_runs(&raw, 1, most, &mut frame)
+                .unwrap()
+                .then_some(frame)
+            {
                 Some(frame) => {
                     assert!(frame.len() < raw.len() / 4, "{name}: {} bytes", frame.len());
                     let back = zstd::bulk::decompress(&frame, raw.len()).unwrap();

@@ -1887,8 +1887,6 @@ mod tests {
         }
     }
 
-    /// Ctrl-C while level 0 is being written (the points still being arranged)
-    /// stops the write as interrupted and leaves no file, temporary or final.
     /// The lattice is kept only where every point of every tile lies on it:
     /// one point of a part of several tiles a third of a step off, and the
     /// part stores its coordinates as without one; `lattice_round` keeps it,
@@ -1940,6 +1938,8 @@ mod tests {
         }
     }
 
+    /// Ctrl-C while level 0 is being written (the points still being arranged)
+    /// stops the write as interrupted and leaves no file, temporary or final.
     #[test]
     fn a_write_cancelled_while_arranging_leaves_nothing() {
         let dir = tempfile::tempdir().unwrap();
