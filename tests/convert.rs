@@ -1391,10 +1391,44 @@ fn text_decimals_are_a_lattice_and_precision_rounds_to_another() {
         said.contains("kept exactly on the input's lattice (steps 0.001"),
         "{said}"
     );
+    assert!(
+        said.contains("coordinates read as 32-bit floats (drawing, picking) within"),
+        "{said}"
+    );
     let part = pcimg::store::Part::open(&exact).unwrap();
     assert_eq!(part.meta.format_version, 2);
     let l = part.meta.lattice.expect("a lattice");
     assert_eq!(l.step, [0.001, 0.001, 0.01]);
+    // `info` says the same, and writes the coordinates' ranges at the lattice's
+    // decimals (the f64 sums would print as 1000.0370000000001).
+    let o = common::cli::pcimg()
+        .args(["info", exact.to_str().unwrap()])
+        .output()
+        .unwrap();
+    let info = common::cli::ok(&o, "info");
+    assert!(
+        info.contains(
+            "stored coordinates exactly on the source's lattice (steps 0.001 units, 0.001 units, 0.01 units)"
+        ),
+        "{info}"
+    );
+    let x = info
+        .lines()
+        .find(|l| l.trim_start().starts_with("1  x"))
+        .unwrap_or_else(|| panic!("{info}"));
+    let (lo, hi) = (
+        part.bands[0].range.unwrap().0,
+        part.bands[0].range.unwrap().1,
+    );
+    assert!(
+        x.contains(&format!("range {lo:.3} .. {hi:.3} ")),
+        "{x} ({lo} {hi})"
+    );
+    assert_ne!(
+        format!("{lo} {hi}"),
+        format!("{lo:.3} {hi:.3}"),
+        "the plain f64s print as the decimals already, so this test would not tell"
+    );
     // Every point read back is the source's to f32 precision.
     assert_eq!(dataset_points(&exact), file_points(&input));
     let (rounded, o) = convert("rounded.tif", &["--precision", "0.05"]);

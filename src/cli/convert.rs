@@ -643,9 +643,17 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         s.points as f64 / secs / 1e6,
         s.input_bytes as f64 / secs / 1e6
     )?;
+    let exact = a.precision.is_none() && s.parts.iter().all(|p| p.lattice.is_some());
     writeln!(
         out,
-        "  stored coordinates within {} of the source",
+        "  {} within {} of the source",
+        if exact {
+            // The bands hold the lattice's whole numbers: only a read into
+            // 32-bit floats (drawing, picking) rounds; `export` does not.
+            "coordinates read as 32-bit floats (drawing, picking)"
+        } else {
+            "stored coordinates"
+        },
         crate::store::crs::distance(s.max_quantization_error, s.crs.as_deref())
     )?;
     if let Some(l) = s.parts.iter().find_map(|p| p.lattice) {

@@ -1,7 +1,7 @@
 //! `pcimg info`: a dataset's parts, bands, levels, bounds and metadata, for people
 //! or (with `--json`) as stable JSON for scripts.
 
-use crate::points::Bounds;
+use crate::points::{Bounds, Lattice};
 use crate::store::level_codec_name;
 use crate::store::{Dataset, Part};
 use crate::text::{bytes, count, sanitize};
@@ -74,6 +74,9 @@ pub struct PartReport {
     pub source: Option<String>,
     pub crs: Option<String>,
     pub max_quantization_error: Option<f64>,
+    /// The source's lattice, where the part keeps its coordinates on it exactly.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub lattice: Option<Lattice>,
     /// Points per classification code, as recorded when the part was written.
     #[serde(skip_serializing_if = "Vec::is_empty")]
     pub class_counts: Vec<(u8, u64)>,
@@ -130,6 +133,7 @@ fn part_report(p: &Part, tiles: bool) -> PartReport {
         source: p.meta.source.clone(),
         crs: p.meta.crs.clone(),
         max_quantization_error: p.meta.max_quantization_error,
+        lattice: p.meta.lattice,
         class_counts: p.meta.class_counts.clone(),
         from_source: p.meta.from_source.iter().cloned().collect(),
         bands: p
@@ -303,7 +307,24 @@ pub fn render_text(r: &DatasetReport) -> String {
             xyz(p.bounds.min),
             xyz(p.bounds.max)
         );
-        if let Some(e) = p.max_quantization_error {
+        if let Some(l) = &p.lattice {
+            let unit = crate::store::crs::unit_symbol(p.crs.as_deref());
+            let _ = writeln!(
+                o,
+                "  stored coordinates exactly on the source's lattice (steps {}){}",
+                l.step
+                    .iter()
+                    .map(|s| format!("{} {unit}", s.abs()).trim_end().to_string())
+                    .collect::<Vec<_>>()
+                    .join(", "),
+                p.max_quantization_error
+                    .map(|e| format!(
+                        "; read as 32-bit floats (drawing, picking) within {}",
+                        crate::store::crs::distance(e, p.crs.as_deref())
+                    ))
+                    .unwrap_or_default()
+            );
+        } else if let Some(e) = p.max_quantization_error {
             let _ = writeln!(
                 o,
                 "  stored coordinates within {} of the source",
@@ -338,9 +359,16 @@ pub fn render_text(r: &DatasetReport) -> String {
         }
         let _ = writeln!(o, "  bands    {}", p.bands.len());
         for (b, band) in p.bands.iter().enumerate() {
-            let mut off = match band.range {
-                Some([lo, hi]) => format!("  range {lo} .. {hi}"),
-                None => String::new(),
+            // A coordinate on a lattice at the step's decimals (636001.73, not
+            // the f64 sum's 636001.7300000001).
+            let places = p
+                .lattice
+                .filter(|_| b < 3)
+                .and_then(|l| decimals(l.step[b]));
+            let mut off = match (band.range, places) {
+                (Some([lo, hi]), Some(d)) => format!("  range {lo:.d$} .. {hi:.d$}"),
+                (Some([lo, hi]), None) => format!("  range {lo} .. {hi}"),
+                (None, _) => String::new(),
             };
             if band.offset != 0.0 {
                 off.push_str(&format!("  offset {}", band.offset));
@@ -821,4 +849,13 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         super::print_out(&render_text(&r))?;
     }
     Ok(())
+}
+
+/// The decimal places that write every multiple of `step` exactly (0.01: 2),
+/// if at most 9 do.
+fn decimals(step: f64) -> Option<usize> {
+    (0..=9).find(|&d| {
+        let scaled = step.abs() * 10f64.powi(d as i32);
+        (scaled - scaled.round()).abs() <= 1e-9 * scaled.max(1.0)
+    })
 }
