@@ -1345,6 +1345,75 @@ fn las_rows_read_from_the_input_match_a_held_copy() {
     }
 }
 
+/// A 1 mm lattice over 40 km (UTM-sized coordinates, text with 3 decimals):
+/// the parts are cut at most 16.8 km wide (2^24 steps: the store keeps whole
+/// numbers of steps in Float32), so every part keeps the lattice exactly,
+/// where parts 65 km wide (f32's 1 mm reach) could not.
+#[test]
+fn a_millimetre_lattice_over_40_km_is_kept_in_narrower_parts() {
+    let dir = tempfile::tempdir().unwrap();
+    let input = dir.path().join("wide.xyz");
+    let mut text = String::from("x y z\n");
+    let mut seed = 11u64;
+    let mut next = move || {
+        seed = seed
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
+        (seed >> 11) as f64 / (1u64 << 53) as f64
+    };
+    for _ in 0..30_000 {
+        let mut k = |n: f64| (next() * n) as u64;
+        let (x, y, z) = (
+            500_000_000 + k(40e6),
+            4_000_000_000 + k(1e5),
+            100_000 + k(5e4),
+        );
+        text.push_str(&format!(
+            "{}.{:03} {}.{:03} {}.{:03}\n",
+            x / 1000,
+            x % 1000,
+            y / 1000,
+            y % 1000,
+            z / 1000,
+            z % 1000
+        ));
+    }
+    std::fs::write(&input, text).unwrap();
+    let out = dir.path().join("wide.pcimg");
+    let o = common::cli::pcimg()
+        .args([
+            "convert",
+            input.to_str().unwrap(),
+            "-o",
+            out.to_str().unwrap(),
+        ])
+        .output()
+        .unwrap();
+    let said = common::cli::ok(&o, "convert");
+    assert!(
+        said.contains("every part's coordinates kept exactly on the input's lattice (steps 0.001"),
+        "{said}"
+    );
+    let ds = Dataset::open(&out).unwrap();
+    let parts = ds.parts().unwrap();
+    assert!(parts.len() >= 3, "{} parts", parts.len());
+    for p in &parts {
+        let l = p.meta.lattice.expect("every part on the lattice");
+        assert_eq!(l.step, [0.001; 3]);
+        let e = p.meta.bounds.extent();
+        assert!(e[0] < 16_777.216, "a part {} m wide", e[0]);
+    }
+    assert_parts_disjoint(&out);
+    // The points come back on the lattice: the same to 0.1 mm (f32 at up to
+    // 8.4 km from a part's origin: within 0.5 mm; rounded to the lattice, exact).
+    let mut got: Vec<[i64; 3]> = dataset_points(&out)
+        .into_iter()
+        .map(|p| p.map(|v| (v as f64 / 10.0).round() as i64 * 10))
+        .collect();
+    got.sort();
+    assert_eq!(got, file_points(&input));
+}
+
 /// A text file's coordinates lie on the lattice of its decimals: the default
 /// codec keeps them as whole numbers on it (`LATTICE`, GDAL's band scale) and
 /// says so; `--precision` rounds them to a coarser step, within half of it,

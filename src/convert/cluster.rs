@@ -311,13 +311,13 @@ pub fn make_plan(
             weight: 1,
             points: total,
         };
-        let placer = Placer::new(&over.sample, job.per_part);
+        let placer = Placer::new(&over.sample, job.per_part, job.max_extent);
         Plan::new(&job, &placer, &over)
     } else {
         let t = job.begin();
         match scan::scan(&mut job, &mut *reader, false, t)? {
             Scanned::Many(over) => {
-                let placer = Placer::new(&over.sample, job.per_part);
+                let placer = Placer::new(&over.sample, job.per_part, job.max_extent);
                 Plan::new(&job, &placer, &over)
             }
             Scanned::One(one) => {

@@ -37,6 +37,8 @@ pub(super) struct Job<'a> {
     pub(super) read: ReadOptions,
     /// Points one part holds at most.
     pub(super) per_part: u64,
+    /// The widest a part may spread on each axis (`super::max_extent`).
+    pub(super) max_extent: [f64; 3],
     /// The output is one `.tif` file, not a directory of parts.
     pub(super) as_file: bool,
     /// The parts written so far.
@@ -148,6 +150,7 @@ impl<'a> Job<'a> {
             info,
             read,
             per_part,
+            max_extent: super::max_extent(&write_opts),
             as_file,
             parts: Vec::new(),
             rebased: Cell::new(false),

@@ -188,9 +188,23 @@ pub const F32_MM_RADIUS: f64 = (1u64 << 15) as f64;
 /// [`F32_MM_RADIUS`] of their centre.
 const MAX_EXTENT: f64 = 2.0 * F32_MM_RADIUS;
 
-/// Whether points within `b` spread too wide for one part (see [`MAX_EXTENT`]).
-fn too_wide(b: &Bounds) -> bool {
-    !b.is_empty() && b.extent().iter().any(|&e| e >= MAX_EXTENT)
+/// The widest a part may spread on each axis: [`MAX_EXTENT`], or less where the
+/// codec keeps coordinates on the input's lattice and its steps are finer than
+/// 4 mm (`WriteOptions::lattice_extent`: a 1 mm LAS file's parts at most
+/// 16.8 km wide, so that they keep its coordinates exactly).
+fn max_extent(opts: &store::WriteOptions) -> [f64; 3] {
+    let mut e = [MAX_EXTENT; 3];
+    if let Some(l) = opts.lattice_extent() {
+        for a in 0..3 {
+            e[a] = e[a].min(l[a]);
+        }
+    }
+    e
+}
+
+/// Whether points within `b` spread too wide for one part (see [`max_extent`]).
+fn too_wide(b: &Bounds, max_extent: [f64; 3]) -> bool {
+    !b.is_empty() && (0..3).any(|a| b.extent()[a] >= max_extent[a])
 }
 
 /// The largest rounding error of an f32 holding a value of magnitude `reach`
@@ -485,7 +499,7 @@ fn spatial_parts(
     if job.as_file {
         return Err(job.too_many_parts());
     }
-    let placer = Placer::new(&over.sample, job.per_part);
+    let placer = Placer::new(&over.sample, job.per_part, job.max_extent);
     let (mut plan, cells) = Plan::new(job, &placer, &over);
     job.progress.note(&format!(
         "{}{} points over {} spatial regions",

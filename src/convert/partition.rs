@@ -124,11 +124,11 @@ impl Region {
 /// Splits the grid into regions of at most `max_points` each (where cells allow):
 /// recursively along the box's longest populated axis, at the slab that leaves
 /// each side a whole number of parts' worth of points. A region whose occupied
-/// cells span `max_extent` or more (world units) on an axis is halved there too,
-/// whatever its count, so every part's points lie within `max_extent / 2` of
-/// their centre (f32's 1 mm reach; see [`occupied`] for that centre). Empty
-/// regions are dropped.
-pub fn split(grid: &CountGrid, max_points: u64, max_extent: f64) -> Vec<Region> {
+/// cells span `max_extent[a]` or more (world units) on axis `a` is halved there
+/// too, whatever its count, so every part's points lie within `max_extent / 2`
+/// of their centre (f32's 1 mm reach, or the reach of the input's lattice; see
+/// [`occupied`] for that centre). Empty regions are dropped.
+pub fn split(grid: &CountGrid, max_points: u64, max_extent: [f64; 3]) -> Vec<Region> {
     let mut out = Vec::new();
     let mut stack = vec![Region {
         lo: [0; 3],
@@ -215,19 +215,19 @@ fn occupied_slabs(grid: &CountGrid, r: &Region, a: usize) -> Option<(usize, usiz
     Some((first, last))
 }
 
-/// The axis on which `r`'s occupied cells span `max_extent` or more (world units)
-/// and the cell to cut at (the middle of the occupied span), if any axis does and
-/// its span is more than one cell.
-fn too_wide(grid: &CountGrid, r: &Region, max_extent: f64) -> Option<(usize, usize)> {
+/// The axis on which `r`'s occupied cells span its `max_extent` or more (world
+/// units) and the cell to cut at (the middle of the occupied span), if any axis
+/// does and its span is more than one cell.
+fn too_wide(grid: &CountGrid, r: &Region, max_extent: [f64; 3]) -> Option<(usize, usize)> {
     let e = grid.bounds.extent();
     (0..3).find_map(|a| {
         let cell = e[a] / grid.dims[a] as f64;
-        if (r.hi[a] - r.lo[a]) as f64 * cell < max_extent {
+        if (r.hi[a] - r.lo[a]) as f64 * cell < max_extent[a] {
             return None;
         }
         let (first, last) = occupied_slabs(grid, r, a)?;
         let span = (last + 1 - first) as f64 * cell;
-        (span >= max_extent && last > first).then(|| (a, r.lo[a] + (first + last).div_ceil(2)))
+        (span >= max_extent[a] && last > first).then(|| (a, r.lo[a] + (first + last).div_ceil(2)))
     })
 }
 
@@ -264,7 +264,7 @@ mod tests {
             let s = if r.f64() < 0.7 { 0.2 } else { 1.0 };
             g.add([r.f64() * 100.0 * s, r.f64() * 50.0 * s, r.f64() * 10.0]);
         }
-        let regions = split(&g, 30_000, f64::INFINITY);
+        let regions = split(&g, 30_000, [f64::INFINITY; 3]);
         assert_eq!(regions.iter().map(|r| r.points).sum::<u64>(), n);
         assert!(regions.iter().all(|r| r.points <= 30_000));
         assert!(
@@ -298,8 +298,8 @@ mod tests {
             let x = if i % 2 == 0 { 0.5 } else { 99.5 };
             g.add([x, 0.5, 0.5]);
         }
-        assert_eq!(split(&g, 10_000, f64::INFINITY).len(), 1);
-        let regions = split(&g, 10_000, 40.0);
+        assert_eq!(split(&g, 10_000, [f64::INFINITY; 3]).len(), 1);
+        let regions = split(&g, 10_000, [40.0; 3]);
         assert_eq!(regions.len(), 2);
         assert_eq!(regions.iter().map(|r| r.points).sum::<u64>(), 1000);
         let cell = 100.0 / g.dims[0] as f64;
@@ -319,7 +319,7 @@ mod tests {
         for _ in 0..10 {
             g.add([5.0; 3]);
         }
-        let regions = split(&g, 3, f64::INFINITY);
+        let regions = split(&g, 3, [f64::INFINITY; 3]);
         assert_eq!(regions.len(), 1);
         assert_eq!(regions[0].points, 10);
     }

@@ -6,7 +6,6 @@
 //! grid's cell → region map that pass 2 looks points up in is made from it
 //! ([`Cells`]).
 
-use super::MAX_EXTENT;
 use super::job::Job;
 use super::partition::{self, CountGrid, Region};
 use super::sample::Sample;
@@ -78,13 +77,19 @@ pub(super) struct Placer<'a> {
     /// The sample's points one region holds at most: a part's worth, with
     /// margin for the sample's error.
     target: u64,
+    /// The widest a region may spread on each axis (`super::max_extent`).
+    max_extent: [f64; 3],
 }
 
 impl<'a> Placer<'a> {
-    pub(super) fn new(sample: &'a Sample, per_part: u64) -> Self {
+    pub(super) fn new(sample: &'a Sample, per_part: u64, max_extent: [f64; 3]) -> Self {
         let scale = sample.seen as f64 / sample.pts.len().max(1) as f64;
         let target = ((per_part as f64 * 0.85) / scale).max(1.0) as u64;
-        Placer { sample, target }
+        Placer {
+            sample,
+            target,
+            max_extent,
+        }
     }
 
     /// Regions over `bounds` from the sample, grid cells marked in `occupied`
@@ -98,7 +103,7 @@ impl<'a> Placer<'a> {
         for (c, _) in grid.counts.iter_mut().zip(occupied).filter(|(_, o)| **o) {
             *c = (*c).max(1);
         }
-        let regions = partition::split(&grid, self.target, MAX_EXTENT);
+        let regions = partition::split(&grid, self.target, self.max_extent);
         let cell_region = partition::cell_regions(&grid, &regions);
         let origins: Vec<[f64; 3]> = regions
             .iter()
@@ -185,7 +190,7 @@ mod tests {
             c.z.push(r.f64() * 10.0);
         }
         sample.add(&c, 1);
-        let placer = Placer::new(&sample, 10_000);
+        let placer = Placer::new(&sample, 10_000, [crate::convert::MAX_EXTENT; 3]);
         let bounds = c.bounds();
         let (cells, regions, origins) = placer.place(bounds, &[]);
         assert!(regions.len() > 1);

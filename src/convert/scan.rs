@@ -119,7 +119,7 @@ pub(super) fn extents(
             .map_err(|e| job.public(e))?;
     }
     job.pass("read", t_read);
-    if !job.as_file && too_wide(&bounds) {
+    if !job.as_file && too_wide(&bounds, job.max_extent) {
         return Ok(Outcome::Retry(Retry::NeedColumns));
     }
     Ok(Outcome::Done(OnePart {
@@ -215,7 +215,7 @@ pub(super) fn scan(
     job.pass("read", t_read);
     // Points that fit one part but spread wider than f32 keeps 1 mm across
     // are partitioned all the same (into a directory of parts).
-    if !overflow && !job.as_file && too_wide(&bounds) {
+    if !overflow && !job.as_file && too_wide(&bounds, job.max_extent) {
         overflow = true;
         built = None;
         for c in held.drain(..) {

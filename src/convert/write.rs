@@ -8,7 +8,7 @@ use super::job::Job;
 use super::partition::{self, CountGrid};
 use super::plan::Plan;
 use super::scan::OnePart;
-use super::{MAX_EXTENT, Outcome, Result, check_cancel, spill};
+use super::{Outcome, Result, check_cancel, spill};
 use crate::store::PartBuilder;
 use std::path::Path;
 
@@ -111,7 +111,7 @@ pub(super) fn region(
                 grid.add([c.x[i], c.y[i], c.z[i]]);
             }
         }
-        let subs = partition::split(&grid, per_part, MAX_EXTENT);
+        let subs = partition::split(&grid, per_part, job.max_extent);
         let map = partition::cell_regions(&grid, &subs);
         drop(blocks);
         let mut blocks = spill::SpillReader::open(&f.path, nattr)?;

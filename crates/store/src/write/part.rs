@@ -73,6 +73,24 @@ pub struct WriteOptions {
 }
 
 impl WriteOptions {
+    /// The widest a part's points may spread on each axis for its coordinates
+    /// to be kept on [`Self::lattice`], when the codec and layout keep one: a
+    /// part stores whole numbers of steps within 2^23 of the lattice point
+    /// nearest its origin (see `StoredLattice`), so with the origin at the
+    /// points' centre they may span 2^24 steps less one (1 % kept to spare).
+    /// 168 km at 1 cm, 16.8 km at 1 mm, 1.68 km at 0.1 mm.
+    pub fn lattice_extent(&self) -> Option<[f64; 3]> {
+        if self.layout != Layout::Hilbert || !self.compression.row_ordered() {
+            return None;
+        }
+        let l = self.lattice?;
+        let ok = l.step.iter().all(|s| s.is_finite() && *s != 0.0);
+        ok.then(|| {
+            l.step
+                .map(|s| s.abs() * (2.0 * spec::WHOLE_BIAS - 1.0) * 0.99)
+        })
+    }
+
     /// The Zstd level `zstd` tiles are written with: [`Self::zstd_level`], or
     /// [`codec::ZSTD_FAST`] where none is set.
     pub fn zstd_level_used(&self) -> i32 {
@@ -285,11 +303,17 @@ impl StoredLattice {
     /// Whether every position of `pos` (relative to `origin`) lies on this
     /// lattice: its stored value, the nearest whole number to `v · inv +
     /// shift`, lies within 2^23 steps of `base` and, without `round`, gives
-    /// `v` back to `f32`'s rounding (the next `f32` either way). With `round`
-    /// only the numbers must fit.
+    /// `v` back to `f32`'s rounding (the next `f32` either way) or to f64's
+    /// rounding of coordinates as large as the origin's. (Near the origin an
+    /// `f32` is finer than the f64 sums both sides come from: at a northing of
+    /// 4,000,500 m, `offset + scale · X` and `base + step · k` each round by up
+    /// to 4.7e-10 m, while 0.0035 m has f32 neighbours 2.3e-10 m apart.) With
+    /// `round` only the numbers must fit.
     fn holds(&self, origin: [f64; 3], pos: &[[f32; 3]], round: bool) -> bool {
-        // Each axis's map worked out once.
+        // Each axis's map and slack worked out once: a few f64 roundings at the
+        // size of the coordinates, far below any step (7e-9 m at 4e6 m).
         let maps = [0, 1, 2].map(|a| self.stored_map(a, origin[a]));
+        let slack = [0, 1, 2].map(|a| 8.0 * f64::EPSILON * (origin[a].abs() + self.base[a].abs()));
         let fits = |a: usize, v: f32| -> bool {
             let s = round_half(v as f64 * maps[a].0 + maps[a].1);
             if !(0.0..2.0 * spec::WHOLE_BIAS).contains(&s) {
@@ -298,8 +322,12 @@ impl StoredLattice {
             if round {
                 return true;
             }
-            let back = ((self.base[a] + self.step[a] * (s - spec::WHOLE_BIAS)) - origin[a]) as f32;
-            back == v || back.next_up() == v || back.next_down() == v
+            let back = (self.base[a] + self.step[a] * (s - spec::WHOLE_BIAS)) - origin[a];
+            let b32 = back as f32;
+            b32 == v
+                || b32.next_up() == v
+                || b32.next_down() == v
+                || (back - v as f64).abs() <= slack[a]
         };
         pos.iter()
             .all(|p| (0..3).all(|a| p[a].is_nan() || fits(a, p[a])))
@@ -1936,6 +1964,78 @@ mod tests {
                 assert!((a - b).abs() <= err, "{a} against {b}");
             }
         }
+    }
+
+    /// Points at UTM-sized coordinates on a 1 mm lattice keep it, those within
+    /// a few millimetres of the part's origin too: there the source's f64 sums
+    /// (`offset + scale · X`) round by more than an f32's spacing (the check
+    /// allowed only the latter, and dropped the lattice of such a part).
+    #[test]
+    fn points_near_the_origin_at_utm_coordinates_keep_a_fine_lattice() {
+        let dir = tempfile::tempdir().unwrap();
+        let lattice = crate::points::Lattice {
+            step: [0.001; 3],
+            origin: [500_000.0, 4_000_000.0, 0.0],
+        };
+        let at = |k: [i64; 3]| -> [f64; 3] {
+            [0, 1, 2].map(|a| lattice.origin[a] + lattice.step[a] * k[a] as f64)
+        };
+        let mut r = crate::rng::Rng::new(5);
+        let mut c = PointColumns::default();
+        let mut push = |k: [i64; 3]| {
+            let p = at(k);
+            c.x.push(p[0]);
+            c.y.push(p[1]);
+            c.z.push(p[2]);
+        };
+        // The bounds, so that their centre (the part's origin) is half a step
+        // off the lattice on every axis: 4,000,500.0015 m in y.
+        let (lo, hi) = (
+            [201_500_000, 499_500, 49_950],
+            [201_620_003, 500_503, 50_051],
+        );
+        push(lo);
+        push(hi);
+        // Points within 0.5 to 3.5 mm of the origin, and more around them.
+        for i in 0..64i64 {
+            let d = (i % 8) - 4 + 1;
+            push(
+                [0, 1, 2]
+                    .map(|a| (lo[a] + hi[a] + 1) / 2 + if i / 8 % 3 == a as i64 { d } else { 0 }),
+            );
+        }
+        for _ in 0..20_000 {
+            push([0, 1, 2].map(|a| lo[a] + (r.f64() * (hi[a] - lo[a]) as f64) as i64));
+        }
+        let opts = WriteOptions {
+            compression: Compression::Zstd,
+            lattice: Some(lattice),
+            ..WriteOptions::default()
+        };
+        let path = dir.path().join("utm.tif");
+        let s = write_part(&path, &c, &opts).unwrap();
+        assert!(s.lattice.is_some(), "a part on a 1 mm lattice lost it");
+        // Every point comes back on the lattice: the nearest lattice point to
+        // what is read is the source's.
+        let part = crate::Part::open(&path).unwrap();
+        let got = part.read_level(0, &[0, 1, 2]).unwrap();
+        let mut back: Vec<[i64; 3]> = (0..got.len())
+            .map(|i| {
+                [0, 1, 2].map(|a| {
+                    let v = got.offsets[a] + got.columns[a][i] as f64;
+                    ((v - lattice.origin[a]) / lattice.step[a]).round() as i64
+                })
+            })
+            .collect();
+        let mut want: Vec<[i64; 3]> = (0..c.len())
+            .map(|i| {
+                let p = [c.x[i], c.y[i], c.z[i]];
+                [0, 1, 2].map(|a| ((p[a] - lattice.origin[a]) / lattice.step[a]).round() as i64)
+            })
+            .collect();
+        back.sort_unstable();
+        want.sort_unstable();
+        assert_eq!(back, want);
     }
 
     /// Ctrl-C while level 0 is being written (the points still being arranged)
