@@ -1412,6 +1412,46 @@ fn a_millimetre_lattice_over_40_km_is_kept_in_narrower_parts() {
         .collect();
     got.sort();
     assert_eq!(got, file_points(&input));
+    // One file (one part) cannot be cut: the summary says why the lattice is
+    // not kept, and what keeps it.
+    let one = dir.path().join("one.tif");
+    let o = common::cli::pcimg()
+        .args([
+            "convert",
+            input.to_str().unwrap(),
+            "-o",
+            one.to_str().unwrap(),
+        ])
+        .arg("--allow-lossy")
+        .output()
+        .unwrap();
+    let said = common::cli::ok(&o, "convert to one file");
+    assert!(
+        said.contains(
+            "1 of 1 parts' coordinates not on the input's lattice (steps 0.001, 0.001, 0.001; \
+             stored as 32-bit floats instead): they spread wider than 2^24 of its steps"
+        ) && said.contains("a directory output (-o DIR)"),
+        "{said}"
+    );
+    // A point with more decimals than the lines the lattice was read from.
+    let off = dir.path().join("off.xyz");
+    let mut text = String::from("x y z\n");
+    for i in 0..5000 {
+        text.push_str(&format!("{}.{:02} 2000.25 10.5\n", 1000 + i % 50, i % 100));
+    }
+    text.push_str("1010.005 2000.25 10.5\n");
+    std::fs::write(&off, text).unwrap();
+    let o = common::cli::pcimg()
+        .args(["convert", off.to_str().unwrap(), "-o"])
+        .arg(dir.path().join("off.pcimg"))
+        .output()
+        .unwrap();
+    let said = common::cli::ok(&o, "convert a point off the lattice");
+    assert!(
+        said.contains("1 of 1 parts' coordinates not on the input's lattice (steps 0.01")
+            && said.contains("they hold points off it"),
+        "{said}"
+    );
 }
 
 /// A text file's coordinates lie on the lattice of its decimals: the default

@@ -678,6 +678,47 @@ pub fn run(a: Args) -> anyhow::Result<()> {
             step(2)
         )?;
     }
+    if let Some(l) = s.lattice {
+        let off: Vec<_> = s.parts.iter().filter(|p| p.lattice.is_none()).collect();
+        if !off.is_empty() {
+            // Why: a part wider than the lattice's reach, or a point off it.
+            let reach = crate::store::lattice_extent(&l).unwrap_or([f64::INFINITY; 3]);
+            let wide = off
+                .iter()
+                .filter(|p| (0..3).any(|a| p.bounds.extent()[a] >= reach[a]))
+                .count();
+            let unit = crate::store::crs::unit_symbol(s.crs.as_deref());
+            let span = |a: usize| {
+                format!("{:.0} {unit}", reach[a] / 0.99)
+                    .trim_end()
+                    .to_string()
+            };
+            let why = match (wide, off.len() - wide) {
+                (_, 0) => format!(
+                    "they spread wider than 2^24 of its steps ({}){}",
+                    span(0),
+                    if s.parts.len() == 1 {
+                        "; a directory output (-o DIR) is cut into parts narrower than that"
+                    } else {
+                        ""
+                    }
+                ),
+                (0, _) => "they hold points off it".to_string(),
+                (w, o) => format!(
+                    "{w} spread wider than 2^24 of its steps ({}), {o} hold points off it",
+                    span(0)
+                ),
+            };
+            writeln!(
+                out,
+                "  {} of {} parts' coordinates not on the input's lattice (steps {}; \
+                 stored as 32-bit floats instead): {why}",
+                off.len(),
+                s.parts.len(),
+                l.step.map(|v| v.abs().to_string()).join(", ")
+            )?;
+        }
+    }
     if let Some(r) = &s.index {
         writeln!(out, "  {}", super::index::describe(r))?;
     }

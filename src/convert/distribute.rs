@@ -6,7 +6,7 @@
 use super::job::Job;
 use super::partition::{CountGrid, Region};
 use super::plan::{Cells, Placer, Plan};
-use super::{ConvertOptions, F32_MM_RADIUS, Result, check_cancel, normalize, reach, spill};
+use super::{ConvertOptions, Result, beyond, check_cancel, normalize, spill};
 use crate::ingest::{self, PointReader};
 use crate::points::{Bounds, PointColumns};
 use rayon::prelude::*;
@@ -37,12 +37,12 @@ pub(super) fn regions(
     let mut cells = cells;
     let mut files = distribute(job, reader, plan, &cells, &like, dir)?;
     // Points far outside the bounds the sample saw join the nearest region,
-    // which can then spread wider than f32 keeps 1 mm across wherever its
-    // origin. The regions are then placed again over every point's bounds,
+    // which can then spread wider than a part keeps them (f32's 1 mm, or the
+    // input's lattice: `super::max_extent`) wherever its origin. The regions are then placed again over every point's bounds,
     // every grid cell that holds a point of such a region counted as occupied
     // (read back from its file: its f32 offsets place points well enough for
     // that), so the far points get regions of their own.
-    let wide = |f: &Spilled| reach(&f.bounds, f.bounds.center()) >= F32_MM_RADIUS;
+    let wide = |f: &Spilled| beyond(&f.bounds, f.bounds.center(), job.max_extent);
     if files.iter().any(wide) {
         job.progress
             .note("points lie far outside the bounds the sample saw: partitioning again");
@@ -62,12 +62,12 @@ pub(super) fn regions(
         files = distribute(job, reader, plan, &cells, &like, dir)?;
     }
     // Points the sample never saw can lie far outside their region's box.
-    // Where f32 then lost 1 mm around the box's centre but would not around
-    // the centre of the region's own bounds, the pass is run again around
-    // those centres (the parts' own check then holds).
+    // Where they then lie beyond a part's reach around the box's centre but
+    // not around the centre of the region's own bounds, the pass is run again
+    // around those centres (the parts' own check then holds).
     let far = |f: &Spilled| {
-        reach(&f.bounds, f.origin) >= F32_MM_RADIUS
-            && reach(&f.bounds, f.bounds.center()) < F32_MM_RADIUS
+        beyond(&f.bounds, f.origin, job.max_extent)
+            && !beyond(&f.bounds, f.bounds.center(), job.max_extent)
     };
     if files.iter().any(far) {
         job.progress

@@ -396,6 +396,10 @@ impl<'a> Job<'a> {
             points_per_part: self.per_part,
             elapsed: self.start.elapsed(),
             max_quantization_error: worst,
+            lattice: self
+                .write_opts
+                .lattice_extent()
+                .and(self.write_opts.lattice),
             crs: self.info.crs_wkt.clone(),
             phases: std::mem::take(&mut self.timings.0),
             index,

@@ -155,6 +155,10 @@ pub struct ConvertSummary {
     /// (`None` for the other codecs).
     pub compression: store::Compression,
     pub zstd_level: Option<i32>,
+    /// The lattice the parts were to keep their coordinates on (the input's, or
+    /// `--precision`'s), where the codec keeps one; each part says whether it
+    /// did (`PartSummary::lattice`).
+    pub lattice: Option<crate::points::Lattice>,
 }
 
 /// Wall and CPU time per named phase, summed, in first-seen order.
@@ -528,6 +532,18 @@ fn too_many_parts(out: &Path, per_part: u64, memory: u64) -> String {
 }
 
 /// How far the points inside `b` lie from `origin` at most, along any axis.
+/// Whether points within `b` reach half of `max_extent` or farther from `origin`
+/// on some axis: farther than a part keeps them (see [`max_extent`]).
+fn beyond(b: &Bounds, origin: [f64; 3], max_extent: [f64; 3]) -> bool {
+    !b.is_empty()
+        && (0..3).any(|a| {
+            let r = (b.max[a] - origin[a])
+                .abs()
+                .max((b.min[a] - origin[a]).abs());
+            r >= max_extent[a] / 2.0
+        })
+}
+
 fn reach(b: &Bounds, origin: [f64; 3]) -> f64 {
     (0..3)
         .map(|a| {

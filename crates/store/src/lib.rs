@@ -102,6 +102,6 @@ pub use write::builder::{PartBuilder, packed_size};
 pub use write::layout::Layout;
 pub use write::out::TileIo;
 pub use write::part::{
-    INTERRUPTED, PartSummary, WriteOptions, write_part, write_part_built, write_part_chunks,
-    write_part_owned,
+    INTERRUPTED, PartSummary, WriteOptions, lattice_extent, write_part, write_part_built,
+    write_part_chunks, write_part_owned,
 };

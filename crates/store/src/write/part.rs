@@ -83,12 +83,7 @@ impl WriteOptions {
         if self.layout != Layout::Hilbert || !self.compression.row_ordered() {
             return None;
         }
-        let l = self.lattice?;
-        let ok = l.step.iter().all(|s| s.is_finite() && *s != 0.0);
-        ok.then(|| {
-            l.step
-                .map(|s| s.abs() * (2.0 * spec::WHOLE_BIAS - 1.0) * 0.99)
-        })
+        lattice_extent(&self.lattice?)
     }
 
     /// The Zstd level `zstd` tiles are written with: [`Self::zstd_level`], or
@@ -261,6 +256,17 @@ struct Arranged {
     whole: Vec<bool>,
     /// Points per classification code ([`attribute_pass`]).
     class_counts: Option<Vec<(u8, u64)>>,
+}
+
+/// The widest points may spread on each axis for a part to keep them on `l`
+/// ([`WriteOptions::lattice_extent`]); `None` for a lattice with a zero or
+/// non-finite step.
+pub fn lattice_extent(l: &crate::points::Lattice) -> Option<[f64; 3]> {
+    let ok = l.step.iter().all(|s| s.is_finite() && *s != 0.0);
+    ok.then(|| {
+        l.step
+            .map(|s| s.abs() * (2.0 * spec::WHOLE_BIAS - 1.0) * 0.99)
+    })
 }
 
 /// Coordinates kept as whole numbers: a stored `k` on axis `a` stands for
