@@ -97,5 +97,5 @@ awk '$1 == "zstd" { z[++i] = $3 } $1 == "none" { n[++j] = $3 } END { for (k = 1;
   { printf '  speed of the default / none, run by run: '; stats; echo; }
 echo "read x y z of level 0 from the page cache:"
 for r in 1 2; do
-  for c in zstd none lerc_zstd; do "$READ" "$DIR/$c" --reps 7 | sed "s|$DIR/||; s|^|  |"; done
+  for c in zstd none deflate lerc_zstd; do "$READ" "$DIR/$c" --reps 7 | sed "s|$DIR/||; s|^|  |"; done
 done
