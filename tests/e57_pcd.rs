@@ -432,3 +432,62 @@ fn a_failed_conversion_leaves_nothing_behind() {
         assert_eq!(left.len(), 1 + usize::from(name == "t.pcd"), "{left:?}");
     }
 }
+
+/// Scaled-integer coordinates in one frame are a lattice (issue 40: "choose the
+/// coordinate lattice from the data"): `bunnyInt21.e57` (21-bit integers) and a
+/// one-scan file of 1 mm integers keep theirs exactly through a conversion, each
+/// point read back the source's lattice point. Floats, and scans turned by
+/// their poses (a lattice at an angle to the file's axes), have none.
+#[test]
+fn e57_scaled_integers_in_one_frame_are_a_lattice_kept_exactly() {
+    let dir = tempfile::tempdir().unwrap();
+    let one = dir.path().join("one.e57");
+    write_e57(&one, 20_000, 4, true, 1).unwrap();
+    let turned = dir.path().join("turned.e57");
+    write_e57(&turned, 3000, 4, true, 3).unwrap();
+    let floats = dir.path().join("floats.e57");
+    write_e57(&floats, 3000, 4, false, 1).unwrap();
+    for p in [&turned, &floats, &fixture("bunnyFloat.e57")] {
+        let (info, _, _) = read(p, 1 << 20);
+        assert!(info.coordinate_lattice.is_none(), "{}", p.display());
+    }
+    for (p, step) in [(fixture("bunnyInt21.e57"), 1e-6), (one, 1e-3)] {
+        let (info, src, _) = read(&p, 1 << 20);
+        let l = info.coordinate_lattice.expect("a lattice");
+        assert_eq!(l.step, [step; 3], "{}", p.display());
+        let out = dir.path().join(format!(
+            "{}.pcimg",
+            p.file_stem().unwrap().to_string_lossy()
+        ));
+        let o = common::cli::pcimg()
+            .args(["convert", p.to_str().unwrap(), "-o", out.to_str().unwrap()])
+            .output()
+            .unwrap();
+        let said = common::cli::ok(&o, "convert");
+        assert!(
+            said.contains("every part's coordinates kept exactly on the input's lattice"),
+            "{said}"
+        );
+        let ds = Dataset::open(&out).unwrap();
+        let mut got = Vec::new();
+        for part in ds.parts().unwrap() {
+            assert_eq!(part.meta.lattice, Some(l));
+            let pts = part.read_level(0, &[0, 1, 2]).unwrap();
+            for i in 0..pts.len() {
+                got.push([0, 1, 2].map(|a| {
+                    let v = pts.offsets[a] + pts.columns[a][i] as f64;
+                    ((v - l.origin[a]) / l.step[a]).round() as i64
+                }));
+            }
+        }
+        let mut want: Vec<[i64; 3]> = (0..src.len())
+            .map(|i| {
+                let v = [src.x[i], src.y[i], src.z[i]];
+                [0, 1, 2].map(|a| ((v[a] - l.origin[a]) / l.step[a]).round() as i64)
+            })
+            .collect();
+        got.sort_unstable();
+        want.sort_unstable();
+        assert_eq!(got, want, "{}", p.display());
+    }
+}

@@ -3,7 +3,9 @@
 //! header and the XML section; the points are decoded here (`records.rs`).
 //!
 //! * Coordinates: cartesian, or spherical converted to cartesian; scaled
-//!   integers, floats and doubles alike. Points whose `cartesianInvalidState` /
+//!   integers, floats and doubles alike. Scaled integers in one frame (no scan
+//!   turned by its pose) are the input's lattice ([`scan::lattice`]), which
+//!   the store keeps exactly. Points whose `cartesianInvalidState` /
 //!   `sphericalInvalidState` is not 0 are left out and counted
 //!   ([`PointReader::left_out`]).
 //! * Bands: `intensity` (normalised to 0–1 by the scan's `intensityLimits`, or
@@ -110,6 +112,8 @@ pub fn open(path: &Path, opts: &ReadOptions) -> Result<Box<dyn PointReader>, Ing
         }
     }
     let layout = Layout::of(&scans);
+    // Scaled-integer coordinates in one frame: the lattice they lie on.
+    let lattice = scan::lattice(&scans);
     let records = scans.iter().map(|s| s.records).sum();
     let mut notes = Vec::new();
     let images = reader.images().len();
@@ -135,8 +139,8 @@ pub fn open(path: &Path, opts: &ReadOptions) -> Result<Box<dyn PointReader>, Ing
         file_bytes: map.len() as u64,
         notes,
         metadata: vec![(crate::points::key::SCANS.to_string(), scans_json(&scans))],
-        coordinate_step: None,
-        coordinate_lattice: None,
+        coordinate_step: lattice.map(|l| l.step),
+        coordinate_lattice: lattice,
     };
     Ok(Box::new(E57Input {
         info,

@@ -299,6 +299,55 @@ impl Scan {
     }
 }
 
+/// The lattice every scan's points lie on, when there is one: each scan's
+/// cartesian x, y and z are scaled integers (`raw · scale + offset`), its pose
+/// has no rotation (an identity matrix: a turned lattice is no grid of the
+/// file's axes), and every scan's steps are the same and its lattice points
+/// (offset plus translation) one lattice apart from the first's. Spherical
+/// coordinates and floats have none.
+pub fn lattice(scans: &[PointCloud]) -> Option<crate::points::Lattice> {
+    const IDENTITY: [f64; 9] = [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0];
+    let mut found: Option<crate::points::Lattice> = None;
+    for pc in scans {
+        let (m, t) = pose(pc);
+        if m != IDENTITY {
+            return None;
+        }
+        let mut step = [0.0; 3];
+        let mut origin = [0.0; 3];
+        for (a, name) in [
+            RecordName::CartesianX,
+            RecordName::CartesianY,
+            RecordName::CartesianZ,
+        ]
+        .into_iter()
+        .enumerate()
+        {
+            let r = pc.prototype.iter().find(|r| r.name == name)?;
+            let RecordDataType::ScaledInteger { scale, offset, .. } = r.data_type else {
+                return None;
+            };
+            if !(scale.is_finite() && scale > 0.0 && offset.is_finite() && t[a].is_finite()) {
+                return None;
+            }
+            step[a] = scale;
+            origin[a] = offset + t[a];
+        }
+        match &found {
+            None => found = Some(crate::points::Lattice { step, origin }),
+            Some(l) => {
+                for a in 0..3 {
+                    let k = (origin[a] - l.origin[a]) / l.step[a];
+                    if step[a] != l.step[a] || (k - k.round()).abs() > 1e-6 {
+                        return None;
+                    }
+                }
+            }
+        }
+    }
+    found
+}
+
 /// The scan's pose: a row-major rotation matrix (of the quaternion, normalised)
 /// and the translation; identity without one.
 pub fn pose(pc: &PointCloud) -> ([f64; 9], [f64; 3]) {
