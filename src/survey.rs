@@ -448,10 +448,9 @@ pub fn build(
             first.names.join(" ")
         );
     }
-    let lattice = opened
-        .iter()
-        .all(|o| o.lattice == first.lattice)
-        .then_some(first.lattice);
+    // Tiles of one survey: one scale, offsets whole steps apart.
+    let lattice =
+        crate::points::Lattice::common(&opened.iter().map(|o| o.lattice).collect::<Vec<_>>());
     let mut survey = Survey {
         format: FORMAT.into(),
         version: VERSION,

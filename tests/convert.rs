@@ -504,6 +504,75 @@ fn wide_inputs_become_parts_that_keep_a_millimetre() {
     }
 }
 
+/// LAS tiles of one survey: the same scale, each its own round offset (whole
+/// steps apart), converted together keep that one lattice exactly; a tile
+/// whose offset is half a step off the others' has none in common.
+#[test]
+fn las_tiles_with_their_own_offsets_share_one_lattice() {
+    let dir = tempfile::tempdir().unwrap();
+    let tile = |name: &str, offset: [f64; 3], at: f64| {
+        let path = dir.path().join(name);
+        let mut b = las::Builder::from((1, 2));
+        b.point_format = las::point::Format::new(1).unwrap();
+        let t = |o| las::Transform {
+            scale: 0.01,
+            offset: o,
+        };
+        b.transforms = las::Vector {
+            x: t(offset[0]),
+            y: t(offset[1]),
+            z: t(offset[2]),
+        };
+        let mut w = las::Writer::from_path(&path, b.into_header().unwrap()).unwrap();
+        for i in 0..5000u32 {
+            w.write_point(las::Point {
+                x: at + f64::from(i % 97) * 1.37 + f64::from(i % 13) * 0.01,
+                y: 4_000_000.0 + f64::from(i % 89) * 0.73,
+                z: 100.0 + f64::from(i % 7) * 0.11,
+                gps_time: Some(f64::from(i)),
+                ..Default::default()
+            })
+            .unwrap();
+        }
+        w.close().unwrap();
+        path
+    };
+    let a = tile("a.las", [500_000.0, 4_000_000.0, 0.0], 500_100.0);
+    let b = tile("b.las", [501_000.0, 4_000_000.0, 100.0], 501_100.0);
+    let half = tile("c.las", [502_000.005, 4_000_000.0, 0.0], 502_100.0);
+    let convert = |inputs: &[&Path], name: &str| {
+        let out = dir.path().join(name);
+        let o = common::cli::pcimg()
+            .arg("convert")
+            .args(inputs)
+            .arg("-o")
+            .arg(&out)
+            .output()
+            .unwrap();
+        (out, common::cli::ok(&o, "convert"))
+    };
+    let (out, said) = convert(&[&a, &b], "ab.pcimg");
+    assert!(
+        said.contains("every part's coordinates kept exactly on the input's lattice (steps 0.01"),
+        "{said}"
+    );
+    for p in Dataset::open(&out).unwrap().parts().unwrap() {
+        assert_eq!(p.meta.lattice.map(|l| l.step), Some([0.01; 3]));
+    }
+    let mut want = file_points(&a);
+    want.extend(file_points(&b));
+    want.sort();
+    assert_eq!(dataset_points(&out), want);
+    let (out, said) = convert(&[&a, &half], "ac.pcimg");
+    assert!(
+        !said.contains("kept exactly on the input's lattice"),
+        "{said}"
+    );
+    for p in Dataset::open(&out).unwrap().parts().unwrap() {
+        assert_eq!(p.meta.lattice, None);
+    }
+}
+
 /// An uncompressed LAS file that fits one part is first read for its extent
 /// only (no columns); when its points lie in clusters 100 km apart it is read
 /// again, whole, and partitioned into parts that keep 1 mm, every point kept.

@@ -40,6 +40,38 @@ pub struct Lattice {
     pub origin: [f64; 3],
 }
 
+impl Lattice {
+    /// The lattice all of `lattices` lie on, when there is one: each axis's
+    /// finest step among them, on the lattice point of the one that has it,
+    /// where every step is a whole multiple of it and every lattice's points
+    /// lie on it. LAS tiles of one survey share their scale and differ in
+    /// their offsets by whole steps (each tile's own round number): one
+    /// lattice. Text files written with 2 and 3 decimals: the 3 decimals'.
+    pub fn common(lattices: &[Lattice]) -> Option<Lattice> {
+        let mut out = *lattices.first()?;
+        for l in lattices {
+            for a in 0..3 {
+                if l.step[a].abs() < out.step[a].abs() {
+                    out.step[a] = l.step[a];
+                    out.origin[a] = l.origin[a];
+                }
+            }
+        }
+        // Whole within a thousandth of a step: f64's rounding of offsets of
+        // millions at steps of micrometres is far below it. (The store checks
+        // every point against the lattice as it writes, and drops a lattice a
+        // point is off.)
+        let whole = |v: f64| v.is_finite() && (v - v.round()).abs() <= 1e-3;
+        let fits = lattices.iter().all(|l| {
+            (0..3).all(|a| {
+                let s = out.step[a].abs();
+                s > 0.0 && whole(l.step[a] / s) && whole((l.origin[a] - out.origin[a]) / s)
+            })
+        });
+        fits.then_some(out)
+    }
+}
+
 /// One scalar attribute column (intensity, red, classification, gps_time...).
 ///
 /// The true value of point `i` is `offset + values[i] as f64`. Readers use the offset

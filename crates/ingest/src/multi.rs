@@ -227,10 +227,7 @@ fn merge(infos: &[SourceInfo]) -> Result<SourceInfo, IngestError> {
         } else {
             Vec::new()
         },
-        // Every file on the same lattice: that one.
-        coordinate_lattice: first
-            .coordinate_lattice
-            .filter(|l| infos.iter().all(|i| i.coordinate_lattice == Some(*l))),
+        coordinate_lattice: common_lattice(infos),
         // Every file on a lattice: the finest step on each axis.
         coordinate_step: infos
             .iter()
@@ -402,6 +399,16 @@ impl PointReader for MultiReader {
     }
 }
 
+/// The lattice every file's points lie on, when they all have one and one
+/// holds them all ([`Lattice::common`](crate::points::Lattice::common)).
+pub(crate) fn common_lattice(infos: &[SourceInfo]) -> Option<crate::points::Lattice> {
+    let all: Vec<crate::points::Lattice> = infos
+        .iter()
+        .map(|i| i.coordinate_lattice)
+        .collect::<Option<_>>()?;
+    crate::points::Lattice::common(&all)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -420,6 +427,32 @@ mod tests {
             coordinate_step: None,
             coordinate_lattice: None,
         }
+    }
+
+    #[test]
+    fn files_share_a_lattice_when_their_steps_and_points_agree() {
+        let with = |step: [f64; 3], origin: [f64; 3]| SourceInfo {
+            coordinate_lattice: Some(crate::points::Lattice { step, origin }),
+            ..info("t.las", &[], None)
+        };
+        // LAS tiles: one scale, offsets whole steps apart.
+        let a = with([0.01; 3], [636_000.0, 848_000.0, 0.0]);
+        let b = with([0.01; 3], [637_000.0, 849_000.0, 400.0]);
+        let got = common_lattice(&[a.clone(), b.clone()]).unwrap();
+        assert_eq!(got.step, [0.01; 3]);
+        assert_eq!(got.origin, [636_000.0, 848_000.0, 0.0]);
+        // An offset half a step off: no lattice holds both.
+        let half = with([0.01; 3], [637_000.005, 849_000.0, 400.0]);
+        assert_eq!(common_lattice(&[a.clone(), half]), None);
+        // 2 and 3 decimals: the finer, on each axis.
+        let fine = with([0.001, 0.01, 0.001], [0.0; 3]);
+        let got = common_lattice(&[a.clone(), fine.clone()]).unwrap();
+        assert_eq!(got.step, [0.001, 0.01, 0.001]);
+        assert_eq!(got.origin, [0.0, 848_000.0, 0.0]);
+        // Steps that do not divide each other, or a file with none.
+        let odd = with([0.003; 3], [0.0; 3]);
+        assert_eq!(common_lattice(&[a.clone(), odd]), None);
+        assert_eq!(common_lattice(&[a, info("f.ply", &[], None)]), None);
     }
 
     #[test]

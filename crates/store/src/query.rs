@@ -29,7 +29,8 @@ pub struct Plan {
     pub parts_passed: usize,
     /// Bands besides x, y, z, in the order of the first part that has each.
     pub bands: Vec<String>,
-    /// The lattice every part's coordinates lie on, when they all share one.
+    /// The lattice every part's coordinates lie on, when one holds them all
+    /// (`Lattice::common`).
     pub lattice: Option<Lattice>,
     /// The bounds of the tiles read.
     pub bounds: Bounds,
@@ -82,10 +83,12 @@ pub fn plan(
             }
         }
     }
-    let lattice = match lattices.first() {
-        Some(Some(first)) if lattices.iter().all(|l| l.as_ref() == Some(first)) => Some(*first),
-        _ => None,
-    };
+    // Parts of one conversion share one; parts of a cluster's shards, each
+    // from its own files, may name different points of one lattice.
+    let lattice = lattices
+        .into_iter()
+        .collect::<Option<Vec<Lattice>>>()
+        .and_then(|l| Lattice::common(&l));
     Ok(Plan {
         tiles,
         points,
