@@ -1617,6 +1617,25 @@ fn text_decimals_are_a_lattice_and_precision_rounds_to_another() {
     );
     let part = pcimg::store::Part::open(&rounded).unwrap();
     assert_eq!(part.meta.lattice.unwrap().step, [0.05; 3]);
+    // The part says it was rounded (`LATTICE_ROUNDED`), and `info` does not
+    // call it exact.
+    assert!(part.meta.lattice_rounded);
+    assert!(
+        !pcimg::store::Part::open(&exact)
+            .unwrap()
+            .meta
+            .lattice_rounded
+    );
+    let o = common::cli::pcimg()
+        .args(["info", rounded.to_str().unwrap()])
+        .output()
+        .unwrap();
+    let info = common::cli::ok(&o, "info");
+    assert!(
+        info.contains("stored coordinates rounded onto a lattice (steps 0.05 units")
+            && !info.contains("exactly"),
+        "{info}"
+    );
     let got = part.read_level(0, &[0, 1, 2]).unwrap();
     let src = file_points(&input);
     assert_eq!(got.len(), src.len());

@@ -77,6 +77,10 @@ pub struct PartReport {
     /// The source's lattice, where the part keeps its coordinates on it exactly.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub lattice: Option<Lattice>,
+    /// The coordinates were rounded onto `lattice` (`--precision`), not found on
+    /// it: within `max_quantization_error` of the source.
+    #[serde(skip_serializing_if = "std::ops::Not::not")]
+    pub lattice_rounded: bool,
     /// Points per classification code, as recorded when the part was written.
     #[serde(skip_serializing_if = "Vec::is_empty")]
     pub class_counts: Vec<(u8, u64)>,
@@ -134,6 +138,7 @@ fn part_report(p: &Part, tiles: bool) -> PartReport {
         crs: p.meta.crs.clone(),
         max_quantization_error: p.meta.max_quantization_error,
         lattice: p.meta.lattice,
+        lattice_rounded: p.meta.lattice_rounded,
         class_counts: p.meta.class_counts.clone(),
         from_source: p.meta.from_source.iter().cloned().collect(),
         bands: p
@@ -307,20 +312,33 @@ pub fn render_text(r: &DatasetReport) -> String {
             xyz(p.bounds.min),
             xyz(p.bounds.max)
         );
-        if let Some(l) = &p.lattice {
+        let steps = |l: &Lattice| {
             let unit = crate::store::crs::unit_symbol(p.crs.as_deref());
+            l.step
+                .iter()
+                .map(|s| format!("{} {unit}", s.abs()).trim_end().to_string())
+                .collect::<Vec<_>>()
+                .join(", ")
+        };
+        let within = |e: f64| crate::store::crs::distance(e, p.crs.as_deref());
+        if let (Some(l), true) = (&p.lattice, p.lattice_rounded) {
+            let _ = writeln!(
+                o,
+                "  stored coordinates rounded onto a lattice (steps {}; convert --precision){}",
+                steps(l),
+                p.max_quantization_error
+                    .map(|e| format!(", within {} of the source", within(e)))
+                    .unwrap_or_default()
+            );
+        } else if let Some(l) = &p.lattice {
             let _ = writeln!(
                 o,
                 "  stored coordinates exactly on the source's lattice (steps {}){}",
-                l.step
-                    .iter()
-                    .map(|s| format!("{} {unit}", s.abs()).trim_end().to_string())
-                    .collect::<Vec<_>>()
-                    .join(", "),
+                steps(l),
                 p.max_quantization_error
                     .map(|e| format!(
                         "; read as 32-bit floats (drawing, picking) within {}",
-                        crate::store::crs::distance(e, p.crs.as_deref())
+                        within(e)
                     ))
                     .unwrap_or_default()
             );

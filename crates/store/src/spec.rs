@@ -132,6 +132,10 @@ pub mod key {
     /// (`STEP ORIGIN`, the LAS scale and offset) from which GDAL's band scale and
     /// offset were rebased, so an exporter gives back the source's integers.
     pub const LATTICE: &str = "LATTICE";
+    /// `1` where the coordinates were rounded onto `LATTICE` (`convert
+    /// --precision`: each within half a step of the source, said in
+    /// `MAX_QUANTIZATION_ERROR`) rather than found on it; absent otherwise.
+    pub const LATTICE_ROUNDED: &str = "LATTICE_ROUNDED";
     /// Row-ordered parts: the bands (numbered from 1) that hold whole numbers
     /// stored plus [`super::WHOLE_BIAS`]: coordinates on a lattice (GDAL's band
     /// scale the step, its offset the lattice point of stored 0) and attributes

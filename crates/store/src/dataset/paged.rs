@@ -664,6 +664,7 @@ mod tests {
             class_counts: vec![(2, level_points[0])],
             from_source: Vec::new(),
             lattice: None,
+            lattice_rounded: false,
             items: Default::default(),
         }
     }

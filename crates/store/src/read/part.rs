@@ -43,6 +43,10 @@ pub struct PartMeta {
     /// coordinates on it.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub lattice: Option<crate::points::Lattice>,
+    /// The coordinates were rounded onto [`Self::lattice`] (`--precision`,
+    /// `LATTICE_ROUNDED`), not found on it: within half a step of the source.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub lattice_rounded: bool,
     /// Every default-domain item, as stored (unsanitized: sanitize before display).
     /// Not kept in the dataset index (the fields above are): empty for a part
     /// opened from it.
@@ -302,6 +306,7 @@ fn parse_meta(items: &BTreeMap<String, String>) -> std::result::Result<PartMeta,
                 step: [v[0], v[1], v[2]],
                 origin: [v[3], v[4], v[5]],
             }),
+        lattice_rounded: items.get(key::LATTICE_ROUNDED).is_some_and(|v| v == "1"),
         items: items.clone(),
     })
 }

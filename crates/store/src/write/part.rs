@@ -877,6 +877,9 @@ fn metadata_xml(a: &Arranged, opts: &WriteOptions, index: &[LevelIndex]) -> Stri
         let mut v = l.source.step.to_vec();
         v.extend_from_slice(&l.source.origin);
         items.push(Item::dataset(key::LATTICE, metadata::f64s(&v)));
+        if opts.lattice_round {
+            items.push(Item::dataset(key::LATTICE_ROUNDED, "1".to_string()));
+        }
     }
     let whole = whole_bands(a);
     if whole.iter().any(|&w| w) {
