@@ -571,6 +571,45 @@ fn las_tiles_with_their_own_offsets_share_one_lattice() {
     for p in Dataset::open(&out).unwrap().parts().unwrap() {
         assert_eq!(p.meta.lattice, None);
     }
+    // Tiles converted one by one (each part its own offset) and indexed
+    // together: the overview above them keeps their common lattice, its points
+    // the parts' lattice points.
+    let sep = dir.path().join("sep");
+    std::fs::create_dir(&sep).unwrap();
+    for (t, name) in [(&a, "a.tif"), (&b, "b.tif")] {
+        let o = common::cli::pcimg()
+            .arg("convert")
+            .arg(t)
+            .arg("-o")
+            .arg(sep.join(name))
+            .output()
+            .unwrap();
+        common::cli::ok(&o, "convert a tile");
+    }
+    let o = common::cli::pcimg()
+        .arg("index")
+        .arg(&sep)
+        .output()
+        .unwrap();
+    common::cli::ok(&o, "index");
+    let mut nodes = Vec::new();
+    let mut dirs = vec![sep.join("overview")];
+    while let Some(d) = dirs.pop() {
+        for e in std::fs::read_dir(&d).unwrap() {
+            let p = e.unwrap().path();
+            if p.is_dir() {
+                dirs.push(p);
+            } else if p.extension().is_some_and(|e| e == "tif") {
+                nodes.push(p);
+            }
+        }
+    }
+    assert!(!nodes.is_empty());
+    for n in &nodes {
+        let node = pcimg::store::Part::open(n).unwrap();
+        let l = node.meta.lattice.expect("the node on the tiles' lattice");
+        assert_eq!(l.step, [0.01; 3]);
+    }
 }
 
 /// An uncompressed LAS file that fits one part is first read for its extent

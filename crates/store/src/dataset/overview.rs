@@ -291,18 +291,26 @@ pub fn next_coarser(part: &Part) -> Result<PointColumns> {
     let p = part.read_level(top, &bands)?;
     let quarter = |c: Vec<f32>| -> Vec<f32> { c.into_iter().step_by(4).collect() };
     let mut cols = p.columns.into_iter().map(quarter);
-    let mut coord = |o: f64| -> Vec<f64> {
+    // On a lattice, each coordinate is the lattice point it was stored as (as
+    // `query::Batch` gives it), so the node can keep the lattice too: the f32
+    // offset plus the part's origin is only within f32's rounding of it.
+    let lattice = part.meta.lattice;
+    let mut coord = |a: usize| -> Vec<f64> {
+        let o = p.offsets[a];
+        let snap = |v: f64| match lattice {
+            Some(l) => {
+                let k = crate::points::round_whole((v - l.origin[a]) / l.step[a]);
+                l.origin[a] + k * l.step[a]
+            }
+            None => v,
+        };
         cols.next()
             .unwrap_or_default()
             .into_iter()
-            .map(|v| v as f64 + o)
+            .map(|v| snap(v as f64 + o))
             .collect()
     };
-    let (x, y, z) = (
-        coord(p.offsets[0]),
-        coord(p.offsets[1]),
-        coord(p.offsets[2]),
-    );
+    let (x, y, z) = (coord(0), coord(1), coord(2));
     let attributes = p.bands[3..]
         .iter()
         .zip(&p.offsets[3..])
@@ -827,11 +835,14 @@ fn build_nodes(
                     source: Some(format!("pcimg overview of {}", child_names.join(" "))),
                     crs: first.crs.map(|c| shared.crss[c as usize].clone()),
                     cancel: o.cancel.clone(),
-                    // Children on one lattice: the node keeps their whole numbers.
-                    lattice: first
-                        .lattice
-                        .filter(|l| kids.iter().all(|k| k.brief.lattice == Some(*l)))
-                        .map(|l| shared.lattices[l as usize]),
+                    // Children on one lattice (tiles converted one by one, each
+                    // its own LAS offset, share one): the node keeps their whole
+                    // numbers.
+                    lattice: kids
+                        .iter()
+                        .map(|k| k.brief.lattice.map(|l| shared.lattices[l as usize]))
+                        .collect::<Option<Vec<Lattice>>>()
+                        .and_then(|l| Lattice::common(&l)),
                     ..Default::default()
                 };
                 write_part(&path, &pts, &opts)?;
@@ -862,6 +873,41 @@ fn build_nodes(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A node's points from a part on a lattice are the part's lattice points
+    /// exactly (the f32 offsets plus the origin are only near them), so the
+    /// node keeps the lattice: 1 cm steps at UTM-sized coordinates over 20 km.
+    #[test]
+    fn a_nodes_points_from_a_part_on_a_lattice_are_its_lattice_points() {
+        let dir = tempfile::tempdir().unwrap();
+        let l = Lattice {
+            step: [0.01; 3],
+            origin: [500_000.0, 4_000_000.0, 0.0],
+        };
+        let mut r = crate::rng::Rng::new(3);
+        let mut c = PointColumns::default();
+        for _ in 0..300_000 {
+            let k = |n: f64, r: &mut crate::rng::Rng| (r.f64() * n).floor();
+            c.x.push(l.origin[0] + k(2_000_000.0, &mut r) * l.step[0]);
+            c.y.push(l.origin[1] + k(2_000_000.0, &mut r) * l.step[1]);
+            c.z.push(l.origin[2] + k(10_000.0, &mut r) * l.step[2]);
+        }
+        let path = dir.path().join("p.tif");
+        let opts = WriteOptions {
+            compression: Compression::Zstd,
+            lattice: Some(l),
+            ..Default::default()
+        };
+        assert!(write_part(&path, &c, &opts).unwrap().lattice.is_some());
+        let p = next_coarser(&Part::open(&path).unwrap()).unwrap();
+        assert!(p.len() > 1000, "{}", p.len());
+        for (a, col) in [&p.x, &p.y, &p.z].into_iter().enumerate() {
+            for &v in col {
+                let k = ((v - l.origin[a]) / l.step[a]).round();
+                assert_eq!(v, l.origin[a] + k * l.step[a], "axis {a}");
+            }
+        }
+    }
 
     #[test]
     fn the_budget_decides_how_many_nodes_are_built_at_once() {
