@@ -1462,15 +1462,9 @@ fn a_millimetre_lattice_over_40_km_is_kept_in_narrower_parts() {
     let dir = tempfile::tempdir().unwrap();
     let input = dir.path().join("wide.xyz");
     let mut text = String::from("x y z\n");
-    let mut seed = 11u64;
-    let mut next = move || {
-        seed = seed
-            .wrapping_mul(6364136223846793005)
-            .wrapping_add(1442695040888963407);
-        (seed >> 11) as f64 / (1u64 << 53) as f64
-    };
+    let mut r = pcimg_core::rng::Rng::new(11);
     for _ in 0..30_000 {
-        let mut k = |n: f64| (next() * n) as u64;
+        let mut k = |n: f64| (r.f64() * n) as u64;
         let (x, y, z) = (
             500_000_000 + k(40e6),
             4_000_000_000 + k(1e5),

@@ -689,7 +689,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
                 .count();
             let unit = crate::store::crs::unit_symbol(s.crs.as_deref());
             let span = |a: usize| {
-                format!("{:.0} {unit}", reach[a] / 0.99)
+                format!("{:.0} {unit}", l.step[a].abs() * 2f64.powi(24))
                     .trim_end()
                     .to_string()
             };

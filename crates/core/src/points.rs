@@ -41,6 +41,14 @@ pub struct Lattice {
 }
 
 impl Lattice {
+    /// The lattice point on axis `a` nearest `v`: the coordinate a store that
+    /// keeps whole numbers of steps held for a value read back near it.
+    #[inline(always)]
+    pub fn nearest(&self, a: usize, v: f64) -> f64 {
+        let k = round_whole((v - self.origin[a]) / self.step[a]);
+        self.origin[a] + k * self.step[a]
+    }
+
     /// The lattice all of `lattices` lie on, when there is one: each axis's
     /// finest step among them, on the lattice point of the one that has it,
     /// where every step is a whole multiple of it and every lattice's points

@@ -243,10 +243,7 @@ impl Batch {
                         // The whole number the point was stored as, exactly
                         // (a part keeps its lattice offsets below 2^23, where
                         // a Float32 is exact to well under half a step).
-                        Some(l) => {
-                            let k = round_whole((v - l.origin[a]) / l.step[a]);
-                            l.origin[a] + k * l.step[a]
-                        }
+                        Some(l) => l.nearest(a, v),
                         None => v,
                     }
                 })

@@ -297,13 +297,7 @@ pub fn next_coarser(part: &Part) -> Result<PointColumns> {
     let lattice = part.meta.lattice;
     let mut coord = |a: usize| -> Vec<f64> {
         let o = p.offsets[a];
-        let snap = |v: f64| match lattice {
-            Some(l) => {
-                let k = crate::points::round_whole((v - l.origin[a]) / l.step[a]);
-                l.origin[a] + k * l.step[a]
-            }
-            None => v,
-        };
+        let snap = |v: f64| lattice.map_or(v, |l| l.nearest(a, v));
         cols.next()
             .unwrap_or_default()
             .into_iter()
