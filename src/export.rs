@@ -699,15 +699,11 @@ impl TextSink {
             head.extend(plan.bands.iter().cloned());
             writeln!(w, "{}", head.join(","))?;
         }
-        // The decimals a step needs (0.01: 2); none where the step is not a
-        // power of ten (its multiples need more).
-        let decimals = plan.lattice.and_then(|l| {
-            let d = l.step.map(|s| {
-                let k = (-s.log10()).round();
-                ((10f64.powf(-k) - s).abs() <= s * 1e-9 && k >= 0.0).then_some(k as usize)
-            });
-            Some([d[0]?, d[1]?, d[2]?])
-        });
+        // The decimals the lattice's points need (0.01 from 0: 2; from
+        // 636000.005: 3); none where a step needs more than 9.
+        let decimals = plan
+            .lattice
+            .and_then(|l| Some([l.decimals(0)?, l.decimals(1)?, l.decimals(2)?]));
         Ok(TextSink {
             w,
             out: out.to_path_buf(),

@@ -563,3 +563,54 @@ print(f"{len(p)} labels equal")
     let said = ok(&o, "laspy reads the extra bytes");
     assert!(said.starts_with("22300 labels equal"), "{said}");
 }
+
+/// Text coordinates carry the decimals of the lattice's points, its offset's
+/// included: a LAS file at 0.01 from 636000.005 exports 636000.005, not
+/// 636000.01 (2 decimals, half a step off).
+#[test]
+fn text_export_writes_an_odd_offsets_decimals() {
+    let dir = tempfile::tempdir().unwrap();
+    let las = dir.path().join("odd.las");
+    let mut b = las::Builder::from((1, 2));
+    b.point_format = las::point::Format::new(1).unwrap();
+    let t = |o| las::Transform {
+        scale: 0.01,
+        offset: o,
+    };
+    b.transforms = las::Vector {
+        x: t(636_000.005),
+        y: t(848_000.0),
+        z: t(0.0),
+    };
+    let mut w = las::Writer::from_path(&las, b.into_header().unwrap()).unwrap();
+    for i in 0..1000u32 {
+        w.write_point(las::Point {
+            x: 636_000.005 + f64::from(i) * 0.01,
+            y: 848_000.0 + f64::from(i % 37) * 0.01,
+            z: f64::from(i % 11) * 0.01,
+            gps_time: Some(f64::from(i)),
+            ..Default::default()
+        })
+        .unwrap();
+    }
+    w.close().unwrap();
+    let ds = dir.path().join("odd.pcimg");
+    let csv = dir.path().join("odd.csv");
+    for args in [
+        vec!["convert", las.to_str().unwrap(), "-o", ds.to_str().unwrap()],
+        vec!["export", ds.to_str().unwrap(), "-o", csv.to_str().unwrap()],
+    ] {
+        let o = common::cli::pcimg().args(&args).output().unwrap();
+        common::cli::ok(&o, args[0]);
+    }
+    let text = std::fs::read_to_string(&csv).unwrap();
+    let mut xs: Vec<&str> = text
+        .lines()
+        .skip(1)
+        .map(|l| l.split(',').next().unwrap())
+        .collect();
+    xs.sort_unstable();
+    assert_eq!(xs.len(), 1000);
+    assert_eq!(xs[0], "636000.005");
+    assert_eq!(xs[999], "636009.995");
+}

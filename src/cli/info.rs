@@ -379,10 +379,7 @@ pub fn render_text(r: &DatasetReport) -> String {
         for (b, band) in p.bands.iter().enumerate() {
             // A coordinate on a lattice at the step's decimals (636001.73, not
             // the f64 sum's 636001.7300000001).
-            let places = p
-                .lattice
-                .filter(|_| b < 3)
-                .and_then(|l| decimals(l.step[b], l.origin[b]));
+            let places = p.lattice.filter(|_| b < 3).and_then(|l| l.decimals(b));
             let mut off = match (band.range, places) {
                 (Some([lo, hi]), Some(d)) => format!("  range {lo:.d$} .. {hi:.d$}"),
                 (Some([lo, hi]), None) => format!("  range {lo} .. {hi}"),
@@ -867,30 +864,4 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         super::print_out(&render_text(&r))?;
     }
     Ok(())
-}
-
-/// The decimal places that write every point of a lattice axis (`origin` plus
-/// whole multiples of `step`) exactly: 0.01 from 0: 2; 0.01 from 636000.005:
-/// 3; if at most 9 do.
-fn decimals(step: f64, origin: f64) -> Option<usize> {
-    let whole = |v: f64, d: usize| {
-        let scaled = v.abs() * 10f64.powi(d as i32);
-        // (f64's own rounding of the value, scaled: far below a unit.)
-        (scaled - scaled.round()).abs() <= 1e-9 + 1e-12 * scaled
-    };
-    (0..=9).find(|&d| whole(step, d) && whole(origin, d))
-}
-
-#[cfg(test)]
-mod tests {
-    #[test]
-    fn a_lattice_axis_is_written_with_the_decimals_of_its_step_and_origin() {
-        use super::decimals;
-        assert_eq!(decimals(0.01, 0.0), Some(2));
-        assert_eq!(decimals(0.05, 636_000.0), Some(2));
-        assert_eq!(decimals(0.01, 636_000.005), Some(3));
-        assert_eq!(decimals(0.001, 4_000_000.0), Some(3));
-        assert_eq!(decimals(0.000001, -0.02), Some(6));
-        assert_eq!(decimals(1.0 / 3.0, 0.0), None);
-    }
 }

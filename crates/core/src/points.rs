@@ -41,6 +41,18 @@ pub struct Lattice {
 }
 
 impl Lattice {
+    /// The decimal places that write every point of axis `a` (the origin plus
+    /// whole multiples of the step) exactly, if at most 9 do: a 0.01 step from
+    /// 0 needs 2, from 636000.005 (an odd LAS offset) 3; a step of 1/3, none.
+    pub fn decimals(&self, a: usize) -> Option<usize> {
+        let whole = |v: f64, d: usize| {
+            let scaled = v.abs() * 10f64.powi(d as i32);
+            // (f64's own rounding of the value, scaled: far below a unit.)
+            (scaled - scaled.round()).abs() <= 1e-9 + 1e-12 * scaled
+        };
+        (0..=9).find(|&d| whole(self.step[a], d) && whole(self.origin[a], d))
+    }
+
     /// The lattice point on axis `a` nearest `v`: the coordinate a store that
     /// keeps whole numbers of steps held for a value read back near it.
     #[inline(always)]
@@ -492,5 +504,27 @@ mod tests {
         );
         assert!(c.empty_like().is_empty());
         assert_eq!(c.every_nth(0).len(), 10);
+    }
+}
+
+#[cfg(test)]
+mod lattice_tests {
+    use super::Lattice;
+
+    #[test]
+    fn a_lattice_axis_is_written_with_the_decimals_of_its_step_and_origin() {
+        let d = |step: f64, origin: f64| {
+            Lattice {
+                step: [step; 3],
+                origin: [origin; 3],
+            }
+            .decimals(0)
+        };
+        assert_eq!(d(0.01, 0.0), Some(2));
+        assert_eq!(d(0.05, 636_000.0), Some(2));
+        assert_eq!(d(0.01, 636_000.005), Some(3));
+        assert_eq!(d(0.001, 4_000_000.0), Some(3));
+        assert_eq!(d(0.000001, -0.02), Some(6));
+        assert_eq!(d(1.0 / 3.0, 0.0), None);
     }
 }
